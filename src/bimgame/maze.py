@@ -1,0 +1,384 @@
+"""Geometry of a circular ball-in-maze puzzle: rings, walls, gates, marble, board.
+
+A :class:`MazeSpec` is a plain, validated description of the puzzle in SI units (metres, radians,
+kilograms). Everything else in bimgame (the MuJoCo model, the raster observations, the task rewards
+and the geodesic distance used by rewards and the expert) is derived from it, so a custom maze is
+one ``MazeSpec(...)`` away.
+
+Layout. The board is a disc bounded by a closed rim. ``walls[0]`` is the innermost ring wall and
+``walls[-1]`` the outermost one; each wall is an annulus ``[inner_radius, outer_radius]`` with
+``gates``: angular sectors (radial edges, centred at ``angle``, ``width`` wide) where the wall is
+open. The walls split the board into channels numbered from the centre out: channel 0 is the goal
+region inside wall 0, channel ``k`` lies between wall ``k-1`` and wall ``k``, and the outermost
+channel ``len(walls)`` lies between the last wall and the rim.
+
+The default (:meth:`MazeSpec.merl`) reproduces MERL's circular maze used by Paul & van Baar (2018).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+__all__ = ["Gate", "Wall", "MazeSpec", "Friction", "MazeSpecError"]
+
+
+class MazeSpecError(ValueError):
+    """A :class:`MazeSpec` (or one of its parts) describes a maze that cannot be built."""
+
+
+def _require_positive(name: str, value: float) -> None:
+    if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+        raise MazeSpecError(f"{name} must be a positive finite number, got {value!r}")
+
+
+def _require_non_negative(name: str, value: float) -> None:
+    if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+        raise MazeSpecError(f"{name} must be a non-negative finite number, got {value!r}")
+
+
+def _wrap_angle(angle: np.ndarray | float) -> np.ndarray | float:
+    """Wrap angles to [-pi, pi)."""
+    return (np.asarray(angle) + np.pi) % (2 * np.pi) - np.pi
+
+
+@dataclasses.dataclass(frozen=True)
+class Gate:
+    """An opening in a ring wall: a sector centred at ``angle`` (rad), ``width`` (rad) wide."""
+
+    angle: float
+    width: float
+
+    @classmethod
+    def deg(cls, angle_deg: float, width_deg: float) -> Gate:
+        """A gate given in degrees (the user-facing unit for angles)."""
+        return cls(math.radians(angle_deg), math.radians(width_deg))
+
+
+@dataclasses.dataclass(frozen=True)
+class Wall:
+    """A ring wall occupying radii ``[inner_radius, outer_radius]`` (m), open at its ``gates``."""
+
+    inner_radius: float
+    outer_radius: float
+    gates: tuple[Gate, ...]
+
+    @property
+    def mid_radius(self) -> float:
+        return 0.5 * (self.inner_radius + self.outer_radius)
+
+    @property
+    def thickness(self) -> float:
+        return self.outer_radius - self.inner_radius
+
+    def solid_arcs(self) -> list[tuple[float, float]]:
+        """The closed parts of the wall as ``(start, end)`` angles (rad), counter-clockwise,
+        ``start`` in [-pi, pi) and ``end > start`` (it may exceed pi)."""
+        if not self.gates:
+            return [(-math.pi, math.pi)]
+        gates = sorted(self.gates, key=lambda g: float(_wrap_angle(g.angle)))
+        arcs = []
+        for i, gate in enumerate(gates):
+            nxt = gates[(i + 1) % len(gates)]
+            start = float(_wrap_angle(gate.angle + gate.width / 2))
+            end = float(_wrap_angle(nxt.angle - nxt.width / 2))
+            while end <= start:
+                end += 2 * math.pi
+            arcs.append((start, end))
+        return arcs
+
+    def in_gate(self, angle: np.ndarray) -> np.ndarray:
+        """Whether each angle (rad) lies inside one of the wall's gates."""
+        angle = np.asarray(angle, dtype=float)
+        inside = np.zeros(angle.shape, dtype=bool)
+        for gate in self.gates:
+            inside |= np.abs(_wrap_angle(angle - gate.angle)) <= gate.width / 2
+        return inside
+
+
+@dataclasses.dataclass(frozen=True)
+class Friction:
+    """Contact friction of the marble with the board (MuJoCo's ``friction`` triple) and static
+    friction on the marble's free joint (MuJoCo's ``frictionloss``, in N for the translational and
+    N·m for the rotational degrees of freedom)."""
+
+    slide: float = 0.5
+    spin: float = 1e-5
+    roll: float = 1e-6
+    static: float = 1e-6
+
+    @classmethod
+    def low(cls) -> Friction:
+        """MERL's low-friction variant: the marble slides rather than rolls."""
+        return cls(slide=0.001, spin=1e-6, roll=1e-7, static=1e-6)
+
+    def validate(self) -> None:
+        for field in dataclasses.fields(self):
+            _require_non_negative(f"friction.{field.name}", getattr(self, field.name))
+
+
+@dataclasses.dataclass(frozen=True)
+class MazeSpec:
+    """A circular ball-in-maze puzzle, in SI units. See the module docstring for the layout.
+
+    Attributes:
+        walls: ring walls from the innermost (wall 0) outwards.
+        rim_radius: inner radius of the closed outer rim (m): the board's playable edge.
+        rim_thickness: radial thickness of the rim (m).
+        wall_height: height of walls and rim above the floor (m).
+        marble_radius: marble radius (m).
+        marble_mass: marble mass (kg).
+        max_tilt: largest board tilt about either axis (rad).
+        tilt_step: tilt change of one discrete action (rad).
+        friction: contact and static friction of the marble.
+        arc_tolerance: largest distance (m) between a wall's true circular face and the flat
+            faces of the box pieces that approximate it in the physics model.
+    """
+
+    walls: tuple[Wall, ...]
+    rim_radius: float
+    rim_thickness: float = 5e-3
+    wall_height: float = 20e-3
+    marble_radius: float = 6.35e-3
+    marble_mass: float = 8.4e-3
+    max_tilt: float = math.radians(5.0)
+    tilt_step: float = math.radians(1.0)
+    friction: Friction = dataclasses.field(default_factory=Friction)
+    arc_tolerance: float = 0.1e-3
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "walls", tuple(self.walls))
+        self.validate()
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def merl(cls, **overrides) -> MazeSpec:
+        """MERL's circular maze (DESIGN §2): 4 walls, 1/4/4/4 gates, 6.35 mm steel marble."""
+        walls = (
+            Wall(16.0e-3, 21.2e-3, (Gate.deg(180, 50.0),)),
+            Wall(36.0e-3, 41.3e-3, tuple(Gate.deg(a, 21.4) for a in (45, 135, 225, 315))),
+            Wall(56.2e-3, 61.4e-3, tuple(Gate.deg(a, 14.6) for a in (0, 90, 180, 270))),
+            Wall(76.2e-3, 81.7e-3, tuple(Gate.deg(a, 11.1) for a in (45, 135, 225, 315))),
+        )
+        return cls(walls=walls, rim_radius=96.8e-3, **overrides)
+
+    def replace(self, **changes) -> MazeSpec:
+        """A copy with some fields changed (validated again)."""
+        return dataclasses.replace(self, **changes)
+
+    # ------------------------------------------------------------------ validation
+    def validate(self) -> None:
+        """Raise :class:`MazeSpecError` naming the first problem found."""
+        for name in ("rim_radius", "rim_thickness", "wall_height", "marble_radius",
+                     "marble_mass", "max_tilt", "tilt_step", "arc_tolerance"):
+            _require_positive(name, getattr(self, name))
+        if self.max_tilt > math.radians(30):
+            raise MazeSpecError(f"max_tilt must be at most 30° (0.5236 rad), got {self.max_tilt!r} rad")
+        if self.tilt_step > self.max_tilt:
+            raise MazeSpecError(
+                f"tilt_step ({self.tilt_step!r} rad) must not exceed max_tilt ({self.max_tilt!r} rad)")
+        if self.wall_height < 2 * self.marble_radius:
+            raise MazeSpecError(
+                f"wall_height ({self.wall_height!r} m) must be at least the marble's diameter "
+                f"({2 * self.marble_radius!r} m) or the marble could hop over walls")
+        if not isinstance(self.friction, Friction):
+            raise MazeSpecError(f"friction must be a Friction, got {type(self.friction).__name__}")
+        self.friction.validate()
+        diameter = 2 * self.marble_radius
+        previous_outer = 0.0
+        for k, wall in enumerate(self.walls):
+            if not isinstance(wall, Wall):
+                raise MazeSpecError(f"walls[{k}] must be a Wall, got {type(wall).__name__}")
+            _require_positive(f"walls[{k}].inner_radius", wall.inner_radius)
+            _require_positive(f"walls[{k}].outer_radius", wall.outer_radius)
+            if wall.outer_radius <= wall.inner_radius:
+                raise MazeSpecError(
+                    f"walls[{k}]: outer_radius ({wall.outer_radius!r} m) must exceed inner_radius "
+                    f"({wall.inner_radius!r} m)")
+            if wall.inner_radius < previous_outer:
+                raise MazeSpecError(
+                    f"walls[{k}] (from {wall.inner_radius!r} m) overlaps walls[{k - 1}] "
+                    f"(up to {previous_outer!r} m); walls must be listed from the centre out "
+                    "without overlapping")
+            room = wall.inner_radius - previous_outer
+            what = "the centre region" if k == 0 else f"channel {k}"
+            if room <= diameter:
+                raise MazeSpecError(
+                    f"{what} is {room * 1e3:.2f} mm wide, narrower than the marble "
+                    f"({diameter * 1e3:.2f} mm): walls[{k}].inner_radius must exceed "
+                    f"{(previous_outer + diameter) * 1e3:.2f} mm")
+            if not wall.gates:
+                raise MazeSpecError(f"walls[{k}] has no gate: the centre would be unreachable")
+            for j, gate in enumerate(wall.gates):
+                if not isinstance(gate, Gate):
+                    raise MazeSpecError(f"walls[{k}].gates[{j}] must be a Gate, got {gate!r}")
+                if not (math.isfinite(gate.angle) and math.isfinite(gate.width)):
+                    raise MazeSpecError(f"walls[{k}].gates[{j}] has a non-finite angle or width: {gate!r}")
+                chord = 2 * wall.inner_radius * math.sin(min(gate.width, math.pi) / 2)
+                if gate.width >= 2 * math.pi or chord <= diameter:
+                    min_width = 2 * math.degrees(math.asin(min(1.0, diameter / (2 * wall.inner_radius))))
+                    raise MazeSpecError(
+                        f"walls[{k}].gates[{j}] is {math.degrees(gate.width):.2f}° wide: its opening at "
+                        f"the wall's inner face ({chord * 1e3:.2f} mm) must exceed the marble's "
+                        f"diameter ({diameter * 1e3:.2f} mm), i.e. width > {min_width:.2f}° "
+                        "(and below 360°)")
+            gates = sorted(wall.gates, key=lambda g: float(_wrap_angle(g.angle)))
+            for a, b in zip(gates, gates[1:] + gates[:1]):
+                if len(gates) == 1:
+                    break
+                gap = float(_wrap_angle(b.angle - a.angle)) % (2 * math.pi)
+                if gap < (a.width + b.width) / 2:
+                    raise MazeSpecError(
+                        f"walls[{k}]: gates at {math.degrees(a.angle):.1f}° and "
+                        f"{math.degrees(b.angle):.1f}° overlap; merge them into one wider gate")
+            previous_outer = wall.outer_radius
+        room = self.rim_radius - previous_outer
+        if room <= diameter:
+            raise MazeSpecError(
+                f"the outermost channel is {room * 1e3:.2f} mm wide, narrower than the marble "
+                f"({diameter * 1e3:.2f} mm): rim_radius must exceed {(previous_outer + diameter) * 1e3:.2f} mm")
+
+    # ------------------------------------------------------------------ derived quantities
+    @property
+    def n_channels(self) -> int:
+        """Number of channels including the centre (goal) region: ``len(walls) + 1``."""
+        return len(self.walls) + 1
+
+    @property
+    def outermost_channel(self) -> int:
+        return len(self.walls)
+
+    def channel_bounds(self, channel: int) -> tuple[float, float]:
+        """Radii ``(low, high)`` of a channel's open floor (between its walls)."""
+        if not 0 <= channel <= self.outermost_channel:
+            raise MazeSpecError(f"channel must be in 0..{self.outermost_channel}, got {channel!r}")
+        low = 0.0 if channel == 0 else self.walls[channel - 1].outer_radius
+        high = self.rim_radius if channel == self.outermost_channel else self.walls[channel].inner_radius
+        return low, high
+
+    def channel_centre_radius(self, channel: int) -> float:
+        """Radius midway between a channel's walls (where the marble starts, for the outermost)."""
+        low, high = self.channel_bounds(channel)
+        return 0.0 if channel == 0 else 0.5 * (low + high)
+
+    def channel_of(self, x: np.ndarray | float, y: np.ndarray | float) -> np.ndarray:
+        """Channel index (0 = centre … ``outermost_channel``) of board-frame points.
+
+        A point inside a wall's gate belongs to the side of the wall's mid-radius it is on.
+        (Tasks use :meth:`update_channel`, which adds hysteresis across the wall's thickness.)
+        """
+        r = np.hypot(x, y)
+        mids = np.array([w.mid_radius for w in self.walls])
+        return np.searchsorted(mids, r, side="right").astype(np.int64)
+
+    def update_channel(self, previous: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Channel of a moving marble given the channel it was in.
+
+        The marble counts as having passed through a wall only once its centre has cleared the
+        wall's far face; while its centre is inside the wall's thickness (i.e. in a gate) it keeps
+        its previous channel. This hysteresis means jitter inside a gate never counts as a
+        crossing.
+        """
+        previous = np.asarray(previous, dtype=np.int64)
+        r = np.hypot(x, y)
+        n = self.outermost_channel
+        # Channel k is held while r is in [inner face of wall k-1, outer face of wall k].
+        hold_low = np.array([0.0] + [w.inner_radius for w in self.walls])
+        hold_high = np.array([w.outer_radius for w in self.walls] + [np.inf])
+        prev = np.clip(previous, 0, n)
+        held = (r >= hold_low[prev]) & (r <= hold_high[prev])
+        return np.where(held, prev, self.channel_of(x, y))
+
+    # ------------------------------------------------------------------ geodesic distance
+    def geodesic_distance(self, x: np.ndarray | float, y: np.ndarray | float) -> np.ndarray:
+        """Length (m) of the shortest path for the marble's centre from board-frame points to the
+        board's centre, through the gates.
+
+        Within a channel the marble's centre moves in an annulus whose inner boundary is the inner
+        wall's outer face plus the marble radius; the shortest path between two points of an
+        annulus is either straight or wraps around that inner circle (tangent, arc, tangent), which
+        :func:`annulus_path_length` computes exactly. Each gate is crossed radially at its centre
+        angle. Distances from each gate to the centre are found by dynamic programming from the
+        inside out (:meth:`gate_distances`), so the whole computation is exact for this model of the
+        gates and vectorised over points.
+        """
+        x = np.asarray(x, dtype=float)
+        y = np.asarray(y, dtype=float)
+        r = np.hypot(x, y)
+        theta = np.arctan2(y, x)
+        channel = self.channel_of(x, y)
+        result = np.array(r, dtype=float, copy=True)  # channel 0: straight to the centre
+        portals = self._gate_portals()
+        to_centre = self.gate_distances()
+        for k in range(1, self.outermost_channel + 1):
+            mask = channel == k
+            if not np.any(mask):
+                continue
+            obstacle = portals[k - 1]["outer_radius"]
+            best = np.full(int(mask.sum()), np.inf)
+            for angle, dist in zip(portals[k - 1]["angles"], to_centre[k - 1]):
+                length = annulus_path_length(r[mask], theta[mask], obstacle, angle, obstacle)
+                best = np.minimum(best, length + dist)
+            result[mask] = best
+        return result
+
+    def _gate_portals(self) -> list[dict]:
+        """Per wall: gate centre angles and the radii where the marble's centre enters the gate
+        from outside (``outer_radius``) and leaves it inside (``inner_radius``)."""
+        portals = []
+        for wall in self.walls:
+            portals.append({
+                "angles": [g.angle for g in wall.gates],
+                "outer_radius": wall.outer_radius + self.marble_radius,
+                "inner_radius": max(wall.inner_radius - self.marble_radius, 0.0),
+            })
+        return portals
+
+    def gate_distances(self) -> list[np.ndarray]:
+        """For each wall, the geodesic distance (m) from each gate's outer portal to the centre."""
+        portals = self._gate_portals()
+        distances: list[np.ndarray] = []
+        for k, portal in enumerate(portals):
+            through = portal["outer_radius"] - portal["inner_radius"]
+            if k == 0:
+                distances.append(np.full(len(portal["angles"]), through + portal["inner_radius"]))
+                continue
+            inner = portals[k - 1]
+            per_gate = []
+            for angle in portal["angles"]:
+                best = min(
+                    float(annulus_path_length(portal["inner_radius"], angle, inner["outer_radius"],
+                                              inner_angle, inner["outer_radius"])) + d
+                    for inner_angle, d in zip(inner["angles"], distances[k - 1]))
+                per_gate.append(through + best)
+            distances.append(np.array(per_gate))
+        return distances
+
+
+def annulus_path_length(r1: np.ndarray | float, theta1: np.ndarray | float, r2: float,
+                        theta2: float, obstacle_radius: float) -> np.ndarray:
+    """Shortest path length between points (polar ``(r1, theta1)`` and ``(r2, theta2)``) that must
+    stay outside the disc of radius ``obstacle_radius`` centred at the origin.
+
+    Points inside the disc are treated as lying on its boundary. If the straight segment clears the
+    disc the answer is its length; otherwise the path runs along the two tangents and the arc
+    between them.
+    """
+    a = obstacle_radius
+    r1 = np.maximum(np.asarray(r1, dtype=float), a)
+    r2 = max(float(r2), a)
+    dtheta = np.abs(_wrap_angle(np.asarray(theta1, dtype=float) - theta2))
+    alpha1 = np.arccos(np.clip(a / r1, -1.0, 1.0))
+    alpha2 = math.acos(min(1.0, a / r2))
+    straight = np.sqrt(np.maximum(r1 ** 2 + r2 ** 2 - 2 * r1 * r2 * np.cos(dtheta), 0.0))
+    wrapped = (np.sqrt(np.maximum(r1 ** 2 - a ** 2, 0.0)) + math.sqrt(max(r2 ** 2 - a ** 2, 0.0))
+               + a * (dtheta - alpha1 - alpha2))
+    return np.where(dtheta <= alpha1 + alpha2, straight, wrapped)
+
+
+def parse_gates_deg(pairs: Sequence[tuple[float, float]]) -> tuple[Gate, ...]:
+    """Gates from ``(angle_deg, width_deg)`` pairs."""
+    return tuple(Gate.deg(a, w) for a, w in pairs)
