@@ -15,7 +15,7 @@ from gymnasium import spaces
 from bimgame.maze import MazeSpec
 from bimgame.observe import OBS_MODES, Observer
 from bimgame.sim import MazeSim
-from bimgame.tasks import Task, TaskState, initial_task_state, parse_task, task_step
+from bimgame.tasks import Task, parse_task, task_step_one
 
 __all__ = ["BallInMazeEnv", "ACTION_TYPES", "MAX_EPISODE_STEPS", "sample_start", "action_to_tilt_delta"]
 
@@ -119,7 +119,7 @@ class BallInMazeEnv(gym.Env):
     ## Arguments
 
     ``task`` (FULL, STG1…STG4), ``obs_mode`` (pixels, state), ``action_type`` (discrete,
-    continuous), ``tilt_step_deg``, ``max_tilt_deg``, ``spec`` (a :class:`MazeSpec`, default
+    continuous), ``tilt_step_deg``, ``max_tilt_deg``, ``maze`` (a :class:`MazeSpec`, default
     MERL's), ``n_marbles``, ``obs_size`` (pixels, default 84), ``render_mode`` (None or
     "rgb_array"), ``render_size`` (default 480), ``renderer`` ("raster" — numpy, always available —
     or "mujoco" — MuJoCo's 3D OpenGL renderer).
@@ -133,19 +133,19 @@ class BallInMazeEnv(gym.Env):
 
     def __init__(self, task: str | Task = "FULL", *, obs_mode: str = "pixels",
                  action_type: str = "discrete", tilt_step_deg: float | None = None,
-                 max_tilt_deg: float | None = None, spec: MazeSpec | None = None,
+                 max_tilt_deg: float | None = None, maze: MazeSpec | None = None,
                  n_marbles: int = 1, obs_size: int = 84, render_mode: str | None = None,
                  render_size: int = 480, renderer: str = "raster"):
-        spec = spec if spec is not None else MazeSpec.merl()
+        spec = maze if maze is not None else MazeSpec.merl()
         if not isinstance(spec, MazeSpec):
-            raise TypeError(f"spec must be a MazeSpec, got {type(spec).__name__}")
+            raise TypeError(f"maze must be a MazeSpec, got {type(spec).__name__}")
         changes = {}
         if tilt_step_deg is not None:
             changes["tilt_step"] = math.radians(_positive("tilt_step_deg", tilt_step_deg))
         if max_tilt_deg is not None:
             changes["max_tilt"] = math.radians(_positive("max_tilt_deg", max_tilt_deg))
-        self.spec = spec.replace(**changes) if changes else spec
-        self.task = parse_task(task, self.spec)
+        self.maze = spec.replace(**changes) if changes else spec
+        self.task = parse_task(task, self.maze)
         if obs_mode not in OBS_MODES:
             raise ValueError(f"unknown obs_mode {obs_mode!r}; allowed: {', '.join(OBS_MODES)}")
         if action_type not in ACTION_TYPES:
@@ -157,7 +157,7 @@ class BallInMazeEnv(gym.Env):
         if not (isinstance(n_marbles, (int, np.integer)) and n_marbles >= 1):
             raise ValueError(f"n_marbles must be an integer >= 1, got {n_marbles!r}")
         self._init_kwargs = dict(task=self.task.value, obs_mode=obs_mode, action_type=action_type,
-                                 spec=self.spec, n_marbles=int(n_marbles), obs_size=obs_size,
+                                 maze=self.maze, n_marbles=int(n_marbles), obs_size=obs_size,
                                  render_mode=render_mode, render_size=render_size, renderer=renderer)
         self.obs_mode = obs_mode
         self.action_type = action_type
@@ -165,15 +165,17 @@ class BallInMazeEnv(gym.Env):
         self.render_mode = render_mode
         self.render_size = int(render_size)
         self.renderer = renderer
-        self.sim = MazeSim(self.spec, n_marbles=self.n_marbles)
-        self.observer = Observer(self.spec, self.n_marbles, obs_mode, obs_size=obs_size,
+        self.sim = MazeSim(self.maze, n_marbles=self.n_marbles)
+        self.observer = Observer(self.maze, self.n_marbles, obs_mode, obs_size=obs_size,
                                  layout=self.sim.layout)
         self.observation_space = self.observer.space
         if action_type == "discrete":
             self.action_space = spaces.Discrete(5)
         else:
             self.action_space = spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
-        self._task_state: TaskState | None = None
+        self._channels: list[int] = [self.maze.outermost_channel] * self.n_marbles
+        self._reached: list[bool] = [False] * self.n_marbles
+        self._has_reset = False
         self._mujoco_renderer = None
 
     # ------------------------------------------------------------------ gym API
@@ -188,28 +190,30 @@ class BallInMazeEnv(gym.Env):
             if xy.shape != (self.n_marbles, 2) or not np.all(np.isfinite(xy)):
                 raise ValueError(f"options['marble_xy'] must be finite with shape ({self.n_marbles}, 2), "
                                  f"got {xy.shape}")
-            limit = self.spec.rim_radius - self.spec.marble_radius
+            limit = self.maze.rim_radius - self.maze.marble_radius
             if np.any(np.hypot(xy[:, 0], xy[:, 1]) > limit):
                 raise ValueError(f"options['marble_xy'] must lie within {limit:.4f} m of the centre")
         else:
-            xy = sample_start(self.spec, self.n_marbles, self.np_random)
+            xy = sample_start(self.maze, self.n_marbles, self.np_random)
         self.sim.reset(xy)
-        self._task_state = initial_task_state(self.spec, xy[None])
-        crossings = np.zeros(self.n_marbles, dtype=np.int64)
-        return self._observe(), self._info(crossings, False)
+        self._channels = [int(c) for c in self.maze.channel_of(xy[:, 0], xy[:, 1])]
+        self._reached = [False] * self.n_marbles
+        self._has_reset = True
+        kinematics = self.sim.layout.board_frame_one(self.sim.data.qpos, self.sim.data.qvel)
+        return self._observe(kinematics), self._info(kinematics, [0] * self.n_marbles, False)
 
     def step(self, action):
-        if self._task_state is None:
+        if not self._has_reset:
             raise RuntimeError("call reset() before step()")
-        delta = action_to_tilt_delta(action, self.action_type, self.spec.tilt_step)
-        self.sim.step(delta)
-        state = self.sim.get_state()[None]
-        positions, _ = self.sim.layout.board_frame(state)
-        self._task_state, reward, terminated, crossings = task_step(
-            self.task, self.spec, self._task_state, positions[..., :2])
-        self._last_state = state
-        done = bool(terminated[0])
-        return self._observe(state), float(reward[0]), done, False, self._info(crossings[0], done)
+        delta = action_to_tilt_delta(action, self.action_type, self.maze.tilt_step)
+        sim = self.sim
+        sim.step(delta)
+        kinematics = sim.layout.board_frame_one(sim.data.qpos, sim.data.qvel)
+        reward, terminated, crossings = task_step_one(
+            self.task, self.maze, self._channels, self._reached,
+            [math.hypot(k[0], k[1]) for k in kinematics])
+        return (self._observe(kinematics), reward, terminated, False,
+                self._info(kinematics, crossings, terminated))
 
     def render(self):
         if self.render_mode is None:
@@ -227,19 +231,21 @@ class BallInMazeEnv(gym.Env):
         self.sim.close()
 
     # ------------------------------------------------------------------ helpers
-    def _observe(self, state: np.ndarray | None = None) -> np.ndarray:
-        if state is None:
-            state = self.sim.get_state()[None]
-        return self.observer(state, self._task_state.channel)[0]
+    def _observe(self, kinematics: list[tuple[float, float, float, float]]) -> np.ndarray:
+        if self.obs_mode == "pixels":
+            xy = np.array([k[:2] for k in kinematics])
+            return self.observer.raster.gray(xy)[None]
+        tilt = self.sim.data.qpos
+        values = [v for k in kinematics for v in k] + [tilt[0], tilt[1]] + self._channels
+        return np.array(values, dtype=np.float32)
 
-    def _info(self, crossings: np.ndarray, success: bool) -> dict[str, Any]:
-        positions, _ = self.sim.marble_kinematics()
+    def _info(self, kinematics, crossings: list[int], success: bool) -> dict[str, Any]:
         return {
-            "channel": self._task_state.channel[0].copy(),
-            "gate_crossings": np.asarray(crossings, dtype=np.int64),
-            "geodesic_distance": self.spec.geodesic_distance(positions[:, 0], positions[:, 1]),
+            "channel": np.array(self._channels, dtype=np.int64),
+            "gate_crossings": np.array(crossings, dtype=np.int64),
+            "geodesic_distance": np.array([self.maze.geodesic_distance_one(k[0], k[1]) for k in kinematics]),
             "is_success": bool(success),
-            "tilt": self.sim.tilt,
+            "tilt": self.sim.data.qpos[:2].copy(),
         }
 
     def _render_mujoco(self) -> np.ndarray:
@@ -254,7 +260,7 @@ class BallInMazeEnv(gym.Env):
                     f"({error}). On a headless machine set MUJOCO_GL=egl (with a GPU driver) or "
                     "MUJOCO_GL=osmesa (apt-get install libosmesa6), or use renderer='raster', "
                     "which draws the same board without OpenGL.") from error
-        camera = _top_camera(self.spec)
+        camera = _top_camera(self.maze)
         self._mujoco_renderer.update_scene(self.sim.data, camera=camera)
         return self._mujoco_renderer.render()
 
@@ -263,14 +269,14 @@ class BallInMazeEnv(gym.Env):
         return {
             "kwargs": self._init_kwargs,
             "sim_state": self.sim.get_state(),
-            "task_state": None if self._task_state is None else self._task_state.copy(),
+            "task": (list(self._channels), list(self._reached), self._has_reset),
             "np_random": None if self._np_random is None else self._np_random.bit_generator.state,
         }
 
     def __setstate__(self, state: dict) -> None:
         self.__init__(**state["kwargs"])
         self.sim.set_state(state["sim_state"])
-        self._task_state = state["task_state"]
+        self._channels, self._reached, self._has_reset = state["task"]
         if state["np_random"] is not None:
             rng = np.random.Generator(np.random.PCG64())
             rng.bit_generator.state = state["np_random"]

@@ -18,6 +18,7 @@ The default (:meth:`MazeSpec.merl`) reproduces MERL's circular maze used by Paul
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Sequence
 
@@ -284,13 +285,44 @@ class MazeSpec:
         """
         previous = np.asarray(previous, dtype=np.int64)
         r = np.hypot(x, y)
-        n = self.outermost_channel
+        tables = self._tables
+        prev = np.clip(previous, 0, self.outermost_channel)
+        held = (r >= tables["hold_low"][prev]) & (r <= tables["hold_high"][prev])
+        return np.where(held, prev, np.searchsorted(tables["mids"], r, side="right"))
+
+    def next_channel(self, previous: int, r: float) -> int:
+        """Scalar :meth:`update_channel` for one marble at radius ``r`` (the env's fast path)."""
+        tables = self._tables
+        if tables["hold_low_list"][previous] <= r <= tables["hold_high_list"][previous]:
+            return previous
+        channel = 0
+        for mid in tables["mids_list"]:
+            if r >= mid:
+                channel += 1
+            else:
+                break
+        return channel
+
+    @functools.cached_property
+    def _tables(self) -> dict:
+        """Lookup tables derived once from the (immutable) geometry."""
         # Channel k is held while r is in [inner face of wall k-1, outer face of wall k].
-        hold_low = np.array([0.0] + [w.inner_radius for w in self.walls])
-        hold_high = np.array([w.outer_radius for w in self.walls] + [np.inf])
-        prev = np.clip(previous, 0, n)
-        held = (r >= hold_low[prev]) & (r <= hold_high[prev])
-        return np.where(held, prev, self.channel_of(x, y))
+        hold_low = [0.0] + [w.inner_radius for w in self.walls]
+        hold_high = [w.outer_radius for w in self.walls] + [math.inf]
+        mids = [w.mid_radius for w in self.walls]
+        portals = self._gate_portals()
+        gate_distances = self._compute_gate_distances(portals)
+        gate_lists = [(p["outer_radius"], [(float(a), float(d)) for a, d in zip(p["angles"], ds)])
+                      for p, ds in zip(portals, gate_distances)]
+        # A marble whose centre is within a wall's band (inside a gate) can head straight for the
+        # next wall's gates: for the geodesic distance it already belongs to the inner channel.
+        geodesic_bounds = [p["outer_radius"] for p in portals]
+        return {
+            "geodesic_bounds": np.array(geodesic_bounds), "geodesic_bounds_list": geodesic_bounds,
+            "hold_low": np.array(hold_low), "hold_high": np.array(hold_high), "mids": np.array(mids),
+            "hold_low_list": hold_low, "hold_high_list": hold_high, "mids_list": mids,
+            "portals": portals, "gate_distances": gate_distances, "gate_lists": gate_lists,
+        }
 
     # ------------------------------------------------------------------ geodesic distance
     def geodesic_distance(self, x: np.ndarray | float, y: np.ndarray | float) -> np.ndarray:
@@ -303,26 +335,33 @@ class MazeSpec:
         :func:`annulus_path_length` computes exactly. Each gate is crossed radially at its centre
         angle. Distances from each gate to the centre are found by dynamic programming from the
         inside out (:meth:`gate_distances`), so the whole computation is exact for this model of the
-        gates and vectorised over points.
+        gates and vectorised over points. A point whose centre is inside a wall's band (within a
+        marble radius of the wall, so inside a gate) moves radially to the gate's inner end first:
+        the distance falls steadily while the marble passes through a gate.
         """
         x = np.asarray(x, dtype=float)
         y = np.asarray(y, dtype=float)
         r = np.hypot(x, y)
         theta = np.arctan2(y, x)
-        channel = self.channel_of(x, y)
+        channel = np.searchsorted(self._tables["geodesic_bounds"], r, side="right")
         result = np.array(r, dtype=float, copy=True)  # channel 0: straight to the centre
-        portals = self._gate_portals()
-        to_centre = self.gate_distances()
+        portals = self._tables["portals"]
+        to_centre = self._tables["gate_distances"]
         for k in range(1, self.outermost_channel + 1):
             mask = channel == k
             if not np.any(mask):
                 continue
             obstacle = portals[k - 1]["outer_radius"]
+            # Inside the band of wall k (in one of its gates) the marble's centre must go
+            # radially to the gate's inner end before it can turn.
+            r_k = r[mask]
+            if k < self.outermost_channel:
+                r_k = np.minimum(r_k, portals[k]["inner_radius"])
             best = np.full(int(mask.sum()), np.inf)
             for angle, dist in zip(portals[k - 1]["angles"], to_centre[k - 1]):
-                length = annulus_path_length(r[mask], theta[mask], obstacle, angle, obstacle)
+                length = annulus_path_length(r_k, theta[mask], obstacle, angle, obstacle)
                 best = np.minimum(best, length + dist)
-            result[mask] = best
+            result[mask] = best + (r[mask] - r_k)
         return result
 
     def _gate_portals(self) -> list[dict]:
@@ -337,9 +376,39 @@ class MazeSpec:
             })
         return portals
 
+    def geodesic_distance_one(self, x: float, y: float) -> float:
+        """Scalar :meth:`geodesic_distance` of one point (the env's per-step fast path)."""
+        r = math.hypot(x, y)
+        channel = 0
+        for bound in self._tables["geodesic_bounds_list"]:
+            if r >= bound:
+                channel += 1
+        if channel == 0:
+            return r
+        a, gates = self._tables["gate_lists"][channel - 1]
+        theta = math.atan2(y, x)
+        extra = 0.0
+        if channel < len(self.walls):
+            band_start = self._tables["portals"][channel]["inner_radius"]
+            if r > band_start:
+                extra, r = r - band_start, band_start
+        r1 = max(r, a)
+        alpha1 = math.acos(min(1.0, a / r1))
+        best = math.inf
+        for angle, dist in gates:
+            dtheta = abs((theta - angle + math.pi) % (2 * math.pi) - math.pi)
+            if dtheta <= alpha1:  # the gate portal lies on the obstacle circle (alpha2 = 0)
+                length = math.sqrt(max(r1 * r1 + a * a - 2 * r1 * a * math.cos(dtheta), 0.0))
+            else:
+                length = math.sqrt(max(r1 * r1 - a * a, 0.0)) + a * (dtheta - alpha1)
+            best = min(best, length + dist)
+        return best + extra
+
     def gate_distances(self) -> list[np.ndarray]:
         """For each wall, the geodesic distance (m) from each gate's outer portal to the centre."""
-        portals = self._gate_portals()
+        return [d.copy() for d in self._tables["gate_distances"]]
+
+    def _compute_gate_distances(self, portals: list[dict]) -> list[np.ndarray]:
         distances: list[np.ndarray] = []
         for k, portal in enumerate(portals):
             through = portal["outer_radius"] - portal["inner_radius"]

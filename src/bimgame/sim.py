@@ -53,6 +53,9 @@ FLOOR_THICKNESS = 4e-3
 # damped, with high impedance so a resting marble sinks only ~0.1 mm into the floor.
 CONTACT_SOLREF = "0.0134 1"
 CONTACT_SOLIMP = "0.95 0.99 0.001"
+# Static friction (frictionloss) with MuJoCo's default softness lets a marble below its breakaway
+# tilt creep at ~0.5 mm/s; a high impedance makes it hold (0.06 mm in 1 s at half the breakaway).
+STATIC_FRICTION_SOLIMP = "0.99 0.999 0.001"
 
 
 def _arc_boxes(inner: float, outer: float, start: float, end: float, tolerance: float,
@@ -165,6 +168,26 @@ class StateLayout:
         return _to_board(px, py, pz, ca, sa, cb, sb), _to_board(vx, vy, vz, ca, sa, cb, sb)
 
 
+    def board_frame_one(self, qpos: np.ndarray, qvel: np.ndarray) -> list[tuple[float, float, float, float]]:
+        """Scalar :meth:`board_frame` of one model's ``qpos``/``qvel``: per marble
+        ``(x, y, vx, vy)`` in the board frame. The single env's per-step fast path: plain floats
+        avoid numpy's per-call overhead on tiny arrays (tests check it equals the batched one)."""
+        q = qpos.tolist()
+        v = qvel.tolist()
+        a, b, da, db = q[0], q[1], v[0], v[1]
+        ca, sa, cb, sb = math.cos(a), math.sin(a), math.cos(b), math.sin(b)
+        wx, wy, wz = da, db * ca, db * sa
+        out = []
+        for i in range(self.n_marbles):
+            px, py, pz = q[2 + 7 * i], q[3 + 7 * i], q[4 + 7 * i]
+            vx = v[2 + 6 * i] - (wy * pz - wz * py)
+            vy = v[3 + 6 * i] - (wz * px - wx * pz)
+            vz = v[4 + 6 * i] - (wx * py - wy * px)
+            out.append((cb * px - sb * (-sa * py + ca * pz), ca * py + sa * pz,
+                        cb * vx - sb * (-sa * vy + ca * vz), ca * vy + sa * vz))
+        return out
+
+
 def _to_board(x, y, z, ca, sa, cb, sb) -> np.ndarray:
     """Apply (Rx(a)·Ry(b))ᵀ to world vectors."""
     # First Rx(a)ᵀ.
@@ -184,12 +207,14 @@ def contact_condim(friction: Friction) -> int:
 
     MuJoCo raises any friction coefficient below ``mjMINMU`` (1e-5) to 1e-5, so MERL's rolling
     friction of 1e-6 m would silently become ten times larger: on a 5° tilt that alone slows the
-    marble by 2%. Rolling and torsional friction below that floor are therefore left out
-    (``condim=3``: sliding friction only, which still makes the marble roll without slipping);
-    at or above it they are modelled (``condim=6``).
+    marble by 2%. Friction terms below that floor are therefore left out: ``condim=3`` (sliding
+    friction only, which still makes the marble roll without slipping), 4 (plus torsional) when
+    only the spin coefficient reaches the floor, 6 (plus rolling) when the rolling one does.
     """
-    if friction.roll >= MUJOCO_MIN_FRICTION or friction.spin >= MUJOCO_MIN_FRICTION:
+    if friction.roll >= MUJOCO_MIN_FRICTION:
         return 6
+    if friction.spin >= MUJOCO_MIN_FRICTION:
+        return 4
     return 3
 
 
@@ -226,7 +251,8 @@ def build_mjcf(spec: MazeSpec, n_marbles: int = 1, physics_hz: float = PHYSICS_H
     for i in range(n_marbles):
         marbles.append(
             f'<body name="marble{i}" pos="0 0 {spec.marble_radius:.9g}">'
-            f'<joint name="marble{i}" type="free" frictionloss="{f.static:.9g}"/>'
+            f'<joint name="marble{i}" type="free" frictionloss="{f.static:.9g}" '
+            f'solimpfriction="{STATIC_FRICTION_SOLIMP}"/>'
             f'<geom name="marble{i}" class="marble"/></body>')
     return f"""<mujoco model="bimgame">
   <compiler angle="radian" autolimits="true"/>

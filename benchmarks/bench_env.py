@@ -1,0 +1,158 @@
+"""Simulator and environment throughput, each as a ratio to the engine's own limit.
+
+The limit is raw ``mj_step`` throughput on the same model (one core) divided by the substeps per
+action: no env can step faster than that. Measured in the same run:
+
+- engine: physics steps/s, ``mj_step`` in one C call, marble moving;
+- env (state / pixels): ``BallInMazeEnv.step`` with random actions, raw and through ``gym.make``
+  (with Gymnasium's TimeLimit/OrderEnforcing/PassiveEnvChecker wrappers);
+- vector env: ``BallInMazeVectorEnv`` env steps/s on 2 threads, state and pixels;
+- raster: one 84×84 frame, and per frame in a batch of 64;
+- rollout: ``MazeSim.rollout`` physics steps/s on 1 and 2 threads (what the MPC expert uses).
+
+Usage: ``python benchmarks/bench_env.py [--quick]``; writes ``benchmarks/results/env.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import platform
+import time
+from pathlib import Path
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+
+import bimgame  # noqa: F401  (registers ids)
+from bimgame.env import BallInMazeEnv
+from bimgame.io import atomic_write_bytes
+from bimgame.render import MazeRenderer
+from bimgame.sim import MazeSim
+from bimgame.vector import BallInMazeVectorEnv
+
+RESULTS = Path(__file__).parent / "results" / "env.json"
+
+
+def best_of(fn, repeats: int) -> float:
+    """Best rate (units/s) over repeats; fn returns (units, seconds)."""
+    return max(units / seconds for units, seconds in (fn() for _ in range(repeats)))
+
+
+def engine_rate(n: int) -> float:
+    sim = MazeSim()
+    sim.reset([[0.0892, 0.0]])
+    rng = np.random.default_rng(0)
+    for _ in range(30):  # get the marble rolling
+        sim.step(rng.choice([-1, 0, 1], size=2) * math.radians(1))
+    state = sim.get_state()
+
+    def run():
+        sim.set_state(state)
+        start = time.perf_counter()
+        mujoco.mj_step(sim.model, sim.data, nstep=n)
+        return n, time.perf_counter() - start
+    return best_of(run, 5)
+
+
+def env_rate(obs_mode: str, n: int, wrapped: bool) -> float:
+    env = gym.make("BiMGame/FULL-v0", obs_mode=obs_mode, max_episode_steps=10 ** 9) if wrapped \
+        else BallInMazeEnv("FULL", obs_mode=obs_mode)
+    env.reset(seed=0)
+    actions = np.random.default_rng(0).integers(5, size=n).tolist()
+
+    def run():
+        env.reset(seed=0)
+        start = time.perf_counter()
+        for action in actions:
+            _, _, terminated, truncated, _ = env.step(action)
+            if terminated or truncated:
+                env.reset()
+        return n, time.perf_counter() - start
+    return best_of(run, 3)
+
+
+def vector_rate(obs_mode: str, num_envs: int, steps: int, nthread: int) -> float:
+    env = BallInMazeVectorEnv(num_envs, task="FULL", obs_mode=obs_mode, max_episode_steps=1000, nthread=nthread)
+    env.reset(seed=0)
+    actions = np.random.default_rng(0).integers(5, size=(steps, num_envs))
+
+    def run():
+        start = time.perf_counter()
+        for action in actions:
+            env.step(action)
+        return steps * num_envs, time.perf_counter() - start
+    rate = best_of(run, 3)
+    env.close()
+    return rate
+
+
+def raster_rate(batch: int, n: int) -> float:
+    renderer = MazeRenderer(bimgame.MazeSpec.merl(), 84)
+    xy = np.random.default_rng(0).uniform(-0.08, 0.08, size=(batch, 1, 2))
+    frame = xy[0] if batch == 1 else xy
+
+    def run():
+        start = time.perf_counter()
+        for _ in range(n):
+            renderer.gray(frame)
+        return n * batch, time.perf_counter() - start
+    return best_of(run, 5)
+
+
+def rollout_rate(nthread: int, batch: int = 10, horizon: int = 20, repeats: int = 20) -> float:
+    sim = MazeSim()
+    sim.reset([[0.0892, 0.0]])
+    state = sim.get_state()
+    deltas = np.random.default_rng(0).choice([-1, 0, 1], size=(batch, horizon, 2)) * math.radians(1)
+
+    def run():
+        start = time.perf_counter()
+        for _ in range(repeats):
+            sim.rollout(state, deltas, nthread=nthread)
+        return repeats * batch * horizon * sim.substeps, time.perf_counter() - start
+    rate = best_of(run, 3)
+    sim.close()
+    return rate
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="fewer steps (noisier numbers)")
+    args = parser.parse_args()
+    scale = 0.2 if args.quick else 1.0
+    n = int(20000 * scale)
+    engine = engine_rate(int(100000 * scale))
+    limit = engine / 5
+    rows = {
+        "engine mj_step (physics steps/s)": (engine, None),
+        "env limit = engine / 5 substeps (env steps/s)": (limit, 1.0),
+        "env, state obs, raw (steps/s)": (env_rate("state", n, False), "limit"),
+        "env, state obs, gym.make (steps/s)": (env_rate("state", n, True), "limit"),
+        "env, pixel obs, raw (steps/s)": (env_rate("pixels", n, False), "limit"),
+        "env, pixel obs, gym.make (steps/s)": (env_rate("pixels", n, True), "limit"),
+        "vector env 16 envs, 2 threads, state (env steps/s)": (vector_rate("state", 16, int(1000 * scale), 2), "limit"),
+        "vector env 64 envs, 2 threads, state (env steps/s)": (vector_rate("state", 64, int(400 * scale), 2), "limit"),
+        "vector env 64 envs, 2 threads, pixels (env steps/s)": (vector_rate("pixels", 64, int(400 * scale), 2), "limit"),
+        "raster 84x84, single frame (frames/s)": (raster_rate(1, int(50000 * scale)), None),
+        "raster 84x84, batch of 64 (frames/s)": (raster_rate(64, int(2000 * scale)), None),
+        "rollout K=10 H=20, 1 thread (physics steps/s)": (rollout_rate(1), "engine"),
+        "rollout K=10 H=20, 2 threads (physics steps/s)": (rollout_rate(2), "engine"),
+    }
+    table = {}
+    print(f"{'measurement':58s} {'rate':>12s} {'ratio':>8s}")
+    for name, (rate, ref) in rows.items():
+        ratio = rate / limit if ref == "limit" else rate / engine if ref == "engine" else ref
+        table[name] = {"rate": rate, "ratio": ratio}
+        print(f"{name:58s} {rate:12,.0f} {'' if ratio is None else f'{ratio:8.2f}'}")
+    result = {"machine": platform.processor() or platform.machine(), "python": platform.python_version(),
+              "mujoco": mujoco.__version__, "quick": args.quick,
+              "time": time.strftime("%Y-%m-%dT%H:%M:%S"), "results": table}
+    atomic_write_bytes(RESULTS, json.dumps(result, indent=2).encode())
+    print(f"wrote {RESULTS}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,192 @@
+"""The ``bimgame`` command line: ``bimgame <verb> [options]``.
+
+Verbs:
+  maze      draw the maze (walls, gates, channels, geodesic distance) to a PNG
+  rollout   run episodes of a simple policy on a task, print a summary table, optionally a GIF
+  demo      the Quick start's main job: a maze picture and a GIF of one episode
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["main", "build_parser"]
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from bimgame.policies import POLICIES
+    from bimgame.tasks import Task
+
+    tasks = [t.value for t in Task]
+    parser = argparse.ArgumentParser(prog="bimgame", description="The Ball-in-Maze Game on MuJoCo.")
+    verbs = parser.add_subparsers(dest="verb", required=True, metavar="VERB")
+
+    maze = verbs.add_parser("maze", help="draw the maze to a PNG")
+    maze.add_argument("--out", type=Path, default=Path("maze.png"), help="PNG path (default maze.png)")
+    maze.add_argument("--no-geodesic", action="store_true", help="do not shade the geodesic distance")
+
+    rollout = verbs.add_parser("rollout", help="run episodes of a simple policy and summarise them")
+    rollout.add_argument("--task", choices=tasks, default="STG1", type=str.upper)
+    rollout.add_argument("--policy", choices=POLICIES, default="random")
+    rollout.add_argument("--episodes", type=_positive_int, default=10)
+    rollout.add_argument("--seed", type=int, default=0)
+    rollout.add_argument("--max-steps", type=_positive_int, default=None,
+                         help="time limit per episode (default: the task's registered limit)")
+    rollout.add_argument("--n-marbles", type=_positive_int, default=1)
+    rollout.add_argument("--gif", type=Path, default=None, help="write the first episode as a GIF")
+
+    demo = verbs.add_parser("demo", help="write a maze picture and a GIF of one episode")
+    demo.add_argument("--out", type=Path, default=Path("out"), help="output directory (default out/)")
+    demo.add_argument("--task", choices=tasks, default="STG2", type=str.upper)
+    demo.add_argument("--policy", choices=POLICIES, default="geodesic")
+    demo.add_argument("--seed", type=int, default=0)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        if args.verb == "maze":
+            return _maze(args)
+        if args.verb == "rollout":
+            return _rollout(args)
+        if args.verb == "demo":
+            return _demo(args)
+    except (ValueError, OSError) as error:
+        print(f"bimgame {args.verb}: error: {error}", file=sys.stderr)
+        return 2
+    parser.error(f"unknown verb {args.verb!r}")
+    return 2
+
+
+# ---------------------------------------------------------------------- verbs
+def _maze(args) -> int:
+    from bimgame.figures import draw_maze
+    from bimgame.maze import MazeSpec
+
+    path = draw_maze(MazeSpec.merl(), args.out, geodesic=not args.no_geodesic)
+    print(f"wrote {path}")
+    return 0
+
+
+def _rollout(args) -> int:
+    from rich.console import Console
+    from rich.table import Table
+
+    results, frames = run_episodes(args.task, args.policy, args.episodes, seed=args.seed,
+                                   max_steps=args.max_steps, n_marbles=args.n_marbles,
+                                   record_first=args.gif is not None)
+    console = Console()
+    table = Table(title=f"{args.policy} policy on {args.task} ({args.episodes} episodes, seed {args.seed})")
+    for column in ("episodes", "success", "mean return", "mean length", "median length", "steps/s"):
+        table.add_column(column, justify="right")
+    lengths = np.array([r["length"] for r in results])
+    table.add_row(str(len(results)),
+                  f"{np.mean([r['success'] for r in results]):.0%}",
+                  f"{np.mean([r['return'] for r in results]):.2f}",
+                  f"{lengths.mean():.1f}", f"{np.median(lengths):.0f}",
+                  f"{lengths.sum() / max(sum(r['seconds'] for r in results), 1e-9):,.0f}")
+    console.print(table)
+    if args.gif is not None:
+        console.print(f"wrote {write_gif(frames, args.gif)} ({len(frames)} frames)")
+    return 0
+
+
+def _demo(args) -> int:
+    from bimgame.figures import draw_maze
+    from bimgame.maze import MazeSpec
+
+    maze_path = draw_maze(MazeSpec.merl(), args.out / "maze.png")
+    print(f"wrote {maze_path}")
+    results, frames = run_episodes(args.task, args.policy, 1, seed=args.seed, record_first=True)
+    result = results[0]
+    gif = write_gif(frames, args.out / "episode.gif")
+    print(f"{args.policy} policy on {args.task}: {'solved' if result['success'] else 'not solved'} in "
+          f"{result['length']} steps, return {result['return']:.0f}; wrote {gif}")
+    return 0
+
+
+# ---------------------------------------------------------------------- helpers
+def run_episodes(task: str, policy_name: str, episodes: int, *, seed: int = 0,
+                 max_steps: int | None = None, n_marbles: int = 1, record_first: bool = False,
+                 ) -> tuple[list[dict], list[np.ndarray]]:
+    """Run ``episodes`` episodes of a named policy with a progress bar; returns per-episode
+    results (return, length, success, seconds) and the first episode's RGB frames if asked."""
+    import gymnasium as gym
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    import bimgame  # noqa: F401  (registers the env ids)
+    from bimgame.policies import make_policy
+
+    kwargs = {"obs_mode": "state", "n_marbles": n_marbles}
+    if record_first:
+        kwargs["render_mode"] = "rgb_array"
+    if max_steps is not None:
+        kwargs["max_episode_steps"] = max_steps
+    env = gym.make(f"BiMGame/{task}-v0", **kwargs)
+    rng = np.random.default_rng(seed)
+    policy = make_policy(policy_name, env.unwrapped.maze, rng)
+    results: list[dict] = []
+    frames: list[np.ndarray] = []
+    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+               TextColumn("success {task.fields[success]}"), TimeRemainingColumn())
+    with Progress(*columns, transient=True) as progress:
+        bar = progress.add_task(f"{policy_name} on {task}", total=episodes, success="-")
+        for episode in range(episodes):
+            env.reset(seed=seed + episode)
+            record = record_first and episode == 0
+            if record:
+                frames.append(env.render())
+            total, length, start = 0.0, 0, time.perf_counter()
+            while True:
+                _, reward, terminated, truncated, info = env.step(policy(env))
+                total += reward
+                length += 1
+                if record:
+                    frames.append(env.render())
+                if terminated or truncated:
+                    break
+            results.append({"return": total, "length": length, "success": bool(info["is_success"]),
+                            "seconds": time.perf_counter() - start})
+            progress.update(bar, advance=1,
+                            success=f"{np.mean([r['success'] for r in results]):.0%}")
+    env.close()
+    return results, frames
+
+
+def write_gif(frames: list[np.ndarray], path: str | Path, fps: int = 30, max_frames: int = 600) -> Path:
+    """Write RGB frames as an animated GIF (atomically), keeping at most ``max_frames`` by
+    skipping frames evenly."""
+    from PIL import Image
+
+    from bimgame.io import atomic_write_bytes
+
+    if not frames:
+        raise ValueError("no frames to write")
+    stride = max(1, int(np.ceil(len(frames) / max_frames)))
+    images = [Image.fromarray(frame) for frame in frames[::stride]]
+    buffer = io.BytesIO()
+    images[0].save(buffer, format="GIF", save_all=True, append_images=images[1:],
+                   duration=int(round(1000 * stride / fps)), loop=0)
+    return atomic_write_bytes(path, buffer.getvalue())
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main())

@@ -1,0 +1,91 @@
+"""Simple reference policies for the env: uniformly random, no-op, and a scripted controller that
+tilts the board down the geodesic-distance slope. They are baselines for sanity checks and demos,
+not experts (the MPC expert lives in ``expert.py``)."""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import numpy as np
+
+from bimgame.maze import MazeSpec
+
+__all__ = ["Policy", "RandomPolicy", "NoopPolicy", "GeodesicPolicy", "POLICIES", "make_policy"]
+
+
+class Policy(Protocol):
+    """Maps the env (for its true state) to a discrete action."""
+
+    def __call__(self, env) -> int: ...
+
+
+class RandomPolicy:
+    """Uniformly random discrete actions from a seeded generator."""
+
+    def __init__(self, rng: np.random.Generator):
+        self.rng = rng
+
+    def __call__(self, env) -> int:
+        return int(self.rng.integers(5))
+
+
+class NoopPolicy:
+    """Never tilts the board."""
+
+    def __call__(self, env) -> int:
+        return 0
+
+
+class GeodesicPolicy:
+    """Tilt towards the direction that shortens the geodesic distance to the centre.
+
+    The desired board-frame acceleration is the negative gradient of the geodesic distance (a
+    unit vector) minus a velocity damping term; the target tilt is that direction scaled to the
+    tilt limit, and the policy takes the discrete action that moves the commanded tilt towards it
+    (largest error axis first). Rolling down +x needs a tilt about +y of -θ and down +y a tilt
+    about +x of +θ (see ``BallInMazeEnv``'s action description).
+    """
+
+    def __init__(self, spec: MazeSpec, damping: float = 4.0, eps: float = 1e-3):
+        self.spec = spec
+        self.damping = damping
+        self.eps = eps
+
+    def __call__(self, env) -> int:
+        sim = env.unwrapped.sim
+        positions, velocities = sim.marble_kinematics()
+        x, y = positions[0, 0], positions[0, 1]
+        e = self.eps
+        d = self.spec.geodesic_distance(np.array([x + e, x - e, x, x]), np.array([y, y, y + e, y - e]))
+        gradient = np.array([d[0] - d[1], d[2] - d[3]]) / (2 * e)
+        norm = float(np.hypot(*gradient))
+        direction = -gradient / norm if norm > 0 else np.zeros(2)
+        desired = direction - self.damping * velocities[0, :2]
+        desired_norm = float(np.hypot(*desired))
+        if desired_norm > 1:
+            desired /= desired_norm
+        limit = self.spec.max_tilt
+        target = np.array([desired[1] * limit, -desired[0] * limit])  # (about x, about y)
+        error = target - sim.target_tilt
+        step = self.spec.tilt_step
+        axis = int(np.argmax(np.abs(error)))
+        if abs(error[axis]) < 0.5 * step:
+            return 0
+        if axis == 0:
+            return 1 if error[0] > 0 else 2
+        return 3 if error[1] > 0 else 4
+
+
+POLICIES = ("random", "noop", "geodesic")
+
+
+def make_policy(name: str, spec: MazeSpec, rng: np.random.Generator) -> Policy:
+    """A policy by name; raises ``ValueError`` naming the allowed ones."""
+    if name == "random":
+        return RandomPolicy(rng)
+    if name == "noop":
+        return NoopPolicy()
+    if name == "geodesic":
+        return GeodesicPolicy(spec)
+    raise ValueError(f"unknown policy {name!r}; allowed: {', '.join(POLICIES)}")
+
