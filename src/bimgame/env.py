@@ -30,6 +30,7 @@ MAX_EPISODE_STEPS = {Task.STG1: 300, Task.STG2: 500, Task.STG3: 750, Task.STG4: 
 # Discrete actions: (sign about x, sign about y).
 _DISCRETE_TILTS = np.array([[0, 0], [1, 0], [-1, 0], [0, 1], [0, -1]], dtype=np.float64)
 ACTION_MEANINGS = ("noop", "tilt +x", "tilt -x", "tilt +y", "tilt -y")
+_FAST_INTS = (int, np.int64, np.int32)
 
 
 def action_to_tilt_delta(action: Any, action_type: str, tilt_step: float) -> np.ndarray:
@@ -176,6 +177,7 @@ class BallInMazeEnv(gym.Env):
         self._channels: list[int] = [self.maze.outermost_channel] * self.n_marbles
         self._reached: list[bool] = [False] * self.n_marbles
         self._has_reset = False
+        self._discrete_deltas = [tuple(float(v) for v in row * self.maze.tilt_step) for row in _DISCRETE_TILTS]
         self._mujoco_renderer = None
 
     # ------------------------------------------------------------------ gym API
@@ -205,7 +207,10 @@ class BallInMazeEnv(gym.Env):
     def step(self, action):
         if not self._has_reset:
             raise RuntimeError("call reset() before step()")
-        delta = action_to_tilt_delta(action, self.action_type, self.maze.tilt_step)
+        if type(action) in _FAST_INTS and 0 <= action < 5 and self.action_type == "discrete":
+            delta = self._discrete_deltas[action]  # the common case, validated cheaply
+        else:
+            delta = action_to_tilt_delta(action, self.action_type, self.maze.tilt_step)
         sim = self.sim
         sim.step(delta)
         kinematics = sim.layout.board_frame_one(sim.data.qpos, sim.data.qvel)
@@ -240,11 +245,12 @@ class BallInMazeEnv(gym.Env):
         return np.array(values, dtype=np.float32)
 
     def _info(self, kinematics, crossings: list[int], success: bool) -> dict[str, Any]:
+        geodesic = self.maze.geodesic_distance_one
         return {
-            "channel": np.array(self._channels, dtype=np.int64),
-            "gate_crossings": np.array(crossings, dtype=np.int64),
-            "geodesic_distance": np.array([self.maze.geodesic_distance_one(k[0], k[1]) for k in kinematics]),
-            "is_success": bool(success),
+            "channel": np.array(self._channels),
+            "gate_crossings": np.array(crossings),
+            "geodesic_distance": np.array([geodesic(k[0], k[1]) for k in kinematics]),
+            "is_success": success,
             "tilt": self.sim.data.qpos[:2].copy(),
         }
 

@@ -317,7 +317,11 @@ class MazeSpec:
         # A marble whose centre is within a wall's band (inside a gate) can head straight for the
         # next wall's gates: for the geodesic distance it already belongs to the inner channel.
         geodesic_bounds = [p["outer_radius"] for p in portals]
+        geodesic_channels = [
+            (a, portals[k + 1]["inner_radius"] if k + 1 < len(portals) else math.inf, gates)
+            for k, (a, gates) in enumerate(gate_lists)]
         return {
+            "geodesic_channels": geodesic_channels,
             "geodesic_bounds": np.array(geodesic_bounds), "geodesic_bounds_list": geodesic_bounds,
             "hold_low": np.array(hold_low), "hold_high": np.array(hold_high), "mids": np.array(mids),
             "hold_low_list": hold_low, "hold_high_list": hold_high, "mids_list": mids,
@@ -377,7 +381,8 @@ class MazeSpec:
         return portals
 
     def geodesic_distance_one(self, x: float, y: float) -> float:
-        """Scalar :meth:`geodesic_distance` of one point (the env's per-step fast path)."""
+        """Scalar :meth:`geodesic_distance` of one point (the env's per-step fast path; plain
+        floats and precomputed per-channel tuples, ~4x faster than numpy on one point)."""
         r = math.hypot(x, y)
         channel = 0
         for bound in self._tables["geodesic_bounds_list"]:
@@ -385,23 +390,25 @@ class MazeSpec:
                 channel += 1
         if channel == 0:
             return r
-        a, gates = self._tables["gate_lists"][channel - 1]
-        theta = math.atan2(y, x)
+        a, band_start, gates = self._tables["geodesic_channels"][channel - 1]
         extra = 0.0
-        if channel < len(self.walls):
-            band_start = self._tables["portals"][channel]["inner_radius"]
-            if r > band_start:
-                extra, r = r - band_start, band_start
-        r1 = max(r, a)
-        alpha1 = math.acos(min(1.0, a / r1))
+        if r > band_start:
+            extra, r = r - band_start, band_start
+        theta = math.atan2(y, x)
+        r1 = r if r > a else a
+        alpha1 = math.acos(a / r1)
+        tangent = math.sqrt(r1 * r1 - a * a)
         best = math.inf
+        pi, two_pi = math.pi, 2 * math.pi
         for angle, dist in gates:
-            dtheta = abs((theta - angle + math.pi) % (2 * math.pi) - math.pi)
-            if dtheta <= alpha1:  # the gate portal lies on the obstacle circle (alpha2 = 0)
+            dtheta = abs((theta - angle + pi) % two_pi - pi)
+            if dtheta <= alpha1:  # straight to the gate portal (which lies on the obstacle circle)
                 length = math.sqrt(max(r1 * r1 + a * a - 2 * r1 * a * math.cos(dtheta), 0.0))
             else:
-                length = math.sqrt(max(r1 * r1 - a * a, 0.0)) + a * (dtheta - alpha1)
-            best = min(best, length + dist)
+                length = tangent + a * (dtheta - alpha1)
+            length += dist
+            if length < best:
+                best = length
         return best + extra
 
     def gate_distances(self) -> list[np.ndarray]:

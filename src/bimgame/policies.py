@@ -42,8 +42,8 @@ class GeodesicPolicy:
     The desired board-frame acceleration is the negative gradient of the geodesic distance (a
     unit vector) minus a velocity damping term; the target tilt is that direction scaled to the
     tilt limit, and the policy takes the discrete action that moves the commanded tilt towards it
-    (largest error axis first). Rolling down +x needs a tilt about +y of -θ and down +y a tilt
-    about +x of +θ (see ``BallInMazeEnv``'s action description).
+    (largest error axis first). Rolling towards +x needs a tilt about +y of +θ (it lowers the +x
+    edge) and towards +y a tilt about +x of -θ (see ``BallInMazeEnv``'s action description).
     """
 
     def __init__(self, spec: MazeSpec, damping: float = 4.0, eps: float = 1e-3):
@@ -56,8 +56,9 @@ class GeodesicPolicy:
         positions, velocities = sim.marble_kinematics()
         x, y = positions[0, 0], positions[0, 1]
         e = self.eps
-        d = self.spec.geodesic_distance(np.array([x + e, x - e, x, x]), np.array([y, y, y + e, y - e]))
-        gradient = np.array([d[0] - d[1], d[2] - d[3]]) / (2 * e)
+        geodesic = self.spec.geodesic_distance_one
+        gradient = np.array([geodesic(x + e, y) - geodesic(x - e, y),
+                             geodesic(x, y + e) - geodesic(x, y - e)]) / (2 * e)
         norm = float(np.hypot(*gradient))
         direction = -gradient / norm if norm > 0 else np.zeros(2)
         desired = direction - self.damping * velocities[0, :2]
@@ -65,7 +66,7 @@ class GeodesicPolicy:
         if desired_norm > 1:
             desired /= desired_norm
         limit = self.spec.max_tilt
-        target = np.array([desired[1] * limit, -desired[0] * limit])  # (about x, about y)
+        target = np.array([-desired[1] * limit, desired[0] * limit])  # (about x, about y)
         error = target - sim.target_tilt
         step = self.spec.tilt_step
         axis = int(np.argmax(np.abs(error)))

@@ -394,6 +394,8 @@ class MazeRenderer:
             tilt: Sequence[float] | np.ndarray | None = None) -> np.ndarray:
         """A colour frame (size, size, 3) uint8 with marbles at ``marble_xy`` (n_marbles, 2) (m).
 
+        ``size`` defaults to :data:`DEFAULT_RGB_SIZE`; each size's background is rasterised once.
+
         Marbles are steel discs shaded from a bright centre to a darker edge with a dark outline
         (radially symmetric, so the drawn marble's centroid is its position). If ``tilt`` — the
         board's tilt (rad) about x and y — is given, a gauge in the bottom-right corner shows the
@@ -444,6 +446,8 @@ class MazeRenderer:
         gx = math.cos(t[0]) * math.sin(t[1])
         gy = -math.sin(t[0])
         slope = math.hypot(gx, gy)          # sin of the tilt angle from horizontal
+        if not math.isfinite(slope):
+            slope = 0.0                     # unknown tilt: the gauge without an arrow
         length = rho * min(1.0, math.asin(min(1.0, slope)) / self.spec.max_tilt)
         if slope > 0:
             ex, ey = centre + length * gx / slope, centre - length * gy / slope
