@@ -320,7 +320,16 @@ class MazeSpec:
         geodesic_channels = [
             (a, portals[k + 1]["inner_radius"] if k + 1 < len(portals) else math.inf, gates)
             for k, (a, gates) in enumerate(gate_lists)]
+        max_gates = max(len(w.gates) for w in self.walls) if self.walls else 1
+        gate_angle = np.zeros((len(self.walls) + 1, max_gates))
+        gate_dist = np.full((len(self.walls) + 1, max_gates), np.inf)
+        for k, (_, gates) in enumerate(gate_lists):
+            for j, (angle, dist) in enumerate(gates):
+                gate_angle[k + 1, j], gate_dist[k + 1, j] = angle, dist
         return {
+            "geodesic_obstacle": np.array([1.0] + [c[0] for c in geodesic_channels]),
+            "geodesic_band_start": np.array([np.inf] + [c[1] for c in geodesic_channels]),
+            "geodesic_gate_angle": gate_angle, "geodesic_gate_dist": gate_dist,
             "geodesic_channels": geodesic_channels,
             "geodesic_bounds": np.array(geodesic_bounds), "geodesic_bounds_list": geodesic_bounds,
             "hold_low": np.array(hold_low), "hold_high": np.array(hold_high), "mids": np.array(mids),
@@ -345,28 +354,20 @@ class MazeSpec:
         """
         x = np.asarray(x, dtype=float)
         y = np.asarray(y, dtype=float)
+        tables = self._tables
         r = np.hypot(x, y)
         theta = np.arctan2(y, x)
-        channel = np.searchsorted(self._tables["geodesic_bounds"], r, side="right")
-        result = np.array(r, dtype=float, copy=True)  # channel 0: straight to the centre
-        portals = self._tables["portals"]
-        to_centre = self._tables["gate_distances"]
-        for k in range(1, self.outermost_channel + 1):
-            mask = channel == k
-            if not np.any(mask):
-                continue
-            obstacle = portals[k - 1]["outer_radius"]
-            # Inside the band of wall k (in one of its gates) the marble's centre must go
-            # radially to the gate's inner end before it can turn.
-            r_k = r[mask]
-            if k < self.outermost_channel:
-                r_k = np.minimum(r_k, portals[k]["inner_radius"])
-            best = np.full(int(mask.sum()), np.inf)
-            for angle, dist in zip(portals[k - 1]["angles"], to_centre[k - 1]):
-                length = annulus_path_length(r_k, theta[mask], obstacle, angle, obstacle)
-                best = np.minimum(best, length + dist)
-            result[mask] = best + (r[mask] - r_k)
-        return result
+        channel = np.searchsorted(tables["geodesic_bounds"], r, side="right")
+        # Per point, the table row of its channel (row 0, the centre region, is unused): the
+        # obstacle radius, where the next wall's band starts, and the inner wall's gates (padded
+        # with infinite distances) — one vectorised pass over all points and gates.
+        obstacle = tables["geodesic_obstacle"][channel]
+        band_start = tables["geodesic_band_start"][channel]
+        r_eff = np.minimum(r, band_start)
+        lengths = annulus_path_length(r_eff[..., None], theta[..., None], obstacle[..., None],
+                                      tables["geodesic_gate_angle"][channel], obstacle[..., None])
+        best = np.min(lengths + tables["geodesic_gate_dist"][channel], axis=-1) + (r - r_eff)
+        return np.where(channel == 0, r, best)
 
     def _gate_portals(self) -> list[dict]:
         """Per wall: gate centre angles and the radii where the marble's centre enters the gate
@@ -434,23 +435,23 @@ class MazeSpec:
         return distances
 
 
-def annulus_path_length(r1: np.ndarray | float, theta1: np.ndarray | float, r2: float,
-                        theta2: float, obstacle_radius: float) -> np.ndarray:
+def annulus_path_length(r1: np.ndarray | float, theta1: np.ndarray | float, r2: np.ndarray | float,
+                        theta2: np.ndarray | float, obstacle_radius: np.ndarray | float) -> np.ndarray:
     """Shortest path length between points (polar ``(r1, theta1)`` and ``(r2, theta2)``) that must
     stay outside the disc of radius ``obstacle_radius`` centred at the origin.
 
     Points inside the disc are treated as lying on its boundary. If the straight segment clears the
     disc the answer is its length; otherwise the path runs along the two tangents and the arc
-    between them.
+    between them. All arguments broadcast against each other.
     """
-    a = obstacle_radius
+    a = np.asarray(obstacle_radius, dtype=float)
     r1 = np.maximum(np.asarray(r1, dtype=float), a)
-    r2 = max(float(r2), a)
+    r2 = np.maximum(np.asarray(r2, dtype=float), a)
     dtheta = np.abs(_wrap_angle(np.asarray(theta1, dtype=float) - theta2))
-    alpha1 = np.arccos(np.clip(a / r1, -1.0, 1.0))
-    alpha2 = math.acos(min(1.0, a / r2))
+    alpha1 = np.arccos(np.minimum(a / r1, 1.0))
+    alpha2 = np.arccos(np.minimum(a / r2, 1.0))
     straight = np.sqrt(np.maximum(r1 ** 2 + r2 ** 2 - 2 * r1 * r2 * np.cos(dtheta), 0.0))
-    wrapped = (np.sqrt(np.maximum(r1 ** 2 - a ** 2, 0.0)) + math.sqrt(max(r2 ** 2 - a ** 2, 0.0))
+    wrapped = (np.sqrt(np.maximum(r1 ** 2 - a ** 2, 0.0)) + np.sqrt(np.maximum(r2 ** 2 - a ** 2, 0.0))
                + a * (dtheta - alpha1 - alpha2))
     return np.where(dtheta <= alpha1 + alpha2, straight, wrapped)
 

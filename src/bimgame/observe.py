@@ -60,12 +60,18 @@ class Observer:
         if layout is None:
             raise ValueError("Observer needs the model's StateLayout (pass layout=)")
         positions, velocities = layout.board_frame(states)
+        return self.from_kinematics(positions, velocities, states[:, layout.tilt], channels)
+
+    def from_kinematics(self, positions: np.ndarray, velocities: np.ndarray, tilt: np.ndarray,
+                        channels: np.ndarray) -> np.ndarray:
+        """Observations from board-frame marble positions and velocities (B, n, 3), board tilt
+        (B, 2) and channels (B, n), for callers that already decoded their states."""
+        batch = positions.shape[0]
         if self.obs_mode == "pixels":
             return self.raster.gray(positions[..., :2])[:, None]
-        batch = states.shape[0]
         per_marble = np.concatenate([positions[..., :2], velocities[..., :2]], axis=-1)
         out = np.empty((batch, 5 * self.n_marbles + 2), dtype=np.float32)
         out[:, :4 * self.n_marbles] = per_marble.reshape(batch, -1)
-        out[:, 4 * self.n_marbles:4 * self.n_marbles + 2] = states[:, layout.tilt]
+        out[:, 4 * self.n_marbles:4 * self.n_marbles + 2] = tilt
         out[:, 4 * self.n_marbles + 2:] = channels
         return out

@@ -46,7 +46,7 @@ class GeodesicPolicy:
     edge) and towards +y a tilt about +x of -θ (see ``BallInMazeEnv``'s action description).
     """
 
-    def __init__(self, spec: MazeSpec, damping: float = 4.0, eps: float = 1e-3):
+    def __init__(self, spec: MazeSpec, damping: float = 2.0, eps: float = 1e-3):
         self.spec = spec
         self.damping = damping
         self.eps = eps

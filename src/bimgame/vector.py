@@ -9,7 +9,6 @@ learners. ``gym.make_vec(id, num_envs)`` returns it by default (``vector_entry_p
 
 from __future__ import annotations
 
-import os
 from typing import Any
 
 import gymnasium as gym
@@ -30,8 +29,9 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
     Args:
         num_envs: number of sub-environments.
         max_episode_steps: time limit (truncation), as ``TimeLimit`` would apply; None for none.
-        nthread: threads for the batched physics (default: all cores, at most 2 per the default
-            machine; use 1 inside worker processes that already use every core).
+        nthread: threads for ``mujoco.rollout`` (default 1: on the 2-vCPU reference machine two
+            threads measured slower than one, see benchmarks/; raise it on real multi-core
+            hardware, keep 1 inside worker processes that already use every core).
         **env_kwargs: the keyword arguments of :class:`~bimgame.env.BallInMazeEnv`.
     """
 
@@ -45,7 +45,7 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
                                                   and max_episode_steps >= 1):
             raise ValueError(f"max_episode_steps must be a positive integer or None, got {max_episode_steps!r}")
         if nthread is None:
-            nthread = max(1, min(2, os.cpu_count() or 1))
+            nthread = 1
         if not (isinstance(nthread, (int, np.integer)) and nthread >= 1):
             raise ValueError(f"nthread must be an integer >= 1, got {nthread!r}")
         # One template env validates the arguments and owns the model, observer and spaces.
@@ -91,7 +91,7 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
         self._autoreset[:] = False
         self._has_reset = True
         crossings = np.zeros_like(self._task_state.channel)
-        return self._observe(), self._infos(crossings, np.zeros(self.num_envs, dtype=bool))
+        return self._observe_and_info(crossings, np.zeros(self.num_envs, dtype=bool))
 
     def step(self, actions):
         if not self._has_reset:
@@ -119,9 +119,9 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
                 truncated[idx] = self._elapsed[idx] >= self.max_episode_steps
         if resetting.any():
             self._reset_envs(resetting)
-        success = terminated.copy()
         self._autoreset = terminated | truncated
-        return self._observe(), reward, terminated, truncated, self._infos(crossings, success)
+        obs, infos = self._observe_and_info(crossings, terminated.copy())
+        return obs, reward, terminated, truncated, infos
 
     def render(self) -> tuple[np.ndarray, ...] | None:
         if self.render_mode is None:
@@ -165,21 +165,20 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
             self._task_state.reached[i] = start.reached[0]
             self._elapsed[i] = 0
 
-    def _observe(self) -> np.ndarray:
-        return self.template.observer(self._states, self._task_state.channel, self.sim.layout)
-
-    def _infos(self, crossings: np.ndarray, success: np.ndarray) -> dict[str, Any]:
-        positions, _ = self.sim.layout.board_frame(self._states)
+    def _observe_and_info(self, crossings: np.ndarray, success: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
+        positions, velocities = self.sim.layout.board_frame(self._states)
+        tilt = self._states[:, self.sim.layout.tilt]
+        obs = self.template.observer.from_kinematics(positions, velocities, tilt, self._task_state.channel)
         values = {
             "channel": self._task_state.channel.copy(),
             "gate_crossings": crossings.astype(np.int64),
             "geodesic_distance": self.maze.geodesic_distance(positions[..., 0], positions[..., 1]),
             "is_success": success,
-            "tilt": self._states[:, self.sim.layout.tilt].copy(),
+            "tilt": tilt,
         }
         infos: dict[str, Any] = {}
         for key, value in values.items():
             infos[key] = value
             infos[f"_{key}"] = np.ones(self.num_envs, dtype=bool)
-        return infos
+        return obs, infos
 
