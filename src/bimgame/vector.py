@@ -9,6 +9,7 @@ learners. ``gym.make_vec(id, num_envs)`` returns it by default (``vector_entry_p
 
 from __future__ import annotations
 
+import os
 from typing import Any
 
 import gymnasium as gym
@@ -29,9 +30,9 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
     Args:
         num_envs: number of sub-environments.
         max_episode_steps: time limit (truncation), as ``TimeLimit`` would apply; None for none.
-        nthread: threads for ``mujoco.rollout`` (default 1: on the 2-vCPU reference machine two
-            threads measured slower than one, see benchmarks/; raise it on real multi-core
-            hardware, keep 1 inside worker processes that already use every core).
+        nthread: threads for ``mujoco.rollout``. Default: 1 below 32 envs (measured: a second
+            thread does not pay for its dispatch on small batches), else all cores up to 2.
+            Use 1 inside worker processes that already use every core.
         **env_kwargs: the keyword arguments of :class:`~bimgame.env.BallInMazeEnv`.
     """
 
@@ -45,7 +46,7 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
                                                   and max_episode_steps >= 1):
             raise ValueError(f"max_episode_steps must be a positive integer or None, got {max_episode_steps!r}")
         if nthread is None:
-            nthread = 1
+            nthread = 1 if num_envs < 32 else max(1, min(2, os.cpu_count() or 1))
         if not (isinstance(nthread, (int, np.integer)) and nthread >= 1):
             raise ValueError(f"nthread must be an integer >= 1, got {nthread!r}")
         # One template env validates the arguments and owns the model, observer and spaces.
