@@ -458,3 +458,28 @@ def test_annulus_path_length_straight_when_clear():
         assert got[i] == pytest.approx(_brute_force_path(p1[i], p2, a), rel=1e-6)
     # Same point: zero.
     assert float(annulus_path_length(0.05, 1.0, 0.05, 1.0, 0.04)) == pytest.approx(0.0, abs=1e-12)
+
+
+# --------------------------------------------------------------------------------------- geodesic to a wall
+def test_geodesic_to_a_wall_is_zero_past_it_and_cheapest_through_the_nearest_gate(merl: MazeSpec):
+    r4 = merl.channel_centre_radius(4)
+    # STG1's goal (channel 3): from 30° the nearest wall-3 gate is at 45°, not the centre's route.
+    d = float(merl.geodesic_distance(*_polar(r4, 30.0), to_channel=3))
+    through = merl.walls[3].thickness + 2 * merl.marble_radius
+    arc = math.radians(15.0) * (merl.walls[3].outer_radius + merl.marble_radius)
+    assert through < d < through + arc + 2 * MM
+    # Already in channel 3 or deeper: nothing left to do.
+    assert float(merl.geodesic_distance(*_polar(merl.channel_centre_radius(2), 10.0), to_channel=3)) == 0.0
+    # Every target is no farther than the centre, and farther targets cost more.
+    rng = np.random.default_rng(5)
+    r = np.sqrt(rng.uniform(0, merl.rim_radius ** 2, 2000))
+    th = rng.uniform(-np.pi, np.pi, 2000)
+    x, y = r * np.cos(th), r * np.sin(th)
+    distances = [merl.geodesic_distance(x, y, to_channel=j) for j in (3, 2, 1, 0)]
+    for nearer, farther in zip(distances, distances[1:]):
+        assert np.all(nearer <= farther + 1e-12)
+    for j in (0, 1, 2, 3):
+        scalar = np.array([merl.geodesic_distance_one(a, b, to_channel=j) for a, b in zip(x[:300], y[:300])])
+        np.testing.assert_allclose(scalar, merl.geodesic_distance(x[:300], y[:300], to_channel=j), atol=1e-12)
+    with pytest.raises(MazeSpecError, match="to_channel must be an integer in 0..3"):
+        merl.geodesic_distance(0.0, 0.0, to_channel=4)

@@ -3,7 +3,8 @@
 Verbs:
   maze      draw the maze (walls, gates, channels, geodesic distance) to a PNG
   rollout   run episodes of a simple policy on a task, print a summary table, optionally a GIF
-  demo      the Quick start's main job: a maze picture and a GIF of one episode
+  demo         the Quick start's main job: a maze picture and a GIF of one episode
+  expert-eval  success rate and trajectory lengths of the MPC expert, with the length histogram
 """
 
 from __future__ import annotations
@@ -56,7 +57,38 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--task", choices=tasks, default="STG2", type=str.upper)
     demo.add_argument("--policy", choices=POLICIES, default="geodesic")
     demo.add_argument("--seed", type=int, default=0)
+
+    evaluate = verbs.add_parser("expert-eval", help="measure the MPC expert: success, lengths, histogram")
+    evaluate.add_argument("--task", choices=tasks, default="FULL", type=str.upper)
+    evaluate.add_argument("--episodes", type=_positive_int, default=50)
+    evaluate.add_argument("--seed", type=int, default=0)
+    evaluate.add_argument("--workers", type=_positive_int, default=None, help="processes (default: all cores)")
+    evaluate.add_argument("--max-steps", type=_positive_int, default=None,
+                          help="time limit per episode (default: the task's registered limit)")
+    add_mpc_arguments(evaluate)
+    evaluate.add_argument("--out", type=Path, default=None,
+                          help="directory for results.json and lengths.png (default: print only)")
     return parser
+
+
+def add_mpc_arguments(parser: argparse.ArgumentParser) -> None:
+    """The MPC expert's flags (shared by expert-eval and generate)."""
+    from bimgame.expert import PLANNING_REWARDS, SAMPLINGS, MPCConfig
+
+    defaults = MPCConfig()
+    parser.add_argument("--n-samples", "-K", type=_positive_int, default=defaults.n_samples,
+                        help=f"K, sequences per decision (default {defaults.n_samples})")
+    parser.add_argument("--horizon", "-H", type=_positive_int, default=defaults.horizon,
+                        help=f"H, steps per sequence (default {defaults.horizon})")
+    parser.add_argument("--sampling", choices=SAMPLINGS, default=defaults.sampling)
+    parser.add_argument("--planning-reward", choices=PLANNING_REWARDS, default=defaults.reward)
+
+
+def mpc_config_from(args) -> "MPCConfig":  # noqa: F821 (imported lazily)
+    from bimgame.expert import MPCConfig
+
+    return MPCConfig(n_samples=args.n_samples, horizon=args.horizon, sampling=args.sampling,
+                     reward=args.planning_reward)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -69,6 +101,8 @@ def main(argv: list[str] | None = None) -> int:
             return _rollout(args)
         if args.verb == "demo":
             return _demo(args)
+        if args.verb == "expert-eval":
+            return _expert_eval(args)
     except (ValueError, OSError) as error:
         print(f"bimgame {args.verb}: error: {error}", file=sys.stderr)
         return 2
@@ -120,6 +154,36 @@ def _demo(args) -> int:
     gif = write_gif(frames, args.out / "episode.gif")
     print(f"{args.policy} policy on {args.task}: {'solved' if result['success'] else 'not solved'} in "
           f"{result['length']} steps, return {result['return']:.0f}; wrote {gif}")
+    return 0
+
+
+def _expert_eval(args) -> int:
+    from rich.console import Console
+    from rich.table import Table
+
+    from bimgame.expert_eval import evaluate_expert, plot_length_histogram, summarise, write_results
+
+    config = mpc_config_from(args)
+    start = time.perf_counter()
+    results = evaluate_expert(args.task, args.episodes, config, seed=args.seed, workers=args.workers,
+                              max_steps=args.max_steps)
+    summary = summarise(results)
+    summary["wall_seconds"] = time.perf_counter() - start
+    table = Table(title=f"MPC expert on {args.task}: K={config.n_samples} H={config.horizon} "
+                        f"{config.sampling} sampling, {config.reward} reward, seed {args.seed}")
+    for column in ("episodes", "success", "median length (solved)", "90th pct", "max", "ms/decision", "wall s"):
+        table.add_column(column, justify="right")
+    fmt = lambda v: "-" if v is None else f"{v:.0f}"  # noqa: E731
+    table.add_row(str(summary["episodes"]), f"{summary['success_rate']:.0%}", fmt(summary["median_length_solved"]),
+                  fmt(summary["p90_length_solved"]), fmt(summary["max_length_solved"]),
+                  f"{summary['ms_per_decision']:.1f}", f"{summary['wall_seconds']:.0f}")
+    console = Console()
+    console.print(table)
+    if args.out is not None:
+        write_results(results, summary, config, args.task, args.out / "results.json")
+        png = plot_length_histogram(results, args.out / "lengths.png",
+                                    title=f"MPC expert, {args.task}, K={config.n_samples}, H={config.horizon}")
+        console.print(f"wrote {args.out / 'results.json'} and {png}")
     return 0
 
 

@@ -4,10 +4,10 @@ At every step, from the current simulator state, the expert samples K action seq
 rolls all of them out with :meth:`~bimgame.sim.MazeSim.rollout` (``mujoco.rollout``), scores each
 by its summed planning reward and applies the first action of the best.
 
-Planning rewards are progress towards the centre, summed over the horizon:
+Planning rewards are progress towards the goal, summed over the horizon:
 ``Σ_t d(s_t) − d(s_{t+1})`` with ``d`` the marble's radial distance from the centre (``"radial"``,
 the paper's, written there with the opposite sign) or its geodesic distance through the gates
-(``"geodesic"``). The sum telescopes to ``d(s_0) − d(s_H)``, so only the final states of the
+(``"geodesic"``) to the task's goal: the centre for FULL, the far side of the k-th wall for STGk. The sum telescopes to ``d(s_0) − d(s_H)``, so only the final states of the
 rollouts are scored — exactly the same ranking as summing per step, at a fraction of the cost.
 
 Sampling: ``"uniform"`` draws each of the H actions independently; ``"hold"`` draws an action and
@@ -28,7 +28,7 @@ import numpy as np
 from bimgame.env import _DISCRETE_TILTS, MAX_EPISODE_STEPS, BallInMazeEnv
 from bimgame.maze import MazeSpec
 from bimgame.sim import MazeSim
-from bimgame.tasks import parse_task
+from bimgame.tasks import Task, parse_task
 
 __all__ = ["MPCConfig", "RandomShootingMPC", "SAMPLINGS", "PLANNING_REWARDS", "run_expert_episode",
            "episode_seed"]
@@ -75,16 +75,21 @@ class RandomShootingMPC:
         maze: the maze it plans in (must match the env it controls; default MERL's).
         config: K, H, sampling and planning reward.
         rng: the seeded generator for the sampled sequences.
+        task: what the geodesic reward measures progress towards: the centre (FULL, STG4) or,
+            for STGk, passing the k-th wall (any of its gates will do).
         n_marbles: marbles in the model.
     """
 
     def __init__(self, maze: MazeSpec | None = None, config: MPCConfig | None = None, *,
-                 rng: np.random.Generator, n_marbles: int = 1):
+                 rng: np.random.Generator, task: str | Task = "FULL", n_marbles: int = 1):
         if not isinstance(rng, np.random.Generator):
             raise TypeError(f"rng must be a numpy Generator (np.random.default_rng(seed)), got {type(rng).__name__}")
         self.maze = maze if maze is not None else MazeSpec.merl()
         self.config = config if config is not None else MPCConfig()
         self.rng = rng
+        self.task = parse_task(task, self.maze)
+        k = self.task.steps_to_go
+        self.to_channel = 0 if k is None else self.maze.outermost_channel - k
         self.sim = MazeSim(self.maze, n_marbles=n_marbles)
         self._tilts = _DISCRETE_TILTS * self.maze.tilt_step
         self.decisions = 0
@@ -106,7 +111,10 @@ class RandomShootingMPC:
         """Planning distance of each state (summed over marbles): radial or geodesic."""
         positions, _ = self.sim.layout.board_frame(states)
         x, y = positions[..., 0], positions[..., 1]
-        d = np.hypot(x, y) if self.config.reward == "radial" else self.maze.geodesic_distance(x, y)
+        if self.config.reward == "radial":
+            d = np.hypot(x, y)
+        else:
+            d = self.maze.geodesic_distance(x, y, self.to_channel)
         return d.sum(axis=-1)
 
     def plan(self, state: np.ndarray) -> tuple[int, dict[str, Any]]:
@@ -151,7 +159,7 @@ def run_expert_episode(task: str, seed: int, config: MPCConfig | None = None, *,
     task_enum = parse_task(task)
     maze = maze if maze is not None else MazeSpec.merl()
     env = BallInMazeEnv(task_enum, obs_mode="state", maze=maze)
-    expert = RandomShootingMPC(maze, config, rng=np.random.default_rng(seed))
+    expert = RandomShootingMPC(maze, config, rng=np.random.default_rng(seed), task=task_enum)
     limit = max_steps if max_steps is not None else MAX_EPISODE_STEPS[task_enum]
     obs, info = env.reset(seed=seed)
     observations, sim_states, channels = [obs], [env.sim.get_state()], [info["channel"]]

@@ -305,48 +305,64 @@ class MazeSpec:
 
     @functools.cached_property
     def _tables(self) -> dict:
-        """Lookup tables derived once from the (immutable) geometry."""
+        """Channel lookup tables derived once from the (immutable) geometry."""
         # Channel k is held while r is in [inner face of wall k-1, outer face of wall k].
         hold_low = [0.0] + [w.inner_radius for w in self.walls]
         hold_high = [w.outer_radius for w in self.walls] + [math.inf]
         mids = [w.mid_radius for w in self.walls]
+        return {
+            "hold_low": np.array(hold_low), "hold_high": np.array(hold_high), "mids": np.array(mids),
+            "hold_low_list": hold_low, "hold_high_list": hold_high, "mids_list": mids,
+            "geodesic": {},
+        }
+
+    def _geodesic_tables(self, to_channel: int) -> dict:
+        """Per-target geodesic tables (built once per target and cached)."""
+        cache = self._tables["geodesic"]
+        if to_channel in cache:
+            return cache[to_channel]
+        if not (isinstance(to_channel, (int, np.integer)) and 0 <= to_channel < max(self.outermost_channel, 1)):
+            raise MazeSpecError(f"to_channel must be an integer in 0..{max(self.outermost_channel - 1, 0)}, "
+                                f"got {to_channel!r}")
         portals = self._gate_portals()
-        gate_distances = self._compute_gate_distances(portals)
+        gate_distances = self._compute_gate_distances(portals, int(to_channel))
         gate_lists = [(p["outer_radius"], [(float(a), float(d)) for a, d in zip(p["angles"], ds)])
                       for p, ds in zip(portals, gate_distances)]
-        # A marble whose centre is within a wall's band (inside a gate) can head straight for the
-        # next wall's gates: for the geodesic distance it already belongs to the inner channel.
-        geodesic_bounds = [p["outer_radius"] for p in portals]
-        geodesic_channels = [
-            (a, portals[k + 1]["inner_radius"] if k + 1 < len(portals) else math.inf, gates)
-            for k, (a, gates) in enumerate(gate_lists)]
+        # A marble whose centre is within a wall's band (inside a gate) belongs, for the geodesic
+        # distance, to the inner channel: it moves radially to the gate's inner end first.
+        bounds = [p["outer_radius"] for p in portals]
+        channels = [(a, portals[k + 1]["inner_radius"] if k + 1 < len(portals) else math.inf, gates)
+                    for k, (a, gates) in enumerate(gate_lists)]
         max_gates = max(len(w.gates) for w in self.walls) if self.walls else 1
         gate_angle = np.zeros((len(self.walls) + 1, max_gates))
         gate_dist = np.full((len(self.walls) + 1, max_gates), np.inf)
         for k, (_, gates) in enumerate(gate_lists):
             for j, (angle, dist) in enumerate(gates):
                 gate_angle[k + 1, j], gate_dist[k + 1, j] = angle, dist
-        return {
-            "geodesic_obstacle": np.array([1.0] + [c[0] for c in geodesic_channels]),
-            "geodesic_band_start": np.array([np.inf] + [c[1] for c in geodesic_channels]),
-            "geodesic_gate_angle": gate_angle, "geodesic_gate_dist": gate_dist,
-            "geodesic_channels": geodesic_channels,
-            "geodesic_bounds": np.array(geodesic_bounds), "geodesic_bounds_list": geodesic_bounds,
-            "hold_low": np.array(hold_low), "hold_high": np.array(hold_high), "mids": np.array(mids),
-            "hold_low_list": hold_low, "hold_high_list": hold_high, "mids_list": mids,
-            "portals": portals, "gate_distances": gate_distances, "gate_lists": gate_lists,
+        # Points already past the target wall: 0, or the radial rest of the way through its gate.
+        target_end = 0.0 if to_channel == 0 else portals[to_channel]["inner_radius"]
+        tables = {
+            "to_channel": int(to_channel), "target_end": target_end,
+            "obstacle": np.array([1.0] + [c[0] for c in channels]),
+            "band_start": np.array([np.inf] + [c[1] for c in channels]),
+            "gate_angle": gate_angle, "gate_dist": gate_dist, "channels": channels,
+            "bounds": np.array(bounds), "bounds_list": bounds,
+            "portals": portals, "gate_distances": gate_distances,
         }
+        cache[to_channel] = tables
+        return tables
 
     # ------------------------------------------------------------------ geodesic distance
-    def geodesic_distance(self, x: np.ndarray | float, y: np.ndarray | float) -> np.ndarray:
+    def geodesic_distance(self, x: np.ndarray | float, y: np.ndarray | float, to_channel: int = 0) -> np.ndarray:
         """Length (m) of the shortest path for the marble's centre from board-frame points to the
-        board's centre, through the gates.
+        board's centre (``to_channel=0``) or, for ``to_channel=j > 0``, until it has passed
+        through wall ``j`` into channel ``j`` (the goal of task STG(n_walls - j)), through the gates.
 
         Within a channel the marble's centre moves in an annulus whose inner boundary is the inner
         wall's outer face plus the marble radius; the shortest path between two points of an
         annulus is either straight or wraps around that inner circle (tangent, arc, tangent), which
         :func:`annulus_path_length` computes exactly. Each gate is crossed radially at its centre
-        angle. Distances from each gate to the centre are found by dynamic programming from the
+        angle. Distances from each gate to the goal are found by dynamic programming from the
         inside out (:meth:`gate_distances`), so the whole computation is exact for this model of the
         gates and vectorised over points. A point whose centre is inside a wall's band (within a
         marble radius of the wall, so inside a gate) moves radially to the gate's inner end first:
@@ -354,44 +370,34 @@ class MazeSpec:
         """
         x = np.asarray(x, dtype=float)
         y = np.asarray(y, dtype=float)
-        tables = self._tables
+        tables = self._geodesic_tables(to_channel)
         r = np.hypot(x, y)
         theta = np.arctan2(y, x)
-        channel = np.searchsorted(tables["geodesic_bounds"], r, side="right")
+        channel = np.searchsorted(tables["bounds"], r, side="right")
         # Per point, the table row of its channel (row 0, the centre region, is unused): the
         # obstacle radius, where the next wall's band starts, and the inner wall's gates (padded
         # with infinite distances) — one vectorised pass over all points and gates.
-        obstacle = tables["geodesic_obstacle"][channel]
-        band_start = tables["geodesic_band_start"][channel]
+        obstacle = tables["obstacle"][channel]
+        band_start = tables["band_start"][channel]
         r_eff = np.minimum(r, band_start)
         lengths = annulus_path_length(r_eff[..., None], theta[..., None], obstacle[..., None],
-                                      tables["geodesic_gate_angle"][channel], obstacle[..., None])
-        best = np.min(lengths + tables["geodesic_gate_dist"][channel], axis=-1) + (r - r_eff)
-        return np.where(channel == 0, r, best)
+                                      tables["gate_angle"][channel], obstacle[..., None])
+        best = np.min(lengths + tables["gate_dist"][channel], axis=-1) + (r - r_eff)
+        arrived = r if to_channel == 0 else np.maximum(r - tables["target_end"], 0.0)
+        return np.where(channel <= to_channel, arrived, best)
 
-    def _gate_portals(self) -> list[dict]:
-        """Per wall: gate centre angles and the radii where the marble's centre enters the gate
-        from outside (``outer_radius``) and leaves it inside (``inner_radius``)."""
-        portals = []
-        for wall in self.walls:
-            portals.append({
-                "angles": [g.angle for g in wall.gates],
-                "outer_radius": wall.outer_radius + self.marble_radius,
-                "inner_radius": max(wall.inner_radius - self.marble_radius, 0.0),
-            })
-        return portals
-
-    def geodesic_distance_one(self, x: float, y: float) -> float:
+    def geodesic_distance_one(self, x: float, y: float, to_channel: int = 0) -> float:
         """Scalar :meth:`geodesic_distance` of one point (the env's per-step fast path; plain
         floats and precomputed per-channel tuples, ~4x faster than numpy on one point)."""
+        tables = self._geodesic_tables(to_channel)
         r = math.hypot(x, y)
         channel = 0
-        for bound in self._tables["geodesic_bounds_list"]:
+        for bound in tables["bounds_list"]:
             if r >= bound:
                 channel += 1
-        if channel == 0:
-            return r
-        a, band_start, gates = self._tables["geodesic_channels"][channel - 1]
+        if channel <= to_channel:
+            return r if to_channel == 0 else max(r - tables["target_end"], 0.0)
+        a, band_start, gates = tables["channels"][channel - 1]
         extra = 0.0
         if r > band_start:
             extra, r = r - band_start, band_start
@@ -412,16 +418,36 @@ class MazeSpec:
                 best = length
         return best + extra
 
-    def gate_distances(self) -> list[np.ndarray]:
-        """For each wall, the geodesic distance (m) from each gate's outer portal to the centre."""
-        return [d.copy() for d in self._tables["gate_distances"]]
+    def gate_distances(self, to_channel: int = 0) -> list[np.ndarray]:
+        """For each wall, the geodesic distance (m) from each gate's outer portal to the goal
+        (walls at or inside the target get infinite distances: they are never needed)."""
+        return [d.copy() for d in self._geodesic_tables(to_channel)["gate_distances"]]
 
-    def _compute_gate_distances(self, portals: list[dict]) -> list[np.ndarray]:
+    def _gate_portals(self) -> list[dict]:
+        """Per wall: gate centre angles and the radii where the marble's centre enters the gate
+        from outside (``outer_radius``) and leaves it inside (``inner_radius``)."""
+        portals = []
+        for wall in self.walls:
+            portals.append({
+                "angles": [g.angle for g in wall.gates],
+                "outer_radius": wall.outer_radius + self.marble_radius,
+                "inner_radius": max(wall.inner_radius - self.marble_radius, 0.0),
+            })
+        return portals
+
+    def _compute_gate_distances(self, portals: list[dict], to_channel: int) -> list[np.ndarray]:
+        """Dynamic programming from the target wall outwards: a gate of the target wall costs its
+        radial crossing (plus, for the centre, the way to the centre point); a gate of an outer
+        wall costs its crossing plus the best path to a gate of the next wall in."""
         distances: list[np.ndarray] = []
         for k, portal in enumerate(portals):
             through = portal["outer_radius"] - portal["inner_radius"]
-            if k == 0:
-                distances.append(np.full(len(portal["angles"]), through + portal["inner_radius"]))
+            if k < to_channel:
+                distances.append(np.full(len(portal["angles"]), np.inf))
+                continue
+            if k == to_channel:
+                rest = portal["inner_radius"] if k == 0 else 0.0
+                distances.append(np.full(len(portal["angles"]), through + rest))
                 continue
             inner = portals[k - 1]
             per_gate = []
