@@ -5,6 +5,7 @@ Verbs:
   rollout   run episodes of a simple policy on a task, print a summary table, optionally a GIF
   demo         the Quick start's main job: a maze picture and a GIF of one episode
   expert-eval  success rate and trajectory lengths of the MPC expert, with the length histogram
+  generate     expert trajectories as a Minari dataset (parallel, resumable, local or Ray)
 """
 
 from __future__ import annotations
@@ -68,6 +69,12 @@ def build_parser() -> argparse.ArgumentParser:
     add_mpc_arguments(evaluate)
     evaluate.add_argument("--out", type=Path, default=None,
                           help="directory for results.json and lengths.png (default: print only)")
+
+    from bimgame.data import add_generate_arguments
+
+    generate = verbs.add_parser("generate", help="write expert trajectories as a Minari dataset")
+    add_generate_arguments(generate)
+    add_mpc_arguments(generate)
     return parser
 
 
@@ -103,6 +110,10 @@ def main(argv: list[str] | None = None) -> int:
             return _demo(args)
         if args.verb == "expert-eval":
             return _expert_eval(args)
+        if args.verb == "generate":
+            from bimgame.data import run_generate
+
+            return run_generate(args, mpc_config_from(args))
     except (ValueError, OSError) as error:
         print(f"bimgame {args.verb}: error: {error}", file=sys.stderr)
         return 2
