@@ -18,17 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
+from bimgame.argtypes import positive_int
+
 __all__ = ["main", "build_parser"]
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
-    return value
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -46,11 +38,11 @@ def build_parser() -> argparse.ArgumentParser:
     rollout = verbs.add_parser("rollout", help="run episodes of a simple policy and summarise them")
     rollout.add_argument("--task", choices=tasks, default="STG1", type=str.upper)
     rollout.add_argument("--policy", choices=POLICIES, default="random")
-    rollout.add_argument("--episodes", type=_positive_int, default=10)
+    rollout.add_argument("--episodes", type=positive_int, default=10)
     rollout.add_argument("--seed", type=int, default=0)
-    rollout.add_argument("--max-steps", type=_positive_int, default=None,
+    rollout.add_argument("--max-steps", type=positive_int, default=None,
                          help="time limit per episode (default: the task's registered limit)")
-    rollout.add_argument("--n-marbles", type=_positive_int, default=1)
+    rollout.add_argument("--n-marbles", type=positive_int, default=1)
     rollout.add_argument("--gif", type=Path, default=None, help="write the first episode as a GIF")
 
     demo = verbs.add_parser("demo", help="write a maze picture and a GIF of one episode")
@@ -61,10 +53,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     evaluate = verbs.add_parser("expert-eval", help="measure the MPC expert: success, lengths, histogram")
     evaluate.add_argument("--task", choices=tasks, default="FULL", type=str.upper)
-    evaluate.add_argument("--episodes", type=_positive_int, default=50)
+    evaluate.add_argument("--episodes", type=positive_int, default=50)
     evaluate.add_argument("--seed", type=int, default=0)
-    evaluate.add_argument("--workers", type=_positive_int, default=None, help="processes (default: all cores)")
-    evaluate.add_argument("--max-steps", type=_positive_int, default=None,
+    evaluate.add_argument("--workers", type=positive_int, default=None, help="processes (default: all cores)")
+    evaluate.add_argument("--max-steps", type=positive_int, default=None,
                           help="time limit per episode (default: the task's registered limit)")
     add_mpc_arguments(evaluate)
     evaluate.add_argument("--out", type=Path, default=None,
@@ -83,9 +75,9 @@ def add_mpc_arguments(parser: argparse.ArgumentParser) -> None:
     from bimgame.expert import PLANNING_REWARDS, SAMPLINGS, MPCConfig
 
     defaults = MPCConfig()
-    parser.add_argument("--n-samples", "-K", type=_positive_int, default=defaults.n_samples,
+    parser.add_argument("--n-samples", "-K", type=positive_int, default=defaults.n_samples,
                         help=f"K, sequences per decision (default {defaults.n_samples})")
-    parser.add_argument("--horizon", "-H", type=_positive_int, default=defaults.horizon,
+    parser.add_argument("--horizon", "-H", type=positive_int, default=defaults.horizon,
                         help=f"H, steps per sequence (default {defaults.horizon})")
     parser.add_argument("--sampling", choices=SAMPLINGS, default=defaults.sampling)
     parser.add_argument("--planning-reward", choices=PLANNING_REWARDS, default=defaults.reward)

@@ -46,7 +46,8 @@ from typing import Any
 
 import numpy as np
 
-from bimgame.expert import PLANNING_REWARDS, SAMPLINGS, MPCConfig, episode_seed, run_expert_episode
+from bimgame.argtypes import non_negative_int, positive_int
+from bimgame.expert import MPCConfig, episode_seed, run_expert_episode
 from bimgame.io import atomic_write_bytes
 from bimgame.tasks import Task, parse_task
 
@@ -707,40 +708,20 @@ def _pixel_observer(n_marbles: int):
 
 
 # ------------------------------------------------------------------------------ command line
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
-    return value
-
-
-def _non_negative_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}")
-    return value
-
-
 def add_generate_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """Add the ``bimgame generate`` options to ``parser`` (a sub-parser; the MPC expert's own
     flags are added by the command line, shared with ``expert-eval``); returns it."""
     parser.add_argument("--task", choices=[t.value for t in Task], default="FULL", type=str.upper)
-    parser.add_argument("--episodes", type=_positive_int, default=500)
+    parser.add_argument("--episodes", type=positive_int, default=500)
     parser.add_argument("--out", type=Path, required=True,
                         help="the run's directory (new, empty, or this run's to resume it)")
-    parser.add_argument("--seed", type=_non_negative_int, default=0, help="run seed (default 0)")
-    parser.add_argument("--workers", type=_positive_int, default=None,
+    parser.add_argument("--seed", type=non_negative_int, default=0, help="run seed (default 0)")
+    parser.add_argument("--workers", type=positive_int, default=None,
                         help="parallel episodes (default: the number of CPUs)")
     parser.add_argument("--backend", choices=BACKENDS, default="local")
     parser.add_argument("--ray-address", default=None,
                         help="Ray cluster address (backend ray; default: start Ray locally)")
-    parser.add_argument("--max-steps", type=_positive_int, default=None,
+    parser.add_argument("--max-steps", type=positive_int, default=None,
                         help="time limit per episode (default: the task's registered limit)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     return parser
