@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 
 import mujoco
 import numpy as np
@@ -322,7 +323,8 @@ class MazeSim:
         self.data = mujoco.MjData(self.model)
         self.control_dt = substeps * self.model.opt.timestep
         self.layout = StateLayout(self.model, n_marbles)
-        self._rollout_pool: mj_rollout.Rollout | None = None
+        self._rollout_pool: ThreadPoolExecutor | None = None
+        self._rollout_threads = 0
         self._rollout_data: list[mujoco.MjData] = []
 
     # ------------------------------------------------------------------ state
@@ -407,7 +409,7 @@ class MazeSim:
         Args:
             states: (B, state_size) initial states, or (state_size,) for one shared start.
             tilt_deltas: (B, H, 2) commanded tilt change per action step (rad), or (H, 2).
-            nthread: threads for the rollout pool (1 = no pool).
+            nthread: threads, each rolling out a contiguous chunk of the batch.
 
         Returns:
             (B, H, state_size) states after each action step; bit-identical to calling
@@ -429,41 +431,54 @@ class MazeSim:
                              f"{tilt_deltas.shape} do not match")
         states = np.broadcast_to(states, (batch, states.shape[1]))
         tilt_deltas = np.broadcast_to(tilt_deltas, (batch,) + tilt_deltas.shape[1:])
-        horizon = tilt_deltas.shape[1]
-        out = np.empty((batch, horizon, self.layout.size))
+        out = np.empty((batch, tilt_deltas.shape[1], self.layout.size))
+        nthread = max(1, min(int(nthread), batch))
+        if nthread == 1:
+            self._rollout_chunk(states, tilt_deltas, out, 0)
+            return out
+        # One Python thread per chunk of the batch, each running all H action steps with its own
+        # MjData: mujoco.rollout releases the GIL, so the chunks run in parallel, and the thread
+        # dispatch happens once per call instead of once per action step (MuJoCo's own pool,
+        # dispatched H times per call, measured 1.40x the engine's floor per MPC decision).
+        pool = self._thread_pool(nthread)
+        bounds = np.linspace(0, batch, nthread + 1).astype(int)
+        futures = [pool.submit(self._rollout_chunk, states[lo:hi], tilt_deltas[lo:hi], out[lo:hi], i)
+                   for i, (lo, hi) in enumerate(zip(bounds[:-1], bounds[1:]))]
+        for future in futures:
+            future.result()
+        return out
+
+    def _rollout_chunk(self, states: np.ndarray, tilt_deltas: np.ndarray, out: np.ndarray, slot: int) -> None:
+        """Roll out one chunk on MjData number ``slot``, writing (b, H, state_size) into ``out``."""
+        data = self._rollout_data_for(slot)
         current = np.ascontiguousarray(states)
-        for t in range(horizon):
+        warmstart = np.zeros((current.shape[0], self.model.nv))
+        for t in range(tilt_deltas.shape[1]):
             # One rollout call per action step, with the rate computed from each state's current
             # servo target exactly as :meth:`step` does, keeps the two bit-identical.
             _, rate = self.rates_for(current[:, self.layout.target_tilt], tilt_deltas[:, t])
-            control = np.repeat(rate[:, None, [0, 0, 1, 1]], self.substeps, axis=1)
-            current = self._run_rollout(current, np.ascontiguousarray(control), nthread)[:, -1]
+            control = np.ascontiguousarray(np.repeat(rate[:, None, [0, 0, 1, 1]], self.substeps, axis=1))
+            states_out, _ = mj_rollout.rollout(self.model, data, current, control, initial_warmstart=warmstart)
+            current = np.ascontiguousarray(states_out[:, -1])
             out[:, t] = current
-        return out
 
-    def _run_rollout(self, states: np.ndarray, control: np.ndarray, nthread: int) -> np.ndarray:
-        warmstart = np.zeros((states.shape[0], self.model.nv))
-        if nthread <= 1:
-            if not self._rollout_data:
-                self._rollout_data = [mujoco.MjData(self.model)]
-            out, _ = mj_rollout.rollout(self.model, self._rollout_data[0], states, control,
-                                        initial_warmstart=warmstart)
-            return out
-        if self._rollout_pool is None or len(self._rollout_data) != nthread:
-            self.close()
-            self._rollout_pool = mj_rollout.Rollout(nthread=nthread)
-            self._rollout_data = [mujoco.MjData(self.model) for _ in range(nthread)]
-        # One contiguous chunk per thread: MuJoCo's default (B / (10 · nthread)) dispatches many
-        # tiny jobs, which measured slower than a single thread for B <= 64.
-        chunk = max(1, -(-states.shape[0] // nthread))
-        out, _ = self._rollout_pool.rollout(self.model, self._rollout_data, states, control,
-                                            initial_warmstart=warmstart, chunk_size=chunk)
-        return out
+    def _rollout_data_for(self, slot: int) -> mujoco.MjData:
+        while len(self._rollout_data) <= slot:
+            self._rollout_data.append(mujoco.MjData(self.model))
+        return self._rollout_data[slot]
+
+    def _thread_pool(self, nthread: int) -> ThreadPoolExecutor:
+        if self._rollout_pool is None or self._rollout_threads != nthread:
+            if self._rollout_pool is not None:
+                self._rollout_pool.shutdown()
+            self._rollout_pool = ThreadPoolExecutor(max_workers=nthread, thread_name_prefix="bimgame-rollout")
+            self._rollout_threads = nthread
+        return self._rollout_pool
 
     def close(self) -> None:
         """Release the rollout thread pool, if any."""
         if self._rollout_pool is not None:
-            self._rollout_pool.close()
+            self._rollout_pool.shutdown()
             self._rollout_pool = None
         self._rollout_data = []
 
