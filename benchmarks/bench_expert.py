@@ -32,15 +32,15 @@ RESULTS = Path(__file__).parent / "results"
 
 SETTINGS = {
     "paper: radial, uniform, K=10 H=20": MPCConfig(reward="radial", sampling="uniform"),
-    "radial, hold, K=10 H=20": MPCConfig(reward="radial", sampling="hold"),
-    "default: geodesic, hold, K=10 H=20": MPCConfig(),
-    "geodesic, hold, K=10 H=10": MPCConfig(horizon=10),
-    "geodesic, hold, K=5 H=20": MPCConfig(n_samples=5),
+    "default: radial, hold, K=10 H=20": MPCConfig(),
+    "geodesic, hold, K=10 H=20": MPCConfig(reward="geodesic"),
+    "radial, hold, K=10 H=10": MPCConfig(horizon=10),
+    "radial, hold, K=5 H=20": MPCConfig(n_samples=5),
 }
 
 
-def quality(episodes: int, tasks: list[str]) -> dict:
-    table: dict = {}
+def quality(episodes: int, tasks: list[str], result: dict, path: Path) -> dict:
+    table: dict = result.setdefault("quality", {})
     for name, config in SETTINGS.items():
         for task in tasks:
             start = time.perf_counter()
@@ -54,8 +54,10 @@ def quality(episodes: int, tasks: list[str]) -> dict:
                   f"{summary['trajectories_per_minute']:.1f} traj/min", flush=True)
             if name.startswith("default") and task == "FULL":
                 plot_length_histogram(results, RESULTS / "expert_lengths_full.png",
-                                      title="MPC expert on FULL (K=10, H=20, geodesic, hold)")
+                                      title="MPC expert on FULL (K=10, H=20, radial, hold)")
                 table[name][task]["lengths_solved"] = [r.length for r in results if r.success]
+            result["episodes"] = episodes
+            atomic_write_bytes(path, json.dumps(result, indent=1).encode())  # after every row
     return table
 
 
@@ -121,8 +123,8 @@ def main() -> None:
     if not args.skip_speed:
         result["speed"] = speed(MPCConfig())
     if not args.skip_quality:
-        result["quality"] = quality(args.episodes, args.tasks)
-        result["episodes"] = args.episodes
+        result["quality"] = {}
+        quality(args.episodes, args.tasks, result, path)
     result["time"] = time.strftime("%Y-%m-%dT%H:%M:%S")
     atomic_write_bytes(path, json.dumps(result, indent=1).encode())
     print(f"wrote {path}")

@@ -483,3 +483,16 @@ def test_geodesic_to_a_wall_is_zero_past_it_and_cheapest_through_the_nearest_gat
         np.testing.assert_allclose(scalar, merl.geodesic_distance(x[:300], y[:300], to_channel=j), atol=1e-12)
     with pytest.raises(MazeSpecError, match="to_channel must be an integer in 0..3"):
         merl.geodesic_distance(0.0, 0.0, to_channel=4)
+
+
+def test_geodesic_does_not_reward_sinking_into_a_wall(merl: MazeSpec):
+    """Soft contacts let a marble that hits a wall sink into it by up to v/150 s; pressed into the
+    solid part of a wall from outside it is still outside, so a planner gains nothing by it."""
+    face = merl.walls[3].outer_radius + merl.marble_radius  # marble centre touching wall 3
+    at_face = float(merl.geodesic_distance(*_polar(face, 90.0)))  # 90°: no gate in wall 3
+    for depth in (0.5 * MM, 1 * MM, 3 * MM):
+        assert float(merl.geodesic_distance(*_polar(face - depth, 90.0))) == pytest.approx(at_face, abs=1e-12)
+        assert merl.geodesic_distance_one(*_polar(face - depth, 90.0)) == pytest.approx(at_face, abs=1e-12)
+    # ... while in a gate the same radial move is real progress.
+    gate_face = float(merl.geodesic_distance(*_polar(face, 45.0)))
+    assert float(merl.geodesic_distance(*_polar(face - 3 * MM, 45.0))) == pytest.approx(gate_face - 3 * MM, abs=1e-9)

@@ -11,8 +11,9 @@ the paper's, written there with the opposite sign) or its geodesic distance thro
 rollouts are scored — exactly the same ranking as summing per step, at a fraction of the cost.
 
 Sampling: ``"uniform"`` draws each of the H actions independently; ``"hold"`` draws an action and
-holds it for a random 3–5 steps (DESIGN §2 measured this halves FULL episode lengths: the board
-needs several consecutive steps to reach a useful tilt).
+holds it for a random 3–5 steps (the board needs several consecutive steps to reach a useful
+tilt). benchmarks/bench_expert.py compares the settings; the defaults (radial, hold, K=10, H=20)
+are the best of that table.
 
 The expert acts on the true simulator state (``act(state) -> action``), so it can label states
 visited by any policy (DAgger) as long as the caller has that state.
@@ -49,7 +50,7 @@ class MPCConfig:
     """"uniform" (independent actions) or "hold" (each action held for hold_min..hold_max steps)."""
     hold_min: int = 3
     hold_max: int = 5
-    reward: str = "geodesic"
+    reward: str = "radial"
     """Planning reward: "radial" (the paper's) or "geodesic" progress towards the centre."""
     nthread: int = 1
     """Threads for the rollouts (1 inside worker processes)."""

@@ -345,6 +345,8 @@ class MazeSpec:
             "to_channel": int(to_channel), "target_end": target_end,
             "obstacle": np.array([1.0] + [c[0] for c in channels]),
             "band_start": np.array([np.inf] + [c[1] for c in channels]),
+            "band_start_list": [math.inf] + [c[1] for c in channels],
+            "mids": np.array([w.mid_radius for w in self.walls] or [0.0]),
             "gate_angle": gate_angle, "gate_dist": gate_dist, "channels": channels,
             "bounds": np.array(bounds), "bounds_list": bounds,
             "portals": portals, "gate_distances": gate_distances,
@@ -374,6 +376,18 @@ class MazeSpec:
         r = np.hypot(x, y)
         theta = np.arctan2(y, x)
         channel = np.searchsorted(tables["bounds"], r, side="right")
+        # Within a wall's band, outside its gates and beyond its mid radius, the marble is pressed
+        # into the solid wall from outside (soft contacts let it sink in by up to v/150 s): it is
+        # still outside. Otherwise a planner would be rewarded for ramming walls.
+        in_band = r > tables["band_start"][channel]
+        into_wall = np.zeros(r.shape, dtype=bool)
+        if np.any(in_band):
+            for w, wall in enumerate(self.walls):
+                mask = in_band & (channel == w)
+                if np.any(mask):
+                    into_wall[mask] = ~wall.in_gate(theta[mask])
+        from_outside = into_wall & (r >= tables["mids"][np.minimum(channel, len(self.walls) - 1)])
+        channel = np.where(from_outside, channel + 1, channel)
         # Per point, the table row of its channel (row 0, the centre region, is unused): the
         # obstacle radius, where the next wall's band starts, and the inner wall's gates (padded
         # with infinite distances) — one vectorised pass over all points and gates.
@@ -395,13 +409,19 @@ class MazeSpec:
         for bound in tables["bounds_list"]:
             if r >= bound:
                 channel += 1
+        theta = math.atan2(y, x)
+        if channel < len(self.walls) and r > tables["band_start_list"][channel]:
+            wall = self.walls[channel]
+            if r >= wall.mid_radius and not any(
+                    abs((theta - g.angle + math.pi) % (2 * math.pi) - math.pi) <= g.width / 2
+                    for g in wall.gates):
+                channel += 1  # pressed into the wall from outside: still outside
         if channel <= to_channel:
             return r if to_channel == 0 else max(r - tables["target_end"], 0.0)
         a, band_start, gates = tables["channels"][channel - 1]
         extra = 0.0
         if r > band_start:
             extra, r = r - band_start, band_start
-        theta = math.atan2(y, x)
         r1 = r if r > a else a
         alpha1 = math.acos(a / r1)
         tangent = math.sqrt(r1 * r1 - a * a)
