@@ -33,7 +33,7 @@ def test_demo_writes_both_files(tmp_path):
 @pytest.mark.parametrize("argv, message", [
     (["rollout", "--task", "STG7"], "invalid choice: 'STG7'"),
     (["rollout", "--episodes", "0"], "expected a positive integer"),
-    (["rollout", "--policy", "expert"], "invalid choice: 'expert'"),
+    (["rollout", "--policy", "oracle"], "invalid choice: 'oracle'"),
     (["fly"], "invalid choice: 'fly'"),
 ])
 def test_bad_flags_name_the_value_and_the_choices(argv, message, capsys):

@@ -25,6 +25,11 @@ def test_noop_policy_never_moves_the_marble():
     assert all(r["length"] == 50 and not r["success"] and r["return"] == 0 for r in results)
 
 
+def test_expert_policy_solves_stg1_through_the_env():
+    results, _ = run_episodes("STG1", "expert", 2, seed=3)
+    assert all(r["success"] and r["length"] < 150 for r in results)
+
+
 def test_unknown_policy_is_refused():
-    with pytest.raises(ValueError, match="unknown policy 'smart'; allowed: random, noop, geodesic"):
+    with pytest.raises(ValueError, match="unknown policy 'smart'; allowed: random, noop, geodesic, expert"):
         make_policy("smart", MazeSpec.merl(), np.random.default_rng(0))

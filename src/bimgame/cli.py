@@ -47,8 +47,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     demo = verbs.add_parser("demo", help="write a maze picture and a GIF of one episode")
     demo.add_argument("--out", type=Path, default=Path("out"), help="output directory (default out/)")
-    demo.add_argument("--task", choices=tasks, default="STG2", type=str.upper)
-    demo.add_argument("--policy", choices=POLICIES, default="geodesic")
+    demo.add_argument("--task", choices=tasks, default="FULL", type=str.upper)
+    demo.add_argument("--policy", choices=POLICIES, default="expert")
     demo.add_argument("--seed", type=int, default=0)
 
     evaluate = verbs.add_parser("expert-eval", help="measure the MPC expert: success, lengths, histogram")

@@ -1,6 +1,6 @@
-"""Simple reference policies for the env: uniformly random, no-op, and a scripted controller that
-tilts the board down the geodesic-distance slope. They are baselines for sanity checks and demos,
-not experts (the MPC expert lives in ``expert.py``)."""
+"""Reference policies for the env, by name: uniformly random, no-op, a scripted controller that
+tilts the board down the geodesic-distance slope (baselines for sanity checks), and the MPC expert
+of ``expert.py`` acting on the env's simulator state (for demos and evaluation)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import numpy as np
 
 from bimgame.maze import MazeSpec
 
-__all__ = ["Policy", "RandomPolicy", "NoopPolicy", "GeodesicPolicy", "POLICIES", "make_policy"]
+__all__ = ["Policy", "RandomPolicy", "NoopPolicy", "GeodesicPolicy", "ExpertPolicy", "POLICIES", "make_policy"]
 
 
 class Policy(Protocol):
@@ -84,7 +84,25 @@ class GeodesicPolicy:
         return 3 if error[1] > 0 else 4
 
 
-POLICIES = ("random", "noop", "geodesic")
+class ExpertPolicy:
+    """The random-shooting MPC expert (default settings) acting on the env's true simulator state."""
+
+    def __init__(self, spec: MazeSpec, rng: np.random.Generator):
+        self.spec = spec
+        self.rng = rng
+        self._expert = None
+
+    def __call__(self, env) -> int:
+        from bimgame.expert import RandomShootingMPC
+
+        unwrapped = env.unwrapped
+        if self._expert is None or self._expert.task is not unwrapped.task:
+            self._expert = RandomShootingMPC(self.spec, rng=self.rng, task=unwrapped.task,
+                                             n_marbles=unwrapped.n_marbles)
+        return self._expert.act(unwrapped.sim.get_state())
+
+
+POLICIES = ("random", "noop", "geodesic", "expert")
 
 
 def make_policy(name: str, spec: MazeSpec, rng: np.random.Generator) -> Policy:
@@ -95,5 +113,7 @@ def make_policy(name: str, spec: MazeSpec, rng: np.random.Generator) -> Policy:
         return NoopPolicy()
     if name == "geodesic":
         return GeodesicPolicy(spec)
+    if name == "expert":
+        return ExpertPolicy(spec, rng)
     raise ValueError(f"unknown policy {name!r}; allowed: {', '.join(POLICIES)}")
 
