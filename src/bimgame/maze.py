@@ -20,7 +20,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-from collections.abc import Sequence
 
 import numpy as np
 
@@ -500,8 +499,3 @@ def annulus_path_length(r1: np.ndarray | float, theta1: np.ndarray | float, r2: 
     wrapped = (np.sqrt(np.maximum(r1 ** 2 - a ** 2, 0.0)) + np.sqrt(np.maximum(r2 ** 2 - a ** 2, 0.0))
                + a * (dtheta - alpha1 - alpha2))
     return np.where(dtheta <= alpha1 + alpha2, straight, wrapped)
-
-
-def parse_gates_deg(pairs: Sequence[tuple[float, float]]) -> tuple[Gate, ...]:
-    """Gates from ``(angle_deg, width_deg)`` pairs."""
-    return tuple(Gate.deg(a, w) for a, w in pairs)
