@@ -42,6 +42,7 @@ __all__ = ["MazeSim", "StateLayout", "PHYSICS_HZ", "CONTROL_HZ"]
 PHYSICS_HZ = 150.0
 CONTROL_HZ = 30.0
 STATE_SPEC = mujoco.mjtState.mjSTATE_FULLPHYSICS
+CONTROL_SPEC = int(mujoco.mjtState.mjSTATE_CTRL)
 
 # Board and servo constants: the board is stiffly position-controlled, so its own inertia only
 # sets how tightly it tracks the commanded tilt (natural frequency SERVO_OMEGA, critically damped).
@@ -325,7 +326,7 @@ class MazeSim:
         self.layout = StateLayout(self.model, n_marbles)
         self._rollout_pool: ThreadPoolExecutor | None = None
         self._rollout_threads = 0
-        self._rollout_data: list[mujoco.MjData] = []
+        self._rollout_data: list[tuple[mj_rollout.Rollout, mujoco.MjData]] = []
 
     # ------------------------------------------------------------------ state
     @property
@@ -449,22 +450,32 @@ class MazeSim:
         return out
 
     def _rollout_chunk(self, states: np.ndarray, tilt_deltas: np.ndarray, out: np.ndarray, slot: int) -> None:
-        """Roll out one chunk on MjData number ``slot``, writing (b, H, state_size) into ``out``."""
-        data = self._rollout_data_for(slot)
+        """Roll out one chunk on runner number ``slot``, writing (b, H, state_size) into ``out``."""
+        runner, data = self._rollout_runner_for(slot)
+        batch = states.shape[0]
+        models = [self.model] * batch
         current = np.ascontiguousarray(states)
-        warmstart = np.zeros((current.shape[0], self.model.nv))
+        warmstart = np.zeros((batch, self.model.nv))
+        control = np.empty((batch, self.substeps, self.model.nu))
+        states_out = np.empty((batch, self.substeps, self.layout.size))
         for t in range(tilt_deltas.shape[1]):
             # One rollout call per action step, with the rate computed from each state's current
-            # servo target exactly as :meth:`step` does, keeps the two bit-identical.
+            # servo target exactly as :meth:`step` does, keeps the two bit-identical. Arrays are
+            # preallocated and MuJoCo's argument checks skipped: per-call overhead is what this
+            # loop costs beyond the physics.
             _, rate = self.rates_for(current[:, self.layout.target_tilt], tilt_deltas[:, t])
-            control = np.ascontiguousarray(np.repeat(rate[:, None, [0, 0, 1, 1]], self.substeps, axis=1))
-            states_out, _ = mj_rollout.rollout(self.model, data, current, control, initial_warmstart=warmstart)
-            current = np.ascontiguousarray(states_out[:, -1])
+            control[:, :, 0] = control[:, :, 1] = rate[:, None, 0]
+            control[:, :, 2] = control[:, :, 3] = rate[:, None, 1]
+            runner.rollout(models, [data], current, control, control_spec=CONTROL_SPEC,
+                           skip_checks=True, nstep=self.substeps, initial_warmstart=warmstart,
+                           state=states_out)
+            current = states_out[:, -1].copy()
             out[:, t] = current
 
-    def _rollout_data_for(self, slot: int) -> mujoco.MjData:
+    def _rollout_runner_for(self, slot: int) -> tuple[mj_rollout.Rollout, mujoco.MjData]:
+        """A calling-thread rollout runner and its MjData for one chunk slot (created once)."""
         while len(self._rollout_data) <= slot:
-            self._rollout_data.append(mujoco.MjData(self.model))
+            self._rollout_data.append((mj_rollout.Rollout(nthread=0), mujoco.MjData(self.model)))
         return self._rollout_data[slot]
 
     def _thread_pool(self, nthread: int) -> ThreadPoolExecutor:
@@ -476,10 +487,12 @@ class MazeSim:
         return self._rollout_pool
 
     def close(self) -> None:
-        """Release the rollout thread pool, if any."""
+        """Release the rollout threads and runners, if any."""
         if self._rollout_pool is not None:
             self._rollout_pool.shutdown()
             self._rollout_pool = None
+        for runner, _ in self._rollout_data:
+            runner.close()
         self._rollout_data = []
 
     def __del__(self):  # pragma: no cover - best effort cleanup
