@@ -64,6 +64,8 @@ TILT_GAUGE_RGB: tuple[int, int, int] = (70, 72, 78)     # tilt indicator ring an
 TILT_ARROW_RGB: tuple[int, int, int] = (200, 40, 40)    # tilt indicator: downhill direction
 
 SUPERSAMPLE: int = 4
+#: Sub-pixel steps per pixel of the marble coverage table used for grayscale observations.
+LUT_STEPS: int = 32
 """Background antialiasing: sub-samples per pixel along each axis."""
 
 DEFAULT_RGB_SIZE: int = 480
@@ -103,6 +105,8 @@ class _Grid:
     dj_int: np.ndarray            # (P,) column offsets (int64)
     square_di: np.ndarray         # ((2K+1)²,) row offsets of the square window, row-major (float64)
     square_dj: np.ndarray         # ((2K+1)²,) column offsets of the square window (float64)
+    disc_in_square: np.ndarray    # (P,) positions of the disc's pixels within the square window
+    _cache: dict = dataclasses.field(default_factory=dict)  # coverage_lut(), built on first use
 
     @classmethod
     def build(cls, spec: MazeSpec, size: int, extent: float) -> _Grid:
@@ -120,7 +124,63 @@ class _Grid:
         return cls(size=size, extent=extent, metres_per_pixel=mpp, radius_px=radius_px,
                    half_window=k, di=di.astype(np.float64), dj=dj.astype(np.float64),
                    dflat=di * size + dj, di_int=di, dj_int=dj,
-                   square_di=ii.ravel().astype(np.float64), square_dj=jj.ravel().astype(np.float64))
+                   square_di=ii.ravel().astype(np.float64), square_dj=jj.ravel().astype(np.float64),
+                   disc_in_square=np.flatnonzero(keep.ravel()))
+
+    def coverage_lut(self) -> np.ndarray:
+        """``1 - coverage`` of the square window's pixels for the marble's centre at each of
+        (Q+1)² sub-pixel offsets (Q = LUT_STEPS per pixel), built on first use.
+
+        Grayscale observations look the marble up here instead of computing distances: one
+        indexing operation instead of about ten numpy calls per marble, which is most of the cost
+        of an 84×84 frame. The centre is quantised to 1/Q px (1/32 px = 0.07 mm at 84 px), far
+        below the one-pixel accuracy the observation needs; single and batched frames use the
+        same table, so they stay bit-identical.
+        """
+        lut = self._cache.get("lut")
+        if lut is None:
+            q = LUT_STEPS
+            offsets = np.arange(q + 1) / q - 0.5  # (i0 - row) or (j0 - col), quantised
+            dy = self.square_di[None, None, :] + offsets[:, None, None]
+            dx = self.square_dj[None, None, :] + offsets[None, :, None]
+            d = np.broadcast_to(dx, (q + 1, q + 1, dx.shape[-1])).copy()
+            _distance(d, np.broadcast_to(dy, d.shape).copy())
+            lut = self._cache["lut"] = self.uncovered(d)
+        return lut
+
+    def lut_square(self, col: float, row: float) -> tuple[slice, slice, np.ndarray] | None:
+        """:meth:`square` with ``uncovered=True``, from :meth:`coverage_lut`."""
+        if not (math.isfinite(col) and math.isfinite(row)):
+            return None
+        j0 = round(col)
+        i0 = round(row)
+        half = LUT_STEPS // 2
+        k = self.half_window
+        u = self.coverage_lut()[round((i0 - row) * LUT_STEPS) + half,
+                                round((j0 - col) * LUT_STEPS) + half].reshape(2 * k + 1, 2 * k + 1)
+        r0, c0 = i0 - k, j0 - k
+        r1, c1 = i0 + k + 1, j0 + k + 1
+        if r0 >= 0 and c0 >= 0 and r1 <= self.size and c1 <= self.size:
+            return slice(r0, r1), slice(c0, c1), u
+        rr0, cc0 = max(r0, 0), max(c0, 0)
+        rr1, cc1 = min(r1, self.size), min(c1, self.size)
+        if rr0 >= rr1 or cc0 >= cc1:
+            return None
+        return slice(rr0, rr1), slice(cc0, cc1), u[rr0 - r0:rr1 - r0, cc0 - c0:cc1 - c0]
+
+    def lut_disc(self, col: np.ndarray, row: np.ndarray, j0: np.ndarray, i0: np.ndarray) -> np.ndarray:
+        """``1 - coverage`` of the disc window's pixels (M, P) for marbles at ``col``, ``row``
+        (rounded to ``j0``, ``i0``), from :meth:`coverage_lut`: the batched twin of
+        :meth:`lut_square`."""
+        half = LUT_STEPS // 2
+        fi = np.rint((np.nan_to_num(i0 - row)) * LUT_STEPS).astype(np.int64) + half
+        fj = np.rint((np.nan_to_num(j0 - col)) * LUT_STEPS).astype(np.int64) + half
+        np.clip(fi, 0, LUT_STEPS, out=fi)
+        np.clip(fj, 0, LUT_STEPS, out=fj)
+        disc = self._cache.get("disc")
+        if disc is None:
+            disc = self._cache["disc"] = np.ascontiguousarray(self.coverage_lut()[:, :, self.disc_in_square])
+        return disc[fi, fj]
 
     def to_pixel(self, xy: np.ndarray) -> np.ndarray:
         xy = np.asarray(xy, dtype=np.float64)
@@ -170,7 +230,7 @@ class _Grid:
         return slice(rr0, rr1), slice(cc0, cc1), d[rr0 - r0:rr1 - r0, cc0 - c0:cc1 - c0]
 
     def window(self, col: np.ndarray, row: np.ndarray, j0: np.ndarray, i0: np.ndarray,
-               inside: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+               inside: bool, distances: bool = True) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
         """Marbles centred at pixel coordinates ``col``, ``row`` (shape (M,)), ``j0 = rint(col)``,
         ``i0 = rint(row)``; ``inside``: whether every window lies inside the image.
 
@@ -178,8 +238,10 @@ class _Grid:
         of the pixels' centres from the marbles' centres (M, P), and None (if ``inside``) or the
         (M, P) mask of pixels inside the image (other entries hold clipped, meaningless indices).
         """
-        d = np.add(self.dj, (j0 - col)[:, None])
-        _distance(d, np.add(self.di, (i0 - row)[:, None]))
+        d = None
+        if distances:
+            d = np.add(self.dj, (j0 - col)[:, None])
+            _distance(d, np.add(self.di, (i0 - row)[:, None]))
         if inside:
             base = i0.astype(np.int64) * self.size + j0.astype(np.int64)
             return base[:, None] + self.dflat, d, None
@@ -350,7 +412,7 @@ class MazeRenderer:
             image = out if single else out[0]
             extent, inv = grid.extent, 1.0 / grid.metres_per_pixel
             for x, y in xy[0].tolist():
-                window = grid.square((x + extent) * inv - 0.5, (extent - y) * inv - 0.5, True)
+                window = grid.lut_square((x + extent) * inv - 0.5, (extent - y) * inv - 0.5)
                 if window is not None:
                     rows, cols, uncovered = window
                     view = image[rows, cols]
@@ -367,13 +429,14 @@ class MazeRenderer:
         flat_out = out.reshape(-1)
         frame_base = (np.arange(batch, dtype=np.int64) * (s * s))[:, None]
         for m in range(n_marbles):
-            flat, d, valid = grid.window(pix[:, m, 0], pix[:, m, 1], centre[:, m, 0], centre[:, m, 1],
-                                         inside)
+            flat, _, valid = grid.window(pix[:, m, 0], pix[:, m, 1], centre[:, m, 0], centre[:, m, 1],
+                                         inside, distances=False)
+            u = grid.lut_disc(pix[:, m, 0], pix[:, m, 1], centre[:, m, 0], centre[:, m, 1])
             flat += frame_base
             if valid is not None:
                 flat = flat[valid]
-                d = d[valid]
-            _blend_gray(flat_out, flat, grid.uncovered(d))
+                u = u[valid]
+            _blend_gray(flat_out, flat, u)
         return out
 
     # ------------------------------------------------------------------ colour video frames
