@@ -158,15 +158,21 @@ class _Grid:
         k = self.half_window
         u = self.coverage_lut()[round((i0 - row) * LUT_STEPS) + half,
                                 round((j0 - col) * LUT_STEPS) + half].reshape(2 * k + 1, 2 * k + 1)
+        return self._clipped(i0, j0, u)
+
+    def _clipped(self, i0: int, j0: int, values: np.ndarray) -> tuple[slice, slice, np.ndarray] | None:
+        """The image slices a square window centred on pixel ``(i0, j0)`` covers, clipped to the
+        image, and the matching part of ``values`` ((2K+1, 2K+1)); None if entirely outside."""
+        k = self.half_window
         r0, c0 = i0 - k, j0 - k
         r1, c1 = i0 + k + 1, j0 + k + 1
         if r0 >= 0 and c0 >= 0 and r1 <= self.size and c1 <= self.size:
-            return slice(r0, r1), slice(c0, c1), u
+            return slice(r0, r1), slice(c0, c1), values
         rr0, cc0 = max(r0, 0), max(c0, 0)
         rr1, cc1 = min(r1, self.size), min(c1, self.size)
         if rr0 >= rr1 or cc0 >= cc1:
             return None
-        return slice(rr0, rr1), slice(cc0, cc1), u[rr0 - r0:rr1 - r0, cc0 - c0:cc1 - c0]
+        return slice(rr0, rr1), slice(cc0, cc1), values[rr0 - r0:rr1 - r0, cc0 - c0:cc1 - c0]
 
     def lut_disc(self, col: np.ndarray, row: np.ndarray, j0: np.ndarray, i0: np.ndarray) -> np.ndarray:
         """``1 - coverage`` of the disc window's pixels (M, P) for marbles at ``col``, ``row``
@@ -219,15 +225,7 @@ class _Grid:
         if uncovered:
             self.uncovered(d)
         d = d.reshape(2 * k + 1, 2 * k + 1)
-        r0, c0 = i0 - k, j0 - k
-        r1, c1 = i0 + k + 1, j0 + k + 1
-        if r0 >= 0 and c0 >= 0 and r1 <= self.size and c1 <= self.size:
-            return slice(r0, r1), slice(c0, c1), d
-        rr0, cc0 = max(r0, 0), max(c0, 0)
-        rr1, cc1 = min(r1, self.size), min(c1, self.size)
-        if rr0 >= rr1 or cc0 >= cc1:
-            return None
-        return slice(rr0, rr1), slice(cc0, cc1), d[rr0 - r0:rr1 - r0, cc0 - c0:cc1 - c0]
+        return self._clipped(i0, j0, d)
 
     def window(self, col: np.ndarray, row: np.ndarray, j0: np.ndarray, i0: np.ndarray,
                inside: bool, distances: bool = True) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
