@@ -98,8 +98,6 @@ class _Grid:
     metres_per_pixel: float
     radius_px: float              # marble radius in pixels
     half_window: int              # K: window offsets lie in [-K, K]²
-    di: np.ndarray                # (P,) row offsets of the window's pixels (float64)
-    dj: np.ndarray                # (P,) column offsets (float64)
     dflat: np.ndarray             # (P,) flat offsets di * size + dj (int64)
     di_int: np.ndarray            # (P,) row offsets (int64)
     dj_int: np.ndarray            # (P,) column offsets (int64)
@@ -122,7 +120,7 @@ class _Grid:
         di = ii[keep].astype(np.int64)
         dj = jj[keep].astype(np.int64)
         return cls(size=size, extent=extent, metres_per_pixel=mpp, radius_px=radius_px,
-                   half_window=k, di=di.astype(np.float64), dj=dj.astype(np.float64),
+                   half_window=k,
                    dflat=di * size + dj, di_int=di, dj_int=dj,
                    square_di=ii.ravel().astype(np.float64), square_dj=jj.ravel().astype(np.float64),
                    disc_in_square=np.flatnonzero(keep.ravel()))
@@ -204,15 +202,13 @@ class _Grid:
         np.maximum(d, 0.0, out=d)
         return d
 
-    def square(self, col: float, row: float, uncovered: bool = False
-               ) -> tuple[slice, slice, np.ndarray] | None:
-        """The square window of one marble centred at pixel coordinates ``(col, row)`` (floats).
+    def square(self, col: float, row: float) -> tuple[slice, slice, np.ndarray] | None:
+        """The square window of one marble centred at pixel coordinates ``(col, row)`` (floats),
+        for colour frames.
 
         Returns ``(rows, cols, d)``: the slices of the image the window covers (clipped to the
         image) and the distances (px) of those pixels' centres from the marble's centre, shape
-        ``(len(rows), len(cols))``; None if the marble is not finite or entirely outside. Pixels
-        of the square outside the disc of :meth:`window` have zero coverage, and the distances
-        are computed with the same operations, so both give bit-identical images.
+        ``(len(rows), len(cols))``; None if the marble is not finite or entirely outside.
         """
         if not (math.isfinite(col) and math.isfinite(row)):
             return None
@@ -222,27 +218,20 @@ class _Grid:
         d = np.add(self.square_dj, j0 - col)
         dy = np.add(self.square_di, i0 - row)
         _distance(d, dy)
-        if uncovered:
-            self.uncovered(d)
         d = d.reshape(2 * k + 1, 2 * k + 1)
         return self._clipped(i0, j0, d)
 
-    def window(self, col: np.ndarray, row: np.ndarray, j0: np.ndarray, i0: np.ndarray,
-               inside: bool, distances: bool = True) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
-        """Marbles centred at pixel coordinates ``col``, ``row`` (shape (M,)), ``j0 = rint(col)``,
-        ``i0 = rint(row)``; ``inside``: whether every window lies inside the image.
+    def window(self, j0: np.ndarray, i0: np.ndarray, inside: bool) -> tuple[np.ndarray, np.ndarray | None]:
+        """The disc windows of marbles centred on pixels ``(i0, j0)`` (shape (M,), rounded pixel
+        coordinates); ``inside``: whether every window lies inside the image.
 
-        Returns ``(flat, d, valid)``: flat pixel indices within one image (M, P), distances (px)
-        of the pixels' centres from the marbles' centres (M, P), and None (if ``inside``) or the
-        (M, P) mask of pixels inside the image (other entries hold clipped, meaningless indices).
+        Returns ``(flat, valid)``: flat pixel indices within one image (M, P), and None (if
+        ``inside``) or the (M, P) mask of pixels inside the image (other entries hold clipped,
+        meaningless indices). Their coverage comes from :meth:`lut_disc`.
         """
-        d = None
-        if distances:
-            d = np.add(self.dj, (j0 - col)[:, None])
-            _distance(d, np.add(self.di, (i0 - row)[:, None]))
         if inside:
             base = i0.astype(np.int64) * self.size + j0.astype(np.int64)
-            return base[:, None] + self.dflat, d, None
+            return base[:, None] + self.dflat, None
         # Near or beyond the image border: clip the window. Far-away (or non-finite) centres are
         # clamped first so the integer arithmetic cannot overflow.
         k = self.half_window
@@ -254,7 +243,7 @@ class _Grid:
         valid = (jj >= 0) & (jj < self.size) & (ii >= 0) & (ii < self.size)
         np.clip(jj, 0, self.size - 1, out=jj)
         np.clip(ii, 0, self.size - 1, out=ii)
-        return ii * self.size + jj, d, valid
+        return ii * self.size + jj, valid
 
 
 def _coverage(spec: MazeSpec, size: int, extent: float, supersample: int = SUPERSAMPLE) -> np.ndarray:
@@ -427,8 +416,7 @@ class MazeRenderer:
         flat_out = out.reshape(-1)
         frame_base = (np.arange(batch, dtype=np.int64) * (s * s))[:, None]
         for m in range(n_marbles):
-            flat, _, valid = grid.window(pix[:, m, 0], pix[:, m, 1], centre[:, m, 0], centre[:, m, 1],
-                                         inside, distances=False)
+            flat, valid = grid.window(centre[:, m, 0], centre[:, m, 1], inside)
             u = grid.lut_disc(pix[:, m, 0], pix[:, m, 1], centre[:, m, 0], centre[:, m, 1])
             flat += frame_base
             if valid is not None:
