@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from bimgame.cli import run_episodes
-from bimgame.env import _DISCRETE_TILTS
+from bimgame.env import DISCRETE_TILTS
 from bimgame.expert import MPCConfig, RandomShootingMPC, episode_seed, run_expert_episode
 from bimgame.expert_eval import evaluate_expert, summarise
 from bimgame.maze import MazeSpec
@@ -61,7 +61,7 @@ def test_scores_are_the_progress_of_each_sequence_replayed_step_by_step(reward):
     for sequence in replay:
         sim.set_state(start)
         for a in sequence:
-            sim.step(_DISCRETE_TILTS[a] * maze.tilt_step)
+            sim.step(DISCRETE_TILTS[a] * maze.tilt_step)
         p0 = sim.layout.board_frame(start[None])[0][0, 0]
         p1 = sim.marble_kinematics()[0][0]
         if reward == "radial":

@@ -15,9 +15,10 @@ from gymnasium import spaces
 from bimgame.maze import MazeSpec
 from bimgame.observe import OBS_MODES, Observer
 from bimgame.sim import MazeSim
-from bimgame.tasks import Task, parse_task, task_step_one
+from bimgame.tasks import Task, initial_task_state, parse_task, task_step_one
 
-__all__ = ["BallInMazeEnv", "ACTION_TYPES", "MAX_EPISODE_STEPS", "sample_start", "action_to_tilt_delta"]
+__all__ = ["BallInMazeEnv", "ACTION_TYPES", "DISCRETE_TILTS", "MAX_EPISODE_STEPS", "sample_start",
+           "action_to_tilt_delta"]
 
 ACTION_TYPES = ("discrete", "continuous")
 
@@ -27,9 +28,11 @@ ACTION_TYPES = ("discrete", "continuous")
 #: competent controller ample time and keep luck from solving the task (DESIGN §2).
 MAX_EPISODE_STEPS = {Task.STG1: 300, Task.STG2: 500, Task.STG3: 750, Task.STG4: 1000, Task.FULL: 1000}
 
-# Discrete actions: (sign about x, sign about y).
-_DISCRETE_TILTS = np.array([[0, 0], [1, 0], [-1, 0], [0, 1], [0, -1]], dtype=np.float64)
+#: Discrete actions as (sign about x, sign about y) of one tilt step.
+DISCRETE_TILTS = np.array([[0, 0], [1, 0], [-1, 0], [0, 1], [0, -1]], dtype=np.float64)
 ACTION_MEANINGS = ("noop", "tilt +x", "tilt -x", "tilt +y", "tilt -y")
+#: What the discrete actions mean, for error messages.
+ACTIONS_HELP = ", ".join(f"{i}={m}" for i, m in enumerate(ACTION_MEANINGS))
 _FAST_INTS = (int, np.int64, np.int32)
 
 
@@ -42,9 +45,8 @@ def action_to_tilt_delta(action: Any, action_type: str, tilt_step: float) -> np.
         except (TypeError, ValueError, OverflowError):
             ok = False
         if not ok:
-            raise ValueError(f"invalid action {action!r}: discrete actions are integers 0..4 "
-                             f"({', '.join(f'{i}={m}' for i, m in enumerate(ACTION_MEANINGS))})")
-        return _DISCRETE_TILTS[index] * tilt_step
+            raise ValueError(f"invalid action {action!r}: discrete actions are integers 0..4 ({ACTIONS_HELP})")
+        return DISCRETE_TILTS[index] * tilt_step
     array = np.asarray(action, dtype=np.float64)
     if array.shape != (2,) or not np.all(np.isfinite(array)) or np.any(np.abs(array) > 1.0):
         raise ValueError(f"invalid action {action!r}: continuous actions are 2 finite numbers in "
@@ -177,7 +179,7 @@ class BallInMazeEnv(gym.Env):
         self._channels: list[int] = [self.maze.outermost_channel] * self.n_marbles
         self._reached: list[bool] = [False] * self.n_marbles
         self._has_reset = False
-        self._discrete_deltas = [tuple(float(v) for v in row * self.maze.tilt_step) for row in _DISCRETE_TILTS]
+        self._discrete_deltas = [tuple(float(v) for v in row * self.maze.tilt_step) for row in DISCRETE_TILTS]
         self._mujoco_renderer = None
 
     # ------------------------------------------------------------------ gym API
@@ -198,8 +200,9 @@ class BallInMazeEnv(gym.Env):
         else:
             xy = sample_start(self.maze, self.n_marbles, self.np_random)
         self.sim.reset(xy)
-        self._channels = [int(c) for c in self.maze.channel_of(xy[:, 0], xy[:, 1])]
-        self._reached = [False] * self.n_marbles
+        start = initial_task_state(self.maze, xy[None])
+        self._channels = start.channel[0].tolist()
+        self._reached = start.reached[0].tolist()
         self._has_reset = True
         kinematics = self.sim.layout.board_frame_one(self.sim.data.qpos, self.sim.data.qvel)
         return self._observe(kinematics), self._info(kinematics, [0] * self.n_marbles, False)
@@ -240,6 +243,8 @@ class BallInMazeEnv(gym.Env):
         if self.obs_mode == "pixels":
             xy = np.array([k[:2] for k in kinematics])
             return self.observer.raster.gray(xy)[None]
+        # The layout of Observer.from_kinematics, built from plain floats (the per-step fast path;
+        # tests check the single env against the batched vector env observation by observation).
         tilt = self.sim.data.qpos
         values = [v for k in kinematics for v in k] + [tilt[0], tilt[1]] + self._channels
         return np.array(values, dtype=np.float32)

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from bimgame.env import _DISCRETE_TILTS, MAX_EPISODE_STEPS, BallInMazeEnv
+from bimgame.env import DISCRETE_TILTS, MAX_EPISODE_STEPS, BallInMazeEnv
 from bimgame.maze import MazeSpec
 from bimgame.sim import MazeSim
 from bimgame.tasks import Task, parse_task
@@ -89,10 +89,9 @@ class RandomShootingMPC:
         self.config = config if config is not None else MPCConfig()
         self.rng = rng
         self.task = parse_task(task, self.maze)
-        k = self.task.steps_to_go
-        self.to_channel = 0 if k is None else self.maze.outermost_channel - k
+        self.to_channel = self.task.goal_channel(self.maze)
         self.sim = MazeSim(self.maze, n_marbles=n_marbles)
-        self._tilts = _DISCRETE_TILTS * self.maze.tilt_step
+        self._tilts = DISCRETE_TILTS * self.maze.tilt_step
         self.decisions = 0
 
     def sample_sequences(self) -> np.ndarray:

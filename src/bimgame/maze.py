@@ -270,9 +270,7 @@ class MazeSpec:
         A point inside a wall's gate belongs to the side of the wall's mid-radius it is on.
         (Tasks use :meth:`update_channel`, which adds hysteresis across the wall's thickness.)
         """
-        r = np.hypot(x, y)
-        mids = np.array([w.mid_radius for w in self.walls])
-        return np.searchsorted(mids, r, side="right").astype(np.int64)
+        return np.searchsorted(self._tables["mids"], np.hypot(x, y), side="right").astype(np.int64)
 
     def update_channel(self, previous: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Channel of a moving marble given the channel it was in.

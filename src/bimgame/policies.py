@@ -58,8 +58,7 @@ class GeodesicPolicy:
 
     def __call__(self, env) -> int:
         sim = env.unwrapped.sim
-        task = env.unwrapped.task
-        to_channel = 0 if task.steps_to_go is None else self.spec.outermost_channel - task.steps_to_go
+        to_channel = env.unwrapped.task.goal_channel(self.spec)
         positions, velocities = sim.marble_kinematics()
         x, y = positions[0, 0], positions[0, 1]
         e = self.eps

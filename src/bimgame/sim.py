@@ -101,10 +101,7 @@ def _arc_boxes(inner: float, outer: float, start: float, end: float, tolerance: 
         boxes.append((rc * math.cos(mid), rc * math.sin(mid), half_len, 0.5 * (d_out - d_in), mid))
     # End pieces: pull their outer ends back so the end face passes through the radial edge at
     # mid-depth instead of overhanging into the gate.
-    if len(boxes) >= 1:
-        boxes = [_trim_end_box(b, inner, outer, a0, a1, start, end)
-                 for b, (a0, a1) in zip(boxes, pieces)]
-    return boxes
+    return [_trim_end_box(b, inner, outer, a0, a1, start, end) for b, (a0, a1) in zip(boxes, pieces)]
 
 
 def _trim_end_box(box, inner, outer, a0, a1, start, end):
@@ -115,14 +112,12 @@ def _trim_end_box(box, inner, outer, a0, a1, start, end):
     rm = 0.5 * (inner + outer)
     # Tangential coordinate (along the box) of the radial edge at mid-depth, relative to the box
     # centre: the edge point at radius rm sits at angle +-half from the bisector.
-    rc = math.hypot(cx, cy)
     t_edge = rm * math.sin(half)
     lo = -t_edge if a0 == start else -half_len
     hi = t_edge if a1 == end else half_len
     new_half = 0.5 * (hi - lo)
     shift = 0.5 * (hi + lo)
     tx, ty = -math.sin(yaw), math.cos(yaw)
-    del rc
     return (cx + shift * tx, cy + shift * ty, new_half, half_depth, yaw)
 
 
@@ -168,7 +163,6 @@ class StateLayout:
         vy = v[..., 1] - (wz * px - wx * pz)
         vz = v[..., 2] - (wx * py - wy * px)
         return _to_board(px, py, pz, ca, sa, cb, sb), _to_board(vx, vy, vz, ca, sa, cb, sb)
-
 
     def board_frame_one(self, qpos: np.ndarray, qvel: np.ndarray) -> list[tuple[float, float, float, float]]:
         """Scalar :meth:`board_frame` of one model's ``qpos``/``qvel``: per marble
@@ -369,7 +363,8 @@ class MazeSim:
 
     # ------------------------------------------------------------------ stepping
     def rates_for(self, target_tilt: np.ndarray, tilt_delta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """New (clamped) targets and the tilt rates (rad/s) that ramp to them in one action step."""
+        """New (clamped) targets and the tilt rates (rad/s) that ramp to them in one action step
+        (batched; :meth:`step` does the same per float)."""
         new_target = np.clip(target_tilt + tilt_delta, -self.spec.max_tilt, self.spec.max_tilt)
         return new_target, (new_target - target_tilt) / self.control_dt
 

@@ -37,6 +37,11 @@ class Task(str, enum.Enum):
         """k for STGk, None for FULL."""
         return None if self is Task.FULL else int(self.value[3:])
 
+    def goal_channel(self, spec: MazeSpec) -> int:
+        """The channel the marble must reach: 0 (the centre) for FULL, the channel inside the
+        k-th wall from the outside for STGk."""
+        return 0 if self.steps_to_go is None else spec.outermost_channel - self.steps_to_go
+
 
 def parse_task(task: str | Task, spec: MazeSpec | None = None) -> Task:
     """A :class:`Task` from its name, checked against the maze (STGk needs at least k walls)."""
@@ -86,7 +91,7 @@ def task_step(task: Task, spec: MazeSpec, state: TaskState, marble_xy: np.ndarra
         reached = channel == 0
         terminated = reached.all(axis=-1)
     else:
-        goal_channel = len(spec.walls) - task.steps_to_go
+        goal_channel = task.goal_channel(spec)
         newly = (channel <= goal_channel) & ~state.reached
         reached = state.reached | newly
         reward = newly.sum(axis=-1).astype(np.float64)
@@ -103,7 +108,7 @@ def task_step_one(task: Task, spec: MazeSpec, channels: list[int], reached: list
     faster than numpy on (1, n) arrays (tests check both agree)."""
     crossings = []
     reward = 0.0
-    goal_channel = None if task is Task.FULL else len(spec.walls) - task.steps_to_go
+    goal_channel = None if task is Task.FULL else task.goal_channel(spec)
     for i, r in enumerate(radii):
         new = spec.next_channel(channels[i], r)
         crossings.append(channels[i] - new)

@@ -18,7 +18,7 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
-from bimgame.env import (ACTION_MEANINGS, BallInMazeEnv, _DISCRETE_TILTS, sample_start)
+from bimgame.env import ACTIONS_HELP, DISCRETE_TILTS, BallInMazeEnv, sample_start
 from bimgame.tasks import TaskState, initial_task_state, task_step
 
 __all__ = ["BallInMazeVectorEnv"]
@@ -92,7 +92,8 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
         self._autoreset[:] = False
         self._has_reset = True
         crossings = np.zeros_like(self._task_state.channel)
-        return self._observe_and_info(crossings, np.zeros(self.num_envs, dtype=bool))
+        positions, velocities = self.sim.layout.board_frame(self._states)
+        return self._observe_and_info(positions, velocities, crossings, np.zeros(self.num_envs, dtype=bool))
 
     def step(self, actions):
         if not self._has_reset:
@@ -107,9 +108,12 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
         if stepping.any():
             idx = np.flatnonzero(stepping)
             self._states[idx] = self.sim.rollout(self._states[idx], deltas[idx, None], nthread=self.nthread)[:, 0]
-            positions, _ = self.sim.layout.board_frame(self._states[idx])
+        # One decode of every state serves the task, the observations and the infos; only envs
+        # that were reset this step are decoded again.
+        positions, velocities = self.sim.layout.board_frame(self._states)
+        if stepping.any():
             sub_state = TaskState(self._task_state.channel[idx], self._task_state.reached[idx])
-            new_state, r, term, cross = task_step(self.task, self.maze, sub_state, positions[..., :2])
+            new_state, r, term, cross = task_step(self.task, self.maze, sub_state, positions[idx, :, :2])
             self._task_state.channel[idx] = new_state.channel
             self._task_state.reached[idx] = new_state.reached
             reward[idx] = r
@@ -120,8 +124,9 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
                 truncated[idx] = self._elapsed[idx] >= self.max_episode_steps
         if resetting.any():
             self._reset_envs(resetting)
+            positions[resetting], velocities[resetting] = self.sim.layout.board_frame(self._states[resetting])
         self._autoreset = terminated | truncated
-        obs, infos = self._observe_and_info(crossings, terminated.copy())
+        obs, infos = self._observe_and_info(positions, velocities, crossings, terminated.copy())
         return obs, reward, terminated, truncated, infos
 
     def render(self) -> tuple[np.ndarray, ...] | None:
@@ -146,9 +151,8 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
                      and np.all((array >= 0) & (array < 5)))
             if not valid:
                 raise ValueError(
-                    f"invalid actions {actions!r}: expected {self.num_envs} integers in 0..4 "
-                    f"({', '.join(f'{i}={m}' for i, m in enumerate(ACTION_MEANINGS))})")
-            return _DISCRETE_TILTS[array] * step
+                    f"invalid actions {actions!r}: expected {self.num_envs} integers in 0..4 ({ACTIONS_HELP})")
+            return DISCRETE_TILTS[array] * step
         array = np.asarray(actions, dtype=np.float64)
         if array.shape != (self.num_envs, 2) or not np.all(np.isfinite(array)) or np.any(np.abs(array) > 1):
             raise ValueError(f"invalid actions: expected shape ({self.num_envs}, 2), finite, in [-1, 1]; "
@@ -166,8 +170,8 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
             self._task_state.reached[i] = start.reached[0]
             self._elapsed[i] = 0
 
-    def _observe_and_info(self, crossings: np.ndarray, success: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
-        positions, velocities = self.sim.layout.board_frame(self._states)
+    def _observe_and_info(self, positions: np.ndarray, velocities: np.ndarray, crossings: np.ndarray,
+                          success: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
         tilt = self._states[:, self.sim.layout.tilt]
         obs = self.template.observer.from_kinematics(positions, velocities, tilt, self._task_state.channel)
         values = {
@@ -177,9 +181,10 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
             "is_success": success,
             "tilt": tilt,
         }
+        every_env = np.ones(self.num_envs, dtype=bool)  # Gymnasium's per-key "_key" masks
         infos: dict[str, Any] = {}
         for key, value in values.items():
             infos[key] = value
-            infos[f"_{key}"] = np.ones(self.num_envs, dtype=bool)
+            infos[f"_{key}"] = every_env
         return obs, infos
 
