@@ -19,6 +19,7 @@ import pytest
 from minari import EpisodeData
 
 import bimgame.data as data
+import bimgame.parallel as parallel
 from bimgame.cli import main
 from bimgame.data import (NO_ACTION, DatasetError, add_generate_arguments, dataset_summary, generate_dataset,
                           iterate_sequences, load_dataset)
@@ -112,14 +113,15 @@ def test_killed_generation_is_incomplete_and_resumes_only_the_missing_episodes(r
     code = textwrap.dedent(f"""
         import time
         import bimgame.data as d
+        import bimgame.parallel as p
         from bimgame.expert import MPCConfig
-        real, calls = d.run_expert_episode, []
+        real, calls = p.run_expert_episode, []
         def slow(*args, **kwargs):
             if calls:
                 time.sleep(30)
             calls.append(1)
             return real(*args, **kwargs)
-        d.run_expert_episode = slow
+        p.run_expert_episode = slow
         d.generate_dataset({str(out)!r}, "STG1", 3, seed=1, config=MPCConfig(n_samples=4, horizon=8),
                            max_steps=40, workers=1, progress=False)
     """)
@@ -140,12 +142,12 @@ def test_killed_generation_is_incomplete_and_resumes_only_the_missing_episodes(r
 
     mtimes = {path: path.stat().st_mtime_ns for path in done}
     calls = []
-    real = data.run_expert_episode
+    real = parallel.run_expert_episode
 
     def counting(task, seed, *args, **kwargs):
         calls.append(seed)
         return real(task, seed, *args, **kwargs)
-    monkeypatch.setattr(data, "run_expert_episode", counting)
+    monkeypatch.setattr(parallel, "run_expert_episode", counting)
     generate_dataset(out, workers=1, **ARGS)
     assert calls == [episode_seed(1, 1), episode_seed(1, 2)]
     assert {path: path.stat().st_mtime_ns for path in done} == mtimes

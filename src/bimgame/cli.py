@@ -197,9 +197,9 @@ def run_episodes(task: str, policy_name: str, episodes: int, *, seed: int = 0,
     """Run ``episodes`` episodes of a named policy with a progress bar; returns per-episode
     results (return, length, success, seconds) and the first episode's RGB frames if asked."""
     import gymnasium as gym
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
     import bimgame  # noqa: F401  (registers the env ids)
+    from bimgame.parallel import episode_progress
     from bimgame.policies import make_policy
 
     kwargs = {"obs_mode": "state", "n_marbles": n_marbles}
@@ -212,10 +212,7 @@ def run_episodes(task: str, policy_name: str, episodes: int, *, seed: int = 0,
     policy = make_policy(policy_name, env.unwrapped.maze, rng)
     results: list[dict] = []
     frames: list[np.ndarray] = []
-    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-               TextColumn("success {task.fields[success]}"), TimeRemainingColumn())
-    with Progress(*columns, transient=True) as progress:
-        bar = progress.add_task(f"{policy_name} on {task}", total=episodes, success="-")
+    with episode_progress(True, f"{policy_name} on {task}", episodes, transient=True) as update:
         for episode in range(episodes):
             env.reset(seed=seed + episode)
             record = record_first and episode == 0
@@ -232,8 +229,7 @@ def run_episodes(task: str, policy_name: str, episodes: int, *, seed: int = 0,
                     break
             results.append({"return": total, "length": length, "success": bool(info["is_success"]),
                             "seconds": time.perf_counter() - start})
-            progress.update(bar, advance=1,
-                            success=f"{np.mean([r['success'] for r in results]):.0%}")
+            update(results[-1]["success"])
     env.close()
     return results, frames
 

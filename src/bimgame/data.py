@@ -39,16 +39,15 @@ import tempfile
 import time
 import warnings
 from collections.abc import Iterable, Iterator
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
-from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from bimgame.argtypes import non_negative_int, positive_int
-from bimgame.expert import MPCConfig, episode_seed, run_expert_episode
+from bimgame.expert import MPCConfig, episode_seed
 from bimgame.io import atomic_write_bytes
+from bimgame.parallel import BACKENDS, MAIN_GUARD, environment, episode_progress, expert_episodes, import_ray
 from bimgame.tasks import Task, parse_task
 
 __all__ = ["DatasetError", "generate_dataset", "load_dataset", "iterate_sequences", "dataset_summary",
@@ -57,7 +56,6 @@ __all__ = ["DatasetError", "generate_dataset", "load_dataset", "iterate_sequence
 
 FORMAT_NAME = "bimgame-expert-dataset"
 FORMAT_VERSION = 1
-BACKENDS = ("local", "ray")
 ALGORITHM_NAME = "RandomShootingMPC"
 #: ``prev_actions[0]`` of every sequence: there is no action before the first step.
 NO_ACTION = -1
@@ -72,7 +70,6 @@ _EPISODE_KEYS = ("actions", "rewards", "terminations", "truncations", "observati
                  "channels", "seed", "success")
 # Episodes handed to Minari per write (bounds memory for large datasets).
 _BUILD_CHUNK = 64
-_THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMEXPR_NUM_THREADS")
 
 
 class DatasetError(ValueError):
@@ -117,7 +114,7 @@ def generate_dataset(out_dir: str | Path, task: str = "FULL", episodes: int = 50
         max_steps: time limit per episode (default: the task's registered limit).
     """
     if getattr(multiprocessing.current_process(), "_inheriting", False):
-        raise RuntimeError(f"generate_dataset was called while a worker process was starting; {_MAIN_GUARD}")
+        raise RuntimeError(f"generate_dataset was called while a worker process was starting; {MAIN_GUARD}")
     out_dir = Path(out_dir)
     task_enum = parse_task(task)
     _check_int("episodes", episodes, minimum=1)
@@ -136,7 +133,7 @@ def generate_dataset(out_dir: str | Path, task: str = "FULL", episodes: int = 50
     if not isinstance(progress, bool):
         raise TypeError(f"progress must be True or False, got {progress!r}")
     if backend == "ray":
-        _import_ray()  # fail before touching the disk
+        import_ray()  # fail before touching the disk
     config = dataclasses.replace(config, nthread=1)
     manifest = _manifest(task_enum, int(episodes), int(seed), config, max_steps)
 
@@ -167,11 +164,11 @@ def generate_dataset(out_dir: str | Path, task: str = "FULL", episodes: int = 50
             todo.append(index)
 
         if todo:
-            with _progress_bar(progress, f"expert on {task_enum.value}", episodes,
-                               len(done_success), sum(done_success)) as update:
-                runner = _ray_episodes if backend == "ray" else _local_episodes
-                for index, episode in runner(task_enum.value, todo, int(seed), config, max_steps,
-                                             workers, ray_address):
+            with episode_progress(progress, f"expert on {task_enum.value}", episodes,
+                                  len(done_success), sum(done_success)) as update:
+                for index, episode, _ in expert_episodes(task_enum.value, todo, int(seed), config,
+                                                         max_steps=max_steps, workers=workers,
+                                                         backend=backend, ray_address=ray_address):
                     atomic_write_bytes(_episode_path(out_dir, index), _episode_bytes(index, episode))
                     update(bool(episode["success"]))
 
@@ -309,126 +306,6 @@ def _read_episode(path: Path, index: int, expected_seed: int) -> dict[str, np.nd
     return data
 
 
-# ------------------------------------------------------------------------------------ backends
-def _episode_job(task: str, index: int, seed: int, config: MPCConfig, max_steps: int | None,
-                 ) -> tuple[int, dict[str, np.ndarray]]:
-    return index, run_expert_episode(task, episode_seed(seed, index), config, max_steps=max_steps)
-
-
-@contextlib.contextmanager
-def _environment(**values: str) -> Iterator[None]:
-    """Set environment variables for the duration (inherited by processes started meanwhile)."""
-    saved = {key: os.environ.get(key) for key in values}
-    os.environ.update(values)
-    try:
-        yield
-    finally:
-        for key, value in saved.items():
-            if value is None:
-                os.environ.pop(key, None)
-            else:
-                os.environ[key] = value
-
-
-def _local_episodes(task: str, todo: list[int], seed: int, config: MPCConfig, max_steps: int | None,
-                    workers: int, ray_address: str | None) -> Iterator[tuple[int, dict]]:
-    """Episodes as they finish, from ``workers`` processes (or this process when 1)."""
-    if workers == 1 or len(todo) == 1:
-        for index in todo:
-            yield _episode_job(task, index, seed, config, max_steps)
-        return
-    # "spawn": fresh interpreters (no fork of a process with threads); single-threaded numerics.
-    context = multiprocessing.get_context("spawn")
-    with _environment(**{name: "1" for name in _THREAD_VARS}):
-        pool = ProcessPoolExecutor(max_workers=min(workers, len(todo)), mp_context=context)
-        try:
-            pending = {pool.submit(_episode_job, task, index, seed, config, max_steps) for index in todo}
-            while pending:
-                finished, pending = wait(pending, return_when=FIRST_COMPLETED)
-                for future in finished:
-                    yield future.result()
-        except BrokenProcessPool as error:
-            pool.shutdown(wait=False, cancel_futures=True)
-            raise RuntimeError(f"a worker process died ({error}). If generate_dataset runs in a script, "
-                               f"{_MAIN_GUARD}") from error
-        except BaseException:
-            pool.shutdown(wait=False, cancel_futures=True)
-            raise
-        pool.shutdown(wait=True)
-
-
-_MAIN_GUARD = ("workers are started with multiprocessing's 'spawn' method, which imports the main "
-               "script again: put the call under `if __name__ == \"__main__\":` (or use workers=1)")
-
-
-def _import_ray():
-    try:
-        import ray
-    except ImportError:
-        raise ImportError('backend="ray" needs Ray, which is not installed: pip install "bimgame[ray]" '
-                          '(or pip install ray)') from None
-    return ray
-
-
-def _ray_episodes(task: str, todo: list[int], seed: int, config: MPCConfig, max_steps: int | None,
-                  workers: int, ray_address: str | None) -> Iterator[tuple[int, dict]]:
-    """Episodes as they finish, from Ray tasks (one CPU each)."""
-    ray = _import_ray()
-    started = False
-    if not ray.is_initialized():
-        if ray_address is None:
-            ray.init(num_cpus=workers, include_dashboard=False)
-        else:
-            ray.init(address=ray_address)
-        started = True
-    try:
-        job = ray.remote(num_cpus=1)(_episode_job)
-        pending = [job.remote(task, index, seed, config, max_steps) for index in todo]
-        try:
-            while pending:
-                finished, pending = ray.wait(pending, num_returns=1)
-                yield ray.get(finished[0])
-        except BaseException:
-            for ref in pending:
-                ray.cancel(ref)
-            raise
-    finally:
-        if started:
-            ray.shutdown()
-
-
-# ------------------------------------------------------------------------------------- progress
-@contextlib.contextmanager
-def _progress_bar(enabled: bool, description: str, total: int, done: int, successes: int):
-    """Yields ``update(success)``: one episode finished."""
-    counts = {"done": done, "success": successes}
-
-    def text() -> str:
-        return f"{counts['success'] / counts['done']:.0%}" if counts["done"] else "-"
-
-    if not enabled:
-        def update(success: bool) -> None:
-            counts["done"] += 1
-            counts["success"] += success
-        yield update
-        return
-    from rich.console import Console
-    from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn,
-                               TimeRemainingColumn)
-
-    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-               TextColumn("success {task.fields[success]}"), TimeElapsedColumn(), TextColumn("ETA"),
-               TimeRemainingColumn())
-    with Progress(*columns, console=Console(stderr=True)) as bar:
-        task_id = bar.add_task(description, total=total, completed=done, success=text())
-
-        def update(success: bool) -> None:
-            counts["done"] += 1
-            counts["success"] += success
-            bar.update(task_id, advance=1, success=text())
-        yield update
-
-
 # ------------------------------------------------------------------------------ Minari building
 def _build_minari(out_dir: Path, manifest: dict) -> None:
     """Build the Minari dataset from the episode files in a temporary datasets root, move it into
@@ -464,7 +341,7 @@ def _build_minari(out_dir: Path, manifest: dict) -> None:
     env.spec.to_json()  # raises if the spec cannot be stored
     build_root = Path(tempfile.mkdtemp(prefix=_BUILD_PREFIX, dir=out_dir))
     try:
-        with _environment(MINARI_DATASETS_PATH=str(build_root)), warnings.catch_warnings():
+        with environment(MINARI_DATASETS_PATH=str(build_root)), warnings.catch_warnings():
             warnings.filterwarnings("ignore", message=r"`(code_permalink|author|author_email)` is set to None")
             dataset = minari.create_dataset_from_buffers(
                 dataset_id=manifest["dataset_id"], buffer=buffers(range(min(_BUILD_CHUNK, episodes))),

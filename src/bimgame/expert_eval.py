@@ -7,15 +7,14 @@ import dataclasses
 import io
 import json
 import os
-import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from bimgame.expert import MPCConfig, episode_seed, run_expert_episode
+from bimgame.expert import MPCConfig
 from bimgame.io import atomic_write_bytes
+from bimgame.parallel import episode_progress, expert_episodes
 from bimgame.tasks import parse_task
 
 __all__ = ["evaluate_expert", "summarise", "plot_length_histogram", "EpisodeResult"]
@@ -31,67 +30,25 @@ class EpisodeResult:
     seconds: float
 
 
-def _one_episode(task: str, index: int, run_seed: int, config: MPCConfig, max_steps: int | None) -> EpisodeResult:
-    seed = episode_seed(run_seed, index)
-    start = time.perf_counter()
-    episode = run_expert_episode(task, seed, config, max_steps=max_steps)
-    return EpisodeResult(index, seed, bool(episode["success"]), int(len(episode["actions"])),
-                         float(episode["rewards"].sum()), time.perf_counter() - start)
-
-
 def evaluate_expert(task: str, episodes: int, config: MPCConfig | None = None, *, seed: int = 0,
                     workers: int | None = None, max_steps: int | None = None,
                     progress: bool = True) -> list[EpisodeResult]:
     """Run ``episodes`` expert episodes (episode i from :func:`episode_seed`(seed, i)) on ``workers``
-    processes (default: all cores); results sorted by episode index, independent of ``workers``."""
+    processes (default: all cores, see :func:`~bimgame.parallel.expert_episodes`); results sorted
+    by episode index, independent of ``workers``."""
     parse_task(task)
     config = config if config is not None else MPCConfig()
     if not (isinstance(episodes, int) and episodes >= 1):
         raise ValueError(f"episodes must be a positive integer, got {episodes!r}")
     workers = workers if workers is not None else (os.cpu_count() or 1)
-    if not (isinstance(workers, int) and workers >= 1):
-        raise ValueError(f"workers must be a positive integer, got {workers!r}")
-    config = dataclasses.replace(config, nthread=1)  # one thread per worker process
     results: list[EpisodeResult] = []
-    with _progress(progress, f"expert on {task}", episodes) as update:
-        if workers == 1:
-            for i in range(episodes):
-                results.append(_one_episode(task, i, seed, config, max_steps))
-                update(results)
-        else:
-            with ProcessPoolExecutor(max_workers=workers) as pool:
-                futures = [pool.submit(_one_episode, task, i, seed, config, max_steps) for i in range(episodes)]
-                for future in as_completed(futures):
-                    results.append(future.result())
-                    update(results)
+    with episode_progress(progress, f"expert on {task}", episodes, transient=True) as update:
+        for index, episode, seconds in expert_episodes(task, list(range(episodes)), seed, config,
+                                                       max_steps=max_steps, workers=workers):
+            results.append(EpisodeResult(index, int(episode["seed"]), bool(episode["success"]),
+                                         len(episode["actions"]), float(episode["rewards"].sum()), seconds))
+            update(results[-1].success)
     return sorted(results, key=lambda r: r.index)
-
-
-class _progress:
-    """A rich progress bar (episodes, success so far, ETA), or nothing."""
-
-    def __init__(self, enabled: bool, label: str, total: int):
-        self.enabled, self.label, self.total = enabled, label, total
-
-    def __enter__(self):
-        if not self.enabled:
-            return lambda results: None
-        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-
-        self.bar = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-                            TextColumn("success {task.fields[success]}"), TimeRemainingColumn(),
-                            transient=True)
-        self.bar.__enter__()
-        task = self.bar.add_task(self.label, total=self.total, success="-")
-
-        def update(results: list[EpisodeResult]) -> None:
-            rate = np.mean([r.success for r in results])
-            self.bar.update(task, completed=len(results), success=f"{rate:.0%}")
-        return update
-
-    def __exit__(self, *exc) -> None:
-        if self.enabled:
-            self.bar.__exit__(*exc)
 
 
 def summarise(results: list[EpisodeResult]) -> dict[str, Any]:
