@@ -92,7 +92,6 @@ class RandomShootingMPC:
         self.to_channel = self.task.goal_channel(self.maze)
         self.sim = MazeSim(self.maze, n_marbles=n_marbles)
         self._tilts = DISCRETE_TILTS * self.maze.tilt_step
-        self.decisions = 0
 
     def sample_sequences(self) -> np.ndarray:
         """(K, H) discrete actions drawn per the sampling scheme."""
@@ -126,16 +125,11 @@ class RandomShootingMPC:
         finals = self.sim.rollout(state, self._tilts[sequences], nthread=self.config.nthread)[:, -1]
         scores = self.distance(state[None])[0] - self.distance(finals)
         best = int(np.argmax(scores))
-        self.decisions += 1
         return int(sequences[best, 0]), {"scores": scores, "sequence": sequences[best]}
 
     def act(self, state: np.ndarray) -> int:
         """The expert's action for a physics state."""
         return self.plan(state)[0]
-
-    @property
-    def physics_steps_per_decision(self) -> int:
-        return self.config.n_samples * self.config.horizon * self.sim.substeps
 
     def close(self) -> None:
         self.sim.close()

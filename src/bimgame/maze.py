@@ -409,10 +409,8 @@ class MazeSpec:
         theta = math.atan2(y, x)
         if channel < len(self.walls) and r > tables["band_start_list"][channel]:
             wall = self.walls[channel]
-            if r >= wall.mid_radius and not any(
-                    abs((theta - g.angle + math.pi) % (2 * math.pi) - math.pi) <= g.width / 2
-                    for g in wall.gates):
-                channel += 1  # pressed into the wall from outside: still outside
+            if r >= wall.mid_radius and not wall.in_gate(theta):
+                channel += 1  # pressed into the wall from outside: still outside (rare: in a band)
         if channel <= to_channel:
             return r if to_channel == 0 else max(r - tables["target_end"], 0.0)
         a, band_start, gates = tables["channels"][channel - 1]
