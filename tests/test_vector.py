@@ -59,3 +59,33 @@ def test_vector_env_bad_actions():
         env.step(np.array([0, 1]))
     with pytest.raises(ValueError, match="num_envs"):
         BallInMazeVectorEnv(0)
+
+
+def test_same_step_autoreset_gives_the_same_transitions_as_next_step():
+    """SAME_STEP drops NEXT_STEP's reset steps: final observations and the reset observations that
+    follow are the ones NEXT_STEP returns one call apart."""
+    kwargs = dict(task="STG1", obs_mode="state", max_episode_steps=15)
+    nxt = BallInMazeVectorEnv(2, **kwargs)
+    same = BallInMazeVectorEnv(2, autoreset_mode="same_step", **kwargs)
+    assert same.metadata["autoreset_mode"].value == "SameStep"
+    rng = np.random.default_rng(3)
+    obs_n, _ = nxt.reset(seed=7)
+    obs_s, _ = same.reset(seed=7)
+    finished = 0
+    for _ in range(40):
+        actions = rng.integers(0, 5, size=2)
+        obs_n, r_n, term_n, trunc_n, _ = nxt.step(actions)
+        obs_s, r_s, term_s, trunc_s, info_s = same.step(actions)
+        np.testing.assert_array_equal(r_n, r_s)
+        np.testing.assert_array_equal(term_n | trunc_n, term_s | trunc_s)
+        done = term_n | trunc_n
+        if done.any():
+            finished += int(done.sum())
+            np.testing.assert_array_equal(info_s["_final_obs"], done)
+            np.testing.assert_array_equal(info_s["final_obs"][done], obs_n[done])
+            # NEXT_STEP spends one call resetting; the other env must wait, so only step when all done.
+            assert done.all(), "the test keeps both envs in lock-step (same time limit, no success)"
+            obs_n, r_n, *_ = nxt.step(actions)
+            np.testing.assert_array_equal(r_n, 0)
+        np.testing.assert_array_equal(obs_n, obs_s)
+    assert finished >= 4

@@ -5,6 +5,11 @@ It reproduces ``gym.make_vec(id, num_envs, vectorization_mode="sync")`` exactly 
 the same episodes, rewards, terminations, truncations (time limits are built in) and next-step
 autoresets — but without a Python loop over environments, so it is the fast way to feed batched
 learners. ``gym.make_vec(id, num_envs)`` returns it by default (``vector_entry_point``).
+
+``autoreset_mode=AutoresetMode.SAME_STEP`` resets a finished env inside the step that ended it (as
+Gymnasium's SAME_STEP mode: ``infos["final_obs"]`` and ``infos["final_info"]`` hold the last
+observation and info, masked by ``infos["_final_obs"]``), so every step is a real transition — what
+the n-step actor-critic learners use.
 """
 
 from __future__ import annotations
@@ -33,18 +38,26 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
         nthread: threads for ``mujoco.rollout``. Default: 1 below 32 envs (measured: a second
             thread does not pay for its dispatch on small batches), else all cores up to 2.
             Use 1 inside worker processes that already use every core.
+        autoreset_mode: ``NEXT_STEP`` (default, as ``gym.make_vec``) or ``SAME_STEP``.
         **env_kwargs: the keyword arguments of :class:`~bimgame.env.BallInMazeEnv`.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 30, "autoreset_mode": AutoresetMode.NEXT_STEP}
 
     def __init__(self, num_envs: int, *, max_episode_steps: int | None = None, nthread: int | None = None,
-                 **env_kwargs: Any):
+                 autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP, **env_kwargs: Any):
         if not (isinstance(num_envs, (int, np.integer)) and num_envs >= 1):
             raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
         if max_episode_steps is not None and not (isinstance(max_episode_steps, (int, np.integer))
                                                   and max_episode_steps >= 1):
             raise ValueError(f"max_episode_steps must be a positive integer or None, got {max_episode_steps!r}")
+        modes = {m.name.lower(): m for m in (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP)}
+        modes.update({m.value: m for m in list(modes.values())})
+        mode = autoreset_mode.value if isinstance(autoreset_mode, AutoresetMode) else autoreset_mode
+        if mode not in modes:
+            raise ValueError(f"autoreset_mode must be one of {sorted(modes)}, got {autoreset_mode!r}")
+        self.autoreset_mode = modes[mode]
+        self.metadata = {**self.metadata, "autoreset_mode": self.autoreset_mode}
         if nthread is None:
             nthread = 1 if num_envs < 32 else max(1, min(2, os.cpu_count() or 1))
         if not (isinstance(nthread, (int, np.integer)) and nthread >= 1):
@@ -122,11 +135,23 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
             self._elapsed[idx] += 1
             if self.max_episode_steps is not None:
                 truncated[idx] = self._elapsed[idx] >= self.max_episode_steps
+        done = terminated | truncated
+        final: tuple[np.ndarray, dict[str, Any]] | None = None
+        if self.autoreset_mode == AutoresetMode.SAME_STEP:
+            if done.any():
+                final = self._observe_and_info(positions, velocities, crossings, terminated.copy())
+                resetting = done
+                crossings = np.where(done[:, None], 0, crossings)
+            done = np.zeros_like(done)
         if resetting.any():
             self._reset_envs(resetting)
             positions[resetting], velocities[resetting] = self.sim.layout.board_frame(self._states[resetting])
-        self._autoreset = terminated | truncated
-        obs, infos = self._observe_and_info(positions, velocities, crossings, terminated.copy())
+        self._autoreset = done
+        obs, infos = self._observe_and_info(positions, velocities, crossings,
+                                            terminated & ~resetting if final else terminated.copy())
+        if final is not None:
+            infos["final_obs"], infos["final_info"] = final
+            infos["_final_obs"] = infos["_final_info"] = resetting.copy()
         return obs, reward, terminated, truncated, infos
 
     def render(self) -> tuple[np.ndarray, ...] | None:
