@@ -74,8 +74,10 @@ class A3CConfig:
     """Environment steps to train for (all workers together)."""
     workers: int = 2
     """Worker processes (one thread each)."""
-    envs_per_worker: int = 1
-    """Environments per worker, stepped as one batch; 1 is the paper's A3C."""
+    envs_per_worker: int = 16
+    """Environments per worker, stepped as one batch (one forward pass acts for all); 1 is exactly
+    the paper's A3C. Batching is what makes the network affordable on a CPU: one LSTM step costs
+    about the same for 1 environment as for 16."""
     n_steps: int = 20
     """t_max: steps per update (n-step returns)."""
     gamma: float = 0.99
@@ -93,8 +95,10 @@ class A3CConfig:
     seed: int = 0
     tilt_input: bool = True
     """Feed the board tilt to the LSTM (see :mod:`bimgame.nets`); False is the paper's exact input."""
-    hidden: int = 256
-    features: int = 256
+    hidden: int | None = None
+    """LSTM size; None: 256 for pixels (the paper's), 128 for state observations."""
+    features: int | None = None
+    """Encoder output size; None: 256 for pixels (the paper's FC 256), 128 for state observations."""
     max_episode_steps: int | None = None
     """Time limit; None uses the task's (STG1 300, STG2 500, STG3 750, STG4/FULL 1000)."""
     checkpoint_every: int = 100_000
@@ -107,6 +111,10 @@ class A3CConfig:
     """Environment steps (per worker) between loss reports."""
 
     def __post_init__(self) -> None:
+        default_size = 256 if self.obs == "pixels" else 128
+        for name in ("hidden", "features"):
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, default_size)
         try:
             object.__setattr__(self, "task", parse_task(self.task).value)
         except ValueError as error:

@@ -6,6 +6,8 @@ Verbs:
   demo         the Quick start's main job: a maze picture and a GIF of one episode
   expert-eval  success rate and trajectory lengths of the MPC expert, with the length histogram
   generate     expert trajectories as a Minari dataset (parallel, resumable, local or Ray)
+  train        A3C with the paper's recurrent actor-critic (checkpoints, logs, resume)
+  evaluate     success rate and episode length of a trained run, optionally a GIF
 """
 
 from __future__ import annotations
@@ -67,6 +69,11 @@ def build_parser() -> argparse.ArgumentParser:
     generate = verbs.add_parser("generate", help="write expert trajectories as a Minari dataset")
     add_generate_arguments(generate)
     add_mpc_arguments(generate)
+
+    from bimgame.cli_train import add_evaluate_arguments, add_train_arguments
+
+    add_train_arguments(verbs.add_parser("train", help="train an A3C agent"))
+    add_evaluate_arguments(verbs.add_parser("evaluate", help="evaluate a trained run"))
     return parser
 
 
@@ -106,6 +113,10 @@ def main(argv: list[str] | None = None) -> int:
             from bimgame.data import run_generate
 
             return run_generate(args, mpc_config_from(args))
+        if args.verb in ("train", "evaluate"):
+            from bimgame import cli_train
+
+            return cli_train.run_train(args) if args.verb == "train" else cli_train.run_evaluate(args)
     except (ValueError, OSError) as error:
         print(f"bimgame {args.verb}: error: {error}", file=sys.stderr)
         return 2
