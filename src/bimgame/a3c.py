@@ -178,11 +178,11 @@ def network_for(config: A3CConfig, maze: MazeSpec | None = None) -> RecurrentAct
     if config.obs == "pixels":
         net_config = NetConfig(encoder="conv", obs_shape=(1, 84, 84), features=config.features,
                                hidden=config.hidden, tilt_input=config.tilt_input)
-        return build_network(net_config)
+        return build_network(net_config, seed=config.seed)
     scale = state_obs_scale(maze)
     net_config = NetConfig(encoder="mlp", obs_shape=(len(scale),), features=config.features,
                            hidden=config.hidden, tilt_input=config.tilt_input)
-    return build_network(net_config, obs_scale=scale)
+    return build_network(net_config, obs_scale=scale, seed=config.seed)
 
 
 def make_optimizer(config: A3CConfig, params) -> torch.optim.Optimizer:
@@ -321,6 +321,10 @@ def _worker_loop(rank, config, shared, optimizer_state, counter, stop, messages,
             actions, _, _ = actor.act(obs, tilt)
             obs, reward, terminated, truncated, info = env.step(actions.numpy())
             reward = np.asarray(reward, dtype=np.float64)
+            if not np.all(np.isfinite(reward)):
+                messages.put(("nan", rank, {"step": int(counter.value), "what": "reward from the env",
+                                            "rewards": reward.tolist()}))
+                return
             done = terminated | truncated
             rewards_t = torch.as_tensor(reward, dtype=torch.float32)
             cut = truncated & ~terminated
@@ -357,8 +361,8 @@ def _worker_loop(rank, config, shared, optimizer_state, counter, stop, messages,
         loss.backward()
         grad_norm = float(torch.nn.utils.clip_grad_norm_(local.parameters(), config.max_grad_norm))
         if not (math.isfinite(loss.item()) and math.isfinite(grad_norm)):
-            messages.put(("nan", rank, {"step": int(counter.value), "loss": loss.item(), "grad_norm": grad_norm,
-                                        **parts}))
+            messages.put(("nan", rank, {"step": int(counter.value), "what": "loss", "loss": loss.item(),
+                                        "grad_norm": grad_norm, **parts}))
             return
         for shared_param, param in zip(shared_params, local.parameters()):
             shared_param.grad = param.grad
@@ -543,9 +547,10 @@ def train(config: A3CConfig, run_dir: str | Path, *, resume: bool = False, init:
                 elif kind == "eval":
                     log.write("eval", payload["step"], payload, scalars=tuple(_TABLES["eval"]))
                 elif kind == "nan":
-                    failure = (f"worker {rank} produced a non-finite loss at step {payload['step']} ({payload}); "
-                               f"the update was not applied. Lower --lr or --max-grad-norm, or check the env "
-                               f"wrapper's rewards. The last good checkpoint is {run_dir / CHECKPOINT}.")
+                    failure = (f"worker {rank} got a non-finite {payload['what']} at step {payload['step']} "
+                               f"({payload}); the update was not applied. Lower --lr or --max-grad-norm, or "
+                               f"check the env wrapper's rewards. The weights from before that update are "
+                               f"saved in {run_dir / CHECKPOINT}.")
                     stop.set()
                 elif kind == "error":
                     failure = f"process {rank} failed:\n{payload}"
@@ -567,6 +572,8 @@ def train(config: A3CConfig, run_dir: str | Path, *, resume: bool = False, init:
                 process.join()
     if failure is not None:
         log.close()
+        if all(torch.isfinite(p).all() for p in shared.parameters()):
+            checkpoint()  # the weights before the failing update, for inspection or a resume
         raise TrainingError(failure)
     checkpoint()
     final_eval = None

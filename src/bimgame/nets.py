@@ -200,10 +200,14 @@ class RecurrentActorCritic(nn.Module):
         return self.policy(hidden), self.value(hidden).squeeze(-1), LSTMState(h, c)
 
 
-def build_network(config: NetConfig, obs_scale: np.ndarray | None = None) -> RecurrentActorCritic:
-    """A fresh network; ``obs_scale`` sets the MLP encoder's input divisors (see
+def build_network(config: NetConfig, obs_scale: np.ndarray | None = None, *, seed: int = 0,
+                  ) -> RecurrentActorCritic:
+    """A fresh network with initial weights drawn from ``seed`` (the global torch generator is
+    left untouched); ``obs_scale`` sets the MLP encoder's input divisors (see
     :func:`state_obs_scale`)."""
-    net = RecurrentActorCritic(config)
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        net = RecurrentActorCritic(config)
     if obs_scale is not None:
         if config.encoder != "mlp":
             raise ValueError("obs_scale applies to the mlp encoder only")
