@@ -21,7 +21,7 @@ def _inputs(config: NetConfig, steps: int, batch: int, seed: int = 0):
     return obs, prev_action, prev_reward, tilt, starts
 
 
-@pytest.mark.parametrize("config", [NetConfig(), NetConfig(encoder="mlp", obs_shape=(7,), features=32, hidden=16),
+@pytest.mark.parametrize("config", [NetConfig(), NetConfig(keypoints=True), NetConfig(encoder="mlp", obs_shape=(7,), features=32, hidden=16),
                                     NetConfig(encoder="mlp", obs_shape=(7,), hidden=8, tilt_input=False)])
 def test_unroll_equals_stepping_with_resets(config):
     """The training path (unroll: encoder once over T·B, LSTM over time with resets) computes
@@ -45,7 +45,7 @@ def test_unroll_equals_stepping_with_resets(config):
 
 def test_paper_network_sizes():
     net = build_network(NetConfig())
-    convs = [m for m in net.encoder.convs if isinstance(m, torch.nn.Conv2d)]
+    convs = [net.encoder.conv1, net.encoder.conv2]
     assert [(c.out_channels, c.kernel_size, c.stride) for c in convs] == [(16, (8, 8), (4, 4)), (32, (4, 4), (2, 2))]
     assert net.encoder.fc[0].in_features == 32 * 9 * 9 and net.encoder.fc[0].out_features == 256
     assert net.lstm.hidden_size == 256

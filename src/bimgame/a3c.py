@@ -42,14 +42,14 @@ import torch.multiprocessing as mp
 from bimgame.agent import RecurrentActor, evaluate_network, tilt_input
 from bimgame.env import MAX_EPISODE_STEPS
 from bimgame.maze import MazeSpec
-from bimgame.nets import NetConfig, RecurrentActorCritic, build_network, state_obs_scale
+from bimgame.nets import NetConfig, RecurrentActorCritic, build_network, maze_background, state_obs_scale
 from bimgame.observe import OBS_MODES
 from bimgame.runs import CHECKPOINT, CONFIG, MetricLog, load_checkpoint, load_weights, save_checkpoint, write_json
 from bimgame.tasks import Task, parse_task
 from bimgame.vector import BallInMazeVectorEnv
 
 __all__ = ["A3CConfig", "TrainingError", "TrainResult", "train", "network_for", "make_optimizer",
-           "OPTIMIZERS", "EnvWrapper", "a3c_segment_loss"]
+           "OPTIMIZERS", "EnvWrapper", "a3c_segment_loss", "apply_update", "shared_optimizer_state"]
 
 OPTIMIZERS = ("rmsprop", "adam")
 #: A callable that wraps a worker's vector env (e.g. reward shaping). It is sent to spawned worker
@@ -95,6 +95,10 @@ class A3CConfig:
     seed: int = 0
     tilt_input: bool = True
     """Feed the board tilt to the LSTM (see :mod:`bimgame.nets`); False is the paper's exact input."""
+    keypoints: bool = False
+    """Pixels: add spatial soft-argmax keypoints to the conv encoder (see :mod:`bimgame.nets`)."""
+    subtract_background: bool = False
+    """Pixels: subtract the empty-maze frame before the convolutions (see :mod:`bimgame.nets`)."""
     hidden: int | None = None
     """LSTM size; None: 256 for pixels (the paper's), 128 for state observations."""
     features: int | None = None
@@ -177,8 +181,10 @@ def network_for(config: A3CConfig, maze: MazeSpec | None = None) -> RecurrentAct
     maze = maze or MazeSpec.merl()
     if config.obs == "pixels":
         net_config = NetConfig(encoder="conv", obs_shape=(1, 84, 84), features=config.features,
-                               hidden=config.hidden, tilt_input=config.tilt_input)
-        return build_network(net_config, seed=config.seed)
+                               hidden=config.hidden, tilt_input=config.tilt_input, keypoints=config.keypoints,
+                               subtract_background=config.subtract_background)
+        background = maze_background(maze) if config.subtract_background else None
+        return build_network(net_config, seed=config.seed, background=background)
     scale = state_obs_scale(maze)
     net_config = NetConfig(encoder="mlp", obs_shape=(len(scale),), features=config.features,
                            hidden=config.hidden, tilt_input=config.tilt_input)
@@ -191,7 +197,7 @@ def make_optimizer(config: A3CConfig, params) -> torch.optim.Optimizer:
     return torch.optim.Adam(params, lr=config.lr, eps=config.optimizer_eps)
 
 
-def _shared_optimizer_state(optimizer: torch.optim.Optimizer) -> list[dict[str, torch.Tensor]]:
+def shared_optimizer_state(optimizer: torch.optim.Optimizer) -> list[dict[str, torch.Tensor]]:
     """Create every parameter's optimiser statistics (if not loaded) and move them to shared memory,
     so all workers update the same statistics (A3C's 'shared RMSProp')."""
     params = [p for group in optimizer.param_groups for p in group["params"]]
@@ -243,6 +249,23 @@ def a3c_segment_loss(net: RecurrentActorCritic, segment: dict[str, torch.Tensor]
     value_loss = 0.5 * (targets - values).pow(2).mean()
     loss = policy_loss + config.value_coef * value_loss - config.entropy_coef * entropy
     return loss, {"policy_loss": policy_loss.item(), "value_loss": value_loss.item(), "entropy": entropy.item()}
+
+
+def apply_update(local: RecurrentActorCritic, shared_params: list[torch.Tensor], optimizer: torch.optim.Optimizer,
+                 segment: dict[str, torch.Tensor], config: A3CConfig) -> dict[str, float]:
+    """One A3C update: the segment's loss, its gradient (norm clipped) on the local network, applied
+    to the shared weights by the shared optimiser. A non-finite loss or gradient is not applied
+    (``applied`` is False in the returned losses)."""
+    loss, parts = a3c_segment_loss(local, segment, config)
+    local.zero_grad(set_to_none=True)
+    loss.backward()
+    grad_norm = float(torch.nn.utils.clip_grad_norm_(local.parameters(), config.max_grad_norm))
+    applied = math.isfinite(loss.item()) and math.isfinite(grad_norm)
+    if applied:
+        for shared_param, param in zip(shared_params, local.parameters()):
+            shared_param.grad = param.grad
+        optimizer.step()
+    return {**parts, "loss": loss.item(), "grad_norm": grad_norm, "applied": applied}
 
 
 @dataclasses.dataclass
@@ -356,21 +379,16 @@ def _worker_loop(rank, config, shared, optimizer_state, counter, stop, messages,
         segment.update(h0=h0, c0=c0)
         if not config.tilt_input:
             segment.pop("tilt")
-        loss, parts = a3c_segment_loss(local, segment, config)
-        local.zero_grad(set_to_none=True)
-        loss.backward()
-        grad_norm = float(torch.nn.utils.clip_grad_norm_(local.parameters(), config.max_grad_norm))
-        if not (math.isfinite(loss.item()) and math.isfinite(grad_norm)):
-            messages.put(("nan", rank, {"step": int(counter.value), "what": "loss", "loss": loss.item(),
-                                        "grad_norm": grad_norm, **parts}))
+        parts = apply_update(local, shared_params, optimizer, segment, config)
+        grad_norm = parts.pop("grad_norm")
+        if not parts.pop("applied"):
+            messages.put(("nan", rank, {"step": int(counter.value), "what": "loss", "grad_norm": grad_norm,
+                                        **parts}))
             return
-        for shared_param, param in zip(shared_params, local.parameters()):
-            shared_param.grad = param.grad
-        optimizer.step()
         with counter.get_lock():
             counter.value += n * batch
-        for key, value in parts.items():
-            stats[key] += value
+        for key in ("policy_loss", "value_loss", "entropy"):
+            stats[key] += parts[key]
         stats["grad_norm"] += grad_norm
         stats["updates"] += 1
         since_report += n * batch
@@ -430,7 +448,7 @@ def _evaluate_both(net: RecurrentActorCritic, config: A3CConfig) -> dict[str, fl
 # ---------------------------------------------------------------------- the parent process
 _TABLES = {
     "episodes": ["start_step", "worker", "return", "length", "success"],
-    "updates": ["sps", "policy_loss", "value_loss", "entropy", "grad_norm", "recent_success", "recent_return",
+    "updates": ["seconds", "sps", "policy_loss", "value_loss", "entropy", "grad_norm", "recent_success", "recent_return",
                 "recent_length"],
     "eval": ["greedy_success_rate", "greedy_mean_length", "greedy_mean_return", "sampled_success_rate",
              "sampled_mean_length", "sampled_mean_return"],
@@ -498,7 +516,7 @@ def train(config: A3CConfig, run_dir: str | Path, *, resume: bool = False, init:
     optimizer = make_optimizer(config, shared.parameters())
     if optimizer_state_dict is not None:
         optimizer.load_state_dict(optimizer_state_dict)
-    optimizer_state = _shared_optimizer_state(optimizer)
+    optimizer_state = shared_optimizer_state(optimizer)
 
     context = mp.get_context("spawn")
     counter = context.Value("q", start_step)
@@ -522,6 +540,7 @@ def train(config: A3CConfig, run_dir: str | Path, *, resume: bool = False, init:
         save_checkpoint(run_dir / CHECKPOINT, model=shared.state_dict(), optimizer=optimizer.state_dict(),
                         step=int(counter.value), config=json.dumps(config.to_dict()))
 
+    previous_sigterm = _stop_on_sigterm()
     try:
         with _progress(progress, config, start_step) as show:
             for process in processes:
@@ -541,7 +560,8 @@ def train(config: A3CConfig, run_dir: str | Path, *, resume: bool = False, init:
                     log.write("episodes", payload["end_step"], {**payload, "worker": rank},
                               scalars=("return", "length", "success"))
                 elif kind == "update":
-                    row = {**payload, **monitor.recent(), "sps": monitor.sps(counter.value)}
+                    row = {**payload, **monitor.recent(), "sps": monitor.sps(counter.value),
+                           "seconds": time.monotonic() - started}
                     log.write("updates", payload["step"], row,
                               scalars=("sps", "policy_loss", "value_loss", "entropy", "grad_norm", "recent_success"))
                 elif kind == "eval":
@@ -565,6 +585,8 @@ def train(config: A3CConfig, run_dir: str | Path, *, resume: bool = False, init:
         stop.set()
     finally:
         stop.set()
+        if previous_sigterm is not None:
+            signal.signal(signal.SIGTERM, previous_sigterm)
         for process in processes:
             process.join(timeout=30)
             if process.is_alive():
@@ -585,6 +607,21 @@ def train(config: A3CConfig, run_dir: str | Path, *, resume: bool = False, init:
     write_json(run_dir / "summary.json", {"steps": int(counter.value), "stopped": stopped, "seconds": seconds,
                                           "final_eval": final_eval, **monitor.recent()})
     return TrainResult(run_dir, int(counter.value), stopped, final_eval, seconds)
+
+
+def _stop_on_sigterm():
+    """Treat SIGTERM like Ctrl-C (a clean stop with a final checkpoint), e.g. for batch schedulers
+    and background runs, where SIGINT is often ignored. Returns the previous handler (None when not
+    on the main thread, where handlers cannot be set)."""
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return None
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt
+
+    return signal.signal(signal.SIGTERM, interrupt)
 
 
 class _Monitor:

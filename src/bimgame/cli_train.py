@@ -79,6 +79,10 @@ def add_train_arguments(parser: argparse.ArgumentParser) -> None:
     add("--features", type=positive_int, default=None, help="encoder output size (default 256 pixels, 128 state)")
     add("--no-tilt-input", dest="tilt_input", action="store_const", const=False, default=None,
         help="do not feed the board tilt to the LSTM (the paper's exact inputs)")
+    add("--keypoints", action="store_const", const=True, default=None,
+        help="pixels: add spatial soft-argmax keypoints to the conv encoder")
+    add("--subtract-background", action="store_const", const=True, default=None,
+        help="pixels: subtract the empty-maze frame before the convolutions")
     add("--max-episode-steps", type=positive_int, default=None, help="time limit (default: the task's)")
     add("--seed", type=int, default=None, help=f"(default {d.seed})")
     add("--checkpoint-every", type=step_count, default=None, help=f"steps between checkpoints (default {d.checkpoint_every:,})")

@@ -31,7 +31,7 @@ from torch import nn
 
 from bimgame.maze import MazeSpec
 
-__all__ = ["NetConfig", "RecurrentActorCritic", "LSTMState", "build_network", "state_obs_scale",
+__all__ = ["NetConfig", "RecurrentActorCritic", "LSTMState", "build_network", "state_obs_scale", "maze_background",
            "NO_ACTION", "N_ACTIONS", "ENCODERS"]
 
 #: Previous-action code at an episode's first step (encoded as an all-zero one-hot).
@@ -64,6 +64,15 @@ class NetConfig:
     n_actions: int = N_ACTIONS
     tilt_input: bool = True
     """Feed the board tilt (2 numbers, in units of the maximum tilt) to the LSTM."""
+    subtract_background: bool = False
+    """Conv encoder only: subtract the empty maze (walls, floor, goal: a fixed image, since frames
+    are drawn in the board's frame) from each frame, so only the marble remains. The image then
+    varies only where the state does, instead of the marble being ~5 px of difference on a
+    high-contrast wall pattern."""
+    keypoints: bool = False
+    """Conv encoder only: also feed the FC layer each conv channel's spatial soft-argmax (the
+    expected image position of its activation; Levine et al. 2016), so the marble's position is
+    one linear map away from the features instead of something the FC layer must discover."""
 
     def __post_init__(self) -> None:
         if self.encoder not in ENCODERS:
@@ -101,21 +110,50 @@ def state_obs_scale(spec: MazeSpec, n_marbles: int = 1) -> np.ndarray:
                     dtype=np.float32)
 
 
+class SpatialSoftArgmax(nn.Module):
+    """(N, C, H, W) activations → (N, 2C) expected (x, y) per channel in [-1, 1], with a learned
+    temperature per channel."""
+
+    def __init__(self, channels: int, height: int, width: int):
+        super().__init__()
+        self.log_temperature = nn.Parameter(torch.zeros(channels))
+        ys, xs = torch.meshgrid(torch.linspace(-1, 1, height), torch.linspace(-1, 1, width), indexing="ij")
+        self.register_buffer("grid", torch.stack([xs.reshape(-1), ys.reshape(-1)], dim=-1), persistent=False)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        n, c = x.shape[:2]
+        weights = torch.softmax(x.reshape(n, c, -1) * self.log_temperature.exp().unsqueeze(-1), dim=-1)
+        return (weights @ self.grid).reshape(n, 2 * c)
+
+
 class ConvEncoder(nn.Module):
-    """uint8 frames (N, C, H, W) → features (N, F): Conv-ReLU-Conv-ReLU-FC-ReLU."""
+    """uint8 frames (N, C, H, W) → features (N, F): Conv-ReLU-Conv-ReLU-FC-ReLU, optionally with
+    the convolutions' spatial soft-argmax keypoints as more FC inputs."""
 
     def __init__(self, config: NetConfig):
         super().__init__()
         c, h, w = config.obs_shape
         c1, c2 = config.conv_channels
-        self.convs = nn.Sequential(nn.Conv2d(c, c1, 8, stride=4), nn.ReLU(),
-                                   nn.Conv2d(c1, c2, 4, stride=2), nn.ReLU(), nn.Flatten())
+        self.conv1 = nn.Conv2d(c, c1, 8, stride=4)
+        self.conv2 = nn.Conv2d(c1, c2, 4, stride=2)
         with torch.no_grad():
-            flat = self.convs(torch.zeros(1, c, h, w)).shape[1]
+            a1 = self.conv1(torch.zeros(1, c, h, w))
+            a2 = self.conv2(a1)
+        flat = a2[0].numel()
+        self.keypoints = None
+        if config.keypoints:
+            self.keypoints = nn.ModuleList([SpatialSoftArgmax(c1, *a1.shape[2:]), SpatialSoftArgmax(c2, *a2.shape[2:])])
+            flat += 2 * (c1 + c2)
         self.fc = nn.Sequential(nn.Linear(flat, config.features), nn.ReLU())
+        self.register_buffer("background", torch.zeros(config.obs_shape))
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        return self.fc(self.convs(obs.float() * (1.0 / 255.0)))
+        a1 = self.conv1((obs.float() - self.background) * (1.0 / 255.0))
+        a2 = self.conv2(torch.relu(a1))
+        parts = [torch.relu(a2).flatten(1)]
+        if self.keypoints is not None:
+            parts += [self.keypoints[0](a1), self.keypoints[1](a2)]
+        return self.fc(torch.cat(parts, dim=-1) if len(parts) > 1 else parts[0])
 
 
 class MLPEncoder(nn.Module):
@@ -201,13 +239,22 @@ class RecurrentActorCritic(nn.Module):
 
 
 def build_network(config: NetConfig, obs_scale: np.ndarray | None = None, *, seed: int = 0,
-                  ) -> RecurrentActorCritic:
+                  background: np.ndarray | None = None) -> RecurrentActorCritic:
     """A fresh network with initial weights drawn from ``seed`` (the global torch generator is
     left untouched); ``obs_scale`` sets the MLP encoder's input divisors (see
-    :func:`state_obs_scale`)."""
+    :func:`state_obs_scale`); ``background`` is the empty-maze frame a ``subtract_background``
+    network subtracts (see :func:`maze_background`)."""
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)
         net = RecurrentActorCritic(config)
+    if config.subtract_background:
+        if background is None or np.shape(background) != config.obs_shape:
+            raise ValueError(f"subtract_background needs the empty-maze frame of shape {config.obs_shape} "
+                             f"(background=maze_background(spec)), got "
+                             f"{None if background is None else np.shape(background)}")
+        net.encoder.background.copy_(torch.as_tensor(np.asarray(background, dtype=np.float32)))
+    elif background is not None:
+        raise ValueError("background is only used with NetConfig(subtract_background=True)")
     if obs_scale is not None:
         if config.encoder != "mlp":
             raise ValueError("obs_scale applies to the mlp encoder only")
@@ -217,3 +264,10 @@ def build_network(config: NetConfig, obs_scale: np.ndarray | None = None, *, see
                              f"got shape {tuple(scale.shape)}")
         net.encoder.scale.copy_(scale)
     return net
+
+
+def maze_background(spec: MazeSpec, size: int = 84) -> np.ndarray:
+    """The observation frame without a marble, (1, size, size) uint8."""
+    from bimgame.render import MazeRenderer
+
+    return MazeRenderer(spec, size).gray(np.zeros((0, 2)))[None]

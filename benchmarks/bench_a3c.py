@@ -1,0 +1,146 @@
+"""A3C throughput against the network's own limit, measured in the same run.
+
+For pixel and state observations:
+
+- **network-only limit**: ``workers`` processes run exactly the A3C worker's network work — n_steps
+  batched acting forwards, the segment's forward+backward, gradient clipping and the shared
+  optimiser step on shared weights — on recorded observations, with no environment. Samples per
+  second over all processes.
+- **A3C**: ``bimgame.a3c.train`` with the same settings; environment steps per second at steady
+  state (from the run's updates.csv, so process start-up is excluded).
+
+The ratio A3C / network-only says how much the environment costs on top of the network. Writes
+benchmarks/results/a3c.json.
+
+Usage: python benchmarks/bench_a3c.py [--seconds 60] [--workers 2] [--envs-per-worker 16]
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import multiprocessing as mp
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from bimgame.a3c import A3CConfig, apply_update, make_optimizer, network_for, shared_optimizer_state, train
+from bimgame.agent import RecurrentActor
+from bimgame.io import atomic_write_bytes
+from bimgame.vector import BallInMazeVectorEnv
+
+RESULTS = Path(__file__).parent / "results"
+
+
+def _recorded_inputs(config: A3CConfig) -> tuple[torch.Tensor, torch.Tensor]:
+    """A segment's worth of real observations and tilts (so the network sees realistic frames)."""
+    env = BallInMazeVectorEnv(config.envs_per_worker, task=config.task, obs_mode=config.obs, nthread=1)
+    obs, info = env.reset(seed=0)
+    frames, tilts = [], []
+    rng = np.random.default_rng(0)
+    for _ in range(config.n_steps + 1):
+        frames.append(torch.as_tensor(obs))
+        tilts.append(torch.as_tensor(info["tilt"], dtype=torch.float32))
+        obs, _, _, _, info = env.step(rng.integers(0, 5, config.envs_per_worker))
+    return torch.stack(frames), torch.stack(tilts)
+
+
+def _network_worker(config: A3CConfig, shared, optimizer_state, seconds: float, results) -> None:
+    torch.set_num_threads(1)
+    frames, tilts = _recorded_inputs(config)
+    local = network_for(config)
+    optimizer = make_optimizer(config, shared.parameters())
+    shared_params = list(shared.parameters())
+    for param, state in zip(shared_params, optimizer_state):
+        optimizer.state[param] = state
+    actor = RecurrentActor(local, config.envs_per_worker, generator=torch.Generator().manual_seed(0))
+    n, batch = config.n_steps, config.envs_per_worker
+    samples, start = 0, None
+    while True:
+        if samples == n * batch:  # the first update warms up; time from the second
+            start, samples = time.perf_counter(), 0
+        if start is not None and time.perf_counter() - start >= seconds:
+            break
+        local.load_state_dict(shared.state_dict())
+        h0, c0 = actor.state
+        seg = {k: [] for k in ("prev_action", "prev_reward", "starts", "actions")}
+        for t in range(n):
+            seg["prev_action"].append(actor.prev_action)
+            seg["prev_reward"].append(actor.prev_reward)
+            seg["starts"].append(actor.starts)
+            actions, _, _ = actor.act(frames[t], tilts[t])
+            seg["actions"].append(actions)
+            actor.observe(actions, np.zeros(batch), np.zeros(batch, dtype=bool))
+        seg["prev_action"].append(actor.prev_action)
+        seg["prev_reward"].append(actor.prev_reward)
+        seg["starts"].append(actor.starts)
+        segment = {k: torch.stack(v) for k, v in seg.items()}
+        segment.update(obs=frames, tilt=tilts, rewards=torch.zeros(n, batch), ends=torch.zeros(n, batch, dtype=torch.bool),
+                       h0=h0, c0=c0)
+        apply_update(local, shared_params, optimizer, segment, config)
+        samples += n * batch
+    results.put(samples / (time.perf_counter() - start))
+
+
+def network_only_sps(config: A3CConfig, seconds: float) -> float:
+    torch.set_num_threads(1)
+    shared = network_for(config)
+    shared.share_memory()
+    optimizer_state = shared_optimizer_state(make_optimizer(config, shared.parameters()))
+    context = mp.get_context("spawn")
+    results = context.Queue()
+    processes = [context.Process(target=_network_worker, args=(config, shared, optimizer_state, seconds, results))
+                 for _ in range(config.workers)]
+    for process in processes:
+        process.start()
+    rates = [results.get() for _ in processes]
+    for process in processes:
+        process.join()
+    return float(sum(rates))
+
+
+def a3c_sps(config: A3CConfig) -> float:
+    with tempfile.TemporaryDirectory() as tmp:
+        train(config, Path(tmp) / "run", progress=False)
+        with open(Path(tmp) / "run" / "updates.csv", newline="") as handle:
+            rows = list(csv.DictReader(handle))
+    # Steady state: from the first loss report after start-up to the last.
+    rows = [r for r in rows if r["seconds"]]
+    first, last = rows[len(rows) // 5], rows[-1]
+    return (float(last["step"]) - float(first["step"])) / (float(last["seconds"]) - float(first["seconds"]))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=60.0, help="measuring time per setting")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--envs-per-worker", type=int, default=16)
+    parser.add_argument("--obs", nargs="+", default=["pixels", "state"])
+    args = parser.parse_args()
+    results = {"workers": args.workers, "envs_per_worker": args.envs_per_worker, "cpu_threads_per_worker": 1,
+               "settings": []}
+    for obs in args.obs:
+        probe = A3CConfig(task="STG1", obs=obs, workers=args.workers, envs_per_worker=args.envs_per_worker,
+                          steps=1, eval_every=0)
+        limit = network_only_sps(probe, args.seconds)
+        steps = int(max(limit, 500) * args.seconds * 1.2)
+        config = A3CConfig(task="STG1", obs=obs, workers=args.workers, envs_per_worker=args.envs_per_worker,
+                           steps=steps, eval_every=0, checkpoint_every=10 * steps, log_every=2_000)
+        sps = a3c_sps(config)
+        row = {"obs": obs, "hidden": config.hidden, "features": config.features, "network_only_sps": limit,
+               "a3c_sps": sps, "ratio": sps / limit}
+        results["settings"].append(row)
+        print(f"{obs:>6}: A3C {sps:,.0f} env steps/s; network alone {limit:,.0f} samples/s; ratio {sps / limit:.2f}",
+              flush=True)
+    RESULTS.mkdir(exist_ok=True)
+    atomic_write_bytes(RESULTS / "a3c.json", (json.dumps(results, indent=2) + "\n").encode())
+    print(f"wrote {RESULTS / 'a3c.json'}", file=sys.stderr)
+
+
+if __name__ == "__main__":
+    main()
