@@ -60,9 +60,9 @@ def _network_worker(config: A3CConfig, shared, optimizer_state, seconds: float, 
         optimizer.state[param] = state
     actor = RecurrentActor(local, config.envs_per_worker, generator=torch.Generator().manual_seed(0))
     n, batch = config.n_steps, config.envs_per_worker
-    samples, start = 0, None
+    samples, start, updates = 0, None, 0
     while True:
-        if samples == n * batch:  # the first update warms up; time from the second
+        if updates == 1:  # the first update warms up; time from the second
             start, samples = time.perf_counter(), 0
         if start is not None and time.perf_counter() - start >= seconds:
             break
@@ -84,6 +84,7 @@ def _network_worker(config: A3CConfig, shared, optimizer_state, seconds: float, 
                        h0=h0, c0=c0)
         apply_update(local, shared_params, optimizer, segment, config)
         samples += n * batch
+        updates += 1
     results.put(samples / (time.perf_counter() - start))
 
 

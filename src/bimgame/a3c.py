@@ -40,6 +40,7 @@ import torch
 import torch.multiprocessing as mp
 
 from bimgame.agent import RecurrentActor, evaluate_network, tilt_input
+from bimgame.curves import plot_run
 from bimgame.env import MAX_EPISODE_STEPS
 from bimgame.maze import MazeSpec
 from bimgame.nets import NetConfig, RecurrentActorCritic, build_network, maze_background, state_obs_scale
@@ -620,6 +621,10 @@ def train(config: A3CConfig, run_dir: str | Path, *, resume: bool = False, init:
     seconds = time.monotonic() - started
     write_json(run_dir / "summary.json", {"steps": int(counter.value), "stopped": stopped, "seconds": seconds,
                                           "final_eval": final_eval, **monitor.recent()})
+    try:
+        plot_run(run_dir, title=f"A3C on {config.task} ({config.obs})")
+    except ValueError:
+        pass  # no finished episode yet: nothing to plot
     return TrainResult(run_dir, int(counter.value), stopped, final_eval, seconds)
 
 

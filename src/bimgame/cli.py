@@ -8,6 +8,7 @@ Verbs:
   generate     expert trajectories as a Minari dataset (parallel, resumable, local or Ray)
   train        A3C with the paper's recurrent actor-critic (checkpoints, logs, resume)
   evaluate     success rate and episode length of a trained run, optionally a GIF
+  curves       learning curves of a run (PNG)
 """
 
 from __future__ import annotations
@@ -74,6 +75,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_train_arguments(verbs.add_parser("train", help="train an A3C agent"))
     add_evaluate_arguments(verbs.add_parser("evaluate", help="evaluate a trained run"))
+    curves = verbs.add_parser("curves", help="plot a run's learning curves")
+    curves.add_argument("run_dir", type=Path)
+    curves.add_argument("--out", type=Path, default=None, help="PNG path (default RUN_DIR/curves.png)")
     return parser
 
 
@@ -113,6 +117,11 @@ def main(argv: list[str] | None = None) -> int:
             from bimgame.data import run_generate
 
             return run_generate(args, mpc_config_from(args))
+        if args.verb == "curves":
+            from bimgame.curves import plot_run
+
+            print(f"wrote {plot_run(args.run_dir, args.out)}")
+            return 0
         if args.verb in ("train", "evaluate"):
             from bimgame import cli_train
 

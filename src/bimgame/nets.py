@@ -208,10 +208,10 @@ class RecurrentActorCritic(nn.Module):
                    tilt: torch.Tensor | None) -> torch.Tensor:
         """(…,) previous actions (NO_ACTION allowed), (…,) previous rewards, (…, 2) tilts in units of
         the maximum tilt → (…, aux_size)."""
-        one_hot = torch.zeros(*prev_action.shape, self.config.n_actions)
         valid = prev_action >= 0
-        one_hot[valid, prev_action[valid].long()] = 1.0
-        parts = [one_hot, prev_reward.float().unsqueeze(-1)]
+        one_hot = nn.functional.one_hot(prev_action.long().clamp(min=0), self.config.n_actions)
+        one_hot = one_hot * valid.unsqueeze(-1)
+        parts = [one_hot.float(), prev_reward.float().unsqueeze(-1)]
         if self.config.tilt_input:
             if tilt is None:
                 raise ValueError("this network takes the board tilt as input (tilt_input=True); pass tilt")
