@@ -50,8 +50,8 @@ from bimgame.tasks import Task, parse_task
 from bimgame.vector import BallInMazeVectorEnv
 
 __all__ = ["A3CConfig", "TrainingError", "TrainResult", "train", "network_for", "make_optimizer",
-           "OPTIMIZERS", "EnvWrapper", "a3c_segment_loss", "apply_update", "shared_optimizer_state",
-           "load_run_network"]
+           "OPTIMIZERS", "EnvWrapper", "net_config_for", "a3c_segment_loss", "apply_update", "shared_optimizer_state",
+           "load_run_network", "evaluate_greedy_and_sampled", "evaluation_seed"]
 
 OPTIMIZERS = ("rmsprop", "adam")
 #: A callable that wraps a worker's vector env (e.g. reward shaping). It is sent to spawned worker
@@ -178,19 +178,25 @@ class A3CConfig:
     RESUMABLE_CHANGES = ("steps", "workers", "checkpoint_every", "eval_every", "eval_episodes", "log_every")
 
 
-def network_for(config: A3CConfig, maze: MazeSpec | None = None) -> RecurrentActorCritic:
-    """A fresh network shaped for ``config``'s observations."""
+def net_config_for(config: A3CConfig, maze: MazeSpec | None = None) -> tuple[NetConfig, dict[str, Any]]:
+    """The network sizes for ``config``'s observations and the fixed inputs to build it with
+    (``obs_scale`` or ``background``, keyword arguments of :func:`~bimgame.nets.build_network`)."""
     maze = maze or MazeSpec.merl()
     if config.obs == "pixels":
         net_config = NetConfig(encoder="conv", obs_shape=(1, 84, 84), features=config.features,
                                hidden=config.hidden, tilt_input=config.tilt_input, keypoints=config.keypoints,
                                subtract_background=config.subtract_background)
-        background = maze_background(maze) if config.subtract_background else None
-        return build_network(net_config, seed=config.seed, background=background)
+        return net_config, {"background": maze_background(maze) if config.subtract_background else None}
     scale = state_obs_scale(maze)
     net_config = NetConfig(encoder="mlp", obs_shape=(len(scale),), features=config.features,
                            hidden=config.hidden, tilt_input=config.tilt_input)
-    return build_network(net_config, obs_scale=scale, seed=config.seed)
+    return net_config, {"obs_scale": scale}
+
+
+def network_for(config: A3CConfig, maze: MazeSpec | None = None) -> RecurrentActorCritic:
+    """A fresh network shaped for ``config``'s observations."""
+    net_config, inputs = net_config_for(config, maze)
+    return build_network(net_config, seed=config.seed, **inputs)
 
 
 def load_run_network(source: str | Path) -> tuple[RecurrentActorCritic, A3CConfig, int]:
@@ -200,7 +206,10 @@ def load_run_network(source: str | Path) -> tuple[RecurrentActorCritic, A3CConfi
     run_dir = source.parent if source.is_file() else source
     if not (run_dir / CONFIG).is_file():
         raise ValueError(f"{run_dir} is not a training run (no {CONFIG})")
-    config = A3CConfig.from_dict(json.loads((run_dir / CONFIG).read_text())["a3c"])
+    stored = json.loads((run_dir / CONFIG).read_text())
+    if stored.get("kind") == "value-function":
+        raise ValueError(f"{run_dir} holds a value function (V̂), not a policy; use it with --value-reward")
+    config = A3CConfig.from_dict(stored["a3c"])
     net = network_for(config)
     step = load_weights(net, source)
     return net, config, step
@@ -373,7 +382,8 @@ def _worker_loop(rank, config, shared, optimizer_state, counter, stop, messages,
             seg["actions"].append(actions)
             seg["rewards"].append(rewards_t)
             seg["ends"].append(torch.as_tensor(done))
-            episode_return += reward
+            # Learning curves show the task's own reward, also when a wrapper shapes it.
+            episode_return += np.asarray(info.get("task_reward", reward), dtype=np.float64)
             episode_length += 1
             for i in np.flatnonzero(done):
                 messages.put(("episode", rank, {
@@ -426,13 +436,19 @@ def _final_values(actor: RecurrentActor, actions: torch.Tensor, reward: np.ndarr
     return values * torch.as_tensor(cut, dtype=torch.float32)
 
 
-def _evaluator(config: A3CConfig, shared: RecurrentActorCritic, counter, stop, messages, start_step: int) -> None:
+def _evaluator(config: A3CConfig, shared: RecurrentActorCritic, counter, stop, messages, start_step: int,
+               initial_weights: dict[str, torch.Tensor] | None) -> None:
     """Evaluator process: every ``eval_every`` steps, greedy and sampled episodes with the shared
     weights (same start positions every time)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     torch.set_num_threads(1)
     try:
         local = network_for(config)
+        if initial_weights is not None:
+            # A fresh run is evaluated at step 0 too, on a copy of the weights taken before any
+            # worker started: the curve starts from the initial (random or pre-trained) policy.
+            local.load_state_dict(initial_weights)
+            messages.put(("eval", -1, {"step": start_step, **evaluate_greedy_and_sampled(local, config)}))
         next_eval = (start_step // config.eval_every + 1) * config.eval_every
         while not stop.is_set() and _parent_alive():
             step = counter.value
@@ -442,7 +458,7 @@ def _evaluator(config: A3CConfig, shared: RecurrentActorCritic, counter, stop, m
                 time.sleep(0.1)
                 continue
             local.load_state_dict(shared.state_dict())
-            messages.put(("eval", -1, {"step": int(step), **_evaluate_both(local, config)}))
+            messages.put(("eval", -1, {"step": int(step), **evaluate_greedy_and_sampled(local, config)}))
             next_eval = (step // config.eval_every + 1) * config.eval_every
     except Exception:
         messages.put(("error", -1, traceback.format_exc()))
@@ -450,11 +466,20 @@ def _evaluator(config: A3CConfig, shared: RecurrentActorCritic, counter, stop, m
         messages.put(("exit", -1, None))
 
 
-def _evaluate_both(net: RecurrentActorCritic, config: A3CConfig) -> dict[str, float]:
+def evaluation_seed(config: A3CConfig) -> int:
+    """Seed of the start positions of a run's periodic evaluations (the same every time)."""
+    return int(np.random.SeedSequence([config.seed, 999_983]).generate_state(1)[0])
+
+
+def evaluate_greedy_and_sampled(net: RecurrentActorCritic, config: A3CConfig, *, episodes: int | None = None,
+                                seed: int | None = None) -> dict[str, float]:
+    """Success rate, mean length and return of ``net`` on ``config``'s task, acting greedily and
+    sampling (keys ``greedy_…``, ``sampled_…``); by default the run's evaluation episodes and seed."""
     values: dict[str, float] = {}
-    seed = int(np.random.SeedSequence([config.seed, 999_983]).generate_state(1)[0])
+    seed = evaluation_seed(config) if seed is None else seed
     for mode, greedy in (("greedy", True), ("sampled", False)):
-        result = evaluate_network(net, task=config.task, obs_mode=config.obs, episodes=config.eval_episodes,
+        result = evaluate_network(net, task=config.task, obs_mode=config.obs,
+                                  episodes=config.eval_episodes if episodes is None else episodes,
                                   seed=seed, greedy=greedy, max_episode_steps=config.time_limit)
         values.update({f"{mode}_{k}": v for k, v in result.summary().items() if k != "episodes"})
     return values
@@ -533,6 +558,7 @@ def train(config: A3CConfig, run_dir: str | Path, *, resume: bool = False, init:
         optimizer.load_state_dict(optimizer_state_dict)
     optimizer_state = shared_optimizer_state(optimizer)
 
+    initial_weights = None if resume else {k: v.detach().clone() for k, v in shared.state_dict().items()}
     context = mp.get_context("spawn")
     counter = context.Value("q", start_step)
     stop = context.Event()
@@ -543,7 +569,8 @@ def train(config: A3CConfig, run_dir: str | Path, *, resume: bool = False, init:
                  for rank in range(config.workers)]
     if config.eval_every > 0:
         processes.append(context.Process(target=_evaluator, name="a3c-evaluator",
-                                         args=(config, shared, counter, stop, messages, start_step), daemon=True))
+                                         args=(config, shared, counter, stop, messages, start_step,
+                                               initial_weights), daemon=True))
     log = MetricLog(run_dir, _TABLES, resume_step=start_step if resume else None)
     monitor = _Monitor(config, start_step)
     started = time.monotonic()
@@ -615,7 +642,7 @@ def train(config: A3CConfig, run_dir: str | Path, *, resume: bool = False, init:
     checkpoint()
     final_eval = None
     if stopped == "finished":
-        final_eval = {"step": int(counter.value), **_evaluate_both(shared, config)}
+        final_eval = {"step": int(counter.value), **evaluate_greedy_and_sampled(shared, config)}
         log.write("eval", final_eval["step"], final_eval, scalars=tuple(_TABLES["eval"]))
     log.close()
     seconds = time.monotonic() - started

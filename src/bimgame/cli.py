@@ -9,6 +9,7 @@ Verbs:
   train        A3C with the paper's recurrent actor-critic (checkpoints, logs, resume)
   evaluate     success rate and episode length of a trained run, optionally a GIF
   curves       learning curves of a run (PNG)
+  pretrain     supervised pre-training on expert trajectories: the policy π^s or the value V̂
 """
 
 from __future__ import annotations
@@ -71,10 +72,12 @@ def build_parser() -> argparse.ArgumentParser:
     add_generate_arguments(generate)
     add_mpc_arguments(generate)
 
+    from bimgame.cli_learn import add_pretrain_arguments
     from bimgame.cli_train import add_evaluate_arguments, add_train_arguments
 
     add_train_arguments(verbs.add_parser("train", help="train an A3C agent"))
     add_evaluate_arguments(verbs.add_parser("evaluate", help="evaluate a trained run"))
+    add_pretrain_arguments(verbs.add_parser("pretrain", help="pre-train π^s (or V̂) on an expert dataset"))
     curves = verbs.add_parser("curves", help="plot a run's learning curves")
     curves.add_argument("run_dir", type=Path)
     curves.add_argument("--out", type=Path, default=None, help="PNG path (default RUN_DIR/curves.png)")
@@ -122,6 +125,10 @@ def main(argv: list[str] | None = None) -> int:
 
             print(f"wrote {plot_run(args.run_dir, args.out)}")
             return 0
+        if args.verb == "pretrain":
+            from bimgame.cli_learn import run_pretrain
+
+            return run_pretrain(args)
         if args.verb in ("train", "evaluate"):
             from bimgame import cli_train
 

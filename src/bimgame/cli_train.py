@@ -9,7 +9,7 @@ import re
 import sys
 from pathlib import Path
 
-from bimgame.argtypes import non_negative_int, positive_int
+from bimgame.argtypes import non_negative_float, positive_float, positive_int
 
 __all__ = ["add_train_arguments", "add_evaluate_arguments", "run_train", "run_evaluate", "step_count",
            "a3c_config_from"]
@@ -28,24 +28,9 @@ def step_count(text: str) -> int:
     return int(value)
 
 
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
-    if not value > 0 or value == float("inf"):
-        raise argparse.ArgumentTypeError(f"expected a positive finite number, got {text!r}")
-    return value
-
-
-def _non_negative_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}") from None
-    if not value >= 0 or value == float("inf"):
-        raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {text!r}")
-    return value
+def step_count_or_zero(text: str) -> int:
+    """:func:`step_count`, or 0 (e.g. ``--eval-every 0``: never)."""
+    return 0 if text.strip() == "0" else step_count(text)
 
 
 def add_train_arguments(parser: argparse.ArgumentParser) -> None:
@@ -68,13 +53,13 @@ def add_train_arguments(parser: argparse.ArgumentParser) -> None:
     add("--envs-per-worker", type=positive_int, default=None,
         help=f"environments per worker, one batched forward pass (default {d.envs_per_worker}; 1 = paper's A3C)")
     add("--n-steps", type=positive_int, default=None, help=f"steps per update, t_max (default {d.n_steps})")
-    add("--lr", type=_positive_float, default=None, help=f"learning rate (default {d.lr})")
+    add("--lr", type=positive_float, default=None, help=f"learning rate (default {d.lr})")
     add("--optimizer", choices=OPTIMIZERS, default=None, help=f"shared optimiser (default {d.optimizer})")
-    add("--gamma", type=_non_negative_float, default=None, help=f"discount (default {d.gamma})")
-    add("--gae-lambda", type=_non_negative_float, default=None, help=f"GAE lambda; 1 = n-step returns (default {d.gae_lambda})")
-    add("--entropy-coef", type=_non_negative_float, default=None, help=f"(default {d.entropy_coef})")
-    add("--value-coef", type=_non_negative_float, default=None, help=f"(default {d.value_coef})")
-    add("--max-grad-norm", type=_positive_float, default=None, help=f"(default {d.max_grad_norm})")
+    add("--gamma", type=non_negative_float, default=None, help=f"discount (default {d.gamma})")
+    add("--gae-lambda", type=non_negative_float, default=None, help=f"GAE lambda; 1 = n-step returns (default {d.gae_lambda})")
+    add("--entropy-coef", type=non_negative_float, default=None, help=f"(default {d.entropy_coef})")
+    add("--value-coef", type=non_negative_float, default=None, help=f"(default {d.value_coef})")
+    add("--max-grad-norm", type=positive_float, default=None, help=f"(default {d.max_grad_norm})")
     add("--hidden", type=positive_int, default=None, help="LSTM size (default 256 pixels, 128 state)")
     add("--features", type=positive_int, default=None, help="encoder output size (default 256 pixels, 128 state)")
     add("--no-tilt-input", dest="tilt_input", action="store_const", const=False, default=None,
@@ -86,9 +71,35 @@ def add_train_arguments(parser: argparse.ArgumentParser) -> None:
     add("--max-episode-steps", type=positive_int, default=None, help="time limit (default: the task's)")
     add("--seed", type=int, default=None, help=f"(default {d.seed})")
     add("--checkpoint-every", type=step_count, default=None, help=f"steps between checkpoints (default {d.checkpoint_every:,})")
-    add("--eval-every", type=non_negative_int, default=None,
+    add("--eval-every", type=step_count_or_zero, default=None,
         help=f"steps between evaluations, 0 = none (default {d.eval_every:,})")
     add("--eval-episodes", type=positive_int, default=None, help=f"(default {d.eval_episodes})")
+    add("--value-reward", type=Path, default=None, metavar="RUN",
+        help="shape the reward with the frozen value function V̂ of RUN (bimgame pretrain --value-only): "
+             "r + gamma V̂(s') - V̂(s)")
+    add("--geodesic-reward", type=positive_float, nargs="?", const=10.0, default=None, metavar="COEF",
+        help="add COEF x geodesic progress towards the centre (per metre; default 10) to the reward")
+
+
+#: Settings that shape the network; ``--init RUN`` takes them from RUN unless given.
+NETWORK_SETTINGS = ("obs", "hidden", "features", "tilt_input", "keypoints", "subtract_background")
+
+
+def init_network_settings(source: Path) -> dict:
+    """The network settings of the run ``--init`` points at ({} for a bare checkpoint file)."""
+    from bimgame.pretrain import KIND_VALUE
+    from bimgame.runs import CONFIG
+
+    run_dir = source.parent if source.is_file() else source
+    if not source.exists():
+        raise ValueError(f"--init: {source} does not exist")
+    if not (run_dir / CONFIG).is_file():
+        return {}
+    stored = json.loads((run_dir / CONFIG).read_text())
+    if stored.get("kind") == KIND_VALUE:
+        raise ValueError(f"--init: {source} holds a value function (V̂); pass it to --value-reward. --init takes "
+                         f"a pre-trained policy (bimgame pretrain) or an A3C run")
+    return {k: stored["a3c"][k] for k in NETWORK_SETTINGS if k in stored.get("a3c", {})}
 
 
 def a3c_config_from(args: argparse.Namespace) -> "A3CConfig":  # noqa: F821
@@ -105,17 +116,59 @@ def a3c_config_from(args: argparse.Namespace) -> "A3CConfig":  # noqa: F821
             raise ValueError(f"--resume: no {CONFIG} in {args.run_dir}; start a new run without --resume")
         stored = json.loads(path.read_text())["a3c"]
         return A3CConfig.from_dict({**stored, **given})
+    if args.init is not None:
+        given = {**init_network_settings(args.init), **given}
     return A3CConfig(**given)
+
+
+def reward_settings_from(args: argparse.Namespace) -> dict:
+    """How the training reward is shaped: ``value_reward`` (a V̂ run) and ``geodesic_coef``; a resumed
+    run keeps its own."""
+    from bimgame.runs import CONFIG
+
+    settings = {"value_reward": None if args.value_reward is None else str(args.value_reward),
+                "geodesic_coef": args.geodesic_reward}
+    if args.resume:
+        stored = json.loads((args.run_dir / CONFIG).read_text()).get("reward", {"value_reward": None,
+                                                                               "geodesic_coef": None})
+        changed = [k for k, v in settings.items() if v is not None and v != stored.get(k)]
+        if changed:
+            raise ValueError(f"--resume must keep the run's reward; it was {stored}, got {settings}")
+        return stored
+    return settings
+
+
+def env_wrapper_for(settings: dict, config) -> object | None:
+    """The picklable env wrapper for the reward settings (None: the task's reward)."""
+    from bimgame.shaping import Chain, GeodesicReward, ValueReward
+
+    wrappers: list = []
+    if settings.get("geodesic_coef") is not None:
+        wrappers.append(GeodesicReward(settings["geodesic_coef"]))
+    if settings.get("value_reward") is not None:
+        from bimgame.pretrain import load_value_network
+
+        _, value_config = load_value_network(settings["value_reward"])
+        if value_config.obs != config.obs:
+            raise ValueError(f"--value-reward {settings['value_reward']}: V̂ was trained on {value_config.obs} "
+                             f"observations, this run uses {config.obs}")
+        wrappers.append(ValueReward(settings["value_reward"], gamma=config.gamma))
+    return Chain(tuple(wrappers)) if wrappers else None
 
 
 def run_train(args: argparse.Namespace) -> int:
     from bimgame.a3c import TrainingError, train
 
     config = a3c_config_from(args)
+    reward = reward_settings_from(args)
+    wrapper = env_wrapper_for(reward, config)
+    shaped = ", ".join(f"{k}={v}" for k, v in reward.items() if v is not None)
     print(f"A3C on {config.task} ({config.obs}): {config.steps:,} steps, {config.workers} workers x "
-          f"{config.envs_per_worker} envs -> {args.run_dir}", file=sys.stderr)
+          f"{config.envs_per_worker} envs{', reward shaped: ' + shaped if shaped else ''}"
+          f"{', from ' + str(args.init) if args.init else ''} -> {args.run_dir}", file=sys.stderr)
     try:
-        result = train(config, args.run_dir, resume=args.resume, init=args.init, progress=not args.no_progress)
+        result = train(config, args.run_dir, resume=args.resume, init=args.init, progress=not args.no_progress,
+                       env_wrapper=wrapper, extra_config={"reward": reward})
     except TrainingError as error:
         print(f"bimgame train: stopped: {error}", file=sys.stderr)
         return 1

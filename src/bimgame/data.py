@@ -51,7 +51,7 @@ from bimgame.parallel import BACKENDS, MAIN_GUARD, environment, episode_progress
 from bimgame.tasks import Task, parse_task
 
 __all__ = ["DatasetError", "generate_dataset", "load_dataset", "iterate_sequences", "dataset_summary",
-           "dataset_id_for", "discounted_returns", "add_generate_arguments", "run_generate", "BACKENDS", "NO_ACTION",
+           "dataset_id_for", "dataset_manifest", "discounted_returns", "add_generate_arguments", "run_generate", "BACKENDS", "NO_ACTION",
            "FORMAT_VERSION"]
 
 FORMAT_NAME = "bimgame-expert-dataset"
@@ -474,6 +474,11 @@ def load_dataset(out_dir: str | Path, *, verify: bool = True):
     return dataset
 
 
+def dataset_manifest(out_dir: str | Path) -> dict[str, Any]:
+    """What a dataset directory holds (its ``generation.json``: task, episodes, seed, MPC settings)."""
+    return _read_manifest(Path(out_dir))
+
+
 def dataset_summary(out_dir: str | Path) -> dict[str, Any]:
     """Counts and disk use of a finished dataset (from its marker, without re-hashing): episodes,
     steps, success rate, mean length, bytes of the episode files and of the Minari dataset, and
@@ -516,6 +521,9 @@ def iterate_sequences(dataset_or_dir, *, obs: str = "state", gamma: float = 0.99
     - ``returns`` (T,) float32: discounted returns-to-go ``G_t = r_t + gamma * G_{t+1}`` with
       ``G_T = 0`` — exact for terminated episodes; for truncated ones the tail beyond the time limit
       is also taken as 0 (check ``truncated``);
+    - ``tilt`` (T, 2) float32: the board tilt (rad) when each action was taken;
+    - ``channels`` (T+1, n) int64: each marble's channel before and after every step (what a
+      different task's rewards are computed from, see :func:`bimgame.pretrain.relabel`);
     - ``terminated``, ``truncated``: how the episode ended; ``id``: its index in the dataset.
     """
     if obs not in ("state", "pixels"):
@@ -544,6 +552,13 @@ def iterate_sequences(dataset_or_dir, *, obs: str = "state", gamma: float = 0.99
             frames = np.asarray(episode.observations[:steps], dtype=np.float32)
         actions = np.asarray(episode.actions, dtype=np.int64)
         rewards = np.asarray(episode.rewards, dtype=np.float64)
+        states = np.asarray(episode.observations[:steps], dtype=np.float32)
+        n_marbles = (states.shape[1] - 2) // 5  # [x, y, vx, vy] * n, tilt_x, tilt_y, channel * n
+        infos = episode.infos or {}
+        if "channel" in infos:
+            channels = np.asarray(infos["channel"][:steps + 1], dtype=np.int64)
+        else:
+            channels = np.rint(np.asarray(episode.observations[:steps + 1])[:, 4 * n_marbles + 2:]).astype(np.int64)
         prev_actions = np.empty(steps, dtype=np.int64)
         prev_actions[0] = NO_ACTION
         prev_actions[1:] = actions[:-1]
@@ -556,6 +571,8 @@ def iterate_sequences(dataset_or_dir, *, obs: str = "state", gamma: float = 0.99
             "prev_actions": prev_actions,
             "prev_rewards": prev_rewards,
             "returns": discounted_returns(rewards, gamma).astype(np.float32),
+            "tilt": states[:, 4 * n_marbles:4 * n_marbles + 2].copy(),
+            "channels": channels,
             "terminated": bool(episode.terminations[-1]),
             "truncated": bool(episode.truncations[-1]),
             "id": int(episode.id),

@@ -31,7 +31,7 @@ from torch import nn
 
 from bimgame.maze import MazeSpec
 
-__all__ = ["NetConfig", "RecurrentActorCritic", "LSTMState", "build_network", "state_obs_scale", "maze_background",
+__all__ = ["NetConfig", "RecurrentActorCritic", "ValueNetwork", "build_value_network", "LSTMState", "build_network", "state_obs_scale", "maze_background",
            "NO_ACTION", "N_ACTIONS", "ENCODERS"]
 
 #: Previous-action code at an episode's first step (encoded as an all-zero one-hot).
@@ -245,15 +245,37 @@ class RecurrentActorCritic(nn.Module):
         return self.policy(hidden), self.value(hidden).squeeze(-1), LSTMState(h, c)
 
 
-def build_network(config: NetConfig, obs_scale: np.ndarray | None = None, *, seed: int = 0,
-                  background: np.ndarray | None = None) -> RecurrentActorCritic:
-    """A fresh network with initial weights drawn from ``seed`` (the global torch generator is
-    left untouched); ``obs_scale`` sets the MLP encoder's input divisors (see
-    :func:`state_obs_scale`); ``background`` is the empty-maze frame a ``subtract_background``
-    network subtracts (see :func:`maze_background`)."""
-    with torch.random.fork_rng(devices=[]):
-        torch.manual_seed(seed)
-        net = RecurrentActorCritic(config)
+class ValueNetwork(nn.Module):
+    """V̂(s): the value-only network whose frozen values shape A3C's reward (the paper's "value
+    function as a reward").
+
+    Feed-forward on purpose: the shaping potential must be a function of the state for potential
+    shaping to leave the optimal policies unchanged (Ng et al. 1999) — a recurrent V̂ would be a
+    function of the history — and a reward wrapper then needs no per-environment memory. It sees
+    what the agent's network sees of the state: the observation (the same encoder as
+    :class:`RecurrentActorCritic`) and, with ``tilt_input``, the board tilt."""
+
+    def __init__(self, config: NetConfig):
+        super().__init__()
+        self.config = config
+        self.encoder = ConvEncoder(config) if config.encoder == "conv" else MLPEncoder(config)
+        extra = 2 if config.tilt_input else 0
+        self.head = nn.Sequential(nn.Linear(config.features + extra, config.hidden), nn.ReLU(),
+                                  nn.Linear(config.hidden, 1))
+
+    def forward(self, obs: torch.Tensor, tilt: torch.Tensor | None) -> torch.Tensor:
+        """(N, …) observations and (N, 2) tilts in units of the maximum tilt → (N,) values."""
+        x = self.encoder(obs)
+        if self.config.tilt_input:
+            if tilt is None:
+                raise ValueError("this value network takes the board tilt as input (tilt_input=True); pass tilt")
+            x = torch.cat([x, tilt.float()], dim=-1)
+        return self.head(x).squeeze(-1)
+
+
+def _configure_inputs(net: nn.Module, config: NetConfig, obs_scale: np.ndarray | None,
+                      background: np.ndarray | None) -> None:
+    """Set the encoder's fixed inputs: the empty-maze background (conv) or the state scale (mlp)."""
     if config.subtract_background:
         if background is None or np.shape(background) != config.obs_shape:
             raise ValueError(f"subtract_background needs the empty-maze frame of shape {config.obs_shape} "
@@ -270,6 +292,28 @@ def build_network(config: NetConfig, obs_scale: np.ndarray | None = None, *, see
             raise ValueError(f"obs_scale must be {tuple(net.encoder.scale.shape)} positive numbers, "
                              f"got shape {tuple(scale.shape)}")
         net.encoder.scale.copy_(scale)
+
+
+def build_value_network(config: NetConfig, obs_scale: np.ndarray | None = None, *, seed: int = 0,
+                        background: np.ndarray | None = None) -> ValueNetwork:
+    """A fresh :class:`ValueNetwork`; arguments as :func:`build_network`."""
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        net = ValueNetwork(config)
+    _configure_inputs(net, config, obs_scale, background)
+    return net
+
+
+def build_network(config: NetConfig, obs_scale: np.ndarray | None = None, *, seed: int = 0,
+                  background: np.ndarray | None = None) -> RecurrentActorCritic:
+    """A fresh network with initial weights drawn from ``seed`` (the global torch generator is
+    left untouched); ``obs_scale`` sets the MLP encoder's input divisors (see
+    :func:`state_obs_scale`); ``background`` is the empty-maze frame a ``subtract_background``
+    network subtracts (see :func:`maze_background`)."""
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        net = RecurrentActorCritic(config)
+    _configure_inputs(net, config, obs_scale, background)
     return net
 
 
