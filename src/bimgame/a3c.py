@@ -45,7 +45,8 @@ from bimgame.env import MAX_EPISODE_STEPS
 from bimgame.maze import MazeSpec
 from bimgame.nets import NetConfig, RecurrentActorCritic, build_network, maze_background, state_obs_scale
 from bimgame.observe import OBS_MODES
-from bimgame.runs import CHECKPOINT, CONFIG, MetricLog, load_checkpoint, load_weights, save_checkpoint, write_json
+from bimgame.runs import (CHECKPOINT, CONFIG, MetricLog, load_checkpoint, load_weights, save_checkpoint, torch_threads,
+                          write_json)
 from bimgame.tasks import Task, parse_task
 from bimgame.vector import BallInMazeVectorEnv
 
@@ -523,8 +524,13 @@ def train(config: A3CConfig, run_dir: str | Path, *, resume: bool = False, init:
         TrainingError: a worker produced a non-finite loss or crashed (weights stay as they were
             before the failing update; the last good checkpoint is kept).
     """
-    run_dir = Path(run_dir)
-    torch.set_num_threads(1)
+    with torch_threads(1):  # the parent only orchestrates; workers set their own
+        return _train(config, Path(run_dir), resume=resume, init=init, env_wrapper=env_wrapper, progress=progress,
+                      extra_config=extra_config)
+
+
+def _train(config: A3CConfig, run_dir: Path, *, resume: bool, init: str | Path | None,
+           env_wrapper: EnvWrapper | None, progress: bool, extra_config: dict | None) -> TrainResult:
     shared = network_for(config)
     start_step = 0
     optimizer_state_dict = None

@@ -10,6 +10,7 @@ Verbs:
   evaluate     success rate and episode length of a trained run, optionally a GIF
   curves       learning curves of a run (PNG)
   pretrain     supervised pre-training on expert trajectories: the policy π^s or the value V̂
+  dagger       DAgger with the MPC expert labelling the learner's states
 """
 
 from __future__ import annotations
@@ -72,12 +73,13 @@ def build_parser() -> argparse.ArgumentParser:
     add_generate_arguments(generate)
     add_mpc_arguments(generate)
 
-    from bimgame.cli_learn import add_pretrain_arguments
+    from bimgame.cli_learn import add_dagger_arguments, add_pretrain_arguments
     from bimgame.cli_train import add_evaluate_arguments, add_train_arguments
 
     add_train_arguments(verbs.add_parser("train", help="train an A3C agent"))
     add_evaluate_arguments(verbs.add_parser("evaluate", help="evaluate a trained run"))
     add_pretrain_arguments(verbs.add_parser("pretrain", help="pre-train π^s (or V̂) on an expert dataset"))
+    add_dagger_arguments(verbs.add_parser("dagger", help="DAgger with the MPC expert"))
     curves = verbs.add_parser("curves", help="plot a run's learning curves")
     curves.add_argument("run_dir", type=Path)
     curves.add_argument("--out", type=Path, default=None, help="PNG path (default RUN_DIR/curves.png)")
@@ -125,10 +127,10 @@ def main(argv: list[str] | None = None) -> int:
 
             print(f"wrote {plot_run(args.run_dir, args.out)}")
             return 0
-        if args.verb == "pretrain":
-            from bimgame.cli_learn import run_pretrain
+        if args.verb in ("pretrain", "dagger"):
+            from bimgame import cli_learn
 
-            return run_pretrain(args)
+            return cli_learn.run_pretrain(args) if args.verb == "pretrain" else cli_learn.run_dagger(args)
         if args.verb in ("train", "evaluate"):
             from bimgame import cli_train
 

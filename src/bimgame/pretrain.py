@@ -42,7 +42,7 @@ from bimgame.data import dataset_manifest, discounted_returns, iterate_sequences
 from bimgame.maze import MazeSpec
 from bimgame.nets import NO_ACTION, RecurrentActorCritic, ValueNetwork, build_value_network
 from bimgame.observe import OBS_MODES
-from bimgame.runs import CHECKPOINT, CONFIG, MetricLog, load_weights, save_checkpoint, write_json
+from bimgame.runs import CHECKPOINT, CONFIG, MetricLog, load_weights, save_checkpoint, torch_threads, write_json
 from bimgame.tasks import Task, parse_task
 
 __all__ = ["PretrainConfig", "PretrainResult", "pretrain", "relabel", "load_sequences", "load_value_network",
@@ -79,8 +79,8 @@ class PretrainConfig:
     """Discount of the return targets (A3C's γ)."""
     batch_episodes: int = 16
     """Policy: episodes per batch (sequences run side by side)."""
-    batch_frames: int = 256
-    """Value: frames per batch."""
+    batch_frames: int = 64
+    """Value: frames per batch (256 underfit a 60-episode dataset: held-out RMSE 0.12 against 0.09)."""
     bptt: int = 50
     """Policy: steps per truncated-backpropagation chunk."""
     max_grad_norm: float = 1.0
@@ -367,10 +367,14 @@ def pretrain(config: PretrainConfig, data_dir: str | Path, out_dir: str | Path, 
     ``config.json``, ``checkpoint.pt`` (the best held-out weights), ``pretrain.csv`` and TensorBoard
     scalars per epoch, ``summary.json``. ``sequences`` (already loaded with
     :func:`load_sequences`) skips reading the dataset."""
-    out_dir = Path(out_dir)
+    with torch_threads():
+        return _pretrain(config, data_dir, Path(out_dir), progress=progress, sequences=sequences)
+
+
+def _pretrain(config: PretrainConfig, data_dir: str | Path, out_dir: Path, *, progress: bool,
+              sequences: list[dict[str, Any]] | None) -> PretrainResult:
     if (out_dir / CONFIG).exists() or (out_dir / CHECKPOINT).exists():
         raise ValueError(f"{out_dir} already holds a run; choose a new --out")
-    torch.set_num_threads(max(1, min(2, torch.get_num_threads())))
     maze = MazeSpec.merl()
     if sequences is None:
         sequences = load_sequences(data_dir, config.task, config.obs, config.gamma, maze, progress=progress)

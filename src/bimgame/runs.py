@@ -17,24 +17,40 @@ checkpoint, so no step is counted twice.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
+import os
 import json
 import math
 import pickle
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Iterable, Iterator
 
 import torch
 
 from bimgame.io import atomic_write_bytes
 
-__all__ = ["CheckpointError", "save_checkpoint", "load_checkpoint", "load_weights", "CsvLog",
+__all__ = ["torch_threads", "CheckpointError", "save_checkpoint", "load_checkpoint", "load_weights", "CsvLog",
            "MetricLog", "write_json", "CHECKPOINT", "CONFIG"]
 
 CHECKPOINT = "checkpoint.pt"
 CONFIG = "config.json"
 _REQUIRED = {"model": dict, "step": int}
+
+
+@contextlib.contextmanager
+def torch_threads(count: int | None = None) -> Iterator[int]:
+    """Run a block with ``count`` intra-op threads (default: the cores, at most 2 — what this
+    project's reference machine has), restoring the caller's setting afterwards: a library call must
+    not change how the rest of the process computes."""
+    previous = torch.get_num_threads()
+    count = count if count is not None else max(1, min(2, os.cpu_count() or 1))
+    torch.set_num_threads(count)
+    try:
+        yield count
+    finally:
+        torch.set_num_threads(previous)
 
 
 class CheckpointError(ValueError):
