@@ -29,3 +29,23 @@ def test_plot_run_from_logs(tmp_path, capsys):
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert main(["curves", str(tmp_path), "--out", str(tmp_path / "c.png")]) == 0
     assert (tmp_path / "c.png").is_file()
+
+
+def test_booleans_as_the_a3c_logs_write_them_and_a_comparison_figure(tmp_path):
+    runs = []
+    for index, rate in enumerate((0.2, 0.8)):
+        run = tmp_path / f"run{index}"
+        run.mkdir()
+        log = CsvLog(run / "episodes.csv", ["step", "start_step", "worker", "return", "length", "success"])
+        for i in range(100):
+            log.write({"step": 10 * i + 5, "start_step": 10 * i, "worker": 0, "return": 0.0, "length": 5,
+                       "success": bool(i % 10 < 10 * rate)})
+        log.close()
+        runs.append(run)
+    table = read_table(runs[1] / "episodes.csv")
+    assert table["success"].mean() == pytest.approx(0.8)  # "True"/"False" cells read as 1/0
+    out = tmp_path / "compare.png"
+    assert main(["compare", f"low={runs[0]}", f"high={runs[1]}", "--out", str(out)]) == 0
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    with pytest.raises(SystemExit):
+        main(["compare", "nolabel", "--out", str(out)])

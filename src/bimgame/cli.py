@@ -9,6 +9,7 @@ Verbs:
   train        A3C with the paper's recurrent actor-critic (checkpoints, logs, resume)
   evaluate     success rate and episode length of a trained run, optionally a GIF
   curves       learning curves of a run (PNG)
+  compare      learning curves of several groups of runs in one figure (PNG)
   pretrain     supervised pre-training on expert trajectories: the policy π^s or the value V̂
   dagger       DAgger with the MPC expert labelling the learner's states
 """
@@ -83,6 +84,11 @@ def build_parser() -> argparse.ArgumentParser:
     curves = verbs.add_parser("curves", help="plot a run's learning curves")
     curves.add_argument("run_dir", type=Path)
     curves.add_argument("--out", type=Path, default=None, help="PNG path (default RUN_DIR/curves.png)")
+    compare = verbs.add_parser("compare", help="learning curves of groups of runs in one figure")
+    compare.add_argument("groups", nargs="+", type=_run_group, metavar="LABEL=RUN[,RUN...]",
+                         help="a label and the run directories averaged under it (e.g. seeds)")
+    compare.add_argument("--out", type=Path, required=True, help="PNG path")
+    compare.add_argument("--title", default="", help="figure title")
     return parser
 
 
@@ -122,6 +128,11 @@ def main(argv: list[str] | None = None) -> int:
             from bimgame.data import run_generate
 
             return run_generate(args, mpc_config_from(args))
+        if args.verb == "compare":
+            from bimgame.curves import plot_comparison
+
+            print(f"wrote {plot_comparison(dict(args.groups), args.out, title=args.title)}")
+            return 0
         if args.verb == "curves":
             from bimgame.curves import plot_run
 
@@ -140,6 +151,18 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     parser.error(f"unknown verb {args.verb!r}")
     return 2
+
+
+def _run_group(text: str) -> tuple[str, list[Path]]:
+    """``LABEL=RUN[,RUN...]`` → (label, run directories)."""
+    label, sep, runs = text.partition("=")
+    paths = [Path(r) for r in runs.split(",") if r]
+    if not sep or not label or not paths:
+        raise argparse.ArgumentTypeError(f"expected LABEL=RUN[,RUN...], got {text!r}")
+    missing = [str(p) for p in paths if not p.is_dir()]
+    if missing:
+        raise argparse.ArgumentTypeError(f"not run directories: {', '.join(missing)}")
+    return label, paths
 
 
 # ---------------------------------------------------------------------- verbs

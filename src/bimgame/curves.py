@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import csv
 import io
+import warnings
 from pathlib import Path
 
 import numpy as np
 
 from bimgame.io import atomic_write_bytes
 
-__all__ = ["read_table", "binned_by_start", "plot_run"]
+__all__ = ["read_table", "binned_by_start", "plot_run", "plot_comparison"]
 
 
 def read_table(path: str | Path) -> dict[str, np.ndarray]:
@@ -22,16 +23,27 @@ def read_table(path: str | Path) -> dict[str, np.ndarray]:
         rows = list(csv.DictReader(handle))
     if not rows:
         return {}
-    return {key: np.array([float(r[key]) if r[key] not in ("", None) else np.nan for r in rows])
-            for key in rows[0]}
+    return {key: np.array([_number(r[key]) for r in rows]) for key in rows[0]}
 
 
-def binned_by_start(episodes: dict[str, np.ndarray], key: str, bins: int = 40,
-                    ) -> tuple[np.ndarray, np.ndarray]:
+def _number(text: str | None) -> float:
+    """A CSV cell as a float: booleans as 0/1, empty cells as NaN."""
+    if text in ("", None):
+        return np.nan
+    if text in ("True", "False"):
+        return float(text == "True")
+    return float(text)
+
+
+def binned_by_start(episodes: dict[str, np.ndarray], key: str, bins: int = 40, *,
+                    edges: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Mean of ``key`` over episodes grouped by the step they *started* at (counting by the end
-    step would favour short, successful episodes early in training). Returns (bin centres, means)."""
+    step would favour short, successful episodes early in training). Returns (bin centres, means);
+    ``edges`` fixes the bins (e.g. to average several runs), otherwise ``bins`` span the run."""
     start = episodes["start_step"]
-    edges = np.linspace(start.min(), start.max() + 1, bins + 1)
+    if edges is None:
+        edges = np.linspace(start.min(), start.max() + 1, bins + 1)
+    bins = len(edges) - 1
     index = np.clip(np.digitize(start, edges) - 1, 0, bins - 1)
     counts = np.bincount(index, minlength=bins)
     sums = np.bincount(index, weights=episodes[key], minlength=bins)
@@ -73,3 +85,57 @@ def plot_run(run_dir: str | Path, out: str | Path | None = None, title: str | No
     fig.savefig(buffer, format="png", dpi=110)
     plt.close(fig)
     return atomic_write_bytes(Path(out) if out is not None else run_dir / "curves.png", buffer.getvalue())
+
+
+def plot_comparison(groups: dict[str, list[str | Path]], out: str | Path, *, title: str = "",
+                    bins: int = 30) -> Path:
+    """One line per group of runs (e.g. ``{"A3C": [seed0, seed1], "pre-trained + A3C": [...]}``):
+    the training episodes' success rate by start step, and the evaluator's greedy success, each
+    averaged over the group's runs (thin lines: the single runs). Writes a PNG to ``out``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    tables = {label: [(read_table(Path(r) / "episodes.csv"), read_table(Path(r) / "eval.csv")) for r in runs]
+              for label, runs in groups.items()}
+    for label, runs in tables.items():
+        for (episodes, _), run in zip(runs, groups[label]):
+            if not episodes:
+                raise ValueError(f"{run} has no finished training episodes to plot (episodes.csv)")
+    last = max(float(e["start_step"].max()) for runs in tables.values() for e, _ in runs)
+    edges = np.linspace(0, last + 1, bins + 1)
+    centres = (edges[:-1] + edges[1:]) / 2
+    fig, (ax_train, ax_eval) = plt.subplots(1, 2, figsize=(11, 4))
+    for index, (label, runs) in enumerate(tables.items()):
+        colour = f"C{index}"
+        curves = []
+        for episodes, _ in runs:
+            steps, success = binned_by_start(episodes, "success", edges=edges)
+            curve = np.full(len(centres), np.nan)
+            curve[np.searchsorted(centres, steps)] = success
+            curves.append(curve)
+            ax_train.plot(centres, curve, color=colour, alpha=0.25, linewidth=0.8)
+        with warnings.catch_warnings():  # bins no run reached are NaN, not an error
+            warnings.simplefilter("ignore", RuntimeWarning)
+            mean = np.nanmean(curves, axis=0)
+        ax_train.plot(centres, mean, color=colour, label=f"{label} ({len(runs)} runs)")
+        evaluations = [ev for _, ev in runs if ev]
+        for ev in evaluations:
+            ax_eval.plot(ev["step"], ev["greedy_success_rate"], color=colour, alpha=0.25, linewidth=0.8)
+        if evaluations:
+            length = min(len(ev["step"]) for ev in evaluations)
+            mean = np.mean([ev["greedy_success_rate"][:length] for ev in evaluations], axis=0)
+            ax_eval.plot(evaluations[0]["step"][:length], mean, "o-", color=colour, label=label)
+    ax_train.set(xlabel="environment steps", ylabel="success rate", title="training episodes (by start step)",
+                 ylim=(-0.02, 1.02))
+    ax_eval.set(xlabel="environment steps", ylabel="success rate", title="evaluation, greedy", ylim=(-0.02, 1.02))
+    for axis in (ax_train, ax_eval):
+        axis.grid(alpha=0.3)
+        axis.legend(fontsize=8)
+    fig.suptitle(title)
+    fig.tight_layout()
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=110)
+    plt.close(fig)
+    return atomic_write_bytes(Path(out), buffer.getvalue())
