@@ -325,3 +325,11 @@ def test_command_line_generate_and_summarise(reference, tmp_path, capsys):
 def test_ray_backend_gives_the_same_dataset(reference, tmp_path):
     pytest.importorskip("ray")
     assert_same_dataset(reference, generate_dataset(tmp_path / "ray", backend="ray", workers=2, **ARGS))
+
+
+def test_a_relative_output_directory_works(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    out = generate_dataset("relative/data", workers=1, **ARGS)
+    assert out.is_absolute()
+    assert load_dataset("relative/data").total_episodes == ARGS["episodes"]
+    assert dataset_summary("relative/data")["episodes"] == ARGS["episodes"]

@@ -12,6 +12,8 @@ Verbs:
   compare      learning curves of several groups of runs in one figure (PNG)
   pretrain     supervised pre-training on expert trajectories: the policy π^s or the value V̂
   dagger       DAgger with the MPC expert labelling the learner's states
+  reproduce    the paper's experiments in one resumable command: dataset, pre-training, runs, report
+  report       rebuild a reproduction's figures, tables and report.md from its saved results
 """
 
 from __future__ import annotations
@@ -81,6 +83,10 @@ def build_parser() -> argparse.ArgumentParser:
     add_evaluate_arguments(verbs.add_parser("evaluate", help="evaluate a trained run"))
     add_pretrain_arguments(verbs.add_parser("pretrain", help="pre-train π^s (or V̂) on an expert dataset"))
     add_dagger_arguments(verbs.add_parser("dagger", help="DAgger with the MPC expert"))
+    from bimgame.cli_reproduce import add_reproduce_arguments, add_report_arguments
+
+    add_reproduce_arguments(verbs.add_parser("reproduce", help="run the paper's experiments (resumable)"))
+    add_report_arguments(verbs.add_parser("report", help="rebuild a reproduction's figures, tables and report"))
     curves = verbs.add_parser("curves", help="plot a run's learning curves")
     curves.add_argument("run_dir", type=Path)
     curves.add_argument("--out", type=Path, default=None, help="PNG path (default RUN_DIR/curves.png)")
@@ -142,6 +148,10 @@ def main(argv: list[str] | None = None) -> int:
             from bimgame import cli_learn
 
             return cli_learn.run_pretrain(args) if args.verb == "pretrain" else cli_learn.run_dagger(args)
+        if args.verb in ("reproduce", "report"):
+            from bimgame import cli_reproduce
+
+            return cli_reproduce.run_reproduce(args) if args.verb == "reproduce" else cli_reproduce.run_report(args)
         if args.verb in ("train", "evaluate"):
             from bimgame import cli_train
 

@@ -115,7 +115,7 @@ def generate_dataset(out_dir: str | Path, task: str = "FULL", episodes: int = 50
     """
     if getattr(multiprocessing.current_process(), "_inheriting", False):
         raise RuntimeError(f"generate_dataset was called while a worker process was starting; {MAIN_GUARD}")
-    out_dir = Path(out_dir)
+    out_dir = Path(out_dir).absolute()  # Minari joins relative dataset paths onto its root
     task_enum = parse_task(task)
     _check_int("episodes", episodes, minimum=1)
     _check_int("seed", seed, minimum=0)
@@ -458,7 +458,7 @@ def load_dataset(out_dir: str | Path, *, verify: bool = True):
     """
     from minari import MinariDataset
 
-    out_dir = Path(out_dir)
+    out_dir = Path(out_dir).absolute()  # Minari joins relative dataset paths onto its root
     if not out_dir.is_dir():
         raise DatasetError(f"dataset directory {out_dir} does not exist" if not out_dir.exists()
                            else f"{out_dir} is not a directory")
@@ -483,7 +483,7 @@ def dataset_summary(out_dir: str | Path) -> dict[str, Any]:
     """Counts and disk use of a finished dataset (from its marker, without re-hashing): episodes,
     steps, success rate, mean length, bytes of the episode files and of the Minari dataset, and
     both per 1000 steps."""
-    out_dir = Path(out_dir)
+    out_dir = Path(out_dir).absolute()  # Minari joins relative dataset paths onto its root
     manifest = _read_manifest(out_dir)
     marker = _verify(out_dir, manifest, hashes=False)
     sizes = {"episodes": 0, "minari": 0}
