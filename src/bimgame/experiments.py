@@ -619,7 +619,9 @@ def load_plan(out_dir: str | Path) -> tuple[Budget, list[Piece]]:
         raise ValueError(f"{path} is not a bimgame reproduction plan (format {stored.get('format')!r}, "
                          f"expected {_PLAN_FORMAT!r})")
     budget = Budget.from_dict(stored["budget"])
-    pieces = [Piece(**{**p, "needs": tuple(p["needs"])}) for p in stored["pieces"]]
+    fields = {f.name for f in dataclasses.fields(Piece)}
+    pieces = [Piece(**{**{k: v for k, v in p.items() if k in fields}, "needs": tuple(p["needs"])})
+              for p in stored["pieces"]]
     return budget, pieces
 
 
@@ -716,7 +718,8 @@ def reproduce(out_dir: str | Path, budget: Budget, *, progress: bool = True, sto
         raise ValueError(f"stop_after must be None or an integer >= 1, got {stop_after!r}")
     if not isinstance(budget, Budget):
         raise TypeError(f"budget must be a Budget, got {type(budget).__name__}")
-    out_dir = Path(out_dir)
+    # Absolute: generate_dataset builds its Minari files under a relative MINARI_DATASETS_PATH wrongly.
+    out_dir = Path(out_dir).resolve()
     if out_dir.exists() and not out_dir.is_dir():
         raise ValueError(f"--out {out_dir} exists and is not a directory")
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -211,14 +211,16 @@ def expert_success_by_task(sequences: list[dict[str, Any]], tasks: Sequence[str]
     (:func:`bimgame.pretrain.relabel`), a success being the task's goal reached within the task's
     time limit."""
     from bimgame.env import MAX_EPISODE_STEPS
+    from bimgame.maze import MazeSpec
     from bimgame.pretrain import relabel
     from bimgame.tasks import parse_task
 
+    spec = MazeSpec.merl()
     rates = {}
     for task in tasks:
         limit = MAX_EPISODE_STEPS[parse_task(task)]
         wins = [s["terminated"] and len(s["actions"]) <= limit
-                for s in (relabel(sequence, task, 0.99) for sequence in sequences)]
+                for s in (relabel(sequence, task, 0.99, spec) for sequence in sequences)]
         rates[task] = float(np.mean(wins)) if wins else float("nan")
     return rates
 
@@ -307,7 +309,7 @@ def _plot_curves(task: str, runs: dict[str, list[_Run]], edges: np.ndarray, thre
         if not group:
             continue
         colour = f"C{index}"
-        label = f"{_LABELS[algorithm]} ({len(group)} seeds)"
+        label = f"{_LABELS[algorithm]} ({len(group)} seed{'s' if len(group) != 1 else ''})"
         if algorithm == "dagger":
             _plot_dagger(ax_return, ax_success, task, group, colour, label, resamples=resamples, rng=rng)
             continue
@@ -388,8 +390,10 @@ def _steps_text(value: float | None) -> str:
         return "–"
     if value >= 1e6:
         return f"{value / 1e6:.2f}M"
+    if value >= 1e5:
+        return f"{value / 1e3:.0f}k"
     if value >= 1e3:
-        return f"{value / 1e3:.0f}k" if value >= 1e4 else f"{value / 1e3:.1f}k"
+        return f"{value / 1e3:.1f}".rstrip("0").rstrip(".") + "k"
     return f"{value:.0f}"
 
 
