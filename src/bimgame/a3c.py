@@ -47,6 +47,7 @@ from bimgame.nets import NetConfig, RecurrentActorCritic, build_network, maze_ba
 from bimgame.observe import OBS_MODES
 from bimgame.runs import (CHECKPOINT, CONFIG, MetricLog, load_checkpoint, load_weights, save_checkpoint, torch_threads,
                           write_json)
+from bimgame.settings import from_dict, require_int
 from bimgame.tasks import Task, parse_task
 from bimgame.vector import BallInMazeVectorEnv
 
@@ -133,9 +134,7 @@ class A3CConfig:
         positive_ints = ("steps", "workers", "envs_per_worker", "n_steps", "hidden", "features",
                          "checkpoint_every", "eval_episodes", "log_every")
         for name in positive_ints:
-            value = getattr(self, name)
-            if not (isinstance(value, int) and not isinstance(value, bool) and value >= 1):
-                raise ValueError(f"A3CConfig.{name} must be an integer >= 1, got {value!r}")
+            require_int("A3CConfig", name, getattr(self, name), 1)
         if not (isinstance(self.eval_every, int) and self.eval_every >= 0):
             raise ValueError(f"A3CConfig.eval_every must be an integer >= 0 (0: no evaluator), got {self.eval_every!r}")
         if self.max_episode_steps is not None and not (isinstance(self.max_episode_steps, int)
@@ -169,11 +168,7 @@ class A3CConfig:
 
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> A3CConfig:
-        known = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(values) - known)
-        if unknown:
-            raise ValueError(f"unknown A3C settings {unknown}; allowed: {sorted(known)}")
-        return cls(**values)
+        return from_dict(cls, values, "A3C settings")
 
     # What a resumed run may change without changing what is being learned.
     RESUMABLE_CHANGES = ("steps", "workers", "checkpoint_every", "eval_every", "eval_episodes", "log_every")

@@ -47,6 +47,7 @@ from bimgame.maze import MazeSpec
 from bimgame.nets import NO_ACTION, RecurrentActorCritic
 from bimgame.pretrain import PretrainConfig, train_policy_epochs
 from bimgame.runs import CHECKPOINT, CONFIG, MetricLog, load_weights, save_checkpoint, torch_threads, write_json
+from bimgame.settings import from_dict, require_int
 
 __all__ = ["DAggerConfig", "DAggerResult", "dagger", "collect_episodes", "KIND_DAGGER"]
 
@@ -82,9 +83,7 @@ class DAggerConfig:
         if self.learner.target != "policy":
             raise ValueError("DAggerConfig.learner must train a policy (target='policy')")
         for name in ("iterations", "episodes_per_iteration", "epochs_per_iteration"):
-            value = getattr(self, name)
-            if not (isinstance(value, int) and not isinstance(value, bool) and value >= 1):
-                raise ValueError(f"DAggerConfig.{name} must be an integer >= 1, got {value!r}")
+            require_int("DAggerConfig", name, getattr(self, name), 1)
         for name in ("beta0", "beta_decay"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and 0.0 <= value <= 1.0):
@@ -112,15 +111,11 @@ class DAggerConfig:
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> DAggerConfig:
         values = dict(values)
-        known = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(values) - known)
-        if unknown:
-            raise ValueError(f"unknown DAgger settings {unknown}; allowed: {sorted(known)}")
         if "learner" in values:
             values["learner"] = PretrainConfig.from_dict(values["learner"])
         if "expert" in values:
-            values["expert"] = MPCConfig(**values["expert"])
-        return cls(**values)
+            values["expert"] = from_dict(MPCConfig, values["expert"], "MPC settings")
+        return from_dict(cls, values, "DAgger settings")
 
 
 # ------------------------------------------------------------------------------ rollouts

@@ -30,6 +30,7 @@ import torch
 from torch import nn
 
 from bimgame.maze import MazeSpec
+from bimgame.settings import from_dict
 
 __all__ = ["NetConfig", "RecurrentActorCritic", "ValueNetwork", "build_value_network", "LSTMState", "build_network", "state_obs_scale", "maze_background",
            "NO_ACTION", "N_ACTIONS", "ENCODERS"]
@@ -94,11 +95,7 @@ class NetConfig:
 
     @classmethod
     def from_dict(cls, values: dict) -> NetConfig:
-        known = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(values) - known)
-        if unknown:
-            raise ValueError(f"unknown network settings {unknown}; allowed: {sorted(known)}")
-        return cls(**values)
+        return from_dict(cls, values, "network settings")
 
 
 def state_obs_scale(spec: MazeSpec, n_marbles: int = 1) -> np.ndarray:

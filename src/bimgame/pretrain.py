@@ -43,6 +43,7 @@ from bimgame.maze import MazeSpec
 from bimgame.nets import NO_ACTION, RecurrentActorCritic, ValueNetwork, build_value_network
 from bimgame.observe import OBS_MODES
 from bimgame.runs import CHECKPOINT, CONFIG, MetricLog, load_weights, save_checkpoint, torch_threads, write_json
+from bimgame.settings import from_dict, require_int
 from bimgame.tasks import Task, parse_task
 
 __all__ = ["PretrainConfig", "PretrainResult", "pretrain", "relabel", "load_sequences", "load_value_network",
@@ -105,9 +106,7 @@ class PretrainConfig:
         if self.target not in TARGETS:
             raise ValueError(f"PretrainConfig.target must be one of {TARGETS}, got {self.target!r}")
         for name in ("epochs", "patience", "batch_episodes", "batch_frames", "bptt"):
-            value = getattr(self, name)
-            if not (isinstance(value, int) and not isinstance(value, bool) and value >= 1):
-                raise ValueError(f"PretrainConfig.{name} must be an integer >= 1, got {value!r}")
+            require_int("PretrainConfig", name, getattr(self, name), 1)
         if not (isinstance(self.eval_episodes, int) and self.eval_episodes >= 0):
             raise ValueError(f"PretrainConfig.eval_episodes must be an integer >= 0, got {self.eval_episodes!r}")
         for name, low, high, open_low in (("lr", 0, math.inf, True), ("max_grad_norm", 0, math.inf, True),
@@ -132,11 +131,7 @@ class PretrainConfig:
 
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> PretrainConfig:
-        known = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(values) - known)
-        if unknown:
-            raise ValueError(f"unknown pre-training settings {unknown}; allowed: {sorted(known)}")
-        return cls(**values)
+        return from_dict(cls, values, "pre-training settings")
 
 
 # ------------------------------------------------------------------------------------- data
