@@ -6,36 +6,22 @@ test session, lazily, by the first test that asks for them."""
 from __future__ import annotations
 
 import pytest
-import torch
 
 from bimgame.data import generate_dataset
 from bimgame.pretrain import PretrainConfig, PretrainResult, pretrain
+from bimgame.runs import torch_threads
 
 #: Episodes of :func:`stg1_dataset` (≈0.6 s of MPC planning each on one core).
 STG1_DATASET_EPISODES = 60
 STG1_DATASET_SEED = 0
 
 
-class _TorchThreads:
-    """Run a block with ``n`` torch threads and restore the previous number afterwards. On a busy
-    machine a second intra-op thread makes these small networks several times slower, and
-    :func:`~bimgame.pretrain.pretrain` keeps at most the number it finds."""
-
-    def __init__(self, n: int = 1):
-        self.n = n
-
-    def __enter__(self):
-        self.previous = torch.get_num_threads()
-        torch.set_num_threads(self.n)
-
-    def __exit__(self, *exc):
-        torch.set_num_threads(self.previous)
-
-
 @pytest.fixture
 def one_torch_thread():
-    """The test runs with one torch thread (restored afterwards)."""
-    with _TorchThreads(1):
+    """The test runs with one torch thread (restored afterwards): on a busy 2-core machine a second
+    intra-op thread makes these small networks several times slower, and the library calls
+    (pretrain, dagger) never use more threads than their caller has set."""
+    with torch_threads(1):
         yield
 
 
@@ -53,7 +39,7 @@ def pretrained_stg1(stg1_dataset, tmp_path_factory) -> PretrainResult:
     epochs without a better held-out loss), measured over 40 greedy and sampled episodes."""
     config = PretrainConfig(task="STG1", obs="state", target="policy", epochs=30, patience=3, eval_episodes=40,
                             seed=0)
-    with _TorchThreads(1):
+    with torch_threads(1):
         return pretrain(config, stg1_dataset, tmp_path_factory.mktemp("pretrained") / "policy", progress=False)
 
 
@@ -64,5 +50,5 @@ def value_stg1(stg1_dataset, tmp_path_factory) -> PretrainResult:
     stops while still underfitting on a dataset this small."""
     config = PretrainConfig(task="STG1", obs="state", target="value", epochs=100, patience=10, batch_frames=64,
                             seed=0)
-    with _TorchThreads(1):
+    with torch_threads(1):
         return pretrain(config, stg1_dataset, tmp_path_factory.mktemp("pretrained") / "value", progress=False)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import itertools
 import json
 import shutil
 
@@ -12,7 +13,6 @@ import numpy as np
 import pytest
 import torch
 
-import bimgame.dagger as dagger_module
 from bimgame import runs
 from bimgame.a3c import evaluate_greedy_and_sampled, load_run_network, network_for
 from bimgame.agent import evaluate_network
@@ -26,12 +26,10 @@ from bimgame.pretrain import PretrainConfig
 # ----------------------------------------------------------------------------------- helpers
 @pytest.fixture(scope="module", autouse=True)
 def _dagger_on_one_thread():
-    """dagger() runs with runs.torch_threads()' default, two intra-op threads. On the 2-core test
-    machine, busy with a training run, that made these tiny networks ~10x slower (40 evaluation
-    episodes: 44 s against 4 s on one thread), so this file runs DAgger on one thread. Only the
-    thread count changes; the computation is the same."""
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(dagger_module, "torch_threads", lambda: runs.torch_threads(1))
+    """One torch thread for this file: on the busy 2-core test machine two made these tiny networks
+    ~10x slower (40 evaluation episodes: 44 s against 4 s); dagger() never uses more threads than
+    its caller has set."""
+    with runs.torch_threads(1):
         yield
 
 
@@ -52,7 +50,7 @@ def _npz(run_dir, iteration: int) -> dict[str, np.ndarray]:
 
 def _episodes_of(arrays: dict[str, np.ndarray]) -> list[dict[str, np.ndarray]]:
     bounds = np.concatenate([[0], np.cumsum(arrays["lengths"])])
-    return [{k: v[a:b] for k, v in arrays.items() if k != "lengths"} for a, b in zip(bounds[:-1], bounds[1:])]
+    return [{k: v[a:b] for k, v in arrays.items() if k != "lengths"} for a, b in itertools.pairwise(bounds)]
 
 
 def _weights(run_dir) -> dict[str, torch.Tensor]:
@@ -151,9 +149,19 @@ def test_collect_episodes_mixes_expert_and_learner_by_beta_and_labels_every_stat
         np.testing.assert_array_equal(learner_episode["obs"][:upto], expert_episode["obs"][:upto])
         np.testing.assert_array_equal(learner_episode["actions"][:upto], expert_episode["actions"][:upto])
 
-    # β = 0.5: each step executes either the label or the learner's action, and both happen.
+    # β = 0.5: each step executes either the label or the learner's action, and both happen; up
+    # to the first executed action that is not the label, the run is the expert's run.
     mixed_run, mixed_costs = collect_episodes(forced, config, beta=0.5, seed=11)
     _check_costs(mixed_run, mixed_costs, config)
+    shared = 0
+    for expert_episode, mixed_episode in zip(expert_run, mixed_run):
+        _check_episode_layout(mixed_episode, config)
+        departs = np.flatnonzero(mixed_episode["executed"] != mixed_episode["actions"])
+        upto = int(departs[0]) + 1 if len(departs) else len(mixed_episode["actions"])
+        shared += upto
+        for key in ("obs", "actions", "tilt"):
+            np.testing.assert_array_equal(mixed_episode[key][:upto], expert_episode[key][:upto], err_msg=key)
+    assert shared > len(mixed_run), shared
     executed = np.concatenate([e["executed"] for e in mixed_run])
     labels = np.concatenate([e["actions"] for e in mixed_run])
     assert ((executed == labels) | (executed == FORCED_ACTION)).all()
@@ -271,11 +279,13 @@ def test_resumed_run_ends_identical_to_an_uninterrupted_one(small_runs, tmp_path
 
 
 # ------------------------------------------------------------------- against behaviour cloning
-#: Measured with this seed on the test machine (seconds: 2024 2-core box under load): greedy
-#: success over the run's 40 evaluation starts after iterations 0, 1, 2 = 15%, 50%, 55%; sampled
-#: 50%, 45%, 97.5%; 1074 labels, ~65 s. Seeds 1-4 with the same settings: greedy 37.5 -> 82.5,
-#: 37.5 -> 92.5, 5 -> 67.5, 2.5 -> 62.5; sampled 17.5 -> 87.5, 32.5 -> 77.5, 25 -> 57.5, 30 -> 57.5.
-#: Small batches (2 episodes) so that 8 episodes give the network more than a handful of updates.
+#: Measured with this seed (the default expert, K=10, H=20): greedy success over the run's 40
+#: evaluation starts after iterations 0, 1, 2 = 15%, 50%, 55%; sampled 50%, 45%, 97.5%; 1074
+#: labels in all, 30-50 s on the 2-core machine busy with a training run. Seeds 1-4 with the same
+#: settings, iteration 0 -> 2: greedy 37.5 -> 82.5, 37.5 -> 92.5, 5 -> 67.5, 2.5 -> 62.5 %;
+#: sampled 17.5 -> 87.5, 32.5 -> 77.5, 25 -> 57.5, 30 -> 57.5 %. Small batches (2 episodes) and
+#: lr 2e-3 so that 8 episodes give the network more than a handful of updates per iteration (with
+#: 16-episode batches the margins were small and inconsistent across seeds).
 IMPROVE = DAggerConfig(learner=PretrainConfig(task="STG1", obs="state", seed=0, batch_episodes=2, lr=2e-3),
                        iterations=3, episodes_per_iteration=8, epochs_per_iteration=10, max_episode_steps=60,
                        eval_episodes=40)

@@ -81,3 +81,18 @@ def test_csv_log_resume_drops_rows_after_the_checkpoint(tmp_path):
     with open(tmp_path / "x.csv", newline="") as handle:
         rows = list(csv.DictReader(handle))
     assert [int(r["step"]) for r in rows] == [10, 20, 25]
+
+
+def test_torch_threads_restores_and_never_exceeds_the_callers_setting():
+    from bimgame.runs import torch_threads
+
+    previous = torch.get_num_threads()
+    try:
+        torch.set_num_threads(1)
+        with torch_threads() as count:
+            assert count == 1 and torch.get_num_threads() == 1
+        with torch_threads(2):
+            assert torch.get_num_threads() == 2
+        assert torch.get_num_threads() == 1
+    finally:
+        torch.set_num_threads(previous)

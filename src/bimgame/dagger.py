@@ -295,10 +295,12 @@ def _dagger(config: DAggerConfig, run_dir: Path | str, *, resume: bool, init: st
                        "seconds": state["seconds"], **(final_eval or {})}
                 save_checkpoint(run_dir / CHECKPOINT, model=net.state_dict(), step=state["env_steps"],
                                 iteration=state["iteration"])
-                write_json(run_dir / STATE, state)
+                # The log row before the state: a run killed in between redoes the iteration, and
+                # the resumed log drops the orphaned row (rows after the state's step).
                 log.write("dagger", state["env_steps"], row,
                           scalars=("train_loss", "train_accuracy", "rollout_success_rate", "greedy_success_rate",
                                    "sampled_success_rate", "dataset_steps", "expert_sim_steps"))
+                write_json(run_dir / STATE, state)
                 show(iteration + 1, row)
                 if not math.isfinite(summary["loss"]):
                     raise RuntimeError(f"DAgger's training loss is not finite at iteration {iteration}; "

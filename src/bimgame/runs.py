@@ -42,10 +42,11 @@ _REQUIRED = {"model": dict, "step": int}
 @contextlib.contextmanager
 def torch_threads(count: int | None = None) -> Iterator[int]:
     """Run a block with ``count`` intra-op threads (default: the cores, at most 2 — what this
-    project's reference machine has), restoring the caller's setting afterwards: a library call must
-    not change how the rest of the process computes."""
+    project's reference machine has — and never more than the caller has set, so
+    ``torch.set_num_threads(1)`` before a call is respected), restoring the caller's setting
+    afterwards: a library call must not change how the rest of the process computes."""
     previous = torch.get_num_threads()
-    count = count if count is not None else max(1, min(2, os.cpu_count() or 1))
+    count = count if count is not None else max(1, min(2, os.cpu_count() or 1, previous))
     torch.set_num_threads(count)
     try:
         yield count
