@@ -33,7 +33,7 @@ def add_reproduce_arguments(parser: argparse.ArgumentParser) -> None:
         help="directory of the reproduction (created; run the same command again to continue it)")
     add("--budget", choices=list(BUDGETS), default=None,
         help="preset: quick (STG1, state observations, 2 seeds, < 30 min on 2 cores) or paper (FULL/STG1/STG2, "
-             "pixels, 5 seeds, about two days). Default: the budget stored in --out, else quick")
+             "pixels, 5 seeds, about two and a half days). Default: the budget stored in --out, else quick")
     add("--tasks", nargs="+", choices=[t.value for t in Task], type=str.upper, default=None, metavar="TASK",
         help="tasks of the grid (default: the budget's; STG3 STG4 may be added)")
     add("--algorithms", nargs="+", choices=ALGORITHMS, default=None, metavar="ALGORITHM",
@@ -76,18 +76,22 @@ def budget_from(args: argparse.Namespace) -> "Budget":  # noqa: F821
 
 
 def run_reproduce(args: argparse.Namespace) -> int:
+    """``bimgame reproduce``: print the plan's expected duration, run (or continue) it, build the
+    report. Exit status 0 when every piece finished, 1 when some failed, 130 when interrupted."""
     from rich.console import Console
+    from rich.markup import escape
 
-    from bimgame.experiments import (BUDGETS, estimate_seconds, format_duration, piece_done,
+    from bimgame.experiments import (BUDGETS, check_compatible, estimate_seconds, format_duration, piece_done,
                                      plan_pieces, reproduce)
     from bimgame.report import build_report
 
     console = Console(stderr=True)
     budget = budget_from(args)
+    check_compatible(args.out, budget)
     pieces = plan_pieces(budget)
-    total = sum(estimate_seconds(p, budget) for p in pieces)
+    total = _total(budget)
     left = [p for p in pieces if not piece_done(p, args.out, budget)] if args.out.is_dir() else pieces
-    presets = "; ".join(f"{name}: {len(plan_pieces(b))} pieces, ≈ {format_duration(sum(estimate_seconds(p, b) for p in plan_pieces(b)))}"
+    presets = "; ".join(f"{name}: {len(plan_pieces(b))} pieces, ≈ {format_duration(_total(b))}"
                         for name, b in BUDGETS.items())
     console.print(f"budget {budget.name}: tasks {', '.join(budget.tasks)}; {', '.join(budget.algorithms)}; "
                   f"{budget.seeds} seeds; {budget.obs} observations")
@@ -98,6 +102,10 @@ def run_reproduce(args: argparse.Namespace) -> int:
         for piece in pieces:
             state = "to do" if piece in left else "done"
             console.print(f"  {piece.id:<40} {state:<6} ≈ {format_duration(estimate_seconds(piece, budget))}")
+        kinds = dict.fromkeys(p.kind for p in pieces)
+        console.print("by kind: " + "; ".join(
+            f"{kind} ×{sum(p.kind == kind for p in pieces)} ≈ "
+            f"{format_duration(sum(estimate_seconds(p, budget) for p in pieces if p.kind == kind))}" for kind in kinds))
         return 0
     try:
         result = reproduce(args.out, budget, progress=not args.no_progress, stop_after=args.stop_after,
@@ -113,7 +121,7 @@ def run_reproduce(args: argparse.Namespace) -> int:
                       f"Continue with: bimgame reproduce --out {args.out}")
     if result.failed or result.skipped:
         for piece, error in result.failed.items():
-            console.print(f"[red]failed[/red] {piece}: {error}")
+            console.print(f"[red]failed[/red] {escape(piece)}: {escape(error)}")
         if result.skipped:
             console.print(f"not run because a piece they need failed: {', '.join(result.skipped)}")
         console.print(f"details in {args.out / 'status.json'}; rerun the same command to retry")
@@ -121,7 +129,15 @@ def run_reproduce(args: argparse.Namespace) -> int:
     return 0
 
 
+def _total(budget: "Budget") -> float:  # noqa: F821
+    """Expected seconds of all pieces of a budget."""
+    from bimgame.experiments import estimate_seconds, plan_pieces
+
+    return sum(estimate_seconds(p, budget) for p in plan_pieces(budget))
+
+
 def run_report(args: argparse.Namespace) -> int:
+    """``bimgame report DIR``: rebuild the figures, tables and report.md from DIR's saved results."""
     from bimgame.report import build_report
 
     paths = build_report(args.out, threshold_fraction=args.threshold, resamples=args.resamples, seed=args.seed)

@@ -55,7 +55,7 @@ KIND_DAGGER = "dagger-policy"
 STATE = "dagger_state.json"
 _TABLE = ["iteration", "beta", "episodes", "dataset_steps", "expert_sim_steps", "labels", "train_loss",
           "train_accuracy", "rollout_success_rate", "greedy_success_rate", "greedy_mean_length",
-          "sampled_success_rate", "sampled_mean_length", "seconds"]
+          "greedy_mean_return", "sampled_success_rate", "sampled_mean_length", "sampled_mean_return", "seconds"]
 _SEQUENCE_KEYS = ("obs", "actions", "prev_actions", "prev_rewards", "tilt", "returns", "rewards", "executed")
 
 

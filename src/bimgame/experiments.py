@@ -33,11 +33,11 @@ episodes; an unfinished pre-training (not resumable, and cheap) is started again
 interrupted reproduction — Ctrl-C, a crash, ``stop_after`` — continues where it stopped when the
 same command is run again.
 
-**Threads.** :func:`bimgame.pretrain.pretrain` and :func:`bimgame.dagger.dagger` run with two torch
-threads by default. On a two-core machine that is also running something else, two intra-op
-threads made a small state network's pre-training ten times slower than one (54 s against 5 s,
-measured with another training run on the machine). The budget's ``torch_threads`` fixes the count
-for these library calls (see :func:`library_threads`); A3C workers always use one thread each.
+**Threads.** Pre-training and DAgger run in this process with up to two torch threads. On a
+two-core machine that is also running something else, two intra-op threads made a small state
+network's pre-training ten times slower than one (54 s against 5 s, measured with another training
+run on the machine). The budget's ``torch_threads`` (default 1) sets the count for these library
+calls (see :func:`library_threads`); A3C workers always use one thread each.
 """
 
 from __future__ import annotations
@@ -47,8 +47,6 @@ import dataclasses
 import datetime as _dt
 import fcntl
 import json
-import math
-import os
 import shutil
 import time
 import traceback
@@ -56,12 +54,14 @@ from pathlib import Path
 from typing import Any, Callable, Iterator, Mapping
 
 from bimgame.runs import write_json
+from bimgame.settings import from_dict, require_int
 from bimgame.tasks import Task, parse_task
 
-__all__ = ["ALGORITHMS", "PAPER_TASKS", "PIECE_KINDS", "GRID_FIELDS", "Budget", "BUDGETS", "budget_named",
-           "CostModel", "COSTS", "Piece", "plan_pieces", "piece_done", "estimate_seconds", "format_duration",
-           "ReproductionResult", "reproduce", "write_plan", "load_plan", "load_status", "library_threads",
-           "a3c_config_for", "pretrain_config_for", "dagger_config_for", "algorithm_slug", "PLAN", "STATUS"]
+__all__ = ["ALGORITHMS", "PAPER_TASKS", "PIECE_KINDS", "GRID_FIELDS", "PLAN", "STATUS", "Budget", "BUDGETS",
+           "budget_named", "CostModel", "COSTS", "Piece", "plan_pieces", "piece_done", "estimate_seconds",
+           "format_duration", "ReproductionResult", "reproduce", "check_compatible", "write_plan", "load_plan",
+           "load_status", "library_threads", "a3c_config_for", "pretrain_config_for", "dagger_config_for",
+           "algorithm_slug"]
 
 #: The compared methods, in the order of the paper's figures.
 ALGORITHMS = ("a3c", "pretrain+a3c", "a3c+value", "pretrain+a3c+value", "dagger")
@@ -116,7 +116,8 @@ class Budget:
     features: int | None = None
     """Encoder output size; None: the default for ``obs``."""
     subtract_background: bool = False
-    """Pixels: subtract the empty-maze frame before the convolutions (ignored for state)."""
+    """Pixels: subtract the empty-maze frame before the convolutions (ignored for state). The
+    presets turn it on: without it the pixel agent did not learn STG1 (see the README)."""
     eval_every: int = 100_000
     """A3C: environment steps between greedy/sampled evaluations (0: only the final one)."""
     eval_episodes: int = 10
@@ -215,6 +216,7 @@ class Budget:
                              f"before theirs would; use dataset_task='FULL' (it labels every task)")
 
     def to_dict(self) -> dict[str, Any]:
+        """Plain JSON-ready values (what ``plan.json`` stores)."""
         values = dataclasses.asdict(self)
         values["tasks"] = list(self.tasks)
         values["algorithms"] = list(self.algorithms)
@@ -223,11 +225,8 @@ class Budget:
 
     @classmethod
     def from_dict(cls, values: Mapping[str, Any]) -> Budget:
-        known = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(values) - known)
-        if unknown:
-            raise ValueError(f"unknown budget settings {unknown}; allowed: {sorted(known)}")
-        return cls(**values)
+        """The budget of :meth:`to_dict`'s values; unknown keys are an error naming them."""
+        return from_dict(cls, dict(values), "budget settings")
 
     def with_grid(self, *, tasks: tuple[str, ...] | list[str] | None = None,
                   algorithms: tuple[str, ...] | list[str] | None = None, seeds: int | None = None,
@@ -238,34 +237,39 @@ class Budget:
         return dataclasses.replace(self, **changes)
 
     def steps_for(self, task: str) -> int:
+        """Environment steps of an A3C run on ``task``."""
         return int(self.a3c_steps[parse_task(task).value])
 
     @property
     def needs_policy(self) -> bool:
+        """Whether an algorithm of the grid starts from a pre-trained π^s."""
         return any(a.startswith("pretrain") for a in self.algorithms)
 
     @property
     def needs_value(self) -> bool:
+        """Whether an algorithm of the grid is rewarded with a pre-trained V̂."""
         return any(a.endswith("+value") for a in self.algorithms)
 
 
 def _check_int(name: str, value: Any, minimum: int) -> None:
-    if not (isinstance(value, int) and not isinstance(value, bool) and value >= minimum):
-        raise ValueError(f"Budget.{name} must be an integer >= {minimum}, got {value!r}")
+    require_int("Budget", name, value, minimum)
 
 
-#: The presets. ``quick`` shows the comparison on STG1 within half an hour on two cores (state
-#: observations: A3C runs ≈ 4,500 steps/s, and from scratch reaches 80% success after ≈ 350k steps,
-#: from π^s after ≈ 150k). ``paper`` is the paper's grid: pixels, FULL/STG1/STG2, five seeds, a
-#: 300-episode FULL dataset — about two days on two cores (``bimgame reproduce --dry-run`` prints
-#: the estimate).
+#: The presets. ``quick`` shows the comparison on STG1 within half an hour on two cores: state
+#: observations, where A3C from scratch reached 80% success after 210k–255k steps in six runs, so
+#: 300k steps per run; 80 FULL expert episodes (40 gave a π^s that solved STG1 0–34% of the time
+#: alone, 80 gave 42–88%); two seeds. Measured: 8.4 minutes on the idle two-core machine (pre-training
+#: sped A3C up 2.3×); with a 40-episode dataset it took 23 minutes while other training jobs kept
+#: both cores busy. ``paper`` is the paper's grid: pixels, FULL/STG1/STG2, five seeds, 5M steps per
+#: A3C run, a 300-episode FULL dataset — about two and a half days on two cores (``bimgame
+#: reproduce --dry-run`` prints the estimate per piece).
 BUDGETS: dict[str, Budget] = {
     "quick": Budget(
-        name="quick", tasks=("STG1",), seeds=2, obs="state",
+        name="quick", tasks=("STG1",), seeds=2, obs="state", subtract_background=True,
         a3c_steps={"STG1": 300_000, "STG2": 1_000_000, "STG3": 1_500_000, "STG4": 2_000_000, "FULL": 2_000_000},
         eval_every=100_000, eval_episodes=10, checkpoint_every=50_000,
-        dataset_task="FULL", dataset_episodes=40, dataset_workers=2,
-        pretrain_eval_episodes=50, dagger_iterations=4, dagger_episodes=6, dagger_epochs=5, dagger_eval_episodes=20),
+        dataset_task="FULL", dataset_episodes=80, dataset_workers=2,
+        pretrain_eval_episodes=50, dagger_iterations=4, dagger_episodes=6, dagger_epochs=10, dagger_eval_episodes=20),
     "paper": Budget(
         name="paper", tasks=PAPER_TASKS, seeds=5, obs="pixels", subtract_background=True,
         a3c_steps={t.value: 5_000_000 for t in Task},
@@ -287,16 +291,19 @@ def budget_named(name: str) -> Budget:
 @dataclasses.dataclass(frozen=True)
 class CostModel:
     """Per-piece wall-time estimates on an otherwise idle two-core machine (the reference machine
-    of the README); a concurrent job slows every piece down. Numbers are measured, see each field."""
+    of the README); a concurrent job slows every piece down. Each field says where its number comes
+    from; the totals were checked against whole runs of the ``quick`` budget."""
 
-    a3c_sps: Mapping[str, float] = dataclasses.field(default_factory=lambda: {"state": 4_500.0, "pixels": 1_870.0})
-    """A3C environment steps/s with 2 workers × 16 envs (README speed table; scaled by workers/2)."""
-    a3c_overhead_s: float = 15.0
+    a3c_sps: Mapping[str, float] = dataclasses.field(default_factory=lambda: {"state": 9_000.0, "pixels": 1_870.0})
+    """A3C environment steps/s with 2 workers × 16 envs, scaled by workers/2 (state: 9,900 measured
+    in the quick budget's runs on the idle machine, 2,000–3,000 while other training jobs ran;
+    pixels: the README's speed table)."""
+    a3c_overhead_s: float = 6.0
     """Per A3C run: starting the worker processes, the final evaluation, the curves figure."""
     expert_episode_s: Mapping[str, float] = dataclasses.field(default_factory=lambda: {
-        "FULL": 4.0, "STG1": 0.6, "STG2": 1.5, "STG3": 2.5, "STG4": 3.5})
-    """One MPC expert episode on one core (FULL median ≈ 145 steps at ≈ 16 ms per decision, plus
-    the time limit's tail of the slow episodes)."""
+        "FULL": 2.3, "STG1": 0.6, "STG2": 1.0, "STG3": 1.5, "STG4": 2.0})
+    """One MPC expert episode on one core (FULL: 80 episodes took 90 s on two idle cores; STG1:
+    ≈ 40 decisions of ≈ 16 ms; STG2–4 interpolated)."""
     expert_label_s: float = 0.016
     """One MPC decision (DAgger's label for one visited state)."""
     expert_steps: Mapping[str, float] = dataclasses.field(default_factory=lambda: {
@@ -304,13 +311,17 @@ class CostModel:
     """Mean length of an expert episode (the dataset's size in steps)."""
     train_frame_s: Mapping[str, float] = dataclasses.field(default_factory=lambda: {"state": 1.5e-4,
                                                                                      "pixels": 8e-4})
-    """Pre-training and DAgger: one frame through forward and backward, one thread."""
+    """Pre-training and DAgger: one frame through forward and backward, one thread (pixels: the
+    README's ≈ 750 µs per sample at batch 16; state: rough, from the quick budget's pre-trainings)."""
     pretrain_epochs_expected: float = 15.0
     """Epochs until early stopping typically ends a pre-training."""
     eval_step_s: Mapping[str, float] = dataclasses.field(default_factory=lambda: {"state": 4e-3, "pixels": 1.2e-2})
-    """One batched evaluation step (all episodes of an evaluation side by side)."""
-    piece_overhead_s: float = 5.0
+    """One batched evaluation step (all episodes of an evaluation side by side; rough)."""
+    piece_overhead_s: float = 2.0
     """Per pre-training or DAgger piece: loading the dataset, building the network."""
+    dagger_length_share: float = 0.35
+    """DAgger after its first iteration: mean rollout length as a share of the time limit (the
+    learner's failures run to it; 0.3 measured on STG1 in the quick budget)."""
 
 
 COSTS = CostModel()
@@ -350,7 +361,7 @@ def estimate_seconds(piece: Piece, budget: Budget, costs: CostModel = COSTS) -> 
         aggregated = 0.0
         for iteration in range(budget.dagger_iterations):
             # Iteration 0 follows the expert; later ones mostly the learner, whose failures run long.
-            length = costs.expert_steps[task] if iteration == 0 else 0.5 * _time_limit(task)
+            length = costs.expert_steps[task] if iteration == 0 else costs.dagger_length_share * _time_limit(task)
             labels = budget.dagger_episodes * length
             aggregated += labels
             seconds += (labels * costs.expert_label_s + budget.dagger_epochs * aggregated * costs.train_frame_s[obs]
@@ -408,10 +419,10 @@ def plan_pieces(budget: Budget) -> list[Piece]:
     for task in budget.tasks:
         for seed in range(budget.seeds):
             policy, value = _policy_path(task, seed), _value_path(task, seed)
-            if any(a.startswith("pretrain") for a in budget.algorithms):
+            if budget.needs_policy:
                 pieces.append(Piece(id=policy, kind="pretrain-policy", path=policy, task=task, seed=seed,
                                     needs=("data",)))
-            if any(a.endswith("+value") for a in budget.algorithms):
+            if budget.needs_value:
                 pieces.append(Piece(id=value, kind="pretrain-value", path=value, task=task, seed=seed,
                                     needs=("data",)))
             for algorithm in budget.algorithms:
@@ -448,8 +459,8 @@ def a3c_config_for(budget: Budget, task: str, seed: int) -> "A3CConfig":  # noqa
     from bimgame.a3c import A3CConfig
 
     return A3CConfig(task=task, obs=budget.obs, steps=budget.steps_for(task), workers=budget.workers,
-                     envs_per_worker=budget.envs_per_worker, seed=seed, hidden=budget.hidden,
-                     features=budget.features, subtract_background=budget.subtract_background and budget.obs == "pixels",
+                     envs_per_worker=budget.envs_per_worker, seed=seed, hidden=budget.hidden, features=budget.features,
+                     subtract_background=budget.subtract_background and budget.obs == "pixels",
                      eval_every=budget.eval_every, eval_episodes=budget.eval_episodes,
                      checkpoint_every=budget.checkpoint_every)
 
@@ -518,26 +529,13 @@ def _checkpoint_step(run_dir: Path) -> int:
 # ------------------------------------------------------------------------------ running pieces
 @contextlib.contextmanager
 def library_threads(count: int) -> Iterator[None]:
-    """Run :func:`bimgame.pretrain.pretrain` and :func:`bimgame.dagger.dagger` with ``count`` torch
-    threads. Both pick their thread count themselves (two on a two-core machine) through the
-    ``torch_threads`` name they import from :mod:`bimgame.runs`; that name is rebound in the two
-    modules for the duration of the block and restored afterwards."""
-    import bimgame.dagger
-    import bimgame.pretrain
+    """Run a block — the pieces' library calls — with ``count`` torch threads, restoring the caller's
+    setting afterwards. :func:`bimgame.pretrain.pretrain` and :func:`bimgame.dagger.dagger` use at
+    most the caller's count (:func:`bimgame.runs.torch_threads`), so this decides theirs."""
     from bimgame.runs import torch_threads
 
-    def pinned(_count: int | None = None):
-        return torch_threads(count)
-
-    modules = (bimgame.pretrain, bimgame.dagger)
-    saved = [module.torch_threads for module in modules]
-    for module in modules:
-        module.torch_threads = pinned
-    try:
+    with torch_threads(count):
         yield
-    finally:
-        for module, original in zip(modules, saved):
-            module.torch_threads = original
 
 
 def _run_dataset(piece: Piece, budget: Budget, out_dir: Path) -> str:
@@ -631,12 +629,17 @@ def load_status(out_dir: str | Path) -> dict[str, Any]:
     return stored if stored is not None else {"pieces": {}, "invocations": []}
 
 
-def _check_compatible(out_dir: Path, budget: Budget) -> None:
-    """Refuse to continue a directory with settings that change what its pieces compute."""
+def check_compatible(out_dir: str | Path, budget: Budget) -> None:
+    """Refuse (ValueError naming the differences) to continue a reproduction directory with settings
+    that change what its pieces compute; only :data:`GRID_FIELDS` may differ."""
+    out_dir = Path(out_dir)
     if not (out_dir / PLAN).exists():
         return
     stored, _ = load_plan(out_dir)
     old, new = stored.to_dict(), budget.to_dict()
+    for values in (old, new):  # a pixel-only setting changes nothing with state observations
+        if values["obs"] != "pixels":
+            values["subtract_background"] = False
     changed = [k for k in new if k not in GRID_FIELDS and k != "name" and old.get(k) != new[k]]
     if changed:
         details = "; ".join(f"{k}: {old.get(k)!r} there, {new[k]!r} now" for k in changed)
@@ -658,6 +661,27 @@ def write_plan(out_dir: str | Path, budget: Budget, costs: CostModel = COSTS) ->
         "pieces": [{**p.to_dict(), "estimate_seconds": round(estimate_seconds(p, budget, costs), 1)} for p in pieces],
         "estimate_seconds": round(sum(estimate_seconds(p, budget, costs) for p in pieces), 1)})
     return pieces
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt() -> Iterator[None]:
+    """SIGTERM (batch schedulers, ``kill``) stops the reproduction like Ctrl-C: the piece running is
+    marked interrupted and resumes next time. Only possible on the main thread."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 @contextlib.contextmanager
@@ -718,14 +742,14 @@ def reproduce(out_dir: str | Path, budget: Budget, *, progress: bool = True, sto
         raise ValueError(f"stop_after must be None or an integer >= 1, got {stop_after!r}")
     if not isinstance(budget, Budget):
         raise TypeError(f"budget must be a Budget, got {type(budget).__name__}")
-    # Absolute: generate_dataset builds its Minari files under a relative MINARI_DATASETS_PATH wrongly.
+    # Absolute, so the paths the runs record in their config.json (init, value reward) hold from anywhere.
     out_dir = Path(out_dir).resolve()
     if out_dir.exists() and not out_dir.is_dir():
         raise ValueError(f"--out {out_dir} exists and is not a directory")
     out_dir.mkdir(parents=True, exist_ok=True)
     console = console or Console(stderr=True)
-    with _exclusive(out_dir):
-        _check_compatible(out_dir, budget)
+    with _exclusive(out_dir), _sigterm_as_interrupt():
+        check_compatible(out_dir, budget)
         pieces = write_plan(out_dir, budget, costs)
         status = load_status(out_dir)
         entries: dict[str, dict[str, Any]] = status.setdefault("pieces", {})
@@ -751,7 +775,8 @@ def reproduce(out_dir: str | Path, budget: Budget, *, progress: bool = True, sto
                 entry["state"] = "pending"
         save()
         todo = [p for p in pieces if p.id not in done]
-        with _Display(progress, console, todo, budget, costs) as display:
+        shown = todo if stop_after is None else todo[:stop_after]
+        with _Display(progress, console, shown, budget, costs) as display:
             for piece in todo:
                 entry = entries[piece.id]
                 blocked = [n for n in piece.needs if n in result.failed or n in result.skipped]
@@ -781,7 +806,7 @@ def reproduce(out_dir: str | Path, budget: Budget, *, progress: bool = True, sto
                                  seconds=entry.get("seconds", 0.0) + time.monotonic() - t0)
                     result.failed[piece.id] = entry["error"]
                     save()
-                    display.finish(piece, f"[red]failed[/red]: {entry['error']}")
+                    display.finish(piece, f"[red]failed[/red]: {_escape(entry['error'])}")
                     continue
                 seconds = time.monotonic() - t0
                 # Wall time includes earlier interrupted or failed attempts of the same piece.
@@ -792,12 +817,19 @@ def reproduce(out_dir: str | Path, budget: Budget, *, progress: bool = True, sto
                     entry["note"] = note
                 result.computed.append(piece.id)
                 save()
-                display.finish(piece, f"done in {format_duration(seconds)}" + (f" ({note})" if note else ""))
+                display.finish(piece, f"done in {format_duration(seconds)}" + (f" ({_escape(note)})" if note else ""))
         result.seconds = time.monotonic() - started
         invocation.update(finished=_now(), seconds=round(result.seconds, 1), computed=len(result.computed),
                           reused=len(result.reused), failed=len(result.failed))
         save()
     return result
+
+
+def _escape(text: str) -> str:
+    """Text shown literally by rich (an error message may contain ``[...]``)."""
+    from rich.markup import escape
+
+    return escape(text)
 
 
 class _Display:
@@ -806,6 +838,7 @@ class _Display:
 
     def __init__(self, enabled: bool, console: Any, todo: list[Piece], budget: Budget, costs: CostModel):
         self.enabled, self.console = enabled, console
+        self.budget, self.costs = budget, costs
         self.estimates = {p.id: estimate_seconds(p, budget, costs) for p in todo}
         self.count = len(todo)
         self.finished = 0
@@ -823,21 +856,25 @@ class _Display:
         return self
 
     def start(self, piece: Piece) -> None:
-        text = f"{piece.id} (≈ {format_duration(self.estimates[piece.id])})"
+        estimate = self.estimates.get(piece.id) or estimate_seconds(piece, self.budget, self.costs)
+        text = f"{piece.id} (≈ {format_duration(estimate)})"
         if self.enabled:
             self.bar.update(self.task, description=text)
         else:
-            self.console.print(f"running {text}")
+            self.console.print(f"running {_escape(text)}")
 
     def finish(self, piece: Piece, message: str) -> None:
+        """``message`` is rich markup (escape any text in it)."""
         self.finished += 1
-        line = f"[{self.finished}/{self.count}] {piece.id}: {message}"
+        line = f"{_escape(f'[{self.finished}/{self.count}] {piece.id}')}: {message}"
         if self.enabled:
             self.bar.console.print(line)
-            self.bar.update(self.task, advance=self.estimates[piece.id], pieces=f"{self.finished}/{self.count} pieces")
+            self.bar.update(self.task, advance=self.estimates.get(piece.id, 0.0),
+                            pieces=f"{self.finished}/{self.count} pieces")
         else:
             self.console.print(line)
 
     def __exit__(self, *exc: Any) -> None:
         if self.enabled:
+            self.bar.update(self.task, description="")
             self.bar.__exit__(*exc)

@@ -254,7 +254,8 @@ def _collect_runs(pieces: dict[str, Piece], out_dir: Path, task: str, algorithm:
             continue
         path = out_dir / piece.path
         if piece.kind == "dagger":
-            runs.append(_Run(piece.seed, path, {}, read_table(path / "dagger.csv"), _read_json(path / "dagger_state.json")))
+            runs.append(_Run(piece.seed, path, {}, read_table(path / "dagger.csv"),
+                             _read_json(path / "dagger_state.json")))
         else:
             runs.append(_Run(piece.seed, path, read_table(path / "episodes.csv"), read_table(path / "eval.csv"),
                              _read_json(path / "summary.json")))
@@ -268,14 +269,14 @@ def _final_training_success(run: _Run, steps: int) -> float:
     return float(np.mean(run.episodes["success"][late])) if late.any() else float("nan")
 
 
-def _final_greedy(run: _Run, algorithm: str) -> float:
-    if algorithm == "dagger":
-        values = run.table.get("greedy_success_rate", np.array([]))
-        return float(values[-1]) if len(values) else float("nan")
-    final = (run.summary or {}).get("final_eval") or {}
-    if "greedy_success_rate" in final:
-        return float(final["greedy_success_rate"])
-    values = run.table.get("greedy_success_rate", np.array([]))
+def _final_eval(run: _Run, algorithm: str, mode: str = "greedy") -> float:
+    """Success rate of a run's last evaluation, acting ``greedy`` or ``sampled``: an A3C run's final
+    evaluation (summary.json, else the last row of eval.csv), DAgger's after its last iteration."""
+    key = f"{mode}_success_rate"
+    final = {} if algorithm == "dagger" else (run.summary or {}).get("final_eval") or {}
+    if key in final:
+        return float(final[key])
+    values = run.table.get(key, np.array([]))
     return float(values[-1]) if len(values) else float("nan")
 
 
@@ -296,7 +297,7 @@ def _save(fig: Any, path: Path) -> Path:
 
 
 def _plot_curves(task: str, runs: dict[str, list[_Run]], edges: np.ndarray, threshold: float | None,
-                 path: Path, *, resamples: int, rng: np.random.Generator, budget: Budget) -> Path:
+                 fraction: float, path: Path, *, resamples: int, rng: np.random.Generator, budget: Budget) -> Path:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -321,7 +322,7 @@ def _plot_curves(task: str, runs: dict[str, list[_Run]], edges: np.ndarray, thre
             axis.fill_between(centres, low, high, color=colour, alpha=0.18, linewidth=0)
     if threshold is not None:
         ax_success.axhline(threshold, color="black", ls="--", lw=0.8,
-                           label=f"threshold {threshold:.2f} ({budget.threshold_fraction:.0%} of the expert)")
+                           label=f"threshold {threshold:.2f} ({fraction:.0%} of the expert)")
     ax_return.set(xlabel="environment steps", ylabel="mean episode return (task reward)",
                   title="cumulative reward per episode")
     ax_success.set(xlabel="environment steps", ylabel="success rate", title="success rate", ylim=(-0.02, 1.02))
@@ -447,7 +448,8 @@ def build_report(out_dir: str | Path, *, threshold_fraction: float | None = None
     for task in budget.tasks:
         steps = budget.steps_for(task) if task in budget.a3c_steps else 0
         edges = np.linspace(0.0, float(steps), CURVE_BINS + 1) if steps else np.array([0.0, 1.0])
-        threshold = threshold_fraction * expert[task] if task in expert else None
+        # No threshold without an expert that succeeds: 0 × anything would be "reached" at once.
+        threshold = threshold_fraction * expert[task] if expert.get(task, 0.0) > 0 else None
         runs = {a: _collect_runs(finished, out_dir, task, a) for a in budget.algorithms}
         crossings: dict[str, list[Crossing]] = {}
         entry: dict[str, Any] = {"expert_success": expert.get(task), "threshold": threshold,
@@ -470,7 +472,8 @@ def build_report(out_dir: str | Path, *, threshold_fraction: float | None = None
                              "censored_at": crossing.steps if crossing and not crossing.reached else None,
                              "final_success_training": None if algorithm == "dagger" else
                              _final_training_success(run, steps),
-                             "final_greedy_success": _final_greedy(run, algorithm),
+                             "final_greedy_success": _final_eval(run, algorithm, "greedy"),
+                             "final_sampled_success": _final_eval(run, algorithm, "sampled"),
                              "env_steps": float(run.table["step"][-1]) if algorithm == "dagger" and run.table
                              else (run.summary or {}).get("steps")})
             group_crossings = crossings.get(algorithm, [])
@@ -481,7 +484,8 @@ def build_report(out_dir: str | Path, *, threshold_fraction: float | None = None
                 if group_crossings else None,
                 "final_success_training": _nanmean([r["final_success_training"] for r in rows])
                 if algorithm != "dagger" else None,
-                "final_greedy_success": _nanmean([r["final_greedy_success"] for r in rows])}
+                "final_greedy_success": _nanmean([r["final_greedy_success"] for r in rows]),
+                "final_sampled_success": _nanmean([r["final_sampled_success"] for r in rows])}
         for algorithm, group_crossings in crossings.items():
             if algorithm != "a3c" and crossings.get("a3c"):
                 entry["algorithms"][algorithm]["speedup_vs_a3c"] = speedup(
@@ -491,8 +495,9 @@ def build_report(out_dir: str | Path, *, threshold_fraction: float | None = None
                 entry["algorithms"][other][f"speedup_vs_{base}"] = speedup(
                     crossings[base], crossings[other], resamples=resamples, rng=rng)
         if any(runs.values()):
-            figures.append(_plot_curves(task, runs, edges, threshold, out_dir / f"fig_curves_{task}.png",
-                                        resamples=resamples, rng=rng, budget=budget))
+            figures.append(_plot_curves(task, runs, edges, threshold, threshold_fraction,
+                                        out_dir / f"fig_curves_{task}.png", resamples=resamples, rng=rng,
+                                        budget=budget))
             entry["figure"] = f"fig_curves_{task}.png"
         tasks[task] = entry
 
@@ -500,12 +505,23 @@ def build_report(out_dir: str | Path, *, threshold_fraction: float | None = None
     numbers = {"threshold_fraction": threshold_fraction, "bootstrap": {"resamples": resamples, "seed": seed,
                                                                        "confidence": CONFIDENCE},
                "expert": {"dataset": dataset, "success_by_task": expert}, "tasks": tasks, "pretraining": pretraining}
-    table_json = write_json(out_dir / "table_speedup.json", numbers)
+    table_json = write_json(out_dir / "table_speedup.json", _without_nan(numbers))
     table_text = _tables_markdown(numbers, budget)
     table_md = atomic_write_bytes(out_dir / "table_speedup.md", table_text.encode())
     report = atomic_write_bytes(out_dir / "report.md",
                                 _report_markdown(numbers, table_text, budget, pieces, finished, status).encode())
     return ReportPaths(report, table_md, table_json, figures)
+
+
+def _without_nan(value: Any) -> Any:
+    """NaN → None throughout, so the JSON is standard (NaN is not JSON)."""
+    if isinstance(value, dict):
+        return {k: _without_nan(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_without_nan(v) for v in value]
+    if isinstance(value, float) and math.isnan(value):
+        return None
+    return value
 
 
 def _pretraining(finished: dict[str, Piece], out_dir: Path, budget: Budget) -> dict[str, Any]:
@@ -539,7 +555,7 @@ def _tables_markdown(numbers: dict[str, Any], budget: Budget) -> str:
         lines.append(f"## {task}")
         lines.append("")
         if entry["threshold"] is None:
-            lines += ["No finished expert dataset: no threshold.", ""]
+            lines += ["No threshold: no finished expert dataset, or the expert never solved this task in it.", ""]
         else:
             lines.append(f"Threshold: success rate {entry['threshold']:.2f} = {numbers['threshold_fraction']:.0%} of "
                          f"the expert's {entry['expert_success']:.0%} on {task}. A3C runs: training episodes by start "
@@ -547,9 +563,14 @@ def _tables_markdown(numbers: dict[str, Any], budget: Budget) -> str:
                          f"{entry['min_episodes_per_bin']} episodes); DAgger: greedy evaluation per iteration. "
                          f"\"> N\": not reached by its last step N (censored).")
             lines.append("")
+        seeds = [a["seeds_finished"] for a in entry["algorithms"].values() if a["seeds_finished"]]
+        if seeds and min(seeds) < 5:
+            lines += [f"With {min(seeds)} seed(s) per algorithm the bootstrap intervals are rough: resampling "
+                      f"{min(seeds)} values can only give a handful of distinct means, so the intervals understate "
+                      f"the uncertainty. Use more seeds (`--seeds`) for firm conclusions.", ""]
         lines.append("| algorithm | seeds | reached | steps to threshold, per seed | mean | speed-up vs A3C [95% CI] "
-                     "| final success, training episodes | final success, greedy evaluation |")
-        lines.append("|---|---:|---:|---|---:|---|---:|---:|")
+                     "| final success: training episodes | greedy evaluation | sampled evaluation |")
+        lines.append("|---|---:|---:|---|---:|---|---:|---:|---:|")
         for algorithm, a in entry["algorithms"].items():
             per_seed = ", ".join(_steps_text(r["steps_to_threshold"]) if r["steps_to_threshold"] is not None
                                  else f"> {_steps_text(r['censored_at'])}" if r["censored_at"] is not None else "–"
@@ -563,10 +584,11 @@ def _tables_markdown(numbers: dict[str, Any], budget: Budget) -> str:
             else:
                 mean_text = ("≥ " if reached < len(a["runs"]) else "") + _steps_text(mean)
             speed = "1 (baseline)" if algorithm == "a3c" and a["runs"] else _speedup_text(a.get("speedup_vs_a3c"))
+            training = a["final_success_training"]
             lines.append(f"| {_LABELS[algorithm]} | {a['seeds_finished']}/{a['seeds_planned']} | "
                          f"{reached if entry['threshold'] is not None else '–'}/{len(a['runs'])} | {per_seed} | "
-                         f"{mean_text} | {speed} | {_pct(a['final_success_training']) if a['final_success_training'] is not None else '–'} | "
-                         f"{_pct(a['final_greedy_success'])} |")
+                         f"{mean_text} | {speed} | {'–' if training is None else _pct(training)} | "
+                         f"{_pct(a['final_greedy_success'])} | {_pct(a['final_sampled_success'])} |")
         lines.append("")
         extra = [(o, b, entry["algorithms"][o].get(f"speedup_vs_{b}")) for b, o in
                  (("a3c", "a3c+value"), ("pretrain+a3c", "pretrain+a3c+value")) if o in entry["algorithms"]]
@@ -636,9 +658,10 @@ def _claims(numbers: dict[str, Any]) -> list[tuple[str, str]]:
     claims.append((f"Pre-training reaches {PAPER_ACCURACY:.1%} held-out action accuracy",
                    "; ".join(measured) or "not measured in this budget"))
 
-    def final(entry: dict[str, Any], algorithm: str) -> float | None:
+    def final(entry: dict[str, Any], algorithm: str) -> float:
         a = entry["algorithms"].get(algorithm)
-        return None if a is None else a["final_greedy_success"]
+        return float("nan") if a is None or not a["runs"] else max(a["final_greedy_success"],
+                                                                   a["final_sampled_success"])
 
     measured = []
     for task in ("STG2", "FULL", "STG1"):
@@ -648,12 +671,14 @@ def _claims(numbers: dict[str, Any]) -> list[tuple[str, str]]:
         dagger = entry["algorithms"]["dagger"]
         steps = _nanmean([r["env_steps"] for r in dagger["runs"]])
         others = {a: final(entry, a) for a in ("a3c", "pretrain+a3c", "a3c+value", "pretrain+a3c+value")
-                  if final(entry, a) is not None and not math.isnan(final(entry, a))}
+                  if not math.isnan(final(entry, a))}
         best = max(others, key=others.get) if others else None
-        text = f"{task}: DAgger greedy success {_pct(dagger['final_greedy_success'])} after {_steps_text(steps)} env steps"
+        text = (f"{task}: DAgger final success {_pct(dagger['final_greedy_success'])} greedy, "
+                f"{_pct(dagger['final_sampled_success'])} sampled, after {_steps_text(steps)} env steps")
         if best is not None:
-            text += (f" vs best A3C variant ({_LABELS[best]}) {_pct(others[best])} after "
-                     f"{_steps_text(entry['a3c_steps'])}")
+            b = entry["algorithms"][best]
+            text += (f"; best A3C variant ({_LABELS[best]}) {_pct(b['final_greedy_success'])} greedy, "
+                     f"{_pct(b['final_sampled_success'])} sampled, after {_steps_text(entry['a3c_steps'])}")
         measured.append(text + (" (context: the claim is about STG2 and FULL)" if task == "STG1" else ""))
     if not any(t in tasks for t in ("STG2", "FULL")):
         measured.insert(0, "STG2 and FULL not measured in this budget")
@@ -674,13 +699,14 @@ def _claims(numbers: dict[str, Any]) -> list[tuple[str, str]]:
         entry = tasks.get(task)
         if entry is None:
             continue
-        finals = {a: v["final_greedy_success"] for a, v in entry["algorithms"].items()
-                  if v["runs"] and not math.isnan(v["final_greedy_success"])}
+        finals = {a: final(entry, a) for a in entry["algorithms"] if not math.isnan(final(entry, a))}
         if finals:
             best = max(finals, key=finals.get)
-            learned = entry["threshold"] is not None and finals[best] >= entry["threshold"]
-            measured.append(f"{task}: best final greedy success {_pct(finals[best])} ({_LABELS[best]}) — "
-                            f"{'learned' if learned else 'not learned'} (threshold {_pct(entry['threshold'])})")
+            reached = [a for a, v in entry["algorithms"].items() if v["reached"]]
+            verdict = (f"reached the threshold ({_pct(entry['threshold'])}): {', '.join(_LABELS[a] for a in reached)}"
+                       if reached else f"no run reached the threshold ({_pct(entry['threshold'])})")
+            measured.append(f"{task}: best final success {_pct(finals[best])} ({_LABELS[best]}, the better of greedy "
+                            f"and sampled evaluation); {verdict}")
     claims.append(("STG3 and STG4 are not learned by any method",
                    "; ".join(measured) or "not measured in this budget"))
     return claims
@@ -719,9 +745,15 @@ def _report_markdown(numbers: dict[str, Any], tables: str, budget: Budget, piece
                                                                   expert["success_by_task"].items()) + ".", ""]
     else:
         lines += ["No finished expert dataset.", ""]
-    lines += [tables.replace("\n# ", "\n## ").replace("# Steps", "## Steps", 1), ""]
+    lines += ["#" + line if line.startswith("#") else line for line in tables.splitlines()]
+    lines.append("")
     lines += ["## Settings", "", "| setting | value |", "|---|---|"]
     for key, value in budget.to_dict().items():
+        if isinstance(value, dict):
+            value = ", ".join(f"{k} {_steps_text(v) if key == 'a3c_steps' else v}" for k, v in value.items()
+                              if key != "a3c_steps" or k in budget.tasks)
+        elif isinstance(value, (list, tuple)):
+            value = ", ".join(map(str, value))
         lines.append(f"| {key} | {value} |")
     lines += ["", "## Wall time", "", "| piece | state | wall time |", "|---|---|---:|"]
     entries = status.get("pieces", {})
@@ -732,9 +764,12 @@ def _report_markdown(numbers: dict[str, Any], tables: str, budget: Budget, piece
         total += seconds or 0.0
         state = "done" if piece.id in finished else entry.get("state", "pending")
         lines.append(f"| {piece.id} | {state} | {format_duration(seconds) if seconds is not None else '–'} |")
+    invocations = status.get("invocations", [])
+    elapsed = sum(i.get("seconds", 0.0) for i in invocations)
     lines += [f"| **total** | | **{format_duration(total)}** |", "",
               f"Wall times are from `{STATUS}` (all attempts of a piece, on this machine, with whatever else ran "
-              f"on it).", ""]
+              f"on it). The reproduction ran in {len(invocations)} invocation(s) of `bimgame reproduce` taking "
+              f"{format_duration(elapsed)} in all.", ""]
     lines += ["## How the numbers are computed", "", _METHODS, ""]
     return "\n".join(lines)
 
