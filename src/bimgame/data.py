@@ -26,7 +26,6 @@ is Minari's episode metadata ``seed``.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import dataclasses
 import hashlib
 import io
@@ -46,7 +45,7 @@ import numpy as np
 
 from bimgame.argtypes import non_negative_int, positive_int
 from bimgame.expert import MPCConfig, episode_seed
-from bimgame.io import atomic_write_bytes
+from bimgame.io import atomic_write_bytes, exclusive_lock
 from bimgame.parallel import BACKENDS, MAIN_GUARD, environment, episode_progress, expert_episodes, import_ray
 from bimgame.tasks import Task, parse_task
 
@@ -246,23 +245,9 @@ def _read_manifest(out_dir: Path, error: type[Exception] = DatasetError) -> dict
     return manifest
 
 
-@contextlib.contextmanager
-def _locked(out_dir: Path) -> Iterator[None]:
+def _locked(out_dir: Path):
     """Hold an exclusive lock on ``out_dir`` (released by the OS even if the process is killed)."""
-    try:
-        import fcntl
-    except ImportError:  # pragma: no cover - not POSIX
-        yield
-        return
-    with open(out_dir / LOCK_NAME, "a") as handle:
-        try:
-            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            raise BlockingIOError(f"another process is generating into {out_dir}; wait for it to finish") from None
-        try:
-            yield
-        finally:
-            fcntl.flock(handle, fcntl.LOCK_UN)
+    return exclusive_lock(out_dir / LOCK_NAME, f"another process is generating into {out_dir}; wait for it to finish")
 
 
 def _remove_stale_temporaries(out_dir: Path) -> None:

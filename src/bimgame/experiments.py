@@ -45,7 +45,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import datetime as _dt
-import fcntl
 import json
 import shutil
 import time
@@ -53,6 +52,7 @@ import traceback
 from pathlib import Path
 from typing import Any, Callable, Iterator, Mapping
 
+from bimgame.io import exclusive_lock
 from bimgame.runs import write_json
 from bimgame.settings import from_dict, require_int
 from bimgame.tasks import Task, parse_task
@@ -684,18 +684,9 @@ def _sigterm_as_interrupt() -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
-@contextlib.contextmanager
-def _exclusive(out_dir: Path) -> Iterator[None]:
+def _exclusive(out_dir: Path):
     """One reproduction process per directory at a time."""
-    with open(out_dir / _LOCK, "a+") as handle:
-        try:
-            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            raise ValueError(f"another bimgame reproduce is running in {out_dir}; wait for it or stop it") from None
-        try:
-            yield
-        finally:
-            fcntl.flock(handle, fcntl.LOCK_UN)
+    return exclusive_lock(out_dir / _LOCK, f"another bimgame reproduce is running in {out_dir}; wait for it or stop it")
 
 
 # ------------------------------------------------------------------------------------ the runner
