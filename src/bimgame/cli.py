@@ -95,6 +95,7 @@ def build_parser() -> argparse.ArgumentParser:
                          help="a label and the run directories averaged under it (e.g. seeds)")
     compare.add_argument("--out", type=Path, required=True, help="PNG path")
     compare.add_argument("--title", default="", help="figure title")
+    compare.add_argument("--max-step", type=_step_budget, default=None, help="cut runs at this many steps (e.g. 1.2M)")
     return parser
 
 
@@ -137,7 +138,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.verb == "compare":
             from bimgame.curves import plot_comparison
 
-            print(f"wrote {plot_comparison(dict(args.groups), args.out, title=args.title)}")
+            path = plot_comparison(dict(args.groups), args.out, title=args.title, max_step=args.max_step)
+            print(f"wrote {path}")
             return 0
         if args.verb == "curves":
             from bimgame.curves import plot_run
@@ -161,6 +163,12 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     parser.error(f"unknown verb {args.verb!r}")
     return 2
+
+
+def _step_budget(text: str) -> int:
+    from bimgame.cli_train import step_count
+
+    return step_count(text)
 
 
 def _run_group(text: str) -> tuple[str, list[Path]]:

@@ -88,10 +88,11 @@ def plot_run(run_dir: str | Path, out: str | Path | None = None, title: str | No
 
 
 def plot_comparison(groups: dict[str, list[str | Path]], out: str | Path, *, title: str = "",
-                    bins: int = 30) -> Path:
+                    bins: int = 30, max_step: float | None = None) -> Path:
     """One line per group of runs (e.g. ``{"A3C": [seed0, seed1], "pre-trained + A3C": [...]}``):
     the training episodes' success rate by start step, and the evaluator's greedy success, each
-    averaged over the group's runs (thin lines: the single runs). Writes a PNG to ``out``."""
+    averaged over the group's runs (thin lines: the single runs); ``max_step`` cuts longer runs
+    to a common budget. Writes a PNG to ``out``."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -99,6 +100,9 @@ def plot_comparison(groups: dict[str, list[str | Path]], out: str | Path, *, tit
 
     tables = {label: [(read_table(Path(r) / "episodes.csv"), read_table(Path(r) / "eval.csv")) for r in runs]
               for label, runs in groups.items()}
+    if max_step is not None:
+        tables = {label: [(_up_to(e, "start_step", max_step), _up_to(ev, "step", max_step)) for e, ev in runs]
+                  for label, runs in tables.items()}
     for label, runs in tables.items():
         for (episodes, _), run in zip(runs, groups[label]):
             if not episodes:
@@ -139,3 +143,11 @@ def plot_comparison(groups: dict[str, list[str | Path]], out: str | Path, *, tit
     fig.savefig(buffer, format="png", dpi=110)
     plt.close(fig)
     return atomic_write_bytes(Path(out), buffer.getvalue())
+
+
+def _up_to(table: dict[str, np.ndarray], key: str, max_step: float) -> dict[str, np.ndarray]:
+    """The rows of a log table whose ``key`` is at most ``max_step`` (empty stays empty)."""
+    if not table:
+        return table
+    keep = table[key] <= max_step
+    return {k: v[keep] for k, v in table.items()} if keep.any() else {}
