@@ -45,8 +45,8 @@ from bimgame.env import MAX_EPISODE_STEPS
 from bimgame.maze import MazeSpec
 from bimgame.nets import NetConfig, RecurrentActorCritic, build_network, maze_background, state_obs_scale
 from bimgame.observe import OBS_MODES
-from bimgame.runs import (CHECKPOINT, CONFIG, MetricLog, load_checkpoint, load_weights, save_checkpoint, torch_threads,
-                          write_json)
+from bimgame.runs import (CHECKPOINT, CONFIG, KIND_VALUE, MetricLog, load_checkpoint, load_weights, run_kind,
+                          save_checkpoint, torch_threads, write_json)
 from bimgame.settings import from_dict, require_int
 from bimgame.tasks import Task, parse_task
 from bimgame.vector import BallInMazeVectorEnv
@@ -202,10 +202,9 @@ def load_run_network(source: str | Path) -> tuple[RecurrentActorCritic, A3CConfi
     run_dir = source.parent if source.is_file() else source
     if not (run_dir / CONFIG).is_file():
         raise ValueError(f"{run_dir} is not a training run (no {CONFIG})")
-    stored = json.loads((run_dir / CONFIG).read_text())
-    if stored.get("kind") == "value-function":
+    if run_kind(run_dir) == KIND_VALUE:
         raise ValueError(f"{run_dir} holds a value function (V̂), not a policy; use it with --value-reward")
-    config = A3CConfig.from_dict(stored["a3c"])
+    config = A3CConfig.from_dict(json.loads((run_dir / CONFIG).read_text())["a3c"])
     net = network_for(config)
     step = load_weights(net, source)
     return net, config, step

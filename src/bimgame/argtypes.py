@@ -28,22 +28,22 @@ def non_negative_int(text: str) -> int:
     return _integer(text, 0, "a non-negative integer")
 
 
-def positive_float(text: str) -> float:
-    """A finite number > 0."""
+def _number(text: str, strictly_positive: bool) -> float:
+    what = "a positive finite number" if strictly_positive else "a finite number >= 0"
     try:
         value = float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
-    if not value > 0 or value == float("inf"):
-        raise argparse.ArgumentTypeError(f"expected a positive finite number, got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+    if not (value > 0 if strictly_positive else value >= 0) or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
     return value
+
+
+def positive_float(text: str) -> float:
+    """A finite number > 0."""
+    return _number(text, strictly_positive=True)
 
 
 def non_negative_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}") from None
-    if not value >= 0 or value == float("inf"):
-        raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {text!r}")
-    return value
+    """A finite number >= 0."""
+    return _number(text, strictly_positive=False)

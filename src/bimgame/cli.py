@@ -77,7 +77,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_mpc_arguments(generate)
 
     from bimgame.cli_learn import add_dagger_arguments, add_pretrain_arguments
-    from bimgame.cli_train import add_evaluate_arguments, add_train_arguments
+    from bimgame.cli_train import add_evaluate_arguments, add_train_arguments, step_count
 
     add_train_arguments(verbs.add_parser("train", help="train an A3C agent"))
     add_evaluate_arguments(verbs.add_parser("evaluate", help="evaluate a trained run"))
@@ -95,7 +95,7 @@ def build_parser() -> argparse.ArgumentParser:
                          help="a label and the run directories averaged under it (e.g. seeds)")
     compare.add_argument("--out", type=Path, required=True, help="PNG path")
     compare.add_argument("--title", default="", help="figure title")
-    compare.add_argument("--max-step", type=_step_budget, default=None, help="cut runs at this many steps (e.g. 1.2M)")
+    compare.add_argument("--max-step", type=step_count, default=None, help="cut runs at this many steps (e.g. 1.2M)")
     return parser
 
 
@@ -163,12 +163,6 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     parser.error(f"unknown verb {args.verb!r}")
     return 2
-
-
-def _step_budget(text: str) -> int:
-    from bimgame.cli_train import step_count
-
-    return step_count(text)
 
 
 def _run_group(text: str) -> tuple[str, list[Path]]:

@@ -87,8 +87,7 @@ NETWORK_SETTINGS = ("obs", "hidden", "features", "tilt_input", "keypoints", "sub
 
 def init_network_settings(source: Path) -> dict:
     """The network settings of the run ``--init`` points at ({} for a bare checkpoint file)."""
-    from bimgame.pretrain import KIND_VALUE
-    from bimgame.runs import CONFIG
+    from bimgame.runs import CONFIG, KIND_VALUE, run_kind
 
     run_dir = source.parent if source.is_file() else source
     if not source.exists():
@@ -96,7 +95,7 @@ def init_network_settings(source: Path) -> dict:
     if not (run_dir / CONFIG).is_file():
         return {}
     stored = json.loads((run_dir / CONFIG).read_text())
-    if stored.get("kind") == KIND_VALUE:
+    if run_kind(run_dir) == KIND_VALUE:
         raise ValueError(f"--init: {source} holds a value function (V̂); pass it to --value-reward. --init takes "
                          f"a pre-trained policy (bimgame pretrain) or an A3C run")
     return {k: stored["a3c"][k] for k in NETWORK_SETTINGS if k in stored.get("a3c", {})}

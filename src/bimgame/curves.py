@@ -3,15 +3,14 @@
 from __future__ import annotations
 
 import csv
-import io
 import warnings
 from pathlib import Path
 
 import numpy as np
 
-from bimgame.io import atomic_write_bytes
+from bimgame.figures import save_png
 
-__all__ = ["read_table", "binned_by_start", "plot_run", "plot_comparison"]
+__all__ = ["read_table", "binned_means", "binned_by_start", "plot_run", "plot_comparison"]
 
 
 def read_table(path: str | Path) -> dict[str, np.ndarray]:
@@ -35,20 +34,35 @@ def _number(text: str | None) -> float:
     return float(text)
 
 
+def binned_means(start_steps: np.ndarray, values: np.ndarray, edges: np.ndarray, *, min_count: int = 1,
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Mean of ``values`` over the episodes that started in each bin of ``edges`` (episodes past
+    the last edge fall in the last bin); NaN where a bin has fewer than ``min_count``. Returns
+    (means, counts)."""
+    start_steps = np.asarray(start_steps, dtype=np.float64)
+    values = np.asarray(values, dtype=np.float64)
+    bins = len(edges) - 1
+    index = np.clip(np.searchsorted(edges, start_steps, side="right") - 1, 0, bins - 1)
+    counts = np.bincount(index, minlength=bins)
+    sums = np.bincount(index, weights=values, minlength=bins)
+    means = np.full(bins, np.nan)
+    keep = counts >= max(min_count, 1)
+    means[keep] = sums[keep] / counts[keep]
+    return means, counts
+
+
 def binned_by_start(episodes: dict[str, np.ndarray], key: str, bins: int = 40, *,
                     edges: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Mean of ``key`` over episodes grouped by the step they *started* at (counting by the end
-    step would favour short, successful episodes early in training). Returns (bin centres, means);
-    ``edges`` fixes the bins (e.g. to average several runs), otherwise ``bins`` span the run."""
+    step would favour short, successful episodes early in training). Returns (bin centres, means)
+    of the bins that hold episodes; ``edges`` fixes the bins (e.g. to average several runs),
+    otherwise ``bins`` span the run."""
     start = episodes["start_step"]
     if edges is None:
         edges = np.linspace(start.min(), start.max() + 1, bins + 1)
-    bins = len(edges) - 1
-    index = np.clip(np.digitize(start, edges) - 1, 0, bins - 1)
-    counts = np.bincount(index, minlength=bins)
-    sums = np.bincount(index, weights=episodes[key], minlength=bins)
+    means, counts = binned_means(start, episodes[key], edges)
     keep = counts > 0
-    return ((edges[:-1] + edges[1:]) / 2)[keep], sums[keep] / counts[keep]
+    return ((edges[:-1] + edges[1:]) / 2)[keep], means[keep]
 
 
 def plot_run(run_dir: str | Path, out: str | Path | None = None, title: str | None = None) -> Path:
@@ -81,10 +95,7 @@ def plot_run(run_dir: str | Path, out: str | Path | None = None, title: str | No
         axis.legend(fontsize=8)
     fig.suptitle(title or str(run_dir))
     fig.tight_layout()
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=110)
-    plt.close(fig)
-    return atomic_write_bytes(Path(out) if out is not None else run_dir / "curves.png", buffer.getvalue())
+    return save_png(fig, Path(out) if out is not None else run_dir / "curves.png", dpi=110)
 
 
 def plot_comparison(groups: dict[str, list[str | Path]], out: str | Path, *, title: str = "",
@@ -139,10 +150,7 @@ def plot_comparison(groups: dict[str, list[str | Path]], out: str | Path, *, tit
         axis.legend(fontsize=8)
     fig.suptitle(title)
     fig.tight_layout()
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=110)
-    plt.close(fig)
-    return atomic_write_bytes(Path(out), buffer.getvalue())
+    return save_png(fig, Path(out), dpi=110)
 
 
 def _up_to(table: dict[str, np.ndarray], key: str, max_step: float) -> dict[str, np.ndarray]:

@@ -39,7 +39,7 @@ import torch
 
 from bimgame.a3c import evaluate_greedy_and_sampled, network_for
 from bimgame.agent import RecurrentActor, tilt_input
-from bimgame.data import discounted_returns
+from bimgame.data import discounted_returns, previous_values
 from bimgame.env import BallInMazeEnv
 from bimgame.expert import MPCConfig, RandomShootingMPC
 from bimgame.io import atomic_write_bytes
@@ -190,8 +190,8 @@ def collect_episodes(net: RecurrentActorCritic, config: DAggerConfig, beta: floa
 def _as_sequence(record: dict[str, list], gamma: float) -> dict[str, np.ndarray]:
     executed = np.asarray(record["executed"], dtype=np.int64)
     rewards = np.asarray(record["rewards"], dtype=np.float64)
-    prev_actions = np.concatenate([[NO_ACTION], executed[:-1]]).astype(np.int64)
-    prev_rewards = np.concatenate([[0.0], rewards[:-1]]).astype(np.float32)
+    prev_actions = previous_values(executed, NO_ACTION)
+    prev_rewards = previous_values(rewards.astype(np.float32), 0.0)
     return {"obs": np.stack(record["obs"]), "actions": np.asarray(record["actions"], dtype=np.int64),
             "executed": executed, "prev_actions": prev_actions, "prev_rewards": prev_rewards,
             "tilt": np.asarray(record["tilt"], dtype=np.float32), "rewards": rewards.astype(np.float32),

@@ -50,7 +50,7 @@ from bimgame.parallel import BACKENDS, MAIN_GUARD, environment, episode_progress
 from bimgame.tasks import Task, parse_task
 
 __all__ = ["DatasetError", "generate_dataset", "load_dataset", "iterate_sequences", "dataset_summary",
-           "dataset_id_for", "dataset_manifest", "discounted_returns", "add_generate_arguments", "run_generate", "BACKENDS", "NO_ACTION",
+           "dataset_id_for", "dataset_manifest", "discounted_returns", "previous_values", "add_generate_arguments", "run_generate", "BACKENDS", "NO_ACTION",
            "FORMAT_VERSION"]
 
 FORMAT_NAME = "bimgame-expert-dataset"
@@ -524,8 +524,9 @@ def iterate_sequences(dataset_or_dir, *, obs: str = "state", gamma: float = 0.99
     observer = None
     for episode in dataset.iterate_episodes():
         steps = len(episode.rewards)
+        states = np.asarray(episode.observations[:steps], dtype=np.float32)
+        infos = episode.infos or {}
         if obs == "pixels":
-            infos = episode.infos or {}
             if "sim_state" not in infos or "channel" not in infos:
                 raise ValueError(f"episode {episode.id} has no infos['sim_state'] / infos['channel'] "
                                  "to render pixels from (not a bimgame expert dataset?)")
@@ -534,27 +535,20 @@ def iterate_sequences(dataset_or_dir, *, obs: str = "state", gamma: float = 0.99
             frames = observer(np.asarray(infos["sim_state"][:steps], dtype=np.float64),
                               np.asarray(infos["channel"][:steps]))
         else:
-            frames = np.asarray(episode.observations[:steps], dtype=np.float32)
+            frames = states
         actions = np.asarray(episode.actions, dtype=np.int64)
         rewards = np.asarray(episode.rewards, dtype=np.float64)
-        states = np.asarray(episode.observations[:steps], dtype=np.float32)
         n_marbles = (states.shape[1] - 2) // 5  # [x, y, vx, vy] * n, tilt_x, tilt_y, channel * n
-        infos = episode.infos or {}
         if "channel" in infos:
             channels = np.asarray(infos["channel"][:steps + 1], dtype=np.int64)
         else:
             channels = np.rint(np.asarray(episode.observations[:steps + 1])[:, 4 * n_marbles + 2:]).astype(np.int64)
-        prev_actions = np.empty(steps, dtype=np.int64)
-        prev_actions[0] = NO_ACTION
-        prev_actions[1:] = actions[:-1]
-        prev_rewards = np.zeros(steps, dtype=np.float32)
-        prev_rewards[1:] = rewards[:-1]
         yield {
             "obs": frames,
             "actions": actions,
             "rewards": rewards.astype(np.float32),
-            "prev_actions": prev_actions,
-            "prev_rewards": prev_rewards,
+            "prev_actions": previous_values(actions, NO_ACTION),
+            "prev_rewards": previous_values(rewards.astype(np.float32), 0.0),
             "returns": discounted_returns(rewards, gamma).astype(np.float32),
             "tilt": states[:, 4 * n_marbles:4 * n_marbles + 2].copy(),
             "channels": channels,
@@ -562,6 +556,15 @@ def iterate_sequences(dataset_or_dir, *, obs: str = "state", gamma: float = 0.99
             "truncated": bool(episode.truncations[-1]),
             "id": int(episode.id),
         }
+
+
+def previous_values(values: np.ndarray, first: Any) -> np.ndarray:
+    """``values`` one step later: at each step, the value of the step before (``first`` at t=0) —
+    the previous-action and previous-reward inputs of the recurrent networks."""
+    out = np.empty_like(values)
+    out[:1] = first
+    out[1:] = values[:-1]
+    return out
 
 
 def discounted_returns(rewards: np.ndarray, gamma: float) -> np.ndarray:

@@ -4,7 +4,6 @@ parallel worker processes, and the histogram of trajectory lengths (the paper's 
 from __future__ import annotations
 
 import dataclasses
-import io
 import json
 import os
 from pathlib import Path
@@ -13,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from bimgame.expert import MPCConfig
+from bimgame.figures import save_png
 from bimgame.io import atomic_write_bytes
 from bimgame.parallel import episode_progress, expert_episodes
 from bimgame.tasks import parse_task
@@ -86,11 +86,8 @@ def plot_length_histogram(results: list[EpisodeResult], path: str | Path, *, tit
     ax.set_xlabel("trajectory length (steps at 30 Hz)")
     ax.set_ylabel("episodes")
     ax.set_title(f"{title}: {len(solved)} solved, {failed} not", fontsize=10)
-    buffer = io.BytesIO()
     fig.tight_layout()
-    fig.savefig(buffer, format="png", dpi=130)
-    plt.close(fig)
-    return atomic_write_bytes(path, buffer.getvalue())
+    return save_png(fig, path, dpi=130)
 
 
 def write_results(results: list[EpisodeResult], summary: dict, config: MPCConfig, task: str, path: str | Path) -> Path:

@@ -1,4 +1,5 @@
-"""Figures: a labelled drawing of a maze (walls, gates, channels, geodesic distance) as a PNG."""
+"""Figures: a labelled drawing of a maze (walls, gates, channels, geodesic distance) as a PNG, and
+the one way every figure of the package is written (:func:`save_png`)."""
 
 from __future__ import annotations
 
@@ -10,14 +11,13 @@ import numpy as np
 from bimgame.io import atomic_write_bytes
 from bimgame.maze import MazeSpec
 
-__all__ = ["draw_maze"]
+__all__ = ["draw_maze", "save_png"]
 
 
 def draw_maze(spec: MazeSpec, path: str | Path, *, geodesic: bool = True, dpi: int = 150) -> Path:
     """Draw ``spec`` to a PNG at ``path``: walls and rim in grey, gates labelled with their angle
     and width, channels numbered, and (optionally) the geodesic distance to the centre as a
     colour map over the floor. Written atomically; returns the path."""
-    import io
 
     import matplotlib
 
@@ -61,7 +61,16 @@ def draw_maze(spec: MazeSpec, path: str | Path, *, geodesic: bool = True, dpi: i
     ax.set_ylabel("board y (mm)")
     ax.set_title(f"{len(spec.walls)}-wall circular maze; marble Ø {2 * spec.marble_radius * 1e3:.2f} mm "
                  "(white numbers: channels)", fontsize=9)
+    return save_png(fig, path, dpi=dpi, bbox_inches="tight")
+
+
+def save_png(fig, path: str | Path, *, dpi: int, **savefig_options) -> Path:
+    """Write a matplotlib figure to ``path`` as a PNG, atomically, and close it; returns the path."""
+    import io
+
+    import matplotlib.pyplot as plt
+
     buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=dpi, bbox_inches="tight")
+    fig.savefig(buffer, format="png", dpi=dpi, **savefig_options)
     plt.close(fig)
     return atomic_write_bytes(path, buffer.getvalue())

@@ -294,11 +294,7 @@ def _configure_inputs(net: nn.Module, config: NetConfig, obs_scale: np.ndarray |
 def build_value_network(config: NetConfig, obs_scale: np.ndarray | None = None, *, seed: int = 0,
                         background: np.ndarray | None = None) -> ValueNetwork:
     """A fresh :class:`ValueNetwork`; arguments as :func:`build_network`."""
-    with torch.random.fork_rng(devices=[]):
-        torch.manual_seed(seed)
-        net = ValueNetwork(config)
-    _configure_inputs(net, config, obs_scale, background)
-    return net
+    return _build(ValueNetwork, config, obs_scale, seed, background)
 
 
 def build_network(config: NetConfig, obs_scale: np.ndarray | None = None, *, seed: int = 0,
@@ -307,9 +303,16 @@ def build_network(config: NetConfig, obs_scale: np.ndarray | None = None, *, see
     left untouched); ``obs_scale`` sets the MLP encoder's input divisors (see
     :func:`state_obs_scale`); ``background`` is the empty-maze frame a ``subtract_background``
     network subtracts (see :func:`maze_background`)."""
+    return _build(RecurrentActorCritic, config, obs_scale, seed, background)
+
+
+def _build(cls: type, config: NetConfig, obs_scale: np.ndarray | None, seed: int,
+           background: np.ndarray | None):
+    """``cls(config)`` with initial weights drawn from ``seed`` (the global torch generator is left
+    untouched), then the encoder's fixed inputs set."""
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)
-        net = RecurrentActorCritic(config)
+        net = cls(config)
     _configure_inputs(net, config, obs_scale, background)
     return net
 

@@ -38,11 +38,12 @@ import torch
 import torch.nn.functional as F
 
 from bimgame.a3c import A3CConfig, evaluate_greedy_and_sampled, net_config_for, network_for
-from bimgame.data import dataset_manifest, discounted_returns, iterate_sequences, load_dataset
+from bimgame.data import dataset_manifest, discounted_returns, iterate_sequences, load_dataset, previous_values
 from bimgame.maze import MazeSpec
 from bimgame.nets import NO_ACTION, RecurrentActorCritic, ValueNetwork, build_value_network
 from bimgame.observe import OBS_MODES
-from bimgame.runs import CHECKPOINT, CONFIG, MetricLog, load_weights, save_checkpoint, torch_threads, write_json
+from bimgame.runs import (CHECKPOINT, CONFIG, KIND_POLICY, KIND_VALUE, MetricLog, load_weights, run_kind, save_checkpoint,
+                          torch_threads, write_json)
 from bimgame.settings import from_dict, require_int
 from bimgame.tasks import Task, parse_task
 
@@ -50,8 +51,6 @@ __all__ = ["PretrainConfig", "PretrainResult", "pretrain", "relabel", "load_sequ
            "policy_loss_terms", "train_policy_epochs", "TARGETS", "KIND_POLICY", "KIND_VALUE", "run_kind"]
 
 TARGETS = ("policy", "value")
-KIND_POLICY = "pretrained-policy"
-KIND_VALUE = "value-function"
 _TABLE = ["train_loss", "train_accuracy", "train_value_rmse", "val_loss", "val_accuracy", "val_value_rmse",
           "seconds"]
 
@@ -163,10 +162,9 @@ def relabel(sequence: dict[str, Any], task: str | Task, gamma: float, spec: Maze
         done = reached.all(axis=-1)
     end = int(np.argmax(done)) + 1 if done.any() else steps
     terminated = bool(done.any())
-    prev_rewards = np.zeros(end, dtype=np.float32)
-    prev_rewards[1:] = rewards[:end - 1]
     out = {key: sequence[key][:end] for key in ("obs", "actions", "prev_actions", "tilt")}
-    out.update(rewards=rewards[:end].astype(np.float32), prev_rewards=prev_rewards,
+    out.update(rewards=rewards[:end].astype(np.float32),
+               prev_rewards=previous_values(rewards[:end].astype(np.float32), 0.0),
                returns=discounted_returns(rewards[:end], gamma).astype(np.float32),
                channels=channels[:end + 1], terminated=terminated,
                truncated=not terminated, id=sequence.get("id"))
@@ -477,15 +475,6 @@ class _EpochProgress:
 
 
 # ------------------------------------------------------------------------------- loading runs
-def run_kind(run_dir: str | Path) -> str:
-    """What a run directory holds: ``a3c``, :data:`KIND_POLICY` or :data:`KIND_VALUE`."""
-    path = Path(run_dir)
-    path = path.parent if path.is_file() else path
-    if not (path / CONFIG).is_file():
-        raise ValueError(f"{path} is not a bimgame run (no {CONFIG})")
-    return json.loads((path / CONFIG).read_text()).get("kind", "a3c")
-
-
 def load_value_network(run_dir: str | Path) -> tuple[ValueNetwork, PretrainConfig]:
     """The frozen V̂ of a value pre-training run (``bimgame pretrain --value-only``)."""
     run_dir = Path(run_dir)

@@ -43,7 +43,6 @@ dependencies for about thirty lines of code. Intervals need at least two seeds p
 from __future__ import annotations
 
 import dataclasses
-import io
 import json
 import math
 import warnings
@@ -52,7 +51,8 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from bimgame.curves import read_table
+from bimgame.curves import binned_means, read_table
+from bimgame.figures import save_png
 from bimgame.experiments import (ALGORITHMS, Budget, Piece, STATUS, format_duration, load_plan, load_status,
                                  piece_done)
 from bimgame.io import atomic_write_bytes
@@ -118,23 +118,6 @@ def bootstrap_mean_band(curves: np.ndarray, *, resamples: int = DEFAULT_RESAMPLE
         means = stratified_bootstrap([curves], lambda d: np.nanmean(d[0], axis=1), resamples=resamples, rng=rng)
     low, high = percentile_interval(means, confidence)
     return mean, low, high
-
-
-def binned_means(start_steps: np.ndarray, values: np.ndarray, edges: np.ndarray, *, min_count: int = 1,
-                 ) -> tuple[np.ndarray, np.ndarray]:
-    """Mean of ``values`` over the episodes that started in each bin of ``edges`` (episodes past
-    the last edge fall in the last bin); NaN where a bin has fewer than ``min_count``. Returns
-    (means, counts)."""
-    start_steps = np.asarray(start_steps, dtype=np.float64)
-    values = np.asarray(values, dtype=np.float64)
-    bins = len(edges) - 1
-    index = np.clip(np.searchsorted(edges, start_steps, side="right") - 1, 0, bins - 1)
-    counts = np.bincount(index, minlength=bins)
-    sums = np.bincount(index, weights=values, minlength=bins)
-    means = np.full(bins, np.nan)
-    keep = counts >= max(min_count, 1)
-    means[keep] = sums[keep] / counts[keep]
-    return means, counts
 
 
 def first_crossing(steps: np.ndarray, values: np.ndarray, threshold: float) -> float | None:
@@ -287,13 +270,8 @@ def _nanmean(values: Sequence[float]) -> float:
 
 # ------------------------------------------------------------------------------------ figures
 def _save(fig: Any, path: Path) -> Path:
-    import matplotlib.pyplot as plt
-
-    buffer = io.BytesIO()
     fig.tight_layout()
-    fig.savefig(buffer, format="png", dpi=120)
-    plt.close(fig)
-    return atomic_write_bytes(path, buffer.getvalue())
+    return save_png(fig, path, dpi=120)
 
 
 def _plot_curves(task: str, runs: dict[str, list[_Run]], edges: np.ndarray, threshold: float | None,

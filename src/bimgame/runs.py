@@ -31,11 +31,15 @@ import torch
 
 from bimgame.io import atomic_write_bytes
 
-__all__ = ["torch_threads", "CheckpointError", "save_checkpoint", "load_checkpoint", "load_weights", "CsvLog",
+__all__ = ["torch_threads", "run_kind", "KIND_A3C", "KIND_POLICY", "KIND_VALUE", "CheckpointError", "save_checkpoint", "load_checkpoint", "load_weights", "CsvLog",
            "MetricLog", "write_json", "CHECKPOINT", "CONFIG"]
 
 CHECKPOINT = "checkpoint.pt"
 CONFIG = "config.json"
+#: What a run directory holds (config.json's "kind"; A3C runs have none).
+KIND_A3C = "a3c"
+KIND_POLICY = "pretrained-policy"
+KIND_VALUE = "value-function"
 _REQUIRED = {"model": dict, "step": int}
 
 
@@ -52,6 +56,16 @@ def torch_threads(count: int | None = None) -> Iterator[int]:
         yield count
     finally:
         torch.set_num_threads(previous)
+
+
+def run_kind(run_dir: str | Path) -> str:
+    """What a run directory (or a checkpoint file in one) holds: :data:`KIND_A3C`,
+    :data:`KIND_POLICY`, :data:`KIND_VALUE` or another tool's kind (e.g. DAgger's)."""
+    path = Path(run_dir)
+    path = path.parent if path.is_file() else path
+    if not (path / CONFIG).is_file():
+        raise ValueError(f"{path} is not a bimgame run (no {CONFIG})")
+    return json.loads((path / CONFIG).read_text()).get("kind", KIND_A3C)
 
 
 class CheckpointError(ValueError):

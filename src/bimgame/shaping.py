@@ -221,9 +221,11 @@ class ValueFunctionPotential:
         import torch
 
         net = self.load()._net
+        from bimgame.agent import tilt_input
+
         with torch.no_grad():
-            tilt_t = torch.as_tensor(np.asarray(tilt, dtype=np.float32) / np.float32(self._max_tilt))
-            return net(torch.as_tensor(np.asarray(obs)), tilt_t if net.config.tilt_input else None).numpy()
+            tilt_t = tilt_input({"tilt": tilt}, self._max_tilt) if net.config.tilt_input else None
+            return net(torch.as_tensor(np.asarray(obs)), tilt_t).numpy()
 
     def __getstate__(self) -> dict:
         return {"run_dir": self.run_dir}
@@ -244,10 +246,6 @@ class ValueReward:
     def __post_init__(self) -> None:
         object.__setattr__(self, "run_dir", str(self.run_dir))
         object.__setattr__(self, "gamma", _unit_interval("gamma", self.gamma))
-
-    def check(self) -> None:
-        """Load V̂ once now, so a wrong path fails before any worker starts."""
-        ValueFunctionPotential(self.run_dir).load()
 
     def __call__(self, vector_env: gym.vector.VectorEnv) -> PotentialShapedVectorEnv:
         return PotentialShapedVectorEnv(vector_env, ValueFunctionPotential(self.run_dir), gamma=self.gamma)
