@@ -31,17 +31,17 @@ import mujoco
 import numpy as np
 
 import bimgame  # noqa: F401  (registers ids)
-from bimgame.env import BallInMazeEnv
-from bimgame.io import atomic_write_bytes
-from bimgame.render import MazeRenderer
-from bimgame.sim import MazeSim
-from bimgame.vector import BallInMazeVectorEnv
+from bimgame.envs.env import BallInMazeEnv
+from bimgame.util.files import atomic_write_bytes
+from bimgame.sim.render import MazeRenderer
+from bimgame.sim.physics import MazeSim
+from bimgame.envs.vector import BallInMazeVectorEnv
 
 RESULTS = Path(__file__).parent / "results" / "env.json"
 
 
 class _TimedMujoco:
-    """Stands in for the ``mujoco`` module inside ``bimgame.sim`` and adds up the time spent in
+    """Stands in for the ``mujoco`` module inside ``bimgame.sim.physics`` and adds up the time spent in
     ``mj_step``: the engine's share of the very same env steps, immune to the machine's drift."""
 
     def __init__(self):
@@ -59,7 +59,7 @@ class _TimedMujoco:
 def env_engine_share(obs_mode: str, n: int, wrapped: bool) -> float:
     """Fraction of env-step wall time spent inside ``mj_step`` (best of 3): the env's throughput
     as a fraction of the engine's own limit, measured on the same steps at the same moment."""
-    import bimgame.sim as sim_module
+    import bimgame.sim.physics as sim_module
 
     timed = _TimedMujoco()
     original = sim_module.mujoco

@@ -24,9 +24,9 @@ import mujoco
 import numpy as np
 from mujoco import rollout as mj_rollout
 
-from bimgame.expert import MPCConfig, RandomShootingMPC, run_expert_episode
-from bimgame.expert_eval import evaluate_expert, plot_length_histogram, summarise
-from bimgame.io import atomic_write_bytes
+from bimgame.expert.mpc import MPCConfig, RandomShootingMPC, run_expert_episode
+from bimgame.expert.evaluation import evaluate_expert, plot_length_histogram, summarise
+from bimgame.util.files import atomic_write_bytes
 
 RESULTS = Path(__file__).parent / "results"
 

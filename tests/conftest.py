@@ -7,9 +7,9 @@ from __future__ import annotations
 
 import pytest
 
-from bimgame.data import generate_dataset
-from bimgame.pretrain import PretrainConfig, PretrainResult, pretrain
-from bimgame.runs import torch_threads
+from bimgame.expert.datasets import generate_dataset
+from bimgame.learn.pretrain import PretrainConfig, PretrainResult, pretrain
+from bimgame.learn.runs import torch_threads
 
 #: Episodes of :func:`stg1_dataset` (≈0.6 s of MPC planning each on one core).
 STG1_DATASET_EPISODES = 60

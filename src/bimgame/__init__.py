@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import gymnasium as gym
 
-from bimgame.maze import Friction, Gate, MazeSpec, MazeSpecError, Wall
-from bimgame.tasks import Task
+from bimgame.sim.maze import Friction, Gate, MazeSpec, MazeSpecError, Wall
+from bimgame.sim.tasks import Task
 
 __version__ = "0.1.0"
 
@@ -19,7 +19,7 @@ ENV_IDS = tuple(f"BiMGame/{task.value}-v0" for task in Task)
 
 def register_envs() -> None:
     """Register the five task ids with Gymnasium (idempotent)."""
-    from bimgame.env import MAX_EPISODE_STEPS
+    from bimgame.envs.env import MAX_EPISODE_STEPS
 
     for task in Task:
         env_id = f"BiMGame/{task.value}-v0"
@@ -27,8 +27,8 @@ def register_envs() -> None:
             continue
         gym.register(
             id=env_id,
-            entry_point="bimgame.env:BallInMazeEnv",
-            vector_entry_point="bimgame.vector:BallInMazeVectorEnv",
+            entry_point="bimgame.envs.env:BallInMazeEnv",
+            vector_entry_point="bimgame.envs.vector:BallInMazeVectorEnv",
             max_episode_steps=MAX_EPISODE_STEPS[task],
             kwargs={"task": task.value},
         )

@@ -1,0 +1,150 @@
+"""``bimgame reproduce`` and ``bimgame report``: the paper's experiments in one command, and the
+figures, tables and report rebuilt from the saved results."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from bimgame.cli.argtypes import positive_int
+
+__all__ = ["add_reproduce_arguments", "add_report_arguments", "run_reproduce", "run_report", "budget_from"]
+
+
+def _fraction(text: str) -> float:
+    """A number in (0, 1]."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number in (0, 1], got {text!r}") from None
+    if not 0.0 < value <= 1.0:
+        raise argparse.ArgumentTypeError(f"expected a number in (0, 1], got {text!r}")
+    return value
+
+
+def add_reproduce_arguments(parser: argparse.ArgumentParser) -> None:
+    from bimgame.experiments.reproduce import ALGORITHMS, BUDGETS
+    from bimgame.envs.observe import OBS_MODES
+    from bimgame.sim.tasks import Task
+
+    add = parser.add_argument
+    add("--out", type=Path, required=True,
+        help="directory of the reproduction (created; run the same command again to continue it)")
+    add("--budget", choices=list(BUDGETS), default=None,
+        help="preset: quick (STG1, state observations, 2 seeds, < 30 min on 2 cores) or paper (FULL/STG1/STG2, "
+             "pixels, 5 seeds, about two and a half days). Default: the budget stored in --out, else quick")
+    add("--tasks", nargs="+", choices=[t.value for t in Task], type=str.upper, default=None, metavar="TASK",
+        help="tasks of the grid (default: the budget's; STG3 STG4 may be added)")
+    add("--algorithms", nargs="+", choices=ALGORITHMS, default=None, metavar="ALGORITHM",
+        help=f"algorithms of the grid, any of: {', '.join(ALGORITHMS)} (default: all)")
+    add("--seeds", type=positive_int, default=None, help="runs per task and algorithm (default: the budget's)")
+    add("--obs", choices=OBS_MODES, default=None, help="observations of every network (default: the budget's)")
+    add("--torch-threads", type=positive_int, default=None,
+        help="torch threads of pre-training and DAgger (default: the budget's, 1)")
+    add("--stop-after", type=positive_int, default=None, metavar="N",
+        help="compute at most N pieces, then stop (run again to continue)")
+    add("--dry-run", action="store_true", help="print the plan and its expected duration; run nothing")
+    add("--no-progress", action="store_true", help="no progress bar (one line per finished piece)")
+
+
+def add_report_arguments(parser: argparse.ArgumentParser) -> None:
+    from bimgame.experiments.report import DEFAULT_RESAMPLES
+
+    add = parser.add_argument
+    add("out", type=Path, metavar="DIR", help="a reproduction directory (bimgame reproduce --out DIR)")
+    add("--threshold", type=_fraction, default=None, metavar="F",
+        help="steps-to-threshold target as a fraction of the expert's success rate (default: the budget's, 0.8)")
+    add("--resamples", type=positive_int, default=DEFAULT_RESAMPLES,
+        help=f"bootstrap resamples (default {DEFAULT_RESAMPLES})")
+    add("--seed", type=int, default=0, help="seed of the bootstrap's generator (default 0)")
+
+
+def budget_from(args: argparse.Namespace) -> "Budget":  # noqa: F821
+    """The budget of a ``reproduce`` command: the preset named by ``--budget`` (else the one stored
+    in ``--out``, else ``quick``) with the grid flags applied."""
+    from bimgame.experiments.reproduce import PLAN, budget_named, load_plan
+
+    if args.budget is not None:
+        base = budget_named(args.budget)
+    elif (args.out / PLAN).is_file():
+        base, _ = load_plan(args.out)
+    else:
+        base = budget_named("quick")
+    return base.with_grid(tasks=args.tasks, algorithms=args.algorithms, seeds=args.seeds, obs=args.obs,
+                          torch_threads=args.torch_threads)
+
+
+def run_reproduce(args: argparse.Namespace) -> int:
+    """``bimgame reproduce``: print the plan's expected duration, run (or continue) it, build the
+    report. Exit status 0 when every piece finished, 1 when some failed, 130 when interrupted."""
+    from rich.console import Console
+    from rich.markup import escape
+
+    from bimgame.experiments.reproduce import (BUDGETS, check_compatible, estimate_seconds, format_duration, piece_done,
+                                     plan_pieces, reproduce)
+    from bimgame.experiments.report import build_report
+
+    console = Console(stderr=True)
+    budget = budget_from(args)
+    check_compatible(args.out, budget)
+    pieces = plan_pieces(budget)
+    total = _total(budget)
+    left = [p for p in pieces if not piece_done(p, args.out, budget)] if args.out.is_dir() else pieces
+    presets = "; ".join(f"{name}: {len(plan_pieces(b))} pieces, ≈ {format_duration(_total(b))}"
+                        for name, b in BUDGETS.items())
+    console.print(f"budget {budget.name}: tasks {', '.join(budget.tasks)}; {', '.join(budget.algorithms)}; "
+                  f"{budget.seeds} seeds; {budget.obs} observations")
+    console.print(f"expected on an idle 2-core machine: ≈ {format_duration(total)} for all {len(pieces)} pieces, "
+                  f"≈ {format_duration(sum(estimate_seconds(p, budget) for p in left))} for the {len(left)} not "
+                  f"finished yet (presets — {presets}). A concurrent job on the machine makes it slower.")
+    if args.dry_run:
+        for piece in pieces:
+            state = "to do" if piece in left else "done"
+            console.print(f"  {piece.id:<40} {state:<6} ≈ {format_duration(estimate_seconds(piece, budget))}")
+        kinds = dict.fromkeys(p.kind for p in pieces)
+        console.print("by kind: " + "; ".join(
+            f"{kind} ×{sum(p.kind == kind for p in pieces)} ≈ "
+            f"{format_duration(sum(estimate_seconds(p, budget) for p in pieces if p.kind == kind))}" for kind in kinds))
+        return 0
+    try:
+        result = reproduce(args.out, budget, progress=not args.no_progress, stop_after=args.stop_after,
+                           console=console)
+    except KeyboardInterrupt:
+        console.print(f"interrupted; finished pieces are kept. Continue with: bimgame reproduce --out {args.out}")
+        return 130
+    paths = build_report(args.out)
+    console.print(f"{len(result.computed)} pieces computed, {len(result.reused)} reused, in "
+                  f"{format_duration(result.seconds)}; wrote {paths.report}")
+    if result.remaining:
+        console.print(f"stopped after {len(result.computed)} pieces as asked; {len(result.remaining)} left. "
+                      f"Continue with: bimgame reproduce --out {args.out}")
+    if result.failed or result.skipped:
+        for piece, error in result.failed.items():
+            console.print(f"[red]failed[/red] {escape(piece)}: {escape(error)}")
+        if result.skipped:
+            console.print(f"not run because a piece they need failed: {', '.join(result.skipped)}")
+        console.print(f"details in {args.out / 'status.json'}; rerun the same command to retry")
+        return 1
+    return 0
+
+
+def _total(budget: "Budget") -> float:  # noqa: F821
+    """Expected seconds of all pieces of a budget."""
+    from bimgame.experiments.reproduce import estimate_seconds, plan_pieces
+
+    return sum(estimate_seconds(p, budget) for p in plan_pieces(budget))
+
+
+def run_report(args: argparse.Namespace) -> int:
+    """``bimgame report DIR``: rebuild the figures, tables and report.md from DIR's saved results."""
+    from bimgame.experiments.report import build_report
+
+    paths = build_report(args.out, threshold_fraction=args.threshold, resamples=args.resamples, seed=args.seed)
+    for path in paths.all():
+        print(f"wrote {path}")
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit("use: bimgame reproduce|report ...")

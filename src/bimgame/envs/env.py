@@ -1,0 +1,312 @@
+"""Gymnasium environment of the Ball-in-Maze Game and its registration.
+
+See :class:`BallInMazeEnv` for the full description (Gymnasium's documentation layout).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from bimgame.sim.maze import MazeSpec
+from bimgame.envs.observe import OBS_MODES, Observer
+from bimgame.sim.physics import MazeSim
+from bimgame.sim.tasks import Task, initial_task_state, parse_task, task_step_one
+
+__all__ = ["BallInMazeEnv", "ACTION_TYPES", "DISCRETE_TILTS", "MAX_EPISODE_STEPS", "sample_start",
+           "action_to_tilt_delta"]
+
+ACTION_TYPES = ("discrete", "continuous")
+
+#: Time limits (action steps at 30 Hz) per task. A uniformly random policy solves STG1 16% of the
+#: time within 300 steps but 82% within 3000, solves STG2 2/50 and FULL 0/50 within 3000, while the
+#: random-shooting MPC expert (K=10) needs a median of 177–486 steps for FULL. These limits give a
+#: competent controller ample time and keep luck from solving the task (DESIGN §2).
+MAX_EPISODE_STEPS = {Task.STG1: 300, Task.STG2: 500, Task.STG3: 750, Task.STG4: 1000, Task.FULL: 1000}
+
+#: Discrete actions as (sign about x, sign about y) of one tilt step.
+DISCRETE_TILTS = np.array([[0, 0], [1, 0], [-1, 0], [0, 1], [0, -1]], dtype=np.float64)
+ACTION_MEANINGS = ("noop", "tilt +x", "tilt -x", "tilt +y", "tilt -y")
+#: What the discrete actions mean, for error messages.
+ACTIONS_HELP = ", ".join(f"{i}={m}" for i, m in enumerate(ACTION_MEANINGS))
+_FAST_INTS = (int, np.int64, np.int32)
+
+
+def action_to_tilt_delta(action: Any, action_type: str, tilt_step: float) -> np.ndarray:
+    """Tilt change (rad, shape (2,)) commanded by one action; raises ``ValueError`` on bad input."""
+    if action_type == "discrete":
+        try:
+            index = int(action)
+            ok = index == action and 0 <= index < 5 and not isinstance(action, (bool, np.bool_))
+        except (TypeError, ValueError, OverflowError):
+            ok = False
+        if not ok:
+            raise ValueError(f"invalid action {action!r}: discrete actions are integers 0..4 ({ACTIONS_HELP})")
+        return DISCRETE_TILTS[index] * tilt_step
+    array = np.asarray(action, dtype=np.float64)
+    if array.shape != (2,) or not np.all(np.isfinite(array)) or np.any(np.abs(array) > 1.0):
+        raise ValueError(f"invalid action {action!r}: continuous actions are 2 finite numbers in "
+                         "[-1, 1] (tilt change about x and y, in units of the tilt step)")
+    return array * tilt_step
+
+
+def sample_start(spec: MazeSpec, n_marbles: int, rng: np.random.Generator) -> np.ndarray:
+    """Random board-frame start positions (n_marbles, 2) on the outermost channel's centre circle,
+    at least two marble diameters apart."""
+    radius = spec.channel_centre_radius(spec.outermost_channel)
+    min_separation = 2 * (2 * spec.marble_radius) / radius
+    angles: list[float] = []
+    while len(angles) < n_marbles:
+        candidate = float(rng.uniform(-math.pi, math.pi))
+        if all(abs((candidate - a + math.pi) % (2 * math.pi) - math.pi) > min_separation for a in angles):
+            angles.append(candidate)
+    angles_arr = np.array(angles)
+    return np.stack([radius * np.cos(angles_arr), radius * np.sin(angles_arr)], axis=-1)
+
+
+class BallInMazeEnv(gym.Env):
+    """
+    ## Description
+
+    A steel marble in MERL's circular maze (Paul & van Baar, "Trajectory-based Learning for
+    Ball-in-Maze Games", 2018): four concentric ring walls with gates around a goal region. The
+    agent tilts the board; the marble rolls under gravity with friction and collisions, simulated
+    by MuJoCo at 150 Hz with actions at 30 Hz.
+
+    ## Action Space
+
+    ``action_type="discrete"`` (default): ``Discrete(5)`` — 0 no-op, 1/2 tilt +/- one step about
+    the board's x axis, 3/4 about its y axis. The step is ``tilt_step_deg`` (1° as in the paper);
+    the tilt is ramped linearly over the action's 1/30 s and clamped at ``±max_tilt_deg`` (5°).
+    Tilting +x raises the board's +y edge; tilting +y lowers its +x edge.
+    ``action_type="continuous"``: ``Box(-1, 1, (2,))``, the tilt change about x and y in units of
+    ``tilt_step_deg``.
+
+    ## Observation Space
+
+    ``obs_mode="pixels"`` (default): ``Box(0, 255, (1, 84, 84), uint8)``, a grayscale top-down
+    view of the board in the board's frame (north up), drawn from the simulator state.
+    ``obs_mode="state"``: ``Box((5n + 2,), float32)`` for ``n`` marbles, laid out as
+    ``[x_1, y_1, vx_1, vy_1, …, x_n, y_n, vx_n, vy_n, tilt_x, tilt_y, channel_1, …, channel_n]``:
+    board-frame positions (m) and velocities (m/s), the board's tilt (rad) and each marble's
+    channel (0 = centre … 4 = outermost).
+
+    ## Rewards
+
+    ``task="FULL"``: +1 for each wall crossed towards the centre, -1 for each crossed outwards.
+    ``task="STGk"``: +1 when the marble passes through the k-th wall from the outside, else 0.
+    A marble has crossed a wall once its centre has cleared the wall's far face.
+
+    ## Starting State
+
+    Board flat; each marble at rest at a uniformly random angle on the centre circle of the
+    outermost channel (marbles at least two diameters apart). ``reset(options={"marble_xy": ...})``
+    places them explicitly (board-frame metres, shape (n, 2)).
+
+    ## Episode End
+
+    Termination: FULL — the marble reaches the centre; STGk — it passes the k-th wall (with several
+    marbles: when all have). Truncation is left to ``TimeLimit`` (registered ids use
+    ``MAX_EPISODE_STEPS``: STG1 300, STG2 500, STG3 750, STG4 1000, FULL 1000).
+
+    ## Info
+
+    ``channel`` (n,) int, ``gate_crossings`` (n,) int (+1 inwards / -1 outwards this step),
+    ``geodesic_distance`` (n,) float (m, shortest path to the centre through the gates),
+    ``is_success`` bool (the task's goal reached), ``tilt`` (2,) float (rad).
+
+    ## Arguments
+
+    ``task`` (FULL, STG1…STG4), ``obs_mode`` (pixels, state), ``action_type`` (discrete,
+    continuous), ``tilt_step_deg``, ``max_tilt_deg``, ``maze`` (a :class:`MazeSpec`, default
+    MERL's), ``n_marbles``, ``obs_size`` (pixels, default 84), ``render_mode`` (None or
+    "rgb_array"), ``render_size`` (default 480), ``renderer`` ("raster" — numpy, always available —
+    or "mujoco" — MuJoCo's 3D OpenGL renderer).
+
+    ## Version History
+
+    * v0: initial version.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
+
+    def __init__(self, task: str | Task = "FULL", *, obs_mode: str = "pixels",
+                 action_type: str = "discrete", tilt_step_deg: float | None = None,
+                 max_tilt_deg: float | None = None, maze: MazeSpec | None = None,
+                 n_marbles: int = 1, obs_size: int = 84, render_mode: str | None = None,
+                 render_size: int = 480, renderer: str = "raster"):
+        spec = maze if maze is not None else MazeSpec.merl()
+        if not isinstance(spec, MazeSpec):
+            raise TypeError(f"maze must be a MazeSpec, got {type(spec).__name__}")
+        changes = {}
+        if tilt_step_deg is not None:
+            changes["tilt_step"] = math.radians(_positive("tilt_step_deg", tilt_step_deg))
+        if max_tilt_deg is not None:
+            changes["max_tilt"] = math.radians(_positive("max_tilt_deg", max_tilt_deg))
+        self.maze = spec.replace(**changes) if changes else spec
+        self.task = parse_task(task, self.maze)
+        if obs_mode not in OBS_MODES:
+            raise ValueError(f"unknown obs_mode {obs_mode!r}; allowed: {', '.join(OBS_MODES)}")
+        if action_type not in ACTION_TYPES:
+            raise ValueError(f"unknown action_type {action_type!r}; allowed: {', '.join(ACTION_TYPES)}")
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"unknown render_mode {render_mode!r}; allowed: None, 'rgb_array'")
+        if renderer not in ("raster", "mujoco"):
+            raise ValueError(f"unknown renderer {renderer!r}; allowed: 'raster', 'mujoco'")
+        if not (isinstance(n_marbles, (int, np.integer)) and n_marbles >= 1):
+            raise ValueError(f"n_marbles must be an integer >= 1, got {n_marbles!r}")
+        self._init_kwargs = dict(task=self.task.value, obs_mode=obs_mode, action_type=action_type,
+                                 maze=self.maze, n_marbles=int(n_marbles), obs_size=obs_size,
+                                 render_mode=render_mode, render_size=render_size, renderer=renderer)
+        self.obs_mode = obs_mode
+        self.action_type = action_type
+        self.n_marbles = int(n_marbles)
+        self.render_mode = render_mode
+        self.render_size = int(render_size)
+        self.renderer = renderer
+        self.sim = MazeSim(self.maze, n_marbles=self.n_marbles)
+        self.observer = Observer(self.maze, self.n_marbles, obs_mode, obs_size=obs_size,
+                                 layout=self.sim.layout)
+        self.observation_space = self.observer.space
+        if action_type == "discrete":
+            self.action_space = spaces.Discrete(5)
+        else:
+            self.action_space = spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
+        self._channels: list[int] = [self.maze.outermost_channel] * self.n_marbles
+        self._reached: list[bool] = [False] * self.n_marbles
+        self._has_reset = False
+        self._discrete_deltas = [tuple(float(v) for v in row * self.maze.tilt_step) for row in DISCRETE_TILTS]
+        self._mujoco_renderer = None
+
+    # ------------------------------------------------------------------ gym API
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        options = options or {}
+        unknown = set(options) - {"marble_xy"}
+        if unknown:
+            raise ValueError(f"unknown reset options {sorted(unknown)}; allowed: 'marble_xy'")
+        if "marble_xy" in options:
+            xy = np.asarray(options["marble_xy"], dtype=float)
+            if xy.shape != (self.n_marbles, 2) or not np.all(np.isfinite(xy)):
+                raise ValueError(f"options['marble_xy'] must be finite with shape ({self.n_marbles}, 2), "
+                                 f"got {xy.shape}")
+            limit = self.maze.rim_radius - self.maze.marble_radius
+            if np.any(np.hypot(xy[:, 0], xy[:, 1]) > limit):
+                raise ValueError(f"options['marble_xy'] must lie within {limit:.4f} m of the centre")
+        else:
+            xy = sample_start(self.maze, self.n_marbles, self.np_random)
+        self.sim.reset(xy)
+        start = initial_task_state(self.maze, xy[None])
+        self._channels = start.channel[0].tolist()
+        self._reached = start.reached[0].tolist()
+        self._has_reset = True
+        kinematics = self.sim.layout.board_frame_one(self.sim.data.qpos, self.sim.data.qvel)
+        return self._observe(kinematics), self._info(kinematics, [0] * self.n_marbles, False)
+
+    def step(self, action):
+        if not self._has_reset:
+            raise RuntimeError("call reset() before step()")
+        if type(action) in _FAST_INTS and 0 <= action < 5 and self.action_type == "discrete":
+            delta = self._discrete_deltas[action]  # the common case, validated cheaply
+        else:
+            delta = action_to_tilt_delta(action, self.action_type, self.maze.tilt_step)
+        sim = self.sim
+        sim.step(delta)
+        kinematics = sim.layout.board_frame_one(sim.data.qpos, sim.data.qvel)
+        reward, terminated, crossings = task_step_one(
+            self.task, self.maze, self._channels, self._reached,
+            [math.hypot(k[0], k[1]) for k in kinematics])
+        return (self._observe(kinematics), reward, terminated, False,
+                self._info(kinematics, crossings, terminated))
+
+    def render(self):
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array'")
+            return None
+        if self.renderer == "mujoco":
+            return self._render_mujoco()
+        positions, _ = self.sim.marble_kinematics()
+        return self.observer.raster.rgb(positions[:, :2], size=self.render_size, tilt=self.sim.tilt)
+
+    def close(self):
+        if self._mujoco_renderer is not None:
+            self._mujoco_renderer.close()
+            self._mujoco_renderer = None
+        self.sim.close()
+
+    # ------------------------------------------------------------------ helpers
+    def _observe(self, kinematics: list[tuple[float, float, float, float]]) -> np.ndarray:
+        if self.obs_mode == "pixels":
+            xy = np.array([k[:2] for k in kinematics])
+            return self.observer.raster.gray(xy)[None]
+        # The layout of Observer.from_kinematics, built from plain floats (the per-step fast path;
+        # tests check the single env against the batched vector env observation by observation).
+        tilt = self.sim.data.qpos
+        values = [v for k in kinematics for v in k] + [tilt[0], tilt[1]] + self._channels
+        return np.array(values, dtype=np.float32)
+
+    def _info(self, kinematics, crossings: list[int], success: bool) -> dict[str, Any]:
+        geodesic = self.maze.geodesic_distance_one
+        return {
+            "channel": np.array(self._channels),
+            "gate_crossings": np.array(crossings),
+            "geodesic_distance": np.array([geodesic(k[0], k[1]) for k in kinematics]),
+            "is_success": success,
+            "tilt": self.sim.data.qpos[:2].copy(),
+        }
+
+    def _render_mujoco(self) -> np.ndarray:
+        if self._mujoco_renderer is None:
+            import mujoco
+
+            try:
+                self._mujoco_renderer = mujoco.Renderer(self.sim.model, self.render_size, self.render_size)
+            except Exception as error:  # no OpenGL context available
+                raise RuntimeError(
+                    "MuJoCo's 3D renderer needs an OpenGL backend and none could be created "
+                    f"({error}). On a headless machine set MUJOCO_GL=egl (with a GPU driver) or "
+                    "MUJOCO_GL=osmesa (apt-get install libosmesa6), or use renderer='raster', "
+                    "which draws the same board without OpenGL.") from error
+        camera = _top_camera(self.maze)
+        self._mujoco_renderer.update_scene(self.sim.data, camera=camera)
+        return self._mujoco_renderer.render()
+
+    # ------------------------------------------------------------------ pickling
+    def __getstate__(self) -> dict:
+        return {
+            "kwargs": self._init_kwargs,
+            "sim_state": self.sim.get_state(),
+            "task": (list(self._channels), list(self._reached), self._has_reset),
+            "np_random": None if self._np_random is None else self._np_random.bit_generator.state,
+        }
+
+    def __setstate__(self, state: dict) -> None:
+        self.__init__(**state["kwargs"])
+        self.sim.set_state(state["sim_state"])
+        self._channels, self._reached, self._has_reset = state["task"]
+        if state["np_random"] is not None:
+            rng = np.random.Generator(np.random.PCG64())
+            rng.bit_generator.state = state["np_random"]
+            self._np_random = rng
+
+
+def _positive(name: str, value: float) -> float:
+    if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+        raise ValueError(f"{name} must be a positive number, got {value!r}")
+    return float(value)
+
+
+def _top_camera(spec: MazeSpec):
+    import mujoco
+
+    camera = mujoco.MjvCamera()
+    camera.type = mujoco.mjtCamera.mjCAMERA_FREE
+    camera.lookat[:] = (0.0, 0.0, 0.0)
+    camera.distance = 3.2 * (spec.rim_radius + spec.rim_thickness)
+    camera.elevation = -60.0
+    camera.azimuth = 90.0
+    return camera

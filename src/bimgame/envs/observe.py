@@ -1,0 +1,77 @@
+"""Observations computed from physics states, batched: the same code serves the single env, the
+batched vector env and anything that re-renders stored trajectories from their states."""
+
+from __future__ import annotations
+
+import numpy as np
+from gymnasium import spaces
+
+from bimgame.sim.maze import MazeSpec
+from bimgame.sim.render import MazeRenderer
+from bimgame.sim.physics import StateLayout
+
+__all__ = ["OBS_MODES", "Observer"]
+
+OBS_MODES = ("pixels", "state")
+
+
+class Observer:
+    """Maps physics states (B, state_size) and task channels (B, n) to observations.
+
+    ``pixels``: (B, 1, size, size) uint8 from :class:`~bimgame.render.MazeRenderer`.
+    ``state``: (B, 4n + 2 + n) float32 — per marble x, y, vx, vy (board frame, m and m/s), then
+    tilt about x and y (rad), then each marble's channel.
+    """
+
+    def __init__(self, spec: MazeSpec, n_marbles: int, obs_mode: str, *, obs_size: int = 84,
+                 layout: StateLayout | None = None):
+        if obs_mode not in OBS_MODES:
+            raise ValueError(f"unknown obs_mode {obs_mode!r}; allowed: {', '.join(OBS_MODES)}")
+        if not (isinstance(obs_size, (int, np.integer)) and 16 <= obs_size <= 1024):
+            raise ValueError(f"obs_size must be an integer in 16..1024, got {obs_size!r}")
+        self.spec = spec
+        self.n_marbles = n_marbles
+        self.obs_mode = obs_mode
+        self.obs_size = int(obs_size)
+        self.layout = layout
+        self._raster: MazeRenderer | None = None
+        if obs_mode == "pixels":
+            self.space = spaces.Box(0, 255, shape=(1, self.obs_size, self.obs_size), dtype=np.uint8)
+        else:
+            extent = spec.rim_radius + spec.rim_thickness
+            n = n_marbles
+            low = np.concatenate([np.tile([-extent, -extent, -np.inf, -np.inf], n),
+                                  [-spec.max_tilt - 0.01] * 2, np.zeros(n)]).astype(np.float32)
+            high = np.concatenate([np.tile([extent, extent, np.inf, np.inf], n),
+                                   [spec.max_tilt + 0.01] * 2,
+                                   np.full(n, spec.outermost_channel)]).astype(np.float32)
+            self.space = spaces.Box(low, high, dtype=np.float32)
+
+    @property
+    def raster(self) -> MazeRenderer:
+        """The pixel renderer (built on first use: state observations never need it)."""
+        if self._raster is None:
+            self._raster = MazeRenderer(self.spec, self.obs_size)
+        return self._raster
+
+    def __call__(self, states: np.ndarray, channels: np.ndarray, layout: StateLayout | None = None,
+                 ) -> np.ndarray:
+        layout = layout or self.layout
+        if layout is None:
+            raise ValueError("Observer needs the model's StateLayout (pass layout=)")
+        positions, velocities = layout.board_frame(states)
+        return self.from_kinematics(positions, velocities, states[:, layout.tilt], channels)
+
+    def from_kinematics(self, positions: np.ndarray, velocities: np.ndarray, tilt: np.ndarray,
+                        channels: np.ndarray) -> np.ndarray:
+        """Observations from board-frame marble positions and velocities (B, n, 3), board tilt
+        (B, 2) and channels (B, n), for callers that already decoded their states."""
+        batch = positions.shape[0]
+        if self.obs_mode == "pixels":
+            return self.raster.gray(positions[..., :2])[:, None]
+        per_marble = np.concatenate([positions[..., :2], velocities[..., :2]], axis=-1)
+        out = np.empty((batch, 5 * self.n_marbles + 2), dtype=np.float32)
+        out[:, :4 * self.n_marbles] = per_marble.reshape(batch, -1)
+        out[:, 4 * self.n_marbles:4 * self.n_marbles + 2] = tilt
+        out[:, 4 * self.n_marbles + 2:] = channels
+        return out

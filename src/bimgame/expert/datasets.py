@@ -1,0 +1,644 @@
+"""Expert trajectories as standard `Minari <https://minari.farama.org>`_ datasets: parallel,
+resumable generation, verified loading, and whole-episode sequences for pre-training.
+
+A generation run owns one directory, ``out_dir``::
+
+    generation.json                  what is generated: task, run seed, episodes, MPC config, versions
+    episodes/episode_000000.npz …    one file per finished episode, written atomically (the
+                                     resumable source: a restart skips the episodes already here)
+    minari/                          a Minari datasets root (point MINARI_DATASETS_PATH here)
+      bimgame/<task>-expert-v0/data/{metadata.json, main_data.hdf5}
+    COMPLETE                         written last: counts, a content hash and every file's SHA-256
+
+Episode ``i`` is ``run_expert_episode(task, episode_seed(seed, i), config)``: it depends on the run
+seed and its index only, so the dataset is the same whatever the number of workers, the backend
+(local processes or Ray) or how often the run was interrupted and resumed.
+
+The Minari dataset holds, per episode of T steps: ``observations`` (T+1, 7) state observations,
+``actions`` (T,), ``rewards``, ``terminations``, ``truncations`` (T,), and ``infos`` with
+``sim_state`` (T+1, S) MuJoCo physics states and ``channel`` (T+1, n) task channels — T+1 like
+the observations, as Minari's ``DataCollector`` records the info of ``reset`` and of every step.
+From ``sim_state`` and ``channel``, :class:`~bimgame.observe.Observer` re-renders the pixel
+observations exactly (:func:`iterate_sequences` with ``obs="pixels"``). Each episode's reset seed
+is Minari's episode metadata ``seed``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import hashlib
+import io
+import json
+import multiprocessing
+import os
+import shutil
+import sys
+import tempfile
+import time
+import warnings
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bimgame.cli.argtypes import non_negative_int, positive_int
+from bimgame.expert.mpc import MPCConfig, episode_seed
+from bimgame.util.files import atomic_write_bytes, exclusive_lock
+from bimgame.expert.episodes import BACKENDS, MAIN_GUARD, environment, episode_progress, expert_episodes, import_ray
+from bimgame.sim.tasks import Task, parse_task
+
+__all__ = ["DatasetError", "generate_dataset", "load_dataset", "iterate_sequences", "dataset_summary",
+           "dataset_id_for", "dataset_manifest", "discounted_returns", "previous_values", "add_generate_arguments", "run_generate", "BACKENDS", "NO_ACTION",
+           "FORMAT_VERSION"]
+
+FORMAT_NAME = "bimgame-expert-dataset"
+FORMAT_VERSION = 1
+ALGORITHM_NAME = "RandomShootingMPC"
+#: ``prev_actions[0]`` of every sequence: there is no action before the first step.
+NO_ACTION = -1
+
+MANIFEST_NAME = "generation.json"
+MARKER_NAME = "COMPLETE"
+EPISODES_DIR = "episodes"
+MINARI_DIR = "minari"
+LOCK_NAME = ".lock"
+_BUILD_PREFIX = ".minari-build-"
+_EPISODE_KEYS = ("actions", "rewards", "terminations", "truncations", "observations", "sim_states",
+                 "channels", "seed", "success")
+# Episodes handed to Minari per write (bounds memory for large datasets).
+_BUILD_CHUNK = 64
+
+
+class DatasetError(ValueError):
+    """A dataset directory that is missing, incomplete, truncated or tampered with."""
+
+
+# ---------------------------------------------------------------------------------- generation
+def dataset_id_for(task: str | Task) -> str:
+    """The Minari dataset id of a task's expert data, e.g. ``bimgame/full-expert-v0``."""
+    return f"bimgame/{parse_task(task).value.lower()}-expert-v0"
+
+
+def generate_dataset(out_dir: str | Path, task: str = "FULL", episodes: int = 500, *, seed: int = 0,
+                     config: MPCConfig = MPCConfig(), workers: int | None = None,
+                     backend: str = "local", ray_address: str | None = None, progress: bool = True,
+                     max_steps: int | None = None) -> Path:
+    """Generate ``episodes`` expert episodes on ``task`` into ``out_dir`` and build the Minari
+    dataset from them; returns ``out_dir``.
+
+    Resumable: every finished episode is saved at once; run again with the same arguments after an
+    interruption and only the missing episodes are generated (a finished dataset is verified and
+    returned as is). Different arguments on an existing run, or a directory holding anything else,
+    raise an error and change nothing.
+
+    Args:
+        out_dir: the run's directory (created; must be new, empty or this run's).
+        task: FULL or STG1…STG4.
+        episodes: number of episodes; episode ``i`` starts from ``reset(seed=episode_seed(seed, i))``.
+        seed: the run seed (a non-negative integer).
+        config: the MPC expert's settings (``nthread`` is forced to 1: each worker plans on one
+            thread; it does not change the actions).
+        workers: parallel episodes (default ``os.cpu_count()``): local processes, or the CPUs Ray
+            starts locally. 1 runs the episodes in this process. Local workers are started with
+            multiprocessing's "spawn" method: a script calling this needs the usual
+            ``if __name__ == "__main__":`` guard.
+        backend: ``"local"`` (a process pool) or ``"ray"`` (Ray tasks; ``pip install "bimgame[ray]"``;
+            workers must have bimgame installed, results come back to this process, which writes
+            every file).
+        ray_address: a Ray cluster to connect to (``ray.init(address=...)``); None starts Ray
+            locally with ``num_cpus=workers``. An already initialised Ray is used as is.
+        progress: show a progress bar (episodes done, success so far, ETA) on stderr.
+        max_steps: time limit per episode (default: the task's registered limit).
+    """
+    if getattr(multiprocessing.current_process(), "_inheriting", False):
+        raise RuntimeError(f"generate_dataset was called while a worker process was starting; {MAIN_GUARD}")
+    out_dir = Path(out_dir).absolute()  # Minari joins relative dataset paths onto its root
+    task_enum = parse_task(task)
+    _check_int("episodes", episodes, minimum=1)
+    _check_int("seed", seed, minimum=0)
+    if not isinstance(config, MPCConfig):
+        raise TypeError(f"config must be an MPCConfig, got {type(config).__name__}")
+    if workers is None:
+        workers = os.cpu_count() or 1
+    _check_int("workers", workers, minimum=1)
+    if backend not in BACKENDS:
+        raise ValueError(f"unknown backend {backend!r}; allowed: {', '.join(BACKENDS)}")
+    if ray_address is not None and backend != "ray":
+        raise ValueError(f"ray_address is only used with backend='ray' (got backend={backend!r})")
+    if max_steps is not None:
+        _check_int("max_steps", max_steps, minimum=1)
+    if not isinstance(progress, bool):
+        raise TypeError(f"progress must be True or False, got {progress!r}")
+    if backend == "ray":
+        import_ray()  # fail before touching the disk
+    config = dataclasses.replace(config, nthread=1)
+    manifest = _manifest(task_enum, int(episodes), int(seed), config, max_steps)
+
+    _prepare_out_dir(out_dir, manifest)
+    with _locked(out_dir):
+        marker_path = out_dir / MARKER_NAME
+        if marker_path.exists():
+            try:
+                _verify(out_dir, manifest, hashes=True)
+                return out_dir
+            except DatasetError as error:  # repair: regenerate what is damaged, rebuild
+                warnings.warn(f"{out_dir}: {error}; repairing", stacklevel=2)
+                marker_path.unlink()
+        _remove_stale_temporaries(out_dir)
+
+        episodes_dir = out_dir / EPISODES_DIR
+        episodes_dir.mkdir(exist_ok=True)
+        done_success: list[bool] = []
+        todo: list[int] = []
+        for index in range(episodes):
+            path = _episode_path(out_dir, index)
+            if path.exists():
+                try:
+                    done_success.append(bool(_read_episode(path, index, episode_seed(seed, index))["success"]))
+                    continue
+                except DatasetError as error:
+                    warnings.warn(f"{error}; generating episode {index} again", stacklevel=2)
+            todo.append(index)
+
+        if todo:
+            with episode_progress(progress, f"expert on {task_enum.value}", episodes,
+                                  len(done_success), sum(done_success)) as update:
+                for index, episode, _ in expert_episodes(task_enum.value, todo, int(seed), config,
+                                                         max_steps=max_steps, workers=workers,
+                                                         backend=backend, ray_address=ray_address):
+                    atomic_write_bytes(_episode_path(out_dir, index), _episode_bytes(index, episode))
+                    update(bool(episode["success"]))
+
+        _build_minari(out_dir, manifest)
+    return out_dir
+
+
+def _manifest(task: Task, episodes: int, seed: int, config: MPCConfig, max_steps: int | None) -> dict:
+    import minari
+
+    import bimgame
+
+    return {
+        "format": FORMAT_NAME,
+        "format_version": FORMAT_VERSION,
+        "task": task.value,
+        "episodes": episodes,
+        "seed": seed,
+        "max_steps": max_steps,
+        "mpc_config": dataclasses.asdict(config),
+        "bimgame_version": bimgame.__version__,
+        "dataset_id": dataset_id_for(task),
+        "env_id": f"BiMGame/{task.value}-v0",
+        "minari_version": minari.__version__,
+    }
+
+
+# The fields that decide the episodes' content: a resumed run must match them.
+_MANIFEST_KEYS = ("format_version", "task", "episodes", "seed", "max_steps", "mpc_config", "bimgame_version")
+
+
+def _prepare_out_dir(out_dir: Path, manifest: dict) -> None:
+    """Create ``out_dir`` with its manifest, or check it is this run's; never touch anything else."""
+    if out_dir.exists() and not out_dir.is_dir():
+        raise NotADirectoryError(f"out_dir {out_dir} exists and is not a directory")
+    manifest_path = out_dir / MANIFEST_NAME
+    if manifest_path.exists():
+        existing = _read_manifest(out_dir, error=FileExistsError)
+        differences = [f"{key}: {existing.get(key)!r} there, {manifest[key]!r} now"
+                       for key in _MANIFEST_KEYS if existing.get(key) != manifest[key]]
+        if differences:
+            raise ValueError(
+                f"{out_dir} holds a generation run with different arguments ({'; '.join(differences)}); "
+                "use another directory, or the same arguments to resume or finish that run")
+        return
+    if out_dir.exists():
+        found = sorted(p.name + ("/" if p.is_dir() else "") for p in out_dir.iterdir()
+                       if not _is_own_temporary(p.name))
+        if found:
+            shown = ", ".join(repr(name) for name in found[:5]) + (", …" if len(found) > 5 else "")
+            raise FileExistsError(
+                f"out_dir {out_dir} is not empty and is not a bimgame generation run (no {MANIFEST_NAME}; "
+                f"found {len(found)} entries: {shown}); nothing was changed. Use a new or empty directory.")
+    atomic_write_bytes(manifest_path, (json.dumps(manifest, indent=2) + "\n").encode())
+
+
+def _is_own_temporary(name: str) -> bool:
+    return name.startswith(f".{MANIFEST_NAME}.") and name.endswith(".tmp")
+
+
+def _read_manifest(out_dir: Path, error: type[Exception] = DatasetError) -> dict:
+    path = out_dir / MANIFEST_NAME
+    try:
+        manifest = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise error(f"{out_dir} is not a bimgame dataset directory (no {MANIFEST_NAME})") from None
+    except (OSError, ValueError) as exc:
+        raise error(f"{path} cannot be read as a generation manifest ({exc})") from None
+    if not isinstance(manifest, dict) or manifest.get("format") != FORMAT_NAME:
+        raise error(f"{path} is not a bimgame generation manifest (format is not {FORMAT_NAME!r}); "
+                    "nothing was changed")
+    if manifest.get("format_version") != FORMAT_VERSION:
+        raise error(f"{path} has format version {manifest.get('format_version')!r}; this bimgame "
+                    f"reads version {FORMAT_VERSION}")
+    return manifest
+
+
+def _locked(out_dir: Path):
+    """Hold an exclusive lock on ``out_dir`` (released by the OS even if the process is killed)."""
+    return exclusive_lock(out_dir / LOCK_NAME, f"another process is generating into {out_dir}; wait for it to finish")
+
+
+def _remove_stale_temporaries(out_dir: Path) -> None:
+    """Leftovers of a killed run inside our own directory: partial builds and temporary files."""
+    for path in out_dir.glob(f"{_BUILD_PREFIX}*"):
+        shutil.rmtree(path, ignore_errors=True)
+    for path in (out_dir / EPISODES_DIR).glob(".episode_*.tmp"):
+        path.unlink(missing_ok=True)
+
+
+def _episode_path(out_dir: Path, index: int) -> Path:
+    return out_dir / EPISODES_DIR / f"episode_{index:06d}.npz"
+
+
+def _episode_bytes(index: int, episode: dict[str, np.ndarray]) -> bytes:
+    buffer = io.BytesIO()
+    np.savez(buffer, index=np.int64(index), **{key: episode[key] for key in _EPISODE_KEYS})
+    return buffer.getvalue()
+
+
+def _read_episode(path: Path, index: int, expected_seed: int) -> dict[str, np.ndarray]:
+    """An episode file's arrays, checked for completeness and consistency (else DatasetError)."""
+    try:
+        with open(path, "rb") as handle, np.load(handle, allow_pickle=False) as archive:
+            data = {key: archive[key] for key in archive.files}
+    except Exception as exc:  # zipfile.BadZipFile, EOFError, ValueError, OSError …
+        raise DatasetError(f"episode file {path} is unreadable ({type(exc).__name__}: {exc})") from None
+    missing = [key for key in (*_EPISODE_KEYS, "index") if key not in data]
+    if missing:
+        raise DatasetError(f"episode file {path} lacks {', '.join(missing)}")
+    if int(data["index"]) != index or int(data["seed"]) != expected_seed:
+        raise DatasetError(f"episode file {path} holds episode {int(data['index'])} with seed "
+                           f"{int(data['seed'])}, expected episode {index} with seed {expected_seed}")
+    steps = len(data["actions"])
+    ends = data["terminations"] | data["truncations"]
+    if (steps < 1 or any(len(data[k]) != steps for k in ("rewards", "terminations", "truncations"))
+            or any(len(data[k]) != steps + 1 for k in ("observations", "sim_states", "channels"))
+            or not ends[-1] or ends[:-1].any()
+            or data["actions"].min() < 0 or data["actions"].max() > 4):
+        raise DatasetError(f"episode file {path} is inconsistent (lengths, episode end or actions)")
+    return data
+
+
+# ------------------------------------------------------------------------------ Minari building
+def _build_minari(out_dir: Path, manifest: dict) -> None:
+    """Build the Minari dataset from the episode files in a temporary datasets root, move it into
+    place, then write the COMPLETE marker (the last step)."""
+    import gymnasium as gym
+    import minari
+    from minari.data_collector import EpisodeBuffer
+
+    import bimgame  # noqa: F401  (registers the env ids)
+
+    episodes, seed = manifest["episodes"], manifest["seed"]
+    content = hashlib.sha256()
+    totals = {"steps": 0, "successes": 0}
+
+    def buffers(indices: Iterable[int]) -> list:
+        chunk = []
+        for index in indices:
+            data = _read_episode(_episode_path(out_dir, index), index, episode_seed(seed, index))
+            _hash_arrays(content, data)
+            totals["steps"] += len(data["actions"])
+            totals["successes"] += bool(data["success"])
+            chunk.append(EpisodeBuffer(
+                id=index, seed=int(data["seed"]), observations=data["observations"],
+                actions=data["actions"], rewards=data["rewards"], terminations=data["terminations"],
+                truncations=data["truncations"],
+                infos={"sim_state": data["sim_states"], "channel": data["channels"]}))
+        return chunk
+
+    kwargs: dict[str, Any] = {"obs_mode": "state"}
+    if manifest["max_steps"] is not None:
+        kwargs["max_episode_steps"] = manifest["max_steps"]
+    env = gym.make(manifest["env_id"], **kwargs)
+    env.spec.to_json()  # raises if the spec cannot be stored
+    build_root = Path(tempfile.mkdtemp(prefix=_BUILD_PREFIX, dir=out_dir))
+    try:
+        with environment(MINARI_DATASETS_PATH=str(build_root)), warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message=r"`(code_permalink|author|author_email)` is set to None")
+            dataset = minari.create_dataset_from_buffers(
+                dataset_id=manifest["dataset_id"], buffer=buffers(range(min(_BUILD_CHUNK, episodes))),
+                env=env, eval_env=env.spec, algorithm_name=ALGORITHM_NAME,
+                description=_description(manifest), data_format="hdf5",
+                requirements=[f"bimgame=={manifest['bimgame_version']}"])
+            for start in range(_BUILD_CHUNK, episodes, _BUILD_CHUNK):
+                dataset.update_dataset_from_buffer(buffers(range(start, min(start + _BUILD_CHUNK, episodes))))
+        final = out_dir / MINARI_DIR
+        if final.exists():  # an earlier build of this run that never got its marker
+            shutil.rmtree(final)
+        os.replace(build_root, final)
+    finally:
+        env.close()
+        shutil.rmtree(build_root, ignore_errors=True)
+
+    files = {}
+    for path in [_episode_path(out_dir, i) for i in range(episodes)] + sorted(
+            p for p in (out_dir / MINARI_DIR).rglob("*") if p.is_file()):
+        files[path.relative_to(out_dir).as_posix()] = {"size": path.stat().st_size, "sha256": _file_sha256(path)}
+    marker = {
+        "format": FORMAT_NAME,
+        "format_version": FORMAT_VERSION,
+        "dataset_id": manifest["dataset_id"],
+        "episodes": episodes,
+        "steps": totals["steps"],
+        "successes": totals["successes"],
+        "content_sha256": content.hexdigest(),
+        "files": files,
+    }
+    atomic_write_bytes(out_dir / MARKER_NAME, (json.dumps(marker, indent=1) + "\n").encode())
+
+
+def _description(manifest: dict) -> str:
+    limit = manifest["max_steps"] if manifest["max_steps"] is not None else "the task's registered limit"
+    return (f"Expert trajectories of bimgame's random-shooting MPC expert ({ALGORITHM_NAME}, acting on "
+            f"simulator states) on {manifest['env_id']}: {manifest['episodes']} episodes; episode i starts "
+            f"from reset(seed=bimgame.expert.episode_seed({manifest['seed']}, i)); time limit {limit} steps; "
+            f"MPC config {json.dumps(manifest['mpc_config'])}; bimgame {manifest['bimgame_version']}. "
+            "Observations are state observations; infos['sim_state'] (T+1, S) MuJoCo physics states and "
+            "infos['channel'] (T+1, n) task channels re-render pixel observations exactly "
+            "(bimgame.data.iterate_sequences(..., obs='pixels')).")
+
+
+def _hash_arrays(digest, data: dict[str, np.ndarray]) -> None:
+    """Feed an episode's arrays (names, dtypes, shapes, bytes) to a hash: identical episodes hash
+    identically however their files were written."""
+    for key in _EPISODE_KEYS:
+        array = np.ascontiguousarray(data[key])
+        digest.update(f"{key}:{array.dtype.str}:{array.shape};".encode())
+        digest.update(array.tobytes())
+
+
+def _file_sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+# ------------------------------------------------------------------------------------- loading
+def _data_path(out_dir: Path, dataset_id: str) -> Path:
+    return out_dir / MINARI_DIR / dataset_id / "data"
+
+
+def _verify(out_dir: Path, manifest: dict, *, hashes: bool) -> dict:
+    """The COMPLETE marker, after checking it and every file it lists (else DatasetError)."""
+    marker_path = out_dir / MARKER_NAME
+    episodes = manifest["episodes"]
+    if not marker_path.exists():
+        present = sum(_episode_path(out_dir, i).exists() for i in range(episodes))
+        raise DatasetError(
+            f"dataset in {out_dir} is incomplete ({present} of {episodes} episode files, no {MARKER_NAME} "
+            "marker): its generation was interrupted or is still running; run the generation again with "
+            "the same arguments to finish it")
+    try:
+        marker = json.loads(marker_path.read_text())
+        files = marker["files"]
+        if not isinstance(files, dict):
+            raise TypeError("files is not a mapping")
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise DatasetError(f"{marker_path} is damaged ({exc})") from None
+    if marker.get("episodes") != episodes or marker.get("dataset_id") != manifest["dataset_id"]:
+        raise DatasetError(f"{marker_path} describes {marker.get('episodes')!r} episodes of "
+                           f"{marker.get('dataset_id')!r}, the manifest {episodes} of {manifest['dataset_id']!r}")
+    expected = {_episode_path(out_dir, i).relative_to(out_dir).as_posix() for i in range(episodes)}
+    expected |= {(Path(MINARI_DIR) / manifest["dataset_id"] / "data" / name).as_posix()
+                 for name in ("metadata.json", "main_data.hdf5")}
+    unlisted = sorted(expected - set(files))
+    if unlisted:
+        raise DatasetError(f"{marker_path} does not cover {', '.join(unlisted[:3])}")
+    for name, entry in files.items():
+        path = out_dir / name
+        if not path.is_file():
+            raise DatasetError(f"dataset in {out_dir} is missing {name}")
+        size = path.stat().st_size
+        if size != entry["size"]:
+            raise DatasetError(f"{path} has {size} bytes, {entry['size']} when the dataset was completed "
+                               "(truncated or modified)")
+        if hashes and _file_sha256(path) != entry["sha256"]:
+            raise DatasetError(f"{path} differs from the file the dataset was completed with "
+                               "(SHA-256 mismatch: corrupted or modified)")
+    return marker
+
+
+def load_dataset(out_dir: str | Path, *, verify: bool = True):
+    """Open a finished dataset directory as a ``minari.MinariDataset``.
+
+    Checks the COMPLETE marker, the episode count and every file's size, and with ``verify`` (the
+    default) every file's SHA-256; an incomplete, truncated or modified dataset raises
+    :class:`DatasetError` naming the problem. (Pointing ``MINARI_DATASETS_PATH`` at
+    ``out_dir/minari`` also lets ``minari.load_dataset(dataset_id)`` open it, without these checks.)
+    """
+    from minari import MinariDataset
+
+    out_dir = Path(out_dir).absolute()  # Minari joins relative dataset paths onto its root
+    if not out_dir.is_dir():
+        raise DatasetError(f"dataset directory {out_dir} does not exist" if not out_dir.exists()
+                           else f"{out_dir} is not a directory")
+    manifest = _read_manifest(out_dir)
+    marker = _verify(out_dir, manifest, hashes=verify)
+    try:
+        dataset = MinariDataset(_data_path(out_dir, manifest["dataset_id"]))
+    except Exception as exc:
+        raise DatasetError(f"Minari cannot open the dataset in {out_dir} ({type(exc).__name__}: {exc})") from None
+    if dataset.total_episodes != marker["episodes"] or dataset.total_steps != marker["steps"]:
+        raise DatasetError(f"the Minari dataset in {out_dir} has {dataset.total_episodes} episodes and "
+                           f"{dataset.total_steps} steps, the marker {marker['episodes']} and {marker['steps']}")
+    return dataset
+
+
+def dataset_manifest(out_dir: str | Path) -> dict[str, Any]:
+    """What a dataset directory holds (its ``generation.json``: task, episodes, seed, MPC settings)."""
+    return _read_manifest(Path(out_dir))
+
+
+def dataset_summary(out_dir: str | Path) -> dict[str, Any]:
+    """Counts and disk use of a finished dataset (from its marker, without re-hashing): episodes,
+    steps, success rate, mean length, bytes of the episode files and of the Minari dataset, and
+    both per 1000 steps."""
+    out_dir = Path(out_dir).absolute()  # Minari joins relative dataset paths onto its root
+    manifest = _read_manifest(out_dir)
+    marker = _verify(out_dir, manifest, hashes=False)
+    sizes = {"episodes": 0, "minari": 0}
+    for name, entry in marker["files"].items():
+        sizes["minari" if name.startswith(MINARI_DIR + "/") else "episodes"] += entry["size"]
+    steps = marker["steps"]
+    return {
+        "dataset_id": marker["dataset_id"],
+        "episodes": marker["episodes"],
+        "steps": steps,
+        "success_rate": marker["successes"] / marker["episodes"],
+        "mean_length": steps / marker["episodes"],
+        "content_sha256": marker["content_sha256"],
+        "bytes_episode_files": sizes["episodes"],
+        "bytes_minari": sizes["minari"],
+        "bytes_per_1000_steps_episode_files": 1000 * sizes["episodes"] / steps,
+        "bytes_per_1000_steps_minari": 1000 * sizes["minari"] / steps,
+    }
+
+
+# ---------------------------------------------------------------------------- pre-training view
+def iterate_sequences(dataset_or_dir, *, obs: str = "state", gamma: float = 0.99,
+                      ) -> Iterator[dict[str, Any]]:
+    """Whole episodes for sequence models (an LSTM sees each episode from its start).
+
+    ``dataset_or_dir``: a ``MinariDataset`` (e.g. from :func:`load_dataset`) or a dataset directory
+    (opened with :func:`load_dataset`). Yields one dict per episode of T steps:
+
+    - ``obs`` (T, …): the observation each action was taken in — ``"state"``: (T, 7) float32 from
+      the stored observations; ``"pixels"``: (T, 1, 84, 84) uint8 re-rendered from the stored
+      physics states (identical to the env's own pixel observations);
+    - ``actions`` (T,) int64; ``rewards`` (T,) float32;
+    - ``prev_actions`` (T,) int64: the action before each step, :data:`NO_ACTION` (-1, not a valid
+      action) at t=0; ``prev_rewards`` (T,) float32: the reward before each step, 0 at t=0;
+    - ``returns`` (T,) float32: discounted returns-to-go ``G_t = r_t + gamma * G_{t+1}`` with
+      ``G_T = 0`` — exact for terminated episodes; for truncated ones the tail beyond the time limit
+      is also taken as 0 (check ``truncated``);
+    - ``tilt`` (T, 2) float32: the board tilt (rad) when each action was taken;
+    - ``channels`` (T+1, n) int64: each marble's channel before and after every step (what a
+      different task's rewards are computed from, see :func:`bimgame.pretrain.relabel`);
+    - ``terminated``, ``truncated``: how the episode ended; ``id``: its index in the dataset.
+    """
+    if obs not in ("state", "pixels"):
+        raise ValueError(f"unknown obs {obs!r}; allowed: 'state', 'pixels'")
+    if not (isinstance(gamma, (int, float)) and not isinstance(gamma, bool) and 0.0 <= gamma <= 1.0):
+        raise ValueError(f"gamma must be a number in [0, 1], got {gamma!r}")
+    if isinstance(dataset_or_dir, (str, os.PathLike)):
+        dataset = load_dataset(dataset_or_dir)
+    elif hasattr(dataset_or_dir, "iterate_episodes"):
+        dataset = dataset_or_dir
+    else:
+        raise TypeError(f"expected a MinariDataset or a dataset directory, got {type(dataset_or_dir).__name__}")
+    observer = None
+    for episode in dataset.iterate_episodes():
+        steps = len(episode.rewards)
+        states = np.asarray(episode.observations[:steps], dtype=np.float32)
+        infos = episode.infos or {}
+        if obs == "pixels":
+            if "sim_state" not in infos or "channel" not in infos:
+                raise ValueError(f"episode {episode.id} has no infos['sim_state'] / infos['channel'] "
+                                 "to render pixels from (not a bimgame expert dataset?)")
+            if observer is None:
+                observer = _pixel_observer(infos["channel"].shape[1])
+            frames = observer(np.asarray(infos["sim_state"][:steps], dtype=np.float64),
+                              np.asarray(infos["channel"][:steps]))
+        else:
+            frames = states
+        actions = np.asarray(episode.actions, dtype=np.int64)
+        rewards = np.asarray(episode.rewards, dtype=np.float64)
+        n_marbles = (states.shape[1] - 2) // 5  # [x, y, vx, vy] * n, tilt_x, tilt_y, channel * n
+        if "channel" in infos:
+            channels = np.asarray(infos["channel"][:steps + 1], dtype=np.int64)
+        else:
+            channels = np.rint(np.asarray(episode.observations[:steps + 1])[:, 4 * n_marbles + 2:]).astype(np.int64)
+        yield {
+            "obs": frames,
+            "actions": actions,
+            "rewards": rewards.astype(np.float32),
+            "prev_actions": previous_values(actions, NO_ACTION),
+            "prev_rewards": previous_values(rewards.astype(np.float32), 0.0),
+            "returns": discounted_returns(rewards, gamma).astype(np.float32),
+            "tilt": states[:, 4 * n_marbles:4 * n_marbles + 2].copy(),
+            "channels": channels,
+            "terminated": bool(episode.terminations[-1]),
+            "truncated": bool(episode.truncations[-1]),
+            "id": int(episode.id),
+        }
+
+
+def previous_values(values: np.ndarray, first: Any) -> np.ndarray:
+    """``values`` one step later: at each step, the value of the step before (``first`` at t=0) —
+    the previous-action and previous-reward inputs of the recurrent networks."""
+    out = np.empty_like(values)
+    out[:1] = first
+    out[1:] = values[:-1]
+    return out
+
+
+def discounted_returns(rewards: np.ndarray, gamma: float) -> np.ndarray:
+    """Returns-to-go ``G_t = r_t + gamma * G_{t+1}``, ``G_T = 0`` (float64)."""
+    returns = np.empty(len(rewards), dtype=np.float64)
+    running = 0.0
+    for t in range(len(rewards) - 1, -1, -1):
+        running = float(rewards[t]) + gamma * running
+        returns[t] = running
+    return returns
+
+
+def _pixel_observer(n_marbles: int):
+    from bimgame.sim.maze import MazeSpec
+    from bimgame.envs.observe import Observer
+    from bimgame.sim.physics import MazeSim
+
+    maze = MazeSpec.merl()
+    sim = MazeSim(maze, n_marbles=n_marbles)
+    layout = sim.layout
+    sim.close()
+    return Observer(maze, n_marbles, "pixels", layout=layout)
+
+
+# ------------------------------------------------------------------------------ command line
+def add_generate_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """Add the ``bimgame generate`` options to ``parser`` (a sub-parser; the MPC expert's own
+    flags are added by the command line, shared with ``expert-eval``); returns it."""
+    parser.add_argument("--task", choices=[t.value for t in Task], default="FULL", type=str.upper)
+    parser.add_argument("--episodes", type=positive_int, default=500)
+    parser.add_argument("--out", type=Path, required=True,
+                        help="the run's directory (new, empty, or this run's to resume it)")
+    parser.add_argument("--seed", type=non_negative_int, default=0, help="run seed (default 0)")
+    parser.add_argument("--workers", type=positive_int, default=None,
+                        help="parallel episodes (default: the number of CPUs)")
+    parser.add_argument("--backend", choices=BACKENDS, default="local")
+    parser.add_argument("--ray-address", default=None,
+                        help="Ray cluster address (backend ray; default: start Ray locally)")
+    parser.add_argument("--max-steps", type=positive_int, default=None,
+                        help="time limit per episode (default: the task's registered limit)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    return parser
+
+
+def run_generate(args: argparse.Namespace, config: MPCConfig) -> int:
+    """``bimgame generate``: generate (or resume, or verify) a dataset with the expert ``config``
+    and print a summary."""
+    start = time.perf_counter()
+    try:
+        out = generate_dataset(args.out, args.task, args.episodes, seed=args.seed, config=config,
+                               workers=args.workers, backend=args.backend, ray_address=args.ray_address,
+                               progress=not args.no_progress, max_steps=args.max_steps)
+    except ImportError as error:
+        print(f"bimgame generate: error: {error}", file=sys.stderr)
+        return 2
+    seconds = time.perf_counter() - start
+    summary = dataset_summary(out)
+    print(f"{summary['dataset_id']} in {out}: {summary['episodes']} episodes, {summary['steps']} steps, "
+          f"success {summary['success_rate']:.0%}, mean length {summary['mean_length']:.1f}, "
+          f"{seconds:.1f} s")
+    print(f"disk: Minari (hdf5) {_megabytes(summary['bytes_minari'])} "
+          f"({summary['bytes_per_1000_steps_minari'] / 1e3:.0f} kB per 1000 steps), episode files "
+          f"{_megabytes(summary['bytes_episode_files'])} "
+          f"({summary['bytes_per_1000_steps_episode_files'] / 1e3:.0f} kB per 1000 steps)")
+    print(f"load with bimgame.data.load_dataset({str(out)!r}), or minari.load_dataset("
+          f"{summary['dataset_id']!r}) with MINARI_DATASETS_PATH={out / MINARI_DIR}")
+    return 0
+
+
+def _megabytes(size: int) -> str:
+    return f"{size / 1e6:.1f} MB"
+
+
+def _check_int(name: str, value: Any, *, minimum: int) -> None:
+    if not (isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_)) and value >= minimum):
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+

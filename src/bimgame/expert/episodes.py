@@ -1,0 +1,173 @@
+"""Expert episodes run in parallel — local worker processes or Ray tasks — and the progress bar
+shown while they run. Dataset generation (``data.py``) and expert evaluation (``expert_eval.py``)
+both run episodes through here.
+
+Episode ``i`` of a run is ``run_expert_episode(task, episode_seed(seed, i), config)``: it depends
+on the run seed and its index only, so results do not depend on the backend, the number of
+workers or the order in which episodes finish.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import multiprocessing
+import os
+import time
+from collections.abc import Iterator
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from typing import Callable
+
+import numpy as np
+
+from bimgame.expert.mpc import MPCConfig, episode_seed, run_expert_episode
+
+__all__ = ["BACKENDS", "MAIN_GUARD", "expert_episodes", "episode_progress", "environment", "import_ray"]
+
+BACKENDS = ("local", "ray")
+_THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMEXPR_NUM_THREADS")
+MAIN_GUARD = ("workers are started with multiprocessing's 'spawn' method, which imports the main "
+              "script again: put the call under `if __name__ == \"__main__\":` (or use workers=1)")
+
+#: What a worker returns: (episode index, the episode's arrays, seconds it took).
+EpisodeOutcome = tuple[int, dict[str, np.ndarray], float]
+
+
+def _episode_job(task: str, index: int, seed: int, config: MPCConfig, max_steps: int | None) -> EpisodeOutcome:
+    start = time.perf_counter()
+    episode = run_expert_episode(task, episode_seed(seed, index), config, max_steps=max_steps)
+    return index, episode, time.perf_counter() - start
+
+
+def expert_episodes(task: str, indices: list[int], seed: int, config: MPCConfig, *,
+                    max_steps: int | None = None, workers: int = 1, backend: str = "local",
+                    ray_address: str | None = None) -> Iterator[EpisodeOutcome]:
+    """Expert episodes ``indices`` of the run ``seed``, yielded as they finish.
+
+    ``config.nthread`` is forced to 1 (each worker plans on one thread; the actions do not
+    change). ``backend="local"`` runs ``workers`` processes, started with "spawn" (fresh
+    interpreters, no fork of a process with threads, single-threaded numerics) — a script calling
+    this with workers > 1 needs the ``if __name__ == "__main__":`` guard; 1 runs the episodes in
+    this process. ``backend="ray"`` runs Ray tasks of one CPU each, on ``ray_address`` or a local
+    Ray started with ``num_cpus=workers`` (an already initialised Ray is used as is).
+    """
+    if not (isinstance(workers, (int, np.integer)) and not isinstance(workers, bool) and workers >= 1):
+        raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
+    if backend not in BACKENDS:
+        raise ValueError(f"unknown backend {backend!r}; allowed: {', '.join(BACKENDS)}")
+    config = dataclasses.replace(config, nthread=1)
+    if backend == "ray":
+        yield from _ray_episodes(task, indices, seed, config, max_steps, workers, ray_address)
+    else:
+        yield from _local_episodes(task, indices, seed, config, max_steps, workers)
+
+
+@contextlib.contextmanager
+def environment(**values: str) -> Iterator[None]:
+    """Set environment variables for the duration (inherited by processes started meanwhile)."""
+    saved = {key: os.environ.get(key) for key in values}
+    os.environ.update(values)
+    try:
+        yield
+    finally:
+        for key, value in saved.items():
+            if value is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = value
+
+
+def _local_episodes(task: str, todo: list[int], seed: int, config: MPCConfig, max_steps: int | None,
+                    workers: int) -> Iterator[EpisodeOutcome]:
+    if workers == 1 or len(todo) == 1:
+        for index in todo:
+            yield _episode_job(task, index, seed, config, max_steps)
+        return
+    context = multiprocessing.get_context("spawn")
+    with environment(**{name: "1" for name in _THREAD_VARS}):
+        pool = ProcessPoolExecutor(max_workers=min(workers, len(todo)), mp_context=context)
+        try:
+            pending = {pool.submit(_episode_job, task, index, seed, config, max_steps) for index in todo}
+            while pending:
+                finished, pending = wait(pending, return_when=FIRST_COMPLETED)
+                for future in finished:
+                    yield future.result()
+        except BrokenProcessPool as error:
+            pool.shutdown(wait=False, cancel_futures=True)
+            raise RuntimeError(f"a worker process died ({error}). If this runs in a script, "
+                               f"{MAIN_GUARD}") from error
+        except BaseException:
+            pool.shutdown(wait=False, cancel_futures=True)
+            raise
+        pool.shutdown(wait=True)
+
+
+def import_ray():
+    """The ``ray`` module, or an ImportError that says how to install it."""
+    try:
+        import ray
+    except ImportError:
+        raise ImportError('backend="ray" needs Ray, which is not installed: pip install "bimgame[ray]" '
+                          '(or pip install ray)') from None
+    return ray
+
+
+def _ray_episodes(task: str, todo: list[int], seed: int, config: MPCConfig, max_steps: int | None,
+                  workers: int, ray_address: str | None) -> Iterator[EpisodeOutcome]:
+    ray = import_ray()
+    started = False
+    if not ray.is_initialized():
+        if ray_address is None:
+            ray.init(num_cpus=workers, include_dashboard=False)
+        else:
+            ray.init(address=ray_address)
+        started = True
+    try:
+        job = ray.remote(num_cpus=1)(_episode_job)
+        pending = [job.remote(task, index, seed, config, max_steps) for index in todo]
+        try:
+            while pending:
+                finished, pending = ray.wait(pending, num_returns=1)
+                yield ray.get(finished[0])
+        except BaseException:
+            for ref in pending:
+                ray.cancel(ref)
+            raise
+    finally:
+        if started:
+            ray.shutdown()
+
+
+@contextlib.contextmanager
+def episode_progress(enabled: bool, description: str, total: int, done: int = 0,
+                     successes: int = 0, transient: bool = False) -> Iterator[Callable[[bool], None]]:
+    """A rich progress bar on stderr (episodes done, success so far, elapsed, ETA); yields
+    ``update(success)`` to call once per finished episode. ``done``/``successes`` count episodes
+    finished before (a resumed run); ``transient`` removes the bar when done."""
+    counts = {"done": done, "success": successes}
+
+    def text() -> str:
+        return f"{counts['success'] / counts['done']:.0%}" if counts["done"] else "-"
+
+    if not enabled:
+        def update(success: bool) -> None:
+            counts["done"] += 1
+            counts["success"] += success
+        yield update
+        return
+    from rich.console import Console
+    from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn,
+                               TimeRemainingColumn)
+
+    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+               TextColumn("success {task.fields[success]}"), TimeElapsedColumn(), TextColumn("ETA"),
+               TimeRemainingColumn())
+    with Progress(*columns, console=Console(stderr=True), transient=transient) as bar:
+        task_id = bar.add_task(description, total=total, completed=done, success=text())
+
+        def update(success: bool) -> None:
+            counts["done"] += 1
+            counts["success"] += success
+            bar.update(task_id, advance=1, success=text())
+        yield update

@@ -1,0 +1,748 @@
+"""A3C: asynchronous advantage actor-critic (Mnih et al., "Asynchronous Methods for Deep
+Reinforcement Learning", ICML 2016) with a recurrent network, as the BiMGame paper trained it.
+
+``workers`` processes each own a copy of the environment (``envs_per_worker`` of them, stepped as
+one batch) and a local copy of the network. Each repeatedly
+
+1. copies the shared weights into its local network,
+2. acts for ``n_steps`` steps (one batched no-grad forward per step),
+3. computes n-step returns (or GAE), the policy-gradient, value and entropy losses over the segment
+   — unrolling the LSTM from the state it had at the segment's start, so the gradient is exactly
+   that of the policy that acted,
+4. clips the gradient norm and applies it to the *shared* weights with the *shared* optimiser
+   statistics, without locks (Hogwild).
+
+With ``envs_per_worker=1`` this is exactly the paper's A3C. A separate evaluator process
+periodically runs greedy and sampled episodes with the shared weights. The parent process only
+orchestrates: it logs what workers report, shows progress, writes checkpoints, and stops everything
+on Ctrl-C, on a non-finite loss, or when the step budget is spent.
+
+Why our own implementation: no maintained library ships recurrent A3C for PyTorch (RLlib removed
+A3C; Stable-Baselines3 has no recurrent A2C).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import multiprocessing as std_mp
+import os
+import queue as queue_module
+import signal
+import time
+import traceback
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import torch
+import torch.multiprocessing as mp
+
+from bimgame.learn.actor import RecurrentActor, evaluate_network, tilt_input
+from bimgame.learn.curves import plot_run
+from bimgame.envs.env import MAX_EPISODE_STEPS
+from bimgame.sim.maze import MazeSpec
+from bimgame.learn.nets import NetConfig, RecurrentActorCritic, build_network, maze_background, state_obs_scale
+from bimgame.envs.observe import OBS_MODES
+from bimgame.learn.runs import (CHECKPOINT, CONFIG, KIND_VALUE, MetricLog, load_checkpoint, load_weights, run_kind,
+                          save_checkpoint, torch_threads, write_json)
+from bimgame.util.settings import from_dict, require_int
+from bimgame.sim.tasks import Task, parse_task
+from bimgame.envs.vector import BallInMazeVectorEnv
+
+__all__ = ["A3CConfig", "TrainingError", "TrainResult", "train", "network_for", "make_optimizer",
+           "OPTIMIZERS", "EnvWrapper", "net_config_for", "a3c_segment_loss", "apply_update", "shared_optimizer_state",
+           "load_run_network", "evaluate_greedy_and_sampled", "evaluation_seed"]
+
+OPTIMIZERS = ("rmsprop", "adam")
+#: A callable that wraps a worker's vector env (e.g. reward shaping). It is sent to spawned worker
+#: processes, so it must be picklable (a module-level function or an instance of a module-level class).
+EnvWrapper = Callable[[BallInMazeVectorEnv], Any]
+
+
+class TrainingError(RuntimeError):
+    """Training stopped because something went wrong (a non-finite loss, a crashed worker)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class A3CConfig:
+    """Settings of an A3C run. Learning defaults follow the A3C paper and its widely used reference
+    implementations (OpenAI Baselines' A2C settings for the loss, RMSProp with shared statistics)."""
+
+    task: str = "STG1"
+    """FULL, STG1 … STG4."""
+    obs: str = "pixels"
+    """Observation: ``pixels`` (84×84, the paper's Conv-Conv-FC-LSTM) or ``state`` (MLP-LSTM)."""
+    steps: int = 5_000_000
+    """Environment steps to train for (all workers together)."""
+    workers: int = 2
+    """Worker processes (one thread each)."""
+    envs_per_worker: int = 16
+    """Environments per worker, stepped as one batch (one forward pass acts for all); 1 is exactly
+    the paper's A3C. Batching is what makes the network affordable on a CPU: one LSTM step costs
+    about the same for 1 environment as for 16."""
+    n_steps: int = 20
+    """t_max: steps per update (n-step returns)."""
+    gamma: float = 0.99
+    gae_lambda: float = 1.0
+    """1.0 gives A3C's n-step returns; below 1, generalised advantage estimation."""
+    lr: float = 7e-4
+    optimizer: str = "rmsprop"
+    """``rmsprop`` (A3C's, statistics shared by all workers) or ``adam`` (also shared)."""
+    rmsprop_alpha: float = 0.99
+    optimizer_eps: float = 1e-5
+    entropy_coef: float = 0.01
+    value_coef: float = 0.5
+    max_grad_norm: float = 0.5
+    """Clip each update's gradient to this global norm (losses are means over the segment)."""
+    seed: int = 0
+    tilt_input: bool = True
+    """Feed the board tilt to the LSTM (see :mod:`bimgame.learn.nets`); False is the paper's exact input."""
+    keypoints: bool = False
+    """Pixels: add spatial soft-argmax keypoints to the conv encoder (see :mod:`bimgame.learn.nets`)."""
+    subtract_background: bool = False
+    """Pixels: subtract the empty-maze frame before the convolutions (see :mod:`bimgame.learn.nets`)."""
+    hidden: int | None = None
+    """LSTM size; None: 256 for pixels (the paper's), 128 for state observations."""
+    features: int | None = None
+    """Encoder output size; None: 256 for pixels (the paper's FC 256), 128 for state observations."""
+    max_episode_steps: int | None = None
+    """Time limit; None uses the task's (STG1 300, STG2 500, STG3 750, STG4/FULL 1000)."""
+    checkpoint_every: int = 100_000
+    """Environment steps between checkpoints (``--resume`` loses at most this many)."""
+    eval_every: int = 100_000
+    """Environment steps between evaluations; 0 disables the evaluator process."""
+    eval_episodes: int = 10
+    """Episodes per evaluation, each greedy and sampled."""
+    log_every: int = 2_000
+    """Environment steps (per worker) between loss reports."""
+
+    def __post_init__(self) -> None:
+        default_size = 256 if self.obs == "pixels" else 128
+        for name in ("hidden", "features"):
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, default_size)
+        try:
+            object.__setattr__(self, "task", parse_task(self.task).value)
+        except ValueError as error:
+            raise ValueError(f"A3CConfig.task: {error}") from None
+        if self.obs not in OBS_MODES:
+            raise ValueError(f"A3CConfig.obs must be one of {OBS_MODES}, got {self.obs!r}")
+        if self.optimizer not in OPTIMIZERS:
+            raise ValueError(f"A3CConfig.optimizer must be one of {OPTIMIZERS}, got {self.optimizer!r}")
+        positive_ints = ("steps", "workers", "envs_per_worker", "n_steps", "hidden", "features",
+                         "checkpoint_every", "eval_episodes", "log_every")
+        for name in positive_ints:
+            require_int("A3CConfig", name, getattr(self, name), 1)
+        if not (isinstance(self.eval_every, int) and self.eval_every >= 0):
+            raise ValueError(f"A3CConfig.eval_every must be an integer >= 0 (0: no evaluator), got {self.eval_every!r}")
+        if self.max_episode_steps is not None and not (isinstance(self.max_episode_steps, int)
+                                                       and self.max_episode_steps >= 1):
+            raise ValueError(f"A3CConfig.max_episode_steps must be None or an integer >= 1, "
+                             f"got {self.max_episode_steps!r}")
+        ranges = {"gamma": (0.0, 1.0), "gae_lambda": (0.0, 1.0), "rmsprop_alpha": (0.0, 1.0)}
+        for name, (low, high) in ranges.items():
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and low <= value <= high):
+                raise ValueError(f"A3CConfig.{name} must be in [{low}, {high}], got {value!r}")
+        for name in ("lr", "optimizer_eps", "max_grad_norm"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"A3CConfig.{name} must be a finite number > 0, got {value!r}")
+        for name in ("entropy_coef", "value_coef"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                raise ValueError(f"A3CConfig.{name} must be a finite number >= 0, got {value!r}")
+
+    @property
+    def time_limit(self) -> int:
+        return self.max_episode_steps or MAX_EPISODE_STEPS[Task(self.task)]
+
+    @property
+    def steps_per_update(self) -> int:
+        return self.n_steps * self.envs_per_worker
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, values: dict[str, Any]) -> A3CConfig:
+        return from_dict(cls, values, "A3C settings")
+
+    # What a resumed run may change without changing what is being learned.
+    RESUMABLE_CHANGES = ("steps", "workers", "checkpoint_every", "eval_every", "eval_episodes", "log_every")
+
+
+def net_config_for(config: A3CConfig, maze: MazeSpec | None = None) -> tuple[NetConfig, dict[str, Any]]:
+    """The network sizes for ``config``'s observations and the fixed inputs to build it with
+    (``obs_scale`` or ``background``, keyword arguments of :func:`~bimgame.nets.build_network`)."""
+    maze = maze or MazeSpec.merl()
+    if config.obs == "pixels":
+        net_config = NetConfig(encoder="conv", obs_shape=(1, 84, 84), features=config.features,
+                               hidden=config.hidden, tilt_input=config.tilt_input, keypoints=config.keypoints,
+                               subtract_background=config.subtract_background)
+        return net_config, {"background": maze_background(maze) if config.subtract_background else None}
+    scale = state_obs_scale(maze)
+    net_config = NetConfig(encoder="mlp", obs_shape=(len(scale),), features=config.features,
+                           hidden=config.hidden, tilt_input=config.tilt_input)
+    return net_config, {"obs_scale": scale}
+
+
+def network_for(config: A3CConfig, maze: MazeSpec | None = None) -> RecurrentActorCritic:
+    """A fresh network shaped for ``config``'s observations."""
+    net_config, inputs = net_config_for(config, maze)
+    return build_network(net_config, seed=config.seed, **inputs)
+
+
+def load_run_network(source: str | Path) -> tuple[RecurrentActorCritic, A3CConfig, int]:
+    """The network of a training run — ``source`` is its directory or a checkpoint file in it —
+    with the checkpoint's weights; returns (network, settings, step)."""
+    source = Path(source)
+    run_dir = source.parent if source.is_file() else source
+    if not (run_dir / CONFIG).is_file():
+        raise ValueError(f"{run_dir} is not a training run (no {CONFIG})")
+    if run_kind(run_dir) == KIND_VALUE:
+        raise ValueError(f"{run_dir} holds a value function (V̂), not a policy; use it with --value-reward")
+    config = A3CConfig.from_dict(json.loads((run_dir / CONFIG).read_text())["a3c"])
+    net = network_for(config)
+    step = load_weights(net, source)
+    return net, config, step
+
+
+def make_optimizer(config: A3CConfig, params) -> torch.optim.Optimizer:
+    if config.optimizer == "rmsprop":
+        return torch.optim.RMSprop(params, lr=config.lr, alpha=config.rmsprop_alpha, eps=config.optimizer_eps)
+    return torch.optim.Adam(params, lr=config.lr, eps=config.optimizer_eps)
+
+
+def shared_optimizer_state(optimizer: torch.optim.Optimizer) -> list[dict[str, torch.Tensor]]:
+    """Create every parameter's optimiser statistics (if not loaded) and move them to shared memory,
+    so all workers update the same statistics (A3C's 'shared RMSProp')."""
+    params = [p for group in optimizer.param_groups for p in group["params"]]
+    if not optimizer.state:
+        # One step with zero gradients creates the statistics without changing any weight (RMSProp
+        # and Adam both move by 0 for a zero gradient); then the step counts are reset to 0.
+        for p in params:
+            p.grad = torch.zeros_like(p)
+        optimizer.step()
+        for p in params:
+            p.grad = None
+            optimizer.state[p]["step"].zero_()
+    states = []
+    for p in params:
+        state = optimizer.state[p]
+        for value in state.values():
+            if torch.is_tensor(value):
+                value.share_memory_()
+        states.append(state)
+    return states
+
+
+def a3c_segment_loss(net: RecurrentActorCritic, segment: dict[str, torch.Tensor], config: A3CConfig,
+                     ) -> tuple[torch.Tensor, dict[str, float]]:
+    """The actor-critic loss of one segment (T steps × B envs), recomputed with gradients.
+
+    ``segment`` holds ``obs``, ``prev_action``, ``prev_reward``, ``tilt`` and ``starts`` for T+1
+    steps (the last is the bootstrap state), ``actions``, ``rewards`` (with γ·V(final observation)
+    already added at time-limit truncations) and ``ends`` (the episode ended after this step) for T
+    steps, and the LSTM state ``h0``/``c0`` at the segment start."""
+    logits, values, _ = net.unroll(segment["obs"], segment["prev_action"], segment["prev_reward"],
+                                   segment.get("tilt"), (segment["h0"], segment["c0"]), segment["starts"])
+    logits, bootstrap, values = logits[:-1], values[-1].detach(), values[:-1]
+    rewards, ends = segment["rewards"], segment["ends"].float()
+    advantages = torch.zeros_like(rewards)
+    next_value, running = bootstrap, torch.zeros_like(bootstrap)
+    detached = values.detach()
+    for t in reversed(range(rewards.shape[0])):
+        not_end = 1.0 - ends[t]
+        delta = rewards[t] + config.gamma * next_value * not_end - detached[t]
+        running = delta + config.gamma * config.gae_lambda * not_end * running
+        advantages[t] = running
+        next_value = detached[t]
+    targets = advantages + detached
+    log_probs = torch.log_softmax(logits, dim=-1)
+    chosen = log_probs.gather(-1, segment["actions"].unsqueeze(-1)).squeeze(-1)
+    entropy = -(log_probs.exp() * log_probs).sum(-1).mean()
+    policy_loss = -(chosen * advantages).mean()
+    value_loss = 0.5 * (targets - values).pow(2).mean()
+    loss = policy_loss + config.value_coef * value_loss - config.entropy_coef * entropy
+    return loss, {"policy_loss": policy_loss.item(), "value_loss": value_loss.item(), "entropy": entropy.item()}
+
+
+def apply_update(local: RecurrentActorCritic, shared_params: list[torch.Tensor], optimizer: torch.optim.Optimizer,
+                 segment: dict[str, torch.Tensor], config: A3CConfig) -> dict[str, float]:
+    """One A3C update: the segment's loss, its gradient (norm clipped) on the local network, applied
+    to the shared weights by the shared optimiser. A non-finite loss or gradient is not applied
+    (``applied`` is False in the returned losses)."""
+    loss, parts = a3c_segment_loss(local, segment, config)
+    local.zero_grad(set_to_none=True)
+    loss.backward()
+    grad_norm = float(torch.nn.utils.clip_grad_norm_(local.parameters(), config.max_grad_norm))
+    applied = math.isfinite(loss.item()) and math.isfinite(grad_norm)
+    if applied:
+        for shared_param, param in zip(shared_params, local.parameters()):
+            shared_param.grad = param.grad
+        optimizer.step()
+    return {**parts, "loss": loss.item(), "grad_norm": grad_norm, "applied": applied}
+
+
+@dataclasses.dataclass
+class TrainResult:
+    run_dir: Path
+    steps: int
+    stopped: str
+    """``finished`` (budget spent) or ``interrupted`` (Ctrl-C)."""
+    final_eval: dict[str, Any] | None
+    seconds: float
+
+
+# ---------------------------------------------------------------------- processes
+def _worker_seeds(config: A3CConfig, rank: int, start_step: int) -> tuple[int, int]:
+    """(env seed, torch seed) of a worker; a resumed run (start_step > 0) draws fresh episodes."""
+    sequence = np.random.SeedSequence([config.seed, rank, start_step])
+    env_seed, torch_seed = sequence.generate_state(2)
+    return int(env_seed), int(torch_seed)
+
+
+def _make_env(config: A3CConfig, num_envs: int, **kwargs: Any) -> BallInMazeVectorEnv:
+    return BallInMazeVectorEnv(num_envs, task=config.task, obs_mode=config.obs, nthread=1,
+                               max_episode_steps=config.time_limit, autoreset_mode="same_step", **kwargs)
+
+
+def _parent_alive() -> bool:
+    parent = std_mp.parent_process()
+    return parent is None or parent.is_alive()
+
+
+def _worker(rank: int, config: A3CConfig, shared: RecurrentActorCritic, optimizer_state: list[dict],
+            counter, stop, messages, env_wrapper: EnvWrapper | None, start_step: int) -> None:
+    """One A3C worker process: act, compute the segment's gradient, apply it to the shared weights."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and stops us
+    torch.set_num_threads(1)
+    try:
+        _worker_loop(rank, config, shared, optimizer_state, counter, stop, messages, env_wrapper, start_step)
+    except Exception:
+        messages.put(("error", rank, traceback.format_exc()))
+    finally:
+        messages.put(("exit", rank, None))
+
+
+def _worker_loop(rank, config, shared, optimizer_state, counter, stop, messages, env_wrapper, start_step):
+    env_seed, torch_seed = _worker_seeds(config, rank, start_step)
+    base_env = _make_env(config, config.envs_per_worker)
+    env = env_wrapper(base_env) if env_wrapper is not None else base_env
+    max_tilt = base_env.maze.max_tilt
+    local = network_for(config, base_env.maze)
+    optimizer = make_optimizer(config, shared.parameters())
+    shared_params = list(shared.parameters())
+    for param, state in zip(shared_params, optimizer_state):
+        optimizer.state[param] = state
+    generator = torch.Generator().manual_seed(torch_seed)
+    actor = RecurrentActor(local, config.envs_per_worker, generator=generator)
+    obs, info = env.reset(seed=env_seed)
+    tilt = tilt_input(info, max_tilt)
+    n, batch = config.n_steps, config.envs_per_worker
+    episode_return = np.zeros(batch)
+    episode_length = np.zeros(batch, dtype=np.int64)
+    episode_start = np.full(batch, counter.value, dtype=np.int64)
+    stats = {"policy_loss": 0.0, "value_loss": 0.0, "entropy": 0.0, "grad_norm": 0.0, "updates": 0}
+    since_report = 0
+    while not stop.is_set() and counter.value < config.steps and _parent_alive():
+        local.load_state_dict(shared.state_dict())
+        h0, c0 = actor.state
+        seg: dict[str, list] = {k: [] for k in ("obs", "prev_action", "prev_reward", "tilt", "starts",
+                                                "actions", "rewards", "ends")}
+        step_at_start = counter.value
+        for _ in range(n):
+            seg["obs"].append(torch.as_tensor(obs))
+            seg["prev_action"].append(actor.prev_action)
+            seg["prev_reward"].append(actor.prev_reward)
+            seg["tilt"].append(tilt)
+            seg["starts"].append(actor.starts)
+            actions, _, _ = actor.act(obs, tilt)
+            obs, reward, terminated, truncated, info = env.step(actions.numpy())
+            reward = np.asarray(reward, dtype=np.float64)
+            if not np.all(np.isfinite(reward)):
+                messages.put(("nan", rank, {"step": int(counter.value), "what": "reward from the env",
+                                            "rewards": reward.tolist()}))
+                return
+            done = terminated | truncated
+            rewards_t = torch.as_tensor(reward, dtype=torch.float32)
+            cut = truncated & ~terminated
+            if cut.any():
+                # A time limit is not a terminal state: bootstrap from the value of the last
+                # observation, which SAME_STEP autoreset keeps in info["final_obs"].
+                rewards_t = rewards_t + config.gamma * _final_values(actor, actions, reward, info, cut, max_tilt)
+            seg["actions"].append(actions)
+            seg["rewards"].append(rewards_t)
+            seg["ends"].append(torch.as_tensor(done))
+            # Learning curves show the task's own reward, also when a wrapper shapes it.
+            episode_return += np.asarray(info.get("task_reward", reward), dtype=np.float64)
+            episode_length += 1
+            for i in np.flatnonzero(done):
+                messages.put(("episode", rank, {
+                    "start_step": int(episode_start[i]), "end_step": int(counter.value),
+                    "return": float(episode_return[i]), "length": int(episode_length[i]),
+                    "success": bool(terminated[i])}))
+            episode_return[done] = 0.0
+            episode_length[done] = 0
+            episode_start[done] = step_at_start
+            actor.observe(actions, reward, done)
+            tilt = tilt_input(info, max_tilt)
+        seg["obs"].append(torch.as_tensor(obs))
+        seg["prev_action"].append(actor.prev_action)
+        seg["prev_reward"].append(actor.prev_reward)
+        seg["tilt"].append(tilt)
+        seg["starts"].append(actor.starts)
+        segment = {k: torch.stack(v) for k, v in seg.items()}
+        segment.update(h0=h0, c0=c0)
+        if not config.tilt_input:
+            segment.pop("tilt")
+        parts = apply_update(local, shared_params, optimizer, segment, config)
+        grad_norm = parts.pop("grad_norm")
+        if not parts.pop("applied"):
+            messages.put(("nan", rank, {"step": int(counter.value), "what": "loss", "grad_norm": grad_norm,
+                                        **parts}))
+            return
+        with counter.get_lock():
+            counter.value += n * batch
+        for key in ("policy_loss", "value_loss", "entropy"):
+            stats[key] += parts[key]
+        stats["grad_norm"] += grad_norm
+        stats["updates"] += 1
+        since_report += n * batch
+        if since_report >= config.log_every:
+            count = stats.pop("updates")
+            messages.put(("update", rank, {"step": int(counter.value), **{k: v / count for k, v in stats.items()}}))
+            stats = {k: 0.0 for k in stats} | {"updates": 0}
+            since_report = 0
+
+
+def _final_values(actor: RecurrentActor, actions: torch.Tensor, reward: np.ndarray, info: dict,
+                  cut: np.ndarray, max_tilt: float) -> torch.Tensor:
+    """V of the last observation of time-limited episodes (0 elsewhere), from the state after the
+    step, without changing the actor."""
+    final_obs = info["final_obs"]
+    final_tilt = tilt_input(info["final_info"], max_tilt)
+    with torch.no_grad():
+        _, values, _ = actor.net.step(torch.as_tensor(final_obs), actions,
+                                      torch.as_tensor(reward, dtype=torch.float32), final_tilt, actor.state)
+    return values * torch.as_tensor(cut, dtype=torch.float32)
+
+
+def _evaluator(config: A3CConfig, shared: RecurrentActorCritic, counter, stop, messages, start_step: int,
+               initial_weights: dict[str, torch.Tensor] | None) -> None:
+    """Evaluator process: every ``eval_every`` steps, greedy and sampled episodes with the shared
+    weights (same start positions every time)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    torch.set_num_threads(1)
+    try:
+        local = network_for(config)
+        if initial_weights is not None:
+            # A fresh run is evaluated at step 0 too, on a copy of the weights taken before any
+            # worker started: the curve starts from the initial (random or pre-trained) policy.
+            local.load_state_dict(initial_weights)
+            messages.put(("eval", -1, {"step": start_step, **evaluate_greedy_and_sampled(local, config)}))
+        next_eval = (start_step // config.eval_every + 1) * config.eval_every
+        while not stop.is_set() and _parent_alive():
+            step = counter.value
+            if step >= config.steps:
+                break
+            if step < next_eval:
+                time.sleep(0.1)
+                continue
+            local.load_state_dict(shared.state_dict())
+            messages.put(("eval", -1, {"step": int(step), **evaluate_greedy_and_sampled(local, config)}))
+            next_eval = (step // config.eval_every + 1) * config.eval_every
+    except Exception:
+        messages.put(("error", -1, traceback.format_exc()))
+    finally:
+        messages.put(("exit", -1, None))
+
+
+def evaluation_seed(config: A3CConfig) -> int:
+    """Seed of the start positions of a run's periodic evaluations (the same every time)."""
+    return int(np.random.SeedSequence([config.seed, 999_983]).generate_state(1)[0])
+
+
+def evaluate_greedy_and_sampled(net: RecurrentActorCritic, config: A3CConfig, *, episodes: int | None = None,
+                                seed: int | None = None) -> dict[str, float]:
+    """Success rate, mean length and return of ``net`` on ``config``'s task, acting greedily and
+    sampling (keys ``greedy_…``, ``sampled_…``); by default the run's evaluation episodes and seed."""
+    values: dict[str, float] = {}
+    seed = evaluation_seed(config) if seed is None else seed
+    for mode, greedy in (("greedy", True), ("sampled", False)):
+        result = evaluate_network(net, task=config.task, obs_mode=config.obs,
+                                  episodes=config.eval_episodes if episodes is None else episodes,
+                                  seed=seed, greedy=greedy, max_episode_steps=config.time_limit)
+        values.update({f"{mode}_{k}": v for k, v in result.summary().items() if k != "episodes"})
+    return values
+
+
+# ---------------------------------------------------------------------- the parent process
+_TABLES = {
+    "episodes": ["start_step", "worker", "return", "length", "success"],
+    "updates": ["seconds", "sps", "policy_loss", "value_loss", "entropy", "grad_norm", "recent_success", "recent_return",
+                "recent_length"],
+    "eval": ["greedy_success_rate", "greedy_mean_length", "greedy_mean_return", "sampled_success_rate",
+             "sampled_mean_length", "sampled_mean_return"],
+}
+
+
+def _check_resume(run_dir: Path, config: A3CConfig) -> dict[str, Any]:
+    stored = json.loads((run_dir / CONFIG).read_text())
+    previous = A3CConfig.from_dict(stored["a3c"])
+    changed = [f.name for f in dataclasses.fields(A3CConfig)
+               if getattr(previous, f.name) != getattr(config, f.name) and f.name not in A3CConfig.RESUMABLE_CHANGES]
+    if changed:
+        raise ValueError("--resume must keep the run's settings; changed: "
+                         + ", ".join(f"{k} ({getattr(previous, k)!r} -> {getattr(config, k)!r})" for k in changed)
+                         + f". Allowed to change: {', '.join(A3CConfig.RESUMABLE_CHANGES)}")
+    return stored
+
+
+def train(config: A3CConfig, run_dir: str | Path, *, resume: bool = False, init: str | Path | None = None,
+          env_wrapper: EnvWrapper | None = None, progress: bool = True, extra_config: dict | None = None,
+          ) -> TrainResult:
+    """Train with A3C; everything is saved in ``run_dir`` (see :mod:`bimgame.learn.runs`).
+
+    Args:
+        resume: continue the run in ``run_dir`` from its checkpoint.
+        init: a checkpoint file or run directory whose weights the network starts from (e.g. a
+            pre-trained π^s); optimiser statistics start fresh.
+        env_wrapper: wraps each worker's vector env (e.g. value-function reward shaping); must be
+            picklable. Evaluation always uses the true task reward.
+        extra_config: more settings to record in config.json (e.g. how the wrapper was built).
+    Raises:
+        TrainingError: a worker produced a non-finite loss or crashed (weights stay as they were
+            before the failing update; the last good checkpoint is kept).
+    """
+    with torch_threads(1):  # the parent only orchestrates; workers set their own
+        return _train(config, Path(run_dir), resume=resume, init=init, env_wrapper=env_wrapper, progress=progress,
+                      extra_config=extra_config)
+
+
+def _train(config: A3CConfig, run_dir: Path, *, resume: bool, init: str | Path | None,
+           env_wrapper: EnvWrapper | None, progress: bool, extra_config: dict | None) -> TrainResult:
+    shared = network_for(config)
+    start_step = 0
+    optimizer_state_dict = None
+    config_path = run_dir / CONFIG
+    if resume:
+        if not config_path.is_file():
+            raise ValueError(f"--resume: {run_dir} has no {CONFIG}; start a new run without --resume")
+        _check_resume(run_dir, config)
+        if (run_dir / CHECKPOINT).is_file():
+            payload = load_checkpoint(run_dir / CHECKPOINT)
+            load_weights(shared, run_dir / CHECKPOINT)
+            start_step = payload["step"]
+            optimizer_state_dict = payload.get("optimizer")
+        elif init is not None:
+            load_weights(shared, init)
+    else:
+        if config_path.exists() or (run_dir / CHECKPOINT).exists():
+            raise ValueError(f"{run_dir} already holds a run; pass --resume to continue it or choose a new "
+                             f"--run-dir")
+        if init is not None:
+            load_weights(shared, init)
+        run_dir.mkdir(parents=True, exist_ok=True)
+        write_json(config_path, {"a3c": config.to_dict(), "net": shared.config.to_dict(),
+                                 "init": str(init) if init is not None else None, **(extra_config or {})})
+    if start_step >= config.steps:
+        raise ValueError(f"the run in {run_dir} already has {start_step} steps >= steps={config.steps}; "
+                         f"pass a larger --steps to continue")
+    shared.share_memory()
+    optimizer = make_optimizer(config, shared.parameters())
+    if optimizer_state_dict is not None:
+        optimizer.load_state_dict(optimizer_state_dict)
+    optimizer_state = shared_optimizer_state(optimizer)
+
+    initial_weights = None if resume else {k: v.detach().clone() for k, v in shared.state_dict().items()}
+    context = mp.get_context("spawn")
+    counter = context.Value("q", start_step)
+    stop = context.Event()
+    messages = context.Queue()
+    processes = [context.Process(target=_worker, name=f"a3c-worker-{rank}",
+                                 args=(rank, config, shared, optimizer_state, counter, stop, messages,
+                                       env_wrapper, start_step), daemon=True)
+                 for rank in range(config.workers)]
+    if config.eval_every > 0:
+        processes.append(context.Process(target=_evaluator, name="a3c-evaluator",
+                                         args=(config, shared, counter, stop, messages, start_step,
+                                               initial_weights), daemon=True))
+    log = MetricLog(run_dir, _TABLES, resume_step=start_step if resume else None)
+    monitor = _Monitor(config, start_step)
+    started = time.monotonic()
+    last_checkpoint = start_step
+    stopped = "finished"
+    failure: str | None = None
+
+    def checkpoint() -> None:
+        save_checkpoint(run_dir / CHECKPOINT, model=shared.state_dict(), optimizer=optimizer.state_dict(),
+                        step=int(counter.value), config=json.dumps(config.to_dict()))
+
+    previous_sigterm = _stop_on_sigterm()
+    try:
+        with _progress(progress, config, start_step) as show:
+            for process in processes:
+                process.start()
+            running = len(processes)
+            while running:
+                try:
+                    kind, rank, payload = messages.get(timeout=0.25)
+                except queue_module.Empty:
+                    kind = None
+                    if not any(p.is_alive() for p in processes):
+                        break
+                if kind == "exit":
+                    running -= 1
+                elif kind == "episode":
+                    monitor.episode(payload)
+                    log.write("episodes", payload["end_step"], {**payload, "worker": rank},
+                              scalars=("return", "length", "success"))
+                elif kind == "update":
+                    row = {**payload, **monitor.recent(), "sps": monitor.sps(counter.value),
+                           "seconds": time.monotonic() - started}
+                    log.write("updates", payload["step"], row,
+                              scalars=("sps", "policy_loss", "value_loss", "entropy", "grad_norm", "recent_success"))
+                elif kind == "eval":
+                    log.write("eval", payload["step"], payload, scalars=tuple(_TABLES["eval"]))
+                elif kind == "nan":
+                    failure = (f"worker {rank} got a non-finite {payload['what']} at step {payload['step']} "
+                               f"({payload}); the update was not applied. Lower --lr or --max-grad-norm, or "
+                               f"check the env wrapper's rewards. The weights from before that update are "
+                               f"saved in {run_dir / CHECKPOINT}.")
+                    stop.set()
+                elif kind == "error":
+                    failure = f"process {rank} failed:\n{payload}"
+                    stop.set()
+                step = int(counter.value)
+                show(step, monitor)
+                if failure is None and step - last_checkpoint >= config.checkpoint_every:
+                    checkpoint()
+                    last_checkpoint = step
+    except KeyboardInterrupt:
+        stopped = "interrupted"
+        stop.set()
+    finally:
+        stop.set()
+        if previous_sigterm is not None:
+            signal.signal(signal.SIGTERM, previous_sigterm)
+        for process in processes:
+            process.join(timeout=30)
+            if process.is_alive():
+                process.terminate()
+                process.join()
+    if failure is not None:
+        log.close()
+        if all(torch.isfinite(p).all() for p in shared.parameters()):
+            checkpoint()  # the weights before the failing update, for inspection or a resume
+        raise TrainingError(failure)
+    checkpoint()
+    final_eval = None
+    if stopped == "finished":
+        final_eval = {"step": int(counter.value), **evaluate_greedy_and_sampled(shared, config)}
+        log.write("eval", final_eval["step"], final_eval, scalars=tuple(_TABLES["eval"]))
+    log.close()
+    seconds = time.monotonic() - started
+    write_json(run_dir / "summary.json", {"steps": int(counter.value), "stopped": stopped, "seconds": seconds,
+                                          "final_eval": final_eval, **monitor.recent()})
+    try:
+        plot_run(run_dir, title=f"A3C on {config.task} ({config.obs})")
+    except ValueError:
+        pass  # no finished episode yet: nothing to plot
+    return TrainResult(run_dir, int(counter.value), stopped, final_eval, seconds)
+
+
+def _stop_on_sigterm():
+    """Treat SIGTERM like Ctrl-C (a clean stop with a final checkpoint), e.g. for batch schedulers
+    and background runs, where SIGINT is often ignored. Returns the previous handler (None when not
+    on the main thread, where handlers cannot be set)."""
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return None
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt
+
+    return signal.signal(signal.SIGTERM, interrupt)
+
+
+class _Monitor:
+    """Recent training episodes (by the step they started at) and throughput, for the progress bar
+    and the logs."""
+
+    def __init__(self, config: A3CConfig, start_step: int, window: int = 100):
+        self.window = window
+        self.episodes: list[dict] = []
+        self.start_step = start_step
+        self.start_time = time.monotonic()
+        self._marks: list[tuple[float, int]] = [(self.start_time, start_step)]
+
+    def episode(self, payload: dict) -> None:
+        self.episodes.append(payload)
+        if len(self.episodes) > 4 * self.window:
+            self.episodes = self.episodes[-2 * self.window:]
+
+    def recent(self) -> dict[str, float]:
+        # The most recently *started* finished episodes: counting by end step favours the short,
+        # successful episodes that finish first.
+        recent = sorted(self.episodes, key=lambda e: e["start_step"])[-self.window:]
+        if not recent:
+            return {"recent_success": float("nan"), "recent_return": float("nan"), "recent_length": float("nan")}
+        return {"recent_success": float(np.mean([e["success"] for e in recent])),
+                "recent_return": float(np.mean([e["return"] for e in recent])),
+                "recent_length": float(np.mean([e["length"] for e in recent]))}
+
+    def sps(self, step: int) -> float:
+        now = time.monotonic()
+        self._marks.append((now, step))
+        while len(self._marks) > 2 and now - self._marks[0][0] > 30.0:
+            self._marks.pop(0)
+        (t0, s0) = self._marks[0]
+        return (step - s0) / (now - t0) if now > t0 else 0.0
+
+
+class _progress:
+    """A rich progress bar: steps, SPS, recent success rate, elapsed, ETA."""
+
+    def __init__(self, enabled: bool, config: A3CConfig, start_step: int):
+        self.enabled = enabled
+        self.config = config
+        self.start_step = start_step
+        self._last = 0.0
+
+    def __enter__(self) -> Callable[[int, _Monitor], None]:
+        if not self.enabled:
+            return lambda step, monitor: None
+        from rich.console import Console
+        from rich.progress import (BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn)
+
+        self.bar = Progress(TextColumn(f"A3C {self.config.task} {self.config.obs}"), BarColumn(),
+                            TextColumn("{task.completed:,.0f}/{task.total:,.0f} steps"),
+                            TextColumn("{task.fields[sps]} SPS"), TextColumn("success {task.fields[success]}"),
+                            TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn(),
+                            console=Console(stderr=True))
+        self.bar.__enter__()
+        self.task_id = self.bar.add_task("train", total=self.config.steps, completed=self.start_step,
+                                         sps="-", success="-")
+
+        def show(step: int, monitor: _Monitor) -> None:
+            now = time.monotonic()
+            if now - self._last < 0.5:
+                return
+            self._last = now
+            success = monitor.recent()["recent_success"]
+            self.bar.update(self.task_id, completed=step, sps=f"{monitor.sps(step):,.0f}",
+                            success="-" if math.isnan(success) else f"{success:.0%}")
+        return show
+
+    def __exit__(self, *exc) -> None:
+        if self.enabled:
+            self.bar.__exit__(*exc)
+
+
+def default_workers() -> int:
+    return max(1, os.cpu_count() or 1)

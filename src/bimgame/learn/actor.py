@@ -1,0 +1,147 @@
+"""Acting with a recurrent actor-critic on a batch of environments, and evaluating it.
+
+:class:`RecurrentActor` keeps what the network needs between steps — previous action, previous
+reward, LSTM state — and resets it at episode boundaries. The A3C workers, the evaluator,
+``bimgame evaluate`` and the learners from trajectories all act through it, so the inputs the
+network sees never differ between training and testing.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import numpy as np
+import torch
+
+from bimgame.sim.maze import MazeSpec
+from bimgame.learn.nets import NO_ACTION, LSTMState, RecurrentActorCritic
+from bimgame.envs.vector import BallInMazeVectorEnv
+
+__all__ = ["RecurrentActor", "EvalResult", "evaluate_network", "tilt_input"]
+
+
+def tilt_input(info: dict[str, Any], max_tilt: float) -> torch.Tensor:
+    """The board tilt from an env info dict, in units of the maximum tilt, as (B, 2) float32."""
+    return torch.as_tensor(np.asarray(info["tilt"], dtype=np.float32) / np.float32(max_tilt))
+
+
+class RecurrentActor:
+    """Acts for ``num_envs`` environments with one batched forward pass per step.
+
+    Call :meth:`act` with the current observations, step the env, then :meth:`observe` the result
+    (rewards and which episodes ended) before the next :meth:`act`."""
+
+    def __init__(self, net: RecurrentActorCritic, num_envs: int, *, generator: torch.Generator | None = None,
+                 greedy: bool = False):
+        self.net = net
+        self.num_envs = num_envs
+        self.generator = generator
+        self.greedy = greedy
+        self.reset()
+
+    def reset(self) -> None:
+        """Every environment starts a new episode."""
+        self.prev_action = torch.full((self.num_envs,), NO_ACTION, dtype=torch.long)
+        self.prev_reward = torch.zeros(self.num_envs)
+        self.state: LSTMState = self.net.initial_state(self.num_envs)
+        self.starts = torch.ones(self.num_envs, dtype=torch.bool)
+
+    @torch.no_grad()
+    def act(self, obs: np.ndarray | torch.Tensor, tilt: torch.Tensor | None,
+            ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Actions (B,), logits (B, A) and values (B,) for the current observations; advances the
+        LSTM state."""
+        obs_t = torch.as_tensor(obs)
+        logits, values, self.state = self.net.step(obs_t, self.prev_action, self.prev_reward, tilt, self.state)
+        if self.greedy:
+            actions = logits.argmax(dim=-1)
+        else:
+            probs = torch.softmax(logits, dim=-1)
+            actions = torch.multinomial(probs, 1, generator=self.generator).squeeze(-1)
+        return actions, logits, values
+
+    def observe(self, actions: torch.Tensor, rewards: np.ndarray, done: np.ndarray) -> None:
+        """Record the step's actions and rewards; environments whose episode ended start afresh."""
+        done_t = torch.as_tensor(done, dtype=torch.bool)
+        self.prev_action = torch.where(done_t, torch.full_like(actions, NO_ACTION), actions)
+        self.prev_reward = torch.where(done_t, torch.zeros(()), torch.as_tensor(rewards, dtype=torch.float32))
+        if done_t.any():
+            keep = (~done_t).float().unsqueeze(-1)
+            self.state = LSTMState(self.state.h * keep, self.state.c * keep)
+        self.starts = done_t
+
+
+@dataclasses.dataclass
+class EvalResult:
+    """First episode of each evaluation environment."""
+
+    successes: list[bool]
+    lengths: list[int]
+    returns: list[float]
+    frames: list[np.ndarray] = dataclasses.field(default_factory=list)
+
+    @property
+    def success_rate(self) -> float:
+        return float(np.mean(self.successes)) if self.successes else float("nan")
+
+    @property
+    def mean_length(self) -> float:
+        return float(np.mean(self.lengths)) if self.lengths else float("nan")
+
+    @property
+    def mean_return(self) -> float:
+        return float(np.mean(self.returns)) if self.returns else float("nan")
+
+    def summary(self) -> dict[str, float]:
+        return {"success_rate": self.success_rate, "mean_length": self.mean_length,
+                "mean_return": self.mean_return, "episodes": len(self.successes)}
+
+
+@torch.no_grad()
+def evaluate_network(net: RecurrentActorCritic, *, task: str, obs_mode: str, episodes: int, seed: int,
+                     greedy: bool = True, maze: MazeSpec | None = None, max_episode_steps: int | None = None,
+                     record: bool = False, render_size: int = 240) -> EvalResult:
+    """Run one episode in each of ``episodes`` environments (batched) with the true task reward.
+
+    Start positions come from ``seed`` (the same seed gives the same starts, so evaluations along a
+    run are comparable); sampled actions draw from a generator seeded with ``seed`` too.
+    ``record`` keeps RGB frames of the first environment's episode."""
+    from bimgame.envs.env import MAX_EPISODE_STEPS
+    from bimgame.sim.tasks import parse_task
+
+    kwargs: dict[str, Any] = {"task": task, "obs_mode": obs_mode}
+    if maze is not None:
+        kwargs["maze"] = maze
+    if record:
+        kwargs.update(render_mode="rgb_array", render_size=render_size)
+    limit = max_episode_steps or MAX_EPISODE_STEPS[parse_task(task)]
+    env = BallInMazeVectorEnv(episodes, max_episode_steps=limit, nthread=1, autoreset_mode="same_step", **kwargs)
+    generator = torch.Generator().manual_seed(int(seed))
+    actor = RecurrentActor(net, episodes, generator=generator, greedy=greedy)
+    obs, info = env.reset(seed=int(seed))
+    max_tilt = env.maze.max_tilt
+    finished = np.zeros(episodes, dtype=bool)
+    result = EvalResult([False] * episodes, [0] * episodes, [0.0] * episodes)
+    returns = np.zeros(episodes)
+    lengths = np.zeros(episodes, dtype=np.int64)
+    try:
+        while not finished.all():
+            if record and not finished[0]:
+                result.frames.append(env.render()[0])
+            actions, _, _ = actor.act(obs, tilt_input(info, max_tilt))
+            obs, reward, terminated, truncated, info = env.step(actions.numpy())
+            returns += reward
+            lengths += 1
+            done = terminated | truncated
+            for i in np.flatnonzero(done & ~finished):
+                result.successes[i] = bool(terminated[i])
+                result.lengths[i] = int(lengths[i])
+                result.returns[i] = float(returns[i])
+            finished |= done
+            returns[done] = 0.0
+            lengths[done] = 0
+            actor.observe(actions, reward, done)
+    finally:
+        env.close()
+    return result

@@ -1,0 +1,344 @@
+"""DAgger with the MPC expert (Ross, Gordon & Bagnell, "A Reduction of Imitation Learning and
+Structured Prediction to No-Regret Online Learning", AISTATS 2011) — the paper's baseline.
+
+Each iteration i:
+
+1. **Roll out** ``episodes_per_iteration`` episodes. At every step the expert is asked for its
+   action in the true simulator state (:class:`~bimgame.expert.RandomShootingMPC` on
+   ``env.sim.get_state()``), and the executed action is the expert's with probability β_i and the
+   learner's (sampled from π) otherwise; β_i = ``beta0 · beta_decay^i`` (β_0 = 1: the first
+   iteration is plain behaviour cloning data).
+2. **Label** every visited state with the expert's action and **aggregate** the episodes into the
+   dataset D. The learner's inputs are what it saw while acting: the previous action it *executed*
+   and the reward it got, so training and acting see the same input distribution.
+3. **Retrain** the same recurrent network on all of D with the pre-training loss
+   (:func:`bimgame.pretrain.policy_loss_terms`: cross-entropy of the expert's action, value
+   regression on the executed returns, L2).
+
+Costs are counted separately so that curves against A3C are honest: ``env_steps`` are the steps
+taken in the environment (what A3C's x-axis counts), ``expert_sim_steps`` the simulator steps the
+expert spent planning its labels (K·H per label).
+
+The run directory is resumable: the aggregated episodes of every finished iteration are saved
+(``data/iteration_NNN.npz``, atomically), with the weights after it; a restarted run continues
+after the last finished iteration. ``bimgame evaluate`` and ``bimgame train --init`` accept it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+import json
+import math
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from bimgame.learn.a3c import evaluate_greedy_and_sampled, network_for
+from bimgame.learn.actor import RecurrentActor, tilt_input
+from bimgame.expert.datasets import discounted_returns, previous_values
+from bimgame.envs.env import BallInMazeEnv
+from bimgame.expert.mpc import MPCConfig, RandomShootingMPC
+from bimgame.util.files import atomic_write_bytes
+from bimgame.sim.maze import MazeSpec
+from bimgame.learn.nets import NO_ACTION, RecurrentActorCritic
+from bimgame.learn.pretrain import PretrainConfig, train_policy_epochs
+from bimgame.learn.runs import CHECKPOINT, CONFIG, MetricLog, load_weights, save_checkpoint, torch_threads, write_json
+from bimgame.util.settings import from_dict, require_int
+
+__all__ = ["DAggerConfig", "DAggerResult", "dagger", "collect_episodes", "KIND_DAGGER"]
+
+KIND_DAGGER = "dagger-policy"
+STATE = "dagger_state.json"
+_TABLE = ["iteration", "beta", "episodes", "dataset_steps", "expert_sim_steps", "labels", "train_loss",
+          "train_accuracy", "rollout_success_rate", "greedy_success_rate", "greedy_mean_length",
+          "greedy_mean_return", "sampled_success_rate", "sampled_mean_length", "sampled_mean_return", "seconds"]
+_SEQUENCE_KEYS = ("obs", "actions", "prev_actions", "prev_rewards", "tilt", "returns", "rewards", "executed")
+
+
+@dataclasses.dataclass(frozen=True)
+class DAggerConfig:
+    """Settings of a DAgger run; the network and its loss are ``learner``'s (a
+    :class:`~bimgame.pretrain.PretrainConfig`: task, observations, sizes, lr, L2, γ)."""
+
+    learner: PretrainConfig = dataclasses.field(default_factory=lambda: PretrainConfig(task="STG1"))
+    iterations: int = 10
+    episodes_per_iteration: int = 20
+    beta0: float = 1.0
+    """Probability of executing the expert's action in iteration 0 (1: behaviour cloning data)."""
+    beta_decay: float = 0.5
+    """β_i = beta0 · beta_decay^i."""
+    epochs_per_iteration: int = 10
+    """Passes over the aggregated dataset after each iteration."""
+    expert: MPCConfig = dataclasses.field(default_factory=MPCConfig)
+    max_episode_steps: int | None = None
+    """Time limit of the rollouts; None: the task's."""
+    eval_episodes: int = 20
+    """Greedy and sampled evaluation episodes after every iteration (0: none)."""
+
+    def __post_init__(self) -> None:
+        if self.learner.target != "policy":
+            raise ValueError("DAggerConfig.learner must train a policy (target='policy')")
+        for name in ("iterations", "episodes_per_iteration", "epochs_per_iteration"):
+            require_int("DAggerConfig", name, getattr(self, name), 1)
+        for name in ("beta0", "beta_decay"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and 0.0 <= value <= 1.0):
+                raise ValueError(f"DAggerConfig.{name} must be in [0, 1], got {value!r}")
+        if not (isinstance(self.eval_episodes, int) and self.eval_episodes >= 0):
+            raise ValueError(f"DAggerConfig.eval_episodes must be an integer >= 0, got {self.eval_episodes!r}")
+        if self.max_episode_steps is not None and not (isinstance(self.max_episode_steps, int)
+                                                       and self.max_episode_steps >= 1):
+            raise ValueError(f"DAggerConfig.max_episode_steps must be None or an integer >= 1, "
+                             f"got {self.max_episode_steps!r}")
+
+    #: What a resumed run may change.
+    RESUMABLE_CHANGES = ("iterations", "eval_episodes")
+
+    def beta(self, iteration: int) -> float:
+        return self.beta0 * self.beta_decay ** iteration
+
+    @property
+    def time_limit(self) -> int:
+        return self.max_episode_steps or self.learner.a3c_config().time_limit
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, values: dict[str, Any]) -> DAggerConfig:
+        values = dict(values)
+        if "learner" in values:
+            values["learner"] = PretrainConfig.from_dict(values["learner"])
+        if "expert" in values:
+            values["expert"] = from_dict(MPCConfig, values["expert"], "MPC settings")
+        return from_dict(cls, values, "DAgger settings")
+
+
+# ------------------------------------------------------------------------------ rollouts
+@torch.no_grad()
+def collect_episodes(net: RecurrentActorCritic, config: DAggerConfig, beta: float, seed: int,
+                     ) -> tuple[list[dict[str, np.ndarray]], dict[str, int]]:
+    """``episodes_per_iteration`` episodes, run side by side (one batched forward pass per step),
+    executing the expert's action with probability ``beta`` and the learner's sampled action
+    otherwise; every visited state is labelled by the expert. Returns the episodes (as
+    :func:`~bimgame.data.iterate_sequences` dicts, ``actions`` being the expert's labels and
+    ``executed`` what was done) and the costs: ``env_steps``, ``labels``, ``expert_sim_steps``,
+    ``successes``."""
+    learner = config.learner
+    sequence = np.random.SeedSequence([seed])
+    env_seed, torch_seed, mix_seed, *expert_seeds = sequence.generate_state(3 + config.episodes_per_iteration)
+    count = config.episodes_per_iteration
+    envs = [BallInMazeEnv(learner.task, obs_mode=learner.obs) for _ in range(count)]
+    experts = [RandomShootingMPC(envs[0].maze, config.expert, rng=np.random.default_rng(int(s)), task=learner.task)
+               for s in expert_seeds]
+    mix = np.random.default_rng(int(mix_seed))
+    actor = RecurrentActor(net, count, generator=torch.Generator().manual_seed(int(torch_seed)))
+    max_tilt = envs[0].maze.max_tilt
+    records: list[dict[str, list]] = [{k: [] for k in ("obs", "actions", "executed", "rewards", "tilt")}
+                                      for _ in range(count)]
+    observations, tilts = [], []
+    for i, env in enumerate(envs):
+        obs, info = env.reset(seed=int(env_seed) + i)
+        observations.append(obs)
+        tilts.append(info["tilt"])
+    active = np.ones(count, dtype=bool)
+    successes = 0
+    steps = 0
+    try:
+        while active.any() and steps < config.time_limit:
+            obs_batch = np.stack(observations)
+            tilt_batch = tilt_input({"tilt": np.stack(tilts)}, max_tilt)
+            policy_actions, _, _ = actor.act(obs_batch, tilt_batch)
+            executed = policy_actions.clone()
+            rewards = np.zeros(count)
+            done = ~active.copy()
+            for i in np.flatnonzero(active):
+                label = experts[i].act(envs[i].sim.get_state())
+                action = label if mix.random() < beta else int(policy_actions[i])
+                executed[i] = action
+                record = records[i]
+                record["obs"].append(observations[i])
+                record["tilt"].append(tilts[i])
+                record["actions"].append(label)
+                record["executed"].append(action)
+                obs, reward, terminated, _, info = envs[i].step(action)
+                record["rewards"].append(reward)
+                observations[i], tilts[i], rewards[i] = obs, info["tilt"], reward
+                if terminated:
+                    active[i] = False
+                    done[i] = True
+                    successes += int(info["is_success"])
+            steps += 1
+            # Finished episodes keep stepping the actor on stale inputs; their records are closed.
+            actor.observe(executed, rewards, done)
+    finally:
+        for env in envs:
+            env.close()
+        for expert in experts:
+            expert.close()
+    episodes = [_as_sequence(r, learner.gamma) for r in records]
+    labels = sum(len(e["actions"]) for e in episodes)
+    costs = {"env_steps": labels, "labels": labels, "successes": successes,
+             "expert_sim_steps": labels * config.expert.n_samples * config.expert.horizon}
+    return episodes, costs
+
+
+def _as_sequence(record: dict[str, list], gamma: float) -> dict[str, np.ndarray]:
+    executed = np.asarray(record["executed"], dtype=np.int64)
+    rewards = np.asarray(record["rewards"], dtype=np.float64)
+    prev_actions = previous_values(executed, NO_ACTION)
+    prev_rewards = previous_values(rewards.astype(np.float32), 0.0)
+    return {"obs": np.stack(record["obs"]), "actions": np.asarray(record["actions"], dtype=np.int64),
+            "executed": executed, "prev_actions": prev_actions, "prev_rewards": prev_rewards,
+            "tilt": np.asarray(record["tilt"], dtype=np.float32), "rewards": rewards.astype(np.float32),
+            "returns": discounted_returns(rewards, gamma).astype(np.float32)}
+
+
+def _save_episodes(path: Path, episodes: list[dict[str, np.ndarray]]) -> None:
+    arrays = {key: np.concatenate([e[key] for e in episodes]) for key in _SEQUENCE_KEYS}
+    arrays["lengths"] = np.array([len(e["actions"]) for e in episodes], dtype=np.int64)
+    buffer = io.BytesIO()
+    np.savez_compressed(buffer, **arrays)
+    atomic_write_bytes(path, buffer.getvalue())
+
+
+def _load_episodes(path: Path) -> list[dict[str, np.ndarray]]:
+    with np.load(path, allow_pickle=False) as data:
+        arrays = {key: data[key] for key in (*_SEQUENCE_KEYS, "lengths")}
+    bounds = np.concatenate([[0], np.cumsum(arrays["lengths"])])
+    return [{key: arrays[key][a:b] for key in _SEQUENCE_KEYS} for a, b in zip(bounds[:-1], bounds[1:])]
+
+
+# ------------------------------------------------------------------------------ the loop
+@dataclasses.dataclass
+class DAggerResult:
+    run_dir: Path
+    iterations: int
+    env_steps: int
+    expert_sim_steps: int
+    dataset_steps: int
+    final_eval: dict[str, float] | None
+    seconds: float
+
+
+def dagger(config: DAggerConfig, run_dir: str | Path, *, resume: bool = False, init: str | Path | None = None,
+           progress: bool = True) -> DAggerResult:
+    """Run DAgger into ``run_dir`` (see the module notes); ``init`` starts the learner from a
+    pre-trained policy's weights; ``resume`` continues after the last finished iteration."""
+    with torch_threads():
+        return _dagger(config, run_dir, resume=resume, init=init, progress=progress)
+
+
+def _dagger(config: DAggerConfig, run_dir: Path | str, *, resume: bool, init: str | Path | None,
+            progress: bool) -> DAggerResult:
+    run_dir = Path(run_dir)
+    net = network_for(config.learner.a3c_config())
+    state = {"iteration": 0, "env_steps": 0, "expert_sim_steps": 0, "labels": 0}
+    if resume:
+        if not (run_dir / CONFIG).is_file():
+            raise ValueError(f"--resume: {run_dir} has no {CONFIG}; start a new run without --resume")
+        stored = DAggerConfig.from_dict(json.loads((run_dir / CONFIG).read_text())["dagger"])
+        changed = [name for name in ("learner", "episodes_per_iteration", "beta0", "beta_decay",
+                                     "epochs_per_iteration", "expert", "max_episode_steps")
+                   if getattr(stored, name) != getattr(config, name)]
+        if changed:
+            raise ValueError(f"--resume must keep the run's settings; changed: {', '.join(changed)}. "
+                             f"Allowed to change: {', '.join(DAggerConfig.RESUMABLE_CHANGES)}")
+        if (run_dir / STATE).is_file():
+            state = json.loads((run_dir / STATE).read_text())
+            load_weights(net, run_dir / CHECKPOINT)
+        elif init is not None:
+            load_weights(net, init)
+    else:
+        if (run_dir / CONFIG).exists():
+            raise ValueError(f"{run_dir} already holds a run; pass --resume to continue it or choose a new --run-dir")
+        if init is not None:
+            load_weights(net, init)
+        run_dir.mkdir(parents=True, exist_ok=True)
+        (run_dir / "data").mkdir(exist_ok=True)
+        write_json(run_dir / CONFIG, {"kind": KIND_DAGGER, "a3c": config.learner.a3c_config().to_dict(),
+                                      "net": net.config.to_dict(), "dagger": config.to_dict(),
+                                      "init": None if init is None else str(init)})
+    dataset: list[dict[str, np.ndarray]] = []
+    for i in range(state["iteration"]):
+        dataset += _load_episodes(_data_path(run_dir, i))
+    log = MetricLog(run_dir, {"dagger": _TABLE}, resume_step=state["env_steps"] if resume else None)
+    started = time.monotonic() - state.get("seconds", 0.0)
+    final_eval = None
+    a3c_config = config.learner.a3c_config()
+    try:
+        with _IterationProgress(progress, config, state["iteration"]) as show:
+            for iteration in range(state["iteration"], config.iterations):
+                seed = int(np.random.SeedSequence([config.learner.seed, iteration]).generate_state(1)[0])
+                beta = config.beta(iteration)
+                episodes, costs = collect_episodes(net, config, beta, seed)
+                _save_episodes(_data_path(run_dir, iteration), episodes)
+                dataset += episodes
+                rng = np.random.default_rng(seed)
+                summary = train_policy_epochs(net, dataset, config.learner, config.epochs_per_iteration, rng,
+                                              MazeSpec.merl().max_tilt)
+                final_eval = (evaluate_greedy_and_sampled(net, a3c_config, episodes=config.eval_episodes)
+                              if config.eval_episodes else None)
+                for key in ("env_steps", "expert_sim_steps", "labels"):
+                    state[key] += costs[key]
+                state["iteration"] = iteration + 1
+                state["seconds"] = time.monotonic() - started
+                row = {"iteration": iteration, "beta": beta, "episodes": len(dataset),
+                       "dataset_steps": sum(len(e["actions"]) for e in dataset),
+                       "expert_sim_steps": state["expert_sim_steps"], "labels": state["labels"],
+                       "train_loss": summary["loss"], "train_accuracy": summary["accuracy"],
+                       "rollout_success_rate": costs["successes"] / config.episodes_per_iteration,
+                       "seconds": state["seconds"], **(final_eval or {})}
+                save_checkpoint(run_dir / CHECKPOINT, model=net.state_dict(), step=state["env_steps"],
+                                iteration=state["iteration"])
+                # The log row before the state: a run killed in between redoes the iteration, and
+                # the resumed log drops the orphaned row (rows after the state's step).
+                log.write("dagger", state["env_steps"], row,
+                          scalars=("train_loss", "train_accuracy", "rollout_success_rate", "greedy_success_rate",
+                                   "sampled_success_rate", "dataset_steps", "expert_sim_steps"))
+                write_json(run_dir / STATE, state)
+                show(iteration + 1, row)
+                if not math.isfinite(summary["loss"]):
+                    raise RuntimeError(f"DAgger's training loss is not finite at iteration {iteration}; "
+                                       f"lower the learning rate (now {config.learner.lr})")
+    finally:
+        log.close()
+    return DAggerResult(run_dir, state["iteration"], state["env_steps"], state["expert_sim_steps"],
+                        sum(len(e["actions"]) for e in dataset), final_eval, time.monotonic() - started)
+
+
+def _data_path(run_dir: Path, iteration: int) -> Path:
+    return run_dir / "data" / f"iteration_{iteration:03d}.npz"
+
+
+class _IterationProgress:
+    """A rich progress bar over iterations, showing the latest evaluation."""
+
+    def __init__(self, enabled: bool, config: DAggerConfig, done: int):
+        self.enabled, self.config, self.done = enabled, config, done
+
+    def __enter__(self):
+        if not self.enabled:
+            return lambda iteration, row: None
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+        self.bar = Progress(TextColumn(f"DAgger {self.config.learner.task} {self.config.learner.obs}"), BarColumn(),
+                            MofNCompleteColumn(), TextColumn("{task.fields[info]}"), TimeElapsedColumn())
+        self.bar.__enter__()
+        self.task_id = self.bar.add_task("iterations", total=self.config.iterations, completed=self.done, info="")
+
+        def show(iteration: int, row: dict[str, Any]) -> None:
+            success = row.get("greedy_success_rate")
+            info = f"β {row['beta']:.2f}  dataset {row['dataset_steps']:,} steps"
+            if success is not None:
+                info += f"  greedy success {success:.0%}"
+            self.bar.update(self.task_id, completed=iteration, info=info)
+        return show
+
+    def __exit__(self, *exc) -> None:
+        if self.enabled:
+            self.bar.__exit__(*exc)

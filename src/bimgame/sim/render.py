@@ -1,0 +1,526 @@
+"""Top-down raster of the board in the board frame: the RL pixel observation and video frames.
+
+Why a numpy raster rather than MuJoCo's OpenGL renderer? The pixel observation is a camera fixed
+to the board looking straight down, so it is a 2-D picture: a static background (floor, goal
+region, walls with their gates, rim) plus one disc per marble. The background is rasterised once,
+from the exact geometry of the :class:`~bimgame.maze.MazeSpec` (true circles and radial gate edges,
+not the box pieces that approximate them in the physics model), antialiased by supersampling.
+Each frame then only copies the background and blends a few dozen pixels around each marble, which
+costs microseconds instead of the milliseconds of an OpenGL render plus read-back, vectorises over a
+batch of environments, and needs no GL backend (EGL/OSMesa) on headless machines.
+
+Pixel grid. For an image of ``size`` × ``size`` pixels the grid covers the square
+``[-E, E]²`` of board coordinates (metres), ``E = spec.rim_radius + spec.rim_thickness`` (the rim's
+outer edge touches the image border), so one pixel is ``2 E / size`` metres wide
+(:attr:`MazeRenderer.metres_per_pixel`). The image is "north up": row 0 is the top (+y), column 0
+the left (-x). Continuous pixel coordinates ``(col, row)`` put the *centre* of pixel ``[i, j]``
+(row ``i``, column ``j``) at ``(j, i)``; hence board point ``(x, y)`` maps to::
+
+    col = (x + E) / metres_per_pixel - 0.5
+    row = (E - y) / metres_per_pixel - 0.5
+
+and the pixel ``[i, j]`` covers ``col`` in ``[j - 0.5, j + 0.5]`` and ``row`` in ``[i - 0.5, i + 0.5]``.
+
+Antialiasing. Background pixels hold the area-weighted mean of ``SUPERSAMPLE`` × ``SUPERSAMPLE``
+sub-samples. A marble of radius ``R`` pixels covers pixel ``[i, j]`` with
+``a = clip(R + 0.5 - d, 0, 1)``, ``d`` the distance from the marble's centre to the pixel's centre
+(in pixels), and the pixel becomes ``value * (1 - a) + MARBLE * a`` (rounded), so sub-pixel marble
+motion changes the image smoothly.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from bimgame.sim.maze import MazeSpec
+
+__all__ = [
+    "MazeRenderer",
+    "FLOOR", "GOAL", "WALL", "MARBLE",
+    "FLOOR_RGB", "GOAL_RGB", "WALL_RGB", "MARBLE_RGB", "MARBLE_EDGE_RGB", "MARBLE_OUTLINE_RGB",
+    "TILT_GAUGE_RGB", "TILT_ARROW_RGB", "SUPERSAMPLE", "DEFAULT_RGB_SIZE",
+]
+
+# Grayscale levels of the observation (uint8). Dark floor, a slightly lighter goal region so the
+# agent can see the target, mid-grey walls/rim (and everything outside the rim), white marbles:
+# the marble contrasts with everything it can touch.
+FLOOR: int = 30
+GOAL: int = 70
+WALL: int = 150
+MARBLE: int = 255
+
+# Colours of video frames (RGB uint8).
+FLOOR_RGB: tuple[int, int, int] = (64, 84, 72)          # green-grey felt
+GOAL_RGB: tuple[int, int, int] = (178, 128, 52)         # amber goal region
+WALL_RGB: tuple[int, int, int] = (206, 206, 200)        # light grey walls, rim and frame
+MARBLE_RGB: tuple[int, int, int] = (238, 241, 246)      # steel: bright centre ...
+MARBLE_EDGE_RGB: tuple[int, int, int] = (128, 134, 146)  # ... shading to darker steel ...
+MARBLE_OUTLINE_RGB: tuple[int, int, int] = (34, 37, 44)  # ... with a dark outline
+TILT_GAUGE_RGB: tuple[int, int, int] = (70, 72, 78)     # tilt indicator ring and hub
+TILT_ARROW_RGB: tuple[int, int, int] = (200, 40, 40)    # tilt indicator: downhill direction
+
+SUPERSAMPLE: int = 4
+#: Sub-pixel steps per pixel of the marble coverage table used for grayscale observations.
+LUT_STEPS: int = 32
+"""Background antialiasing: sub-samples per pixel along each axis."""
+
+DEFAULT_RGB_SIZE: int = 480
+
+# Region labels of the background raster.
+_FLOOR, _GOAL, _WALL = 0, 1, 2
+_GRAY_LEVELS = np.array([FLOOR, GOAL, WALL], dtype=np.float64)
+_RGB_LEVELS = np.array([FLOOR_RGB, GOAL_RGB, WALL_RGB], dtype=np.float64)
+
+
+def _distance(dx: np.ndarray, dy: np.ndarray) -> np.ndarray:
+    """``sqrt(dx² + dy²)`` into ``dx`` (``dy`` is overwritten).
+
+    Only correctly rounded IEEE operations (no ``hypot``, whose SIMD and scalar loops need not
+    agree to the last bit), so a pixel gets the same value whatever the array's shape: the batched
+    and single-frame paths give bit-identical images.
+    """
+    np.multiply(dx, dx, out=dx)
+    np.multiply(dy, dy, out=dy)
+    np.add(dx, dy, out=dx)
+    return np.sqrt(dx, out=dx)
+
+
+@dataclasses.dataclass(frozen=True)
+class _Grid:
+    """Pixel geometry of one image size and the marble window at that size."""
+
+    size: int
+    extent: float                 # E: the image spans [-E, E]² metres
+    metres_per_pixel: float
+    radius_px: float              # marble radius in pixels
+    half_window: int              # K: window offsets lie in [-K, K]²
+    dflat: np.ndarray             # (P,) flat offsets di * size + dj (int64)
+    di_int: np.ndarray            # (P,) row offsets (int64)
+    dj_int: np.ndarray            # (P,) column offsets (int64)
+    square_di: np.ndarray         # ((2K+1)²,) row offsets of the square window, row-major (float64)
+    square_dj: np.ndarray         # ((2K+1)²,) column offsets of the square window (float64)
+    disc_in_square: np.ndarray    # (P,) positions of the disc's pixels within the square window
+    _cache: dict = dataclasses.field(default_factory=dict)  # coverage_lut(), built on first use
+
+    @classmethod
+    def build(cls, spec: MazeSpec, size: int, extent: float) -> _Grid:
+        mpp = 2.0 * extent / size
+        radius_px = spec.marble_radius / mpp
+        # The marble's centre lies within 0.5 px (per axis) of the pixel it is rounded to, and a
+        # pixel is touched only if its centre is within radius + 0.5 of the marble's centre; keep
+        # just the offsets that can satisfy both (a disc, not the whole square).
+        reach = radius_px + 0.5 + math.sqrt(0.5)
+        k = int(math.ceil(reach))
+        ii, jj = np.mgrid[-k:k + 1, -k:k + 1]
+        keep = ii * ii + jj * jj < reach * reach
+        di = ii[keep].astype(np.int64)
+        dj = jj[keep].astype(np.int64)
+        return cls(size=size, extent=extent, metres_per_pixel=mpp, radius_px=radius_px,
+                   half_window=k,
+                   dflat=di * size + dj, di_int=di, dj_int=dj,
+                   square_di=ii.ravel().astype(np.float64), square_dj=jj.ravel().astype(np.float64),
+                   disc_in_square=np.flatnonzero(keep.ravel()))
+
+    def coverage_lut(self) -> np.ndarray:
+        """``1 - coverage`` of the square window's pixels for the marble's centre at each of
+        (Q+1)² sub-pixel offsets (Q = LUT_STEPS per pixel), built on first use.
+
+        Grayscale observations look the marble up here instead of computing distances: one
+        indexing operation instead of about ten numpy calls per marble, which is most of the cost
+        of an 84×84 frame. The centre is quantised to 1/Q px (1/32 px = 0.07 mm at 84 px), far
+        below the one-pixel accuracy the observation needs; single and batched frames use the
+        same table, so they stay bit-identical.
+        """
+        lut = self._cache.get("lut")
+        if lut is None:
+            q = LUT_STEPS
+            offsets = np.arange(q + 1) / q - 0.5  # (i0 - row) or (j0 - col), quantised
+            dy = self.square_di[None, None, :] + offsets[:, None, None]
+            dx = self.square_dj[None, None, :] + offsets[None, :, None]
+            d = np.broadcast_to(dx, (q + 1, q + 1, dx.shape[-1])).copy()
+            _distance(d, np.broadcast_to(dy, d.shape).copy())
+            lut = self._cache["lut"] = self.uncovered(d)
+        return lut
+
+    def lut_square(self, col: float, row: float) -> tuple[slice, slice, np.ndarray] | None:
+        """:meth:`square` with ``uncovered=True``, from :meth:`coverage_lut`."""
+        if not (math.isfinite(col) and math.isfinite(row)):
+            return None
+        j0 = round(col)
+        i0 = round(row)
+        half = LUT_STEPS // 2
+        k = self.half_window
+        u = self.coverage_lut()[round((i0 - row) * LUT_STEPS) + half,
+                                round((j0 - col) * LUT_STEPS) + half].reshape(2 * k + 1, 2 * k + 1)
+        return self._clipped(i0, j0, u)
+
+    def _clipped(self, i0: int, j0: int, values: np.ndarray) -> tuple[slice, slice, np.ndarray] | None:
+        """The image slices a square window centred on pixel ``(i0, j0)`` covers, clipped to the
+        image, and the matching part of ``values`` ((2K+1, 2K+1)); None if entirely outside."""
+        k = self.half_window
+        r0, c0 = i0 - k, j0 - k
+        r1, c1 = i0 + k + 1, j0 + k + 1
+        if r0 >= 0 and c0 >= 0 and r1 <= self.size and c1 <= self.size:
+            return slice(r0, r1), slice(c0, c1), values
+        rr0, cc0 = max(r0, 0), max(c0, 0)
+        rr1, cc1 = min(r1, self.size), min(c1, self.size)
+        if rr0 >= rr1 or cc0 >= cc1:
+            return None
+        return slice(rr0, rr1), slice(cc0, cc1), values[rr0 - r0:rr1 - r0, cc0 - c0:cc1 - c0]
+
+    def lut_disc(self, col: np.ndarray, row: np.ndarray, j0: np.ndarray, i0: np.ndarray) -> np.ndarray:
+        """``1 - coverage`` of the disc window's pixels (M, P) for marbles at ``col``, ``row``
+        (rounded to ``j0``, ``i0``), from :meth:`coverage_lut`: the batched twin of
+        :meth:`lut_square`."""
+        half = LUT_STEPS // 2
+        fi = np.rint((np.nan_to_num(i0 - row)) * LUT_STEPS).astype(np.int64) + half
+        fj = np.rint((np.nan_to_num(j0 - col)) * LUT_STEPS).astype(np.int64) + half
+        np.clip(fi, 0, LUT_STEPS, out=fi)
+        np.clip(fj, 0, LUT_STEPS, out=fj)
+        disc = self._cache.get("disc")
+        if disc is None:
+            disc = self._cache["disc"] = np.ascontiguousarray(self.coverage_lut()[:, :, self.disc_in_square])
+        return disc[fi, fj]
+
+    def to_pixel(self, xy: np.ndarray) -> np.ndarray:
+        xy = np.asarray(xy, dtype=np.float64)
+        out = np.empty(xy.shape, dtype=np.float64)
+        inv = 1.0 / self.metres_per_pixel
+        np.multiply(xy[..., 0] + self.extent, inv, out=out[..., 0])
+        np.multiply(self.extent - xy[..., 1], inv, out=out[..., 1])
+        out -= 0.5
+        return out
+
+    def uncovered(self, d: np.ndarray) -> np.ndarray:
+        """Turn distances ``d`` (px, any shape) into ``1 - a``, in place: ``clip(d - R + 0.5, 0, 1)``."""
+        np.subtract(d, self.radius_px - 0.5, out=d)
+        np.minimum(d, 1.0, out=d)
+        np.maximum(d, 0.0, out=d)
+        return d
+
+    def square(self, col: float, row: float) -> tuple[slice, slice, np.ndarray] | None:
+        """The square window of one marble centred at pixel coordinates ``(col, row)`` (floats),
+        for colour frames.
+
+        Returns ``(rows, cols, d)``: the slices of the image the window covers (clipped to the
+        image) and the distances (px) of those pixels' centres from the marble's centre, shape
+        ``(len(rows), len(cols))``; None if the marble is not finite or entirely outside.
+        """
+        if not (math.isfinite(col) and math.isfinite(row)):
+            return None
+        j0 = round(col)
+        i0 = round(row)
+        k = self.half_window
+        d = np.add(self.square_dj, j0 - col)
+        dy = np.add(self.square_di, i0 - row)
+        _distance(d, dy)
+        d = d.reshape(2 * k + 1, 2 * k + 1)
+        return self._clipped(i0, j0, d)
+
+    def window(self, j0: np.ndarray, i0: np.ndarray, inside: bool) -> tuple[np.ndarray, np.ndarray | None]:
+        """The disc windows of marbles centred on pixels ``(i0, j0)`` (shape (M,), rounded pixel
+        coordinates); ``inside``: whether every window lies inside the image.
+
+        Returns ``(flat, valid)``: flat pixel indices within one image (M, P), and None (if
+        ``inside``) or the (M, P) mask of pixels inside the image (other entries hold clipped,
+        meaningless indices). Their coverage comes from :meth:`lut_disc`.
+        """
+        if inside:
+            base = i0.astype(np.int64) * self.size + j0.astype(np.int64)
+            return base[:, None] + self.dflat, None
+        # Near or beyond the image border: clip the window. Far-away (or non-finite) centres are
+        # clamped first so the integer arithmetic cannot overflow.
+        k = self.half_window
+        lo, hi = -self.size - 2 * k, 2 * self.size + 2 * k
+        j0 = np.clip(np.nan_to_num(j0, nan=lo), lo, hi).astype(np.int64)
+        i0 = np.clip(np.nan_to_num(i0, nan=lo), lo, hi).astype(np.int64)
+        jj = j0[:, None] + self.dj_int
+        ii = i0[:, None] + self.di_int
+        valid = (jj >= 0) & (jj < self.size) & (ii >= 0) & (ii < self.size)
+        np.clip(jj, 0, self.size - 1, out=jj)
+        np.clip(ii, 0, self.size - 1, out=ii)
+        return ii * self.size + jj, valid
+
+
+def _coverage(spec: MazeSpec, size: int, extent: float, supersample: int = SUPERSAMPLE) -> np.ndarray:
+    """Fraction of each pixel covered by floor, goal region and wall: (3, size, size) float64.
+
+    "Wall" is the ring walls outside their gates, the rim and everything beyond the rim; the goal
+    region is the floor inside wall 0 (the whole floor if there are no walls).
+    """
+    s = supersample
+    mpp = 2.0 * extent / size
+    sub = (np.arange(size * s) + 0.5) / s  # sub-sample positions in pixel-edge units
+    xs = -extent + sub * mpp
+    goal_radius = spec.walls[0].inner_radius if spec.walls else spec.rim_radius
+    fractions = np.empty((3, size, size), dtype=np.float64)
+    rows_per_chunk = max(1, 2 ** 20 // (size * s * s))
+    for r0 in range(0, size, rows_per_chunk):
+        r1 = min(size, r0 + rows_per_chunk)
+        ys = extent - sub[r0 * s:r1 * s] * mpp
+        x, y = np.meshgrid(xs, ys)
+        r = np.hypot(x, y)
+        labels = np.full(r.shape, _FLOOR, dtype=np.int8)
+        labels[r < goal_radius] = _GOAL
+        labels[r >= spec.rim_radius] = _WALL
+        for wall in spec.walls:
+            ring = np.nonzero((r >= wall.inner_radius) & (r <= wall.outer_radius))
+            theta = np.arctan2(y[ring], x[ring])
+            labels[ring] = np.where(wall.in_gate(theta), _FLOOR, _WALL).astype(np.int8)
+        blocks = labels.reshape(r1 - r0, s, size, s)
+        for label in (_FLOOR, _GOAL, _WALL):
+            fractions[label, r0:r1] = (blocks == label).mean(axis=(1, 3))
+    return fractions
+
+
+def _blend_gray(flat_out: np.ndarray, flat: np.ndarray, uncovered: np.ndarray) -> None:
+    """``flat_out[flat] = round(v * (1 - a) + MARBLE * a)`` with ``v = flat_out[flat]`` and
+    ``uncovered = 1 - a``, computed as ``(v - MARBLE) * (1 - a) + MARBLE + 0.5`` truncated."""
+    value = np.subtract(flat_out[flat], float(MARBLE))
+    value *= uncovered
+    value += MARBLE + 0.5
+    flat_out[flat] = value
+
+
+class MazeRenderer:
+    """Numpy raster of a :class:`~bimgame.maze.MazeSpec` seen from above, in the board frame.
+
+    ``gray`` draws (batches of) ``size`` × ``size`` uint8 observations; ``rgb`` draws colour video
+    frames at any size (default :data:`DEFAULT_RGB_SIZE`). See the module docstring for the pixel
+    convention. Backgrounds are rasterised once (the grayscale one in ``__init__``, each RGB size on
+    first use) and cached.
+    """
+
+    def __init__(self, spec: MazeSpec, size: int = 84):
+        if not isinstance(spec, MazeSpec):
+            raise TypeError(f"spec must be a MazeSpec, got {type(spec).__name__}")
+        if not (isinstance(size, (int, np.integer)) and size >= 1):
+            raise ValueError(f"size must be a positive integer, got {size!r}")
+        self.spec = spec
+        self.size = int(size)
+        self.extent = float(spec.rim_radius + spec.rim_thickness)
+        self._grid = _Grid.build(spec, self.size, self.extent)
+        fractions = _coverage(spec, self.size, self.extent)
+        gray = np.rint(np.tensordot(_GRAY_LEVELS, fractions, axes=1))
+        self._background = np.clip(gray, 0, 255).astype(np.uint8)
+        self._background.flags.writeable = False
+        self._grids: dict[int, _Grid] = {self.size: self._grid}
+        self._rgb_backgrounds: dict[int, np.ndarray] = {}
+
+    # ------------------------------------------------------------------ geometry
+    @property
+    def metres_per_pixel(self) -> float:
+        """Width (m) of one pixel of the grayscale observation: ``2 * extent / size``."""
+        return self._grid.metres_per_pixel
+
+    @property
+    def marble_radius_px(self) -> float:
+        """Marble radius in observation pixels."""
+        return self._grid.radius_px
+
+    @property
+    def background(self) -> np.ndarray:
+        """The static grayscale background, (size, size) uint8 (read-only)."""
+        return self._background
+
+    def world_to_pixel(self, xy: np.ndarray, size: int | None = None) -> np.ndarray:
+        """Continuous pixel coordinates ``(col, row)`` of board points ``xy`` (m), shape (..., 2).
+
+        Pixel ``[i, j]``'s centre is at ``(col, row) = (j, i)``; row 0 is +y (top), column 0 is -x
+        (left). ``size`` selects the image size (default: the observation size).
+        """
+        xy = np.asarray(xy, dtype=np.float64)
+        if xy.ndim == 0 or xy.shape[-1] != 2:
+            raise ValueError(f"xy must have shape (..., 2), got {xy.shape}")
+        return self._grid_for(size).to_pixel(xy)
+
+    def pixel_to_world(self, colrow: np.ndarray, size: int | None = None) -> np.ndarray:
+        """Inverse of :meth:`world_to_pixel`: board points (m) of pixel coordinates (..., 2)."""
+        colrow = np.asarray(colrow, dtype=np.float64)
+        if colrow.ndim == 0 or colrow.shape[-1] != 2:
+            raise ValueError(f"colrow must have shape (..., 2), got {colrow.shape}")
+        grid = self._grid_for(size)
+        mpp = grid.metres_per_pixel
+        x = (colrow[..., 0] + 0.5) * mpp - grid.extent
+        y = grid.extent - (colrow[..., 1] + 0.5) * mpp
+        return np.stack([x, y], axis=-1)
+
+    def _grid_for(self, size: int | None) -> _Grid:
+        """Pixel geometry at ``size`` (None: the observation size), built once per size."""
+        if size is None:
+            return self._grid
+        if not (isinstance(size, (int, np.integer)) and size >= 1):
+            raise ValueError(f"size must be a positive integer, got {size!r}")
+        grid = self._grids.get(int(size))
+        if grid is None:
+            grid = self._grids[int(size)] = _Grid.build(self.spec, int(size), self.extent)
+        return grid
+
+    # ------------------------------------------------------------------ grayscale observations
+    def gray(self, marble_xy: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """Grayscale frame(s) with marbles at board positions ``marble_xy`` (m).
+
+        Args:
+            marble_xy: (n_marbles, 2) for one frame or (B, n_marbles, 2) for a batch.
+            out: optional C-contiguous uint8 array of the result's shape to draw into.
+
+        Returns:
+            (size, size) or (B, size, size) uint8 (``out`` if given). Marbles are composited in
+            order (a later marble is drawn over an earlier one); parts outside the image are
+            clipped and non-finite positions draw nothing.
+        """
+        xy = np.asarray(marble_xy)
+        if xy.ndim not in (2, 3) or xy.shape[-1] != 2:
+            raise ValueError("marble_xy must have shape (n_marbles, 2) or (B, n_marbles, 2), "
+                             f"got {xy.shape}")
+        single = xy.ndim == 2
+        if single:
+            xy = xy[None]
+        batch, n_marbles = xy.shape[0], xy.shape[1]
+        s = self.size
+        shape = (s, s) if single else (batch, s, s)
+        if out is None:
+            out = np.empty(shape, dtype=np.uint8)
+        elif (not isinstance(out, np.ndarray) or out.shape != shape or out.dtype != np.uint8
+              or not out.flags.c_contiguous):
+            raise ValueError(f"out must be a C-contiguous uint8 array of shape {shape}, got "
+                             f"{getattr(out, 'dtype', type(out).__name__)} {getattr(out, 'shape', '')}")
+        np.copyto(out, self._background)
+        if n_marbles == 0 or batch == 0:
+            return out
+        grid = self._grid
+        if batch == 1:
+            # One frame: scalar set-up per marble and a square window blended through a view
+            # (fewer numpy calls on tiny arrays, no fancy indexing).
+            image = out if single else out[0]
+            extent, inv = grid.extent, 1.0 / grid.metres_per_pixel
+            for x, y in xy[0].tolist():
+                window = grid.lut_square((x + extent) * inv - 0.5, (extent - y) * inv - 0.5)
+                if window is not None:
+                    rows, cols, uncovered = window
+                    view = image[rows, cols]
+                    value = view.astype(np.float64)
+                    value -= MARBLE
+                    value *= uncovered
+                    value += MARBLE + 0.5
+                    np.copyto(view, value, casting="unsafe")
+            return out
+        pix = grid.to_pixel(xy)  # (B, n, 2)
+        centre = np.rint(pix)
+        k = grid.half_window
+        inside = bool(centre.min() >= k and centre.max() <= s - 1 - k)  # False for NaN
+        flat_out = out.reshape(-1)
+        frame_base = (np.arange(batch, dtype=np.int64) * (s * s))[:, None]
+        for m in range(n_marbles):
+            flat, valid = grid.window(centre[:, m, 0], centre[:, m, 1], inside)
+            u = grid.lut_disc(pix[:, m, 0], pix[:, m, 1], centre[:, m, 0], centre[:, m, 1])
+            flat += frame_base
+            if valid is not None:
+                flat = flat[valid]
+                u = u[valid]
+            _blend_gray(flat_out, flat, u)
+        return out
+
+    # ------------------------------------------------------------------ colour video frames
+    def background_rgb(self, size: int | None = None) -> np.ndarray:
+        """The static RGB background (size, size, 3) uint8 at ``size`` (default
+        :data:`DEFAULT_RGB_SIZE`), rasterised on first use and cached; read-only."""
+        grid = self._grid_for(DEFAULT_RGB_SIZE if size is None else size)
+        background = self._rgb_backgrounds.get(grid.size)
+        if background is None:
+            fractions = _coverage(self.spec, grid.size, self.extent)
+            rgb = np.rint(np.einsum("kc,kij->ijc", _RGB_LEVELS, fractions))
+            background = np.clip(rgb, 0, 255).astype(np.uint8)
+            background.flags.writeable = False
+            self._rgb_backgrounds[grid.size] = background
+        return background
+
+    def rgb(self, marble_xy: np.ndarray, size: int | None = None,
+            tilt: Sequence[float] | np.ndarray | None = None) -> np.ndarray:
+        """A colour frame (size, size, 3) uint8 with marbles at ``marble_xy`` (n_marbles, 2) (m).
+
+        ``size`` defaults to :data:`DEFAULT_RGB_SIZE`; each size's background is rasterised once.
+
+        Marbles are steel discs shaded from a bright centre to a darker edge with a dark outline
+        (radially symmetric, so the drawn marble's centroid is its position). If ``tilt`` — the
+        board's tilt (rad) about x and y — is given, a gauge in the bottom-right corner shows the
+        downhill direction in the board frame, its arrow's length proportional to the tilt
+        magnitude (full length at ``spec.max_tilt``).
+        """
+        xy = np.asarray(marble_xy, dtype=np.float64)
+        if xy.ndim != 2 or xy.shape[-1] != 2:
+            raise ValueError(f"marble_xy must have shape (n_marbles, 2), got {xy.shape}")
+        grid = self._grid_for(DEFAULT_RGB_SIZE if size is None else size)
+        img = self.background_rgb(grid.size).copy()
+        if tilt is not None:
+            self._draw_tilt_gauge(img, tilt)
+        pix = grid.to_pixel(xy)
+        radius = grid.radius_px
+        outline = max(1.0, 0.12 * radius)
+        body_in = np.array(MARBLE_RGB, dtype=np.float64)
+        body_out = np.array(MARBLE_EDGE_RGB, dtype=np.float64)
+        edge = np.array(MARBLE_OUTLINE_RGB, dtype=np.float64)
+        for x, y in pix.tolist():
+            window = grid.square(x, y)
+            if window is None:
+                continue
+            rows, cols, d = window
+            d = d[..., None]
+            # Steel: bright centre shading to a darker edge, then a dark outline ring.
+            colour = body_in + (body_out - body_in) * np.minimum(d / max(radius, 1e-9), 1.0) ** 2
+            colour += (edge - colour) * np.clip(d - (radius - outline) + 0.5, 0.0, 1.0)
+            coverage = 1.0 - grid.uncovered(d)
+            view = img[rows, cols]
+            current = view.astype(np.float64)
+            view[...] = np.rint(current + (colour - current) * coverage)
+        return img
+
+    def _draw_tilt_gauge(self, img: np.ndarray, tilt: Sequence[float] | np.ndarray) -> None:
+        """Draw the tilt indicator into the bottom-right corner of ``img`` (in place).
+
+        Downhill direction in the board frame: gravity (0, 0, -1) expressed in the board frame of
+        a board rotated by ``Rx(tilt_x) @ Ry(tilt_y)`` has in-plane part
+        ``(cos(tilt_x) sin(tilt_y), -sin(tilt_x))``.
+        """
+        t = np.asarray(tilt, dtype=np.float64).reshape(-1)
+        if t.shape != (2,):
+            raise ValueError(f"tilt must be (tilt_x, tilt_y) in radians, got shape {np.shape(tilt)}")
+        size = img.shape[0]
+        rho = 0.065 * size                 # gauge radius (px); fits in the corner outside the rim
+        centre = size - 1 - (rho + 0.02 * size)
+        gx = math.cos(t[0]) * math.sin(t[1])
+        gy = -math.sin(t[0])
+        slope = math.hypot(gx, gy)          # sin of the tilt angle from horizontal
+        if not math.isfinite(slope):
+            slope = 0.0                     # unknown tilt: the gauge without an arrow
+        length = rho * min(1.0, math.asin(min(1.0, slope)) / self.spec.max_tilt)
+        if slope > 0:
+            ex, ey = centre + length * gx / slope, centre - length * gy / slope
+        else:
+            ex, ey = centre, centre
+        lo = max(0, int(math.floor(centre - rho - 3)))
+        hi = min(size, int(math.ceil(centre + rho + 4)))
+        jj, ii = np.meshgrid(np.arange(lo, hi, dtype=np.float64), np.arange(lo, hi, dtype=np.float64))
+        patch = img[lo:hi, lo:hi].astype(np.float64)
+        width = max(1.0, 0.012 * size)
+
+        def paint(coverage: np.ndarray, colour: tuple[int, int, int]) -> None:
+            np.clip(coverage, 0.0, 1.0, out=coverage)
+            patch[...] += (np.asarray(colour, dtype=np.float64) - patch) * coverage[..., None]
+
+        r = np.hypot(jj - centre, ii - centre)
+        paint(width / 2 + 0.5 - np.abs(r - rho), TILT_GAUGE_RGB)        # ring
+        paint(1.5 * width + 0.5 - r, TILT_GAUGE_RGB)                     # hub
+        # Arrow: segment from the hub to (ex, ey) and a disc at its tip.
+        vx, vy = ex - centre, ey - centre
+        seg2 = vx * vx + vy * vy
+        if seg2 > 0:
+            s = np.clip(((jj - centre) * vx + (ii - centre) * vy) / seg2, 0.0, 1.0)
+            dist = np.hypot(jj - (centre + s * vx), ii - (centre + s * vy))
+            paint(width / 2 + 0.5 - dist, TILT_ARROW_RGB)
+            paint(1.5 * width + 0.5 - np.hypot(jj - ex, ii - ey), TILT_ARROW_RGB)
+        img[lo:hi, lo:hi] = np.rint(patch)

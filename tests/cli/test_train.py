@@ -1,0 +1,59 @@
+from __future__ import annotations
+
+import argparse
+import json
+
+import pytest
+
+from bimgame.learn.a3c import A3CConfig, train
+from bimgame.cli.main import build_parser, main
+from bimgame.cli.train import a3c_config_from, step_count
+
+
+@pytest.mark.parametrize("text, value", [("300000", 300_000), ("200k", 200_000), ("5M", 5_000_000),
+                                         ("2.5m", 2_500_000), ("1e6", 1_000_000)])
+def test_step_counts(text, value):
+    assert step_count(text) == value
+
+
+@pytest.mark.parametrize("text", ["", "five", "-3", "0", "1.5", "2x"])
+def test_bad_step_counts_are_rejected(text):
+    with pytest.raises(argparse.ArgumentTypeError, match="step"):
+        step_count(text)
+
+
+def test_train_flags_become_the_config(tmp_path):
+    args = build_parser().parse_args(["train", "--run-dir", str(tmp_path / "r"), "--task", "stg2", "--obs", "state",
+                                      "--steps", "1M", "--lr", "3e-4", "--no-tilt-input", "--envs-per-worker", "8"])
+    config = a3c_config_from(args)
+    assert (config.task, config.obs, config.steps, config.lr, config.tilt_input, config.envs_per_worker) == (
+        "STG2", "state", 1_000_000, 3e-4, False, 8)
+    assert config.hidden == 128  # the state network's size unless given
+
+
+def test_bad_flags_name_the_allowed_values(capsys):
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["train", "--run-dir", "x", "--obs", "rgb"])
+    assert "invalid choice: 'rgb'" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["train", "--run-dir", "x", "--lr", "-1"])
+    assert "expected a positive" in capsys.readouterr().err
+
+
+def test_resume_takes_the_stored_settings_and_evaluate_reports(tmp_path, capsys):
+    run_dir = tmp_path / "run"
+    config = A3CConfig(task="STG1", obs="state", steps=400, workers=1, envs_per_worker=2, n_steps=10,
+                       hidden=16, features=16, eval_every=0, lr=1e-3)
+    train(config, run_dir, progress=False)
+    args = build_parser().parse_args(["train", "--run-dir", str(run_dir), "--resume", "--steps", "800"])
+    resumed = a3c_config_from(args)
+    assert resumed == A3CConfig(**{**config.to_dict(), "steps": 800})
+    out = tmp_path / "eval.json"
+    assert main(["evaluate", str(run_dir), "--episodes", "3", "--out", str(out), "--gif", str(tmp_path / "e.gif")]) == 0
+    result = json.loads(out.read_text())
+    assert result["episodes"] == 3 and result["step"] >= 400 and len(result["lengths"]) == 3
+    assert (tmp_path / "e.gif").stat().st_size > 1000
+    printed = " ".join(capsys.readouterr().out.split())
+    assert "greedy" in printed and "STG1" in printed and "wrote" in printed
+    assert main(["evaluate", str(tmp_path)]) == 2
+    assert "is not a training run" in capsys.readouterr().err

@@ -1,0 +1,235 @@
+"""A3C: the loss, determinism, checkpoints and resume, failure handling, and that it learns."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from bimgame.learn.a3c import A3CConfig, TrainingError, a3c_segment_loss, network_for, train
+from bimgame.learn.actor import evaluate_network
+from bimgame.learn.runs import load_checkpoint, load_weights
+
+# Small, fast settings for state observations.
+FAST = dict(task="STG1", obs="state", workers=1, envs_per_worker=4, n_steps=10, eval_every=0, hidden=32,
+            features=32, log_every=500)
+
+
+def _segment(config: A3CConfig, steps: int, batch: int, seed: int = 0) -> dict[str, torch.Tensor]:
+    g = torch.Generator().manual_seed(seed)
+    return {"obs": torch.randn(steps + 1, batch, 7, generator=g) * 0.05,
+            "prev_action": torch.randint(-1, 5, (steps + 1, batch), generator=g),
+            "prev_reward": torch.zeros(steps + 1, batch), "tilt": torch.zeros(steps + 1, batch, 2),
+            "starts": torch.zeros(steps + 1, batch, dtype=torch.bool),
+            "actions": torch.randint(0, 5, (steps, batch), generator=g),
+            "rewards": (torch.rand(steps, batch, generator=g) < 0.2).float(),
+            "ends": torch.rand(steps, batch, generator=g) < 0.15,
+            "h0": torch.zeros(batch, config.hidden), "c0": torch.zeros(batch, config.hidden)}
+
+
+@pytest.mark.parametrize("gae_lambda", [1.0, 0.9])
+def test_segment_loss_matches_n_step_returns(gae_lambda):
+    """With λ=1 the value target is the n-step return r_t + γ r_t+1 + … + γ^k V(s_T), cut at episode
+    ends; with λ<1 it is the GAE target. Checked against a plain re-implementation."""
+    config = A3CConfig(obs="state", hidden=8, features=8, gamma=0.9, gae_lambda=gae_lambda)
+    net = network_for(config)
+    seg = _segment(config, 6, 3)
+    loss, parts = a3c_segment_loss(net, seg, config)
+    with torch.no_grad():
+        _, values, _ = net.unroll(seg["obs"], seg["prev_action"], seg["prev_reward"], seg["tilt"],
+                                  (seg["h0"], seg["c0"]), seg["starts"])
+    v = values.numpy().astype(np.float64)
+    r, ends = seg["rewards"].numpy(), seg["ends"].numpy()
+    targets = np.zeros((6, 3))
+    for b in range(3):
+        adv = 0.0
+        for t in reversed(range(6)):
+            nonterminal = 0.0 if ends[t, b] else 1.0
+            delta = r[t, b] + 0.9 * v[t + 1, b] * nonterminal - v[t, b]
+            adv = delta + 0.9 * gae_lambda * nonterminal * adv
+            targets[t, b] = adv + v[t, b]
+    if gae_lambda == 1.0:  # the same as discounted n-step returns
+        for b in range(3):
+            ret = v[6, b]
+            for t in reversed(range(6)):
+                ret = r[t, b] + 0.9 * ret * (0.0 if ends[t, b] else 1.0)
+                assert targets[t, b] == pytest.approx(ret, abs=1e-6)
+    expected_value_loss = 0.5 * np.mean((targets - v[:6]) ** 2)
+    assert parts["value_loss"] == pytest.approx(expected_value_loss, rel=1e-5)
+    assert parts["entropy"] == pytest.approx(np.log(5), abs=0.01)  # a fresh policy is near uniform
+    loss.backward()
+    assert all(p.grad is not None for p in net.parameters())
+
+
+def test_config_errors_name_the_setting():
+    with pytest.raises(ValueError, match="A3CConfig.obs must be one of"):
+        A3CConfig(obs="rgb")
+    with pytest.raises(ValueError, match="A3CConfig.workers must be an integer >= 1, got 0"):
+        A3CConfig(workers=0)
+    with pytest.raises(ValueError, match=r"A3CConfig.gamma must be in \[0.0, 1.0\]"):
+        A3CConfig(gamma=1.5)
+    with pytest.raises(ValueError, match="A3CConfig.lr must be a finite number > 0"):
+        A3CConfig(lr=float("nan"))
+    with pytest.raises(ValueError, match="A3CConfig.task"):
+        A3CConfig(task="STG9")
+    with pytest.raises(ValueError, match="A3CConfig.optimizer must be one of"):
+        A3CConfig(optimizer="sgd")
+    assert A3CConfig(obs="state").hidden == 128 and A3CConfig(obs="pixels").hidden == 256
+
+
+def test_single_worker_run_is_deterministic(tmp_path):
+    config = A3CConfig(steps=2_000, seed=5, **FAST)
+    train(config, tmp_path / "a", progress=False)
+    train(config, tmp_path / "b", progress=False)
+    a, b = load_checkpoint(tmp_path / "a"), load_checkpoint(tmp_path / "b")
+    assert a["step"] == b["step"] >= 2_000
+    for key in a["model"]:
+        assert torch.equal(a["model"][key], b["model"][key]), key
+    fresh = network_for(config).state_dict()
+    assert any(not torch.equal(a["model"][k], fresh[k]) for k in fresh), "training changed the weights"
+    other = A3CConfig(steps=2_000, seed=6, **FAST)
+    train(other, tmp_path / "c", progress=False)
+    c = load_checkpoint(tmp_path / "c")
+    assert any(not torch.equal(a["model"][k], c["model"][k]) for k in a["model"]), "the seed matters"
+
+
+def test_run_directory_guards(tmp_path):
+    config = A3CConfig(steps=400, **FAST)
+    train(config, tmp_path / "run", progress=False)
+    with pytest.raises(ValueError, match="already holds a run; pass --resume"):
+        train(config, tmp_path / "run", progress=False)
+    with pytest.raises(ValueError, match=r"--resume must keep the run's settings; changed: lr"):
+        train(A3CConfig(steps=800, lr=1e-3, **FAST), tmp_path / "run", resume=True, progress=False)
+    with pytest.raises(ValueError, match="already has .* steps >= steps=400"):
+        train(config, tmp_path / "run", resume=True, progress=False)
+    with pytest.raises(ValueError, match="has no config.json"):
+        train(config, tmp_path / "none", resume=True, progress=False)
+
+
+class ScaledRewards:
+    """An env wrapper gone wrong: rewards multiplied by ``factor`` (NaN, or so large that the loss
+    overflows)."""
+
+    def __init__(self, factor: float):
+        self.factor = factor
+
+    def __call__(self, env):
+        import gymnasium as gym
+
+        factor = self.factor
+
+        class Wrapped(gym.vector.VectorWrapper):
+            def step(self, actions):
+                obs, reward, terminated, truncated, info = self.env.step(actions)
+                return obs, reward * factor + (factor if factor > 1 else 0), terminated, truncated, info
+        return Wrapped(env)
+
+
+@pytest.mark.parametrize("factor, what", [(float("nan"), "reward from the env"), (1e38, "loss")])
+def test_non_finite_values_stop_the_run_and_keep_the_weights(tmp_path, factor, what):
+    config = A3CConfig(steps=5_000, checkpoint_every=100, **FAST)
+    with pytest.raises(TrainingError, match=f"non-finite {what} .* the update was not applied"):
+        train(config, tmp_path / "run", env_wrapper=ScaledRewards(factor), progress=False)
+    net = network_for(config)
+    assert load_weights(net, tmp_path / "run") < 5_000  # raises on non-finite weights
+    assert all(torch.isfinite(p).all() for p in net.parameters())
+
+
+def _train_command(run_dir: Path, *extra: str) -> list[str]:
+    return [sys.executable, "-m", "bimgame.cli.main", "train", "--run-dir", str(run_dir), "--task", "STG1", "--obs",
+            "state", "--workers", "1", "--envs-per-worker", "4", "--n-steps", "10", "--hidden", "32", "--features",
+            "32", "--eval-every", "0", "--no-progress", *extra]
+
+
+def _wait_for_checkpoint(run_dir: Path, process: subprocess.Popen, min_step: int, timeout: float = 120) -> int:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        assert process.poll() is None, process.communicate()
+        try:
+            step = load_checkpoint(run_dir)["step"]
+            if step >= min_step:
+                return step
+        except Exception:
+            pass
+        time.sleep(0.2)
+    raise AssertionError("no checkpoint in time")
+
+
+def test_kill_9_then_resume(tmp_path):
+    run_dir = tmp_path / "run"
+    process = subprocess.Popen(_train_command(run_dir, "--steps", "40k", "--checkpoint-every", "2k"),
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+    _wait_for_checkpoint(run_dir, process, 6_000)
+    workers = _children(process.pid)
+    assert workers, "the run has worker processes"
+    os.kill(process.pid, signal.SIGKILL)  # only the parent: its workers must notice and exit
+    process.communicate()
+    killed_at = load_checkpoint(run_dir)["step"]
+    deadline = time.monotonic() + 20
+    while time.monotonic() < deadline and any(_running(pid) for pid in workers):
+        time.sleep(0.2)
+    assert not any(_running(pid) for pid in workers), "workers outlived a killed parent"
+    resumed = subprocess.run(_train_command(run_dir, "--resume", "--steps", "12k"), capture_output=True,
+                             text=True, timeout=300)
+    assert resumed.returncode == 0, resumed.stderr
+    final = load_checkpoint(run_dir)["step"]
+    assert final >= 12_000 > killed_at
+    updates = np.genfromtxt(run_dir / "updates.csv", delimiter=",", names=True)
+    assert np.all(np.diff(updates["step"]) > 0), "no step logged twice after the resume"
+    episodes = np.genfromtxt(run_dir / "episodes.csv", delimiter=",", names=True)
+    assert episodes["step"].max() <= final + 40
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["stopped"] == "finished" and summary["steps"] == final
+
+
+def _children(pid: int) -> list[int]:
+    out = subprocess.run(["ps", "-eo", "ppid=,pid="], capture_output=True, text=True).stdout
+    return [int(child) for parent, child in (line.split() for line in out.splitlines()) if int(parent) == pid]
+
+
+def _running(pid: int) -> bool:
+    """Alive and not a zombie."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+    except OSError:
+        return False
+    return "\nState:\tZ" not in status
+
+
+def test_ctrl_c_stops_cleanly_with_a_final_checkpoint(tmp_path):
+    run_dir = tmp_path / "run"
+    process = subprocess.Popen(_train_command(run_dir, "--steps", "1M", "--checkpoint-every", "500k"),
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while not (run_dir / "updates.csv").is_file() or len((run_dir / "updates.csv").read_text().splitlines()) < 3:
+        assert time.monotonic() < deadline and process.poll() is None, process.communicate()
+        time.sleep(0.2)
+    process.send_signal(signal.SIGINT)
+    _, stderr = process.communicate(timeout=60)
+    assert process.returncode == 130, stderr
+    assert "interrupted" in stderr and "--resume" in stderr
+    assert 0 < load_checkpoint(run_dir)["step"] < 1_000_000
+
+
+def test_a3c_learns_stg1_from_state_observations(tmp_path):
+    """Well beyond a random policy on STG1 in about 300k steps (one deterministic worker)."""
+    config = A3CConfig(task="STG1", obs="state", workers=1, envs_per_worker=32, steps=300_000, seed=1,
+                       eval_every=0)
+    result = train(config, tmp_path / "run", progress=False)
+    net = network_for(config)
+    load_weights(net, tmp_path / "run")
+    trained = evaluate_network(net, task="STG1", obs_mode="state", episodes=40, seed=777, greedy=False)
+    untrained = evaluate_network(network_for(config), task="STG1", obs_mode="state", episodes=40, seed=777,
+                                 greedy=False)
+    assert untrained.success_rate <= 0.35  # an untrained network acts about uniformly at random (~15%)
+    assert trained.success_rate >= untrained.success_rate + 0.4, (trained.summary(), untrained.summary())
+    assert trained.mean_length < 0.7 * untrained.mean_length
+    assert result.final_eval is None or result.final_eval["sampled_success_rate"] >= 0
