@@ -19,7 +19,7 @@ ENV_IDS = tuple(f"BiMGame/{task.value}-v0" for task in Task)
 
 def register_envs() -> None:
     """Register the five task ids with Gymnasium (idempotent)."""
-    from bimgame.envs.env import MAX_EPISODE_STEPS
+    from bimgame.sim.tasks import MAX_EPISODE_STEPS
 
     for task in Task:
         env_id = f"BiMGame/{task.value}-v0"

@@ -11,7 +11,8 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import bimgame
-from bimgame.envs.env import MAX_EPISODE_STEPS, BallInMazeEnv
+from bimgame.envs.env import BallInMazeEnv
+from bimgame.sim.tasks import MAX_EPISODE_STEPS
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.tasks import Task
 

@@ -15,7 +15,7 @@ from bimgame.learn.actor import RecurrentActor, evaluate_network
 from bimgame.cli.main import main
 from bimgame.cli.train import env_wrapper_for
 from bimgame.expert.datasets import iterate_sequences
-from bimgame.envs.env import MAX_EPISODE_STEPS
+from bimgame.sim.tasks import MAX_EPISODE_STEPS
 from bimgame.sim.maze import MazeSpec
 from bimgame.learn.pretrain import (KIND_POLICY, KIND_VALUE, PretrainConfig, load_sequences, load_value_network, pretrain,
                               relabel, split_episodes)

@@ -15,23 +15,21 @@ from gymnasium import spaces
 from bimgame.sim.maze import MazeSpec
 from bimgame.envs.observe import OBS_MODES, Observer
 from bimgame.sim.physics import MazeSim
-from bimgame.sim.tasks import Task, initial_task_state, parse_task, task_step_one
+from bimgame.sim.tasks import MAX_EPISODE_STEPS, Task, initial_task_state, parse_task, task_step_one
 
-__all__ = ["BallInMazeEnv", "ACTION_TYPES", "DISCRETE_TILTS", "MAX_EPISODE_STEPS", "sample_start",
+__all__ = ["BallInMazeEnv", "ACTION_TYPES", "DISCRETE_TILTS", "NO_ACTION", "sample_start",
            "action_to_tilt_delta"]
 
 ACTION_TYPES = ("discrete", "continuous")
 
-#: Time limits (action steps at 30 Hz) per task. A uniformly random policy solves STG1 16% of the
-#: time within 300 steps but 82% within 3000, solves STG2 2/50 and FULL 0/50 within 3000, while the
-#: random-shooting MPC expert (K=10) needs a median of 177–486 steps for FULL. These limits give a
-#: competent controller ample time and keep luck from solving the task (DESIGN §2).
-MAX_EPISODE_STEPS = {Task.STG1: 300, Task.STG2: 500, Task.STG3: 750, Task.STG4: 1000, Task.FULL: 1000}
 
 #: Discrete actions as (sign about x, sign about y) of one tilt step.
 DISCRETE_TILTS = np.array([[0, 0], [1, 0], [-1, 0], [0, 1], [0, -1]], dtype=np.float64)
 ACTION_MEANINGS = ("noop", "tilt +x", "tilt -x", "tilt +y", "tilt -y")
 #: What the discrete actions mean, for error messages.
+#: The "previous action" before an episode's first step (not a valid action): what the networks'
+#: previous-action input and the datasets' ``prev_actions`` hold at step 0.
+NO_ACTION = -1
 ACTIONS_HELP = ", ".join(f"{i}={m}" for i, m in enumerate(ACTION_MEANINGS))
 _FAST_INTS = (int, np.int64, np.int32)
 

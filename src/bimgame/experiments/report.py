@@ -193,7 +193,7 @@ def expert_success_by_task(sequences: list[dict[str, Any]], tasks: Sequence[str]
     """The expert's success rate on each task: its dataset episodes relabelled for the task
     (:func:`bimgame.pretrain.relabel`), a success being the task's goal reached within the task's
     time limit."""
-    from bimgame.envs.env import MAX_EPISODE_STEPS
+    from bimgame.sim.tasks import MAX_EPISODE_STEPS
     from bimgame.sim.maze import MazeSpec
     from bimgame.learn.pretrain import relabel
     from bimgame.sim.tasks import parse_task

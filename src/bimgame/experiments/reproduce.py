@@ -328,7 +328,7 @@ COSTS = CostModel()
 
 
 def _time_limit(task: str) -> int:
-    from bimgame.envs.env import MAX_EPISODE_STEPS
+    from bimgame.sim.tasks import MAX_EPISODE_STEPS
 
     return MAX_EPISODE_STEPS[Task(task)]
 

@@ -44,6 +44,7 @@ from typing import Any
 import numpy as np
 
 from bimgame.cli.argtypes import non_negative_int, positive_int
+from bimgame.envs.env import NO_ACTION
 from bimgame.expert.mpc import MPCConfig, episode_seed
 from bimgame.util.files import atomic_write_bytes, exclusive_lock
 from bimgame.expert.episodes import BACKENDS, MAIN_GUARD, environment, episode_progress, expert_episodes, import_ray
@@ -56,8 +57,6 @@ __all__ = ["DatasetError", "generate_dataset", "load_dataset", "iterate_sequence
 FORMAT_NAME = "bimgame-expert-dataset"
 FORMAT_VERSION = 1
 ALGORITHM_NAME = "RandomShootingMPC"
-#: ``prev_actions[0]`` of every sequence: there is no action before the first step.
-NO_ACTION = -1
 
 MANIFEST_NAME = "generation.json"
 MARKER_NAME = "COMPLETE"

@@ -26,7 +26,8 @@ from typing import Any
 
 import numpy as np
 
-from bimgame.envs.env import DISCRETE_TILTS, MAX_EPISODE_STEPS, BallInMazeEnv
+from bimgame.envs.env import DISCRETE_TILTS, BallInMazeEnv
+from bimgame.sim.tasks import MAX_EPISODE_STEPS
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.physics import MazeSim
 from bimgame.sim.tasks import Task, parse_task

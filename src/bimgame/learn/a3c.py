@@ -41,7 +41,7 @@ import torch.multiprocessing as mp
 
 from bimgame.learn.actor import RecurrentActor, evaluate_network, tilt_input
 from bimgame.learn.curves import plot_run
-from bimgame.envs.env import MAX_EPISODE_STEPS
+from bimgame.sim.tasks import MAX_EPISODE_STEPS
 from bimgame.sim.maze import MazeSpec
 from bimgame.learn.nets import NetConfig, RecurrentActorCritic, build_network, maze_background, state_obs_scale
 from bimgame.envs.observe import OBS_MODES

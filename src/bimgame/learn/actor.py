@@ -107,7 +107,7 @@ def evaluate_network(net: RecurrentActorCritic, *, task: str, obs_mode: str, epi
     Start positions come from ``seed`` (the same seed gives the same starts, so evaluations along a
     run are comparable); sampled actions draw from a generator seeded with ``seed`` too.
     ``record`` keeps RGB frames of the first environment's episode."""
-    from bimgame.envs.env import MAX_EPISODE_STEPS
+    from bimgame.sim.tasks import MAX_EPISODE_STEPS
     from bimgame.sim.tasks import parse_task
 
     kwargs: dict[str, Any] = {"task": task, "obs_mode": obs_mode}

@@ -29,14 +29,13 @@ import numpy as np
 import torch
 from torch import nn
 
+from bimgame.envs.env import NO_ACTION
 from bimgame.sim.maze import MazeSpec
 from bimgame.util.settings import from_dict
 
 __all__ = ["NetConfig", "RecurrentActorCritic", "ValueNetwork", "build_value_network", "LSTMState", "build_network", "state_obs_scale", "maze_background",
            "NO_ACTION", "N_ACTIONS", "ENCODERS"]
 
-#: Previous-action code at an episode's first step (encoded as an all-zero one-hot).
-NO_ACTION = -1
 #: The discrete action set of the env (noop, ±x, ±y).
 N_ACTIONS = 5
 ENCODERS = ("conv", "mlp")

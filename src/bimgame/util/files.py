@@ -1,15 +1,23 @@
 """File safety: atomic writes (write to a temporary file in the same directory, then rename, so a
-crash never leaves a half-written file under the final name) and an exclusive directory lock."""
+crash never leaves a half-written file under the final name), JSON files written that way and read
+back tolerantly, and an exclusive directory lock."""
 
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
-__all__ = ["atomic_write_bytes", "exclusive_lock"]
+try:
+    import fcntl
+except ImportError:  # pragma: no cover - not POSIX: directories are not locked
+    fcntl = None  # type: ignore[assignment]
+
+__all__ = ["atomic_write_bytes", "exclusive_lock", "write_json", "read_json"]
 
 
 def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
@@ -38,9 +46,7 @@ def exclusive_lock(lock_path: str | Path, busy_message: str) -> Iterator[None]:
     """Hold an exclusive lock on ``lock_path`` (created if missing) for the block; another process
     holding it raises ``BlockingIOError(busy_message)`` at once. The OS releases the lock even if
     the process is killed, so a crash never leaves a stale lock behind."""
-    try:
-        import fcntl
-    except ImportError:  # pragma: no cover - not POSIX: no locking
+    if fcntl is None:  # pragma: no cover
         yield
         return
     with open(lock_path, "a") as handle:
@@ -52,3 +58,19 @@ def exclusive_lock(lock_path: str | Path, busy_message: str) -> Iterator[None]:
             yield
         finally:
             fcntl.flock(handle, fcntl.LOCK_UN)
+
+
+def write_json(path: str | Path, values: dict[str, Any]) -> Path:
+    """``values`` as indented JSON with sorted keys, written atomically; returns the path."""
+    return atomic_write_bytes(path, (json.dumps(values, indent=2, sort_keys=True) + "\n").encode())
+
+
+def read_json(path: str | Path) -> dict[str, Any] | None:
+    """The JSON object in ``path``, or None when the file is missing, unreadable, not JSON or not an
+    object: for files whose absence means "not done yet" (summaries, states, plans). Where a missing
+    or broken file is an error, say so with the caller's own message instead."""
+    try:
+        value = json.loads(Path(path).read_text())
+    except (OSError, ValueError):
+        return None
+    return value if isinstance(value, dict) else None
