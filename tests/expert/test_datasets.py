@@ -21,9 +21,9 @@ from minari import EpisodeData
 import bimgame.expert.datasets as data
 import bimgame.expert.episodes as parallel
 from bimgame.cli.main import main
-from bimgame.expert.datasets import (NO_ACTION, DatasetError, add_generate_arguments, dataset_summary, generate_dataset,
+from bimgame.expert.datasets import (DatasetError, add_generate_arguments, dataset_summary, generate_dataset,
                           iterate_sequences, load_dataset)
-from bimgame.envs.env import BallInMazeEnv
+from bimgame.envs.env import NO_ACTION, BallInMazeEnv
 from bimgame.expert.mpc import MPCConfig, episode_seed
 
 CONFIG = MPCConfig(n_samples=4, horizon=8)
@@ -92,14 +92,14 @@ def test_pixels_rendered_from_stored_states_equal_the_envs_own(reference):
         env = BallInMazeEnv("STG1", obs_mode="pixels")
         obs, _ = env.reset(seed=seed)
         frames, rewards = [obs], []
-        for action in sequence["actions"]:
+        for action in sequence.actions:
             obs, reward, terminated, _, _ = env.step(int(action))
             frames.append(obs)
             rewards.append(reward)
         env.close()
-        assert sequence["obs"].dtype == np.uint8 and sequence["obs"].shape == (len(frames) - 1, 1, 84, 84)
-        assert np.array_equal(sequence["obs"], np.stack(frames[:-1]))
-        assert np.array_equal(sequence["rewards"], rewards) and terminated == sequence["terminated"]
+        assert sequence.obs.dtype == np.uint8 and sequence.obs.shape == (len(frames) - 1, 1, 84, 84)
+        assert np.array_equal(sequence.obs, np.stack(frames[:-1]))
+        assert np.array_equal(sequence.rewards, rewards) and terminated == sequence.terminated
 
 
 def test_same_dataset_whatever_the_number_of_workers(reference, tmp_path, monkeypatch):
@@ -289,18 +289,18 @@ def test_sequences_shift_previous_actions_and_rewards_and_discount_returns(refer
     for sequence, episode in zip(sequences, episodes):
         steps = len(episode.rewards)
         direct = [sum(gamma ** (k - t) * episode.rewards[k] for k in range(t, steps)) for t in range(steps)]
-        np.testing.assert_allclose(sequence["returns"], direct, rtol=1e-6, atol=1e-6)
-        assert sequence["prev_actions"][0] == NO_ACTION == -1 and sequence["prev_rewards"][0] == 0
-        assert np.array_equal(sequence["prev_actions"][1:], episode.actions[:-1])
-        assert np.array_equal(sequence["prev_rewards"][1:], episode.rewards[:-1])
-        assert np.array_equal(sequence["obs"], episode.observations[:-1])
-        assert sequence["terminated"] == bool(episode.terminations[-1])
-        assert sequence["truncated"] == bool(episode.truncations[-1])
+        np.testing.assert_allclose(sequence.returns, direct, rtol=1e-6, atol=1e-6)
+        assert sequence.prev_actions[0] == NO_ACTION == -1 and sequence.prev_rewards[0] == 0
+        assert np.array_equal(sequence.prev_actions[1:], episode.actions[:-1])
+        assert np.array_equal(sequence.prev_rewards[1:], episode.rewards[:-1])
+        assert np.array_equal(sequence.obs, episode.observations[:-1])
+        assert sequence.terminated == bool(episode.terminations[-1])
+        assert sequence.truncated == bool(episode.truncations[-1])
 
     real = list(iterate_sequences(reference))  # a directory works too
     stored = episodes_of(load_dataset(reference))
-    assert [len(s["actions"]) for s in real] == [len(e["actions"]) for e in stored]
-    assert all(np.array_equal(s["obs"], e["observations"][:-1]) for s, e in zip(real, stored))
+    assert [len(s) for s in real] == [len(e["actions"]) for e in stored]
+    assert all(np.array_equal(s.obs, e["observations"][:-1]) for s, e in zip(real, stored))
     with pytest.raises(ValueError, match="unknown obs 'rgb'"):
         next(iterate_sequences(reference, obs="rgb"))
     with pytest.raises(ValueError, match=r"gamma must be a number in \[0, 1\]"):

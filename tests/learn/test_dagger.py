@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import itertools
+from types import SimpleNamespace
 import json
 import shutil
 
@@ -18,8 +19,9 @@ from bimgame.learn.a3c import evaluate_greedy_and_sampled, load_run_network, net
 from bimgame.learn.actor import evaluate_network
 from bimgame.cli.main import main
 from bimgame.learn.dagger import KIND_DAGGER, DAggerConfig, collect_episodes, dagger
+from bimgame.expert.episode import Episode
 from bimgame.expert.mpc import MPCConfig
-from bimgame.learn.nets import NO_ACTION
+from bimgame.envs.env import NO_ACTION
 from bimgame.learn.pretrain import PretrainConfig
 
 
@@ -48,9 +50,11 @@ def _npz(run_dir, iteration: int) -> dict[str, np.ndarray]:
         return {key: data[key] for key in data.files}
 
 
-def _episodes_of(arrays: dict[str, np.ndarray]) -> list[dict[str, np.ndarray]]:
+def _episodes_of(arrays: dict[str, np.ndarray]) -> list[SimpleNamespace]:
+    """The episodes of a stored iteration, read independently of the library's own reader."""
     bounds = np.concatenate([[0], np.cumsum(arrays["lengths"])])
-    return [{k: v[a:b] for k, v in arrays.items() if k != "lengths"} for a, b in itertools.pairwise(bounds)]
+    return [SimpleNamespace(**{k: v[a:b] for k, v in arrays.items() if k != "lengths"})
+            for a, b in itertools.pairwise(bounds)]
 
 
 def _weights(run_dir) -> dict[str, torch.Tensor]:
@@ -78,31 +82,31 @@ def _forced_learner(config: DAggerConfig):
     return net
 
 
-def _check_episode_layout(episode: dict[str, np.ndarray], config: DAggerConfig) -> None:
-    steps = len(episode["actions"])
+def _check_episode_layout(episode: Episode | SimpleNamespace, config: DAggerConfig) -> None:
+    steps = len(episode.actions)
     assert 1 <= steps <= config.time_limit
     for key in ("obs", "executed", "prev_actions", "prev_rewards", "tilt", "rewards", "returns"):
-        assert len(episode[key]) == steps, key
-    assert episode["tilt"].shape == (steps, 2)
-    assert set(np.unique(episode["actions"])) <= set(range(5))
-    assert set(np.unique(episode["executed"])) <= set(range(5))
+        assert len(getattr(episode, key)) == steps, key
+    assert episode.tilt.shape == (steps, 2)
+    assert set(np.unique(episode.actions)) <= set(range(5))
+    assert set(np.unique(episode.executed)) <= set(range(5))
     # The recurrent inputs are what was executed and received one step earlier.
-    assert episode["prev_actions"][0] == NO_ACTION
-    np.testing.assert_array_equal(episode["prev_actions"][1:], episode["executed"][:-1])
-    assert episode["prev_rewards"][0] == 0.0
-    np.testing.assert_array_equal(episode["prev_rewards"][1:], episode["rewards"][:-1])
-    np.testing.assert_allclose(episode["returns"], _discounted(episode["rewards"], config.learner.gamma), rtol=1e-6)
+    assert episode.prev_actions[0] == NO_ACTION
+    np.testing.assert_array_equal(episode.prev_actions[1:], episode.executed[:-1])
+    assert episode.prev_rewards[0] == 0.0
+    np.testing.assert_array_equal(episode.prev_rewards[1:], episode.rewards[:-1])
+    np.testing.assert_allclose(episode.returns, _discounted(episode.rewards, config.learner.gamma), rtol=1e-6)
     # STG1: reward 1 when the marble passes the first wall, which ends the episode; otherwise the
     # rollout runs to the time limit.
-    np.testing.assert_array_equal(episode["rewards"][:-1], 0.0)
-    assert episode["rewards"][-1] == 1.0 or (episode["rewards"][-1] == 0.0 and steps == config.time_limit)
+    np.testing.assert_array_equal(episode.rewards[:-1], 0.0)
+    assert episode.rewards[-1] == 1.0 or (episode.rewards[-1] == 0.0 and steps == config.time_limit)
 
 
 def _check_costs(episodes, costs, config: DAggerConfig) -> None:
-    steps = sum(len(e["actions"]) for e in episodes)
+    steps = sum(len(e.actions) for e in episodes)
     assert costs["env_steps"] == costs["labels"] == steps
     assert costs["expert_sim_steps"] == steps * config.expert.n_samples * config.expert.horizon
-    assert costs["successes"] == sum(int(e["rewards"][-1] == 1.0) for e in episodes)
+    assert costs["successes"] == sum(int(e.rewards[-1] == 1.0) for e in episodes)
 
 
 def test_collect_episodes_mixes_expert_and_learner_by_beta_and_labels_every_state_with_the_expert(
@@ -114,7 +118,7 @@ def test_collect_episodes_mixes_expert_and_learner_by_beta_and_labels_every_stat
     for episode in expert_run:
         _check_episode_layout(episode, config)
         # β = 1: every executed action is the expert's label.
-        np.testing.assert_array_equal(episode["executed"], episode["actions"])
+        np.testing.assert_array_equal(episode.executed, episode.actions)
     _check_costs(expert_run, expert_costs, config)
     # Even this cheap expert passes the first wall within the limit in some episodes, not all.
     assert 0 < expert_costs["successes"] < config.episodes_per_iteration, expert_costs
@@ -123,31 +127,30 @@ def test_collect_episodes_mixes_expert_and_learner_by_beta_and_labels_every_stat
     again, again_costs = collect_episodes(net, config, beta=1.0, seed=11)
     assert again_costs == expert_costs
     for a, b in zip(expert_run, again):
-        assert a.keys() == b.keys()
-        for key in a:
-            np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+        for key, value in a.step_arrays().items():
+            np.testing.assert_array_equal(value, getattr(b, key), err_msg=key)
     other, _ = collect_episodes(net, config, beta=1.0, seed=12)
-    assert not any(np.array_equal(a["obs"][0], b["obs"][0]) for a, b in zip(expert_run, other))
+    assert not any(np.array_equal(a.obs[0], b.obs[0]) for a, b in zip(expert_run, other))
 
     # β = 0: the learner (here one that always tilts -x) acts; the expert still labels every state.
     forced = _forced_learner(config)
     learner_run, learner_costs = collect_episodes(forced, config, beta=0.0, seed=11)
     for episode in learner_run:
         _check_episode_layout(episode, config)
-        np.testing.assert_array_equal(episode["executed"], FORCED_ACTION)
+        np.testing.assert_array_equal(episode.executed, FORCED_ACTION)
     _check_costs(learner_run, learner_costs, config)
-    labels = np.concatenate([e["actions"] for e in learner_run])
+    labels = np.concatenate([e.actions for e in learner_run])
     assert (labels != FORCED_ACTION).any() and len(np.unique(labels)) >= 3, np.bincount(labels)
     # Up to the first step where the learner departs from the expert, both runs visit the same
     # states (same starts) and the expert gives the same labels there: the labels are the
     # expert's, in the state the learner reached.
     for expert_episode, learner_episode in zip(expert_run, learner_run):
-        departs = np.flatnonzero(learner_episode["actions"] != FORCED_ACTION)
+        departs = np.flatnonzero(learner_episode.actions != FORCED_ACTION)
         assert len(departs), "the expert never disagrees with always tilting -x"
         upto = int(departs[0]) + 1
-        assert upto <= len(expert_episode["actions"])
-        np.testing.assert_array_equal(learner_episode["obs"][:upto], expert_episode["obs"][:upto])
-        np.testing.assert_array_equal(learner_episode["actions"][:upto], expert_episode["actions"][:upto])
+        assert upto <= len(expert_episode.actions)
+        np.testing.assert_array_equal(learner_episode.obs[:upto], expert_episode.obs[:upto])
+        np.testing.assert_array_equal(learner_episode.actions[:upto], expert_episode.actions[:upto])
 
     # β = 0.5: each step executes either the label or the learner's action, and both happen; up
     # to the first executed action that is not the label, the run is the expert's run.
@@ -156,14 +159,15 @@ def test_collect_episodes_mixes_expert_and_learner_by_beta_and_labels_every_stat
     shared = 0
     for expert_episode, mixed_episode in zip(expert_run, mixed_run):
         _check_episode_layout(mixed_episode, config)
-        departs = np.flatnonzero(mixed_episode["executed"] != mixed_episode["actions"])
-        upto = int(departs[0]) + 1 if len(departs) else len(mixed_episode["actions"])
+        departs = np.flatnonzero(mixed_episode.executed != mixed_episode.actions)
+        upto = int(departs[0]) + 1 if len(departs) else len(mixed_episode.actions)
         shared += upto
         for key in ("obs", "actions", "tilt"):
-            np.testing.assert_array_equal(mixed_episode[key][:upto], expert_episode[key][:upto], err_msg=key)
+            np.testing.assert_array_equal(getattr(mixed_episode, key)[:upto], getattr(expert_episode, key)[:upto],
+                                          err_msg=key)
     assert shared > len(mixed_run), shared
-    executed = np.concatenate([e["executed"] for e in mixed_run])
-    labels = np.concatenate([e["actions"] for e in mixed_run])
+    executed = np.concatenate([e.executed for e in mixed_run])
+    labels = np.concatenate([e.actions for e in mixed_run])
     assert ((executed == labels) | (executed == FORCED_ACTION)).all()
     disagree = labels != FORCED_ACTION
     expert_share = float(np.mean(executed[disagree] == labels[disagree]))
@@ -213,7 +217,7 @@ def _check_aggregation(run_dir, config: DAggerConfig, result) -> list[dict[str, 
         # expert's planning is counted apart, K·H simulator steps per label.
         assert int(row["step"]) == int(row["labels"]) == int(row["dataset_steps"]) == steps
         assert int(row["expert_sim_steps"]) == steps * k * h
-        successes = sum(int(e["rewards"][-1] == 1.0) for e in episodes)
+        successes = sum(int(e.rewards[-1] == 1.0) for e in episodes)
         assert float(row["rollout_success_rate"]) == pytest.approx(successes / config.episodes_per_iteration)
         if i > 0:
             assert int(row["dataset_steps"]) > int(rows[i - 1]["dataset_steps"])

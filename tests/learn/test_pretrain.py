@@ -18,7 +18,7 @@ from bimgame.expert.datasets import iterate_sequences
 from bimgame.sim.tasks import MAX_EPISODE_STEPS
 from bimgame.sim.maze import MazeSpec
 from bimgame.learn.pretrain import (KIND_POLICY, KIND_VALUE, PretrainConfig, load_sequences, load_value_network, pretrain,
-                              relabel, split_episodes)
+                              split_episodes)
 from bimgame.learn.runs import load_weights
 from bimgame.sim.tasks import Task
 from bimgame.envs.vector import BallInMazeVectorEnv
@@ -28,33 +28,10 @@ MAX_TILT = MazeSpec.merl().max_tilt
 
 
 # ----------------------------------------------------------------------------------- helpers
-def _episode(channels) -> dict:
-    """A hand-made episode in iterate_sequences' layout whose marbles visit ``channels`` (T+1 rows)."""
-    channels = np.asarray(channels, dtype=np.int64).reshape(len(channels), -1)
-    steps = len(channels) - 1
-    rng = np.random.default_rng(steps)
-    actions = rng.integers(5, size=steps)
-    return {"obs": rng.normal(size=(steps, 7)).astype(np.float32), "actions": actions,
-            "prev_actions": np.concatenate([[-1], actions[:-1]]),
-            "tilt": rng.normal(scale=0.01, size=(steps, 2)).astype(np.float32),
-            "rewards": np.zeros(steps, np.float32), "channels": channels, "id": 7}
-
-
 def _discounted(rewards, gamma) -> np.ndarray:
     """G_t = Σ_k γ^k r_{t+k}, written out."""
     rewards = np.asarray(rewards, dtype=np.float64)
     return np.array([sum(gamma ** k * r for k, r in enumerate(rewards[t:])) for t in range(len(rewards))])
-
-
-def _assert_relabelled(out: dict, episode: dict, rewards, terminated: bool) -> None:
-    end = len(rewards)
-    np.testing.assert_array_equal(out["rewards"], rewards)
-    np.testing.assert_array_equal(out["prev_rewards"], np.concatenate([[0.0], rewards[:-1]]))
-    np.testing.assert_allclose(out["returns"], _discounted(rewards, GAMMA), rtol=1e-6)
-    for key in ("obs", "actions", "prev_actions", "tilt"):
-        np.testing.assert_array_equal(out[key], episode[key][:end])
-    np.testing.assert_array_equal(out["channels"], episode["channels"][:end + 1])
-    assert (out["terminated"], out["truncated"], out["id"]) == (terminated, not terminated, episode["id"])
 
 
 def _random_success_rate(task: str, episodes: int, seed: int) -> float:
@@ -81,12 +58,12 @@ def _teacher_forced_accuracy(net, sequences: list[dict]) -> float:
     correct = total = 0
     for s in sequences:
         actor = RecurrentActor(net, 1, greedy=True)
-        for t in range(len(s["actions"])):
-            tilt = torch.as_tensor(s["tilt"][t:t + 1] / np.float32(MAX_TILT))
-            actions, _, _ = actor.act(s["obs"][t:t + 1], tilt if net.config.tilt_input else None)
-            correct += int(actions.item() == s["actions"][t])
+        for t in range(len(s)):
+            tilt = torch.as_tensor(s.tilt[t:t + 1] / np.float32(MAX_TILT))
+            actions, _, _ = actor.act(s.obs[t:t + 1], tilt if net.config.tilt_input else None)
+            correct += int(actions.item() == s.actions[t])
             total += 1
-            actor.observe(torch.as_tensor(s["actions"][t:t + 1]), s["rewards"][t:t + 1], np.array([False]))
+            actor.observe(torch.as_tensor(s.actions[t:t + 1]), s.rewards[t:t + 1], np.array([False]))
     return correct / total
 
 
@@ -105,43 +82,15 @@ def _split(result) -> tuple[PretrainConfig, list[dict], np.ndarray, np.ndarray]:
     return config, sequences, train_idx, val_idx
 
 
-# ----------------------------------------------------------------------------------- relabel
-def test_relabel_cuts_a_full_episode_at_each_tasks_goal_with_its_rewards():
-    # Outermost channel 4 → 3 → back out to 4 → 3 → 2 → 2 → 1 → 0 (the centre).
-    full = _episode([4, 4, 3, 4, 3, 2, 2, 1, 0])
-    # STG1: the marble left channel 4 at step 1; the episode ends there with reward 1.
-    _assert_relabelled(relabel(full, "STG1", GAMMA), full, [0.0, 1.0], terminated=True)
-    # STG2: channel 2 first reached at step 4 (going back out after STG1's goal does not matter).
-    _assert_relabelled(relabel(full, Task.STG2, GAMMA), full, [0.0, 0.0, 0.0, 0.0, 1.0], terminated=True)
-    _assert_relabelled(relabel(full, "STG3", GAMMA), full, [0.0] * 6 + [1.0], terminated=True)
-    _assert_relabelled(relabel(full, "STG4", GAMMA), full, [0.0] * 7 + [1.0], terminated=True)
-    # FULL: +1 per wall crossed inwards, -1 outwards, the whole episode.
-    _assert_relabelled(relabel(full, "FULL", GAMMA), full, [0.0, 1.0, -1.0, 1.0, 1.0, 0.0, 1.0, 1.0],
-                       terminated=True)
-
-    # An episode that never reaches the goal keeps every step and is truncated, not terminated.
-    unfinished = _episode([4, 3, 3, 2])
-    _assert_relabelled(relabel(unfinished, "STG3", GAMMA), unfinished, [0.0, 0.0, 0.0], terminated=False)
-    _assert_relabelled(relabel(unfinished, "FULL", GAMMA), unfinished, [1.0, 0.0, 1.0], terminated=False)
-
-    # Two marbles: +1 per marble the first time it reaches the goal; the episode ends when both have.
-    two = _episode([[4, 4], [3, 4], [4, 4], [4, 3], [3, 3], [2, 2]])
-    _assert_relabelled(relabel(two, "STG1", GAMMA), two, [1.0, 0.0, 1.0], terminated=True)
-
-    bad = {**full, "channels": full["channels"][:-1]}
-    with pytest.raises(ValueError, match="channels must have 9 rows, got 8"):
-        relabel(bad, "STG1", GAMMA)
-
-
 def test_relabelling_for_the_datasets_own_task_reproduces_its_rewards_and_a_harder_task_is_refused(
         stg1_dataset, tmp_path):
     recorded = list(iterate_sequences(stg1_dataset, obs="state", gamma=0.99))
     relabelled = load_sequences(stg1_dataset, "STG1", "state", 0.99)
     assert len(relabelled) == len(recorded) > 0
     for mine, env in zip(relabelled, recorded):
-        np.testing.assert_array_equal(mine["rewards"], env["rewards"])
-        np.testing.assert_allclose(mine["returns"], env["returns"], rtol=1e-6)
-        assert (mine["terminated"], mine["truncated"]) == (env["terminated"], env["truncated"])
+        np.testing.assert_array_equal(mine.rewards, env.rewards)
+        np.testing.assert_allclose(mine.returns, env.returns, rtol=1e-6)
+        assert (mine.terminated, mine.truncated) == (env.terminated, env.truncated)
 
     for harder in ("FULL", "STG2"):
         with pytest.raises(ValueError, match=rf"STG1 episodes.*{harder}"):
@@ -196,8 +145,8 @@ def test_value_network_beats_predicting_the_mean_return_and_is_frozen(value_stg1
     summary = json.loads((result.run_dir / "summary.json").read_text())
     assert summary["kind"] == KIND_VALUE and result.policy_eval is None and np.isnan(result.val_accuracy)
     config, sequences, train_idx, val_idx = _split(result)
-    train_returns = np.concatenate([sequences[i]["returns"] for i in train_idx]).astype(np.float64)
-    val_returns = np.concatenate([sequences[i]["returns"] for i in val_idx]).astype(np.float64)
+    train_returns = np.concatenate([sequences[i].returns for i in train_idx]).astype(np.float64)
+    val_returns = np.concatenate([sequences[i].returns for i in val_idx]).astype(np.float64)
     mean_rmse = float(np.sqrt(np.mean((val_returns - train_returns.mean()) ** 2)))
     assert result.val_value_rmse < 0.8 * mean_rmse, (result.val_value_rmse, mean_rmse)
 
@@ -206,8 +155,8 @@ def test_value_network_beats_predicting_the_mean_return_and_is_frozen(value_stg1
     assert not net.training
     assert all(not p.requires_grad for p in net.parameters())
     # The stored weights are the best epoch's: they reproduce its held-out RMSE.
-    obs = torch.as_tensor(np.concatenate([sequences[i]["obs"] for i in val_idx]))
-    tilt = torch.as_tensor(np.concatenate([sequences[i]["tilt"] for i in val_idx]) / np.float32(MAX_TILT))
+    obs = torch.as_tensor(np.concatenate([sequences[i].obs for i in val_idx]))
+    tilt = torch.as_tensor(np.concatenate([sequences[i].tilt for i in val_idx]) / np.float32(MAX_TILT))
     values = net(obs, tilt)
     assert not values.requires_grad  # frozen: nothing to backpropagate into
     rmse = float(np.sqrt(np.mean((values.numpy().astype(np.float64) - val_returns) ** 2)))

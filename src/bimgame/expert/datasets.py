@@ -44,14 +44,14 @@ from typing import Any
 import numpy as np
 
 from bimgame.cli.argtypes import non_negative_int, positive_int
-from bimgame.envs.env import NO_ACTION
+from bimgame.expert.episode import Episode
 from bimgame.expert.mpc import MPCConfig, episode_seed
 from bimgame.util.files import atomic_write_bytes, exclusive_lock
 from bimgame.expert.episodes import BACKENDS, MAIN_GUARD, environment, episode_progress, expert_episodes, import_ray
 from bimgame.sim.tasks import Task, parse_task
 
 __all__ = ["DatasetError", "generate_dataset", "load_dataset", "iterate_sequences", "dataset_summary",
-           "dataset_id_for", "dataset_manifest", "discounted_returns", "previous_values", "add_generate_arguments", "run_generate", "BACKENDS", "NO_ACTION",
+           "dataset_id_for", "dataset_manifest", "add_generate_arguments", "run_generate", "BACKENDS",
            "FORMAT_VERSION"]
 
 FORMAT_NAME = "bimgame-expert-dataset"
@@ -490,25 +490,15 @@ def dataset_summary(out_dir: str | Path) -> dict[str, Any]:
 
 # ---------------------------------------------------------------------------- pre-training view
 def iterate_sequences(dataset_or_dir, *, obs: str = "state", gamma: float = 0.99,
-                      ) -> Iterator[dict[str, Any]]:
+                      ) -> Iterator[Episode]:
     """Whole episodes for sequence models (an LSTM sees each episode from its start).
 
     ``dataset_or_dir``: a ``MinariDataset`` (e.g. from :func:`load_dataset`) or a dataset directory
-    (opened with :func:`load_dataset`). Yields one dict per episode of T steps:
-
-    - ``obs`` (T, …): the observation each action was taken in — ``"state"``: (T, 7) float32 from
-      the stored observations; ``"pixels"``: (T, 1, 84, 84) uint8 re-rendered from the stored
-      physics states (identical to the env's own pixel observations);
-    - ``actions`` (T,) int64; ``rewards`` (T,) float32;
-    - ``prev_actions`` (T,) int64: the action before each step, :data:`NO_ACTION` (-1, not a valid
-      action) at t=0; ``prev_rewards`` (T,) float32: the reward before each step, 0 at t=0;
-    - ``returns`` (T,) float32: discounted returns-to-go ``G_t = r_t + gamma * G_{t+1}`` with
-      ``G_T = 0`` — exact for terminated episodes; for truncated ones the tail beyond the time limit
-      is also taken as 0 (check ``truncated``);
-    - ``tilt`` (T, 2) float32: the board tilt (rad) when each action was taken;
-    - ``channels`` (T+1, n) int64: each marble's channel before and after every step (what a
-      different task's rewards are computed from, see :func:`bimgame.pretrain.relabel`);
-    - ``terminated``, ``truncated``: how the episode ended; ``id``: its index in the dataset.
+    (opened with :func:`load_dataset`). Yields one :class:`~bimgame.expert.episode.Episode` per
+    episode: ``obs`` ``"state"`` is (T, 7) float32 from the stored observations, ``"pixels"`` is
+    (T, 1, 84, 84) uint8 re-rendered from the stored physics states (identical to the env's own
+    pixel observations); ``channels`` come from the stored infos (or the state observations); ``id``
+    is the episode's index in the dataset.
     """
     if obs not in ("state", "pixels"):
         raise ValueError(f"unknown obs {obs!r}; allowed: 'state', 'pixels'")
@@ -535,45 +525,15 @@ def iterate_sequences(dataset_or_dir, *, obs: str = "state", gamma: float = 0.99
                               np.asarray(infos["channel"][:steps]))
         else:
             frames = states
-        actions = np.asarray(episode.actions, dtype=np.int64)
-        rewards = np.asarray(episode.rewards, dtype=np.float64)
         n_marbles = (states.shape[1] - 2) // 5  # [x, y, vx, vy] * n, tilt_x, tilt_y, channel * n
         if "channel" in infos:
             channels = np.asarray(infos["channel"][:steps + 1], dtype=np.int64)
         else:
             channels = np.rint(np.asarray(episode.observations[:steps + 1])[:, 4 * n_marbles + 2:]).astype(np.int64)
-        yield {
-            "obs": frames,
-            "actions": actions,
-            "rewards": rewards.astype(np.float32),
-            "prev_actions": previous_values(actions, NO_ACTION),
-            "prev_rewards": previous_values(rewards.astype(np.float32), 0.0),
-            "returns": discounted_returns(rewards, gamma).astype(np.float32),
-            "tilt": states[:, 4 * n_marbles:4 * n_marbles + 2].copy(),
-            "channels": channels,
-            "terminated": bool(episode.terminations[-1]),
-            "truncated": bool(episode.truncations[-1]),
-            "id": int(episode.id),
-        }
-
-
-def previous_values(values: np.ndarray, first: Any) -> np.ndarray:
-    """``values`` one step later: at each step, the value of the step before (``first`` at t=0) —
-    the previous-action and previous-reward inputs of the recurrent networks."""
-    out = np.empty_like(values)
-    out[:1] = first
-    out[1:] = values[:-1]
-    return out
-
-
-def discounted_returns(rewards: np.ndarray, gamma: float) -> np.ndarray:
-    """Returns-to-go ``G_t = r_t + gamma * G_{t+1}``, ``G_T = 0`` (float64)."""
-    returns = np.empty(len(rewards), dtype=np.float64)
-    running = 0.0
-    for t in range(len(rewards) - 1, -1, -1):
-        running = float(rewards[t]) + gamma * running
-        returns[t] = running
-    return returns
+        yield Episode.from_steps(obs=frames, actions=episode.actions, rewards=episode.rewards,
+                                 tilt=states[:, 4 * n_marbles:4 * n_marbles + 2], gamma=gamma, channels=channels,
+                                 terminated=bool(episode.terminations[-1]),
+                                 truncated=bool(episode.truncations[-1]), id=int(episode.id))
 
 
 def _pixel_observer(n_marbles: int):

@@ -39,12 +39,12 @@ import torch
 
 from bimgame.learn.a3c import evaluate_greedy_and_sampled, network_for
 from bimgame.learn.actor import RecurrentActor, tilt_input
-from bimgame.expert.datasets import discounted_returns, previous_values
+from bimgame.expert.episode import Episode
 from bimgame.envs.env import BallInMazeEnv
 from bimgame.expert.mpc import MPCConfig, RandomShootingMPC
 from bimgame.util.files import atomic_write_bytes
 from bimgame.sim.maze import MazeSpec
-from bimgame.learn.nets import NO_ACTION, RecurrentActorCritic
+from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.learn.pretrain import PretrainConfig, train_policy_epochs
 from bimgame.learn.runs import CHECKPOINT, CONFIG, MetricLog, load_weights, save_checkpoint, torch_threads, write_json
 from bimgame.util.settings import from_dict, require_int
@@ -56,7 +56,6 @@ STATE = "dagger_state.json"
 _TABLE = ["iteration", "beta", "episodes", "dataset_steps", "expert_sim_steps", "labels", "train_loss",
           "train_accuracy", "rollout_success_rate", "greedy_success_rate", "greedy_mean_length",
           "greedy_mean_return", "sampled_success_rate", "sampled_mean_length", "sampled_mean_return", "seconds"]
-_SEQUENCE_KEYS = ("obs", "actions", "prev_actions", "prev_rewards", "tilt", "returns", "rewards", "executed")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -121,11 +120,11 @@ class DAggerConfig:
 # ------------------------------------------------------------------------------ rollouts
 @torch.no_grad()
 def collect_episodes(net: RecurrentActorCritic, config: DAggerConfig, beta: float, seed: int,
-                     ) -> tuple[list[dict[str, np.ndarray]], dict[str, int]]:
+                     ) -> tuple[list[Episode], dict[str, int]]:
     """``episodes_per_iteration`` episodes, run side by side (one batched forward pass per step),
     executing the expert's action with probability ``beta`` and the learner's sampled action
     otherwise; every visited state is labelled by the expert. Returns the episodes (as
-    :func:`~bimgame.data.iterate_sequences` dicts, ``actions`` being the expert's labels and
+    :class:`~bimgame.expert.episode.Episode` records, ``actions`` being the expert's labels and
     ``executed`` what was done) and the costs: ``env_steps``, ``labels``, ``expert_sim_steps``,
     ``successes``."""
     learner = config.learner
@@ -180,37 +179,27 @@ def collect_episodes(net: RecurrentActorCritic, config: DAggerConfig, beta: floa
             env.close()
         for expert in experts:
             expert.close()
-    episodes = [_as_sequence(r, learner.gamma) for r in records]
-    labels = sum(len(e["actions"]) for e in episodes)
+    episodes = [_as_episode(r, learner.gamma) for r in records]
+    labels = sum(len(e) for e in episodes)
     costs = {"env_steps": labels, "labels": labels, "successes": successes,
              "expert_sim_steps": labels * config.expert.n_samples * config.expert.horizon}
     return episodes, costs
 
 
-def _as_sequence(record: dict[str, list], gamma: float) -> dict[str, np.ndarray]:
-    executed = np.asarray(record["executed"], dtype=np.int64)
-    rewards = np.asarray(record["rewards"], dtype=np.float64)
-    prev_actions = previous_values(executed, NO_ACTION)
-    prev_rewards = previous_values(rewards.astype(np.float32), 0.0)
-    return {"obs": np.stack(record["obs"]), "actions": np.asarray(record["actions"], dtype=np.int64),
-            "executed": executed, "prev_actions": prev_actions, "prev_rewards": prev_rewards,
-            "tilt": np.asarray(record["tilt"], dtype=np.float32), "rewards": rewards.astype(np.float32),
-            "returns": discounted_returns(rewards, gamma).astype(np.float32)}
+def _as_episode(record: dict[str, list], gamma: float) -> Episode:
+    return Episode.from_steps(obs=np.stack(record["obs"]), actions=record["actions"], rewards=record["rewards"],
+                              tilt=record["tilt"], gamma=gamma, executed=record["executed"])
 
 
-def _save_episodes(path: Path, episodes: list[dict[str, np.ndarray]]) -> None:
-    arrays = {key: np.concatenate([e[key] for e in episodes]) for key in _SEQUENCE_KEYS}
-    arrays["lengths"] = np.array([len(e["actions"]) for e in episodes], dtype=np.int64)
+def _save_episodes(path: Path, episodes: list[Episode]) -> None:
     buffer = io.BytesIO()
-    np.savez_compressed(buffer, **arrays)
+    np.savez_compressed(buffer, **Episode.concatenate(episodes))
     atomic_write_bytes(path, buffer.getvalue())
 
 
-def _load_episodes(path: Path) -> list[dict[str, np.ndarray]]:
+def _load_episodes(path: Path) -> list[Episode]:
     with np.load(path, allow_pickle=False) as data:
-        arrays = {key: data[key] for key in (*_SEQUENCE_KEYS, "lengths")}
-    bounds = np.concatenate([[0], np.cumsum(arrays["lengths"])])
-    return [{key: arrays[key][a:b] for key in _SEQUENCE_KEYS} for a, b in zip(bounds[:-1], bounds[1:])]
+        return Episode.split({key: data[key] for key in data.files})
 
 
 # ------------------------------------------------------------------------------ the loop
@@ -263,7 +252,7 @@ def _dagger(config: DAggerConfig, run_dir: Path | str, *, resume: bool, init: st
         write_json(run_dir / CONFIG, {"kind": KIND_DAGGER, "a3c": config.learner.a3c_config().to_dict(),
                                       "net": net.config.to_dict(), "dagger": config.to_dict(),
                                       "init": None if init is None else str(init)})
-    dataset: list[dict[str, np.ndarray]] = []
+    dataset: list[Episode] = []
     for i in range(state["iteration"]):
         dataset += _load_episodes(_data_path(run_dir, i))
     log = MetricLog(run_dir, {"dagger": _TABLE}, resume_step=state["env_steps"] if resume else None)
@@ -288,7 +277,7 @@ def _dagger(config: DAggerConfig, run_dir: Path | str, *, resume: bool, init: st
                 state["iteration"] = iteration + 1
                 state["seconds"] = time.monotonic() - started
                 row = {"iteration": iteration, "beta": beta, "episodes": len(dataset),
-                       "dataset_steps": sum(len(e["actions"]) for e in dataset),
+                       "dataset_steps": sum(len(e) for e in dataset),
                        "expert_sim_steps": state["expert_sim_steps"], "labels": state["labels"],
                        "train_loss": summary["loss"], "train_accuracy": summary["accuracy"],
                        "rollout_success_rate": costs["successes"] / config.episodes_per_iteration,
@@ -308,7 +297,7 @@ def _dagger(config: DAggerConfig, run_dir: Path | str, *, resume: bool, init: st
     finally:
         log.close()
     return DAggerResult(run_dir, state["iteration"], state["env_steps"], state["expert_sim_steps"],
-                        sum(len(e["actions"]) for e in dataset), final_eval, time.monotonic() - started)
+                        sum(len(e) for e in dataset), final_eval, time.monotonic() - started)
 
 
 def _data_path(run_dir: Path, iteration: int) -> Path:

@@ -19,7 +19,7 @@ and L2 terms alone (frames shuffled, no sequences needed), then frozen and used 
 :mod:`bimgame.envs.shaping` as the shaping potential.
 
 **Other tasks.** A dataset is generated for one task (usually FULL); its episodes are relabelled
-for an easier task from the marbles' recorded channels (:func:`relabel`): an STG1 episode is the
+for an easier task from the marbles' recorded channels (:func:`bimgame.expert.episode.relabel`): an STG1 episode is the
 FULL episode up to the step the marble passed the outermost wall, with STG1's reward. A harder task
 than the dataset's cannot be labelled (its episodes stop too early) and is refused.
 """
@@ -38,7 +38,8 @@ import torch
 import torch.nn.functional as F
 
 from bimgame.learn.a3c import A3CConfig, evaluate_greedy_and_sampled, net_config_for, network_for
-from bimgame.expert.datasets import dataset_manifest, discounted_returns, iterate_sequences, load_dataset, previous_values
+from bimgame.expert.datasets import dataset_manifest, iterate_sequences, load_dataset
+from bimgame.expert.episode import Episode, relabel
 from bimgame.sim.maze import MazeSpec
 from bimgame.learn.nets import NO_ACTION, RecurrentActorCritic, ValueNetwork, build_value_network
 from bimgame.envs.observe import OBS_MODES
@@ -47,7 +48,7 @@ from bimgame.learn.runs import (CHECKPOINT, CONFIG, KIND_POLICY, KIND_VALUE, Met
 from bimgame.util.settings import from_dict, require_int
 from bimgame.sim.tasks import Task, parse_task
 
-__all__ = ["PretrainConfig", "PretrainResult", "pretrain", "relabel", "load_sequences", "load_value_network",
+__all__ = ["PretrainConfig", "PretrainResult", "pretrain", "load_sequences", "load_value_network",
            "policy_loss_terms", "train_policy_epochs", "TARGETS", "KIND_POLICY", "KIND_VALUE", "run_kind"]
 
 TARGETS = ("policy", "value")
@@ -60,7 +61,7 @@ class PretrainConfig:
     """Settings of supervised pre-training."""
 
     task: str = "FULL"
-    """Task whose rewards give the value targets (episodes are relabelled, see :func:`relabel`)."""
+    """Task whose rewards give the value targets (episodes are relabelled, see :func:`bimgame.expert.episode.relabel`)."""
     obs: str = "pixels"
     """``pixels`` (the paper's) or ``state``; the same network as A3C with these observations."""
     target: str = "policy"
@@ -134,51 +135,15 @@ class PretrainConfig:
 
 
 # ------------------------------------------------------------------------------------- data
-def _depth(task: Task, spec: MazeSpec) -> int:
-    """Walls a task's episode passes: k for STGk, all of them for FULL."""
-    return len(spec.walls) if task.steps_to_go is None else task.steps_to_go
-
-
-def relabel(sequence: dict[str, Any], task: str | Task, gamma: float, spec: MazeSpec | None = None,
-            ) -> dict[str, Any]:
-    """An episode of :func:`~bimgame.data.iterate_sequences` with ``task``'s rewards, returns and
-    end: cut after the step where the task's goal was reached, computed from the recorded channels
-    (the same rules as :func:`bimgame.tasks.task_step`)."""
-    spec = spec or MazeSpec.merl()
-    task = parse_task(task, spec)
-    channels = np.asarray(sequence["channels"])
-    steps = len(sequence["actions"])
-    if channels.shape[0] != steps + 1:
-        raise ValueError(f"episode {sequence.get('id')}: channels must have {steps + 1} rows, got {channels.shape[0]}")
-    after = channels[1:]
-    if task is Task.FULL:
-        rewards = (channels[:-1] - after).sum(axis=-1).astype(np.float64)
-        done = (after == 0).all(axis=-1)
-    else:
-        goal = task.goal_channel(spec)
-        reached = np.logical_or.accumulate(after <= goal, axis=0)
-        before = np.vstack([np.zeros_like(reached[:1]), reached[:-1]])
-        rewards = (reached & ~before).sum(axis=-1).astype(np.float64)
-        done = reached.all(axis=-1)
-    end = int(np.argmax(done)) + 1 if done.any() else steps
-    terminated = bool(done.any())
-    out = {key: sequence[key][:end] for key in ("obs", "actions", "prev_actions", "tilt")}
-    out.update(rewards=rewards[:end].astype(np.float32),
-               prev_rewards=previous_values(rewards[:end].astype(np.float32), 0.0),
-               returns=discounted_returns(rewards[:end], gamma).astype(np.float32),
-               channels=channels[:end + 1], terminated=terminated,
-               truncated=not terminated, id=sequence.get("id"))
-    return out
-
-
 def load_sequences(data_dir: str | Path, task: str | Task, obs: str, gamma: float,
-                   spec: MazeSpec | None = None, *, progress: bool = False) -> list[dict[str, Any]]:
-    """Every episode of a dataset directory, relabelled for ``task`` (see :func:`relabel`)."""
+                   spec: MazeSpec | None = None, *, progress: bool = False) -> list[Episode]:
+    """Every episode of a dataset directory, relabelled for ``task`` (see
+    :func:`~bimgame.expert.episode.relabel`)."""
     spec = spec or MazeSpec.merl()
     task = parse_task(task, spec)
     manifest = dataset_manifest(data_dir)
     data_task = parse_task(manifest["task"], spec)
-    if _depth(task, spec) > _depth(data_task, spec):
+    if task.walls_to_pass(spec) > data_task.walls_to_pass(spec):
         raise ValueError(f"the dataset in {data_dir} holds {data_task.value} episodes, which end before a "
                          f"{task.value} episode would; use a dataset of {task.value} or a harder task "
                          f"(FULL labels every task)")
@@ -204,23 +169,23 @@ def split_episodes(count: int, val_fraction: float, rng: np.random.Generator) ->
     return np.sort(order[held:]), np.sort(order[:held])
 
 
-def _padded_batch(sequences: list[dict[str, Any]], max_tilt: float) -> dict[str, torch.Tensor]:
+def _padded_batch(sequences: list[Episode], max_tilt: float) -> dict[str, torch.Tensor]:
     """Episodes side by side, (T, B, …), padded at the end; ``mask`` marks real steps."""
-    steps = max(len(s["actions"]) for s in sequences)
+    steps = max(len(s) for s in sequences)
     batch = len(sequences)
-    obs_shape = sequences[0]["obs"].shape[1:]
-    obs = np.zeros((steps, batch, *obs_shape), dtype=sequences[0]["obs"].dtype)
+    obs_shape = sequences[0].obs.shape[1:]
+    obs = np.zeros((steps, batch, *obs_shape), dtype=sequences[0].obs.dtype)
     out = {"actions": np.zeros((steps, batch), np.int64), "prev_action": np.full((steps, batch), NO_ACTION, np.int64),
            "prev_reward": np.zeros((steps, batch), np.float32), "tilt": np.zeros((steps, batch, 2), np.float32),
            "returns": np.zeros((steps, batch), np.float32), "mask": np.zeros((steps, batch), bool)}
     for b, s in enumerate(sequences):
-        n = len(s["actions"])
-        obs[:n, b] = s["obs"]
-        out["actions"][:n, b] = s["actions"]
-        out["prev_action"][:n, b] = s["prev_actions"]
-        out["prev_reward"][:n, b] = s["prev_rewards"]
-        out["tilt"][:n, b] = s["tilt"] / max_tilt
-        out["returns"][:n, b] = s["returns"]
+        n = len(s)
+        obs[:n, b] = s.obs
+        out["actions"][:n, b] = s.actions
+        out["prev_action"][:n, b] = s.prev_actions
+        out["prev_reward"][:n, b] = s.prev_rewards
+        out["tilt"][:n, b] = s.tilt / max_tilt
+        out["returns"][:n, b] = s.returns
         out["mask"][:n, b] = True
     tensors = {k: torch.as_tensor(v) for k, v in out.items()}
     tensors["obs"] = torch.as_tensor(obs)
@@ -292,10 +257,10 @@ def _policy_epoch(net, sequences, indices, config, max_tilt, rng, optimizer) -> 
     return _summarise(totals, config.value_coef, policy=True)
 
 
-def _frames(sequences: list[dict[str, Any]], indices: np.ndarray, max_tilt: float) -> dict[str, torch.Tensor]:
-    return {"obs": torch.as_tensor(np.concatenate([sequences[i]["obs"] for i in indices])),
-            "tilt": torch.as_tensor(np.concatenate([sequences[i]["tilt"] for i in indices]) / max_tilt),
-            "returns": torch.as_tensor(np.concatenate([sequences[i]["returns"] for i in indices]))}
+def _frames(sequences: list[Episode], indices: np.ndarray, max_tilt: float) -> dict[str, torch.Tensor]:
+    return {"obs": torch.as_tensor(np.concatenate([sequences[i].obs for i in indices])),
+            "tilt": torch.as_tensor(np.concatenate([sequences[i].tilt for i in indices]) / max_tilt),
+            "returns": torch.as_tensor(np.concatenate([sequences[i].returns for i in indices]))}
 
 
 def _value_epoch(net: ValueNetwork, frames: dict[str, torch.Tensor], config: PretrainConfig,
@@ -343,7 +308,7 @@ def build_model(config: PretrainConfig, maze: MazeSpec | None = None) -> Recurre
     return build_value_network(net_config, seed=config.seed, **inputs)
 
 
-def train_policy_epochs(net: RecurrentActorCritic, sequences: list[dict[str, Any]], config: PretrainConfig,
+def train_policy_epochs(net: RecurrentActorCritic, sequences: list[Episode], config: PretrainConfig,
                         epochs: int, rng: np.random.Generator, max_tilt: float) -> dict[str, float]:
     """``epochs`` passes of the pre-training loss over all ``sequences`` (no hold-out; DAgger's
     retraining step). Returns the last epoch's training summary."""
@@ -355,7 +320,7 @@ def train_policy_epochs(net: RecurrentActorCritic, sequences: list[dict[str, Any
 
 
 def pretrain(config: PretrainConfig, data_dir: str | Path, out_dir: str | Path, *, progress: bool = True,
-             sequences: list[dict[str, Any]] | None = None) -> PretrainResult:
+             sequences: list[Episode] | None = None) -> PretrainResult:
     """Train π^s or V̂ on the dataset in ``data_dir``; everything is written to ``out_dir``:
     ``config.json``, ``checkpoint.pt`` (the best held-out weights), ``pretrain.csv`` and TensorBoard
     scalars per epoch, ``summary.json``. ``sequences`` (already loaded with
@@ -365,7 +330,7 @@ def pretrain(config: PretrainConfig, data_dir: str | Path, out_dir: str | Path, 
 
 
 def _pretrain(config: PretrainConfig, data_dir: str | Path, out_dir: Path, *, progress: bool,
-              sequences: list[dict[str, Any]] | None) -> PretrainResult:
+              sequences: list[Episode] | None) -> PretrainResult:
     if (out_dir / CONFIG).exists() or (out_dir / CHECKPOINT).exists():
         raise ValueError(f"{out_dir} already holds a run; choose a new --out")
     maze = MazeSpec.merl()

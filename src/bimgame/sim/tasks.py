@@ -22,7 +22,8 @@ import numpy as np
 
 from bimgame.sim.maze import MazeSpec
 
-__all__ = ["Task", "TaskState", "parse_task", "task_step", "task_step_one", "initial_task_state", "MAX_EPISODE_STEPS"]
+__all__ = ["Task", "TaskState", "parse_task", "task_step", "task_step_one", "initial_task_state", "MAX_EPISODE_STEPS",
+           "rewards_from_channels"]
 
 
 class Task(str, enum.Enum):
@@ -137,3 +138,18 @@ def task_step_one(task: Task, spec: MazeSpec, channels: list[int], reached: list
             reached[i] = True
             reward += 1.0
     return float(reward), all(reached), crossings
+
+
+def rewards_from_channels(task: Task, spec: MazeSpec, channels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The rewards and goal flags of a recorded episode under ``task``, from each marble's channel
+    before and after every step (``channels``: (T+1, n)): ``(rewards (T,), done (T,))``, ``done[t]``
+    saying whether the goal was reached by step t. The same rules as :func:`task_step`, applied to a
+    whole recorded episode at once (how a FULL episode is relabelled for STGk)."""
+    channels = np.asarray(channels)
+    after = channels[1:]
+    if task is Task.FULL:
+        rewards = (channels[:-1] - after).sum(axis=-1).astype(np.float64)
+        return rewards, (after == 0).all(axis=-1)
+    reached = np.logical_or.accumulate(after <= task.goal_channel(spec), axis=0)
+    before = np.vstack([np.zeros_like(reached[:1]), reached[:-1]])
+    return (reached & ~before).sum(axis=-1).astype(np.float64), reached.all(axis=-1)
