@@ -29,10 +29,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from bimgame.envs.vector import BallInMazeVectorEnv
 from bimgame.learn.a3c import A3CConfig, apply_update, make_optimizer, network_for, shared_optimizer_state, train
 from bimgame.learn.actor import RecurrentActor
 from bimgame.util.files import atomic_write_bytes
-from bimgame.envs.vector import BallInMazeVectorEnv
 
 RESULTS = Path(__file__).parent / "results"
 

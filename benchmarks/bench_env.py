@@ -31,11 +31,12 @@ import mujoco
 import numpy as np
 
 import bimgame  # noqa: F401  (registers ids)
+import bimgame.sim.physics as sim_module
 from bimgame.envs.env import BallInMazeEnv
-from bimgame.util.files import atomic_write_bytes
-from bimgame.sim.render import MazeRenderer
-from bimgame.sim.physics import MazeSim
 from bimgame.envs.vector import BallInMazeVectorEnv
+from bimgame.sim.physics import MazeSim
+from bimgame.sim.render import MazeRenderer
+from bimgame.util.files import atomic_write_bytes
 
 RESULTS = Path(__file__).parent / "results" / "env.json"
 
@@ -59,8 +60,6 @@ class _TimedMujoco:
 def env_engine_share(obs_mode: str, n: int, wrapped: bool) -> float:
     """Fraction of env-step wall time spent inside ``mj_step`` (best of 3): the env's throughput
     as a fraction of the engine's own limit, measured on the same steps at the same moment."""
-    import bimgame.sim.physics as sim_module
-
     timed = _TimedMujoco()
     original = sim_module.mujoco
     sim_module.mujoco = timed

@@ -24,8 +24,8 @@ import mujoco
 import numpy as np
 from mujoco import rollout as mj_rollout
 
-from bimgame.expert.mpc import MPCConfig, RandomShootingMPC, run_expert_episode
 from bimgame.expert.evaluation import evaluate_expert, plot_length_histogram, summarise
+from bimgame.expert.mpc import MPCConfig, RandomShootingMPC, run_expert_episode
 from bimgame.util.files import atomic_write_bytes
 
 RESULTS = Path(__file__).parent / "results"

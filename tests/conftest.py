@@ -8,7 +8,8 @@ from __future__ import annotations
 import pytest
 
 from bimgame.expert.datasets import generate_dataset
-from bimgame.learn.pretrain import PretrainConfig, PretrainResult, pretrain
+from bimgame.learn.pretrain import PretrainResult, pretrain
+from bimgame.learn.supervised import PretrainConfig
 from bimgame.learn.runs import torch_threads
 
 #: Episodes of :func:`stg1_dataset` (≈0.6 s of MPC planning each on one core).

@@ -8,7 +8,7 @@ from __future__ import annotations
 import gymnasium as gym
 
 from bimgame.sim.maze import Friction, Gate, MazeSpec, MazeSpecError, Wall
-from bimgame.sim.tasks import Task
+from bimgame.sim.tasks import MAX_EPISODE_STEPS, Task
 
 __version__ = "0.1.0"
 
@@ -19,8 +19,6 @@ ENV_IDS = tuple(f"BiMGame/{task.value}-v0" for task in Task)
 
 def register_envs() -> None:
     """Register the five task ids with Gymnasium (idempotent)."""
-    from bimgame.sim.tasks import MAX_EPISODE_STEPS
-
     for task in Task:
         env_id = f"BiMGame/{task.value}-v0"
         if env_id in gym.registry:

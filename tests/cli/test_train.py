@@ -7,7 +7,14 @@ import pytest
 
 from bimgame.learn.a3c import A3CConfig, train
 from bimgame.cli.main import build_parser, main
-from bimgame.cli.train import a3c_config_from, step_count
+from bimgame.cli.flags import given_settings
+from bimgame.cli.train import step_count
+from bimgame.learn.a3c import resolve_config
+
+
+def a3c_config_from(args: argparse.Namespace) -> A3CConfig:
+    """What ``bimgame train`` makes of its flags."""
+    return resolve_config(given_settings(args, A3CConfig), args.run_dir, resume=args.resume, init=args.init)
 
 
 @pytest.mark.parametrize("text, value", [("300000", 300_000), ("200k", 200_000), ("5M", 5_000_000),

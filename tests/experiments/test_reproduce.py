@@ -1,6 +1,6 @@
-"""The reproduction grid: budgets and their validation, the plan, cost estimates, and a tiny
-reproduction run end to end through the real pieces — stopped part-way, with one A3C run left
-unfinished, then continued — whose report must agree with the runs' own logs."""
+"""Running a reproduction: a failing piece, the command line's checks, and a tiny reproduction run
+end to end through the real pieces — stopped part-way, with one A3C run left unfinished, then
+continued — whose report must agree with the runs' own logs."""
 
 from __future__ import annotations
 
@@ -11,41 +11,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bimgame.learn.a3c import train
 from bimgame.cli.main import main
-from bimgame.learn.curves import read_table
-from bimgame.experiments.reproduce import (ALGORITHMS, BUDGETS, Budget, a3c_config_for, budget_named, estimate_seconds,
-                                 library_threads, load_plan, load_status, plan_pieces, reproduce)
+from bimgame.experiments.plan import load_plan, load_status
 from bimgame.experiments.report import build_report
-
-#: A reproduction small enough for a test: STG1, four expert episodes, 2,000 A3C steps on one
-#: worker, one DAgger iteration of two episodes, two seeds. Three algorithms cover every kind of
-#: piece: plain A3C, A3C from π^s with V̂'s reward (both pre-trainings), and DAgger.
-TINY = Budget(name="tiny", tasks=("STG1",), algorithms=("a3c", "pretrain+a3c+value", "dagger"), seeds=2,
-              obs="state", a3c_steps={"STG1": 2_000}, workers=1, envs_per_worker=4, hidden=16, features=16,
-              eval_every=0, eval_episodes=2, checkpoint_every=400, dataset_task="STG1", dataset_episodes=4,
-              dataset_workers=1, pretrain_epochs=2, pretrain_patience=1, pretrain_eval_episodes=2, value_epochs=2,
-              value_patience=1, dagger_iterations=1, dagger_episodes=2, dagger_epochs=1, dagger_eval_episodes=2)
-
-
-# ----------------------------------------------------------------------------------- budgets
-@pytest.mark.parametrize("changes, message", [
-    ({"tasks": ("STG9",)}, r"Budget.tasks: unknown task 'STG9'; allowed: FULL, STG1, STG2, STG3, STG4"),
-    ({"tasks": ()}, r"Budget.tasks must name at least one task"),
-    ({"algorithms": ("ppo",)}, r"Budget.algorithms: unknown \['ppo'\]; allowed: a3c, pretrain\+a3c"),
-    ({"seeds": 0}, r"Budget.seeds must be an integer >= 1, got 0"),
-    ({"obs": "rgb"}, r"Budget.obs must be one of pixels, state, got 'rgb'"),
-    ({"threshold_fraction": 0.0}, r"Budget.threshold_fraction must be in \(0, 1\], got 0.0"),
-    ({"tasks": ("STG2",), "a3c_steps": {"STG1": 10}}, r"Budget.a3c_steps has no entry for \['STG2'\]"),
-    ({"a3c_steps": {"STG1": 0}}, r"Budget.a3c_steps\['STG1'\] must be an integer >= 1, got 0"),
-    ({"tasks": ("STG2",), "dataset_task": "STG1", "a3c_steps": {"STG2": 10}},
-     r"Budget.dataset_task STG1 cannot label \['STG2'\].*dataset_task='FULL'"),
-])
-def test_bad_budgets_are_rejected_naming_the_field_and_what_is_allowed(changes, message):
-    with pytest.raises(ValueError, match=message):
-        dataclasses.replace(TINY, **changes)
-    with pytest.raises(ValueError, match="unknown budget 'huge'; allowed: quick, paper"):
-        budget_named("huge")
+from bimgame.experiments.reproduce import reproduce
+from bimgame.experiments.runners import a3c_config_for
+from bimgame.expert.datasets import iterate_sequences
+from bimgame.learn.a3c import train
+from bimgame.learn.curves import read_table
 
 
 def test_cli_rejects_bad_flags(tmp_path, capsys):
@@ -65,48 +38,8 @@ def test_cli_rejects_bad_flags(tmp_path, capsys):
     assert not (tmp_path / "r").exists()
 
 
-def test_plan_of_the_presets_and_their_estimates():
-    quick, paper = BUDGETS["quick"], BUDGETS["paper"]
-    pieces = plan_pieces(quick)
-    assert [p.id for p in pieces[:8]] == [
-        "data", "pretrain/STG1/policy-seed0", "pretrain/STG1/value-seed0", "runs/STG1/a3c/seed0",
-        "runs/STG1/pretrain-a3c/seed0", "runs/STG1/a3c-value/seed0", "runs/STG1/pretrain-a3c-value/seed0",
-        "runs/STG1/dagger/seed0"]
-    assert len(pieces) == 1 + 2 * 2 + 2 * len(ALGORITHMS) and len({p.id for p in pieces}) == len(pieces)
-    by_id = {p.id: p for p in pieces}
-    assert by_id["runs/STG1/pretrain-a3c-value/seed1"].needs == ("pretrain/STG1/policy-seed1",
-                                                                  "pretrain/STG1/value-seed1")
-    assert by_id["runs/STG1/a3c/seed1"].needs == () and by_id["runs/STG1/dagger/seed1"].needs == ()
-    # Pieces run only after what they need.
-    order = [p.id for p in pieces]
-    assert all(order.index(n) < order.index(p.id) for p in pieces for n in p.needs)
-    quick_seconds = sum(estimate_seconds(p, quick) for p in pieces)
-    paper_seconds = sum(estimate_seconds(p, paper) for p in plan_pieces(paper))
-    assert 5 * 60 < quick_seconds < 30 * 60  # the quick budget's promise, on an idle two-core machine
-    assert paper_seconds > 24 * 3600
-    # Only the pieces the algorithms need are planned.
-    ids = [p.id for p in plan_pieces(quick.with_grid(algorithms=["dagger", "a3c"], seeds=1))]
-    assert ids == ["data", "runs/STG1/a3c/seed0", "runs/STG1/dagger/seed0"]
-
-
-def test_library_threads_sets_the_pieces_thread_count_and_restores_it():
-    import torch
-
-    from bimgame.learn.runs import torch_threads
-
-    before = torch.get_num_threads()
-    torch.set_num_threads(2)
-    try:
-        with library_threads(1):
-            with torch_threads() as count:  # what pretrain() and dagger() do inside
-                assert count == 1 and torch.get_num_threads() == 1
-        assert torch.get_num_threads() == 2
-    finally:
-        torch.set_num_threads(before)
-
-
-def test_a_failing_piece_is_recorded_and_its_dependents_skipped(tmp_path):
-    budget = dataclasses.replace(TINY, algorithms=("pretrain+a3c",), seeds=1)
+def test_a_failing_piece_is_recorded_and_its_dependents_skipped(tmp_path, tiny_budget):
+    budget = dataclasses.replace(tiny_budget, algorithms=("pretrain+a3c",), seeds=1)
     (tmp_path / "data").write_text("not a directory")  # the dataset cannot be generated here
     result = reproduce(tmp_path, budget, progress=False)
     assert list(result.failed) == ["data"] and "NotADirectoryError" in result.failed["data"]
@@ -128,9 +61,9 @@ def _mtimes(root: Path, pieces: list[str]) -> dict[str, float]:
             if path.is_file()}
 
 
-def test_tiny_reproduction_stops_resumes_and_reports_what_the_runs_logged(tmp_path, capsys):
+def test_tiny_reproduction_stops_resumes_and_reports_what_the_runs_logged(tmp_path, capsys, tiny_budget):
     out = tmp_path / "repro"
-    first = reproduce(out, TINY, progress=False, stop_after=3)
+    first = reproduce(out, tiny_budget, progress=False, stop_after=3)
     assert first.computed == ["data", "pretrain/STG1/policy-seed0", "pretrain/STG1/value-seed0"]
     assert len(first.remaining) == 8 and not first.complete
     status = load_status(out)["pieces"]
@@ -139,12 +72,12 @@ def test_tiny_reproduction_stops_resumes_and_reports_what_the_runs_logged(tmp_pa
 
     # An A3C run interrupted after a checkpoint: a run of the piece's settings with fewer steps.
     partial = out / "runs/STG1/a3c/seed1"
-    train(dataclasses.replace(a3c_config_for(TINY, "STG1", 1), steps=400), partial, progress=False,
+    train(dataclasses.replace(a3c_config_for(tiny_budget, "STG1", 1), steps=400), partial, progress=False,
           extra_config={"reward": {"value_reward": None, "geodesic_coef": None}})
     partial_config = (partial / "config.json").stat().st_mtime_ns
     partial_rows = read_table(partial / "episodes.csv")
 
-    second = reproduce(out, TINY, progress=False)
+    second = reproduce(out, tiny_budget, progress=False)
     assert second.complete and second.reused == first.computed
     assert len(second.computed) == 8 and "runs/STG1/a3c/seed1" in second.computed
     assert _mtimes(out, first.computed) == finished_before  # nothing finished was computed again
@@ -222,6 +155,4 @@ def _check_table_against_logs(out: Path, numbers: dict) -> None:
 
 
 def _expert_successes(out: Path) -> list[bool]:
-    from bimgame.expert.datasets import iterate_sequences
-
-    return [s["terminated"] and len(s["actions"]) <= 300 for s in iterate_sequences(out / "data", obs="state")]
+    return [s.terminated and len(s) <= 300 for s in iterate_sequences(out / "data", obs="state")]

@@ -20,9 +20,10 @@ from minari import EpisodeData
 
 import bimgame.expert.datasets as data
 import bimgame.expert.episodes as parallel
+from bimgame.cli.expert import add_generate_arguments
 from bimgame.cli.main import main
-from bimgame.expert.datasets import (DatasetError, add_generate_arguments, dataset_summary, generate_dataset,
-                          iterate_sequences, load_dataset)
+from bimgame.expert.datasets import (DatasetError, dataset_summary, generate_dataset, iterate_sequences,
+                                     load_dataset)
 from bimgame.envs.env import NO_ACTION, BallInMazeEnv
 from bimgame.expert.mpc import MPCConfig, episode_seed
 

@@ -1,13 +1,13 @@
 """Parallel expert episodes and the episode progress bar (worker-count independence and the Ray
-backend are checked end to end in test_expert.py and test_data.py)."""
+backend are checked end to end in test_evaluation.py and test_datasets.py)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from bimgame.expert.mpc import MPCConfig, episode_seed, run_expert_episode
 from bimgame.expert.episodes import episode_progress, expert_episodes
+from bimgame.expert.mpc import MPCConfig, episode_seed, run_expert_episode
 
 CONFIG = MPCConfig(n_samples=4, horizon=6)
 

@@ -7,10 +7,10 @@ import math
 import numpy as np
 import pytest
 
-from bimgame.cli.main import run_episodes
 from bimgame.envs.env import DISCRETE_TILTS
-from bimgame.expert.mpc import MPCConfig, RandomShootingMPC, episode_seed, run_expert_episode
 from bimgame.expert.evaluation import evaluate_expert, summarise
+from bimgame.expert.mpc import MPCConfig, RandomShootingMPC, episode_seed, run_expert_episode
+from bimgame.expert.rollout import run_episodes
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.physics import MazeSim
 

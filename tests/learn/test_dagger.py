@@ -15,14 +15,14 @@ import pytest
 import torch
 
 from bimgame.learn import runs
-from bimgame.learn.a3c import evaluate_greedy_and_sampled, load_run_network, network_for
+from bimgame.learn.common import evaluate_greedy_and_sampled, evaluation_seed, load_run_network
 from bimgame.learn.actor import evaluate_network
 from bimgame.cli.main import main
 from bimgame.learn.dagger import KIND_DAGGER, DAggerConfig, collect_episodes, dagger
 from bimgame.expert.episode import Episode
 from bimgame.expert.mpc import MPCConfig
 from bimgame.envs.env import NO_ACTION
-from bimgame.learn.pretrain import PretrainConfig
+from bimgame.learn.supervised import PretrainConfig
 
 
 # ----------------------------------------------------------------------------------- helpers
@@ -74,7 +74,7 @@ FORCED_ACTION = 2  # tilt -x
 
 def _forced_learner(config: DAggerConfig):
     """A learner whose policy puts all its mass on FORCED_ACTION, whatever its inputs."""
-    net = network_for(config.learner.a3c_config())
+    net = config.learner.build_policy(config.learner.seed)
     with torch.no_grad():
         net.policy.weight.zero_()
         net.policy.bias.fill_(-50.0)
@@ -112,7 +112,7 @@ def _check_costs(episodes, costs, config: DAggerConfig) -> None:
 def test_collect_episodes_mixes_expert_and_learner_by_beta_and_labels_every_state_with_the_expert(
         one_torch_thread):
     config = ROLLOUT
-    net = network_for(config.learner.a3c_config())
+    net = config.learner.build_policy(config.learner.seed)
     expert_run, expert_costs = collect_episodes(net, config, beta=1.0, seed=11)
     assert len(expert_run) == config.episodes_per_iteration
     for episode in expert_run:
@@ -242,9 +242,10 @@ def test_dataset_aggregates_every_iteration_and_costs_are_counted_apart(small_ru
     assert (executed != labels).any()
 
     # The checkpoint holds the last iteration's weights: it reproduces the last evaluation.
-    net, a3c_config, step = load_run_network(run_dir)
-    assert (a3c_config.task, a3c_config.obs, step) == ("STG1", "state", whole.env_steps)
-    again = evaluate_greedy_and_sampled(net, a3c_config, episodes=config.eval_episodes)
+    net, run, step = load_run_network(run_dir)
+    assert (run.task, run.network.obs, step) == ("STG1", "state", whole.env_steps)
+    again = evaluate_greedy_and_sampled(net, task=run.task, obs=run.network.obs, episodes=config.eval_episodes,
+                                        seed=evaluation_seed(run.seed), time_limit=run.time_limit)
     assert whole.final_eval == pytest.approx(again)
     for key in ("greedy_success_rate", "sampled_success_rate", "greedy_mean_length"):
         assert float(rows[-1][key]) == pytest.approx(again[key], rel=1e-5)

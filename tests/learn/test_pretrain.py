@@ -10,15 +10,17 @@ import numpy as np
 import pytest
 import torch
 
-from bimgame.learn.a3c import A3CConfig, evaluate_greedy_and_sampled, load_run_network, network_for
+from bimgame.learn.a3c import A3CConfig, evaluate, network_for
+from bimgame.learn.common import load_run_network, load_value_network
 from bimgame.learn.actor import RecurrentActor, evaluate_network
 from bimgame.cli.main import main
-from bimgame.cli.train import env_wrapper_for
+from bimgame.learn.rewards import RewardSettings, env_wrapper_for
 from bimgame.expert.datasets import iterate_sequences
 from bimgame.sim.tasks import MAX_EPISODE_STEPS
 from bimgame.sim.maze import MazeSpec
-from bimgame.learn.pretrain import (KIND_POLICY, KIND_VALUE, PretrainConfig, load_sequences, load_value_network, pretrain,
-                              split_episodes)
+from bimgame.learn.pretrain import load_sequences, pretrain
+from bimgame.learn.runs import KIND_POLICY, KIND_VALUE
+from bimgame.learn.supervised import PretrainConfig, split_episodes
 from bimgame.learn.runs import load_weights
 from bimgame.sim.tasks import Task
 from bimgame.envs.vector import BallInMazeVectorEnv
@@ -125,8 +127,8 @@ def test_pretrained_policy_predicts_the_expert_and_beats_a_random_policy(pretrai
     assert float(best_row["val_accuracy"]) == pytest.approx(result.val_accuracy, rel=1e-5)
     assert float(epochs[-1]["val_accuracy"]) != pytest.approx(result.val_accuracy, rel=1e-5)
     # ... and the stored weights reproduce the best epoch's held-out accuracy when acting.
-    net, a3c_config, step = load_run_network(result.run_dir)
-    assert (a3c_config.task, a3c_config.obs, step) == ("STG1", "state", 0)
+    net, run, step = load_run_network(result.run_dir)
+    assert (run.task, run.network.obs, step) == ("STG1", "state", 0)
     assert _teacher_forced_accuracy(net, [sequences[i] for i in val_idx]) == pytest.approx(result.val_accuracy)
 
     # As a policy: greedy π^s against uniformly random actions from the same 40 start positions.
@@ -150,8 +152,8 @@ def test_value_network_beats_predicting_the_mean_return_and_is_frozen(value_stg1
     mean_rmse = float(np.sqrt(np.mean((val_returns - train_returns.mean()) ** 2)))
     assert result.val_value_rmse < 0.8 * mean_rmse, (result.val_value_rmse, mean_rmse)
 
-    net, loaded_config = load_value_network(result.run_dir)
-    assert loaded_config == config
+    net, run = load_value_network(result.run_dir)
+    assert PretrainConfig.from_dict(run.config["pretrain"]) == config
     assert not net.training
     assert all(not p.requires_grad for p in net.parameters())
     # The stored weights are the best epoch's: they reproduce its held-out RMSE.
@@ -188,7 +190,7 @@ def test_train_init_starts_from_the_pretrained_weights(shaped_run_from_pretraine
     stored = json.loads((run_dir / "config.json").read_text())
     assert stored["init"] == str(pretrained_stg1.run_dir)
     config = A3CConfig.from_dict(stored["a3c"])
-    pretrained = json.loads((pretrained_stg1.run_dir / "config.json").read_text())["a3c"]
+    pretrained = json.loads((pretrained_stg1.run_dir / "config.json").read_text())["network"]
     # The network settings come from the pre-trained run.
     for key in ("obs", "hidden", "features", "tilt_input"):
         assert getattr(config, key) == pretrained[key]
@@ -198,10 +200,10 @@ def test_train_init_starts_from_the_pretrained_weights(shaped_run_from_pretraine
     assert int(first["step"]) == 0
     net = network_for(config)
     load_weights(net, pretrained_stg1.run_dir / "checkpoint.pt")
-    expected = evaluate_greedy_and_sampled(net, config)
+    expected = evaluate(net, config)
     assert {k: first[k] for k in expected} == {k: f"{v:.6g}" for k, v in expected.items()}
     # A network that did not start from π^s would score differently on these episodes.
-    fresh = evaluate_greedy_and_sampled(network_for(config), config)
+    fresh = evaluate(network_for(config), config)
     assert {k: f"{v:.6g}" for k, v in fresh.items()} != {k: first[k] for k in fresh}
 
 
@@ -225,7 +227,7 @@ def test_shaped_training_logs_the_task_reward_and_resume_keeps_the_shaping(
     # The recorded settings build the shaping the workers used: r + 5·(d − d') + γ·V̂(s') − V̂(s).
     config = A3CConfig.from_dict(stored["a3c"])
     vhat, _ = load_value_network(value_stg1.run_dir)
-    env = env_wrapper_for(stored["reward"], config)(
+    env = env_wrapper_for(RewardSettings(**stored["reward"]), obs=config.obs, gamma=config.gamma)(
         BallInMazeVectorEnv(4, task="STG1", obs_mode="state", max_episode_steps=300, nthread=1,
                             autoreset_mode="same_step"))
 

@@ -14,11 +14,11 @@ from bimgame.sim.maze import Friction, Gate, MazeSpec, MazeSpecError, Wall, annu
 
 MM = 1e-3
 
-# DESIGN.md section 2: public facts of MERL's circular maze.
-DESIGN_WALL_SPANS_MM = [(16.0, 21.2), (36.0, 41.3), (56.2, 61.4), (76.2, 81.7)]
-DESIGN_RIM_MM = 96.8
-DESIGN_CHANNEL_CENTRES_MM = [27.86, 48.17, 68.48, 88.79]  # channels 1..4
-DESIGN_GATES_DEG = [
+# Public facts of MERL's circular maze, the paper's.
+MERL_WALL_SPANS_MM = [(16.0, 21.2), (36.0, 41.3), (56.2, 61.4), (76.2, 81.7)]
+MERL_RIM_MM = 96.8
+MERL_CHANNEL_CENTRES_MM = [27.86, 48.17, 68.48, 88.79]  # channels 1..4
+MERL_GATES_DEG = [
     ([180.0], 50.0),
     ([45.0, 135.0, 225.0, 315.0], 21.4),
     ([0.0, 90.0, 180.0, 270.0], 14.6),
@@ -45,12 +45,12 @@ def test_merl_validates_and_matches_design(merl: MazeSpec):
     merl.validate()  # must not raise
     assert merl.n_channels == 5 and merl.outermost_channel == 4
     assert len(merl.walls) == 4
-    for wall, (inner, outer) in zip(merl.walls, DESIGN_WALL_SPANS_MM):
+    for wall, (inner, outer) in zip(merl.walls, MERL_WALL_SPANS_MM):
         assert wall.inner_radius == pytest.approx(inner * MM, abs=1e-9)
         assert wall.outer_radius == pytest.approx(outer * MM, abs=1e-9)
         assert 4.5 * MM <= wall.thickness <= 5.6 * MM  # "≈ 5 mm thick"
-    assert merl.rim_radius == pytest.approx(DESIGN_RIM_MM * MM, abs=1e-9)
-    for wall, (angles, width) in zip(merl.walls, DESIGN_GATES_DEG):
+    assert merl.rim_radius == pytest.approx(MERL_RIM_MM * MM, abs=1e-9)
+    for wall, (angles, width) in zip(merl.walls, MERL_GATES_DEG):
         got = sorted((_deg_mod(g.angle), math.degrees(g.width)) for g in wall.gates)
         assert len(got) == len(angles)
         for (a, w), a_ref in zip(got, sorted(angles)):
@@ -73,7 +73,7 @@ def test_merl_validates_and_matches_design(merl: MazeSpec):
 def test_design_channel_centres_fit_their_channels(merl: MazeSpec):
     """MERL's channel-centre radii lie in channels 1..4 with room for the marble on both sides,
     and the spec's own centre radii are the channel midpoints (within 0.75 mm of MERL's)."""
-    for k, centre_mm in enumerate(DESIGN_CHANNEL_CENTRES_MM, start=1):
+    for k, centre_mm in enumerate(MERL_CHANNEL_CENTRES_MM, start=1):
         low, high = merl.channel_bounds(k)
         c = centre_mm * MM
         assert low + merl.marble_radius < c < high - merl.marble_radius
@@ -86,7 +86,7 @@ def test_design_channel_centres_fit_their_channels(merl: MazeSpec):
 
 
 def test_gates_are_tight_but_passable(merl: MazeSpec):
-    """DESIGN §2: at a wall's inner face each gate is only 0.7–2 mm wider than the marble."""
+    """At a wall's inner face each gate is only 0.7–2 mm wider than the marble."""
     d = 2 * merl.marble_radius
     for wall in merl.walls[1:]:
         for gate in wall.gates:
@@ -198,7 +198,7 @@ def test_validation_error_is_value_error_and_bad_types(merl: MazeSpec):
 
 # --------------------------------------------------------------------------------------- channels
 def test_channel_of_at_channel_centres(merl: MazeSpec):
-    radii = [0.0] + [c * MM for c in DESIGN_CHANNEL_CENTRES_MM]
+    radii = [0.0] + [c * MM for c in MERL_CHANNEL_CENTRES_MM]
     for theta in np.linspace(-180, 180, 13):
         x, y = _polar(radii, theta)
         assert merl.channel_of(x, y).tolist() == [0, 1, 2, 3, 4]

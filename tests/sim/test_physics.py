@@ -120,7 +120,7 @@ ROLL_THEORY = 5 / 7 * G * math.sin(THETA)  # 0.6107 m/s²
 SLIDE_THEORY = G * math.sin(THETA)          # 0.8550 m/s²
 
 CONDIM_BUG = (
-    "sim.py contact_condim(): MERL's friction (slide 0.5, spin 1e-5, roll 1e-6) has spin == mjMINMU, "
+    "sim/physics.py contact_condim(): MERL's friction (slide 0.5, spin 1e-5, roll 1e-6) has spin == mjMINMU, "
     "so condim=6 is chosen and MuJoCo raises the rolling friction 1e-6 to 1e-5 "
     "(d.contact.friction == [0.5, 0.5, 1e-5, 1e-5, 1e-5]): the marble rolls 2.2% slower than "
     "(5/7) g sinθ without static friction (0.5973 vs 0.6107 m/s²) and 2.3% slower than the static-"
@@ -201,7 +201,7 @@ def test_rolling_marble_stays_on_floor():
 
 
 @pytest.mark.xfail(strict=True, reason=(
-    "sim.py (150 Hz physics): a marble sliding without spin on the floor is thrown upwards by "
+    "sim/physics.py (150 Hz physics): a marble sliding without spin on the floor is thrown upwards by "
     "the contact solver while friction spins it up: it rises 0.33 / 0.89 / 3.4 mm above its resting "
     "height at 0.3 / 0.5 / 1 m/s (independent of impratio, cone type and noslip iterations); at "
     "600 Hz physics the hop is ~0.1 mm. Rolling marbles do not hop (<= 0.04 mm). Sliding happens "
@@ -569,7 +569,7 @@ def test_two_marbles_fast_collision_is_bounded_by_one_step():
 
 
 @pytest.mark.xfail(strict=True, reason=(
-    "sim.py: contacts are detected only after overlap, at 150 Hz: two marbles closing at 0.5 m/s "
+    "sim/physics.py: contacts are detected only after overlap, at 150 Hz: two marbles closing at 0.5 m/s "
     "overlap by up to 0.5 m/s / 150 Hz = 3.3 mm (measured 2.49 mm); walls likewise (2.8 mm at "
     "0.5 m/s, 4.2 mm at 0.7 m/s; a marble at >= 1.5 m/s tunnels through a wall)"))
 def test_two_marbles_fast_collision_overlap_below_half_mm():

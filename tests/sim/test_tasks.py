@@ -1,4 +1,5 @@
-"""Task rules: the batched and the scalar implementation agree, and follow DESIGN §1."""
+"""Task rules: the batched and the scalar implementation agree, and follow the rules of the README's
+"Using the environments" (and of :mod:`bimgame.sim.tasks`)."""
 
 from __future__ import annotations
 

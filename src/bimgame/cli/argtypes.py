@@ -1,11 +1,17 @@
-"""argparse value types shared by the command-line verbs: they reject bad values with a message
-that names the value and what is allowed."""
+"""argparse value types shared by the command-line verbs, which reject bad values with a message that
+names the value and what is allowed, and the flags several verbs share (``--task``, ``--max-steps``)."""
 
 from __future__ import annotations
 
 import argparse
 
-__all__ = ["positive_int", "non_negative_int", "positive_float", "non_negative_float"]
+from bimgame.sim.tasks import Task
+
+__all__ = ["positive_int", "non_negative_int", "positive_float", "non_negative_float", "TASK_NAMES",
+           "add_task_argument", "add_max_steps_argument"]
+
+#: The values of ``--task``.
+TASK_NAMES = tuple(task.value for task in Task)
 
 
 def _integer(text: str, minimum: int, what: str) -> int:
@@ -47,3 +53,14 @@ def positive_float(text: str) -> float:
 def non_negative_float(text: str) -> float:
     """A finite number >= 0."""
     return _number(text, strictly_positive=False)
+
+
+def add_task_argument(parser: argparse.ArgumentParser, default: str) -> None:
+    """``--task``: one of :data:`TASK_NAMES`, in any case."""
+    parser.add_argument("--task", choices=TASK_NAMES, default=default, type=str.upper)
+
+
+def add_max_steps_argument(parser: argparse.ArgumentParser) -> None:
+    """``--max-steps``: the time limit per episode, None for the task's registered limit."""
+    parser.add_argument("--max-steps", type=positive_int, default=None,
+                        help="time limit per episode (default: the task's registered limit)")

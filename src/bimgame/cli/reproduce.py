@@ -24,7 +24,7 @@ def _fraction(text: str) -> float:
 
 
 def add_reproduce_arguments(parser: argparse.ArgumentParser) -> None:
-    from bimgame.experiments.reproduce import ALGORITHMS, BUDGETS
+    from bimgame.experiments.budgets import ALGORITHMS, BUDGETS
     from bimgame.envs.observe import OBS_MODES
     from bimgame.sim.tasks import Task
 
@@ -49,7 +49,7 @@ def add_reproduce_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def add_report_arguments(parser: argparse.ArgumentParser) -> None:
-    from bimgame.experiments.report import DEFAULT_RESAMPLES
+    from bimgame.experiments.statistics import DEFAULT_RESAMPLES
 
     add = parser.add_argument
     add("out", type=Path, metavar="DIR", help="a reproduction directory (bimgame reproduce --out DIR)")
@@ -63,7 +63,8 @@ def add_report_arguments(parser: argparse.ArgumentParser) -> None:
 def budget_from(args: argparse.Namespace) -> "Budget":  # noqa: F821
     """The budget of a ``reproduce`` command: the preset named by ``--budget`` (else the one stored
     in ``--out``, else ``quick``) with the grid flags applied."""
-    from bimgame.experiments.reproduce import PLAN, budget_named, load_plan
+    from bimgame.experiments.budgets import budget_named
+    from bimgame.experiments.plan import PLAN, load_plan
 
     if args.budget is not None:
         base = budget_named(args.budget)
@@ -81,9 +82,12 @@ def run_reproduce(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.markup import escape
 
-    from bimgame.experiments.reproduce import (BUDGETS, check_compatible, estimate_seconds, format_duration, piece_done,
-                                     plan_pieces, reproduce)
+    from bimgame.experiments.budgets import BUDGETS
+    from bimgame.experiments.costs import estimate_seconds, format_duration
+    from bimgame.experiments.grid import plan_pieces
+    from bimgame.experiments.plan import check_compatible, piece_done
     from bimgame.experiments.report import build_report
+    from bimgame.experiments.reproduce import reproduce
 
     console = Console(stderr=True)
     budget = budget_from(args)
@@ -131,7 +135,8 @@ def run_reproduce(args: argparse.Namespace) -> int:
 
 def _total(budget: "Budget") -> float:  # noqa: F821
     """Expected seconds of all pieces of a budget."""
-    from bimgame.experiments.reproduce import estimate_seconds, plan_pieces
+    from bimgame.experiments.costs import estimate_seconds
+    from bimgame.experiments.grid import plan_pieces
 
     return sum(estimate_seconds(p, budget) for p in plan_pieces(budget))
 

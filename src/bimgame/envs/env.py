@@ -9,11 +9,12 @@ import math
 from typing import Any
 
 import gymnasium as gym
+import mujoco
 import numpy as np
 from gymnasium import spaces
 
-from bimgame.sim.maze import MazeSpec
 from bimgame.envs.observe import OBS_MODES, Observer
+from bimgame.sim.maze import MazeSpec
 from bimgame.sim.physics import MazeSim
 from bimgame.sim.tasks import MAX_EPISODE_STEPS, Task, initial_task_state, parse_task, task_step_one
 
@@ -259,8 +260,6 @@ class BallInMazeEnv(gym.Env):
 
     def _render_mujoco(self) -> np.ndarray:
         if self._mujoco_renderer is None:
-            import mujoco
-
             try:
                 self._mujoco_renderer = mujoco.Renderer(self.sim.model, self.render_size, self.render_size)
             except Exception as error:  # no OpenGL context available
@@ -298,9 +297,7 @@ def _positive(name: str, value: float) -> float:
     return float(value)
 
 
-def _top_camera(spec: MazeSpec):
-    import mujoco
-
+def _top_camera(spec: MazeSpec) -> mujoco.MjvCamera:
     camera = mujoco.MjvCamera()
     camera.type = mujoco.mjtCamera.mjCAMERA_FREE
     camera.lookat[:] = (0.0, 0.0, 0.0)

@@ -7,8 +7,8 @@ import numpy as np
 from gymnasium import spaces
 
 from bimgame.sim.maze import MazeSpec
-from bimgame.sim.render import MazeRenderer
 from bimgame.sim.physics import StateLayout
+from bimgame.sim.render import MazeRenderer
 
 __all__ = ["OBS_MODES", "Observer"]
 
@@ -18,7 +18,7 @@ OBS_MODES = ("pixels", "state")
 class Observer:
     """Maps physics states (B, state_size) and task channels (B, n) to observations.
 
-    ``pixels``: (B, 1, size, size) uint8 from :class:`~bimgame.render.MazeRenderer`.
+    ``pixels``: (B, 1, size, size) uint8 from :class:`~bimgame.sim.render.MazeRenderer`.
     ``state``: (B, 4n + 2 + n) float32 — per marble x, y, vx, vy (board frame, m and m/s), then
     tilt about x and y (rad), then each marble's channel.
     """

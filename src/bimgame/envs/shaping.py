@@ -42,7 +42,7 @@ import numpy as np
 from gymnasium.vector import AutoresetMode
 
 __all__ = ["Potential", "PotentialShapedVectorEnv", "GeodesicProgressVectorEnv", "GeodesicProgressReward",
-           "GeodesicReward", "ValueReward", "ValueFunctionPotential", "Chain", "DEFAULT_GEODESIC_COEF"]
+           "GeodesicReward", "Chain", "DEFAULT_GEODESIC_COEF", "unit_interval"]
 
 #: Reward per metre of geodesic progress towards the centre. The trip from the outer channel to the
 #: centre is about 0.3–0.5 m, so it is worth a few units, like FULL's four gate crossings.
@@ -76,7 +76,7 @@ class PotentialShapedVectorEnv(gym.vector.VectorWrapper):
             raise TypeError(f"potential must be callable as potential(obs_batch, tilt_batch), "
                             f"got {type(potential).__name__}")
         self.potential = potential
-        self.gamma = _unit_interval("gamma", gamma)
+        self.gamma = unit_interval("gamma", gamma)
         self._phi: np.ndarray | None = None
 
     def reset(self, *, seed: int | list[int | None] | None = None, options: dict | None = None):
@@ -198,59 +198,6 @@ class GeodesicReward:
         return GeodesicProgressVectorEnv(vector_env, coef=self.coef)
 
 
-class ValueFunctionPotential:
-    """Φ(s) = V̂(s) from a value pre-training run (``bimgame pretrain --value-only``), frozen.
-
-    Loaded lazily on first use, so that only the run's path travels to a spawned worker."""
-
-    def __init__(self, run_dir: str):
-        self.run_dir = str(run_dir)
-        self._net = None
-        self._max_tilt = 1.0
-
-    def load(self) -> ValueFunctionPotential:
-        if self._net is None:
-            from bimgame.sim.maze import MazeSpec
-            from bimgame.learn.pretrain import load_value_network
-
-            self._net, _ = load_value_network(self.run_dir)
-            self._max_tilt = MazeSpec.merl().max_tilt
-        return self
-
-    def __call__(self, obs: np.ndarray, tilt: np.ndarray) -> np.ndarray:
-        import torch
-
-        net = self.load()._net
-        from bimgame.learn.actor import tilt_input
-
-        with torch.no_grad():
-            tilt_t = tilt_input({"tilt": tilt}, self._max_tilt) if net.config.tilt_input else None
-            return net(torch.as_tensor(np.asarray(obs)), tilt_t).numpy()
-
-    def __getstate__(self) -> dict:
-        return {"run_dir": self.run_dir}
-
-    def __setstate__(self, state: dict) -> None:
-        self.__init__(state["run_dir"])
-
-
-@dataclasses.dataclass(frozen=True)
-class ValueReward:
-    """Picklable factory (an ``a3c.EnvWrapper``): the paper's value function as a reward,
-    ``r + γ·V̂(s') − V̂(s)`` with the frozen V̂ of the run in ``run_dir``. V̂ is a network of its
-    own, separate from the agent's critic."""
-
-    run_dir: str
-    gamma: float = 0.99
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "run_dir", str(self.run_dir))
-        object.__setattr__(self, "gamma", _unit_interval("gamma", self.gamma))
-
-    def __call__(self, vector_env: gym.vector.VectorEnv) -> PotentialShapedVectorEnv:
-        return PotentialShapedVectorEnv(vector_env, ValueFunctionPotential(self.run_dir), gamma=self.gamma)
-
-
 @dataclasses.dataclass(frozen=True)
 class Chain:
     """Picklable composition of env wrappers, applied left (innermost) to right."""
@@ -325,7 +272,7 @@ def _is_real(value: Any) -> bool:
     return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
 
 
-def _unit_interval(name: str, value: SupportsFloat) -> float:
+def unit_interval(name: str, value: SupportsFloat) -> float:
     if not (_is_real(value) and 0.0 <= float(value) <= 1.0):
         raise ValueError(f"{name} must be a number in [0, 1], got {value!r}")
     return float(value)

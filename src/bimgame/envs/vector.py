@@ -30,7 +30,7 @@ __all__ = ["BallInMazeVectorEnv"]
 
 
 class BallInMazeVectorEnv(gym.vector.VectorEnv):
-    """``num_envs`` copies of :class:`~bimgame.env.BallInMazeEnv` stepped together.
+    """``num_envs`` copies of :class:`~bimgame.envs.env.BallInMazeEnv` stepped together.
 
     Args:
         num_envs: number of sub-environments.
@@ -39,7 +39,7 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
             thread does not pay for its dispatch on small batches), else all cores up to 2.
             Use 1 inside worker processes that already use every core.
         autoreset_mode: ``NEXT_STEP`` (default, as ``gym.make_vec``) or ``SAME_STEP``.
-        **env_kwargs: the keyword arguments of :class:`~bimgame.env.BallInMazeEnv`.
+        **env_kwargs: the keyword arguments of :class:`~bimgame.envs.env.BallInMazeEnv`.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 30, "autoreset_mode": AutoresetMode.NEXT_STEP}

@@ -18,14 +18,13 @@ The Minari dataset holds, per episode of T steps: ``observations`` (T+1, 7) stat
 ``actions`` (T,), ``rewards``, ``terminations``, ``truncations`` (T,), and ``infos`` with
 ``sim_state`` (T+1, S) MuJoCo physics states and ``channel`` (T+1, n) task channels — T+1 like
 the observations, as Minari's ``DataCollector`` records the info of ``reset`` and of every step.
-From ``sim_state`` and ``channel``, :class:`~bimgame.observe.Observer` re-renders the pixel
+From ``sim_state`` and ``channel``, :class:`~bimgame.envs.observe.Observer` re-renders the pixel
 observations exactly (:func:`iterate_sequences` with ``obs="pixels"``). Each episode's reset seed
 is Minari's episode metadata ``seed``.
 """
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import hashlib
 import io
@@ -33,26 +32,30 @@ import json
 import multiprocessing
 import os
 import shutil
-import sys
 import tempfile
-import time
 import warnings
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
+import minari
 import numpy as np
+from minari import MinariDataset
+from minari.data_collector import EpisodeBuffer
 
-from bimgame.cli.argtypes import non_negative_int, positive_int
+import bimgame
+from bimgame.envs.observe import Observer
 from bimgame.expert.episode import Episode
-from bimgame.expert.mpc import MPCConfig, episode_seed
-from bimgame.util.files import atomic_write_bytes, exclusive_lock
 from bimgame.expert.episodes import BACKENDS, MAIN_GUARD, environment, episode_progress, expert_episodes, import_ray
+from bimgame.expert.mpc import MPCConfig, episode_seed
+from bimgame.sim.maze import MazeSpec
+from bimgame.sim.physics import MazeSim
 from bimgame.sim.tasks import Task, parse_task
+from bimgame.util.files import atomic_write_bytes, exclusive_lock
 
 __all__ = ["DatasetError", "generate_dataset", "load_dataset", "iterate_sequences", "dataset_summary",
-           "dataset_id_for", "dataset_manifest", "add_generate_arguments", "run_generate", "BACKENDS",
-           "FORMAT_VERSION"]
+           "dataset_id_for", "dataset_manifest", "BACKENDS", "MINARI_DIR", "FORMAT_VERSION"]
 
 FORMAT_NAME = "bimgame-expert-dataset"
 FORMAT_VERSION = 1
@@ -175,10 +178,6 @@ def generate_dataset(out_dir: str | Path, task: str = "FULL", episodes: int = 50
 
 
 def _manifest(task: Task, episodes: int, seed: int, config: MPCConfig, max_steps: int | None) -> dict:
-    import minari
-
-    import bimgame
-
     return {
         "format": FORMAT_NAME,
         "format_version": FORMAT_VERSION,
@@ -294,12 +293,6 @@ def _read_episode(path: Path, index: int, expected_seed: int) -> dict[str, np.nd
 def _build_minari(out_dir: Path, manifest: dict) -> None:
     """Build the Minari dataset from the episode files in a temporary datasets root, move it into
     place, then write the COMPLETE marker (the last step)."""
-    import gymnasium as gym
-    import minari
-    from minari.data_collector import EpisodeBuffer
-
-    import bimgame  # noqa: F401  (registers the env ids)
-
     episodes, seed = manifest["episodes"], manifest["seed"]
     content = hashlib.sha256()
     totals = {"steps": 0, "successes": 0}
@@ -363,11 +356,11 @@ def _description(manifest: dict) -> str:
     limit = manifest["max_steps"] if manifest["max_steps"] is not None else "the task's registered limit"
     return (f"Expert trajectories of bimgame's random-shooting MPC expert ({ALGORITHM_NAME}, acting on "
             f"simulator states) on {manifest['env_id']}: {manifest['episodes']} episodes; episode i starts "
-            f"from reset(seed=bimgame.expert.episode_seed({manifest['seed']}, i)); time limit {limit} steps; "
+            f"from reset(seed=bimgame.expert.mpc.episode_seed({manifest['seed']}, i)); time limit {limit} steps; "
             f"MPC config {json.dumps(manifest['mpc_config'])}; bimgame {manifest['bimgame_version']}. "
             "Observations are state observations; infos['sim_state'] (T+1, S) MuJoCo physics states and "
             "infos['channel'] (T+1, n) task channels re-render pixel observations exactly "
-            "(bimgame.data.iterate_sequences(..., obs='pixels')).")
+            "(bimgame.expert.datasets.iterate_sequences(..., obs='pixels')).")
 
 
 def _hash_arrays(digest, data: dict[str, np.ndarray]) -> None:
@@ -440,8 +433,6 @@ def load_dataset(out_dir: str | Path, *, verify: bool = True):
     :class:`DatasetError` naming the problem. (Pointing ``MINARI_DATASETS_PATH`` at
     ``out_dir/minari`` also lets ``minari.load_dataset(dataset_id)`` open it, without these checks.)
     """
-    from minari import MinariDataset
-
     out_dir = Path(out_dir).absolute()  # Minari joins relative dataset paths onto its root
     if not out_dir.is_dir():
         raise DatasetError(f"dataset directory {out_dir} does not exist" if not out_dir.exists()
@@ -536,65 +527,12 @@ def iterate_sequences(dataset_or_dir, *, obs: str = "state", gamma: float = 0.99
                                  truncated=bool(episode.truncations[-1]), id=int(episode.id))
 
 
-def _pixel_observer(n_marbles: int):
-    from bimgame.sim.maze import MazeSpec
-    from bimgame.envs.observe import Observer
-    from bimgame.sim.physics import MazeSim
-
+def _pixel_observer(n_marbles: int) -> Observer:
     maze = MazeSpec.merl()
     sim = MazeSim(maze, n_marbles=n_marbles)
     layout = sim.layout
     sim.close()
     return Observer(maze, n_marbles, "pixels", layout=layout)
-
-
-# ------------------------------------------------------------------------------ command line
-def add_generate_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
-    """Add the ``bimgame generate`` options to ``parser`` (a sub-parser; the MPC expert's own
-    flags are added by the command line, shared with ``expert-eval``); returns it."""
-    parser.add_argument("--task", choices=[t.value for t in Task], default="FULL", type=str.upper)
-    parser.add_argument("--episodes", type=positive_int, default=500)
-    parser.add_argument("--out", type=Path, required=True,
-                        help="the run's directory (new, empty, or this run's to resume it)")
-    parser.add_argument("--seed", type=non_negative_int, default=0, help="run seed (default 0)")
-    parser.add_argument("--workers", type=positive_int, default=None,
-                        help="parallel episodes (default: the number of CPUs)")
-    parser.add_argument("--backend", choices=BACKENDS, default="local")
-    parser.add_argument("--ray-address", default=None,
-                        help="Ray cluster address (backend ray; default: start Ray locally)")
-    parser.add_argument("--max-steps", type=positive_int, default=None,
-                        help="time limit per episode (default: the task's registered limit)")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
-    return parser
-
-
-def run_generate(args: argparse.Namespace, config: MPCConfig) -> int:
-    """``bimgame generate``: generate (or resume, or verify) a dataset with the expert ``config``
-    and print a summary."""
-    start = time.perf_counter()
-    try:
-        out = generate_dataset(args.out, args.task, args.episodes, seed=args.seed, config=config,
-                               workers=args.workers, backend=args.backend, ray_address=args.ray_address,
-                               progress=not args.no_progress, max_steps=args.max_steps)
-    except ImportError as error:
-        print(f"bimgame generate: error: {error}", file=sys.stderr)
-        return 2
-    seconds = time.perf_counter() - start
-    summary = dataset_summary(out)
-    print(f"{summary['dataset_id']} in {out}: {summary['episodes']} episodes, {summary['steps']} steps, "
-          f"success {summary['success_rate']:.0%}, mean length {summary['mean_length']:.1f}, "
-          f"{seconds:.1f} s")
-    print(f"disk: Minari (hdf5) {_megabytes(summary['bytes_minari'])} "
-          f"({summary['bytes_per_1000_steps_minari'] / 1e3:.0f} kB per 1000 steps), episode files "
-          f"{_megabytes(summary['bytes_episode_files'])} "
-          f"({summary['bytes_per_1000_steps_episode_files'] / 1e3:.0f} kB per 1000 steps)")
-    print(f"load with bimgame.data.load_dataset({str(out)!r}), or minari.load_dataset("
-          f"{summary['dataset_id']!r}) with MINARI_DATASETS_PATH={out / MINARI_DIR}")
-    return 0
-
-
-def _megabytes(size: int) -> str:
-    return f"{size / 1e6:.1f} MB"
 
 
 def _check_int(name: str, value: Any, *, minimum: int) -> None:

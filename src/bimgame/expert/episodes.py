@@ -1,6 +1,7 @@
-"""Expert episodes run in parallel — local worker processes or Ray tasks — and the progress bar
-shown while they run. Dataset generation (``data.py``) and expert evaluation (``expert_eval.py``)
-both run episodes through here.
+"""Many MPC expert episodes at once, on local worker processes or Ray tasks, and the progress bar
+(episodes done, success so far) shown while they run. Dataset generation
+(:mod:`bimgame.expert.datasets`) and expert evaluation (:mod:`bimgame.expert.evaluation`) both run
+their episodes through here.
 
 Episode ``i`` of a run is ``run_expert_episode(task, episode_seed(seed, i), config)``: it depends
 on the run seed and its index only, so results do not depend on the backend, the number of
@@ -22,6 +23,7 @@ from typing import Callable
 import numpy as np
 
 from bimgame.expert.mpc import MPCConfig, episode_seed, run_expert_episode
+from bimgame.util.progress import ProgressBar
 
 __all__ = ["BACKENDS", "MAIN_GUARD", "expert_episodes", "episode_progress", "environment", "import_ray"]
 
@@ -106,7 +108,7 @@ def _local_episodes(task: str, todo: list[int], seed: int, config: MPCConfig, ma
 def import_ray():
     """The ``ray`` module, or an ImportError that says how to install it."""
     try:
-        import ray
+        import ray  # optional (the "ray" extra) and slow to import: only when backend="ray" is asked for
     except ImportError:
         raise ImportError('backend="ray" needs Ray, which is not installed: pip install "bimgame[ray]" '
                           '(or pip install ray)') from None
@@ -142,32 +144,18 @@ def _ray_episodes(task: str, todo: list[int], seed: int, config: MPCConfig, max_
 @contextlib.contextmanager
 def episode_progress(enabled: bool, description: str, total: int, done: int = 0,
                      successes: int = 0, transient: bool = False) -> Iterator[Callable[[bool], None]]:
-    """A rich progress bar on stderr (episodes done, success so far, elapsed, ETA); yields
-    ``update(success)`` to call once per finished episode. ``done``/``successes`` count episodes
-    finished before (a resumed run); ``transient`` removes the bar when done."""
+    """A :class:`~bimgame.util.progress.ProgressBar` over episodes (episodes done, success so far,
+    elapsed, ETA); yields ``update(success)`` to call once per finished episode. ``done``/``successes``
+    count episodes finished before (a resumed run); ``transient`` removes the bar when done."""
     counts = {"done": done, "success": successes}
 
-    def text() -> str:
-        return f"{counts['success'] / counts['done']:.0%}" if counts["done"] else "-"
+    def info() -> str:
+        return f"success {counts['success'] / counts['done']:.0%}" if counts["done"] else "success -"
 
-    if not enabled:
+    with ProgressBar(description, total, completed=done, enabled=enabled, eta=True, transient=transient,
+                     info=info()) as bar:
         def update(success: bool) -> None:
             counts["done"] += 1
             counts["success"] += success
-        yield update
-        return
-    from rich.console import Console
-    from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn,
-                               TimeRemainingColumn)
-
-    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-               TextColumn("success {task.fields[success]}"), TimeElapsedColumn(), TextColumn("ETA"),
-               TimeRemainingColumn())
-    with Progress(*columns, console=Console(stderr=True), transient=transient) as bar:
-        task_id = bar.add_task(description, total=total, completed=done, success=text())
-
-        def update(success: bool) -> None:
-            counts["done"] += 1
-            counts["success"] += success
-            bar.update(task_id, advance=1, success=text())
+            bar.update(advance=1, info=info())
         yield update

@@ -11,13 +11,13 @@ from typing import Any
 
 import numpy as np
 
-from bimgame.expert.mpc import MPCConfig
-from bimgame.sim.figures import save_png
-from bimgame.util.files import atomic_write_bytes
 from bimgame.expert.episodes import episode_progress, expert_episodes
+from bimgame.expert.mpc import MPCConfig
 from bimgame.sim.tasks import parse_task
+from bimgame.util.files import atomic_write_bytes
+from bimgame.util.images import save_png, subplots
 
-__all__ = ["evaluate_expert", "summarise", "plot_length_histogram", "EpisodeResult"]
+__all__ = ["evaluate_expert", "summarise", "plot_length_histogram", "write_results", "EpisodeResult"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -34,7 +34,7 @@ def evaluate_expert(task: str, episodes: int, config: MPCConfig | None = None, *
                     workers: int | None = None, max_steps: int | None = None,
                     progress: bool = True) -> list[EpisodeResult]:
     """Run ``episodes`` expert episodes (episode i from :func:`episode_seed`(seed, i)) on ``workers``
-    processes (default: all cores, see :func:`~bimgame.parallel.expert_episodes`); results sorted
+    processes (default: all cores, see :func:`~bimgame.expert.episodes.expert_episodes`); results sorted
     by episode index, independent of ``workers``."""
     parse_task(task)
     config = config if config is not None else MPCConfig()
@@ -70,14 +70,9 @@ def summarise(results: list[EpisodeResult]) -> dict[str, Any]:
 
 def plot_length_histogram(results: list[EpisodeResult], path: str | Path, *, title: str) -> Path:
     """The paper's Fig. 1b: histogram of the lengths of successful expert trajectories (PNG)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     solved = [r.length for r in results if r.success]
     failed = sum(not r.success for r in results)
-    fig, ax = plt.subplots(figsize=(6, 3.6))
+    fig, ax = subplots(figsize=(6, 3.6))
     if solved:
         ax.hist(solved, bins=min(30, max(5, len(solved) // 3)), color="#4c72b0", edgecolor="white")
         ax.axvline(float(np.median(solved)), color="black", ls="--", lw=1,

@@ -1,7 +1,7 @@
 """Random-shooting model-predictive control with the simulator as its model (Paul & van Baar 2018).
 
 At every step, from the current simulator state, the expert samples K action sequences of H steps,
-rolls all of them out with :meth:`~bimgame.sim.MazeSim.rollout` (``mujoco.rollout``), scores each
+rolls all of them out with :meth:`~bimgame.sim.physics.MazeSim.rollout` (``mujoco.rollout``), scores each
 by its summed planning reward and applies the first action of the best.
 
 Planning rewards are progress towards the goal, summed over the horizon:
@@ -27,10 +27,9 @@ from typing import Any
 import numpy as np
 
 from bimgame.envs.env import DISCRETE_TILTS, BallInMazeEnv
-from bimgame.sim.tasks import MAX_EPISODE_STEPS
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.physics import MazeSim
-from bimgame.sim.tasks import Task, parse_task
+from bimgame.sim.tasks import MAX_EPISODE_STEPS, Task, parse_task
 
 __all__ = ["MPCConfig", "RandomShootingMPC", "SAMPLINGS", "PLANNING_REWARDS", "run_expert_episode",
            "episode_seed"]

@@ -1,6 +1,8 @@
-"""Reference policies for the env, by name: uniformly random, no-op, a scripted controller that
-tilts the board down the geodesic-distance slope (baselines for sanity checks), and the MPC expert
-of ``expert.py`` acting on the env's simulator state (for demos and evaluation)."""
+"""Scripted policies, which learn nothing, by name: uniformly random, no-op, a controller that tilts
+the board down the geodesic-distance slope (baselines for sanity checks), and the MPC expert of
+:mod:`bimgame.expert.mpc` acting on the env's simulator state (for demos and evaluation). Each maps
+the env itself to an action; the learned policies (networks acting on observations) are
+:mod:`bimgame.learn.actor`'s."""
 
 from __future__ import annotations
 
@@ -8,6 +10,7 @@ from typing import Protocol
 
 import numpy as np
 
+from bimgame.expert.mpc import RandomShootingMPC
 from bimgame.sim.maze import MazeSpec
 
 __all__ = ["Policy", "RandomPolicy", "NoopPolicy", "GeodesicPolicy", "ExpertPolicy", "POLICIES", "make_policy"]
@@ -92,8 +95,6 @@ class ExpertPolicy:
         self._expert = None
 
     def __call__(self, env) -> int:
-        from bimgame.expert.mpc import RandomShootingMPC
-
         unwrapped = env.unwrapped
         if self._expert is None or self._expert.task is not unwrapped.task:
             self._expert = RandomShootingMPC(self.spec, rng=self.rng, task=unwrapped.task,

@@ -39,21 +39,22 @@ import numpy as np
 import torch
 import torch.multiprocessing as mp
 
-from bimgame.learn.actor import RecurrentActor, evaluate_network, tilt_input
-from bimgame.learn.curves import plot_run
-from bimgame.sim.tasks import MAX_EPISODE_STEPS
-from bimgame.sim.maze import MazeSpec
-from bimgame.learn.nets import NetConfig, RecurrentActorCritic, build_network, maze_background, state_obs_scale
-from bimgame.envs.observe import OBS_MODES
-from bimgame.learn.runs import (CHECKPOINT, CONFIG, KIND_VALUE, MetricLog, load_checkpoint, load_weights, run_kind,
-                          save_checkpoint, torch_threads, write_json)
-from bimgame.util.settings import from_dict, require_int
-from bimgame.sim.tasks import Task, parse_task
 from bimgame.envs.vector import BallInMazeVectorEnv
+from bimgame.learn.actor import RecurrentActor, tilt_input
+from bimgame.learn.common import NetworkSettings, evaluate_greedy_and_sampled, evaluation_seed, init_network_settings
+from bimgame.learn.curves import plot_run
+from bimgame.learn.nets import RecurrentActorCritic
+from bimgame.learn.runs import (CHECKPOINT, CONFIG, MetricLog, load_checkpoint, load_weights, read_run_config,
+                                save_checkpoint, torch_threads)
+from bimgame.sim.maze import MazeSpec
+from bimgame.sim.tasks import MAX_EPISODE_STEPS, Task, parse_task
+from bimgame.util.files import write_json
+from bimgame.util.progress import ProgressBar
+from bimgame.util.settings import from_dict, require_int
+from bimgame.util.signals import sigterm_as_interrupt
 
-__all__ = ["A3CConfig", "TrainingError", "TrainResult", "train", "network_for", "make_optimizer",
-           "OPTIMIZERS", "EnvWrapper", "net_config_for", "a3c_segment_loss", "apply_update", "shared_optimizer_state",
-           "load_run_network", "evaluate_greedy_and_sampled", "evaluation_seed"]
+__all__ = ["A3CConfig", "TrainingError", "TrainResult", "train", "network_for", "make_optimizer", "evaluate",
+           "OPTIMIZERS", "EnvWrapper", "resolve_config", "a3c_segment_loss", "apply_update", "shared_optimizer_state"]
 
 OPTIMIZERS = ("rmsprop", "adam")
 #: A callable that wraps a worker's vector env (e.g. reward shaping). It is sent to spawned worker
@@ -66,14 +67,14 @@ class TrainingError(RuntimeError):
 
 
 @dataclasses.dataclass(frozen=True)
-class A3CConfig:
+class A3CConfig(NetworkSettings):
     """Settings of an A3C run. Learning defaults follow the A3C paper and its widely used reference
-    implementations (OpenAI Baselines' A2C settings for the loss, RMSProp with shared statistics)."""
+    implementations (OpenAI Baselines' A2C settings for the loss, RMSProp with shared statistics).
+    The network settings (``obs``, ``hidden``, ``features``, …) are inherited from
+    :class:`~bimgame.learn.common.NetworkSettings`."""
 
     task: str = "STG1"
     """FULL, STG1 … STG4."""
-    obs: str = "pixels"
-    """Observation: ``pixels`` (84×84, the paper's Conv-Conv-FC-LSTM) or ``state`` (MLP-LSTM)."""
     steps: int = 5_000_000
     """Environment steps to train for (all workers together)."""
     workers: int = 2
@@ -85,28 +86,25 @@ class A3CConfig:
     n_steps: int = 20
     """t_max: steps per update (n-step returns)."""
     gamma: float = 0.99
+    """Discount."""
     gae_lambda: float = 1.0
     """1.0 gives A3C's n-step returns; below 1, generalised advantage estimation."""
     lr: float = 7e-4
+    """Learning rate of the shared optimiser."""
     optimizer: str = "rmsprop"
     """``rmsprop`` (A3C's, statistics shared by all workers) or ``adam`` (also shared)."""
     rmsprop_alpha: float = 0.99
+    """RMSProp's smoothing constant."""
     optimizer_eps: float = 1e-5
+    """The optimiser's epsilon (numerical stability)."""
     entropy_coef: float = 0.01
+    """Weight of the entropy bonus in the loss."""
     value_coef: float = 0.5
+    """Weight of the value loss against the policy loss."""
     max_grad_norm: float = 0.5
     """Clip each update's gradient to this global norm (losses are means over the segment)."""
     seed: int = 0
-    tilt_input: bool = True
-    """Feed the board tilt to the LSTM (see :mod:`bimgame.learn.nets`); False is the paper's exact input."""
-    keypoints: bool = False
-    """Pixels: add spatial soft-argmax keypoints to the conv encoder (see :mod:`bimgame.learn.nets`)."""
-    subtract_background: bool = False
-    """Pixels: subtract the empty-maze frame before the convolutions (see :mod:`bimgame.learn.nets`)."""
-    hidden: int | None = None
-    """LSTM size; None: 256 for pixels (the paper's), 128 for state observations."""
-    features: int | None = None
-    """Encoder output size; None: 256 for pixels (the paper's FC 256), 128 for state observations."""
+    """Seeds the network's initial weights, the workers' environments and sampling, and the evaluations."""
     max_episode_steps: int | None = None
     """Time limit; None uses the task's (STG1 300, STG2 500, STG3 750, STG4/FULL 1000)."""
     checkpoint_every: int = 100_000
@@ -119,20 +117,15 @@ class A3CConfig:
     """Environment steps (per worker) between loss reports."""
 
     def __post_init__(self) -> None:
-        default_size = 256 if self.obs == "pixels" else 128
-        for name in ("hidden", "features"):
-            if getattr(self, name) is None:
-                object.__setattr__(self, name, default_size)
+        super().__post_init__()
         try:
             object.__setattr__(self, "task", parse_task(self.task).value)
         except ValueError as error:
             raise ValueError(f"A3CConfig.task: {error}") from None
-        if self.obs not in OBS_MODES:
-            raise ValueError(f"A3CConfig.obs must be one of {OBS_MODES}, got {self.obs!r}")
         if self.optimizer not in OPTIMIZERS:
             raise ValueError(f"A3CConfig.optimizer must be one of {OPTIMIZERS}, got {self.optimizer!r}")
-        positive_ints = ("steps", "workers", "envs_per_worker", "n_steps", "hidden", "features",
-                         "checkpoint_every", "eval_episodes", "log_every")
+        positive_ints = ("steps", "workers", "envs_per_worker", "n_steps", "checkpoint_every", "eval_episodes",
+                         "log_every")
         for name in positive_ints:
             require_int("A3CConfig", name, getattr(self, name), 1)
         if not (isinstance(self.eval_every, int) and self.eval_every >= 0):
@@ -174,40 +167,9 @@ class A3CConfig:
     RESUMABLE_CHANGES = ("steps", "workers", "checkpoint_every", "eval_every", "eval_episodes", "log_every")
 
 
-def net_config_for(config: A3CConfig, maze: MazeSpec | None = None) -> tuple[NetConfig, dict[str, Any]]:
-    """The network sizes for ``config``'s observations and the fixed inputs to build it with
-    (``obs_scale`` or ``background``, keyword arguments of :func:`~bimgame.nets.build_network`)."""
-    maze = maze or MazeSpec.merl()
-    if config.obs == "pixels":
-        net_config = NetConfig(encoder="conv", obs_shape=(1, 84, 84), features=config.features,
-                               hidden=config.hidden, tilt_input=config.tilt_input, keypoints=config.keypoints,
-                               subtract_background=config.subtract_background)
-        return net_config, {"background": maze_background(maze) if config.subtract_background else None}
-    scale = state_obs_scale(maze)
-    net_config = NetConfig(encoder="mlp", obs_shape=(len(scale),), features=config.features,
-                           hidden=config.hidden, tilt_input=config.tilt_input)
-    return net_config, {"obs_scale": scale}
-
-
 def network_for(config: A3CConfig, maze: MazeSpec | None = None) -> RecurrentActorCritic:
-    """A fresh network shaped for ``config``'s observations."""
-    net_config, inputs = net_config_for(config, maze)
-    return build_network(net_config, seed=config.seed, **inputs)
-
-
-def load_run_network(source: str | Path) -> tuple[RecurrentActorCritic, A3CConfig, int]:
-    """The network of a training run — ``source`` is its directory or a checkpoint file in it —
-    with the checkpoint's weights; returns (network, settings, step)."""
-    source = Path(source)
-    run_dir = source.parent if source.is_file() else source
-    if not (run_dir / CONFIG).is_file():
-        raise ValueError(f"{run_dir} is not a training run (no {CONFIG})")
-    if run_kind(run_dir) == KIND_VALUE:
-        raise ValueError(f"{run_dir} holds a value function (V̂), not a policy; use it with --value-reward")
-    config = A3CConfig.from_dict(json.loads((run_dir / CONFIG).read_text())["a3c"])
-    net = network_for(config)
-    step = load_weights(net, source)
-    return net, config, step
+    """A fresh network for ``config``'s run, initialised from its seed."""
+    return config.build_policy(config.seed, maze)
 
 
 def make_optimizer(config: A3CConfig, params) -> torch.optim.Optimizer:
@@ -443,7 +405,7 @@ def _evaluator(config: A3CConfig, shared: RecurrentActorCritic, counter, stop, m
             # A fresh run is evaluated at step 0 too, on a copy of the weights taken before any
             # worker started: the curve starts from the initial (random or pre-trained) policy.
             local.load_state_dict(initial_weights)
-            messages.put(("eval", -1, {"step": start_step, **evaluate_greedy_and_sampled(local, config)}))
+            messages.put(("eval", -1, {"step": start_step, **evaluate(local, config)}))
         next_eval = (start_step // config.eval_every + 1) * config.eval_every
         while not stop.is_set() and _parent_alive():
             step = counter.value
@@ -453,7 +415,7 @@ def _evaluator(config: A3CConfig, shared: RecurrentActorCritic, counter, stop, m
                 time.sleep(0.1)
                 continue
             local.load_state_dict(shared.state_dict())
-            messages.put(("eval", -1, {"step": int(step), **evaluate_greedy_and_sampled(local, config)}))
+            messages.put(("eval", -1, {"step": int(step), **evaluate(local, config)}))
             next_eval = (step // config.eval_every + 1) * config.eval_every
     except Exception:
         messages.put(("error", -1, traceback.format_exc()))
@@ -461,23 +423,10 @@ def _evaluator(config: A3CConfig, shared: RecurrentActorCritic, counter, stop, m
         messages.put(("exit", -1, None))
 
 
-def evaluation_seed(config: A3CConfig) -> int:
-    """Seed of the start positions of a run's periodic evaluations (the same every time)."""
-    return int(np.random.SeedSequence([config.seed, 999_983]).generate_state(1)[0])
-
-
-def evaluate_greedy_and_sampled(net: RecurrentActorCritic, config: A3CConfig, *, episodes: int | None = None,
-                                seed: int | None = None) -> dict[str, float]:
-    """Success rate, mean length and return of ``net`` on ``config``'s task, acting greedily and
-    sampling (keys ``greedy_…``, ``sampled_…``); by default the run's evaluation episodes and seed."""
-    values: dict[str, float] = {}
-    seed = evaluation_seed(config) if seed is None else seed
-    for mode, greedy in (("greedy", True), ("sampled", False)):
-        result = evaluate_network(net, task=config.task, obs_mode=config.obs,
-                                  episodes=config.eval_episodes if episodes is None else episodes,
-                                  seed=seed, greedy=greedy, max_episode_steps=config.time_limit)
-        values.update({f"{mode}_{k}": v for k, v in result.summary().items() if k != "episodes"})
-    return values
+def evaluate(net: RecurrentActorCritic, config: A3CConfig) -> dict[str, float]:
+    """The run's periodic evaluation: greedy and sampled, on its evaluation episodes and seed."""
+    return evaluate_greedy_and_sampled(net, task=config.task, obs=config.obs, episodes=config.eval_episodes,
+                                       seed=evaluation_seed(config.seed), time_limit=config.time_limit)
 
 
 # ---------------------------------------------------------------------- the parent process
@@ -490,8 +439,23 @@ _TABLES = {
 }
 
 
+def resolve_config(given: dict[str, Any], run_dir: str | Path, *, resume: bool = False,
+                   init: str | Path | None = None) -> A3CConfig:
+    """A run's settings from the ones a user gave (``given``: field → value, only those given): the
+    defaults, or with ``resume`` the run's stored settings, overridden by ``given``; with ``init``, the
+    network settings of the run it points at unless given (a pre-trained π^s fixes the network's
+    shape). The command line and the reproduction both build their A3C settings here."""
+    if resume:
+        if not (Path(run_dir) / CONFIG).is_file():
+            raise ValueError(f"--resume: no {CONFIG} in {run_dir}; start a new run without --resume")
+        return A3CConfig.from_dict({**read_run_config(run_dir)["a3c"], **given})
+    if init is not None:
+        given = {**init_network_settings(init), **given}
+    return A3CConfig.from_dict(given)
+
+
 def _check_resume(run_dir: Path, config: A3CConfig) -> dict[str, Any]:
-    stored = json.loads((run_dir / CONFIG).read_text())
+    stored = read_run_config(run_dir)
     previous = A3CConfig.from_dict(stored["a3c"])
     changed = [f.name for f in dataclasses.fields(A3CConfig)
                if getattr(previous, f.name) != getattr(config, f.name) and f.name not in A3CConfig.RESUMABLE_CHANGES]
@@ -582,9 +546,11 @@ def _train(config: A3CConfig, run_dir: Path, *, resume: bool, init: str | Path |
         save_checkpoint(run_dir / CHECKPOINT, model=shared.state_dict(), optimizer=optimizer.state_dict(),
                         step=int(counter.value), config=json.dumps(config.to_dict()))
 
-    previous_sigterm = _stop_on_sigterm()
+    shown_at = 0.0
     try:
-        with _progress(progress, config, start_step) as show:
+        with sigterm_as_interrupt(), ProgressBar(f"A3C {config.task} {config.obs}", config.steps,
+                                                 completed=start_step, enabled=progress, eta=True,
+                                                 count="{done:,.0f}/{total:,.0f} steps") as bar:
             for process in processes:
                 process.start()
             running = len(processes)
@@ -618,7 +584,11 @@ def _train(config: A3CConfig, run_dir: Path, *, resume: bool, init: str | Path |
                     failure = f"process {rank} failed:\n{payload}"
                     stop.set()
                 step = int(counter.value)
-                show(step, monitor)
+                if progress and time.monotonic() - shown_at >= 0.5:
+                    shown_at = time.monotonic()
+                    success = monitor.recent()["recent_success"]
+                    bar.update(completed=step, info=f"{monitor.sps(step):,.0f} SPS  success "
+                                                    + ("-" if math.isnan(success) else f"{success:.0%}"))
                 if failure is None and step - last_checkpoint >= config.checkpoint_every:
                     checkpoint()
                     last_checkpoint = step
@@ -627,8 +597,6 @@ def _train(config: A3CConfig, run_dir: Path, *, resume: bool, init: str | Path |
         stop.set()
     finally:
         stop.set()
-        if previous_sigterm is not None:
-            signal.signal(signal.SIGTERM, previous_sigterm)
         for process in processes:
             process.join(timeout=30)
             if process.is_alive():
@@ -642,7 +610,7 @@ def _train(config: A3CConfig, run_dir: Path, *, resume: bool, init: str | Path |
     checkpoint()
     final_eval = None
     if stopped == "finished":
-        final_eval = {"step": int(counter.value), **evaluate_greedy_and_sampled(shared, config)}
+        final_eval = {"step": int(counter.value), **evaluate(shared, config)}
         log.write("eval", final_eval["step"], final_eval, scalars=tuple(_TABLES["eval"]))
     log.close()
     seconds = time.monotonic() - started
@@ -653,21 +621,6 @@ def _train(config: A3CConfig, run_dir: Path, *, resume: bool, init: str | Path |
     except ValueError:
         pass  # no finished episode yet: nothing to plot
     return TrainResult(run_dir, int(counter.value), stopped, final_eval, seconds)
-
-
-def _stop_on_sigterm():
-    """Treat SIGTERM like Ctrl-C (a clean stop with a final checkpoint), e.g. for batch schedulers
-    and background runs, where SIGINT is often ignored. Returns the previous handler (None when not
-    on the main thread, where handlers cannot be set)."""
-    import threading
-
-    if threading.current_thread() is not threading.main_thread():
-        return None
-
-    def interrupt(signum, frame):
-        raise KeyboardInterrupt
-
-    return signal.signal(signal.SIGTERM, interrupt)
 
 
 class _Monitor:
@@ -703,45 +656,6 @@ class _Monitor:
             self._marks.pop(0)
         (t0, s0) = self._marks[0]
         return (step - s0) / (now - t0) if now > t0 else 0.0
-
-
-class _progress:
-    """A rich progress bar: steps, SPS, recent success rate, elapsed, ETA."""
-
-    def __init__(self, enabled: bool, config: A3CConfig, start_step: int):
-        self.enabled = enabled
-        self.config = config
-        self.start_step = start_step
-        self._last = 0.0
-
-    def __enter__(self) -> Callable[[int, _Monitor], None]:
-        if not self.enabled:
-            return lambda step, monitor: None
-        from rich.console import Console
-        from rich.progress import (BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn)
-
-        self.bar = Progress(TextColumn(f"A3C {self.config.task} {self.config.obs}"), BarColumn(),
-                            TextColumn("{task.completed:,.0f}/{task.total:,.0f} steps"),
-                            TextColumn("{task.fields[sps]} SPS"), TextColumn("success {task.fields[success]}"),
-                            TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn(),
-                            console=Console(stderr=True))
-        self.bar.__enter__()
-        self.task_id = self.bar.add_task("train", total=self.config.steps, completed=self.start_step,
-                                         sps="-", success="-")
-
-        def show(step: int, monitor: _Monitor) -> None:
-            now = time.monotonic()
-            if now - self._last < 0.5:
-                return
-            self._last = now
-            success = monitor.recent()["recent_success"]
-            self.bar.update(self.task_id, completed=step, sps=f"{monitor.sps(step):,.0f}",
-                            success="-" if math.isnan(success) else f"{success:.0%}")
-        return show
-
-    def __exit__(self, *exc) -> None:
-        if self.enabled:
-            self.bar.__exit__(*exc)
 
 
 def default_workers() -> int:

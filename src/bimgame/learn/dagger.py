@@ -12,7 +12,7 @@ Each iteration i:
    dataset D. The learner's inputs are what it saw while acting: the previous action it *executed*
    and the reward it got, so training and acting see the same input distribution.
 3. **Retrain** the same recurrent network on all of D with the pre-training loss
-   (:func:`bimgame.pretrain.policy_loss_terms`: cross-entropy of the expert's action, value
+   (:func:`bimgame.learn.supervised.policy_loss_terms`: cross-entropy of the expert's action, value
    regression on the executed returns, L2).
 
 Costs are counted separately so that curves against A3C are honest: ``env_steps`` are the steps
@@ -37,7 +37,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from bimgame.learn.a3c import evaluate_greedy_and_sampled, network_for
+from bimgame.learn.common import evaluate_greedy_and_sampled, evaluation_seed
 from bimgame.learn.actor import RecurrentActor, tilt_input
 from bimgame.expert.episode import Episode
 from bimgame.envs.env import BallInMazeEnv
@@ -45,11 +45,13 @@ from bimgame.expert.mpc import MPCConfig, RandomShootingMPC
 from bimgame.util.files import atomic_write_bytes
 from bimgame.sim.maze import MazeSpec
 from bimgame.learn.nets import RecurrentActorCritic
-from bimgame.learn.pretrain import PretrainConfig, train_policy_epochs
-from bimgame.learn.runs import CHECKPOINT, CONFIG, MetricLog, load_weights, save_checkpoint, torch_threads, write_json
+from bimgame.learn.supervised import PretrainConfig, train_policy_epochs
+from bimgame.learn.runs import CHECKPOINT, CONFIG, MetricLog, load_weights, read_run_config, save_checkpoint, torch_threads
+from bimgame.util.files import write_json
+from bimgame.util.progress import ProgressBar
 from bimgame.util.settings import from_dict, require_int
 
-__all__ = ["DAggerConfig", "DAggerResult", "dagger", "collect_episodes", "KIND_DAGGER"]
+__all__ = ["resolve_dagger_config", "DAggerConfig", "DAggerResult", "dagger", "collect_episodes", "KIND_DAGGER"]
 
 KIND_DAGGER = "dagger-policy"
 STATE = "dagger_state.json"
@@ -61,11 +63,13 @@ _TABLE = ["iteration", "beta", "episodes", "dataset_steps", "expert_sim_steps", 
 @dataclasses.dataclass(frozen=True)
 class DAggerConfig:
     """Settings of a DAgger run; the network and its loss are ``learner``'s (a
-    :class:`~bimgame.pretrain.PretrainConfig`: task, observations, sizes, lr, L2, γ)."""
+    :class:`~bimgame.learn.supervised.PretrainConfig`: task, observations, sizes, lr, L2, γ)."""
 
     learner: PretrainConfig = dataclasses.field(default_factory=lambda: PretrainConfig(task="STG1"))
     iterations: int = 10
+    """Iterations to run (roll out, label, aggregate, retrain)."""
     episodes_per_iteration: int = 20
+    """Learner rollouts per iteration, run side by side."""
     beta0: float = 1.0
     """Probability of executing the expert's action in iteration 0 (1: behaviour cloning data)."""
     beta_decay: float = 0.5
@@ -102,7 +106,7 @@ class DAggerConfig:
 
     @property
     def time_limit(self) -> int:
-        return self.max_episode_steps or self.learner.a3c_config().time_limit
+        return self.max_episode_steps or self.learner.time_limit
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -115,6 +119,18 @@ class DAggerConfig:
         if "expert" in values:
             values["expert"] = from_dict(MPCConfig, values["expert"], "MPC settings")
         return from_dict(cls, values, "DAgger settings")
+
+
+def resolve_dagger_config(learner: PretrainConfig, given: dict[str, Any], run_dir: str | Path, *,
+                          resume: bool) -> DAggerConfig:
+    """A run's DAgger settings: ``learner`` and ``given`` (DAggerConfig fields) for a new run; a resumed
+    run keeps its stored settings except those it may change (:attr:`DAggerConfig.RESUMABLE_CHANGES`)."""
+    if not resume:
+        return DAggerConfig(learner=learner, **given)
+    if not (Path(run_dir) / CONFIG).is_file():
+        raise ValueError(f"--resume: no {CONFIG} in {run_dir}; start a new run without --resume")
+    stored = DAggerConfig.from_dict(read_run_config(run_dir)["dagger"])
+    return dataclasses.replace(stored, **{k: v for k, v in given.items() if k in DAggerConfig.RESUMABLE_CHANGES})
 
 
 # ------------------------------------------------------------------------------ rollouts
@@ -225,12 +241,12 @@ def dagger(config: DAggerConfig, run_dir: str | Path, *, resume: bool = False, i
 def _dagger(config: DAggerConfig, run_dir: Path | str, *, resume: bool, init: str | Path | None,
             progress: bool) -> DAggerResult:
     run_dir = Path(run_dir)
-    net = network_for(config.learner.a3c_config())
+    net = config.learner.build_policy(config.learner.seed)
     state = {"iteration": 0, "env_steps": 0, "expert_sim_steps": 0, "labels": 0}
     if resume:
         if not (run_dir / CONFIG).is_file():
             raise ValueError(f"--resume: {run_dir} has no {CONFIG}; start a new run without --resume")
-        stored = DAggerConfig.from_dict(json.loads((run_dir / CONFIG).read_text())["dagger"])
+        stored = DAggerConfig.from_dict(read_run_config(run_dir)["dagger"])
         changed = [name for name in ("learner", "episodes_per_iteration", "beta0", "beta_decay",
                                      "epochs_per_iteration", "expert", "max_episode_steps")
                    if getattr(stored, name) != getattr(config, name)]
@@ -249,7 +265,8 @@ def _dagger(config: DAggerConfig, run_dir: Path | str, *, resume: bool, init: st
             load_weights(net, init)
         run_dir.mkdir(parents=True, exist_ok=True)
         (run_dir / "data").mkdir(exist_ok=True)
-        write_json(run_dir / CONFIG, {"kind": KIND_DAGGER, "a3c": config.learner.a3c_config().to_dict(),
+        write_json(run_dir / CONFIG, {"kind": KIND_DAGGER, "task": config.learner.task, "seed": config.learner.seed,
+                                      "network": config.learner.network_settings().to_dict(),
                                       "net": net.config.to_dict(), "dagger": config.to_dict(),
                                       "init": None if init is None else str(init)})
     dataset: list[Episode] = []
@@ -258,9 +275,10 @@ def _dagger(config: DAggerConfig, run_dir: Path | str, *, resume: bool, init: st
     log = MetricLog(run_dir, {"dagger": _TABLE}, resume_step=state["env_steps"] if resume else None)
     started = time.monotonic() - state.get("seconds", 0.0)
     final_eval = None
-    a3c_config = config.learner.a3c_config()
+    learner = config.learner
     try:
-        with _IterationProgress(progress, config, state["iteration"]) as show:
+        with ProgressBar(f"DAgger {learner.task} {learner.obs}", config.iterations, completed=state["iteration"],
+                         enabled=progress) as bar:
             for iteration in range(state["iteration"], config.iterations):
                 seed = int(np.random.SeedSequence([config.learner.seed, iteration]).generate_state(1)[0])
                 beta = config.beta(iteration)
@@ -270,7 +288,9 @@ def _dagger(config: DAggerConfig, run_dir: Path | str, *, resume: bool, init: st
                 rng = np.random.default_rng(seed)
                 summary = train_policy_epochs(net, dataset, config.learner, config.epochs_per_iteration, rng,
                                               MazeSpec.merl().max_tilt)
-                final_eval = (evaluate_greedy_and_sampled(net, a3c_config, episodes=config.eval_episodes)
+                final_eval = (evaluate_greedy_and_sampled(net, task=learner.task, obs=learner.obs,
+                                                          episodes=config.eval_episodes, seed=evaluation_seed(learner.seed),
+                                                          time_limit=learner.time_limit)
                               if config.eval_episodes else None)
                 for key in ("env_steps", "expert_sim_steps", "labels"):
                     state[key] += costs[key]
@@ -290,7 +310,10 @@ def _dagger(config: DAggerConfig, run_dir: Path | str, *, resume: bool, init: st
                           scalars=("train_loss", "train_accuracy", "rollout_success_rate", "greedy_success_rate",
                                    "sampled_success_rate", "dataset_steps", "expert_sim_steps"))
                 write_json(run_dir / STATE, state)
-                show(iteration + 1, row)
+                success = row.get("greedy_success_rate")
+                bar.update(completed=iteration + 1,
+                           info=f"β {row['beta']:.2f}  dataset {row['dataset_steps']:,} steps"
+                                + ("" if success is None else f"  greedy success {success:.0%}"))
                 if not math.isfinite(summary["loss"]):
                     raise RuntimeError(f"DAgger's training loss is not finite at iteration {iteration}; "
                                        f"lower the learning rate (now {config.learner.lr})")
@@ -303,31 +326,3 @@ def _dagger(config: DAggerConfig, run_dir: Path | str, *, resume: bool, init: st
 def _data_path(run_dir: Path, iteration: int) -> Path:
     return run_dir / "data" / f"iteration_{iteration:03d}.npz"
 
-
-class _IterationProgress:
-    """A rich progress bar over iterations, showing the latest evaluation."""
-
-    def __init__(self, enabled: bool, config: DAggerConfig, done: int):
-        self.enabled, self.config, self.done = enabled, config, done
-
-    def __enter__(self):
-        if not self.enabled:
-            return lambda iteration, row: None
-        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
-        self.bar = Progress(TextColumn(f"DAgger {self.config.learner.task} {self.config.learner.obs}"), BarColumn(),
-                            MofNCompleteColumn(), TextColumn("{task.fields[info]}"), TimeElapsedColumn())
-        self.bar.__enter__()
-        self.task_id = self.bar.add_task("iterations", total=self.config.iterations, completed=self.done, info="")
-
-        def show(iteration: int, row: dict[str, Any]) -> None:
-            success = row.get("greedy_success_rate")
-            info = f"β {row['beta']:.2f}  dataset {row['dataset_steps']:,} steps"
-            if success is not None:
-                info += f"  greedy success {success:.0%}"
-            self.bar.update(self.task_id, completed=iteration, info=info)
-        return show
-
-    def __exit__(self, *exc) -> None:
-        if self.enabled:
-            self.bar.__exit__(*exc)

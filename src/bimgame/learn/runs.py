@@ -32,7 +32,7 @@ import torch
 from bimgame.util.files import atomic_write_bytes
 
 __all__ = ["torch_threads", "run_kind", "KIND_A3C", "KIND_POLICY", "KIND_VALUE", "CheckpointError", "save_checkpoint", "load_checkpoint", "load_weights", "CsvLog",
-           "MetricLog", "write_json", "CHECKPOINT", "CONFIG"]
+           "MetricLog", "read_run_config", "CHECKPOINT", "CONFIG"]
 
 CHECKPOINT = "checkpoint.pt"
 CONFIG = "config.json"
@@ -58,14 +58,26 @@ def torch_threads(count: int | None = None) -> Iterator[int]:
         torch.set_num_threads(previous)
 
 
-def run_kind(run_dir: str | Path) -> str:
-    """What a run directory (or a checkpoint file in one) holds: :data:`KIND_A3C`,
-    :data:`KIND_POLICY`, :data:`KIND_VALUE` or another tool's kind (e.g. DAgger's)."""
+def read_run_config(run_dir: str | Path) -> dict[str, Any]:
+    """The ``config.json`` of a run directory (or of the run a file in it belongs to): the one
+    reader of it, raising ``ValueError`` that names the file when it is missing or not a JSON object."""
     path = Path(run_dir)
     path = path.parent if path.is_file() else path
     if not (path / CONFIG).is_file():
         raise ValueError(f"{path} is not a bimgame run (no {CONFIG})")
-    return json.loads((path / CONFIG).read_text()).get("kind", KIND_A3C)
+    try:
+        stored = json.loads((path / CONFIG).read_text())
+    except (OSError, ValueError) as error:
+        raise ValueError(f"cannot read {path / CONFIG}: {error}") from None
+    if not isinstance(stored, dict):
+        raise ValueError(f"{path / CONFIG} is not a JSON object")
+    return stored
+
+
+def run_kind(run_dir: str | Path) -> str:
+    """What a run directory (or a checkpoint file in one) holds: :data:`KIND_A3C`,
+    :data:`KIND_POLICY`, :data:`KIND_VALUE` or another tool's kind (e.g. DAgger's)."""
+    return read_run_config(run_dir).get("kind", KIND_A3C)
 
 
 class CheckpointError(ValueError):
@@ -201,7 +213,3 @@ class MetricLog:
         if self.writer is not None:
             self.writer.close()
 
-
-def write_json(path: str | Path, values: dict[str, Any]) -> Path:
-    """JSON, atomically, sorted keys."""
-    return atomic_write_bytes(path, (json.dumps(values, indent=2, sort_keys=True) + "\n").encode())

@@ -1,5 +1,7 @@
-"""Figures: a labelled drawing of a maze (walls, gates, channels, geodesic distance) as a PNG, and
-the one way every figure of the package is written (:func:`save_png`)."""
+"""A labelled drawing of a maze (walls, gates, channels, geodesic distance) as a PNG.
+
+Figures are drawn and written with :mod:`bimgame.util.images`; ``save_png`` is also importable from
+here for the modules that still do so."""
 
 from __future__ import annotations
 
@@ -7,9 +9,10 @@ import math
 from pathlib import Path
 
 import numpy as np
+from matplotlib.patches import Circle, Wedge
 
-from bimgame.util.files import atomic_write_bytes
 from bimgame.sim.maze import MazeSpec
+from bimgame.util.images import save_png, subplots
 
 __all__ = ["draw_maze", "save_png"]
 
@@ -18,15 +21,8 @@ def draw_maze(spec: MazeSpec, path: str | Path, *, geodesic: bool = True, dpi: i
     """Draw ``spec`` to a PNG at ``path``: walls and rim in grey, gates labelled with their angle
     and width, channels numbered, and (optionally) the geodesic distance to the centre as a
     colour map over the floor. Written atomically; returns the path."""
-
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.patches import Circle, Wedge
-
     extent = spec.rim_radius + spec.rim_thickness
-    fig, ax = plt.subplots(figsize=(7, 7))
+    fig, ax = subplots(figsize=(7, 7))
     if geodesic:
         n = 400
         xs = np.linspace(-extent, extent, n)
@@ -63,14 +59,3 @@ def draw_maze(spec: MazeSpec, path: str | Path, *, geodesic: bool = True, dpi: i
                  "(white numbers: channels)", fontsize=9)
     return save_png(fig, path, dpi=dpi, bbox_inches="tight")
 
-
-def save_png(fig, path: str | Path, *, dpi: int, **savefig_options) -> Path:
-    """Write a matplotlib figure to ``path`` as a PNG, atomically, and close it; returns the path."""
-    import io
-
-    import matplotlib.pyplot as plt
-
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=dpi, **savefig_options)
-    plt.close(fig)
-    return atomic_write_bytes(path, buffer.getvalue())

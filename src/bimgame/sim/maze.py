@@ -156,7 +156,7 @@ class MazeSpec:
     # ------------------------------------------------------------------ construction
     @classmethod
     def merl(cls, **overrides) -> MazeSpec:
-        """MERL's circular maze (DESIGN §2): 4 walls, 1/4/4/4 gates, 6.35 mm steel marble."""
+        """MERL's circular maze, the paper's: 4 walls, 1/4/4/4 gates, 6.35 mm steel marble."""
         walls = (
             Wall(16.0e-3, 21.2e-3, (Gate.deg(180, 50.0),)),
             Wall(36.0e-3, 41.3e-3, tuple(Gate.deg(a, 21.4) for a in (45, 135, 225, 315))),

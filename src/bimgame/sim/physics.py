@@ -1,4 +1,4 @@
-"""MuJoCo physics of a :class:`~bimgame.maze.MazeSpec`: model generation, stepping, state capture
+"""MuJoCo physics of a :class:`~bimgame.sim.maze.MazeSpec`: model generation, stepping, state capture
 and batched rollouts.
 
 Model. The board hangs on two nested hinges (``tilt_x`` about the world x axis, then ``tilt_y``

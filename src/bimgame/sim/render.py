@@ -3,7 +3,7 @@
 Why a numpy raster rather than MuJoCo's OpenGL renderer? The pixel observation is a camera fixed
 to the board looking straight down, so it is a 2-D picture: a static background (floor, goal
 region, walls with their gates, rim) plus one disc per marble. The background is rasterised once,
-from the exact geometry of the :class:`~bimgame.maze.MazeSpec` (true circles and radial gate edges,
+from the exact geometry of the :class:`~bimgame.sim.maze.MazeSpec` (true circles and radial gate edges,
 not the box pieces that approximate them in the physics model), antialiased by supersampling.
 Each frame then only copies the background and blends a few dozen pixels around each marble, which
 costs microseconds instead of the milliseconds of an OpenGL render plus read-back, vectorises over a
@@ -287,7 +287,7 @@ def _blend_gray(flat_out: np.ndarray, flat: np.ndarray, uncovered: np.ndarray) -
 
 
 class MazeRenderer:
-    """Numpy raster of a :class:`~bimgame.maze.MazeSpec` seen from above, in the board frame.
+    """Numpy raster of a :class:`~bimgame.sim.maze.MazeSpec` seen from above, in the board frame.
 
     ``gray`` draws (batches of) ``size`` × ``size`` uint8 observations; ``rgb`` draws colour video
     frames at any size (default :data:`DEFAULT_RGB_SIZE`). See the module docstring for the pixel

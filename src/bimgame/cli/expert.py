@@ -1,0 +1,134 @@
+"""Command-line verbs of the MPC expert: ``bimgame expert-eval`` (success rate, trajectory lengths and
+their histogram) and ``bimgame generate`` (expert trajectories as a Minari dataset)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from rich.console import Console
+from rich.table import Table
+
+from bimgame.cli.argtypes import add_max_steps_argument, add_task_argument, non_negative_int, positive_int
+from bimgame.expert.datasets import BACKENDS, MINARI_DIR, dataset_summary, generate_dataset
+from bimgame.expert.evaluation import evaluate_expert, plot_length_histogram, summarise, write_results
+from bimgame.expert.mpc import PLANNING_REWARDS, SAMPLINGS, MPCConfig
+
+__all__ = ["add_parsers", "add_mpc_arguments", "mpc_config_from", "add_generate_arguments", "run_generate",
+           "run_expert_eval"]
+
+
+def add_parsers(verbs: argparse._SubParsersAction) -> None:
+    """Add the ``expert-eval`` and ``generate`` verbs to the command line's sub-parsers."""
+    evaluate = verbs.add_parser("expert-eval", help="measure the MPC expert: success, lengths, histogram")
+    add_task_argument(evaluate, "FULL")
+    evaluate.add_argument("--episodes", type=positive_int, default=50)
+    evaluate.add_argument("--seed", type=int, default=0)
+    evaluate.add_argument("--workers", type=positive_int, default=None, help="processes (default: all cores)")
+    add_max_steps_argument(evaluate)
+    add_mpc_arguments(evaluate)
+    evaluate.add_argument("--out", type=Path, default=None,
+                          help="directory for results.json and lengths.png (default: print only)")
+    evaluate.set_defaults(run=run_expert_eval)
+
+    generate = verbs.add_parser("generate", help="write expert trajectories as a Minari dataset")
+    add_generate_arguments(generate)
+    add_mpc_arguments(generate)
+    generate.set_defaults(run=run_generate)
+
+
+def add_mpc_arguments(parser: argparse.ArgumentParser) -> None:
+    """The MPC expert's flags (shared by expert-eval and generate)."""
+    defaults = MPCConfig()
+    parser.add_argument("--n-samples", "-K", type=positive_int, default=defaults.n_samples,
+                        help=f"K, sequences per decision (default {defaults.n_samples})")
+    parser.add_argument("--horizon", "-H", type=positive_int, default=defaults.horizon,
+                        help=f"H, steps per sequence (default {defaults.horizon})")
+    parser.add_argument("--sampling", choices=SAMPLINGS, default=defaults.sampling)
+    parser.add_argument("--planning-reward", choices=PLANNING_REWARDS, default=defaults.reward)
+
+
+def mpc_config_from(args: argparse.Namespace) -> MPCConfig:
+    """The expert's settings from the flags of :func:`add_mpc_arguments`."""
+    return MPCConfig(n_samples=args.n_samples, horizon=args.horizon, sampling=args.sampling,
+                     reward=args.planning_reward)
+
+
+def add_generate_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """Add the ``bimgame generate`` options to ``parser`` (a sub-parser; the MPC expert's own flags
+    are :func:`add_mpc_arguments`, shared with ``expert-eval``); returns it."""
+    add_task_argument(parser, "FULL")
+    parser.add_argument("--episodes", type=positive_int, default=500)
+    parser.add_argument("--out", type=Path, required=True,
+                        help="the run's directory (new, empty, or this run's to resume it)")
+    parser.add_argument("--seed", type=non_negative_int, default=0, help="run seed (default 0)")
+    parser.add_argument("--workers", type=positive_int, default=None,
+                        help="parallel episodes (default: the number of CPUs)")
+    parser.add_argument("--backend", choices=BACKENDS, default="local")
+    parser.add_argument("--ray-address", default=None,
+                        help="Ray cluster address (backend ray; default: start Ray locally)")
+    add_max_steps_argument(parser)
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    return parser
+
+
+def run_generate(args: argparse.Namespace) -> int:
+    """``bimgame generate``: generate (or resume, or verify) a dataset and print a summary."""
+    start = time.perf_counter()
+    try:
+        out = generate_dataset(args.out, args.task, args.episodes, seed=args.seed, config=mpc_config_from(args),
+                               workers=args.workers, backend=args.backend, ray_address=args.ray_address,
+                               progress=not args.no_progress, max_steps=args.max_steps)
+    except ImportError as error:
+        print(f"bimgame generate: error: {error}", file=sys.stderr)
+        return 2
+    seconds = time.perf_counter() - start
+    summary = dataset_summary(out)
+    print(f"{summary['dataset_id']} in {out}: {summary['episodes']} episodes, {summary['steps']} steps, "
+          f"success {summary['success_rate']:.0%}, mean length {summary['mean_length']:.1f}, "
+          f"{seconds:.1f} s")
+    print(f"disk: Minari (hdf5) {_megabytes(summary['bytes_minari'])} "
+          f"({summary['bytes_per_1000_steps_minari'] / 1e3:.0f} kB per 1000 steps), episode files "
+          f"{_megabytes(summary['bytes_episode_files'])} "
+          f"({summary['bytes_per_1000_steps_episode_files'] / 1e3:.0f} kB per 1000 steps)")
+    print(f"load with bimgame.expert.datasets.load_dataset({str(out)!r}), or minari.load_dataset("
+          f"{summary['dataset_id']!r}) with MINARI_DATASETS_PATH={out / MINARI_DIR}")
+    return 0
+
+
+def run_expert_eval(args: argparse.Namespace) -> int:
+    """``bimgame expert-eval``: run the expert, print a summary table, optionally write the results
+    and the length histogram."""
+    config = mpc_config_from(args)
+    start = time.perf_counter()
+    results = evaluate_expert(args.task, args.episodes, config, seed=args.seed, workers=args.workers,
+                              max_steps=args.max_steps)
+    summary = summarise(results)
+    summary["wall_seconds"] = time.perf_counter() - start
+    table = Table(title=f"MPC expert on {args.task}: K={config.n_samples} H={config.horizon} "
+                        f"{config.sampling} sampling, {config.reward} reward, seed {args.seed}")
+    for column in ("episodes", "success", "median length (solved)", "90th pct", "max", "ms/decision", "wall s"):
+        table.add_column(column, justify="right")
+    table.add_row(str(summary["episodes"]), f"{summary['success_rate']:.0%}",
+                  _steps(summary["median_length_solved"]), _steps(summary["p90_length_solved"]),
+                  _steps(summary["max_length_solved"]), f"{summary['ms_per_decision']:.1f}",
+                  f"{summary['wall_seconds']:.0f}")
+    console = Console()
+    console.print(table)
+    if args.out is not None:
+        write_results(results, summary, config, args.task, args.out / "results.json")
+        png = plot_length_histogram(results, args.out / "lengths.png",
+                                    title=f"MPC expert, {args.task}, K={config.n_samples}, H={config.horizon}")
+        console.print(f"wrote {args.out / 'results.json'} and {png}")
+    return 0
+
+
+def _steps(value: float | None) -> str:
+    """A length statistic for the table: "-" when no episode was solved."""
+    return "-" if value is None else f"{value:.0f}"
+
+
+def _megabytes(size: int) -> str:
+    return f"{size / 1e6:.1f} MB"

@@ -1,0 +1,238 @@
+"""What a reproduction computes: the compared algorithms and the :class:`Budget` — the grid (tasks ×
+algorithms × seeds) and every piece's settings — with its two presets, ``quick`` and ``paper``.
+
+The budget is the one input of a reproduction: it is stored in ``plan.json``
+(:mod:`bimgame.experiments.plan`) and decides every piece (:mod:`bimgame.experiments.grid`) and
+every piece's settings (:mod:`bimgame.experiments.runners`). It is validated here, when it is
+made, so that a bad value fails before anything runs, naming the field and what is allowed.
+
+The compared algorithms, in the order of the paper's figures:
+
+- ``a3c``: A3C from random weights;
+- ``pretrain+a3c``: A3C starting from π^s, pre-trained on the expert's dataset;
+- ``a3c+value``: A3C from random weights on r + γV̂(s') − V̂(s), V̂ pre-trained on the dataset;
+- ``pretrain+a3c+value``: both;
+- ``dagger``: DAgger with the MPC expert, from random weights.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Mapping
+
+from bimgame.envs.observe import OBS_MODES
+from bimgame.sim.maze import MazeSpec
+from bimgame.sim.tasks import Task, parse_task
+from bimgame.util.settings import from_dict, require_int
+
+__all__ = ["ALGORITHMS", "ALGORITHM_LABELS", "PAPER_TASKS", "GRID_FIELDS", "Budget", "BUDGETS", "budget_named"]
+
+#: The compared methods, in the order of the paper's figures.
+ALGORITHMS = ("a3c", "pretrain+a3c", "a3c+value", "pretrain+a3c+value", "dagger")
+#: The algorithms' names in figures and tables.
+ALGORITHM_LABELS = {"a3c": "A3C", "pretrain+a3c": "pre-train + A3C", "a3c+value": "A3C + value reward",
+                    "pretrain+a3c+value": "pre-train + A3C + value reward", "dagger": "DAgger"}
+#: The tasks of the paper's learning curves (STG3/STG4 can be added: the paper reports them unlearned).
+PAPER_TASKS = ("FULL", "STG1", "STG2")
+#: Budget fields that only change which pieces exist (not what any piece computes): a reproduction
+#: directory may be continued with other values of these, reusing every piece they share.
+GRID_FIELDS = ("tasks", "algorithms", "seeds")
+
+
+@dataclasses.dataclass(frozen=True)
+class Budget:
+    """Everything that decides what a reproduction computes: the grid and every piece's settings.
+
+    The presets are :data:`BUDGETS` (``quick`` and ``paper``); any field can be changed with
+    :func:`dataclasses.replace`. Invalid values raise ``ValueError`` naming the field."""
+
+    name: str = "custom"
+    """A label for reports (``quick``, ``paper`` or anything else)."""
+    tasks: tuple[str, ...] = ("STG1",)
+    """Tasks of the grid (FULL, STG1 … STG4)."""
+    algorithms: tuple[str, ...] = ALGORITHMS
+    """Methods of the grid (see :data:`ALGORITHMS`)."""
+    seeds: int = 2
+    """Runs per task and algorithm (seeds 0 … seeds−1)."""
+    obs: str = "state"
+    """``state`` or ``pixels`` (the paper's), for every network of the grid."""
+    a3c_steps: Mapping[str, int] = dataclasses.field(default_factory=lambda: {t.value: 1_000_000 for t in Task})
+    """Environment steps per A3C run, per task (every task of the grid needs an entry)."""
+    workers: int = 2
+    """A3C worker processes."""
+    envs_per_worker: int = 16
+    """Environments per A3C worker (stepped as one batch)."""
+    hidden: int | None = None
+    """LSTM size of every network; None: the default for ``obs`` (256 pixels, 128 state)."""
+    features: int | None = None
+    """Encoder output size; None: the default for ``obs``."""
+    subtract_background: bool = False
+    """Pixels: subtract the empty-maze frame before the convolutions (ignored for state). The
+    presets turn it on: without it the pixel agent did not learn STG1 (see the README)."""
+    eval_every: int = 100_000
+    """A3C: environment steps between greedy/sampled evaluations (0: only the final one)."""
+    eval_episodes: int = 10
+    """A3C: episodes per evaluation."""
+    checkpoint_every: int = 50_000
+    """A3C: environment steps between checkpoints (what an interruption can lose)."""
+    dataset_task: str = "FULL"
+    """Task of the expert dataset; it must be at least as deep as every task of the grid (FULL
+    labels every task, see :func:`bimgame.expert.episode.relabel`)."""
+    dataset_episodes: int = 40
+    dataset_seed: int = 0
+    dataset_max_steps: int | None = None
+    """Time limit of the expert's episodes; None: the dataset task's."""
+    dataset_workers: int = 2
+    """Processes generating expert episodes (1: in this process)."""
+    pretrain_epochs: int = 30
+    pretrain_patience: int = 5
+    pretrain_eval_episodes: int = 50
+    """Episodes measuring π^s alone as a policy (greedy and sampled)."""
+    value_epochs: int = 100
+    value_patience: int = 10
+    value_batch_frames: int = 64
+    dagger_iterations: int = 4
+    dagger_episodes: int = 6
+    """DAgger: learner rollouts per iteration (each state labelled by the MPC expert, ≈16 ms each)."""
+    dagger_epochs: int = 5
+    """DAgger: passes over the aggregated data per iteration."""
+    dagger_eval_episodes: int = 20
+    threshold_fraction: float = 0.8
+    """Steps-to-threshold: the success rate to reach, as a fraction of the expert's on the task."""
+    torch_threads: int = 1
+    """Torch threads of pre-training and DAgger (see :mod:`bimgame.experiments.runners`; A3C workers
+    use one each)."""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "tasks", tuple(self.tasks))
+        object.__setattr__(self, "algorithms", tuple(self.algorithms))
+        allowed_tasks = ", ".join(t.value for t in Task)
+        if not self.tasks:
+            raise ValueError(f"Budget.tasks must name at least one task; allowed: {allowed_tasks}")
+        tasks = []
+        for task in self.tasks:
+            try:
+                tasks.append(parse_task(task).value)
+            except ValueError:
+                raise ValueError(f"Budget.tasks: unknown task {task!r}; allowed: {allowed_tasks}") from None
+        if len(set(tasks)) != len(tasks):
+            raise ValueError(f"Budget.tasks lists a task twice: {tasks}")
+        object.__setattr__(self, "tasks", tuple(tasks))
+        if not self.algorithms:
+            raise ValueError(f"Budget.algorithms must name at least one; allowed: {', '.join(ALGORITHMS)}")
+        unknown = [a for a in self.algorithms if a not in ALGORITHMS]
+        if unknown:
+            raise ValueError(f"Budget.algorithms: unknown {unknown}; allowed: {', '.join(ALGORITHMS)}")
+        if len(set(self.algorithms)) != len(self.algorithms):
+            raise ValueError(f"Budget.algorithms lists an algorithm twice: {list(self.algorithms)}")
+        # Keep the canonical order, whatever order they were given in.
+        object.__setattr__(self, "algorithms", tuple(a for a in ALGORITHMS if a in self.algorithms))
+        if self.obs not in OBS_MODES:
+            raise ValueError(f"Budget.obs must be one of {', '.join(OBS_MODES)}, got {self.obs!r}")
+        steps = dict(self.a3c_steps)
+        for key, value in steps.items():
+            try:
+                parse_task(key)
+            except ValueError:
+                raise ValueError(f"Budget.a3c_steps: unknown task {key!r}; allowed: {allowed_tasks}") from None
+            _check_int(f"a3c_steps[{key!r}]", value, 1)
+        missing = [t for t in self.tasks if t not in steps]
+        if missing and any(a != "dagger" for a in self.algorithms):
+            raise ValueError(f"Budget.a3c_steps has no entry for {missing}; give steps for every task of the grid")
+        object.__setattr__(self, "a3c_steps", {parse_task(k).value: int(v) for k, v in steps.items()})
+        for name in ("seeds", "workers", "envs_per_worker", "eval_episodes", "checkpoint_every", "dataset_episodes",
+                     "dataset_workers", "pretrain_epochs", "pretrain_patience", "value_epochs", "value_patience",
+                     "value_batch_frames", "dagger_iterations", "dagger_episodes", "dagger_epochs", "torch_threads"):
+            _check_int(name, getattr(self, name), 1)
+        for name in ("eval_every", "dataset_seed", "pretrain_eval_episodes", "dagger_eval_episodes"):
+            _check_int(name, getattr(self, name), 0)
+        for name in ("hidden", "features", "dataset_max_steps"):
+            if getattr(self, name) is not None:
+                _check_int(name, getattr(self, name), 1)
+        if not isinstance(self.subtract_background, bool):
+            raise ValueError(f"Budget.subtract_background must be True or False, got {self.subtract_background!r}")
+        if not (isinstance(self.threshold_fraction, (int, float)) and not isinstance(self.threshold_fraction, bool)
+                and 0.0 < self.threshold_fraction <= 1.0):
+            raise ValueError(f"Budget.threshold_fraction must be in (0, 1], got {self.threshold_fraction!r}")
+        try:
+            data_task = parse_task(self.dataset_task)
+        except ValueError:
+            raise ValueError(f"Budget.dataset_task: unknown task {self.dataset_task!r}; allowed: "
+                             f"{allowed_tasks}") from None
+        object.__setattr__(self, "dataset_task", data_task.value)
+        spec = MazeSpec.merl()
+        too_deep = [t for t in self.tasks if Task(t).walls_to_pass(spec) > data_task.walls_to_pass(spec)]
+        if too_deep:
+            raise ValueError(f"Budget.dataset_task {data_task.value} cannot label {too_deep}: its episodes end "
+                             f"before theirs would; use dataset_task='FULL' (it labels every task)")
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON-ready values (what ``plan.json`` stores)."""
+        values = dataclasses.asdict(self)
+        values["tasks"] = list(self.tasks)
+        values["algorithms"] = list(self.algorithms)
+        values["a3c_steps"] = dict(self.a3c_steps)
+        return values
+
+    @classmethod
+    def from_dict(cls, values: Mapping[str, Any]) -> Budget:
+        """The budget of :meth:`to_dict`'s values; unknown keys are an error naming them."""
+        return from_dict(cls, dict(values), "budget settings")
+
+    def with_grid(self, *, tasks: tuple[str, ...] | list[str] | None = None,
+                  algorithms: tuple[str, ...] | list[str] | None = None, seeds: int | None = None,
+                  obs: str | None = None, torch_threads: int | None = None) -> Budget:
+        """This budget with the given grid (and observation) overrides; None keeps the value."""
+        changes = {k: v for k, v in (("tasks", tasks), ("algorithms", algorithms), ("seeds", seeds), ("obs", obs),
+                                     ("torch_threads", torch_threads)) if v is not None}
+        return dataclasses.replace(self, **changes)
+
+    def steps_for(self, task: str) -> int:
+        """Environment steps of an A3C run on ``task``."""
+        return int(self.a3c_steps[parse_task(task).value])
+
+    @property
+    def needs_policy(self) -> bool:
+        """Whether an algorithm of the grid starts from a pre-trained π^s."""
+        return any(a.startswith("pretrain") for a in self.algorithms)
+
+    @property
+    def needs_value(self) -> bool:
+        """Whether an algorithm of the grid is rewarded with a pre-trained V̂."""
+        return any(a.endswith("+value") for a in self.algorithms)
+
+
+def _check_int(name: str, value: Any, minimum: int) -> None:
+    require_int("Budget", name, value, minimum)
+
+
+#: The presets. ``quick`` shows the comparison on STG1 within half an hour on two cores: state
+#: observations, where A3C from scratch reached 80% success after 210k–255k steps in six runs, so
+#: 300k steps per run; 80 FULL expert episodes (40 gave a π^s that solved STG1 0–34% of the time
+#: alone, 80 gave 42–88%); two seeds. Measured: 8.4 minutes on the idle two-core machine (pre-training
+#: sped A3C up 2.3×); with a 40-episode dataset it took 23 minutes while other training jobs kept
+#: both cores busy. ``paper`` is the paper's grid: pixels, FULL/STG1/STG2, five seeds, 5M steps per
+#: A3C run, a 300-episode FULL dataset — about two and a half days on two cores (``bimgame
+#: reproduce --dry-run`` prints the estimate per piece).
+BUDGETS: dict[str, Budget] = {
+    "quick": Budget(
+        name="quick", tasks=("STG1",), seeds=2, obs="state", subtract_background=True,
+        a3c_steps={"STG1": 300_000, "STG2": 1_000_000, "STG3": 1_500_000, "STG4": 2_000_000, "FULL": 2_000_000},
+        eval_every=100_000, eval_episodes=10, checkpoint_every=50_000,
+        dataset_task="FULL", dataset_episodes=80, dataset_workers=2,
+        pretrain_eval_episodes=50, dagger_iterations=4, dagger_episodes=6, dagger_epochs=10, dagger_eval_episodes=20),
+    "paper": Budget(
+        name="paper", tasks=PAPER_TASKS, seeds=5, obs="pixels", subtract_background=True,
+        a3c_steps={t.value: 5_000_000 for t in Task},
+        eval_every=250_000, eval_episodes=20, checkpoint_every=200_000,
+        dataset_task="FULL", dataset_episodes=300, dataset_workers=2,
+        pretrain_eval_episodes=50, dagger_iterations=10, dagger_episodes=20, dagger_epochs=10,
+        dagger_eval_episodes=20),
+}
+
+
+def budget_named(name: str) -> Budget:
+    """A preset of :data:`BUDGETS` by name."""
+    if name not in BUDGETS:
+        raise ValueError(f"unknown budget {name!r}; allowed: {', '.join(BUDGETS)}")
+    return BUDGETS[name]

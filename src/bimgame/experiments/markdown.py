@@ -1,0 +1,289 @@
+"""The report's text: ``table_speedup.md`` (steps to threshold, speed-ups, final success, pre-training)
+and ``report.md`` (each claim of the paper next to what this run measured, the figures, the tables,
+the settings and wall times, and how the numbers are computed), written from the numbers
+:func:`bimgame.experiments.report.build_report` assembles.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from bimgame.experiments.budgets import ALGORITHM_LABELS, Budget
+from bimgame.experiments.costs import format_duration
+from bimgame.experiments.grid import Piece
+from bimgame.experiments.plan import STATUS, timestamp
+from bimgame.experiments.statistics import nanmean
+
+__all__ = ["PAPER_ACCURACY", "tables_markdown", "report_markdown"]
+
+#: The paper's held-out action accuracy of pre-training.
+PAPER_ACCURACY = 0.275
+
+
+def _steps_text(value: float | None) -> str:
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "–"
+    if value >= 1e6:
+        return f"{value / 1e6:.2f}M"
+    if value >= 1e5:
+        return f"{value / 1e3:.0f}k"
+    if value >= 1e3:
+        return f"{value / 1e3:.1f}".rstrip("0").rstrip(".") + "k"
+    return f"{value:.0f}"
+
+
+def _pct(value: float | None) -> str:
+    return "–" if value is None or math.isnan(value) else f"{value:.0%}"
+
+
+def _pct1(value: float | None) -> str:
+    return "–" if value is None or math.isnan(value) else f"{value:.1%}"
+
+
+def _speedup_text(result: dict[str, Any] | None) -> str:
+    if result is None:
+        return "–"
+    if result["bound"] == "not reached":
+        return "not reached"
+    if result["bound"] == "unknown":
+        return "n/a (both censored)"
+    prefix = {"exact": "", "lower": "≥ ", "upper": "≤ "}[result["bound"]]
+    text = f"{prefix}{result['estimate']:.2f}×"
+    if result["ci"] is not None:
+        text += f" [{result['ci'][0]:.2f}, {result['ci'][1]:.2f}]"
+    return text
+
+
+def tables_markdown(numbers: dict[str, Any], budget: Budget) -> str:
+    """``table_speedup.md``: per task, steps to threshold and speed-ups per algorithm; then pre-training."""
+    lines = ["# Steps to threshold and speed-up over A3C", ""]
+    for task, entry in numbers["tasks"].items():
+        lines.append(f"## {task}")
+        lines.append("")
+        if entry["threshold"] is None:
+            lines += ["No threshold: no finished expert dataset, or the expert never solved this task in it.", ""]
+        else:
+            lines.append(f"Threshold: success rate {entry['threshold']:.2f} = {numbers['threshold_fraction']:.0%} of "
+                         f"the expert's {entry['expert_success']:.0%} on {task}. A3C runs: training episodes by start "
+                         f"step in bins of {_steps_text(entry['curve_bin_steps'])} steps (at least "
+                         f"{entry['min_episodes_per_bin']} episodes); DAgger: greedy evaluation per iteration. "
+                         f"\"> N\": not reached by its last step N (censored).")
+            lines.append("")
+        seeds = [a["seeds_finished"] for a in entry["algorithms"].values() if a["seeds_finished"]]
+        if seeds and min(seeds) < 5:
+            lines += [f"With {min(seeds)} seed(s) per algorithm the bootstrap intervals are rough: resampling "
+                      f"{min(seeds)} values can only give a handful of distinct means, so the intervals understate "
+                      f"the uncertainty. Use more seeds (`--seeds`) for firm conclusions.", ""]
+        lines.append("| algorithm | seeds | reached | steps to threshold, per seed | mean | speed-up vs A3C [95% CI] "
+                     "| final success: training episodes | greedy evaluation | sampled evaluation |")
+        lines.append("|---|---:|---:|---|---:|---|---:|---:|---:|")
+        for algorithm, a in entry["algorithms"].items():
+            per_seed = ", ".join(_steps_text(r["steps_to_threshold"]) if r["steps_to_threshold"] is not None
+                                 else f"> {_steps_text(r['censored_at'])}" if r["censored_at"] is not None else "–"
+                                 for r in a["runs"]) or "–"
+            reached = a["reached"]
+            mean = a["mean_steps_censored_at_last"]
+            if mean is None:
+                mean_text = "–"
+            elif reached == 0:
+                mean_text = "not reached"
+            else:
+                mean_text = ("≥ " if reached < len(a["runs"]) else "") + _steps_text(mean)
+            speed = "1 (baseline)" if algorithm == "a3c" and a["runs"] else _speedup_text(a.get("speedup_vs_a3c"))
+            training = a["final_success_training"]
+            lines.append(f"| {ALGORITHM_LABELS[algorithm]} | {a['seeds_finished']}/{a['seeds_planned']} | "
+                         f"{reached if entry['threshold'] is not None else '–'}/{len(a['runs'])} | {per_seed} | "
+                         f"{mean_text} | {speed} | {'–' if training is None else _pct(training)} | "
+                         f"{_pct(a['final_greedy_success'])} | {_pct(a['final_sampled_success'])} |")
+        lines.append("")
+        extra = [(o, b, entry["algorithms"][o].get(f"speedup_vs_{b}")) for b, o in
+                 (("a3c", "a3c+value"), ("pretrain+a3c", "pretrain+a3c+value")) if o in entry["algorithms"]]
+        extra = [(o, b, s) for o, b, s in extra if s is not None]
+        if extra:
+            lines.append("Value reward against the same start without it: " + "; ".join(
+                f"{ALGORITHM_LABELS[o]} vs {ALGORITHM_LABELS[b]}: {_speedup_text(s)}" for o, b, s in extra) + ".")
+            lines.append("")
+    lines += ["# Pre-training", ""]
+    if not numbers["pretraining"]:
+        lines += ["No finished pre-training.", ""]
+    else:
+        lines.append(f"| task | π^s held-out accuracy (paper: {PAPER_ACCURACY:.1%}; chance 20%) | per seed | "
+                     f"π^s alone, greedy success | π^s alone, sampled success | V̂ held-out RMSE |")
+        lines.append("|---|---:|---|---|---|---|")
+        for task, p in numbers["pretraining"].items():
+            seeds = ", ".join(_pct1(v) for v in p["val_accuracy"]) or "–"
+            lines.append(f"| {task} | {_pct1(p['val_accuracy_mean'])} | {seeds} | "
+                         f"{', '.join(_pct(v) for v in p['policy_greedy_success']) or '–'} | "
+                         f"{', '.join(_pct(v) for v in p['policy_sampled_success']) or '–'} | "
+                         f"{', '.join(f'{v:.3f}' for v in p['value_rmse'] if v is not None) or '–'} |")
+        lines.append("")
+        lines.append(f"π^s alone: {budget.pretrain_eval_episodes} greedy and {budget.pretrain_eval_episodes} sampled "
+                     f"episodes per seed, before any A3C update.")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def _verdict(result: dict[str, Any] | None) -> str:
+    if result is None:
+        return "not measured"
+    if result["bound"] in ("not reached", "unknown"):
+        return {"not reached": "the compared runs did not reach the threshold",
+                "unknown": "neither reached the threshold in every seed"}[result["bound"]]
+    if result["ci"] is None:
+        return "one seed: no interval"
+    low, high = result["ci"]
+    if low > 1:
+        return "faster (interval above 1)"
+    if high < 1:
+        return "slower (interval below 1)"
+    return "no clear difference (interval includes 1)"
+
+
+def _claims(numbers: dict[str, Any]) -> list[tuple[str, str]]:
+    tasks = numbers["tasks"]
+    claims = []
+
+    measured = []
+    for task, entry in tasks.items():
+        result = entry["algorithms"].get("pretrain+a3c", {}).get("speedup_vs_a3c")
+        if result is not None:
+            inside = ""
+            if result["ci"] is not None and result["bound"] == "exact":
+                inside = "; 2–3× lies inside the interval" if result["ci"][0] <= 3 and result["ci"][1] >= 2 else \
+                    "; 2–3× lies outside the interval"
+            measured.append(f"{task}: {_speedup_text(result)} — {_verdict(result)}{inside}")
+    claims.append(("Pre-training speeds learning up 2–3×",
+                   "; ".join(measured) or "not measured in this budget"))
+
+    measured = [f"{task}: {_pct1(p['val_accuracy_mean'])} (seeds: {', '.join(_pct1(v) for v in p['val_accuracy'])}; "
+                f"chance 20%)" for task, p in numbers["pretraining"].items() if p["val_accuracy"]]
+    claims.append((f"Pre-training reaches {PAPER_ACCURACY:.1%} held-out action accuracy",
+                   "; ".join(measured) or "not measured in this budget"))
+
+    def final(entry: dict[str, Any], algorithm: str) -> float:
+        a = entry["algorithms"].get(algorithm)
+        return float("nan") if a is None or not a["runs"] else max(a["final_greedy_success"],
+                                                                   a["final_sampled_success"])
+
+    measured = []
+    for task in ("STG2", "FULL", "STG1"):
+        entry = tasks.get(task)
+        if entry is None or "dagger" not in entry["algorithms"] or not entry["algorithms"]["dagger"]["runs"]:
+            continue
+        dagger = entry["algorithms"]["dagger"]
+        steps = nanmean([r["env_steps"] for r in dagger["runs"]])
+        others = {a: final(entry, a) for a in ("a3c", "pretrain+a3c", "a3c+value", "pretrain+a3c+value")
+                  if not math.isnan(final(entry, a))}
+        best = max(others, key=others.get) if others else None
+        text = (f"{task}: DAgger final success {_pct(dagger['final_greedy_success'])} greedy, "
+                f"{_pct(dagger['final_sampled_success'])} sampled, after {_steps_text(steps)} env steps")
+        if best is not None:
+            b = entry["algorithms"][best]
+            text += (f"; best A3C variant ({ALGORITHM_LABELS[best]}) {_pct(b['final_greedy_success'])} greedy, "
+                     f"{_pct(b['final_sampled_success'])} sampled, after {_steps_text(entry['a3c_steps'])}")
+        measured.append(text + (" (context: the claim is about STG2 and FULL)" if task == "STG1" else ""))
+    if not any(t in tasks for t in ("STG2", "FULL")):
+        measured.insert(0, "STG2 and FULL not measured in this budget")
+    claims.append(("DAgger is much worse on STG2 and FULL", "; ".join(measured) or "not measured in this budget"))
+
+    measured = []
+    for task, entry in tasks.items():
+        for base, other in (("a3c", "a3c+value"), ("pretrain+a3c", "pretrain+a3c+value")):
+            result = entry["algorithms"].get(other, {}).get(f"speedup_vs_{base}")
+            if result is not None:
+                measured.append(f"{task}, {ALGORITHM_LABELS[other]} vs {ALGORITHM_LABELS[base]}: {_speedup_text(result)} — "
+                                f"{_verdict(result)}")
+    claims.append(("The value function as a reward does not help much",
+                   "; ".join(measured) or "not measured in this budget"))
+
+    measured = []
+    for task in ("STG3", "STG4"):
+        entry = tasks.get(task)
+        if entry is None:
+            continue
+        finals = {a: final(entry, a) for a in entry["algorithms"] if not math.isnan(final(entry, a))}
+        if finals:
+            best = max(finals, key=finals.get)
+            reached = [a for a, v in entry["algorithms"].items() if v["reached"]]
+            verdict = (f"reached the threshold ({_pct(entry['threshold'])}): {', '.join(ALGORITHM_LABELS[a] for a in reached)}"
+                       if reached else f"no run reached the threshold ({_pct(entry['threshold'])})")
+            measured.append(f"{task}: best final success {_pct(finals[best])} ({ALGORITHM_LABELS[best]}, the better of greedy "
+                            f"and sampled evaluation); {verdict}")
+    claims.append(("STG3 and STG4 are not learned by any method",
+                   "; ".join(measured) or "not measured in this budget"))
+    return claims
+
+
+def report_markdown(numbers: dict[str, Any], tables: str, budget: Budget, pieces: list[Piece],
+                     finished: dict[str, Piece], status: dict[str, Any]) -> str:
+    """``report.md``: the paper's claims against this run, figures, ``tables`` (from
+    :func:`tables_markdown`), settings, wall times and the methods."""
+    lines = ["# Reproduction: Trajectory-based Learning for Ball-in-Maze Games", "",
+             f"Budget **{budget.name}**: tasks {', '.join(budget.tasks)}; algorithms "
+             f"{', '.join(ALGORITHM_LABELS[a] for a in budget.algorithms)}; {budget.seeds} seeds; {budget.obs} observations. "
+             f"{len(finished)} of {len(pieces)} pieces finished. Report built "
+             f"{timestamp()} by `bimgame report`.", ""]
+    if len(finished) < len(pieces):
+        lines += [f"**Incomplete:** {len(pieces) - len(finished)} pieces are not finished; the numbers below use the "
+                  f"finished ones. Continue with `bimgame reproduce --out DIR`.", ""]
+    lines += ["## The paper's claims and this run", "", "| paper | this run |", "|---|---|"]
+    for claim, measured in _claims(numbers):
+        lines.append(f"| {claim} | {measured} |")
+    lines.append("")
+    lines += ["## Learning curves", ""]
+    for task, entry in numbers["tasks"].items():
+        if "figure" in entry:
+            lines += [f"![{task} learning curves]({entry['figure']})", ""]
+        else:
+            lines += [f"{task}: no finished run yet.", ""]
+    lines += ["## Expert", ""]
+    expert = numbers["expert"]
+    if expert["dataset"] is not None:
+        d = expert["dataset"]
+        lines += ["![expert trajectory lengths](fig_expert_lengths.png)", "",
+                  f"Dataset: {d['episodes']} {budget.dataset_task} episodes, {d['steps']:,} steps, expert success "
+                  f"{d['success_rate']:.0%}, mean length {d['mean_length']:.0f} steps. Success relabelled per task "
+                  f"(within the task's time limit): " + ", ".join(f"{t} {_pct(v)}" for t, v in
+                                                                  expert["success_by_task"].items()) + ".", ""]
+    else:
+        lines += ["No finished expert dataset.", ""]
+    lines += ["#" + line if line.startswith("#") else line for line in tables.splitlines()]
+    lines.append("")
+    lines += ["## Settings", "", "| setting | value |", "|---|---|"]
+    for key, value in budget.to_dict().items():
+        if isinstance(value, dict):
+            value = ", ".join(f"{k} {_steps_text(v) if key == 'a3c_steps' else v}" for k, v in value.items()
+                              if key != "a3c_steps" or k in budget.tasks)
+        elif isinstance(value, (list, tuple)):
+            value = ", ".join(map(str, value))
+        lines.append(f"| {key} | {value} |")
+    lines += ["", "## Wall time", "", "| piece | state | wall time |", "|---|---|---:|"]
+    entries = status.get("pieces", {})
+    total = 0.0
+    for piece in pieces:
+        entry = entries.get(piece.id, {})
+        seconds = entry.get("seconds")
+        total += seconds or 0.0
+        state = "done" if piece.id in finished else entry.get("state", "pending")
+        lines.append(f"| {piece.id} | {state} | {format_duration(seconds) if seconds is not None else '–'} |")
+    invocations = status.get("invocations", [])
+    elapsed = sum(i.get("seconds", 0.0) for i in invocations)
+    lines += [f"| **total** | | **{format_duration(total)}** |", "",
+              f"Wall times are from `{STATUS}` (all attempts of a piece, on this machine, with whatever else ran "
+              f"on it). The reproduction ran in {len(invocations)} invocation(s) of `bimgame reproduce` taking "
+              f"{format_duration(elapsed)} in all.", ""]
+    lines += ["## How the numbers are computed", "", _METHODS, ""]
+    return "\n".join(lines)
+
+
+_METHODS = (
+    "Curves: training episodes binned by the step they started at, the task's own reward (also for shaped runs), "
+    "mean over seeds with a 95% percentile bootstrap band over seeds. DAgger: greedy evaluation after each "
+    "iteration against the environment steps used so far (expert planning is counted separately in its dagger.csv). "
+    "Threshold: a fraction of the expert's success rate on the task (its dataset episodes relabelled for the task). "
+    "Steps to threshold: the right edge of the first bin whose training episodes reach the threshold (DAgger: the "
+    "first evaluation that does). Runs that never reach it are censored at their last step; speed-ups with censored "
+    "runs are bounds (≥ when A3C was censored, ≤ when the compared algorithm was). Speed-up: ratio of mean steps, "
+    "95% interval from a stratified bootstrap over seeds (each algorithm's seeds resampled on their own). Final "
+    "success: training episodes that started in the last 10% of a run's steps; greedy: the run's final evaluation.")

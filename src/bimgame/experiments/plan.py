@@ -1,0 +1,132 @@
+"""A reproduction directory's bookkeeping: ``plan.json`` (the budget and every piece with its cost
+estimate), ``status.json`` (each piece's state, wall time and how often it was computed), and
+whether a piece is finished.
+
+**Resuming.** Whether a piece is finished is decided from its own outputs (:func:`piece_done`),
+never from ``status.json`` alone: a dataset with its ``COMPLETE`` marker, a pre-training with its
+``summary.json``, an A3C run with a ``summary.json`` that says it finished its steps, a DAgger run
+whose ``dagger_state.json`` counts all its iterations. Finished pieces are skipped; an unfinished
+A3C or DAgger run is resumed from its last checkpoint, an unfinished dataset from its saved
+episodes; an unfinished pre-training (not resumable, and cheap) is started again. So an
+interrupted reproduction — Ctrl-C, a crash, ``stop_after`` — continues where it stopped when the
+same command is run again. ``status.json`` records what happened, for the report's wall times and
+for people reading it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime as dt
+from pathlib import Path
+from typing import Any
+
+from bimgame import __version__
+from bimgame.experiments.budgets import GRID_FIELDS, Budget
+from bimgame.experiments.costs import COSTS, CostModel, estimate_seconds
+from bimgame.experiments.grid import PIECE_KINDS, Piece, plan_pieces
+from bimgame.expert.datasets import DatasetError, dataset_summary
+from bimgame.learn.runs import CheckpointError, load_checkpoint
+from bimgame.util.files import read_json, write_json
+
+__all__ = ["PLAN", "STATUS", "timestamp", "write_plan", "load_plan", "load_status", "check_compatible",
+           "piece_done"]
+
+PLAN = "plan.json"
+STATUS = "status.json"
+_PLAN_FORMAT = "bimgame-reproduction-1"
+
+
+def timestamp() -> str:
+    """Now, in local time with its offset, to the second (the times of ``plan.json``, ``status.json``
+    and the report)."""
+    return dt.datetime.now().astimezone().isoformat(timespec="seconds")
+
+
+def write_plan(out_dir: str | Path, budget: Budget, costs: CostModel = COSTS) -> list[Piece]:
+    """Write ``plan.json`` (atomically): the budget, every piece with its cost estimate; returns the pieces."""
+    out_dir = Path(out_dir)
+    pieces = plan_pieces(budget)
+
+    write_json(out_dir / PLAN, {
+        "format": _PLAN_FORMAT, "bimgame_version": __version__, "written": timestamp(),
+        "budget": budget.to_dict(),
+        "pieces": [{**p.to_dict(), "estimate_seconds": round(estimate_seconds(p, budget, costs), 1)} for p in pieces],
+        "estimate_seconds": round(sum(estimate_seconds(p, budget, costs) for p in pieces), 1)})
+    return pieces
+
+
+def load_plan(out_dir: str | Path) -> tuple[Budget, list[Piece]]:
+    """The budget and pieces of a reproduction directory (its ``plan.json``)."""
+    path = Path(out_dir) / PLAN
+    stored = read_json(path)
+    if stored is None:
+        raise ValueError(f"{out_dir} is not a reproduction directory (no readable {PLAN}); "
+                         f"start one with: bimgame reproduce --out {out_dir}")
+    if stored.get("format") != _PLAN_FORMAT:
+        raise ValueError(f"{path} is not a bimgame reproduction plan (format {stored.get('format')!r}, "
+                         f"expected {_PLAN_FORMAT!r})")
+    budget = Budget.from_dict(stored["budget"])
+    fields = {f.name for f in dataclasses.fields(Piece)}
+    pieces = [Piece(**{**{k: v for k, v in p.items() if k in fields}, "needs": tuple(p["needs"])})
+              for p in stored["pieces"]]
+    return budget, pieces
+
+
+def load_status(out_dir: str | Path) -> dict[str, Any]:
+    """``status.json`` of a reproduction directory (an empty status when there is none)."""
+    stored = read_json(Path(out_dir) / STATUS)
+    return stored if stored is not None else {"pieces": {}, "invocations": []}
+
+
+def check_compatible(out_dir: str | Path, budget: Budget) -> None:
+    """Refuse (ValueError naming the differences) to continue a reproduction directory with settings
+    that change what its pieces compute; only :data:`~bimgame.experiments.budgets.GRID_FIELDS` may differ."""
+    out_dir = Path(out_dir)
+    if not (out_dir / PLAN).exists():
+        return
+    stored, _ = load_plan(out_dir)
+    old, new = stored.to_dict(), budget.to_dict()
+    for values in (old, new):  # a pixel-only setting changes nothing with state observations
+        if values["obs"] != "pixels":
+            values["subtract_background"] = False
+    changed = [k for k in new if k not in GRID_FIELDS and k != "name" and old.get(k) != new[k]]
+    if changed:
+        details = "; ".join(f"{k}: {old.get(k)!r} there, {new[k]!r} now" for k in changed)
+        raise ValueError(f"{out_dir} holds a reproduction with other settings ({details}). Continue it with its "
+                         f"own budget ('{stored.name}', or no --budget), change only {', '.join(GRID_FIELDS)}, "
+                         f"or use another --out")
+
+
+def piece_done(piece: Piece, out_dir: str | Path, budget: Budget) -> bool:
+    """Whether ``piece``'s outputs in ``out_dir`` show it finished (see the module notes)."""
+    path = Path(out_dir) / piece.path
+    if piece.kind == "dataset":
+        try:
+            dataset_summary(path)
+        except (DatasetError, OSError):
+            return False
+        return True
+    if piece.kind in ("pretrain-policy", "pretrain-value"):
+        return (path / "summary.json").is_file() and (path / "checkpoint.pt").is_file()
+    if piece.kind == "a3c":
+        summary = read_json(path / "summary.json")
+        if summary is not None and summary.get("stopped") == "finished" and \
+                int(summary.get("steps", 0)) >= budget.steps_for(piece.task):
+            return True
+        return _checkpoint_step(path) >= budget.steps_for(piece.task)
+    if piece.kind == "dagger":
+        state = read_json(path / "dagger_state.json")
+        return state is not None and int(state.get("iteration", 0)) >= budget.dagger_iterations
+    raise ValueError(f"unknown piece kind {piece.kind!r}; allowed: {', '.join(PIECE_KINDS)}")
+
+
+def _checkpoint_step(run_dir: Path) -> int:
+    """The step of a run's checkpoint (-1 when there is none). A run whose checkpoint already holds
+    all its steps but that stopped before writing its summary (killed during the final evaluation)
+    cannot be resumed by :func:`bimgame.learn.a3c.train`, and needs nothing more: its logs are complete."""
+    if not (run_dir / "checkpoint.pt").is_file():
+        return -1
+    try:
+        return int(load_checkpoint(run_dir / "checkpoint.pt")["step"])
+    except CheckpointError:
+        return -1

@@ -1,0 +1,134 @@
+"""Running one piece of a reproduction: the settings each piece passes to the library
+(:func:`pretrain_config_for`, :func:`a3c_config_for`, :func:`dagger_config_for`, all derived from
+the budget) and :data:`RUNNERS`, one function per piece kind that computes — or continues — the
+piece in its directory and returns a note for ``status.json`` ("resumed from its checkpoint", …).
+
+A runner raises ``KeyboardInterrupt`` when the piece stopped before it finished (Ctrl-C, SIGTERM),
+so that :func:`bimgame.experiments.reproduce.reproduce` marks it interrupted; any other error marks
+it failed.
+
+**Threads.** Pre-training and DAgger run in this process with up to two torch threads. On a
+two-core machine that is also running something else, two intra-op threads made a small state
+network's pre-training ten times slower than one (54 s against 5 s, measured with another training
+run on the machine). The budget's ``torch_threads`` (default 1) sets the count for these library
+calls (see :func:`library_threads`); A3C workers always use one thread each.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import shutil
+from pathlib import Path
+from typing import Callable, Iterator
+
+from bimgame.experiments.budgets import Budget
+from bimgame.experiments.grid import Piece, policy_path, value_path
+from bimgame.expert.datasets import generate_dataset
+from bimgame.learn.a3c import A3CConfig, train
+from bimgame.learn.dagger import DAggerConfig, dagger
+from bimgame.learn.pretrain import pretrain
+from bimgame.learn.rewards import RewardSettings, env_wrapper_for
+from bimgame.learn.runs import KIND_POLICY, KIND_VALUE, torch_threads
+from bimgame.learn.supervised import PretrainConfig
+from bimgame.util.files import read_json
+
+__all__ = ["pretrain_config_for", "a3c_config_for", "dagger_config_for", "library_threads", "RUNNERS"]
+
+
+def pretrain_config_for(budget: Budget, task: str, seed: int, target: str) -> PretrainConfig:
+    """The pre-training settings of π^s (``target="policy"``) or V̂ (``"value"``) for a task and seed."""
+    common = dict(task=task, obs=budget.obs, seed=seed, hidden=budget.hidden, features=budget.features,
+                  subtract_background=budget.subtract_background and budget.obs == "pixels")
+    if target == "policy":
+        return PretrainConfig(target="policy", epochs=budget.pretrain_epochs, patience=budget.pretrain_patience,
+                              eval_episodes=budget.pretrain_eval_episodes, **common)
+    if target == "value":
+        return PretrainConfig(target="value", epochs=budget.value_epochs, patience=budget.value_patience,
+                              batch_frames=budget.value_batch_frames, eval_episodes=0, **common)
+    raise ValueError(f"unknown pre-training target {target!r}; allowed: policy, value")
+
+
+def a3c_config_for(budget: Budget, task: str, seed: int) -> A3CConfig:
+    """The A3C settings of every A3C algorithm's run for a task and seed (the algorithms differ in
+    the initial weights and the reward, not in these)."""
+    return A3CConfig(task=task, obs=budget.obs, steps=budget.steps_for(task), workers=budget.workers,
+                     envs_per_worker=budget.envs_per_worker, seed=seed, hidden=budget.hidden, features=budget.features,
+                     subtract_background=budget.subtract_background and budget.obs == "pixels",
+                     eval_every=budget.eval_every, eval_episodes=budget.eval_episodes,
+                     checkpoint_every=budget.checkpoint_every)
+
+
+def dagger_config_for(budget: Budget, task: str, seed: int) -> DAggerConfig:
+    """DAgger's settings for a task and seed (the learner is the same network as A3C's)."""
+    learner = PretrainConfig(task=task, obs=budget.obs, seed=seed, hidden=budget.hidden, features=budget.features,
+                             subtract_background=budget.subtract_background and budget.obs == "pixels",
+                             eval_episodes=0)
+    return DAggerConfig(learner=learner, iterations=budget.dagger_iterations,
+                        episodes_per_iteration=budget.dagger_episodes, epochs_per_iteration=budget.dagger_epochs,
+                        eval_episodes=budget.dagger_eval_episodes)
+
+
+@contextlib.contextmanager
+def library_threads(count: int) -> Iterator[None]:
+    """Run a block — the pieces' library calls — with ``count`` torch threads, restoring the caller's
+    setting afterwards. :func:`bimgame.learn.pretrain.pretrain` and :func:`bimgame.learn.dagger.dagger`
+    use at most the caller's count (:func:`bimgame.learn.runs.torch_threads`), so this decides theirs."""
+    with torch_threads(count):
+        yield
+
+
+def _run_dataset(piece: Piece, budget: Budget, out_dir: Path) -> str:
+    generate_dataset(out_dir / piece.path, task=budget.dataset_task, episodes=budget.dataset_episodes,
+                     seed=budget.dataset_seed, workers=budget.dataset_workers, progress=False,
+                     max_steps=budget.dataset_max_steps)
+    return ""
+
+
+def _run_pretrain(piece: Piece, budget: Budget, out_dir: Path) -> str:
+    target = "policy" if piece.kind == "pretrain-policy" else "value"
+    path = out_dir / piece.path
+    note = ""
+    stored = read_json(path / "config.json")
+    if stored is not None or (path / "checkpoint.pt").exists():
+        # Started but unfinished (pre-training cannot resume): start it again. Only our own kind of
+        # run directory is removed.
+        expected = KIND_POLICY if target == "policy" else KIND_VALUE
+        if stored is None or stored.get("kind") != expected:
+            raise ValueError(f"{path} holds something other than an unfinished {expected} run; move it away "
+                             f"and run again")
+        shutil.rmtree(path)
+        note = "restarted an unfinished pre-training"
+    pretrain(pretrain_config_for(budget, piece.task, piece.seed, target), out_dir / "data", path, progress=False)
+    return note
+
+
+def _run_a3c(piece: Piece, budget: Budget, out_dir: Path) -> str:
+    path = out_dir / piece.path
+    config = a3c_config_for(budget, piece.task, piece.seed)
+    init = (out_dir / policy_path(piece.task, piece.seed)).resolve() if piece.algorithm.startswith("pretrain") \
+        else None
+    value = (out_dir / value_path(piece.task, piece.seed)).resolve() if piece.algorithm.endswith("+value") \
+        else None
+    reward = RewardSettings(value_reward=None if value is None else str(value))
+    wrapper = env_wrapper_for(reward, obs=config.obs, gamma=config.gamma)
+    resume = (path / "config.json").is_file()
+    extra = {"reward": reward.to_dict(),
+             "reproduction": {"algorithm": piece.algorithm, "task": piece.task, "seed": piece.seed}}
+    result = train(config, path, resume=resume, init=init, env_wrapper=wrapper, progress=False, extra_config=extra)
+    if result.stopped != "finished":
+        raise KeyboardInterrupt
+    return "resumed from its checkpoint" if resume else ""
+
+
+def _run_dagger(piece: Piece, budget: Budget, out_dir: Path) -> str:
+    path = out_dir / piece.path
+    resume = (path / "config.json").is_file()
+    dagger(dagger_config_for(budget, piece.task, piece.seed), path, resume=resume, progress=False)
+    return "resumed after its last finished iteration" if resume else ""
+
+
+#: The runner of each piece kind: ``RUNNERS[piece.kind](piece, budget, out_dir)`` computes the piece
+#: and returns a note for ``status.json`` ("" when there is nothing to say).
+RUNNERS: dict[str, Callable[[Piece, Budget, Path], str]] = {
+    "dataset": _run_dataset, "pretrain-policy": _run_pretrain, "pretrain-value": _run_pretrain,
+    "a3c": _run_a3c, "dagger": _run_dagger}

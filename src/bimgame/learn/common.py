@@ -1,0 +1,208 @@
+"""What every learner shares, so that no learner imports another: the settings that shape a network,
+building a network from them, reading which network and task a run directory holds, loading its
+weights, and the greedy-and-sampled evaluation every learner reports.
+
+:class:`NetworkSettings` is a dataclass the learners' own settings inherit from (A3C, pre-training),
+so each network setting is declared once and a run's ``config.json`` stays flat. A run directory
+says what it holds in ``config.json``: A3C runs store their whole settings under ``"a3c"``,
+pre-training and DAgger runs store ``"task"`` and ``"network"`` (runs written before this layout
+stored an ``"a3c"`` block there too; :func:`read_run` reads both).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bimgame.envs.observe import OBS_MODES
+from bimgame.learn.actor import evaluate_network
+from bimgame.learn.nets import (NetConfig, RecurrentActorCritic, ValueNetwork, build_network, build_value_network,
+                                maze_background, state_obs_scale)
+from bimgame.learn.runs import CONFIG, KIND_A3C, KIND_VALUE, load_weights, read_run_config
+from bimgame.sim.maze import MazeSpec
+from bimgame.sim.tasks import MAX_EPISODE_STEPS, Task, parse_task
+from bimgame.util.settings import from_dict
+
+__all__ = ["NetworkSettings", "RunInfo", "read_run", "load_run_network", "load_value_network", "network_settings_of", "init_network_settings",
+           "evaluate_greedy_and_sampled", "evaluation_seed"]
+
+
+@dataclasses.dataclass(frozen=True)
+class NetworkSettings:
+    """The settings that shape a recurrent actor-critic (or a value network): its observations, sizes
+    and inputs. A3C, pre-training and DAgger build their networks from these."""
+
+    obs: str = "pixels"
+    """Observation: ``pixels`` (84×84, the paper's Conv-Conv-FC-LSTM) or ``state`` (MLP-LSTM)."""
+    hidden: int | None = None
+    """LSTM size; None: 256 for pixels (the paper's), 128 for state observations."""
+    features: int | None = None
+    """Encoder output size; None: 256 for pixels (the paper's FC 256), 128 for state observations."""
+    tilt_input: bool = True
+    """Feed the board tilt to the LSTM (see :mod:`bimgame.learn.nets`); False is the paper's exact input."""
+    keypoints: bool = False
+    """Pixels: add spatial soft-argmax keypoints to the conv encoder (see :mod:`bimgame.learn.nets`)."""
+    subtract_background: bool = False
+    """Pixels: subtract the empty-maze frame before the convolutions (see :mod:`bimgame.learn.nets`)."""
+
+    def __post_init__(self) -> None:
+        owner = type(self).__name__
+        if self.obs not in OBS_MODES:
+            raise ValueError(f"{owner}.obs must be one of {OBS_MODES}, got {self.obs!r}")
+        default_size = 256 if self.obs == "pixels" else 128
+        for name in ("hidden", "features"):
+            value = getattr(self, name)
+            if value is None:
+                object.__setattr__(self, name, default_size)
+            elif not (isinstance(value, int) and not isinstance(value, bool) and value >= 1):
+                raise ValueError(f"{owner}.{name} must be an integer >= 1, got {value!r}")
+        for name in ("tilt_input", "keypoints", "subtract_background"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"{owner}.{name} must be True or False, got {getattr(self, name)!r}")
+
+    @classmethod
+    def field_names(cls) -> tuple[str, ...]:
+        return tuple(f.name for f in dataclasses.fields(NetworkSettings))
+
+    def network_settings(self) -> NetworkSettings:
+        """Just the network settings (of a learner's settings, which inherit them)."""
+        return NetworkSettings(**{name: getattr(self, name) for name in self.field_names()})
+
+    def net_config(self, maze: MazeSpec | None = None) -> tuple[NetConfig, dict[str, Any]]:
+        """The network sizes and the fixed inputs to build it with (``obs_scale`` or ``background``,
+        keyword arguments of :func:`~bimgame.learn.nets.build_network`)."""
+        maze = maze or MazeSpec.merl()
+        if self.obs == "pixels":
+            net_config = NetConfig(encoder="conv", obs_shape=(1, 84, 84), features=self.features, hidden=self.hidden,
+                                   tilt_input=self.tilt_input, keypoints=self.keypoints,
+                                   subtract_background=self.subtract_background)
+            return net_config, {"background": maze_background(maze) if self.subtract_background else None}
+        scale = state_obs_scale(maze)
+        net_config = NetConfig(encoder="mlp", obs_shape=(len(scale),), features=self.features, hidden=self.hidden,
+                               tilt_input=self.tilt_input)
+        return net_config, {"obs_scale": scale}
+
+    def build_policy(self, seed: int, maze: MazeSpec | None = None) -> RecurrentActorCritic:
+        """A fresh actor-critic, initialised from ``seed``."""
+        net_config, inputs = self.net_config(maze)
+        return build_network(net_config, seed=seed, **inputs)
+
+    def build_value(self, seed: int, maze: MazeSpec | None = None) -> ValueNetwork:
+        """A fresh value-only network V̂ with the same encoder, initialised from ``seed``."""
+        net_config, inputs = self.net_config(maze)
+        return build_value_network(net_config, seed=seed, **inputs)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, values: dict[str, Any]) -> NetworkSettings:
+        return from_dict(cls, values, "network settings")
+
+
+def network_settings_of(values: dict[str, Any]) -> NetworkSettings:
+    """The network settings in a flat settings dict (e.g. a stored A3C config); other keys are ignored."""
+    return NetworkSettings(**{k: values[k] for k in NetworkSettings.field_names() if k in values})
+
+
+@dataclasses.dataclass(frozen=True)
+class RunInfo:
+    """What a run directory holds, read from its ``config.json`` (:func:`read_run`)."""
+
+    run_dir: Path
+    kind: str
+    """:data:`~bimgame.learn.runs.KIND_A3C`, ``pretrained-policy``, ``value-function``, ``dagger-policy``."""
+    task: str
+    network: NetworkSettings
+    seed: int
+    """The seed the run's network was initialised from (and its evaluation seed derives from)."""
+    time_limit: int
+    """The episode time limit the run trained and evaluates with."""
+    config: dict[str, Any]
+    """The whole ``config.json``."""
+
+
+def read_run(source: str | Path) -> RunInfo:
+    """The kind, task and network of the run in ``source`` (its directory or a file in it); raises
+    ``ValueError`` naming what is missing."""
+    source = Path(source)
+    run_dir = source.parent if source.is_file() else source
+    stored = read_run_config(run_dir)
+    kind = stored.get("kind", KIND_A3C)
+    block = stored.get("a3c")
+    if isinstance(block, dict):  # A3C runs, and pre-training/DAgger runs of the earlier layout
+        task, network, seed = block.get("task"), network_settings_of(block), block.get("seed", 0)
+        limit = block.get("max_episode_steps")
+    elif isinstance(stored.get("network"), dict) and "task" in stored:
+        task, network, seed = stored["task"], NetworkSettings.from_dict(stored["network"]), stored.get("seed", 0)
+        limit = stored.get("max_episode_steps")
+    else:
+        raise ValueError(f"{run_dir / CONFIG} names no task and network ('a3c', or 'task' and 'network')")
+    task = parse_task(task).value
+    return RunInfo(run_dir=run_dir, kind=kind, task=task, network=network, seed=int(seed),
+                   time_limit=int(limit or MAX_EPISODE_STEPS[Task(task)]), config=stored)
+
+
+def init_network_settings(source: str | Path) -> dict[str, Any]:
+    """The network settings of the run that ``--init`` points at, as a dict ({} for a bare checkpoint
+    file outside a run); refuses a value function (V̂ is no policy to start from)."""
+    source = Path(source)
+    if not source.exists():
+        raise ValueError(f"--init: {source} does not exist")
+    run_dir = source.parent if source.is_file() else source
+    if not (run_dir / CONFIG).is_file():
+        return {}
+    run = read_run(run_dir)
+    if run.kind == KIND_VALUE:
+        raise ValueError(f"--init: {source} holds a value function (V̂); pass it to --value-reward. --init takes "
+                         f"a pre-trained policy (bimgame pretrain) or an A3C run")
+    return run.network.to_dict()
+
+
+def load_run_network(source: str | Path) -> tuple[RecurrentActorCritic, RunInfo, int]:
+    """The policy network of a run — ``source`` is its directory or a checkpoint file in it — with
+    the checkpoint's weights; returns (network, run, step)."""
+    run_dir = Path(source).parent if Path(source).is_file() else Path(source)
+    if not (run_dir / CONFIG).is_file():
+        raise ValueError(f"{run_dir} is not a training run (no {CONFIG})")
+    run = read_run(run_dir)
+    if run.kind == KIND_VALUE:
+        raise ValueError(f"{run.run_dir} holds a value function (V̂), not a policy; use it with --value-reward")
+    net = run.network.build_policy(run.seed)
+    step = load_weights(net, source)
+    return net, run, step
+
+
+def load_value_network(source: str | Path) -> tuple[ValueNetwork, RunInfo]:
+    """The frozen V̂ of a value pre-training run (``bimgame pretrain --value-only``)."""
+    run = read_run(source)
+    if run.kind != KIND_VALUE:
+        raise ValueError(f"{run.run_dir} holds a {run.kind} run, not a value function; train one with "
+                         f"'bimgame pretrain --value-only'")
+    net = run.network.build_value(run.seed)
+    load_weights(net, Path(source) if Path(source).is_file() else run.run_dir)
+    net.eval()
+    for param in net.parameters():
+        param.requires_grad_(False)
+    return net, run
+
+
+def evaluation_seed(seed: int) -> int:
+    """Seed of the start positions of a run's evaluations, derived from the run's seed (the same
+    every time, different from the training episodes' starts)."""
+    return int(np.random.SeedSequence([seed, 999_983]).generate_state(1)[0])
+
+
+def evaluate_greedy_and_sampled(net: RecurrentActorCritic, *, task: str, obs: str, episodes: int, seed: int,
+                                time_limit: int | None = None) -> dict[str, float]:
+    """Success rate, mean length and return of ``net`` on ``task``, acting greedily and sampling (keys
+    ``greedy_…``, ``sampled_…``), over the same ``episodes`` start positions from ``seed``."""
+    values: dict[str, float] = {}
+    for mode, greedy in (("greedy", True), ("sampled", False)):
+        result = evaluate_network(net, task=task, obs_mode=obs, episodes=episodes, seed=seed, greedy=greedy,
+                                  max_episode_steps=time_limit)
+        values.update({f"{mode}_{k}": v for k, v in result.summary().items() if k != "episodes"})
+    return values

@@ -1,0 +1,47 @@
+"""Fixtures shared by the experiments tests: a tiny budget that runs every kind of piece in seconds,
+and hand-made training episodes with known success rates."""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+import pytest
+
+from bimgame.experiments.budgets import Budget
+
+#: A reproduction small enough for a test: STG1, four expert episodes, 2,000 A3C steps on one
+#: worker, one DAgger iteration of two episodes, two seeds. Three algorithms cover every kind of
+#: piece: plain A3C, A3C from π^s with V̂'s reward (both pre-trainings), and DAgger.
+TINY = Budget(name="tiny", tasks=("STG1",), algorithms=("a3c", "pretrain+a3c+value", "dagger"), seeds=2,
+              obs="state", a3c_steps={"STG1": 2_000}, workers=1, envs_per_worker=4, hidden=16, features=16,
+              eval_every=0, eval_episodes=2, checkpoint_every=400, dataset_task="STG1", dataset_episodes=4,
+              dataset_workers=1, pretrain_epochs=2, pretrain_patience=1, pretrain_eval_episodes=2, value_epochs=2,
+              value_patience=1, dagger_iterations=1, dagger_episodes=2, dagger_epochs=1, dagger_eval_episodes=2)
+
+
+@pytest.fixture
+def tiny_budget() -> Budget:
+    """:data:`TINY`."""
+    return TINY
+
+
+def _episodes(ranges: list[tuple[int, int, float]], bin_steps: int, per_bin: int = 20) -> dict:
+    """Training episodes: in every bin of ``bin_steps`` inside each (start, end, rate) range,
+    ``per_bin`` episodes started evenly, exactly round(rate · per_bin) of them successful."""
+    starts, successes = [], []
+    for low, high, rate in ranges:
+        for left in range(low, high, bin_steps):
+            wins = int(round(rate * per_bin))
+            starts += list(np.linspace(left, left + bin_steps - 1, per_bin))
+            successes += [1.0] * wins + [0.0] * (per_bin - wins)
+    n = len(starts)
+    return {"start_step": np.array(starts), "success": np.array(successes), "return": np.array(successes),
+            "length": np.full(n, 50.0), "worker": np.zeros(n)}
+
+
+@pytest.fixture
+def training_episodes() -> Callable[..., dict]:
+    """``episodes(ranges, bin_steps, per_bin=20)``: the columns of an ``episodes.csv`` with known
+    success rates per bin (see :func:`_episodes`)."""
+    return _episodes
