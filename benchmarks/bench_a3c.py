@@ -6,7 +6,7 @@ For pixel and state observations:
   batched acting forwards, the segment's forward+backward, gradient clipping and the shared
   optimiser step on shared weights — on recorded observations, with no environment. Samples per
   second over all processes.
-- **A3C**: ``bimgame.a3c.train`` with the same settings; environment steps per second at steady
+- **A3C**: ``bimgame.learn.a3c.train`` with the same settings; environment steps per second at steady
   state (from the run's updates.csv, so process start-up is excluded).
 
 The ratio A3C / network-only says how much the environment costs on top of the network. Writes

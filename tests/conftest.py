@@ -29,7 +29,7 @@ def one_torch_thread():
 @pytest.fixture(scope="session")
 def stg1_dataset(tmp_path_factory):
     """A finished MPC-expert dataset directory of STG1 episodes (state and pixels readable with
-    :func:`bimgame.data.iterate_sequences`); seeded, so the same in every session."""
+    :func:`bimgame.expert.datasets.iterate_sequences`); seeded, so the same in every session."""
     out = tmp_path_factory.mktemp("stg1-expert") / "data"
     return generate_dataset(out, "STG1", STG1_DATASET_EPISODES, seed=STG1_DATASET_SEED, workers=2, progress=False)
 

@@ -230,8 +230,6 @@ def test_resuming_a_finished_dagger_run_does_no_work(tiny_dagger, tmp_path, caps
     assert not (run_dir / "data" / "iteration_001.npz").exists()
 
 
-@pytest.mark.xfail(strict=True, reason="run_dagger reports 'nothing to do' whenever the last iteration made no "
-                                       "evaluation (final_eval is None), i.e. always with --eval-episodes 0")
 def test_a_run_without_evaluations_is_not_reported_as_nothing_to_do(tmp_path, capsys):
     run_dir = tmp_path / "run"
     assert main(["dagger", "--run-dir", str(run_dir), *DAGGER_RUN, "--eval-episodes", "0"]) == 0

@@ -139,9 +139,6 @@ def test_report_on_something_else_fails_with_a_message(tmp_path, capsys, kind, m
         assert not path.exists()  # not created either
 
 
-@pytest.mark.xfail(strict=True, raises=KeyError,
-                   reason="load_plan indexes plan.json's 'budget' and 'pieces' without checking them: a damaged "
-                          "plan of the right format escapes main() as a KeyError traceback")
 @pytest.mark.parametrize("verb", ["report", "reproduce"])
 def test_a_damaged_plan_of_the_right_format_is_refused_with_a_message(tmp_path, capsys, verb):
     (tmp_path / "plan.json").write_text(json.dumps({"format": "bimgame-reproduction-1"}))

@@ -19,7 +19,7 @@ import pytest
 from minari import EpisodeData
 
 import bimgame.expert.datasets as data
-import bimgame.expert.episodes as parallel
+import bimgame.expert.pool as parallel
 from bimgame.cli.expert import add_generate_arguments
 from bimgame.cli.main import main
 from bimgame.expert.datasets import (DatasetError, dataset_summary, generate_dataset, iterate_sequences,
@@ -114,7 +114,7 @@ def test_killed_generation_is_incomplete_and_resumes_only_the_missing_episodes(r
     code = textwrap.dedent(f"""
         import time
         import bimgame.expert.datasets as d
-        import bimgame.expert.episodes as p
+        import bimgame.expert.pool as p
         from bimgame.expert.mpc import MPCConfig
         real, calls = p.run_expert_episode, []
         def slow(*args, **kwargs):

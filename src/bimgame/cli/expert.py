@@ -12,9 +12,13 @@ from rich.console import Console
 from rich.table import Table
 
 from bimgame.cli.argtypes import add_max_steps_argument, add_task_argument, non_negative_int, positive_int
+from bimgame.cli.flags import add_settings_flags
 from bimgame.expert.datasets import BACKENDS, MINARI_DIR, dataset_summary, generate_dataset
 from bimgame.expert.evaluation import evaluate_expert, plot_length_histogram, summarise, write_results
-from bimgame.expert.mpc import PLANNING_REWARDS, SAMPLINGS, MPCConfig
+from bimgame.expert.mpc import MPCConfig
+
+#: The expert's settings with a flag (the hold lengths and threads keep their defaults).
+MPC_FLAGS = ("n_samples", "horizon", "sampling", "reward")
 
 __all__ = ["add_parsers", "add_mpc_arguments", "mpc_config_from", "add_generate_arguments", "run_generate",
            "run_expert_eval"]
@@ -41,19 +45,13 @@ def add_parsers(verbs: argparse._SubParsersAction) -> None:
 
 def add_mpc_arguments(parser: argparse.ArgumentParser) -> None:
     """The MPC expert's flags (shared by expert-eval and generate)."""
-    defaults = MPCConfig()
-    parser.add_argument("--n-samples", "-K", type=positive_int, default=defaults.n_samples,
-                        help=f"K, sequences per decision (default {defaults.n_samples})")
-    parser.add_argument("--horizon", "-H", type=positive_int, default=defaults.horizon,
-                        help=f"H, steps per sequence (default {defaults.horizon})")
-    parser.add_argument("--sampling", choices=SAMPLINGS, default=defaults.sampling)
-    parser.add_argument("--planning-reward", choices=PLANNING_REWARDS, default=defaults.reward)
+    add_settings_flags(parser, MPCConfig, MPC_FLAGS, flags={"reward": "--planning-reward"},
+                       aliases={"n_samples": ("-K",), "horizon": ("-H",)})
 
 
 def mpc_config_from(args: argparse.Namespace) -> MPCConfig:
     """The expert's settings from the flags of :func:`add_mpc_arguments`."""
-    return MPCConfig(n_samples=args.n_samples, horizon=args.horizon, sampling=args.sampling,
-                     reward=args.planning_reward)
+    return MPCConfig(**{name: getattr(args, name) for name in MPC_FLAGS})
 
 
 def add_generate_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:

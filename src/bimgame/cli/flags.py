@@ -26,42 +26,45 @@ from collections.abc import Callable, Iterable
 from types import UnionType
 from typing import Any
 
-from bimgame.cli.argtypes import non_negative_float, non_negative_int, positive_float, positive_int
+from bimgame.cli.argtypes import TASK_NAMES, non_negative_float, non_negative_int, positive_float, positive_int
 from bimgame.envs.observe import OBS_MODES
+from bimgame.experiments.budgets import ALGORITHMS
 from bimgame.expert.mpc import PLANNING_REWARDS, SAMPLINGS
 from bimgame.learn.a3c import OPTIMIZERS
 from bimgame.learn.supervised import TARGETS
-from bimgame.sim.tasks import Task
 from bimgame.util.settings import field_docs
 
 __all__ = ["add_settings_flags", "given_settings", "FIELD_CHOICES"]
 
 #: The allowed values of the settings that name a choice, wherever they appear.
 FIELD_CHOICES: dict[str, tuple[str, ...]] = {
-    "task": tuple(t.value for t in Task), "obs": OBS_MODES, "optimizer": OPTIMIZERS, "target": TARGETS,
-    "sampling": SAMPLINGS, "reward": PLANNING_REWARDS,
+    "task": TASK_NAMES, "tasks": TASK_NAMES, "obs": OBS_MODES, "optimizer": OPTIMIZERS, "target": TARGETS,
+    "sampling": SAMPLINGS, "reward": PLANNING_REWARDS, "algorithms": ALGORITHMS,
 }
 #: Fields whose values are parsed case-insensitively (``--task stg1``).
-_UPPER = {"task"}
+_UPPER = {"task", "tasks"}
 
 
 def add_settings_flags(parser: argparse.ArgumentParser | Any, cls: type, names: Iterable[str], *,
                        defaults: Any = None, default_none: bool = False,
                        types: dict[str, Callable[[str], Any]] | None = None,
-                       flags: dict[str, str] | None = None, helps: dict[str, str] | None = None) -> None:
+                       flags: dict[str, str] | None = None, helps: dict[str, str] | None = None,
+                       aliases: dict[str, tuple[str, ...]] | None = None, default_text: str | None = None) -> None:
     """Add a flag for each field of the settings dataclass ``cls`` in ``names``.
 
     ``defaults``: an instance whose values are the defaults (default: ``cls()``). ``default_none``:
     every flag defaults to None, so the caller can tell what was given (``--resume`` keeps the rest);
     the help still shows the real default. ``types``: parsers for fields that need a special one
-    (e.g. step counts such as ``5M``). ``flags``: other flag names (``{"iterations": "--iters"}``).
-    ``helps``: help texts that replace the docstring.
+    (e.g. step counts such as ``5M``). ``flags``: other flag names (``{"reward": "--planning-reward"}``).
+    ``helps``: help texts that replace the docstring. ``aliases``: more option strings (``{"horizon": ("-H",)}``).
+    A tuple field takes one or more values (``--tasks STG1 STG2``). ``default_text``: what the help
+    says the default is, when it is not the value in ``defaults`` (e.g. "the budget's").
     """
     fields = {f.name: f for f in dataclasses.fields(cls)}
     hints = typing.get_type_hints(cls)
     docs = field_docs(cls)
     defaults = defaults if defaults is not None else cls()
-    types, flags, helps = types or {}, flags or {}, helps or {}
+    types, flags, helps, aliases = types or {}, flags or {}, helps or {}, aliases or {}
     for name in names:
         if name not in fields:
             raise ValueError(f"{cls.__name__} has no setting {name!r}; it has {sorted(fields)}")
@@ -75,6 +78,9 @@ def add_settings_flags(parser: argparse.ArgumentParser | Any, cls: type, names: 
                                 default=None if default_none else default, help=text)
             continue
         options: dict[str, Any] = {"dest": name, "default": None if default_none else default}
+        if typing.get_origin(kind) is tuple:
+            options.update(nargs="+", metavar=name.rstrip("s").upper())
+            kind = typing.get_args(kind)[0]
         if name in FIELD_CHOICES:
             options["choices"] = FIELD_CHOICES[name]
             options["type"] = str.upper if name in _UPPER else str
@@ -82,7 +88,9 @@ def add_settings_flags(parser: argparse.ArgumentParser | Any, cls: type, names: 
             options["type"] = types[name]
         elif kind in (int, float):
             options["type"] = _number_type(cls, name, kind)
-        parser.add_argument(flag, help=f"{text} (default {_shown(default)})".strip(), **options)
+        shown = default_text if default_text is not None else _shown(default)
+        parser.add_argument(flag, *aliases.get(name, ()), help=f"{text} (default {shown})".strip(),
+                            **options)
 
 
 def given_settings(args: argparse.Namespace, cls: type, names: Iterable[str] | None = None) -> dict[str, Any]:
@@ -126,6 +134,8 @@ def _plain(text: str) -> str:
 
 
 def _shown(value: Any) -> str:
+    if isinstance(value, tuple):
+        return " ".join(map(str, value))
     if isinstance(value, int) and not isinstance(value, bool) and abs(value) >= 10_000:
         return f"{value:,}"
     return str(value)

@@ -85,12 +85,14 @@ def run_dagger(args: argparse.Namespace) -> int:
     print(f"DAgger on {config.learner.task} ({config.learner.obs}): {config.iterations} iterations x "
           f"{config.episodes_per_iteration} episodes -> {args.run_dir}", file=sys.stderr)
     result = dagger(config, args.run_dir, resume=args.resume, init=args.init, progress=not args.no_progress)
-    if result.final_eval is None:
+    if result.iterations_run == 0:
         print(f"nothing to do: the run in {args.run_dir} has finished its {result.iterations} iterations "
               f"(pass a larger --iterations with --resume to continue)")
         return 0
     final = result.final_eval
+    evaluation = ("no evaluation (--eval-episodes 0)" if final is None else
+                  f"final greedy success {final.get('greedy_success_rate', float('nan')):.0%}, "
+                  f"sampled {final.get('sampled_success_rate', float('nan')):.0%}")
     print(f"done: {result.iterations} iterations in {result.seconds / 60:.1f} min; {result.env_steps:,} environment "
-          f"steps, {result.expert_sim_steps:,} simulator steps of expert planning; final greedy success "
-          f"{final.get('greedy_success_rate', float('nan')):.0%}, sampled {final.get('sampled_success_rate', float('nan')):.0%}")
+          f"steps, {result.expert_sim_steps:,} simulator steps of expert planning; {evaluation}")
     return 0

@@ -7,7 +7,21 @@ import argparse
 import sys
 from pathlib import Path
 
+from rich.console import Console
+from rich.markup import escape
+
 from bimgame.cli.argtypes import positive_int
+from bimgame.cli.flags import add_settings_flags
+from bimgame.experiments.budgets import BUDGETS, Budget, budget_named
+from bimgame.experiments.costs import estimate_seconds, format_duration
+from bimgame.experiments.grid import plan_pieces
+from bimgame.experiments.plan import PLAN, check_compatible, load_plan, piece_done
+from bimgame.experiments.report import build_report
+from bimgame.experiments.reproduce import reproduce
+from bimgame.experiments.statistics import DEFAULT_RESAMPLES
+
+#: Budget settings the command line may change (the grid); ``--budget`` picks the rest.
+GRID_FLAGS = ("tasks", "algorithms", "seeds", "obs", "torch_threads")
 
 __all__ = ["add_reproduce_arguments", "add_report_arguments", "run_reproduce", "run_report", "budget_from"]
 
@@ -24,24 +38,15 @@ def _fraction(text: str) -> float:
 
 
 def add_reproduce_arguments(parser: argparse.ArgumentParser) -> None:
-    from bimgame.experiments.budgets import ALGORITHMS, BUDGETS
-    from bimgame.envs.observe import OBS_MODES
-    from bimgame.sim.tasks import Task
-
     add = parser.add_argument
     add("--out", type=Path, required=True,
         help="directory of the reproduction (created; run the same command again to continue it)")
     add("--budget", choices=list(BUDGETS), default=None,
         help="preset: quick (STG1, state observations, 2 seeds, < 30 min on 2 cores) or paper (FULL/STG1/STG2, "
              "pixels, 5 seeds, about two and a half days). Default: the budget stored in --out, else quick")
-    add("--tasks", nargs="+", choices=[t.value for t in Task], type=str.upper, default=None, metavar="TASK",
-        help="tasks of the grid (default: the budget's; STG3 STG4 may be added)")
-    add("--algorithms", nargs="+", choices=ALGORITHMS, default=None, metavar="ALGORITHM",
-        help=f"algorithms of the grid, any of: {', '.join(ALGORITHMS)} (default: all)")
-    add("--seeds", type=positive_int, default=None, help="runs per task and algorithm (default: the budget's)")
-    add("--obs", choices=OBS_MODES, default=None, help="observations of every network (default: the budget's)")
-    add("--torch-threads", type=positive_int, default=None,
-        help="torch threads of pre-training and DAgger (default: the budget's, 1)")
+    # The grid: Budget settings that change what is computed; not given: the budget's (as --budget).
+    add_settings_flags(parser, Budget, GRID_FLAGS, default_none=True, defaults=BUDGETS["quick"],
+                       default_text="the budget's")
     add("--stop-after", type=positive_int, default=None, metavar="N",
         help="compute at most N pieces, then stop (run again to continue)")
     add("--dry-run", action="store_true", help="print the plan and its expected duration; run nothing")
@@ -49,8 +54,6 @@ def add_reproduce_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def add_report_arguments(parser: argparse.ArgumentParser) -> None:
-    from bimgame.experiments.statistics import DEFAULT_RESAMPLES
-
     add = parser.add_argument
     add("out", type=Path, metavar="DIR", help="a reproduction directory (bimgame reproduce --out DIR)")
     add("--threshold", type=_fraction, default=None, metavar="F",
@@ -60,35 +63,21 @@ def add_report_arguments(parser: argparse.ArgumentParser) -> None:
     add("--seed", type=int, default=0, help="seed of the bootstrap's generator (default 0)")
 
 
-def budget_from(args: argparse.Namespace) -> "Budget":  # noqa: F821
+def budget_from(args: argparse.Namespace) -> Budget:
     """The budget of a ``reproduce`` command: the preset named by ``--budget`` (else the one stored
     in ``--out``, else ``quick``) with the grid flags applied."""
-    from bimgame.experiments.budgets import budget_named
-    from bimgame.experiments.plan import PLAN, load_plan
-
     if args.budget is not None:
         base = budget_named(args.budget)
     elif (args.out / PLAN).is_file():
         base, _ = load_plan(args.out)
     else:
         base = budget_named("quick")
-    return base.with_grid(tasks=args.tasks, algorithms=args.algorithms, seeds=args.seeds, obs=args.obs,
-                          torch_threads=args.torch_threads)
+    return base.with_grid(**{name: getattr(args, name) for name in GRID_FLAGS})
 
 
 def run_reproduce(args: argparse.Namespace) -> int:
     """``bimgame reproduce``: print the plan's expected duration, run (or continue) it, build the
     report. Exit status 0 when every piece finished, 1 when some failed, 130 when interrupted."""
-    from rich.console import Console
-    from rich.markup import escape
-
-    from bimgame.experiments.budgets import BUDGETS
-    from bimgame.experiments.costs import estimate_seconds, format_duration
-    from bimgame.experiments.grid import plan_pieces
-    from bimgame.experiments.plan import check_compatible, piece_done
-    from bimgame.experiments.report import build_report
-    from bimgame.experiments.reproduce import reproduce
-
     console = Console(stderr=True)
     budget = budget_from(args)
     check_compatible(args.out, budget)
@@ -133,18 +122,13 @@ def run_reproduce(args: argparse.Namespace) -> int:
     return 0
 
 
-def _total(budget: "Budget") -> float:  # noqa: F821
+def _total(budget: Budget) -> float:
     """Expected seconds of all pieces of a budget."""
-    from bimgame.experiments.costs import estimate_seconds
-    from bimgame.experiments.grid import plan_pieces
-
     return sum(estimate_seconds(p, budget) for p in plan_pieces(budget))
 
 
 def run_report(args: argparse.Namespace) -> int:
     """``bimgame report DIR``: rebuild the figures, tables and report.md from DIR's saved results."""
-    from bimgame.experiments.report import build_report
-
     paths = build_report(args.out, threshold_fraction=args.threshold, resamples=args.resamples, seed=args.seed)
     for path in paths.all():
         print(f"wrote {path}")

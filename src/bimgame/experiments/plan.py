@@ -65,10 +65,14 @@ def load_plan(out_dir: str | Path) -> tuple[Budget, list[Piece]]:
     if stored.get("format") != _PLAN_FORMAT:
         raise ValueError(f"{path} is not a bimgame reproduction plan (format {stored.get('format')!r}, "
                          f"expected {_PLAN_FORMAT!r})")
-    budget = Budget.from_dict(stored["budget"])
-    fields = {f.name for f in dataclasses.fields(Piece)}
-    pieces = [Piece(**{**{k: v for k, v in p.items() if k in fields}, "needs": tuple(p["needs"])})
-              for p in stored["pieces"]]
+    try:
+        budget = Budget.from_dict(stored["budget"])
+        fields = {f.name for f in dataclasses.fields(Piece)}
+        pieces = [Piece(**{**{k: v for k, v in p.items() if k in fields}, "needs": tuple(p["needs"])})
+                  for p in stored["pieces"]]
+    except (KeyError, TypeError, AttributeError) as error:
+        raise ValueError(f"{path} is damaged ({type(error).__name__}: {error}); move it away and rerun "
+                         f"'bimgame reproduce --out {out_dir}' to plan the reproduction anew") from None
     return budget, pieces
 
 

@@ -47,7 +47,7 @@ from minari.data_collector import EpisodeBuffer
 import bimgame
 from bimgame.envs.observe import Observer
 from bimgame.expert.episode import Episode
-from bimgame.expert.episodes import BACKENDS, MAIN_GUARD, environment, episode_progress, expert_episodes, import_ray
+from bimgame.expert.pool import BACKENDS, MAIN_GUARD, environment, episode_progress, expert_episodes, import_ray
 from bimgame.expert.mpc import MPCConfig, episode_seed
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.physics import MazeSim

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from bimgame.expert.episodes import episode_progress, expert_episodes
+from bimgame.expert.pool import episode_progress, expert_episodes
 from bimgame.expert.mpc import MPCConfig
 from bimgame.sim.tasks import parse_task
 from bimgame.util.files import atomic_write_bytes
@@ -34,7 +34,7 @@ def evaluate_expert(task: str, episodes: int, config: MPCConfig | None = None, *
                     workers: int | None = None, max_steps: int | None = None,
                     progress: bool = True) -> list[EpisodeResult]:
     """Run ``episodes`` expert episodes (episode i from :func:`episode_seed`(seed, i)) on ``workers``
-    processes (default: all cores, see :func:`~bimgame.expert.episodes.expert_episodes`); results sorted
+    processes (default: all cores, see :func:`~bimgame.expert.pool.expert_episodes`); results sorted
     by episode index, independent of ``workers``."""
     parse_task(task)
     config = config if config is not None else MPCConfig()

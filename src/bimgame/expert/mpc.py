@@ -49,7 +49,9 @@ class MPCConfig:
     sampling: str = "hold"
     """"uniform" (independent actions) or "hold" (each action held for hold_min..hold_max steps)."""
     hold_min: int = 3
+    """"hold" sampling: shortest run of one action (steps)."""
     hold_max: int = 5
+    """"hold" sampling: longest run of one action (steps)."""
     reward: str = "radial"
     """Planning reward: "radial" (the paper's) or "geodesic" progress towards the centre."""
     nthread: int = 1

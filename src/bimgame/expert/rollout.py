@@ -8,7 +8,7 @@ import time
 import gymnasium as gym
 import numpy as np
 
-from bimgame.expert.episodes import episode_progress
+from bimgame.expert.pool import episode_progress
 from bimgame.expert.policies import make_policy
 
 __all__ = ["run_episodes"]

@@ -130,10 +130,7 @@ class A3CConfig(NetworkSettings):
             require_int("A3CConfig", name, getattr(self, name), 1)
         if not (isinstance(self.eval_every, int) and self.eval_every >= 0):
             raise ValueError(f"A3CConfig.eval_every must be an integer >= 0 (0: no evaluator), got {self.eval_every!r}")
-        if self.max_episode_steps is not None and not (isinstance(self.max_episode_steps, int)
-                                                       and self.max_episode_steps >= 1):
-            raise ValueError(f"A3CConfig.max_episode_steps must be None or an integer >= 1, "
-                             f"got {self.max_episode_steps!r}")
+        require_int("A3CConfig", "max_episode_steps", self.max_episode_steps, 1, optional=True)
         ranges = {"gamma": (0.0, 1.0), "gae_lambda": (0.0, 1.0), "rmsprop_alpha": (0.0, 1.0)}
         for name, (low, high) in ranges.items():
             value = getattr(self, name)

@@ -17,6 +17,7 @@ import torch
 from bimgame.sim.maze import MazeSpec
 from bimgame.learn.nets import NO_ACTION, LSTMState, RecurrentActorCritic
 from bimgame.envs.vector import BallInMazeVectorEnv
+from bimgame.sim.tasks import MAX_EPISODE_STEPS, parse_task
 
 __all__ = ["RecurrentActor", "EvalResult", "evaluate_network", "tilt_input"]
 
@@ -107,9 +108,6 @@ def evaluate_network(net: RecurrentActorCritic, *, task: str, obs_mode: str, epi
     Start positions come from ``seed`` (the same seed gives the same starts, so evaluations along a
     run are comparable); sampled actions draw from a generator seeded with ``seed`` too.
     ``record`` keeps RGB frames of the first environment's episode."""
-    from bimgame.sim.tasks import MAX_EPISODE_STEPS
-    from bimgame.sim.tasks import parse_task
-
     kwargs: dict[str, Any] = {"task": task, "obs_mode": obs_mode}
     if maze is not None:
         kwargs["maze"] = maze

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bimgame.sim.figures import save_png
+from bimgame.util.images import save_png, subplots
 
 __all__ = ["read_table", "binned_means", "binned_by_start", "plot_run", "plot_comparison"]
 
@@ -69,17 +69,12 @@ def plot_run(run_dir: str | Path, out: str | Path | None = None, title: str | No
     """Success rate and episode length against environment steps (training episodes binned by
     start step, plus the evaluator's greedy and sampled episodes); writes a PNG (default
     ``RUN_DIR/curves.png``)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     run_dir = Path(run_dir)
     episodes = read_table(run_dir / "episodes.csv")
     evaluations = read_table(run_dir / "eval.csv")
     if not episodes:
         raise ValueError(f"{run_dir} has no finished training episodes to plot (episodes.csv)")
-    fig, (ax_success, ax_length) = plt.subplots(1, 2, figsize=(11, 4))
+    fig, (ax_success, ax_length) = subplots(1, 2, figsize=(11, 4))
     steps, success = binned_by_start(episodes, "success")
     ax_success.plot(steps, success, label="training episodes (by start step)")
     steps, length = binned_by_start(episodes, "length")
@@ -104,11 +99,6 @@ def plot_comparison(groups: dict[str, list[str | Path]], out: str | Path, *, tit
     the training episodes' success rate by start step, and the evaluator's greedy success, each
     averaged over the group's runs (thin lines: the single runs); ``max_step`` cuts longer runs
     to a common budget. Writes a PNG to ``out``."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     tables = {label: [(read_table(Path(r) / "episodes.csv"), read_table(Path(r) / "eval.csv")) for r in runs]
               for label, runs in groups.items()}
     if max_step is not None:
@@ -121,7 +111,7 @@ def plot_comparison(groups: dict[str, list[str | Path]], out: str | Path, *, tit
     last = max(float(e["start_step"].max()) for runs in tables.values() for e, _ in runs)
     edges = np.linspace(0, last + 1, bins + 1)
     centres = (edges[:-1] + edges[1:]) / 2
-    fig, (ax_train, ax_eval) = plt.subplots(1, 2, figsize=(11, 4))
+    fig, (ax_train, ax_eval) = subplots(1, 2, figsize=(11, 4))
     for index, (label, runs) in enumerate(tables.items()):
         colour = f"C{index}"
         curves = []

@@ -91,12 +91,8 @@ class DAggerConfig:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and 0.0 <= value <= 1.0):
                 raise ValueError(f"DAggerConfig.{name} must be in [0, 1], got {value!r}")
-        if not (isinstance(self.eval_episodes, int) and self.eval_episodes >= 0):
-            raise ValueError(f"DAggerConfig.eval_episodes must be an integer >= 0, got {self.eval_episodes!r}")
-        if self.max_episode_steps is not None and not (isinstance(self.max_episode_steps, int)
-                                                       and self.max_episode_steps >= 1):
-            raise ValueError(f"DAggerConfig.max_episode_steps must be None or an integer >= 1, "
-                             f"got {self.max_episode_steps!r}")
+        require_int("DAggerConfig", "eval_episodes", self.eval_episodes, 0)
+        require_int("DAggerConfig", "max_episode_steps", self.max_episode_steps, 1, optional=True)
 
     #: What a resumed run may change.
     RESUMABLE_CHANGES = ("iterations", "eval_episodes")
@@ -223,6 +219,9 @@ def _load_episodes(path: Path) -> list[Episode]:
 class DAggerResult:
     run_dir: Path
     iterations: int
+    """Iterations finished in the run, in all."""
+    iterations_run: int
+    """Iterations this call ran (0: the run had already finished them all)."""
     env_steps: int
     expert_sim_steps: int
     dataset_steps: int
@@ -269,6 +268,7 @@ def _dagger(config: DAggerConfig, run_dir: Path | str, *, resume: bool, init: st
                                       "network": config.learner.network_settings().to_dict(),
                                       "net": net.config.to_dict(), "dagger": config.to_dict(),
                                       "init": None if init is None else str(init)})
+    first_iteration = state["iteration"]
     dataset: list[Episode] = []
     for i in range(state["iteration"]):
         dataset += _load_episodes(_data_path(run_dir, i))
@@ -319,7 +319,8 @@ def _dagger(config: DAggerConfig, run_dir: Path | str, *, resume: bool, init: st
                                        f"lower the learning rate (now {config.learner.lr})")
     finally:
         log.close()
-    return DAggerResult(run_dir, state["iteration"], state["env_steps"], state["expert_sim_steps"],
+    return DAggerResult(run_dir, state["iteration"], state["iteration"] - first_iteration, state["env_steps"],
+                        state["expert_sim_steps"],
                         sum(len(e) for e in dataset), final_eval, time.monotonic() - started)
 
 

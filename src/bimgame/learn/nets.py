@@ -31,6 +31,7 @@ from torch import nn
 
 from bimgame.envs.env import NO_ACTION
 from bimgame.sim.maze import MazeSpec
+from bimgame.sim.render import MazeRenderer
 from bimgame.util.settings import from_dict
 
 __all__ = ["NetConfig", "RecurrentActorCritic", "ValueNetwork", "build_value_network", "LSTMState", "build_network", "state_obs_scale", "maze_background",
@@ -98,7 +99,7 @@ class NetConfig:
 
 
 def state_obs_scale(spec: MazeSpec, n_marbles: int = 1) -> np.ndarray:
-    """Divisors that bring a state observation (see :class:`~bimgame.observe.Observer`) to order 1:
+    """Divisors that bring a state observation (see :class:`~bimgame.envs.observe.Observer`) to order 1:
     positions by the rim radius, velocities by 0.5 m/s (about the fastest reachable), tilts by the
     maximum tilt, channels by the outermost channel."""
     per_marble = [spec.rim_radius, spec.rim_radius, 0.5, 0.5] * n_marbles
@@ -318,6 +319,4 @@ def _build(cls: type, config: NetConfig, obs_scale: np.ndarray | None, seed: int
 
 def maze_background(spec: MazeSpec, size: int = 84) -> np.ndarray:
     """The observation frame without a marble, (1, size, size) uint8."""
-    from bimgame.sim.render import MazeRenderer
-
     return MazeRenderer(spec, size).gray(np.zeros((0, 2)))[None]

@@ -195,6 +195,7 @@ class MetricLog:
                        for name, fields in tables.items()}
         self.writer = None
         if tensorboard:
+            # Lazy: importing TensorBoard's writer costs about a second, paid only by runs that log.
             from torch.utils.tensorboard import SummaryWriter
 
             self.writer = SummaryWriter(str(self.run_dir / "tb"), purge_step=resume_step)

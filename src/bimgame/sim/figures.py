@@ -1,7 +1,6 @@
 """A labelled drawing of a maze (walls, gates, channels, geodesic distance) as a PNG.
 
-Figures are drawn and written with :mod:`bimgame.util.images`; ``save_png`` is also importable from
-here for the modules that still do so."""
+Drawn and written with :mod:`bimgame.util.images` (no pyplot)."""
 
 from __future__ import annotations
 
@@ -14,7 +13,7 @@ from matplotlib.patches import Circle, Wedge
 from bimgame.sim.maze import MazeSpec
 from bimgame.util.images import save_png, subplots
 
-__all__ = ["draw_maze", "save_png"]
+__all__ = ["draw_maze"]
 
 
 def draw_maze(spec: MazeSpec, path: str | Path, *, geodesic: bool = True, dpi: int = 150) -> Path:

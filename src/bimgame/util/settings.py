@@ -29,10 +29,14 @@ def from_dict(cls: type[T], values: dict[str, Any], what: str) -> T:
     return cls(**values)
 
 
-def require_int(owner: str, name: str, value: Any, minimum: int) -> None:
-    """Raise ``ValueError`` unless ``value`` is an int (not a bool) >= ``minimum``."""
+def require_int(owner: str, name: str, value: Any, minimum: int, *, optional: bool = False) -> None:
+    """Raise ``ValueError`` unless ``value`` is an int (not a bool) >= ``minimum`` (or, if
+    ``optional``, None)."""
+    if optional and value is None:
+        return
     if not (isinstance(value, int) and not isinstance(value, bool) and value >= minimum):
-        raise ValueError(f"{owner}.{name} must be an integer >= {minimum}, got {value!r}")
+        allowed = f"None or an integer >= {minimum}" if optional else f"an integer >= {minimum}"
+        raise ValueError(f"{owner}.{name} must be {allowed}, got {value!r}")
 
 
 @functools.lru_cache(maxsize=None)

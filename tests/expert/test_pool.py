@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bimgame.expert.episodes import episode_progress, expert_episodes
+from bimgame.expert.pool import episode_progress, expert_episodes
 from bimgame.expert.mpc import MPCConfig, episode_seed, run_expert_episode
 
 CONFIG = MPCConfig(n_samples=4, horizon=6)
