@@ -45,6 +45,9 @@ def test_bad_flags_name_the_allowed_values(capsys):
     with pytest.raises(SystemExit):
         build_parser().parse_args(["train", "--run-dir", "x", "--lr", "-1"])
     assert "expected a positive" in capsys.readouterr().err
+    with pytest.raises(SystemExit):  # a negative seed used to crash inside the workers
+        build_parser().parse_args(["train", "--run-dir", "x", "--seed", "-1"])
+    assert "--seed: expected a non-negative integer" in capsys.readouterr().err
 
 
 def test_resume_takes_the_stored_settings_and_evaluate_reports(tmp_path, capsys):

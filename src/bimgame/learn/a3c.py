@@ -128,6 +128,7 @@ class A3CConfig(NetworkSettings):
                          "log_every")
         for name in positive_ints:
             require_int("A3CConfig", name, getattr(self, name), 1)
+        require_int("A3CConfig", "seed", self.seed, 0)  # numpy's seed sequences take no negative seeds
         if not (isinstance(self.eval_every, int) and self.eval_every >= 0):
             raise ValueError(f"A3CConfig.eval_every must be an integer >= 0 (0: no evaluator), got {self.eval_every!r}")
         require_int("A3CConfig", "max_episode_steps", self.max_episode_steps, 1, optional=True)

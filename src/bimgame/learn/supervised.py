@@ -82,6 +82,7 @@ class PretrainConfig(NetworkSettings):
             raise ValueError(f"PretrainConfig.target must be one of {TARGETS}, got {self.target!r}")
         for name in ("epochs", "patience", "batch_episodes", "batch_frames", "bptt"):
             require_int("PretrainConfig", name, getattr(self, name), 1)
+        require_int("PretrainConfig", "seed", self.seed, 0)  # numpy's seed sequences take no negative seeds
         require_int("PretrainConfig", "eval_episodes", self.eval_episodes, 0)
         for name, low, high, open_low in (("lr", 0, math.inf, True), ("max_grad_norm", 0, math.inf, True),
                                           ("l2", 0, math.inf, False), ("value_coef", 0, math.inf, False),

@@ -1,0 +1,206 @@
+"""Flags generated from settings dataclasses: help from the field docstrings, switches for booleans,
+the loosest number parser the class accepts, several values for tuples, defaults of None for
+``--resume``, renamed flags and aliases."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+
+import pytest
+
+from bimgame.cli.flags import FIELD_CHOICES, add_settings_flags, given_settings
+from bimgame.cli.main import build_parser
+from bimgame.envs.observe import OBS_MODES
+from bimgame.learn.a3c import A3CConfig
+
+
+@dataclasses.dataclass(frozen=True)
+class Toy:
+    """Settings used only by these tests."""
+
+    count: int = 3
+    """How many widgets to make."""
+    rate: float = 0.5
+    """Widget rate per
+    second, over several lines."""
+    offset: int = 0
+    """Shift of the widgets (any integer)."""
+    flag_on: bool = True
+    """Whether the lamp is on."""
+    flag_off: bool = False
+    """Whether the fan runs."""
+    names: tuple[str, ...] = ("a",)
+    """Names of the widgets."""
+    limit: int | None = None
+    """Upper bound on widgets; None: no bound."""
+    big: int = 250_000
+    undocumented: int = 1
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.count, int) and self.count >= 1):
+            raise ValueError(f"Toy.count must be >= 1, got {self.count!r}")
+        if not self.rate >= 0:
+            raise ValueError(f"Toy.rate must be >= 0, got {self.rate!r}")
+        if self.limit is not None and self.limit < 1:
+            raise ValueError(f"Toy.limit must be None or >= 1, got {self.limit!r}")
+
+
+@dataclasses.dataclass(frozen=True)
+class Choosy:
+    obs: str = "pixels"
+    """Observation mode."""
+    task: str = "STG1"
+    """Task name."""
+
+
+ALL = [f.name for f in dataclasses.fields(Toy)]
+
+
+def _parser(names=ALL, **options) -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="toy")
+    add_settings_flags(parser, Toy, names, **options)
+    return parser
+
+
+def _help(parser: argparse.ArgumentParser) -> str:
+    return " ".join(parser.format_help().split())
+
+
+def _action(parser: argparse.ArgumentParser, dest: str) -> argparse.Action:
+    (action,) = [a for a in parser._actions if a.dest == dest]
+    return action
+
+
+def test_defaults_are_the_classes_and_help_comes_from_the_docstrings():
+    parser = _parser()
+    args = parser.parse_args([])
+    assert (args.count, args.rate, args.offset, args.flag_on, args.flag_off, args.limit) == (3, 0.5, 0, True, False, None)
+    assert tuple(args.names) == ("a",)
+    assert _action(parser, "count").help == "How many widgets to make. (default 3)"
+    assert _action(parser, "rate").help == "Widget rate per second, over several lines. (default 0.5)"
+    assert _action(parser, "names").help == "Names of the widgets. (default a)"
+    assert _action(parser, "limit").help == "Upper bound on widgets; None: no bound. (default None)"
+    assert _action(parser, "big").help == "(default 250,000)"  # no docstring: only the default
+    text = _help(parser)
+    assert "--count COUNT How many widgets to make. (default 3)" in text
+    assert "Whether the lamp is on." in text and "Whether the fan runs." in text
+
+
+def test_defaults_from_an_instance_and_default_text():
+    parser = _parser(["count", "rate"], defaults=Toy(count=9), default_text="the budget's")
+    args = parser.parse_args([])
+    assert args.count == 9
+    assert _action(parser, "count").help == "How many widgets to make. (default the budget's)"
+
+
+def test_booleans_are_switches_away_from_their_default():
+    parser = _parser(["flag_on", "flag_off"])
+    options = {s for a in parser._actions for s in a.option_strings}
+    assert {"--no-flag-on", "--flag-off"} <= options
+    assert "--flag-on" not in options and "--no-flag-off" not in options
+    args = parser.parse_args(["--no-flag-on", "--flag-off"])
+    assert args.flag_on is False and args.flag_off is True
+    args = parser.parse_args([])
+    assert args.flag_on is True and args.flag_off is False
+
+
+def test_positive_field_refuses_zero_with_argparses_message(capsys):
+    parser = _parser()
+    with pytest.raises(SystemExit) as exit_info:
+        parser.parse_args(["--count", "0"])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert "--count" in err and "expected a positive integer" in err
+    assert parser.parse_args(["--count", "1"]).count == 1
+
+
+def test_non_negative_field_refuses_minus_one_and_accepts_zero(capsys):
+    parser = _parser()
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--rate", "-1"])
+    err = capsys.readouterr().err
+    assert "--rate" in err and ">= 0" in err
+    args = parser.parse_args(["--rate", "0"])
+    assert args.rate == 0.0 and isinstance(args.rate, float)
+
+
+def test_unbounded_field_accepts_negative_values():
+    args = _parser().parse_args(["--offset", "-5"])
+    assert args.offset == -5 and isinstance(args.offset, int)
+
+
+def test_optional_int_parser_is_positive(capsys):
+    parser = _parser()
+    assert parser.parse_args(["--limit", "4"]).limit == 4
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--limit", "0"])
+    assert "expected a positive integer" in capsys.readouterr().err
+
+
+def test_numbers_that_are_not_numbers_are_refused(capsys):
+    with pytest.raises(SystemExit):
+        _parser().parse_args(["--count", "many"])
+    assert "'many'" in capsys.readouterr().err
+
+
+def test_tuple_field_takes_several_values():
+    parser = _parser()
+    assert list(parser.parse_args(["--names", "x", "y", "z"]).names) == ["x", "y", "z"]
+    assert _action(parser, "names").nargs == "+"
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--names"])
+
+
+def test_default_none_and_given_settings():
+    parser = _parser(default_none=True)
+    args = parser.parse_args(["--count", "5", "--no-flag-on", "--names", "p", "q"])
+    assert args.rate is None and args.offset is None and args.flag_off is None and args.limit is None
+    given = given_settings(args, Toy)
+    assert given == {"count": 5, "flag_on": False, "names": ["p", "q"]}
+    assert given_settings(args, Toy, ["count", "rate"]) == {"count": 5}
+    assert given_settings(parser.parse_args([]), Toy) == {}
+    # the help still shows the real default
+    assert _action(parser, "count").help.endswith("(default 3)")
+
+
+def test_flags_and_aliases_rename_and_add_option_strings():
+    parser = _parser(["count", "flag_on", "rate"], flags={"count": "--widgets", "flag_on": "--dark"},
+                     aliases={"count": ("-n",), "rate": ("-r", "--speed")})
+    options = {s for a in parser._actions for s in a.option_strings}
+    assert {"--widgets", "-n", "--dark", "--rate", "-r", "--speed"} <= options
+    assert "--count" not in options and "--no-flag-on" not in options
+    args = parser.parse_args(["-n", "7", "--dark", "--speed", "2.5"])
+    assert (args.count, args.flag_on, args.rate) == (7, False, 2.5)
+    assert parser.parse_args(["--widgets", "8"]).count == 8
+
+
+def test_helps_and_types_replace_the_generated_ones():
+    parser = _parser(["count"], helps={"count": "my own words"}, types={"count": lambda s: int(s) * 10})
+    assert _action(parser, "count").help == "my own words (default 3)"
+    assert parser.parse_args(["--count", "-2"]).count == -20  # the given type replaces the probed one
+
+
+def test_unknown_field_is_named():
+    with pytest.raises(ValueError, match="'nonsense'"):
+        _parser(["count", "nonsense"])
+
+
+def test_choice_fields_are_restricted_and_tasks_case_insensitive(capsys):
+    parser = argparse.ArgumentParser()
+    add_settings_flags(parser, Choosy, ["obs", "task"])
+    assert tuple(_action(parser, "obs").choices) == OBS_MODES == FIELD_CHOICES["obs"]
+    args = parser.parse_args(["--obs", "state", "--task", "stg2"])
+    assert (args.obs, args.task) == ("state", "STG2")
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--obs", "rgb"])
+    assert "invalid choice" in capsys.readouterr().err
+
+
+def test_train_flags_of_the_real_a3c_config(tmp_path):
+    args = build_parser().parse_args(["train", "--run-dir", str(tmp_path / "X"), "--steps", "2M", "--no-tilt-input",
+                                      "--obs", "state"])
+    assert args.steps == 2_000_000 and args.tilt_input is False and args.obs == "state"
+    assert given_settings(args, A3CConfig) == {"steps": 2_000_000, "tilt_input": False, "obs": "state"}
+    others = [f.name for f in dataclasses.fields(A3CConfig) if f.name not in {"steps", "tilt_input", "obs"}]
+    assert others and all(getattr(args, name) is None for name in others)
