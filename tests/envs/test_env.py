@@ -107,14 +107,17 @@ def test_pickle_round_trip_continues_identically():
 
 def test_tilt_actions_move_the_board_and_the_marble_rolls_downhill():
     env = BallInMazeEnv("FULL", obs_mode="state")
-    env.reset(seed=0, options={"marble_xy": [[0.0, 0.0]]})  # centre region: free to roll
+    # On the outermost channel's centre circle where downhill is along the channel: free to roll
+    # (not in the centre region, where FULL's episode would end at the first step).
+    radius = env.maze.channel_centre_radius(4)
+    env.reset(seed=0, options={"marble_xy": [[0.0, radius]]})
     for _ in range(3):
         obs, *_ = env.step(3)  # +y tilt three times: the +x edge goes down
     assert obs[5] == pytest.approx(math.radians(3), abs=math.radians(0.05))
     for _ in range(5):
         obs, *_ = env.step(0)
     assert obs[2] > 0.01 and abs(obs[3]) < 1e-4  # rolling towards +x
-    env.reset(seed=0, options={"marble_xy": [[0.0, 0.0]]})
+    env.reset(seed=0, options={"marble_xy": [[radius, 0.0]]})
     for _ in range(8):
         obs, *_ = env.step(1 if _ < 3 else 0)  # +x tilt: the +y edge goes up
     assert obs[3] < -0.01 and abs(obs[2]) < 1e-4  # rolling towards -y

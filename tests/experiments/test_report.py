@@ -33,16 +33,24 @@ def fake_run(training_episodes):
 
     def write(path: Path, steps: int, curve: list[tuple[int, int, float]]) -> None:
         episodes = training_episodes(curve, steps // CURVE_BINS)
-        rows = [{"step": int(s) + 50, "start_step": int(s), "worker": 0, "return": float(r), "length": 50,
-                 "success": bool(r)} for s, r in zip(episodes["start_step"], episodes["success"])]
-        _write_csv(path / "episodes.csv", rows)
-        _write_csv(path / "eval.csv", [{"step": steps, "greedy_success_rate": 0.9, "greedy_mean_length": 40,
-                                        "greedy_mean_return": 0.9, "sampled_success_rate": 0.8,
-                                        "sampled_mean_length": 45, "sampled_mean_return": 0.8}])
-        (path / "summary.json").write_text(json.dumps({"steps": steps, "stopped": "finished",
-                                                       "final_eval": {"greedy_success_rate": 0.9}}))
+        _write_run(path, steps, {**episodes, "step": episodes["start_step"] + 50, "length": episodes["length"]})
 
     return write
+
+
+def _write_run(path: Path, steps: int, episodes: dict, config: dict | None = None) -> None:
+    """The logs of a finished A3C run of ``steps`` with the given episodes.csv columns (and config.json)."""
+    rows = [{"step": int(e), "start_step": int(s), "worker": 0, "return": float(r), "length": int(n),
+             "success": bool(r)} for e, s, r, n in zip(episodes["step"], episodes["start_step"],
+                                                        episodes["success"], episodes["length"])]
+    _write_csv(path / "episodes.csv", rows)
+    _write_csv(path / "eval.csv", [{"step": steps, "greedy_success_rate": 0.9, "greedy_mean_length": 40,
+                                    "greedy_mean_return": 0.9, "sampled_success_rate": 0.8,
+                                    "sampled_mean_length": 45, "sampled_mean_return": 0.8}])
+    (path / "summary.json").write_text(json.dumps({"steps": steps, "stopped": "finished",
+                                                   "final_eval": {"greedy_success_rate": 0.9}}))
+    if config is not None:
+        (path / "config.json").write_text(json.dumps(config))
 
 
 @pytest.fixture(scope="module")
@@ -130,6 +138,33 @@ def test_report_is_rebuilt_from_saved_results(tmp_path, tiny_dataset, fake_run):
     numbers = json.loads(build_report(tmp_path, resamples=200).table_json.read_text())
     assert numbers["tasks"]["STG1"]["algorithms"]["a3c"]["seeds_finished"] == 1
     assert "**Incomplete:** 1 pieces are not finished" in (tmp_path / "report.md").read_text()
+
+
+def test_report_counts_only_training_episodes_known_to_have_ended(tmp_path, tiny_dataset, running_log):
+    # One A3C run of 400k steps on 64 envs, 50% success throughout; when its log stopped, the
+    # failing (time-limited) episodes of its last 12.8k steps were still running. Before, the last
+    # bin showed 100% and "reached" the 80% threshold at 400k, and the final training success
+    # (episodes started after 360k) read 57%.
+    steps = 400_000
+    budget = Budget(name="hand-made", tasks=("STG1",), algorithms=("a3c",), seeds=1, a3c_steps={"STG1": steps},
+                    workers=1, envs_per_worker=64, dataset_task="STG1", dataset_episodes=4, dataset_workers=1)
+    write_plan(tmp_path, budget)
+    shutil.copytree(tiny_dataset, tmp_path / "data")
+    a3c = {"task": "STG1", "max_episode_steps": 200, "workers": 1, "envs_per_worker": 64, "n_steps": 20}
+    _write_run(tmp_path / "runs" / "STG1" / "a3c" / "seed0", steps, running_log(steps), {"a3c": a3c})
+    paths = build_report(tmp_path, resamples=100)
+    entry = json.loads(paths.table_json.read_text())["tasks"]["STG1"]
+    assert entry["threshold"] == pytest.approx(0.8)
+    run = entry["algorithms"]["a3c"]["runs"][0]
+    # Complete up to 400k − (200 + 20) × 64 steps: censored at the last whole 10k bin before it.
+    assert run["steps_to_threshold"] is None and run["censored_at"] == 380_000
+    # The episodes that started in the 40k steps before that, all of them (the same run logged
+    # for longer holds no more).
+    until = steps - (200 + 20) * 64 + 1
+    whole = running_log(steps + 200 * 64)
+    late = (whole["start_step"] >= until - 40_000) & (whole["start_step"] < until)
+    assert run["final_success_training"] == pytest.approx(whole["success"][late].mean())
+    assert "| A3C | 1/1 | 0/1 | > 380k | not reached |" in paths.table_md.read_text()
 
 
 def test_report_rejects_bad_input(tmp_path):

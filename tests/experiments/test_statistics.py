@@ -9,6 +9,7 @@ import pytest
 from bimgame.experiments.statistics import (MIN_EPISODES, Crossing, bootstrap_mean_band, dagger_crossing,
                                             first_crossing, percentile_interval, run_crossing, speedup,
                                             stratified_bootstrap)
+from bimgame.learn import curves
 from bimgame.learn.curves import binned_means
 
 
@@ -112,3 +113,20 @@ def test_speedup_ratio_interval_and_censoring_bounds():
                                                                       "bound": "not reached"}
     assert speedup([Crossing(400_000, False)] * 2, [Crossing(5, True), Crossing(9, False)],
                    rng=rng)["bound"] == "unknown"
+
+
+def test_run_crossing_ignores_bins_whose_episodes_may_still_be_running(running_log):
+    # 50% success throughout; in the last 200 × 64 steps only the short, successful episodes had
+    # ended when the log stopped, so the last bin looked like 100% and "reached" 80% at 400k.
+    episodes = running_log(400_000)
+    edges = np.linspace(0, 400_000, 41)  # bins of 10k
+    last = episodes["start_step"] >= 390_000
+    assert episodes["success"][last].mean() > 0.95
+    # Episodes that started after 400k − 12.8k may be missing: censored at the last complete bin.
+    assert run_crossing(episodes, edges, 0.8) == Crossing(380_000.0, False)
+    # The run's settings can say an episode may take longer than any logged one did.
+    until = curves.complete_until(episodes, 25_000)
+    assert run_crossing(episodes, edges, 0.8, until=until) == Crossing(370_000.0, False)
+    # Without end steps nothing can be cut (the old reading).
+    no_end = {k: v for k, v in episodes.items() if k != "step"}
+    assert run_crossing(no_end, edges, 0.8) == Crossing(400_000.0, True)

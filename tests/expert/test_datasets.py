@@ -4,6 +4,7 @@ kill-and-resume, integrity checks, refusal to touch foreign directories, the pre
 from __future__ import annotations
 
 import argparse
+import errno
 import json
 import os
 import shutil
@@ -12,7 +13,9 @@ import subprocess
 import sys
 import textwrap
 import time
+from pathlib import Path
 
+import h5py
 import minari
 import numpy as np
 import pytest
@@ -334,3 +337,118 @@ def test_a_relative_output_directory_works(tmp_path, monkeypatch):
     assert out.is_absolute()
     assert load_dataset("relative/data").total_episodes == ARGS["episodes"]
     assert dataset_summary("relative/data")["episodes"] == ARGS["episodes"]
+
+
+# ------------------------------------------------------------------------------------ full disk
+GENERATE_ARGV = ["generate", "--task", "stg1", "--episodes", "3", "--seed", "1", "--workers", "1",
+                 "--n-samples", "4", "--horizon", "8", "--max-steps", "40", "--no-progress"]
+
+#: Makes HDF5 dataset number N of a process find the disk full (h5py's ``Group.create_dataset`` is
+#: what Minari writes every array with). Used in this process and, through a ``sitecustomize``
+#: module, in any Python process started from it (wherever the Minari build runs).
+FULL_HDF5 = textwrap.dedent("""
+    import errno
+    import h5py
+    _real_create_dataset = h5py.Group.create_dataset
+    _created = []
+
+    def _create_dataset(self, *args, **kwargs):
+        _created.append(1)
+        if len(_created) == {n}:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return _real_create_dataset(self, *args, **kwargs)
+
+    h5py.Group.create_dataset = _create_dataset
+""")
+
+
+def _fill_disk_at(where: str, out, tmp_path, monkeypatch):
+    """Make the disk full at one write of ``where``; returns the file that write makes."""
+    if where == "minari build":
+        hook = tmp_path / "hook"
+        hook.mkdir()
+        (hook / "sitecustomize.py").write_text(FULL_HDF5.format(n=5))  # in the first episode's arrays
+        monkeypatch.setenv("PYTHONPATH", str(hook))
+        monkeypatch.setattr(h5py.Group, "create_dataset", h5py.Group.create_dataset)  # restored afterwards
+        exec(FULL_HDF5.format(n=5), {})  # and the same in this process
+        return out / "minari" / DATASET_ID / "data" / "main_data.hdf5"
+    real = data.atomic_write_bytes
+    target = {"episode file": out / "episodes" / "episode_000001.npz", "marker": out / "COMPLETE"}[where]
+
+    def full_disk(path, payload):
+        if Path(path) == target:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real(path, payload)
+    monkeypatch.setattr(data, "atomic_write_bytes", full_disk)
+    return target
+
+
+@pytest.mark.parametrize("where", ["episode file", "minari build", "marker"])
+def test_a_full_disk_stops_with_a_message_loses_no_episode_and_a_rerun_finishes(reference, tmp_path, monkeypatch,
+                                                                                capsys, where):
+    out = tmp_path / "run"
+    argv = [*GENERATE_ARGV, "--out", str(out)]
+    with monkeypatch.context() as patch:
+        failed = _fill_disk_at(where, out, tmp_path, patch)
+        assert main(argv) == 2
+    error = capsys.readouterr().err
+    saved = 1 if where == "episode file" else 3
+    assert error == (f"bimgame generate: error: no space left on device while writing {failed}; "
+                     f"rerun the same command to resume ({saved} of 3 episodes are saved)\n")
+    kept = sorted((out / "episodes").glob("episode_*.npz"))
+    assert [path.name for path in kept] == [f"episode_{i:06d}.npz" for i in range(saved)]
+    assert not (out / "COMPLETE").exists()
+    assert not list(out.glob(".minari-build-*")) and not list(out.rglob(".*.tmp"))  # nothing half-written
+    with pytest.raises(DatasetError, match="incomplete"):
+        load_dataset(out)
+
+    mtimes = {path: path.stat().st_mtime_ns for path in kept}
+    assert main(argv) == 0  # the disk has room again
+    assert {path: path.stat().st_mtime_ns for path in kept} == mtimes  # kept, not made again
+    assert_same_dataset(reference, out)
+
+
+REALLY_FULL = textwrap.dedent("""
+    import json, shutil, subprocess, sys
+    from pathlib import Path
+    mount_point, reference, copy_to, argv = Path(sys.argv[1]), Path(sys.argv[2]), Path(sys.argv[3]), sys.argv[4:]
+    subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(mount_point)], check=True)
+    out = mount_point / "run"
+    out.mkdir()
+    shutil.copy(reference / "generation.json", out)  # the episodes are done: only the Minari build is left
+    shutil.copytree(reference / "episodes", out / "episodes")
+    command = [sys.executable, "-m", "bimgame.cli.main", *argv, "--out", str(out)]
+    first = subprocess.run(command, capture_output=True, text=True)
+    leftovers = sorted(path.name for path in out.iterdir() if path.name not in ("episodes", "generation.json", ".lock"))
+    shutil.copytree(out, copy_to)  # the run as the full disk left it, to resume where there is room
+    print(json.dumps({"code": first.returncode, "error": first.stderr, "leftovers": leftovers}))
+""")
+
+
+def test_a_really_full_filesystem_during_the_minari_build(reference, tmp_path):
+    """The real thing: HDF5 writing onto a full filesystem (a 64 kB tmpfs, mounted in a private user
+    and mount namespace) used to end in a RuntimeError or a segmentation fault with hundreds of lines
+    of HDF5 errors."""
+    small = tmp_path / "small"
+    small.mkdir()
+    namespace = ["unshare", "--user", "--map-root-user", "--mount"]
+    if shutil.which("unshare") is None or subprocess.run(
+            [*namespace, "mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(small)],
+            capture_output=True).returncode != 0:
+        pytest.skip("cannot mount a small tmpfs here (needs user and mount namespaces)")
+    copy = tmp_path / "copy"
+    result = subprocess.run([*namespace, sys.executable, "-c", REALLY_FULL, str(small), str(reference), str(copy),
+                             *GENERATE_ARGV], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    report = json.loads(result.stdout.strip().splitlines()[-1])
+    assert report["code"] == 2, report["error"][-3000:]
+    hdf5 = small / "run" / "minari" / DATASET_ID / "data" / "main_data.hdf5"
+    assert report["error"].splitlines() == [
+        f"bimgame generate: error: no space left on device while writing {hdf5}; "
+        "rerun the same command to resume (3 of 3 episodes are saved)"], report["error"][-3000:]
+    assert report["leftovers"] == []  # no partial build, no marker
+    kept = sorted(copy.glob("episodes/episode_*.npz"))
+    assert len(kept) == 3 and all(
+        path.read_bytes() == (reference / "episodes" / path.name).read_bytes() for path in kept)
+    generate_dataset(copy, workers=1, **ARGS)  # resumed where there is room
+    assert_same_dataset(reference, copy)

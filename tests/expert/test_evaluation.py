@@ -4,12 +4,18 @@ length histogram (the paper's Fig. 1b) and the results file."""
 from __future__ import annotations
 
 import dataclasses
+import errno
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
 from PIL import Image
 
+import bimgame.cli.expert as cli_expert
+import bimgame.expert.evaluation as evaluation
+import bimgame.util.images as images
+from bimgame.cli.main import main
 from bimgame.expert.evaluation import EpisodeResult, evaluate_expert, plot_length_histogram, summarise, write_results
 from bimgame.expert.mpc import MPCConfig, episode_seed, run_expert_episode
 
@@ -157,3 +163,35 @@ def test_results_json_holds_the_settings_summary_and_every_episode(tmp_path, two
     write_results(fewer, summarise(fewer), dataclasses.replace(CHEAP, horizon=9), "STG1", path)
     payload = json.loads(path.read_text())
     assert len(payload["episodes"]) == 1 and payload["config"]["horizon"] == 9
+
+
+# ------------------------------------------------------------------------ the command line's files
+EVAL_ARGV = ["expert-eval", "--task", "STG1", "--episodes", "1", "--workers", "1", "-K", "4", "-H", "8",
+             "--max-steps", "20"]
+
+
+@pytest.mark.parametrize("name", ["results.json", "lengths.png"])
+def test_a_full_disk_while_saving_the_results_names_the_file(tmp_path, monkeypatch, capsys, name):
+    real = evaluation.atomic_write_bytes
+
+    def full_disk(path, payload):
+        if Path(path).name == name:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real(path, payload)
+    monkeypatch.setattr(evaluation, "atomic_write_bytes", full_disk)
+    monkeypatch.setattr(images, "atomic_write_bytes", full_disk)
+    out = tmp_path / "out"
+    assert main([*EVAL_ARGV, "--out", str(out)]) == 2
+    error = capsys.readouterr().err
+    assert f"bimgame expert-eval: error: no space left on device while writing {out / name}" in error
+    assert "Traceback" not in error and "Errno" not in error
+    assert not list(out.glob(".*.tmp"))
+
+
+def test_an_out_directory_that_cannot_be_made_fails_before_any_episode(tmp_path, monkeypatch, capsys):
+    blocker = tmp_path / "a-file"
+    blocker.write_text("x")
+    monkeypatch.setattr(cli_expert, "evaluate_expert", lambda *args, **kwargs: pytest.fail("episodes were run"))
+    assert main([*EVAL_ARGV, "--out", str(blocker / "out")]) == 2
+    error = capsys.readouterr().err
+    assert error.startswith("bimgame expert-eval: error: ") and str(blocker) in error

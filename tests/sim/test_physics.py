@@ -637,3 +637,39 @@ def test_board_frame_norm_and_velocity_while_tilting(merl):
     p1, v1 = sim.layout.board_frame(states[17])
     np.testing.assert_array_equal(p1, p[17])
     np.testing.assert_array_equal(v1, v[17])
+
+
+# --------------------------------------------------------------------------------------- bad input
+def test_reset_says_whether_positions_or_tilt_are_malformed_or_not_finite(merl):
+    """These used to be reshaped silently ((2,) for one marble), fail inside numpy ("cannot
+    reshape"), or blame the physics state ("state must be a finite float vector")."""
+    sim = MazeSim(merl)
+    with pytest.raises(ValueError, match=r"marble_xy must have shape \(1, 2\) .*got shape \(2,\)"):
+        sim.reset(np.zeros(2))
+    with pytest.raises(ValueError, match=r"marble_xy must have shape \(1, 2\) .*got shape \(2, 2\)"):
+        sim.reset(np.zeros((2, 2)))
+    with pytest.raises(ValueError, match=r"marble_xy is not finite at \(0, 0\)"):
+        sim.reset([[np.nan, 0.0]])
+    with pytest.raises(ValueError, match=r"tilt is not finite at \(0,\)"):
+        sim.reset([[0.0, 0.0]], tilt=(np.nan, 0.0))
+    with pytest.raises(ValueError, match=r"tilt must have shape \(2,\)"):
+        sim.reset([[0.0, 0.0]], tilt=(0.01,))
+
+
+def test_nan_tilt_changes_are_refused_instead_of_resetting_the_state(merl):
+    """MuJoCo answers a NaN control with a warning and a reset of the whole state (the marble
+    jumps to the origin); step() and rollout() refuse it instead."""
+    sim = MazeSim(merl)
+    sim.reset([[merl.channel_centre_radius(4), 0.0]])
+    before = sim.get_state()
+    with pytest.raises(ValueError, match="tilt_delta must be finite"):
+        sim.step((np.nan, 0.0))
+    np.testing.assert_array_equal(sim.get_state(), before)
+    with pytest.raises(ValueError, match="states and tilt_deltas must be finite"):
+        sim.rollout(before, np.array([[0.0, np.nan]]))
+    bad = before.copy()
+    bad[sim.layout.marble_vel[0][0]] = np.inf
+    with pytest.raises(ValueError, match="states and tilt_deltas must be finite"):
+        sim.rollout(bad, np.zeros((1, 2)))
+    sim.step((np.inf, 0.0))  # an infinite change is only clamped at max_tilt
+    np.testing.assert_allclose(sim.target_tilt, [merl.max_tilt, 0.0])

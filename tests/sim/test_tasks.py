@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from bimgame.sim.maze import MazeSpec
-from bimgame.sim.tasks import Task, TaskState, parse_task, task_step, task_step_one
+from bimgame.sim.tasks import Task, TaskState, initial_task_state, parse_task, task_step, task_step_one
 
 SPEC = MazeSpec.merl()
 
@@ -75,3 +75,19 @@ def test_parse_task_errors():
     small = MazeSpec(walls=SPEC.walls[:1], rim_radius=0.04)
     with pytest.raises(ValueError, match="STG2 needs a maze with at least 2 walls"):
         parse_task("STG2", small)
+
+
+@pytest.mark.parametrize("task", list(Task))
+def test_a_marble_starting_at_its_goal_earns_nothing(task):
+    """A marble placed past the task's goal counts as arrived: no step pays for it (STGk used to pay
+    +1 at the first step, for no action)."""
+    goal = task.goal_channel(SPEC)
+    xy = np.array([[[SPEC.channel_centre_radius(goal), 0.0], [SPEC.channel_centre_radius(4), 0.0]]])
+    state = initial_task_state(SPEC, xy, task)
+    assert state.reached.tolist() == [[True, False]]
+    after, reward, terminated, _ = task_step(task, SPEC, state, xy)
+    assert reward[0] == 0.0 and not terminated[0]
+    channels, reached = state.channel[0].tolist(), state.reached[0].tolist()
+    assert task_step_one(task, SPEC, channels, reached, [float(np.hypot(*p)) for p in xy[0]]) == (0.0, False, [0, 0])
+    # Without the task nobody has arrived (the old behaviour, kept for callers that do not pass it).
+    assert not initial_task_state(SPEC, xy).reached.any()

@@ -16,6 +16,7 @@ from bimgame.cli.flags import add_settings_flags
 from bimgame.expert.datasets import BACKENDS, MINARI_DIR, dataset_summary, generate_dataset
 from bimgame.expert.evaluation import evaluate_expert, plot_length_histogram, summarise, write_results
 from bimgame.expert.mpc import MPCConfig
+from bimgame.expert.pool import DiskFullError
 
 #: The expert's settings with a flag (the hold lengths and threads keep their defaults).
 MPC_FLAGS = ("n_samples", "horizon", "sampling", "reward")
@@ -100,6 +101,8 @@ def run_expert_eval(args: argparse.Namespace) -> int:
     """``bimgame expert-eval``: run the expert, print a summary table, optionally write the results
     and the length histogram."""
     config = mpc_config_from(args)
+    if args.out is not None:
+        args.out.mkdir(parents=True, exist_ok=True)  # an unusable --out fails now, not after the episodes
     start = time.perf_counter()
     results = evaluate_expert(args.task, args.episodes, config, seed=args.seed, workers=args.workers,
                               max_steps=args.max_steps)
@@ -116,9 +119,14 @@ def run_expert_eval(args: argparse.Namespace) -> int:
     console = Console()
     console.print(table)
     if args.out is not None:
-        write_results(results, summary, config, args.task, args.out / "results.json")
-        png = plot_length_histogram(results, args.out / "lengths.png",
-                                    title=f"MPC expert, {args.task}, K={config.n_samples}, H={config.horizon}")
+        try:
+            write_results(results, summary, config, args.task, args.out / "results.json")
+            png = plot_length_histogram(results, args.out / "lengths.png",
+                                        title=f"MPC expert, {args.task}, K={config.n_samples}, H={config.horizon}")
+        except DiskFullError as error:
+            saved = "results.json was saved, the histogram not" if error.path.name == "lengths.png" else \
+                "nothing was saved"
+            raise error.with_advice(f"{saved}; free some space and rerun the same command") from error
         console.print(f"wrote {args.out / 'results.json'} and {png}")
     return 0
 

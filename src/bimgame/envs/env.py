@@ -6,6 +6,7 @@ See :class:`BallInMazeEnv` for the full description (Gymnasium's documentation l
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from typing import Any
 
 import gymnasium as gym
@@ -14,8 +15,9 @@ import numpy as np
 from gymnasium import spaces
 
 from bimgame.envs.observe import OBS_MODES, Observer
-from bimgame.sim.maze import MazeSpec
+from bimgame.sim.maze import MazeSpec, MazeSpecError
 from bimgame.sim.physics import MazeSim
+from bimgame.sim.placement import check_marble_xy, check_n_marbles, finite_array, sample_start
 from bimgame.sim.tasks import MAX_EPISODE_STEPS, Task, initial_task_state, parse_task, task_step_one
 
 __all__ = ["BallInMazeEnv", "ACTION_TYPES", "DISCRETE_TILTS", "NO_ACTION", "sample_start",
@@ -33,6 +35,8 @@ ACTION_MEANINGS = ("noop", "tilt +x", "tilt -x", "tilt +y", "tilt -y")
 NO_ACTION = -1
 ACTIONS_HELP = ", ".join(f"{i}={m}" for i, m in enumerate(ACTION_MEANINGS))
 _FAST_INTS = (int, np.int64, np.int32)
+#: Largest ``render_size``: the raster draws up to this size; MuJoCo's offscreen buffer is 640 pixels.
+MAX_RENDER_SIZE = {"raster": 2048, "mujoco": 640}
 
 
 def action_to_tilt_delta(action: Any, action_type: str, tilt_step: float) -> np.ndarray:
@@ -51,20 +55,6 @@ def action_to_tilt_delta(action: Any, action_type: str, tilt_step: float) -> np.
         raise ValueError(f"invalid action {action!r}: continuous actions are 2 finite numbers in "
                          "[-1, 1] (tilt change about x and y, in units of the tilt step)")
     return array * tilt_step
-
-
-def sample_start(spec: MazeSpec, n_marbles: int, rng: np.random.Generator) -> np.ndarray:
-    """Random board-frame start positions (n_marbles, 2) on the outermost channel's centre circle,
-    at least two marble diameters apart."""
-    radius = spec.channel_centre_radius(spec.outermost_channel)
-    min_separation = 2 * (2 * spec.marble_radius) / radius
-    angles: list[float] = []
-    while len(angles) < n_marbles:
-        candidate = float(rng.uniform(-math.pi, math.pi))
-        if all(abs((candidate - a + math.pi) % (2 * math.pi) - math.pi) > min_separation for a in angles):
-            angles.append(candidate)
-    angles_arr = np.array(angles)
-    return np.stack([radius * np.cos(angles_arr), radius * np.sin(angles_arr)], axis=-1)
 
 
 class BallInMazeEnv(gym.Env):
@@ -103,14 +93,22 @@ class BallInMazeEnv(gym.Env):
     ## Starting State
 
     Board flat; each marble at rest at a uniformly random angle on the centre circle of the
-    outermost channel (marbles at least two diameters apart). ``reset(options={"marble_xy": ...})``
-    places them explicitly (board-frame metres, shape (n, 2)).
+    outermost channel (marbles at least two diameters apart; ``n_marbles`` beyond what fits there
+    is refused at construction). ``reset(options={"marble_xy": ...})`` places them explicitly
+    (board-frame metres, shape (n, 2)); a marble overlapping a wall's solid part, the rim or
+    another marble is refused (``ValueError`` naming the wall or the marbles). A marble placed at
+    its goal already (FULL: the centre; STGk: past the k-th wall) earns nothing for it; if every
+    marble is, the first step ends the episode with reward 0.
 
     ## Episode End
 
     Termination: FULL — the marble reaches the centre; STGk — it passes the k-th wall (with several
     marbles: when all have). Truncation is left to ``TimeLimit`` (registered ids use
     ``MAX_EPISODE_STEPS``: STG1 300, STG2 500, STG3 750, STG4 1000, FULL 1000).
+    ``step()`` after a termination (or before the first ``reset()``) raises ``RuntimeError``: call
+    ``reset()``. Truncation happens in the ``TimeLimit`` wrapper, which this env does not see: the
+    unwrapped env stepped past a time limit simply continues the episode (and ``TimeLimit`` keeps
+    reporting ``truncated=True``).
 
     ## Info
 
@@ -121,10 +119,13 @@ class BallInMazeEnv(gym.Env):
     ## Arguments
 
     ``task`` (FULL, STG1…STG4), ``obs_mode`` (pixels, state), ``action_type`` (discrete,
-    continuous), ``tilt_step_deg``, ``max_tilt_deg``, ``maze`` (a :class:`MazeSpec`, default
-    MERL's), ``n_marbles``, ``obs_size`` (pixels, default 84), ``render_mode`` (None or
-    "rgb_array"), ``render_size`` (default 480), ``renderer`` ("raster" — numpy, always available —
-    or "mujoco" — MuJoCo's 3D OpenGL renderer).
+    continuous), ``tilt_step_deg``, ``max_tilt_deg``, ``maze`` (a :class:`MazeSpec` with at
+    least one wall, default MERL's), ``n_marbles`` (1 up to what fits on the outermost channel's
+    centre circle two diameters apart: 22 on MERL's maze), ``obs_size`` (pixels, 16..1024, default
+    84), ``render_mode`` (None or "rgb_array"), ``render_size`` (16..2048, at most 640 with
+    ``renderer="mujoco"``; default 480), ``renderer`` ("raster" — numpy, always available — or
+    "mujoco" — MuJoCo's 3D OpenGL renderer). Each is checked at construction (``ValueError``
+    naming it and what is allowed).
 
     ## Version History
 
@@ -146,7 +147,11 @@ class BallInMazeEnv(gym.Env):
             changes["tilt_step"] = math.radians(_positive("tilt_step_deg", tilt_step_deg))
         if max_tilt_deg is not None:
             changes["max_tilt"] = math.radians(_positive("max_tilt_deg", max_tilt_deg))
-        self.maze = spec.replace(**changes) if changes else spec
+        try:
+            self.maze = spec.replace(**changes) if changes else spec
+        except MazeSpecError as error:  # it names the fields in radians: say where they came from
+            raise MazeSpecError(f"{error} (from tilt_step_deg={tilt_step_deg!r}, max_tilt_deg="
+                                f"{max_tilt_deg!r}, in degrees)") from None
         self.task = parse_task(task, self.maze)
         if obs_mode not in OBS_MODES:
             raise ValueError(f"unknown obs_mode {obs_mode!r}; allowed: {', '.join(OBS_MODES)}")
@@ -156,8 +161,15 @@ class BallInMazeEnv(gym.Env):
             raise ValueError(f"unknown render_mode {render_mode!r}; allowed: None, 'rgb_array'")
         if renderer not in ("raster", "mujoco"):
             raise ValueError(f"unknown renderer {renderer!r}; allowed: 'raster', 'mujoco'")
-        if not (isinstance(n_marbles, (int, np.integer)) and n_marbles >= 1):
-            raise ValueError(f"n_marbles must be an integer >= 1, got {n_marbles!r}")
+        if not self.maze.walls:
+            raise ValueError("maze has no walls: the whole board would be the goal region (channel 0) "
+                             "and random starts (on the outermost channel) would not exist; give it a wall")
+        n_marbles = check_n_marbles(self.maze, n_marbles)
+        limit = MAX_RENDER_SIZE[renderer]
+        if isinstance(render_size, (bool, np.bool_)) or not (
+                isinstance(render_size, (int, np.integer)) and 16 <= render_size <= limit):
+            raise ValueError(f"render_size must be an integer in 16..{limit} (renderer={renderer!r}), "
+                             f"got {render_size!r}")
         self._init_kwargs = dict(task=self.task.value, obs_mode=obs_mode, action_type=action_type,
                                  maze=self.maze, n_marbles=int(n_marbles), obs_size=obs_size,
                                  render_mode=render_mode, render_size=render_size, renderer=renderer)
@@ -178,37 +190,42 @@ class BallInMazeEnv(gym.Env):
         self._channels: list[int] = [self.maze.outermost_channel] * self.n_marbles
         self._reached: list[bool] = [False] * self.n_marbles
         self._has_reset = False
+        self._episode_over = True  # until reset(): step() refuses to run (one bool check per step)
         self._discrete_deltas = [tuple(float(v) for v in row * self.maze.tilt_step) for row in DISCRETE_TILTS]
         self._mujoco_renderer = None
 
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        # Until this reset succeeds, step() refuses: a refused reset does not leave the previous
+        # episode running.
+        self._has_reset, self._episode_over = False, True
         super().reset(seed=seed)
-        options = options or {}
+        options = {} if options is None else options
+        if not isinstance(options, Mapping):
+            raise ValueError(f"reset options must be a dict (allowed key: 'marble_xy'), got {options!r}")
         unknown = set(options) - {"marble_xy"}
         if unknown:
             raise ValueError(f"unknown reset options {sorted(unknown)}; allowed: 'marble_xy'")
         if "marble_xy" in options:
-            xy = np.asarray(options["marble_xy"], dtype=float)
-            if xy.shape != (self.n_marbles, 2) or not np.all(np.isfinite(xy)):
-                raise ValueError(f"options['marble_xy'] must be finite with shape ({self.n_marbles}, 2), "
-                                 f"got {xy.shape}")
-            limit = self.maze.rim_radius - self.maze.marble_radius
-            if np.any(np.hypot(xy[:, 0], xy[:, 1]) > limit):
-                raise ValueError(f"options['marble_xy'] must lie within {limit:.4f} m of the centre")
+            xy = finite_array("options['marble_xy']", options["marble_xy"], (self.n_marbles, 2),
+                              f" (x, y in metres, board frame, for each of the {self.n_marbles} marble(s))")
+            check_marble_xy(self.maze, xy, "options['marble_xy']")
         else:
             xy = sample_start(self.maze, self.n_marbles, self.np_random)
         self.sim.reset(xy)
-        start = initial_task_state(self.maze, xy[None])
+        start = initial_task_state(self.maze, xy[None], self.task)
         self._channels = start.channel[0].tolist()
         self._reached = start.reached[0].tolist()
         self._has_reset = True
+        self._episode_over = False
         kinematics = self.sim.layout.board_frame_one(self.sim.data.qpos, self.sim.data.qvel)
         return self._observe(kinematics), self._info(kinematics, [0] * self.n_marbles, False)
 
     def step(self, action):
-        if not self._has_reset:
-            raise RuntimeError("call reset() before step()")
+        if self._episode_over:
+            if not self._has_reset:
+                raise RuntimeError("call reset() before step()")
+            raise RuntimeError("the episode has ended (terminated); call reset() before step()")
         if type(action) in _FAST_INTS and 0 <= action < 5 and self.action_type == "discrete":
             delta = self._discrete_deltas[action]  # the common case, validated cheaply
         else:
@@ -219,6 +236,7 @@ class BallInMazeEnv(gym.Env):
         reward, terminated, crossings = task_step_one(
             self.task, self.maze, self._channels, self._reached,
             [math.hypot(k[0], k[1]) for k in kinematics])
+        self._episode_over = terminated
         return (self._observe(kinematics), reward, terminated, False,
                 self._info(kinematics, crossings, terminated))
 
@@ -277,14 +295,15 @@ class BallInMazeEnv(gym.Env):
         return {
             "kwargs": self._init_kwargs,
             "sim_state": self.sim.get_state(),
-            "task": (list(self._channels), list(self._reached), self._has_reset),
+            "task": (list(self._channels), list(self._reached), self._has_reset, self._episode_over),
             "np_random": None if self._np_random is None else self._np_random.bit_generator.state,
         }
 
     def __setstate__(self, state: dict) -> None:
         self.__init__(**state["kwargs"])
         self.sim.set_state(state["sim_state"])
-        self._channels, self._reached, self._has_reset = state["task"]
+        self._channels, self._reached, self._has_reset, *over = state["task"]
+        self._episode_over = over[0] if over else not self._has_reset  # pickles from before the flag
         if state["np_random"] is not None:
             rng = np.random.Generator(np.random.PCG64())
             rng.bit_generator.state = state["np_random"]
@@ -292,7 +311,8 @@ class BallInMazeEnv(gym.Env):
 
 
 def _positive(name: str, value: float) -> float:
-    if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+    real = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
+    if not (real and math.isfinite(value) and value > 0):
         raise ValueError(f"{name} must be a positive number, got {value!r}")
     return float(value)
 

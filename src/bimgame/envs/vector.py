@@ -23,7 +23,8 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
-from bimgame.envs.env import ACTIONS_HELP, DISCRETE_TILTS, BallInMazeEnv, sample_start
+from bimgame.envs.env import ACTIONS_HELP, DISCRETE_TILTS, BallInMazeEnv
+from bimgame.sim.placement import sample_start
 from bimgame.sim.tasks import TaskState, initial_task_state, task_step
 
 __all__ = ["BallInMazeVectorEnv"]
@@ -46,10 +47,9 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
 
     def __init__(self, num_envs: int, *, max_episode_steps: int | None = None, nthread: int | None = None,
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP, **env_kwargs: Any):
-        if not (isinstance(num_envs, (int, np.integer)) and num_envs >= 1):
+        if not (_is_int(num_envs) and num_envs >= 1):
             raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
-        if max_episode_steps is not None and not (isinstance(max_episode_steps, (int, np.integer))
-                                                  and max_episode_steps >= 1):
+        if max_episode_steps is not None and not (_is_int(max_episode_steps) and max_episode_steps >= 1):
             raise ValueError(f"max_episode_steps must be a positive integer or None, got {max_episode_steps!r}")
         modes = {m.name.lower(): m for m in (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP)}
         modes.update({m.value: m for m in list(modes.values())})
@@ -60,7 +60,7 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
         self.metadata = {**self.metadata, "autoreset_mode": self.autoreset_mode}
         if nthread is None:
             nthread = 1 if num_envs < 32 else max(1, min(2, os.cpu_count() or 1))
-        if not (isinstance(nthread, (int, np.integer)) and nthread >= 1):
+        if not (_is_int(nthread) and nthread >= 1):
             raise ValueError(f"nthread must be an integer >= 1, got {nthread!r}")
         # One template env validates the arguments and owns the model, observer and spaces.
         self.template = BallInMazeEnv(**env_kwargs)
@@ -95,7 +95,8 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
             if len(seeds) != self.num_envs:
                 raise ValueError(f"seed list must have {self.num_envs} entries, got {len(seeds)}")
         if options:
-            raise ValueError(f"BallInMazeVectorEnv.reset takes no options, got {sorted(options)}")
+            shown = sorted(options) if isinstance(options, dict) else repr(options)
+            raise ValueError(f"BallInMazeVectorEnv.reset takes no options (starts are random), got {shown}")
         if not self._rngs:
             self._rngs = [seeding.np_random(s)[0] for s in seeds]
         else:
@@ -190,7 +191,7 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
             xy = sample_start(self.maze, n, self._rngs[i])
             self.sim.reset(xy)
             self._states[i] = self.sim.get_state()
-            start = initial_task_state(self.maze, xy[None])
+            start = initial_task_state(self.maze, xy[None], self.task)
             self._task_state.channel[i] = start.channel[0]
             self._task_state.reached[i] = start.reached[0]
             self._elapsed[i] = 0
@@ -213,3 +214,7 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
             infos[f"_{key}"] = every_env
         return obs, infos
 
+
+def _is_int(value: Any) -> bool:
+    """An integer, not a bool (``True`` is an ``int`` to Python, not a count to a user)."""
+    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))

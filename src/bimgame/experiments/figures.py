@@ -1,7 +1,8 @@
 """The report's figures, drawn from the runs' saved logs: the learning curves of each task (the
 paper's Fig. 2) and the lengths of the expert's dataset episodes (Fig. 1b).
 
-Curves are training episodes binned by the step they *started* at, the task's own reward (also for
+Curves are training episodes binned by the step they *started* at, up to where the log holds all
+of them (:attr:`bimgame.experiments.results.RunResults.until`), the task's own reward (also for
 shaped runs), the mean over seeds with a bootstrap band (:mod:`bimgame.experiments.statistics`).
 DAgger has no training episodes of its own policy: its line is its greedy evaluation after each
 iteration, against the environment steps it had used by then. Figures are drawn without pyplot
@@ -44,7 +45,7 @@ def plot_curves(task: str, runs: dict[str, list[RunResults]], edges: np.ndarray,
             _plot_dagger(ax_return, ax_success, task, group, colour, label, resamples=resamples, rng=rng)
             continue
         for axis, key in ((ax_return, "return"), (ax_success, "success")):
-            curves = np.array([binned_means(r.episodes["start_step"], r.episodes[key], edges)[0]
+            curves = np.array([binned_means(r.episodes["start_step"], r.episodes[key], edges, until=r.until)[0]
                                if r.episodes else np.full(len(centres), np.nan) for r in group])
             mean, low, high = bootstrap_mean_band(curves, resamples=resamples, rng=rng)
             axis.plot(centres, mean, color=colour, label=label)

@@ -68,7 +68,7 @@ def tables_markdown(numbers: dict[str, Any], budget: Budget) -> str:
                          f"the expert's {entry['expert_success']:.0%} on {task}. A3C runs: training episodes by start "
                          f"step in bins of {_steps_text(entry['curve_bin_steps'])} steps (at least "
                          f"{entry['min_episodes_per_bin']} episodes); DAgger: greedy evaluation per iteration. "
-                         f"\"> N\": not reached by its last step N (censored).")
+                         f"\"> N\": not reached by step N, up to which all its training episodes had ended (censored).")
             lines.append("")
         seeds = [a["seeds_finished"] for a in entry["algorithms"].values() if a["seeds_finished"]]
         if seeds and min(seeds) < 5:
@@ -279,11 +279,14 @@ def report_markdown(numbers: dict[str, Any], tables: str, budget: Budget, pieces
 
 _METHODS = (
     "Curves: training episodes binned by the step they started at, the task's own reward (also for shaped runs), "
+    "up to one episode's time limit (in all environments' steps) before the last logged episode ended: later "
+    "bins would hold only the episodes that had already ended, the short and successful ones; "
     "mean over seeds with a 95% percentile bootstrap band over seeds. DAgger: greedy evaluation after each "
     "iteration against the environment steps used so far (expert planning is counted separately in its dagger.csv). "
     "Threshold: a fraction of the expert's success rate on the task (its dataset episodes relabelled for the task). "
     "Steps to threshold: the right edge of the first bin whose training episodes reach the threshold (DAgger: the "
-    "first evaluation that does). Runs that never reach it are censored at their last step; speed-ups with censored "
+    "first evaluation that does). Runs that never reach it are censored at their last complete bin; speed-ups with censored "
     "runs are bounds (≥ when A3C was censored, ≤ when the compared algorithm was). Speed-up: ratio of mean steps, "
     "95% interval from a stratified bootstrap over seeds (each algorithm's seeds resampled on their own). Final "
-    "success: training episodes that started in the last 10% of a run's steps; greedy: the run's final evaluation.")
+    "success: training episodes that started in the last 10% of a run's steps before that cut; greedy: the run's final "
+    "evaluation.")

@@ -104,7 +104,7 @@ def build_report(out_dir: str | Path, *, threshold_fraction: float | None = None
                 elif algorithm == "dagger":
                     crossing = dagger_crossing(run.table, threshold)
                 else:
-                    crossing = run_crossing(run.episodes, edges, threshold)
+                    crossing = run_crossing(run.episodes, edges, threshold, until=run.until)
                 if crossing is not None:
                     crossings.setdefault(algorithm, []).append(crossing)
                 rows.append({"seed": run.seed, "dir": str(run.path.relative_to(out_dir)),

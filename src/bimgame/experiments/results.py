@@ -1,7 +1,11 @@
 """The saved results of a reproduction, read back for the report: which pieces are finished, the
-logs of each A3C and DAgger run (``episodes.csv``, ``eval.csv``, ``summary.json``; ``dagger.csv``,
-``dagger_state.json``), their final success rates, and the expert's success rate per task from its
-dataset. Reading only: nothing here computes a statistic over seeds or writes a file.
+logs of each A3C and DAgger run (``episodes.csv``, ``eval.csv``, ``summary.json``, ``config.json``;
+``dagger.csv``, ``dagger_state.json``), their final success rates, and the expert's success rate per
+task from its dataset. Reading only: nothing here computes a statistic over seeds or writes a file.
+
+An A3C run's training episodes count only where every episode that started has ended and is in its
+log (:attr:`RunResults.until`, see :mod:`bimgame.learn.curves`): the log's last stretch holds the
+short, successful episodes that started there but not the long ones still running when it stopped.
 """
 
 from __future__ import annotations
@@ -17,7 +21,7 @@ from bimgame.experiments.grid import Piece
 from bimgame.experiments.plan import piece_done
 from bimgame.expert.datasets import iterate_sequences
 from bimgame.expert.episode import Episode, relabel
-from bimgame.learn.curves import read_table
+from bimgame.learn.curves import complete_until, episode_span, finished_at, read_table, run_config
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.tasks import MAX_EPISODE_STEPS, parse_task
 from bimgame.util.files import read_json
@@ -39,6 +43,20 @@ class RunResults:
     table: dict[str, np.ndarray]
     """eval.csv (A3C) or dagger.csv (DAgger)."""
     summary: dict[str, Any] | None
+    config: dict[str, Any] = dataclasses.field(default_factory=dict)
+    """config.json (A3C; {} when there is none)."""
+
+    @property
+    def span(self) -> float:
+        """The most environment steps one training episode can take from its start to its logged end
+        (:func:`bimgame.learn.curves.episode_span`)."""
+        return episode_span(self.episodes, self.config)
+
+    @property
+    def until(self) -> float:
+        """Every training episode that started before this step has ended and is in the log
+        (:func:`bimgame.learn.curves.complete_until`)."""
+        return complete_until(self.episodes, self.span, finished_at=finished_at(self.summary))
 
 
 def finished_pieces(pieces: list[Piece], out_dir: Path, budget: Budget) -> dict[str, Piece]:
@@ -58,16 +76,19 @@ def collect_runs(pieces: dict[str, Piece], out_dir: Path, task: str, algorithm: 
                                    read_json(path / "dagger_state.json")))
         else:
             runs.append(RunResults(piece.seed, path, read_table(path / "episodes.csv"),
-                                   read_table(path / "eval.csv"), read_json(path / "summary.json")))
+                                   read_table(path / "eval.csv"), read_json(path / "summary.json"), run_config(path)))
     return sorted(runs, key=lambda r: r.seed)
 
 
 def final_training_success(run: RunResults, steps: int) -> float:
     """Success rate of the training episodes that started in the last :data:`FINAL_SHARE` of a run's
-    ``steps`` (NaN when there are none)."""
+    ``steps`` before :attr:`RunResults.until` — the latest stretch of that length whose episodes
+    have all ended — (NaN when there are none)."""
     if not run.episodes:
         return float("nan")
-    late = run.episodes["start_step"] >= (1.0 - FINAL_SHARE) * steps
+    end = min(run.until, float(steps))
+    start = run.episodes["start_step"]
+    late = (start >= end - FINAL_SHARE * steps) & (start < end)
     return float(np.mean(run.episodes["success"][late])) if late.any() else float("nan")
 
 

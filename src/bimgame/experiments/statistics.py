@@ -4,18 +4,22 @@ bootstrap intervals over seeds.
 **Steps to threshold.** An A3C run's steps-to-threshold is the right edge of the first bin (of
 :data:`CURVE_BINS` equal bins over the run's planned steps) in which the training episodes that
 *started* there succeed at least as often as the threshold, counting only bins with at least
-:data:`MIN_EPISODES` episodes (fewer are too noisy to call a crossing). Training episodes, not the
-periodic evaluations, because they give a point every few thousand steps instead of every 100k;
-binned by start step, because counting by the end step favours short, successful episodes early
-on. DAgger's is the environment steps after the first iteration whose greedy evaluation reaches
-the threshold. (The threshold itself, a fraction of the expert's success rate, is chosen by
+:data:`MIN_EPISODES` episodes (fewer are too noisy to call a crossing), and only bins all of whose
+episodes have ended and are in the log (:func:`bimgame.learn.curves.complete_until`: of the episodes
+that started later, the short, successful ones are logged but the long ones were still running when
+the run stopped, so those bins look better than they were). Training episodes, not the periodic
+evaluations, because they give a point every few thousand steps instead of every 100k; binned by
+start step, because counting by the end step favours short, successful episodes early on. DAgger's
+is the environment steps after the first iteration whose greedy evaluation reaches the threshold.
+(The threshold itself, a fraction of the expert's success rate, is chosen by
 :mod:`bimgame.experiments.report`.)
 
-**Censoring.** A run that never reaches the threshold is *censored*: it is counted at its last step,
-a lower bound on its true steps-to-threshold, and shown as "> N". Speed-ups computed with censored
-runs are therefore bounds: censored baseline (A3C) runs make the speed-up a lower bound ("≥"),
-censored runs of the compared algorithm make it an upper bound ("≤"); with both, no direction is
-known and no number is given. An algorithm no seed of which reached the threshold is "not reached".
+**Censoring.** A run that never reaches the threshold is *censored*: it is counted at the last step
+it was observed at — the right edge of its last complete bin, about one time limit (in all its
+environments' steps) before its end — a lower bound on its true steps-to-threshold, and shown as
+"> N". Speed-ups computed with censored runs are therefore bounds: censored baseline (A3C) runs make
+the speed-up a lower bound ("≥"), censored runs of the compared algorithm make it an upper bound
+("≤"); with both, no direction is known and no number is given. An algorithm no seed of which reached the threshold is "not reached".
 
 **Bootstrap.** Speed-up = mean steps-to-threshold of A3C's seeds / mean of the algorithm's seeds.
 Its 95% interval is a stratified percentile bootstrap: each algorithm's seeds are resampled with
@@ -35,7 +39,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from bimgame.learn.curves import binned_means
+from bimgame.learn.curves import binned_means, complete_until, episode_span
 
 __all__ = ["DEFAULT_RESAMPLES", "CURVE_BINS", "MIN_EPISODES", "CONFIDENCE", "Crossing", "stratified_bootstrap",
            "percentile_interval", "bootstrap_mean_band", "first_crossing", "run_crossing", "dagger_crossing",
@@ -110,13 +114,21 @@ class Crossing:
 
 
 def run_crossing(episodes: dict[str, np.ndarray], edges: np.ndarray, threshold: float, *,
-                 min_episodes: int = MIN_EPISODES) -> Crossing:
-    """Steps to threshold of an A3C run from its ``episodes.csv`` columns (see the module notes)."""
+                 min_episodes: int = MIN_EPISODES, until: float | None = None) -> Crossing:
+    """Steps to threshold of an A3C run from its ``episodes.csv`` columns (see the module notes),
+    counting the bins that end by ``until`` (:func:`bimgame.learn.curves.complete_until`; by default
+    from the longest episode in the log, :attr:`bimgame.experiments.results.RunResults.until` also
+    knows the run's settings)."""
     if not episodes or len(episodes.get("start_step", ())) == 0:
         return Crossing(float(edges[-1]), False)
-    means, _ = binned_means(episodes["start_step"], episodes["success"], edges, min_count=min_episodes)
+    if until is None:
+        until = complete_until(episodes, episode_span(episodes))
+    means, _ = binned_means(episodes["start_step"], episodes["success"], edges, min_count=min_episodes, until=until)
     crossing = first_crossing(edges[1:], means, threshold)
-    return Crossing(crossing, True) if crossing is not None else Crossing(float(edges[-1]), False)
+    if crossing is not None:
+        return Crossing(crossing, True)
+    observed = edges[edges <= until]  # the right edge of the last complete bin
+    return Crossing(float(observed[-1]) if len(observed) else float(edges[0]), False)
 
 
 def dagger_crossing(table: dict[str, np.ndarray], threshold: float) -> Crossing:

@@ -10,6 +10,11 @@ A generation run owns one directory, ``out_dir``::
       bimgame/<task>-expert-v0/data/{metadata.json, main_data.hdf5}
     COMPLETE                         written last: counts, a content hash and every file's SHA-256
 
+A full disk stops the run with :class:`~bimgame.expert.pool.DiskFullError` ("no space left on device
+while writing FILE; rerun the same command to resume"), losing no finished episode. The Minari
+(HDF5) file is written by a child process: HDF5 does not survive a failed write cleanly (errors
+from every object it frees, then often a segmentation fault), so only that process fails.
+
 Episode ``i`` is ``run_expert_episode(task, episode_seed(seed, i), config)``: it depends on the run
 seed and its index only, so the dataset is the same whatever the number of workers, the backend
 (local processes or Ray) or how often the run was interrupted and resumed.
@@ -25,14 +30,19 @@ is Minari's episode metadata ``seed``.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import errno
 import hashlib
 import io
 import json
 import multiprocessing
 import os
 import shutil
+import subprocess
+import sys
 import tempfile
+import traceback
 import warnings
 from collections.abc import Iterable, Iterator
 from pathlib import Path
@@ -47,7 +57,8 @@ from minari.data_collector import EpisodeBuffer
 import bimgame
 from bimgame.envs.observe import Observer
 from bimgame.expert.episode import Episode
-from bimgame.expert.pool import BACKENDS, MAIN_GUARD, environment, episode_progress, expert_episodes, import_ray
+from bimgame.expert.pool import (BACKENDS, MAIN_GUARD, DiskFullError, disk_full_errno, episode_progress,
+                                 exit_when_parent_dies, expert_episodes, import_ray, reporting_full_disk)
 from bimgame.expert.mpc import MPCConfig, episode_seed
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.physics import MazeSim
@@ -113,6 +124,10 @@ def generate_dataset(out_dir: str | Path, task: str = "FULL", episodes: int = 50
             locally with ``num_cpus=workers``. An already initialised Ray is used as is.
         progress: show a progress bar (episodes done, success so far, ETA) on stderr.
         max_steps: time limit per episode (default: the task's registered limit).
+
+    Raises:
+        DiskFullError: (an ``OSError``) the disk filled up; the message names the file. Every
+            episode saved before stays; run again with the same arguments once there is room.
     """
     if getattr(multiprocessing.current_process(), "_inheriting", False):
         raise RuntimeError(f"generate_dataset was called while a worker process was starting; {MAIN_GUARD}")
@@ -138,15 +153,23 @@ def generate_dataset(out_dir: str | Path, task: str = "FULL", episodes: int = 50
     config = dataclasses.replace(config, nthread=1)
     manifest = _manifest(task_enum, int(episodes), int(seed), config, max_steps)
 
+    with _full_disk_reported(out_dir, episodes):
+        _generate(out_dir, manifest, config, progress, workers, backend, ray_address)
+    return out_dir
+
+
+def _generate(out_dir: Path, manifest: dict, config: MPCConfig, progress: bool, workers: int, backend: str,
+              ray_address: str | None) -> None:
+    task, episodes, seed, max_steps = manifest["task"], manifest["episodes"], manifest["seed"], manifest["max_steps"]
     _prepare_out_dir(out_dir, manifest)
     with _locked(out_dir):
         marker_path = out_dir / MARKER_NAME
         if marker_path.exists():
             try:
                 _verify(out_dir, manifest, hashes=True)
-                return out_dir
+                return
             except DatasetError as error:  # repair: regenerate what is damaged, rebuild
-                warnings.warn(f"{out_dir}: {error}; repairing", stacklevel=2)
+                warnings.warn(f"{out_dir}: {error}; repairing", stacklevel=3)
                 marker_path.unlink()
         _remove_stale_temporaries(out_dir)
 
@@ -161,20 +184,40 @@ def generate_dataset(out_dir: str | Path, task: str = "FULL", episodes: int = 50
                     done_success.append(bool(_read_episode(path, index, episode_seed(seed, index))["success"]))
                     continue
                 except DatasetError as error:
-                    warnings.warn(f"{error}; generating episode {index} again", stacklevel=2)
+                    warnings.warn(f"{error}; generating episode {index} again", stacklevel=3)
             todo.append(index)
 
         if todo:
-            with episode_progress(progress, f"expert on {task_enum.value}", episodes,
+            with episode_progress(progress, f"expert on {task}", episodes,
                                   len(done_success), sum(done_success)) as update:
-                for index, episode, _ in expert_episodes(task_enum.value, todo, int(seed), config,
-                                                         max_steps=max_steps, workers=workers,
-                                                         backend=backend, ray_address=ray_address):
-                    atomic_write_bytes(_episode_path(out_dir, index), _episode_bytes(index, episode))
+                for index, episode, _ in expert_episodes(task, todo, seed, config, max_steps=max_steps,
+                                                         workers=workers, backend=backend,
+                                                         ray_address=ray_address):
+                    path = _episode_path(out_dir, index)
+                    with _full_disk_reported(out_dir, episodes, path):
+                        atomic_write_bytes(path, _episode_bytes(index, episode))
                     update(bool(episode["success"]))
 
         _build_minari(out_dir, manifest)
-    return out_dir
+
+
+@contextlib.contextmanager
+def _full_disk_reported(out_dir: Path, episodes: int, path: Path | None = None) -> Iterator[None]:
+    """A full disk within the block raises DiskFullError naming the file (``path``, else the one
+    the error names, else ``out_dir``), saying how to resume and how many episodes are saved."""
+    try:
+        yield
+    except (OSError, RuntimeError) as error:
+        code = disk_full_errno(error)
+        if code is None or (isinstance(error, DiskFullError) and error.advice):  # not full, or reported
+            raise
+        where = path or getattr(error, "path", None) or getattr(error, "filename", None) or out_dir
+        raise DiskFullError(where, _resume_advice(out_dir, episodes), code) from error
+
+
+def _resume_advice(out_dir: Path, episodes: int) -> str:
+    saved = sum(_episode_path(out_dir, i).exists() for i in range(episodes))
+    return f"rerun the same command to resume ({saved} of {episodes} episodes are saved)"
 
 
 def _manifest(task: Task, episodes: int, seed: int, config: MPCConfig, max_steps: int | None) -> dict:
@@ -219,7 +262,8 @@ def _prepare_out_dir(out_dir: Path, manifest: dict) -> None:
             raise FileExistsError(
                 f"out_dir {out_dir} is not empty and is not a bimgame generation run (no {MANIFEST_NAME}; "
                 f"found {len(found)} entries: {shown}); nothing was changed. Use a new or empty directory.")
-    atomic_write_bytes(manifest_path, (json.dumps(manifest, indent=2) + "\n").encode())
+    with reporting_full_disk(manifest_path):
+        atomic_write_bytes(manifest_path, (json.dumps(manifest, indent=2) + "\n").encode())
 
 
 def _is_own_temporary(name: str) -> bool:
@@ -291,48 +335,26 @@ def _read_episode(path: Path, index: int, expected_seed: int) -> dict[str, np.nd
 
 # ------------------------------------------------------------------------------ Minari building
 def _build_minari(out_dir: Path, manifest: dict) -> None:
-    """Build the Minari dataset from the episode files in a temporary datasets root, move it into
-    place, then write the COMPLETE marker (the last step)."""
+    """Build the Minari dataset from the episode files in a temporary datasets root (in a child
+    process), move it into place, then write the COMPLETE marker (the last step)."""
     episodes, seed = manifest["episodes"], manifest["seed"]
     content = hashlib.sha256()
     totals = {"steps": 0, "successes": 0}
+    for index in range(episodes):
+        data = _read_episode(_episode_path(out_dir, index), index, episode_seed(seed, index))
+        _hash_arrays(content, data)
+        totals["steps"] += len(data["actions"])
+        totals["successes"] += bool(data["success"])
 
-    def buffers(indices: Iterable[int]) -> list:
-        chunk = []
-        for index in indices:
-            data = _read_episode(_episode_path(out_dir, index), index, episode_seed(seed, index))
-            _hash_arrays(content, data)
-            totals["steps"] += len(data["actions"])
-            totals["successes"] += bool(data["success"])
-            chunk.append(EpisodeBuffer(
-                id=index, seed=int(data["seed"]), observations=data["observations"],
-                actions=data["actions"], rewards=data["rewards"], terminations=data["terminations"],
-                truncations=data["truncations"],
-                infos={"sim_state": data["sim_states"], "channel": data["channels"]}))
-        return chunk
-
-    kwargs: dict[str, Any] = {"obs_mode": "state"}
-    if manifest["max_steps"] is not None:
-        kwargs["max_episode_steps"] = manifest["max_steps"]
-    env = gym.make(manifest["env_id"], **kwargs)
-    env.spec.to_json()  # raises if the spec cannot be stored
     build_root = Path(tempfile.mkdtemp(prefix=_BUILD_PREFIX, dir=out_dir))
     try:
-        with environment(MINARI_DATASETS_PATH=str(build_root)), warnings.catch_warnings():
-            warnings.filterwarnings("ignore", message=r"`(code_permalink|author|author_email)` is set to None")
-            dataset = minari.create_dataset_from_buffers(
-                dataset_id=manifest["dataset_id"], buffer=buffers(range(min(_BUILD_CHUNK, episodes))),
-                env=env, eval_env=env.spec, algorithm_name=ALGORITHM_NAME,
-                description=_description(manifest), data_format="hdf5",
-                requirements=[f"bimgame=={manifest['bimgame_version']}"])
-            for start in range(_BUILD_CHUNK, episodes, _BUILD_CHUNK):
-                dataset.update_dataset_from_buffer(buffers(range(start, min(start + _BUILD_CHUNK, episodes))))
+        with reporting_full_disk(_data_path(out_dir, manifest["dataset_id"]) / "main_data.hdf5"):
+            _run_build_process(out_dir, manifest, build_root)
         final = out_dir / MINARI_DIR
         if final.exists():  # an earlier build of this run that never got its marker
             shutil.rmtree(final)
         os.replace(build_root, final)
     finally:
-        env.close()
         shutil.rmtree(build_root, ignore_errors=True)
 
     files = {}
@@ -349,7 +371,95 @@ def _build_minari(out_dir: Path, manifest: dict) -> None:
         "content_sha256": content.hexdigest(),
         "files": files,
     }
-    atomic_write_bytes(out_dir / MARKER_NAME, (json.dumps(marker, indent=1) + "\n").encode())
+    with reporting_full_disk(out_dir / MARKER_NAME):
+        atomic_write_bytes(out_dir / MARKER_NAME, (json.dumps(marker, indent=1) + "\n").encode())
+
+
+#: What the build process runs: the job comes on stdin as JSON (with this process's sys.path).
+_BUILD_SCRIPT = ("import json, sys\n"
+                 "job = json.load(sys.stdin)\n"
+                 "sys.path[:] = job['sys_path']\n"
+                 "from bimgame.expert.datasets import _build_process_main\n"
+                 "_build_process_main(job)\n")
+#: Lines of a failed build process's error output kept in the error raised here.
+_BUILD_ERROR_LINES = 30
+#: Exit statuses of the build process for a full disk and an exceeded quota: the errno itself.
+_DISK_FULL_EXITS = (errno.ENOSPC, errno.EDQUOT)
+
+
+def _run_build_process(out_dir: Path, manifest: dict, build_root: Path) -> None:
+    """Write the Minari dataset into ``build_root`` with a child process (:func:`_write_minari`).
+
+    HDF5 does not survive a failed write cleanly: after a full disk every object it frees prints
+    an error and the interpreter then often dies of a segmentation fault. In a child, that kills
+    only the child; its error output stays here (captured) and is read for the cause: a full disk
+    raises ``OSError(ENOSPC)``, anything else a RuntimeError with the output's last lines."""
+    job = {"sys_path": sys.path, "parent_pid": os.getpid(), "out_dir": str(out_dir), "manifest": manifest,
+           "build_root": str(build_root), "chunk": _BUILD_CHUNK}
+    result = subprocess.run([sys.executable, "-c", _BUILD_SCRIPT], input=json.dumps(job).encode(),
+                            capture_output=True, env={**os.environ, "MINARI_DATASETS_PATH": str(build_root)})
+    output = result.stderr.decode(errors="replace")
+    if result.returncode == 0:
+        sys.stderr.write(output)  # warnings, if any
+        return
+    code = result.returncode if result.returncode in _DISK_FULL_EXITS else disk_full_errno(output)
+    if code is not None:
+        raise OSError(code, os.strerror(code))
+    how = f"killed by signal {-result.returncode}" if result.returncode < 0 else f"exit status {result.returncode}"
+    tail = "\n".join(output.rstrip().splitlines()[-_BUILD_ERROR_LINES:])
+    raise RuntimeError(f"building the Minari dataset of {out_dir} failed ({how}):\n{tail}")
+
+
+def _build_process_main(job: dict) -> None:
+    """The build process: write the Minari dataset, or exit with the errno of a full disk (else 1
+    with the traceback on stderr) without the interpreter's cleanup, which HDF5 objects left by a
+    failed write can crash."""
+    exit_when_parent_dies(job["parent_pid"])
+    try:
+        _write_minari(Path(job["out_dir"]), job["manifest"], job["chunk"])
+    except BaseException as error:
+        code = disk_full_errno(error)
+        if code is None:
+            traceback.print_exc()
+            code = 1
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+
+
+def _write_minari(out_dir: Path, manifest: dict, chunk: int) -> None:
+    """Write the Minari dataset of the episode files in ``out_dir`` into the datasets root
+    ``MINARI_DATASETS_PATH`` (the build process runs this)."""
+    episodes, seed = manifest["episodes"], manifest["seed"]
+
+    def buffers(indices: Iterable[int]) -> list:
+        buffer = []
+        for index in indices:
+            data = _read_episode(_episode_path(out_dir, index), index, episode_seed(seed, index))
+            buffer.append(EpisodeBuffer(
+                id=index, seed=int(data["seed"]), observations=data["observations"],
+                actions=data["actions"], rewards=data["rewards"], terminations=data["terminations"],
+                truncations=data["truncations"],
+                infos={"sim_state": data["sim_states"], "channel": data["channels"]}))
+        return buffer
+
+    kwargs: dict[str, Any] = {"obs_mode": "state"}
+    if manifest["max_steps"] is not None:
+        kwargs["max_episode_steps"] = manifest["max_steps"]
+    env = gym.make(manifest["env_id"], **kwargs)
+    env.spec.to_json()  # raises if the spec cannot be stored
+    try:
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message=r"`(code_permalink|author|author_email)` is set to None")
+            dataset = minari.create_dataset_from_buffers(
+                dataset_id=manifest["dataset_id"], buffer=buffers(range(min(chunk, episodes))),
+                env=env, eval_env=env.spec, algorithm_name=ALGORITHM_NAME,
+                description=_description(manifest), data_format="hdf5",
+                requirements=[f"bimgame=={manifest['bimgame_version']}"])
+            for start in range(chunk, episodes, chunk):
+                dataset.update_dataset_from_buffer(buffers(range(start, min(start + chunk, episodes))))
+    finally:
+        env.close()
 
 
 def _description(manifest: dict) -> str:

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from bimgame.expert.pool import episode_progress, expert_episodes
+from bimgame.expert.pool import episode_progress, expert_episodes, reporting_full_disk
 from bimgame.expert.mpc import MPCConfig
 from bimgame.sim.tasks import parse_task
 from bimgame.util.files import atomic_write_bytes
@@ -69,7 +69,8 @@ def summarise(results: list[EpisodeResult]) -> dict[str, Any]:
 
 
 def plot_length_histogram(results: list[EpisodeResult], path: str | Path, *, title: str) -> Path:
-    """The paper's Fig. 1b: histogram of the lengths of successful expert trajectories (PNG)."""
+    """The paper's Fig. 1b: histogram of the lengths of successful expert trajectories (PNG,
+    written atomically; a full disk raises :class:`~bimgame.expert.pool.DiskFullError` naming it)."""
     solved = [r.length for r in results if r.success]
     failed = sum(not r.success for r in results)
     fig, ax = subplots(figsize=(6, 3.6))
@@ -82,11 +83,14 @@ def plot_length_histogram(results: list[EpisodeResult], path: str | Path, *, tit
     ax.set_ylabel("episodes")
     ax.set_title(f"{title}: {len(solved)} solved, {failed} not", fontsize=10)
     fig.tight_layout()
-    return save_png(fig, path, dpi=130)
+    with reporting_full_disk(path):
+        return save_png(fig, path, dpi=130)
 
 
 def write_results(results: list[EpisodeResult], summary: dict, config: MPCConfig, task: str, path: str | Path) -> Path:
-    """Per-episode results, summary and settings as JSON (atomically)."""
+    """Per-episode results, summary and settings as JSON (atomically; a full disk raises
+    :class:`~bimgame.expert.pool.DiskFullError` naming the file)."""
     payload = {"task": task, "config": dataclasses.asdict(config), "summary": summary,
                "episodes": [dataclasses.asdict(r) for r in results]}
-    return atomic_write_bytes(path, json.dumps(payload, indent=1).encode())
+    with reporting_full_disk(path):
+        return atomic_write_bytes(path, json.dumps(payload, indent=1).encode())

@@ -36,6 +36,7 @@ import numpy as np
 from mujoco import rollout as mj_rollout
 
 from bimgame.sim.maze import Friction, MazeSpec
+from bimgame.sim.placement import finite_array
 
 __all__ = ["MazeSim", "StateLayout", "PHYSICS_HZ", "CONTROL_HZ"]
 
@@ -344,10 +345,10 @@ class MazeSim:
         mujoco.mj_forward(self.model, self.data)
 
     def reset(self, marble_xy: np.ndarray, tilt: Sequence[float] = (0.0, 0.0)) -> None:
-        """Put marbles at rest on the board at board-frame positions ``marble_xy`` (n, 2) with
-        the board at ``tilt`` (rad, about x then y), also the servo targets."""
-        marble_xy = np.asarray(marble_xy, dtype=float).reshape(self.n_marbles, 2)
-        tilt = np.clip(np.asarray(tilt, dtype=float), -self.spec.max_tilt, self.spec.max_tilt)
+        """Put marbles at rest at board-frame positions ``marble_xy`` (n, 2) — not checked against the
+        walls: ``placement.check_marble_xy`` is — and the board and servo targets at ``tilt`` (rad)."""
+        marble_xy = finite_array("marble_xy", marble_xy, (self.n_marbles, 2), " (x, y per marble, m)")
+        tilt = np.clip(finite_array("tilt", tilt, (2,)), -self.spec.max_tilt, self.spec.max_tilt)
         state = np.zeros(self.layout.size)
         state[self.layout.tilt] = tilt
         state[self.layout.target_tilt] = tilt
@@ -379,6 +380,8 @@ class MazeSim:
         dt = self.control_dt
         rx = (min(max(ax + float(tilt_delta[0]), -limit), limit) - ax) / dt
         ry = (min(max(ay + float(tilt_delta[1]), -limit), limit) - ay) / dt
+        if rx != rx or ry != ry:  # NaN (MuJoCo would reset the whole state with only a warning)
+            raise ValueError(f"tilt_delta must be finite numbers, got {tilt_delta!r}")
         data.ctrl[:] = (rx, rx, ry, ry)
         data.qacc_warmstart[:] = 0.0
         mujoco.mj_step(self.model, data, nstep=self.substeps)
@@ -413,14 +416,14 @@ class MazeSim:
         """
         states = np.asarray(states, dtype=np.float64)
         tilt_deltas = np.asarray(tilt_deltas, dtype=np.float64)
-        if states.ndim == 1:
-            states = states[None]
-        if tilt_deltas.ndim == 2:
-            tilt_deltas = tilt_deltas[None]
+        states = states[None] if states.ndim == 1 else states
+        tilt_deltas = tilt_deltas[None] if tilt_deltas.ndim == 2 else tilt_deltas
         if states.shape[-1] != self.layout.size:
             raise ValueError(f"states must have last dimension {self.layout.size}, got {states.shape}")
         if tilt_deltas.shape[-1] != 2 or tilt_deltas.ndim != 3:
             raise ValueError(f"tilt_deltas must have shape (B, H, 2), got {tilt_deltas.shape}")
+        if not (np.isfinite(tilt_deltas).all() and np.isfinite(states).all()):  # MuJoCo would reset them
+            raise ValueError("states and tilt_deltas must be finite (MazeSim.get_state; rad)")
         batch = max(states.shape[0], tilt_deltas.shape[0])
         if states.shape[0] not in (1, batch) or tilt_deltas.shape[0] not in (1, batch):
             raise ValueError(f"batch sizes of states {states.shape} and tilt_deltas "

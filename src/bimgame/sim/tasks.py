@@ -88,10 +88,16 @@ class TaskState:
         return TaskState(self.channel.copy(), self.reached.copy())
 
 
-def initial_task_state(spec: MazeSpec, marble_xy: np.ndarray) -> TaskState:
-    """Task state of marbles at board-frame positions ``marble_xy`` (B, n, 2)."""
+def initial_task_state(spec: MazeSpec, marble_xy: np.ndarray, task: Task | None = None) -> TaskState:
+    """Task state of marbles at board-frame positions ``marble_xy`` (B, n, 2).
+
+    With ``task``, a marble that starts at the task's goal already (FULL: in the centre; STGk: past
+    the k-th wall) counts as having reached it, so no step rewards it for being there (without
+    ``task``, none has: an STGk step would pay +1 for a marble that started past the goal)."""
     channel = spec.channel_of(marble_xy[..., 0], marble_xy[..., 1])
-    return TaskState(channel=channel, reached=np.zeros(channel.shape, dtype=bool))
+    if task is None:
+        return TaskState(channel=channel, reached=np.zeros(channel.shape, dtype=bool))
+    return TaskState(channel=channel, reached=channel <= task.goal_channel(spec))
 
 
 def task_step(task: Task, spec: MazeSpec, state: TaskState, marble_xy: np.ndarray,
