@@ -235,3 +235,53 @@ def test_a_run_without_evaluations_is_not_reported_as_nothing_to_do(tmp_path, ca
     assert main(["dagger", "--run-dir", str(run_dir), *DAGGER_RUN, "--eval-episodes", "0"]) == 0
     assert (run_dir / "data" / "iteration_000.npz").is_file()  # the iteration ran
     assert "nothing to do" not in capsys.readouterr().out
+
+
+# ------------------------------------------------------------------------------ reliability
+PRETRAIN_TINY = ["--task", "STG1", "--obs", "state", "--epochs", "1", "--eval-episodes", "0", *SMALL_NET,
+                 "--no-progress"]
+
+
+def test_pretrain_refuses_a_directory_holding_other_files(tiny_dataset, tmp_path, capsys):
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / "pretrain.csv").write_text("my,own\n")
+    (out / "summary.json").write_text("{}\n")
+    before = _files(out)
+    assert main(["pretrain", "--data", str(tiny_dataset), "--out", str(out), *PRETRAIN_TINY]) == 2
+    err = _flat(capsys.readouterr().err)
+    assert (f"{out} is not empty and is not a pre-training run (no config.json; found 2 entries: 'pretrain.csv', "
+            f"'summary.json'); nothing was changed") in err
+    assert _files(out) == before
+
+
+@pytest.mark.parametrize("stop, code", [(ValueError("a bad setting found late"), 2), (KeyboardInterrupt(), 130)])
+def test_pretraining_that_stops_early_leaves_nothing_that_blocks_a_rerun(tiny_dataset, tmp_path, monkeypatch, capsys,
+                                                                          stop, code):
+    def stopped(*args, **kwargs):
+        raise stop
+    monkeypatch.setattr("bimgame.learn.pretrain.policy_epoch", stopped)
+    out = tmp_path / "pi"
+    argv = ["pretrain", "--data", str(tiny_dataset), "--out", str(out), *PRETRAIN_TINY]
+    assert main(argv) == code
+    assert not out.exists()
+    monkeypatch.undo()
+    assert main(argv) == 0
+    assert (out / "summary.json").is_file()
+
+
+def test_disk_full_during_pretraining_names_the_file(tiny_dataset, tmp_path, monkeypatch, capsys):
+    from bimgame.util import files
+
+    real = files.atomic_write_bytes
+
+    def write(path, data):
+        if path.name == "checkpoint.pt":
+            raise OSError(28, "No space left on device")
+        return real(path, data)
+    monkeypatch.setattr(files, "atomic_write_bytes", write)
+    out = tmp_path / "pi"
+    assert main(["pretrain", "--data", str(tiny_dataset), "--out", str(out), *PRETRAIN_TINY]) == 2
+    err = _flat(capsys.readouterr().err)
+    assert f"cannot write {out / 'checkpoint.pt'}: No space left on device" in err and "run the same command" in err
+    assert not out.exists()

@@ -18,7 +18,8 @@ def a3c_config_from(args: argparse.Namespace) -> A3CConfig:
 
 
 @pytest.mark.parametrize("text, value", [("300000", 300_000), ("200k", 200_000), ("5M", 5_000_000),
-                                         ("2.5m", 2_500_000), ("1e6", 1_000_000)])
+                                         ("2.5m", 2_500_000), ("1e6", 1_000_000), ("1E6", 1_000_000),
+                                         ("1e12", 10**12), ("1000G", 10**12)])
 def test_step_counts(text, value):
     assert step_count(text) == value
 
@@ -26,6 +27,13 @@ def test_step_counts(text, value):
 @pytest.mark.parametrize("text", ["", "five", "-3", "0", "1.5", "2x"])
 def test_bad_step_counts_are_rejected(text):
     with pytest.raises(argparse.ArgumentTypeError, match="step"):
+        step_count(text)
+
+
+@pytest.mark.parametrize("text", ["1e30", "1e400", "2e12", "1001G", "99999999999999999999"])
+def test_step_counts_are_bounded_by_1e12(text):
+    """--steps 1e30 used to be accepted (and 1e400 raised OverflowError, a traceback)."""
+    with pytest.raises(argparse.ArgumentTypeError, match=r"at most 1e12 \(10\^12\) steps"):
         step_count(text)
 
 

@@ -116,31 +116,52 @@ def test_run_directory_guards(tmp_path):
 
 class ScaledRewards:
     """An env wrapper gone wrong: rewards multiplied by ``factor`` (NaN, or so large that the loss
-    overflows)."""
+    overflows), from the ``after``-th step of each env on."""
 
-    def __init__(self, factor: float):
-        self.factor = factor
+    def __init__(self, factor: float, after: int = 0):
+        self.factor, self.after = factor, after
 
     def __call__(self, env):
         import gymnasium as gym
 
-        factor = self.factor
+        factor, after = self.factor, self.after
 
         class Wrapped(gym.vector.VectorWrapper):
+            steps = 0
+
             def step(self, actions):
                 obs, reward, terminated, truncated, info = self.env.step(actions)
+                Wrapped.steps += 1
+                if Wrapped.steps <= after:
+                    return obs, reward, terminated, truncated, info
                 return obs, reward * factor + (factor if factor > 1 else 0), terminated, truncated, info
         return Wrapped(env)
 
 
 @pytest.mark.parametrize("factor, what", [(float("nan"), "reward from the env"), (1e38, "loss")])
 def test_non_finite_values_stop_the_run_and_keep_the_weights(tmp_path, factor, what):
+    """After some training, the weights from before the bad update are kept (and can be resumed)."""
     config = A3CConfig(steps=5_000, checkpoint_every=100, **FAST)
-    with pytest.raises(TrainingError, match=f"non-finite {what} .* the update was not applied"):
-        train(config, tmp_path / "run", env_wrapper=ScaledRewards(factor), progress=False)
+    with pytest.raises(TrainingError, match=f"non-finite {what} .* the update was not applied.* saved in"):
+        train(config, tmp_path / "run", env_wrapper=ScaledRewards(factor, after=100), progress=False)
     net = network_for(config)
-    assert load_weights(net, tmp_path / "run") < 5_000  # raises on non-finite weights
+    assert 0 < load_weights(net, tmp_path / "run") < 5_000  # raises on non-finite weights
     assert all(torch.isfinite(p).all() for p in net.parameters())
+
+
+def test_a_new_run_that_fails_before_training_leaves_nothing_that_blocks_a_rerun(tmp_path):
+    """A setting found bad only once the directory exists — a wrapper that cannot be sent to the
+    workers, rewards that are NaN from the first step — leaves no directory behind: the same
+    command runs again once the cause is fixed (an existing empty directory stays, empty)."""
+    config = A3CConfig(steps=400, **FAST)
+    with pytest.raises(Exception, match="pickle|Can't get local object"):
+        train(config, tmp_path / "run", env_wrapper=lambda env: env, progress=False)  # not picklable
+    assert not (tmp_path / "run").exists()
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(TrainingError, match="non-finite reward .* files are removed .* run the same command again"):
+        train(config, tmp_path / "empty", env_wrapper=ScaledRewards(float("nan")), progress=False)
+    assert list((tmp_path / "empty").iterdir()) == []
+    assert train(config, tmp_path / "empty", progress=False).stopped == "finished"
 
 
 def _train_command(run_dir: Path, *extra: str) -> list[str]:

@@ -18,7 +18,7 @@ from bimgame.learn import runs
 from bimgame.learn.common import evaluate_greedy_and_sampled, evaluation_seed, load_run_network
 from bimgame.learn.actor import evaluate_network
 from bimgame.cli.main import main
-from bimgame.learn.dagger import KIND_DAGGER, DAggerConfig, collect_episodes, dagger
+from bimgame.learn.dagger import KIND_DAGGER, DAggerConfig, collect_episodes, dagger, resolve_dagger_config
 from bimgame.expert.episode import Episode
 from bimgame.expert.mpc import MPCConfig
 from bimgame.envs.env import NO_ACTION
@@ -400,3 +400,120 @@ def test_cli_dagger_resume_and_evaluate(tmp_path, capsys, one_torch_thread):
     assert "beta0" in capsys.readouterr().err
     assert main(["dagger", *common, "--iterations", "3"]) == 2
     assert "already holds a run" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------------------ reliability
+def _all_files(root) -> dict[str, bytes]:
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*"))
+            if p.is_file() and "tfevents" not in p.name}
+
+
+def test_dagger_refuses_directories_that_are_not_dagger_runs(tmp_path):
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "dagger.csv").write_text("my,own\n")
+    before = _all_files(mine)
+    with pytest.raises(ValueError, match=r"is not empty and is not a DAgger run \(no config.json; found 1 entry: "
+                                         r"'dagger.csv'\); nothing was changed"):
+        dagger(SMALL, mine, progress=False)
+    with pytest.raises(ValueError, match=r"--resume: .* has no config.json: .* is not a DAgger run"):
+        dagger(SMALL, mine, resume=True, progress=False)
+    assert _all_files(mine) == before
+    a3c = tmp_path / "a3c"
+    a3c.mkdir()
+    (a3c / "config.json").write_text(json.dumps({"a3c": {"task": "STG1", "obs": "state"}}))
+    for resume in (False, True):
+        with pytest.raises(ValueError, match="(holds a a3c run, not a DAgger run|it is a a3c run, not a DAgger run)"):
+            dagger(SMALL, a3c, resume=resume, progress=False)
+    with pytest.raises(ValueError, match="holds a a3c run, not a DAgger run"):
+        resolve_dagger_config(SMALL.learner, {}, a3c, resume=True)
+
+
+def test_dagger_resume_refuses_to_start_over_without_its_checkpoint_or_data(small_runs, tmp_path):
+    """A missing dagger_state.json used to restart from iteration 0, dropping every logged row; a
+    missing checkpoint or data file failed with a bare FileNotFoundError or 'no checkpoint at'."""
+    whole, _ = small_runs
+    run_dir = shutil.copytree(whole.run_dir, tmp_path / "no-checkpoint")
+    (run_dir / "checkpoint.pt").unlink()
+    before = _all_files(run_dir)
+    with pytest.raises(ValueError, match=r"has no checkpoint.pt, so the DAgger run in it cannot be continued .*Start "
+                                         r"anew without --resume in a new --run-dir"):
+        dagger(dataclasses.replace(SMALL, iterations=4), run_dir, resume=True, progress=False)
+    assert _all_files(run_dir) == before
+
+    run_dir = shutil.copytree(whole.run_dir, tmp_path / "no-data")
+    (run_dir / "data" / "iteration_001.npz").unlink()
+    before = _all_files(run_dir)
+    with pytest.raises(ValueError, match=r"aggregated data of finished iterations is missing \(.*iteration_001.npz\)"):
+        dagger(dataclasses.replace(SMALL, iterations=4), run_dir, resume=True, progress=False)
+    assert _all_files(run_dir) == before
+
+    # The checkpoint holds the counts: a lost (or damaged) state file is rewritten, nothing redone.
+    run_dir = shutil.copytree(whole.run_dir, tmp_path / "no-state")
+    state = (run_dir / "dagger_state.json").read_text()
+    (run_dir / "dagger_state.json").unlink()
+    again = dagger(SMALL, run_dir, resume=True, progress=False)
+    assert again.iterations_run == 0 and again.env_steps == whole.env_steps
+    assert json.loads((run_dir / "dagger_state.json").read_text()) == json.loads(state)
+    assert _csv_rows(run_dir / "dagger.csv") == _csv_rows(whole.run_dir / "dagger.csv")
+
+
+def test_a_kill_between_the_commit_and_the_state_copy_neither_redoes_nor_loses_an_iteration(small_runs, tmp_path):
+    """The checkpoint commits an iteration. Killed after it but before dagger_state.json was
+    rewritten, the state file is one iteration behind: the resumed run used to redo that iteration
+    on top of the weights already trained by it. Killed after the log row but before the commit, the
+    row is dropped and the iteration redone."""
+    whole, _ = small_runs
+    run_dir = shutil.copytree(whole.run_dir, tmp_path / "run")
+    rows = _csv_rows(run_dir / "dagger.csv")
+    behind = {"iteration": 2, "env_steps": int(rows[1]["step"]), "labels": int(rows[1]["labels"]),
+              "expert_sim_steps": int(rows[1]["expert_sim_steps"]), "seconds": float(rows[1]["seconds"])}
+    (run_dir / "dagger_state.json").write_text(json.dumps(behind))
+    with open(run_dir / "dagger.csv", "a", newline="") as handle:  # the row of an iteration never committed
+        handle.write(f"{whole.env_steps + 7},3,0.1,{','.join(['1'] * (len(rows[0]) - 3))}\r\n")
+    again = dagger(SMALL, run_dir, resume=True, progress=False)
+    assert again.iterations_run == 0 and again.iterations == 3
+    assert _csv_rows(run_dir / "dagger.csv") == rows
+    assert json.loads((run_dir / "dagger_state.json").read_text())["iteration"] == 3
+    for key, value in _weights(whole.run_dir).items():
+        assert torch.equal(value, _weights(run_dir)[key]), key
+
+
+def test_a_new_dagger_run_that_fails_in_its_first_iteration_leaves_nothing(tmp_path, monkeypatch):
+    def broken(*args, **kwargs):
+        raise ValueError("a setting only the rollouts find bad")
+    monkeypatch.setattr("bimgame.learn.dagger.collect_episodes", broken)
+    with pytest.raises(ValueError, match="only the rollouts find bad"):
+        dagger(SMALL, tmp_path / "run", progress=False)
+    assert not (tmp_path / "run").exists()
+
+
+def test_disk_full_during_dagger_names_the_file_and_keeps_the_finished_iterations(tmp_path, monkeypatch, capsys):
+    from bimgame.util import files
+
+    real = files.atomic_write_bytes
+
+    def write(path, data):
+        if path.name == "iteration_001.npz":
+            raise OSError(28, "No space left on device")
+        return real(path, data)
+    monkeypatch.setattr(files, "atomic_write_bytes", write)
+    run_dir = tmp_path / "run"
+    config = dataclasses.replace(SMALL, iterations=2, eval_episodes=0)
+    with pytest.raises(runs.RunWriteError, match=r"cannot write .*iteration_001.npz: No space left on device. The "
+                                                 r"iterations finished before \(1\) are saved .* --resume"):
+        dagger(config, run_dir, progress=False)
+    assert [r["iteration"] for r in _csv_rows(run_dir / "dagger.csv")] == ["0"]
+    monkeypatch.undo()
+    assert dagger(config, run_dir, resume=True, progress=False).iterations_run == 1
+
+
+def test_ctrl_c_stops_dagger_with_a_resumable_run(tmp_path, monkeypatch, capsys):
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+    monkeypatch.setattr("bimgame.learn.dagger.collect_episodes", interrupted)
+    run_dir = tmp_path / "run"
+    assert main(["dagger", "--run-dir", str(run_dir), "--obs", "state", "--no-progress"]) == 130
+    assert "--resume" in capsys.readouterr().err
+    assert {p.name for p in run_dir.iterdir()} >= {"config.json", "checkpoint.pt", "dagger_state.json"}
+    runs.check_resumable(run_dir, kind=KIND_DAGGER, what="DAgger", needs=("checkpoint.pt",))

@@ -4,22 +4,28 @@ names the value and what is allowed, and the flags several verbs share (``--task
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
+from bimgame.learn.common import MAX_SEED
 from bimgame.sim.tasks import Task
 
-__all__ = ["positive_int", "non_negative_int", "positive_float", "non_negative_float", "TASK_NAMES",
-           "add_task_argument", "add_max_steps_argument"]
+__all__ = ["positive_int", "non_negative_int", "positive_float", "non_negative_float", "seed", "episode_count",
+           "episode_count_or_zero", "MAX_EPISODES", "TASK_NAMES", "add_task_argument", "add_max_steps_argument", "check_output_file"]
+
+#: The most episodes a verb runs side by side (each has its own simulator): more is a typo that would
+#: fail only when memory runs out.
+MAX_EPISODES = 10_000
 
 #: The values of ``--task``.
 TASK_NAMES = tuple(task.value for task in Task)
 
 
-def _integer(text: str, minimum: int, what: str) -> int:
+def _integer(text: str, minimum: int, what: str, maximum: int | None = None) -> int:
     try:
         value = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
-    if value < minimum:
+    if value < minimum or (maximum is not None and value > maximum):
         raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
     return value
 
@@ -32,6 +38,22 @@ def positive_int(text: str) -> int:
 def non_negative_int(text: str) -> int:
     """An integer >= 0."""
     return _integer(text, 0, "a non-negative integer")
+
+
+def seed(text: str) -> int:
+    """A seed: an integer from 0 to :data:`~bimgame.learn.common.MAX_SEED` (numpy refuses negative
+    seeds and torch those of 2**64 or more, deep inside a run)."""
+    return _integer(text, 0, f"a non-negative integer <= {MAX_SEED} (a seed)", MAX_SEED)
+
+
+def episode_count(text: str) -> int:
+    """A number of episodes run side by side: an integer from 1 to :data:`MAX_EPISODES`."""
+    return _integer(text, 1, f"a positive integer <= {MAX_EPISODES}", MAX_EPISODES)
+
+
+def episode_count_or_zero(text: str) -> int:
+    """:func:`episode_count`, or 0 (e.g. ``--eval-episodes 0``: none)."""
+    return _integer(text, 0, f"an integer from 0 to {MAX_EPISODES}", MAX_EPISODES)
 
 
 def _number(text: str, strictly_positive: bool) -> float:
@@ -64,3 +86,17 @@ def add_max_steps_argument(parser: argparse.ArgumentParser) -> None:
     """``--max-steps``: the time limit per episode, None for the task's registered limit."""
     parser.add_argument("--max-steps", type=positive_int, default=None,
                         help="time limit per episode (default: the task's registered limit)")
+
+
+def check_output_file(path: Path | None, flag: str, example: str) -> None:
+    """Refuse an output file path that cannot be written — a directory, or below a file — before any
+    work is done (not after an evaluation that took minutes); ``example`` is a file name to suggest."""
+    if path is None:
+        return
+    if path.is_dir():
+        raise ValueError(f"{flag} {path} is a directory; give a file name, e.g. {path / example}")
+    for parent in path.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise ValueError(f"{flag} {path}: {parent} is a file, not a directory")
+            break

@@ -8,9 +8,11 @@ import math
 import sys
 from pathlib import Path
 
+from bimgame.cli.argtypes import episode_count, episode_count_or_zero, seed
 from bimgame.cli.flags import add_settings_flags
 from bimgame.learn.dagger import DAggerConfig, dagger, resolve_dagger_config
 from bimgame.learn.pretrain import pretrain
+from bimgame.learn.runs import RunWriteError
 from bimgame.learn.supervised import PretrainConfig
 
 __all__ = ["add_pretrain_arguments", "run_pretrain", "add_dagger_arguments", "run_dagger"]
@@ -26,6 +28,8 @@ DAGGER_LEARNER_FLAGS = ("task", "obs", "lr", "hidden", "features", "tilt_input",
 #: DAgger's own settings with a flag (``expert`` is the default MPC expert).
 DAGGER_FLAGS = ("iterations", "episodes_per_iteration", "beta0", "beta_decay", "epochs_per_iteration",
                 "max_episode_steps", "eval_episodes")
+#: Parsers with an upper bound too (a seed numpy and torch both take; episodes run side by side).
+_TYPES = {"seed": seed, "eval_episodes": episode_count_or_zero}
 
 
 def add_pretrain_arguments(parser: argparse.ArgumentParser) -> None:
@@ -35,7 +39,7 @@ def add_pretrain_arguments(parser: argparse.ArgumentParser) -> None:
     add("--out", type=Path, required=True, help="new run directory for the weights and logs")
     add("--value-only", action="store_true",
         help="train the value-only network V̂ for --value-reward instead of the policy π^s")
-    add_settings_flags(parser, PretrainConfig, PRETRAIN_FLAGS)
+    add_settings_flags(parser, PretrainConfig, PRETRAIN_FLAGS, types=_TYPES)
     add("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -48,7 +52,12 @@ def run_pretrain(args: argparse.Namespace) -> int:
     config = pretrain_config_from(args)
     what = "value function V̂" if config.target == "value" else "policy π^s"
     print(f"pre-training the {what} on {args.data} ({config.task}, {config.obs}) -> {args.out}", file=sys.stderr)
-    result = pretrain(config, args.data, args.out, progress=not args.no_progress)
+    try:
+        result = pretrain(config, args.data, args.out, progress=not args.no_progress)
+    except KeyboardInterrupt:
+        print(f"interrupted; pre-training cannot resume, so nothing was kept in {args.out}. Run the same command "
+              f"again to start over", file=sys.stderr)
+        return 130
     accuracy = "" if math.isnan(result.val_accuracy) else f"held-out accuracy {result.val_accuracy:.1%} (chance 20%), "
     print(f"done in {result.seconds:.0f} s: best epoch {result.best_epoch} of {result.epochs_run}, {accuracy}"
           f"value RMSE {result.val_value_rmse:.3f}")
@@ -70,10 +79,11 @@ def add_dagger_arguments(parser: argparse.ArgumentParser) -> None:
     add("--resume", action="store_true", help="continue after the run's last finished iteration")
     add("--init", type=Path, default=None, help="start the learner from these weights (e.g. bimgame pretrain's)")
     defaults = DAggerConfig()
-    add_settings_flags(parser, PretrainConfig, DAGGER_LEARNER_FLAGS, defaults=defaults.learner)
+    add_settings_flags(parser, PretrainConfig, DAGGER_LEARNER_FLAGS, defaults=defaults.learner, types=_TYPES)
     resumable = DAggerConfig.RESUMABLE_CHANGES
-    add_settings_flags(parser, DAggerConfig, [n for n in DAGGER_FLAGS if n not in resumable])
-    add_settings_flags(parser, DAggerConfig, resumable, default_none=True,
+    add_settings_flags(parser, DAggerConfig, [n for n in DAGGER_FLAGS if n not in resumable],
+                       types={"episodes_per_iteration": episode_count})
+    add_settings_flags(parser, DAggerConfig, resumable, default_none=True, types=_TYPES,
                        helps={"iterations": "Iterations to run; with --resume, a larger number continues the run."})
     add("--no-progress", action="store_true", help="no progress bar")
 
@@ -84,7 +94,15 @@ def run_dagger(args: argparse.Namespace) -> int:
     config = resolve_dagger_config(learner, given, args.run_dir, resume=args.resume)
     print(f"DAgger on {config.learner.task} ({config.learner.obs}): {config.iterations} iterations x "
           f"{config.episodes_per_iteration} episodes -> {args.run_dir}", file=sys.stderr)
-    result = dagger(config, args.run_dir, resume=args.resume, init=args.init, progress=not args.no_progress)
+    try:
+        result = dagger(config, args.run_dir, resume=args.resume, init=args.init, progress=not args.no_progress)
+    except KeyboardInterrupt:
+        print(f"interrupted; the finished iterations are saved. Continue with: bimgame dagger --run-dir "
+              f"{args.run_dir} --resume", file=sys.stderr)
+        return 130
+    except RunWriteError as error:
+        print(f"bimgame dagger: stopped: {error}", file=sys.stderr)
+        return 1
     if result.iterations_run == 0:
         print(f"nothing to do: the run in {args.run_dir} has finished its {result.iterations} iterations "
               f"(pass a larger --iterations with --resume to continue)")

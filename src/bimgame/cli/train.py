@@ -11,10 +11,10 @@ from pathlib import Path
 from rich.console import Console
 from rich.table import Table
 
-from bimgame.cli.argtypes import positive_float, positive_int
+from bimgame.cli.argtypes import check_output_file, episode_count, positive_float, seed
 from bimgame.cli.flags import add_settings_flags, given_settings
 from bimgame.envs.shaping import DEFAULT_GEODESIC_COEF
-from bimgame.learn.a3c import A3CConfig, TrainingError, resolve_config, train
+from bimgame.learn.a3c import MAX_STEPS, A3CConfig, TrainingError, resolve_config, train
 from bimgame.learn.actor import evaluate_network
 from bimgame.learn.common import load_run_network
 from bimgame.learn.rewards import RewardSettings, env_wrapper_for, resolve_reward_settings
@@ -29,11 +29,14 @@ _SUFFIXES = {"": 1, "k": 1_000, "m": 1_000_000, "g": 1_000_000_000}
 
 
 def step_count(text: str) -> int:
-    """A number of environment steps: ``300000``, ``200k``, ``5M``, ``2.5M``, ``1e6``."""
-    match = re.fullmatch(r"\s*([0-9]*\.?[0-9]+(?:e[0-9]+)?)\s*([kKmMgG]?)\s*", text)
+    """A number of environment steps: ``300000``, ``200k``, ``5M``, ``2.5M``, ``1e6``; at most
+    :data:`~bimgame.learn.a3c.MAX_STEPS` (10¹²)."""
+    match = re.fullmatch(r"\s*([0-9]*\.?[0-9]+(?:[eE][0-9]+)?)\s*([kKmMgG]?)\s*", text)
     if not match:
         raise argparse.ArgumentTypeError(f"expected a step count such as 300000, 200k, 5M or 1e6, got {text!r}")
     value = float(match.group(1)) * _SUFFIXES[match.group(2).lower()]
+    if not value <= MAX_STEPS:  # also inf (1e400)
+        raise argparse.ArgumentTypeError(f"expected at most 1e12 (10^12) steps, got {text!r}")
     if value < 1 or value != int(value):
         raise argparse.ArgumentTypeError(f"expected a positive whole number of steps, got {text!r}")
     return int(value)
@@ -54,7 +57,9 @@ def add_train_arguments(parser: argparse.ArgumentParser) -> None:
     add("--init", type=Path, default=None, help="start from these weights (checkpoint file or run directory)")
     add("--no-progress", action="store_true", help="no progress bar")
     add_settings_flags(parser, A3CConfig, [f.name for f in dataclasses.fields(A3CConfig)], default_none=True,
-                       types={"steps": step_count, "checkpoint_every": step_count, "eval_every": step_count_or_zero},
+                       types={"steps": step_count, "checkpoint_every": step_count, "eval_every": step_count_or_zero,
+                              "log_every": step_count, "max_episode_steps": step_count, "seed": seed,
+                              "eval_episodes": episode_count},
                        helps={"steps": "environment steps to train for, all workers together, e.g. 5M"})
     docs = field_docs(RewardSettings)
     add("--value-reward", type=Path, default=None, metavar="RUN", help=docs["value_reward"])
@@ -77,6 +82,11 @@ def run_train(args: argparse.Namespace) -> int:
     except TrainingError as error:
         print(f"bimgame train: stopped: {error}", file=sys.stderr)
         return 1
+    if result.stopped == "interrupted" and result.steps >= config.steps:
+        print(f"interrupted after all {result.steps:,} steps, before the final evaluation; checkpoint saved. "
+              f"Evaluate and write the summary with: bimgame train --run-dir {args.run_dir} --resume",
+              file=sys.stderr)
+        return 130
     if result.stopped == "interrupted":
         print(f"interrupted at {result.steps:,} steps; checkpoint saved. Continue with: bimgame train "
               f"--run-dir {args.run_dir} --resume", file=sys.stderr)
@@ -90,8 +100,8 @@ def run_train(args: argparse.Namespace) -> int:
 
 def add_evaluate_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("run_dir", type=Path, help="a training run directory (or checkpoint file inside one)")
-    parser.add_argument("--episodes", type=positive_int, default=50)
-    parser.add_argument("--seed", type=int, default=12345, help="start positions (default 12345)")
+    parser.add_argument("--episodes", type=episode_count, default=50, help="episodes, run side by side (default 50)")
+    parser.add_argument("--seed", type=seed, default=12345, help="start positions (default 12345)")
     parser.add_argument("--sample", action="store_true", help="sample actions instead of the greedy action")
     parser.add_argument("--task", type=str.upper, default=None, help="evaluate on another task (default: the run's)")
     parser.add_argument("--gif", type=Path, default=None, help="also write one episode as a GIF")
@@ -99,6 +109,10 @@ def add_evaluate_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run_evaluate(args: argparse.Namespace) -> int:
+    check_output_file(args.out, "--out", "eval.json")  # before the evaluation, not after it
+    check_output_file(args.gif, "--gif", "episode.gif")
+    if args.task is not None:
+        parse_task(args.task)
     net, run, step = load_run_network(args.run_dir)
     run_dir = run.run_dir
     task = parse_task(args.task or run.task).value

@@ -41,22 +41,36 @@ import torch.multiprocessing as mp
 
 from bimgame.envs.vector import BallInMazeVectorEnv
 from bimgame.learn.actor import RecurrentActor, tilt_input
-from bimgame.learn.common import NetworkSettings, evaluate_greedy_and_sampled, evaluation_seed, init_network_settings
+from bimgame.learn.common import (NetworkSettings, check_seed, evaluate_greedy_and_sampled, evaluation_seed,
+                                  init_network_settings)
 from bimgame.learn.curves import plot_run
 from bimgame.learn.nets import RecurrentActorCritic
-from bimgame.learn.runs import (CHECKPOINT, CONFIG, MetricLog, load_checkpoint, load_weights, read_run_config,
-                                save_checkpoint, torch_threads)
+from bimgame.learn.runs import (CHECKPOINT, CONFIG, KIND_A3C, SUMMARY, CheckpointError, MetricLog, RunWriteError,
+                                check_resumable, discard_new_run, load_checkpoint, load_weights, prepare_new_run,
+                                read_run_settings, save_checkpoint, torch_threads, write_run_json)
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.tasks import MAX_EPISODE_STEPS, Task, parse_task
-from bimgame.util.files import write_json
+from bimgame.util.files import read_json
 from bimgame.util.progress import ProgressBar
 from bimgame.util.settings import from_dict, require_int
 from bimgame.util.signals import sigterm_as_interrupt
 
 __all__ = ["A3CConfig", "TrainingError", "TrainResult", "train", "network_for", "make_optimizer", "evaluate",
-           "OPTIMIZERS", "EnvWrapper", "resolve_config", "a3c_segment_loss", "apply_update", "shared_optimizer_state"]
+           "OPTIMIZERS", "MAX_STEPS", "EnvWrapper", "resolve_config", "a3c_segment_loss", "apply_update",
+           "shared_optimizer_state"]
 
 OPTIMIZERS = ("rmsprop", "adam")
+#: The most environment steps a run (or a checkpoint or evaluation interval) may count: 10¹², about
+#: 30 years at this machine's 1,000 steps/s. More is a typo (``--steps 1e30``), found before any work.
+MAX_STEPS = 10**12
+#: The largest value of the settings that size what is allocated at once (processes, environments,
+#: segment memory, evaluation episodes run side by side), far above any sensible value: larger is a
+#: typo that would otherwise fail only when memory runs out.
+_LARGEST = {**{name: (MAX_STEPS, "1e12 environment steps") for name in
+               ("steps", "checkpoint_every", "eval_every", "log_every", "max_episode_steps")},
+            "workers": (256, "processes"), "envs_per_worker": (4096, "environments in one process"),
+            "n_steps": (10_000, "steps kept in memory per update"),
+            "eval_episodes": (10_000, "episodes run side by side")}
 #: A callable that wraps a worker's vector env (e.g. reward shaping). It is sent to spawned worker
 #: processes, so it must be picklable (a module-level function or an instance of a module-level class).
 EnvWrapper = Callable[[BallInMazeVectorEnv], Any]
@@ -128,10 +142,14 @@ class A3CConfig(NetworkSettings):
                          "log_every")
         for name in positive_ints:
             require_int("A3CConfig", name, getattr(self, name), 1)
-        require_int("A3CConfig", "seed", self.seed, 0)  # numpy's seed sequences take no negative seeds
+        check_seed("A3CConfig", self.seed)  # numpy's seed sequences take no negative seeds, torch none of 2**64
         if not (isinstance(self.eval_every, int) and self.eval_every >= 0):
             raise ValueError(f"A3CConfig.eval_every must be an integer >= 0 (0: no evaluator), got {self.eval_every!r}")
         require_int("A3CConfig", "max_episode_steps", self.max_episode_steps, 1, optional=True)
+        for name, (largest, unit) in _LARGEST.items():
+            value = getattr(self, name)
+            if value is not None and value > largest:
+                raise ValueError(f"A3CConfig.{name} must be at most {largest:,} ({unit}), got {value!r}")
         ranges = {"gamma": (0.0, 1.0), "gae_lambda": (0.0, 1.0), "rmsprop_alpha": (0.0, 1.0)}
         for name, (low, high) in ranges.items():
             value = getattr(self, name)
@@ -392,18 +410,18 @@ def _final_values(actor: RecurrentActor, actions: torch.Tensor, reward: np.ndarr
 
 
 def _evaluator(config: A3CConfig, shared: RecurrentActorCritic, counter, stop, messages, start_step: int,
-               initial_weights: dict[str, torch.Tensor] | None) -> None:
-    """Evaluator process: every ``eval_every`` steps, greedy and sampled episodes with the shared
-    weights (same start positions every time)."""
+               initial_weights: dict[str, torch.Tensor]) -> None:
+    """Evaluator process: greedy and sampled episodes (same start positions every time) of the weights
+    the session starts from, at its first step — step 0 of a fresh run (the initial random or
+    pre-trained policy), the checkpoint's step of a resumed one, whose earlier rows from that step on
+    were dropped — then every ``eval_every`` steps of the shared weights."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     torch.set_num_threads(1)
     try:
         local = network_for(config)
-        if initial_weights is not None:
-            # A fresh run is evaluated at step 0 too, on a copy of the weights taken before any
-            # worker started: the curve starts from the initial (random or pre-trained) policy.
-            local.load_state_dict(initial_weights)
-            messages.put(("eval", -1, {"step": start_step, **evaluate(local, config)}))
+        # A copy of the weights taken before any worker started.
+        local.load_state_dict(initial_weights)
+        messages.put(("eval", -1, {"step": start_step, **evaluate(local, config)}))
         next_eval = (start_step // config.eval_every + 1) * config.eval_every
         while not stop.is_set() and _parent_alive():
             step = counter.value
@@ -437,6 +455,10 @@ _TABLES = {
 }
 
 
+#: Every file and folder a run writes in its directory (removed again if a new run fails at once).
+_RUN_FILES = (CONFIG, CHECKPOINT, SUMMARY, "curves.png", "tb", *(f"{name}.csv" for name in _TABLES))
+
+
 def resolve_config(given: dict[str, Any], run_dir: str | Path, *, resume: bool = False,
                    init: str | Path | None = None) -> A3CConfig:
     """A run's settings from the ones a user gave (``given``: field → value, only those given): the
@@ -444,24 +466,29 @@ def resolve_config(given: dict[str, Any], run_dir: str | Path, *, resume: bool =
     network settings of the run it points at unless given (a pre-trained π^s fixes the network's
     shape). The command line and the reproduction both build their A3C settings here."""
     if resume:
-        if not (Path(run_dir) / CONFIG).is_file():
-            raise ValueError(f"--resume: no {CONFIG} in {run_dir}; start a new run without --resume")
-        return A3CConfig.from_dict({**read_run_config(run_dir)["a3c"], **given})
+        check_resumable(run_dir, kind=KIND_A3C, what="A3C")
+        return read_run_settings(run_dir, "a3c", lambda stored: A3CConfig.from_dict({**stored, **given}))
     if init is not None:
         given = {**init_network_settings(init), **given}
     return A3CConfig.from_dict(given)
 
 
-def _check_resume(run_dir: Path, config: A3CConfig) -> dict[str, Any]:
-    stored = read_run_config(run_dir)
-    previous = A3CConfig.from_dict(stored["a3c"])
+def _check_resume(run_dir: Path, config: A3CConfig) -> None:
+    check_resumable(run_dir, kind=KIND_A3C, what="A3C", needs=(CHECKPOINT,))
+    previous = read_run_settings(run_dir, "a3c", A3CConfig.from_dict)
     changed = [f.name for f in dataclasses.fields(A3CConfig)
                if getattr(previous, f.name) != getattr(config, f.name) and f.name not in A3CConfig.RESUMABLE_CHANGES]
     if changed:
         raise ValueError("--resume must keep the run's settings; changed: "
                          + ", ".join(f"{k} ({getattr(previous, k)!r} -> {getattr(config, k)!r})" for k in changed)
                          + f". Allowed to change: {', '.join(A3CConfig.RESUMABLE_CHANGES)}")
-    return stored
+
+
+def _summarised(run_dir: Path, step: int) -> bool:
+    """Whether the run's summary reports it finished at ``step``, with its final evaluation."""
+    summary = read_json(run_dir / SUMMARY)
+    return (summary is not None and summary.get("stopped") == "finished" and summary.get("steps") == step
+            and summary.get("final_eval") is not None)
 
 
 def train(config: A3CConfig, run_dir: str | Path, *, resume: bool = False, init: str | Path | None = None,
@@ -469,85 +496,155 @@ def train(config: A3CConfig, run_dir: str | Path, *, resume: bool = False, init:
           ) -> TrainResult:
     """Train with A3C; everything is saved in ``run_dir`` (see :mod:`bimgame.learn.runs`).
 
+    A new run needs a new or empty ``run_dir``; it writes its ``config.json`` and a step-0 checkpoint
+    first, and if it fails before its first later checkpoint it removes its files again, so the same
+    call can be repeated. A resumed run continues from its checkpoint (its logs keep the rows from
+    before it); one whose steps are all done but whose final evaluation is missing (stopped during
+    it) only does that evaluation and writes the summary.
+
     Args:
         resume: continue the run in ``run_dir`` from its checkpoint.
         init: a checkpoint file or run directory whose weights the network starts from (e.g. a
-            pre-trained π^s); optimiser statistics start fresh.
+            pre-trained π^s); optimiser statistics start fresh. A resumed run starts from its checkpoint.
         env_wrapper: wraps each worker's vector env (e.g. value-function reward shaping); must be
             picklable. Evaluation always uses the true task reward.
         extra_config: more settings to record in config.json (e.g. how the wrapper was built).
     Raises:
-        TrainingError: a worker produced a non-finite loss or crashed (weights stay as they were
-            before the failing update; the last good checkpoint is kept).
+        TrainingError: a worker produced a non-finite loss or crashed, or a file could not be written
+            (weights stay as they were before the failing update; the last good checkpoint is kept).
     """
     with torch_threads(1):  # the parent only orchestrates; workers set their own
         return _train(config, Path(run_dir), resume=resume, init=init, env_wrapper=env_wrapper, progress=progress,
                       extra_config=extra_config)
 
 
+@dataclasses.dataclass
+class _Start:
+    """Where a session starts: the checkpoint's step, the seconds the run had trained before, the
+    optimiser statistics; ``fresh`` for a new run (``created``: its directory did not exist)."""
+
+    step: int = 0
+    seconds: float = 0.0
+    optimizer: dict | None = None
+    fresh: bool = True
+    created: bool = False
+    checkpoint_step: int = 0
+    """Step of the newest checkpoint written (0 until the first one after the start)."""
+
+
 def _train(config: A3CConfig, run_dir: Path, *, resume: bool, init: str | Path | None,
            env_wrapper: EnvWrapper | None, progress: bool, extra_config: dict | None) -> TrainResult:
     shared = network_for(config)
-    start_step = 0
-    optimizer_state_dict = None
-    config_path = run_dir / CONFIG
     if resume:
-        if not config_path.is_file():
-            raise ValueError(f"--resume: {run_dir} has no {CONFIG}; start a new run without --resume")
         _check_resume(run_dir, config)
-        if (run_dir / CHECKPOINT).is_file():
-            payload = load_checkpoint(run_dir / CHECKPOINT)
-            load_weights(shared, run_dir / CHECKPOINT)
-            start_step = payload["step"]
-            optimizer_state_dict = payload.get("optimizer")
-        elif init is not None:
-            load_weights(shared, init)
+        payload = load_checkpoint(run_dir / CHECKPOINT)
+        load_weights(shared, run_dir / CHECKPOINT)
+        start = _Start(step=payload["step"], seconds=float(payload.get("seconds", 0.0)),
+                       optimizer=payload.get("optimizer"), fresh=False, checkpoint_step=payload["step"])
+        if start.step >= config.steps and _summarised(run_dir, start.step):
+            raise ValueError(f"the run in {run_dir} already has {start.step} steps >= steps={config.steps}; "
+                             f"pass a larger --steps to continue")
     else:
-        if config_path.exists() or (run_dir / CHECKPOINT).exists():
-            raise ValueError(f"{run_dir} already holds a run; pass --resume to continue it or choose a new "
-                             f"--run-dir")
+        start = _Start(created=prepare_new_run(run_dir, what="A3C", flag="--run-dir", kind=KIND_A3C))
         if init is not None:
-            load_weights(shared, init)
-        run_dir.mkdir(parents=True, exist_ok=True)
-        write_json(config_path, {"a3c": config.to_dict(), "net": shared.config.to_dict(),
-                                 "init": str(init) if init is not None else None, **(extra_config or {})})
-    if start_step >= config.steps:
-        raise ValueError(f"the run in {run_dir} already has {start_step} steps >= steps={config.steps}; "
-                         f"pass a larger --steps to continue")
+            try:
+                load_weights(shared, init)
+            except CheckpointError as error:
+                raise CheckpointError(f"--init: {error}") from None
+    try:
+        if start.fresh:
+            write_run_json(run_dir / CONFIG, {"a3c": config.to_dict(), "net": shared.config.to_dict(),
+                                              "init": str(init) if init is not None else None, **(extra_config or {})})
+            save_checkpoint(run_dir / CHECKPOINT, model=shared.state_dict(), step=0, seconds=0.0,
+                            config=json.dumps(config.to_dict()))
+        return _session(config, run_dir, shared, start, env_wrapper=env_wrapper, progress=progress)
+    except Exception:
+        if start.fresh and start.checkpoint_step == 0:
+            discard_new_run(run_dir, start.created, _RUN_FILES)  # nothing trained: a rerun starts afresh
+        raise
+
+
+def _session(config: A3CConfig, run_dir: Path, shared: RecurrentActorCritic, start: _Start, *,
+             env_wrapper: EnvWrapper | None, progress: bool) -> TrainResult:
+    """Train from ``start`` to ``config.steps`` (nothing if the steps are all done), then evaluate
+    and write the summary."""
+    log = MetricLog(run_dir, _TABLES, resume_step=None if start.fresh else start.step,
+                    keep_at_resume_step=("updates",))  # an update's row is logged before its step's checkpoint
+    monitor = _Monitor(config, start.step)
+    monitor.restore(log.kept["episodes"])
+    started = time.monotonic() - start.seconds  # seconds count the whole run, across resumes
+    step, stopped = start.step, "finished"
+    if step < config.steps:
+        try:
+            step, stopped = _run_processes(config, run_dir, shared, start, log, monitor, started,
+                                           env_wrapper=env_wrapper, progress=progress)
+        except BaseException:
+            log.close()
+            raise
+    final_eval = None
+    if stopped == "finished":
+        try:
+            with sigterm_as_interrupt():  # Ctrl-C or SIGTERM here: --resume does just this evaluation
+                final_eval = {"step": step, **evaluate(shared, config)}
+        except KeyboardInterrupt:
+            stopped = "interrupted"
+    try:
+        if final_eval is not None:
+            log.write("eval", step, final_eval, scalars=tuple(_TABLES["eval"]))
+        log.close()
+        seconds = time.monotonic() - started
+        write_run_json(run_dir / SUMMARY, {"steps": step, "stopped": stopped, "seconds": seconds,
+                                           "final_eval": final_eval, **monitor.recent()})
+    except RunWriteError as error:
+        log.close()
+        raise TrainingError(f"{error}. The checkpoint {run_dir / CHECKPOINT} (step {step:,}) is saved: free some "
+                            f"space and continue with --resume (a run whose steps are all done then only evaluates "
+                            f"and writes its summary)") from error
+    try:
+        plot_run(run_dir, title=f"A3C on {config.task} ({config.obs})")
+    except (ValueError, OSError):
+        pass  # no finished episode yet (nothing to plot), or no room for the figure: the logs hold it all
+    return TrainResult(run_dir, step, stopped, final_eval, seconds)
+
+
+def _run_processes(config: A3CConfig, run_dir: Path, shared: RecurrentActorCritic, start: _Start, log: MetricLog,
+                   monitor: _Monitor, started: float, *, env_wrapper: EnvWrapper | None, progress: bool,
+                   ) -> tuple[int, str]:
+    """The workers and the evaluator, until the steps are done, Ctrl-C, or a failure; writes the
+    checkpoints. Returns (step, "finished" or "interrupted"); raises :class:`TrainingError`."""
     shared.share_memory()
     optimizer = make_optimizer(config, shared.parameters())
-    if optimizer_state_dict is not None:
-        optimizer.load_state_dict(optimizer_state_dict)
+    if start.optimizer is not None:
+        optimizer.load_state_dict(start.optimizer)
     optimizer_state = shared_optimizer_state(optimizer)
 
-    initial_weights = None if resume else {k: v.detach().clone() for k, v in shared.state_dict().items()}
+    initial_weights = {k: v.detach().clone() for k, v in shared.state_dict().items()}
     context = mp.get_context("spawn")
-    counter = context.Value("q", start_step)
+    counter = context.Value("q", start.step)
     stop = context.Event()
     messages = context.Queue()
     processes = [context.Process(target=_worker, name=f"a3c-worker-{rank}",
                                  args=(rank, config, shared, optimizer_state, counter, stop, messages,
-                                       env_wrapper, start_step), daemon=True)
+                                       env_wrapper, start.step), daemon=True)
                  for rank in range(config.workers)]
     if config.eval_every > 0:
         processes.append(context.Process(target=_evaluator, name="a3c-evaluator",
-                                         args=(config, shared, counter, stop, messages, start_step,
+                                         args=(config, shared, counter, stop, messages, start.step,
                                                initial_weights), daemon=True))
-    log = MetricLog(run_dir, _TABLES, resume_step=start_step if resume else None)
-    monitor = _Monitor(config, start_step)
-    started = time.monotonic()
-    last_checkpoint = start_step
     stopped = "finished"
     failure: str | None = None
+    write_failure: RunWriteError | None = None
 
     def checkpoint() -> None:
+        step = int(counter.value)
         save_checkpoint(run_dir / CHECKPOINT, model=shared.state_dict(), optimizer=optimizer.state_dict(),
-                        step=int(counter.value), config=json.dumps(config.to_dict()))
+                        step=step, seconds=time.monotonic() - started, config=json.dumps(config.to_dict()))
+        start.checkpoint_step = step
 
     shown_at = 0.0
     try:
         with sigterm_as_interrupt(), ProgressBar(f"A3C {config.task} {config.obs}", config.steps,
-                                                 completed=start_step, enabled=progress, eta=True,
+                                                 completed=start.step, enabled=progress, eta=True,
                                                  count="{done:,.0f}/{total:,.0f} steps") as bar:
             for process in processes:
                 process.start()
@@ -575,8 +672,7 @@ def _train(config: A3CConfig, run_dir: Path, *, resume: bool, init: str | Path |
                 elif kind == "nan":
                     failure = (f"worker {rank} got a non-finite {payload['what']} at step {payload['step']} "
                                f"({payload}); the update was not applied. Lower --lr or --max-grad-norm, or "
-                               f"check the env wrapper's rewards. The weights from before that update are "
-                               f"saved in {run_dir / CHECKPOINT}.")
+                               f"check the env wrapper's rewards.")
                     stop.set()
                 elif kind == "error":
                     failure = f"process {rank} failed:\n{payload}"
@@ -587,38 +683,51 @@ def _train(config: A3CConfig, run_dir: Path, *, resume: bool, init: str | Path |
                     success = monitor.recent()["recent_success"]
                     bar.update(completed=step, info=f"{monitor.sps(step):,.0f} SPS  success "
                                                     + ("-" if math.isnan(success) else f"{success:.0%}"))
-                if failure is None and step - last_checkpoint >= config.checkpoint_every:
+                if failure is None and step - start.checkpoint_step >= config.checkpoint_every:
                     checkpoint()
-                    last_checkpoint = step
     except KeyboardInterrupt:
         stopped = "interrupted"
-        stop.set()
+    except RunWriteError as error:
+        write_failure = error
     finally:
         stop.set()
         for process in processes:
+            if process.pid is None:
+                continue  # never started (e.g. its arguments could not be sent to it)
             process.join(timeout=30)
             if process.is_alive():
                 process.terminate()
                 process.join()
-    if failure is not None:
-        log.close()
-        if all(torch.isfinite(p).all() for p in shared.parameters()):
-            checkpoint()  # the weights before the failing update, for inspection or a resume
-        raise TrainingError(failure)
-    checkpoint()
-    final_eval = None
-    if stopped == "finished":
-        final_eval = {"step": int(counter.value), **evaluate(shared, config)}
-        log.write("eval", final_eval["step"], final_eval, scalars=tuple(_TABLES["eval"]))
-    log.close()
-    seconds = time.monotonic() - started
-    write_json(run_dir / "summary.json", {"steps": int(counter.value), "stopped": stopped, "seconds": seconds,
-                                          "final_eval": final_eval, **monitor.recent()})
+    step = int(counter.value)
+    saved = False
     try:
-        plot_run(run_dir, title=f"A3C on {config.task} ({config.obs})")
-    except ValueError:
-        pass  # no finished episode yet: nothing to plot
-    return TrainResult(run_dir, int(counter.value), stopped, final_eval, seconds)
+        if failure is None and write_failure is None:
+            checkpoint()
+        elif write_failure is None and not (start.fresh and step == 0) and \
+                all(torch.isfinite(p).all() for p in shared.parameters()):
+            checkpoint()  # the weights before the failing update, for inspection or a resume
+            saved = True
+    except RunWriteError as error:
+        write_failure = error
+    discarded = start.fresh and start.checkpoint_step == 0  # _train removes a new run that kept nothing
+    if write_failure is not None:
+        # No new checkpoint: the logs may lack rows before it. The last one and the rows before it are whole.
+        then = f" ({failure.splitlines()[0]})" if failure else ""
+        if discarded:
+            raise TrainingError(f"{write_failure}. Training stopped at step {step:,}{then} before its first "
+                                f"checkpoint, so the new run's files are removed from {run_dir}: free some space "
+                                f"and run the same command again") from write_failure
+        raise TrainingError(f"{write_failure}. Training stopped at step {step:,}{then}; the checkpoint "
+                            f"{run_dir / CHECKPOINT} (step {start.checkpoint_step:,}) and the logs before it are "
+                            f"intact: free some space and continue with --resume") from write_failure
+    if failure is not None:
+        if discarded:
+            raise TrainingError(f"{failure} No checkpoint was written after step 0, so the new run's files are "
+                                f"removed from {run_dir}: fix the cause and run the same command again.")
+        where = (f"The weights from before that update are saved in {run_dir / CHECKPOINT}." if saved else
+                 f"The last checkpoint ({run_dir / CHECKPOINT}, step {start.checkpoint_step:,}) is kept.")
+        raise TrainingError(f"{failure} {where}")
+    return step, stopped
 
 
 class _Monitor:
@@ -631,6 +740,16 @@ class _Monitor:
         self.start_step = start_step
         self.start_time = time.monotonic()
         self._marks: list[tuple[float, int]] = [(self.start_time, start_step)]
+
+    def restore(self, rows: list[dict[str, str]]) -> None:
+        """The episodes a resumed run logged before its checkpoint (rows of episodes.csv), so that the
+        recent success continues where it was."""
+        for row in rows[-4 * self.window:]:
+            try:
+                self.episode({"start_step": int(float(row["start_step"])), "return": float(row["return"]),
+                              "length": int(float(row["length"])), "success": row["success"] == "True"})
+            except (KeyError, ValueError):
+                continue  # a row another version wrote differently: not worth refusing the resume for
 
     def episode(self, payload: dict) -> None:
         self.episodes.append(payload)

@@ -27,7 +27,21 @@ from bimgame.sim.tasks import MAX_EPISODE_STEPS, Task, parse_task
 from bimgame.util.settings import from_dict
 
 __all__ = ["NetworkSettings", "RunInfo", "read_run", "load_run_network", "load_value_network", "network_settings_of", "init_network_settings",
-           "evaluate_greedy_and_sampled", "evaluation_seed"]
+           "evaluate_greedy_and_sampled", "evaluation_seed", "MAX_SEED", "MAX_NETWORK_SIZE", "check_seed"]
+
+#: The largest seed a run takes: seeds go to numpy's and torch's generators (torch's takes 64 bits at
+#: most); 32 bits is numpy's classic seed range, plenty for distinct runs.
+MAX_SEED = 2**32 - 1
+#: The largest LSTM or encoder size (the paper's is 256): larger is a typo that would fail only when
+#: the weights no longer fit in memory.
+MAX_NETWORK_SIZE = 4096
+
+
+def check_seed(owner: str, value: Any) -> None:
+    """Raise ``ValueError`` naming ``owner`` unless ``value`` is an integer from 0 to :data:`MAX_SEED`
+    (a negative seed is refused by numpy, one of 2**64 or more by torch — deep inside a run)."""
+    if not (isinstance(value, int) and not isinstance(value, bool) and 0 <= value <= MAX_SEED):
+        raise ValueError(f"{owner}.seed must be an integer from 0 to {MAX_SEED}, got {value!r}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -59,6 +73,9 @@ class NetworkSettings:
                 object.__setattr__(self, name, default_size)
             elif not (isinstance(value, int) and not isinstance(value, bool) and value >= 1):
                 raise ValueError(f"{owner}.{name} must be an integer >= 1, got {value!r}")
+            elif value > MAX_NETWORK_SIZE:
+                raise ValueError(f"{owner}.{name} must be at most {MAX_NETWORK_SIZE} (the paper's networks use "
+                                 f"256), got {value!r}")
         for name in ("tilt_input", "keypoints", "subtract_background"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"{owner}.{name} must be True or False, got {getattr(self, name)!r}")
@@ -133,15 +150,22 @@ def read_run(source: str | Path) -> RunInfo:
     stored = read_run_config(run_dir)
     kind = stored.get("kind", KIND_A3C)
     block = stored.get("a3c")
-    if isinstance(block, dict):  # A3C runs, and pre-training/DAgger runs of the earlier layout
-        task, network, seed = block.get("task"), network_settings_of(block), block.get("seed", 0)
-        limit = block.get("max_episode_steps")
-    elif isinstance(stored.get("network"), dict) and "task" in stored:
-        task, network, seed = stored["task"], NetworkSettings.from_dict(stored["network"]), stored.get("seed", 0)
-        limit = stored.get("max_episode_steps")
-    else:
-        raise ValueError(f"{run_dir / CONFIG} names no task and network ('a3c', or 'task' and 'network')")
-    task = parse_task(task).value
+    try:
+        if isinstance(block, dict):  # A3C runs, and pre-training/DAgger runs of the earlier layout
+            task, network, seed = block.get("task"), network_settings_of(block), block.get("seed", 0)
+            limit = block.get("max_episode_steps")
+        elif isinstance(stored.get("network"), dict) and "task" in stored:
+            task, network, seed = stored["task"], NetworkSettings.from_dict(stored["network"]), stored.get("seed", 0)
+            limit = stored.get("max_episode_steps")
+        else:
+            raise ValueError("it names no task and network ('a3c', or 'task' and 'network')")
+        task = parse_task(task).value
+        if not (isinstance(seed, int) and not isinstance(seed, bool) and 0 <= seed <= MAX_SEED):
+            raise ValueError(f"seed must be an integer from 0 to {MAX_SEED}, got {seed!r}")
+        if limit is not None and not (isinstance(limit, int) and not isinstance(limit, bool) and limit >= 1):
+            raise ValueError(f"max_episode_steps must be an integer >= 1, got {limit!r}")
+    except (ValueError, TypeError) as error:
+        raise ValueError(f"{run_dir / CONFIG}: {error}") from None
     return RunInfo(run_dir=run_dir, kind=kind, task=task, network=network, seed=int(seed),
                    time_limit=int(limit or MAX_EPISODE_STEPS[Task(task)]), config=stored)
 
@@ -165,9 +189,15 @@ def init_network_settings(source: str | Path) -> dict[str, Any]:
 def load_run_network(source: str | Path) -> tuple[RecurrentActorCritic, RunInfo, int]:
     """The policy network of a run — ``source`` is its directory or a checkpoint file in it — with
     the checkpoint's weights; returns (network, run, step)."""
-    run_dir = Path(source).parent if Path(source).is_file() else Path(source)
+    source = Path(source)
+    expected = "a run directory (with config.json and checkpoint.pt) or a checkpoint file inside one"
+    if not source.exists():
+        raise ValueError(f"{source} does not exist; expected {expected}")
+    run_dir = source.parent if source.is_file() else source
     if not (run_dir / CONFIG).is_file():
-        raise ValueError(f"{run_dir} is not a training run (no {CONFIG})")
+        what = (f"{source} is a file outside a training run (no {CONFIG} next to it)" if source.is_file() else
+                f"{source} is not a training run (no {CONFIG})")
+        raise ValueError(f"{what}; expected {expected}")
     run = read_run(run_dir)
     if run.kind == KIND_VALUE:
         raise ValueError(f"{run.run_dir} holds a value function (V̂), not a policy; use it with --value-reward")

@@ -20,15 +20,18 @@ taken in the environment (what A3C's x-axis counts), ``expert_sim_steps`` the si
 expert spent planning its labels (K·H per label).
 
 The run directory is resumable: the aggregated episodes of every finished iteration are saved
-(``data/iteration_NNN.npz``, atomically), with the weights after it; a restarted run continues
-after the last finished iteration. ``bimgame evaluate`` and ``bimgame train --init`` accept it.
+(``data/iteration_NNN.npz``, atomically), then the checkpoint commits the iteration — the weights
+after it with the counts (``dagger_state.json`` is a readable copy of them); a restarted run
+continues after the last committed iteration, and refuses to start over when the checkpoint or a
+finished iteration's data is missing. A new run goes into a new or empty directory only, and one
+that fails before its first iteration finished removes its files again. ``bimgame evaluate`` and
+``bimgame train --init`` accept the run.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import io
-import json
 import math
 import time
 from pathlib import Path
@@ -37,17 +40,19 @@ from typing import Any
 import numpy as np
 import torch
 
-from bimgame.learn.common import evaluate_greedy_and_sampled, evaluation_seed
+from bimgame.learn.common import check_seed, evaluate_greedy_and_sampled, evaluation_seed
 from bimgame.learn.actor import RecurrentActor, tilt_input
 from bimgame.expert.episode import Episode
 from bimgame.envs.env import BallInMazeEnv
 from bimgame.expert.mpc import MPCConfig, RandomShootingMPC
-from bimgame.util.files import atomic_write_bytes
+from bimgame.util import files
 from bimgame.sim.maze import MazeSpec
 from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.learn.supervised import PretrainConfig, train_policy_epochs
-from bimgame.learn.runs import CHECKPOINT, CONFIG, MetricLog, load_weights, read_run_config, save_checkpoint, torch_threads
-from bimgame.util.files import write_json
+from bimgame.learn.runs import (CHECKPOINT, CONFIG, CheckpointError, MetricLog, RunWriteError, check_resumable,
+                                discard_new_run, load_checkpoint, load_weights, prepare_new_run, read_run_settings,
+                                save_checkpoint, torch_threads, write_run_json)
+from bimgame.util.signals import sigterm_as_interrupt
 from bimgame.util.progress import ProgressBar
 from bimgame.util.settings import from_dict, require_int
 
@@ -55,6 +60,14 @@ __all__ = ["resolve_dagger_config", "DAggerConfig", "DAggerResult", "dagger", "c
 
 KIND_DAGGER = "dagger-policy"
 STATE = "dagger_state.json"
+#: The counters of ``dagger_state.json``.
+_STATE_KEYS = ("iteration", "env_steps", "expert_sim_steps", "labels")
+#: Every file and folder a run writes in its directory (removed again if a new run fails at once).
+_RUN_FILES = (CONFIG, CHECKPOINT, STATE, "dagger.csv", "tb", "data")
+#: Typo guards on what runs side by side (each rollout has its own simulator and expert).
+_LARGEST = {"episodes_per_iteration": (10_000, "rollouts run side by side"),
+            "eval_episodes": (10_000, "episodes run side by side"),
+            "max_episode_steps": (10**9, "steps")}
 _TABLE = ["iteration", "beta", "episodes", "dataset_steps", "expert_sim_steps", "labels", "train_loss",
           "train_accuracy", "rollout_success_rate", "greedy_success_rate", "greedy_mean_length",
           "greedy_mean_return", "sampled_success_rate", "sampled_mean_length", "sampled_mean_return", "seconds"]
@@ -93,6 +106,11 @@ class DAggerConfig:
                 raise ValueError(f"DAggerConfig.{name} must be in [0, 1], got {value!r}")
         require_int("DAggerConfig", "eval_episodes", self.eval_episodes, 0)
         require_int("DAggerConfig", "max_episode_steps", self.max_episode_steps, 1, optional=True)
+        check_seed("DAggerConfig.learner", self.learner.seed)
+        for name, (largest, unit) in _LARGEST.items():
+            value = getattr(self, name)
+            if value is not None and value > largest:
+                raise ValueError(f"DAggerConfig.{name} must be at most {largest:,} ({unit}), got {value!r}")
 
     #: What a resumed run may change.
     RESUMABLE_CHANGES = ("iterations", "eval_episodes")
@@ -123,10 +141,13 @@ def resolve_dagger_config(learner: PretrainConfig, given: dict[str, Any], run_di
     run keeps its stored settings except those it may change (:attr:`DAggerConfig.RESUMABLE_CHANGES`)."""
     if not resume:
         return DAggerConfig(learner=learner, **given)
-    if not (Path(run_dir) / CONFIG).is_file():
-        raise ValueError(f"--resume: no {CONFIG} in {run_dir}; start a new run without --resume")
-    stored = DAggerConfig.from_dict(read_run_config(run_dir)["dagger"])
+    stored = _stored_config(run_dir)
     return dataclasses.replace(stored, **{k: v for k, v in given.items() if k in DAggerConfig.RESUMABLE_CHANGES})
+
+
+def _stored_config(run_dir: str | Path) -> DAggerConfig:
+    check_resumable(run_dir, kind=KIND_DAGGER, what="DAgger")
+    return read_run_settings(run_dir, "dagger", DAggerConfig.from_dict)
 
 
 # ------------------------------------------------------------------------------ rollouts
@@ -206,7 +227,10 @@ def _as_episode(record: dict[str, list], gamma: float) -> Episode:
 def _save_episodes(path: Path, episodes: list[Episode]) -> None:
     buffer = io.BytesIO()
     np.savez_compressed(buffer, **Episode.concatenate(episodes))
-    atomic_write_bytes(path, buffer.getvalue())
+    try:
+        files.atomic_write_bytes(path, buffer.getvalue())
+    except OSError as error:
+        raise RunWriteError(path, error.strerror or str(error)) from error
 
 
 def _load_episodes(path: Path) -> list[Episode]:
@@ -241,38 +265,98 @@ def _dagger(config: DAggerConfig, run_dir: Path | str, *, resume: bool, init: st
             progress: bool) -> DAggerResult:
     run_dir = Path(run_dir)
     net = config.learner.build_policy(config.learner.seed)
-    state = {"iteration": 0, "env_steps": 0, "expert_sim_steps": 0, "labels": 0}
     if resume:
-        if not (run_dir / CONFIG).is_file():
-            raise ValueError(f"--resume: {run_dir} has no {CONFIG}; start a new run without --resume")
-        stored = DAggerConfig.from_dict(read_run_config(run_dir)["dagger"])
-        changed = [name for name in ("learner", "episodes_per_iteration", "beta0", "beta_decay",
-                                     "epochs_per_iteration", "expert", "max_episode_steps")
-                   if getattr(stored, name) != getattr(config, name)]
-        if changed:
-            raise ValueError(f"--resume must keep the run's settings; changed: {', '.join(changed)}. "
-                             f"Allowed to change: {', '.join(DAggerConfig.RESUMABLE_CHANGES)}")
-        if (run_dir / STATE).is_file():
-            state = json.loads((run_dir / STATE).read_text())
-            load_weights(net, run_dir / CHECKPOINT)
-        elif init is not None:
-            load_weights(net, init)
+        state = _resume_state(run_dir, config, net)
+        created = False
     else:
-        if (run_dir / CONFIG).exists():
-            raise ValueError(f"{run_dir} already holds a run; pass --resume to continue it or choose a new --run-dir")
+        created = prepare_new_run(run_dir, what="DAgger", flag="--run-dir", kind=KIND_DAGGER)
         if init is not None:
-            load_weights(net, init)
-        run_dir.mkdir(parents=True, exist_ok=True)
-        (run_dir / "data").mkdir(exist_ok=True)
-        write_json(run_dir / CONFIG, {"kind": KIND_DAGGER, "task": config.learner.task, "seed": config.learner.seed,
-                                      "network": config.learner.network_settings().to_dict(),
-                                      "net": net.config.to_dict(), "dagger": config.to_dict(),
-                                      "init": None if init is None else str(init)})
+            try:
+                load_weights(net, init)
+            except CheckpointError as error:
+                raise CheckpointError(f"--init: {error}") from None
+        state = {"iteration": 0, "env_steps": 0, "expert_sim_steps": 0, "labels": 0, "seconds": 0.0}
+    try:
+        if not resume:
+            # The settings, the starting weights and the state, before any work: a run directory
+            # always holds all three, so --resume never has to guess.
+            write_run_json(run_dir / CONFIG, {"kind": KIND_DAGGER, "task": config.learner.task,
+                                              "seed": config.learner.seed,
+                                              "network": config.learner.network_settings().to_dict(),
+                                              "net": net.config.to_dict(), "dagger": config.to_dict(),
+                                              "init": None if init is None else str(init)})
+            save_checkpoint(run_dir / CHECKPOINT, model=net.state_dict(), step=0, **state)
+            write_run_json(run_dir / STATE, state)
+        with sigterm_as_interrupt():
+            return _iterations(config, run_dir, net, state, resume=resume, progress=progress)
+    except RunWriteError as error:
+        if not resume and state["iteration"] == 0:
+            discard_new_run(run_dir, created, _RUN_FILES)
+            raise error.advise(f"No iteration had finished, so the new run's files are removed from {run_dir}: "
+                               f"free some space and run the same command again") from error
+        raise error.advise(f"The iterations finished before ({state['iteration']}) are saved in {run_dir}: free "
+                           f"some space and continue with --resume") from error
+    except Exception:
+        if not resume and state["iteration"] == 0:
+            discard_new_run(run_dir, created, _RUN_FILES)  # nothing done: a rerun starts afresh
+        raise
+
+
+def _resume_state(run_dir: Path, config: DAggerConfig, net: RecurrentActorCritic) -> dict[str, Any]:
+    """Check that the run in ``run_dir`` can be continued with ``config``, load its weights into
+    ``net`` and return its state; refuses, naming what is missing, rather than starting over.
+
+    The checkpoint is the commit point: it holds the weights and the counts of the last finished
+    iteration (``dagger_state.json`` is a copy for readers, rewritten here if a kill left it behind)."""
+    check_resumable(run_dir, kind=KIND_DAGGER, what="DAgger", needs=(CHECKPOINT,))
+    stored = _stored_config(run_dir)
+    changed = [name for name in ("learner", "episodes_per_iteration", "beta0", "beta_decay",
+                                 "epochs_per_iteration", "expert", "max_episode_steps")
+               if getattr(stored, name) != getattr(config, name)]
+    if changed:
+        raise ValueError(f"--resume must keep the run's settings; changed: {', '.join(changed)}. "
+                         f"Allowed to change: {', '.join(DAggerConfig.RESUMABLE_CHANGES)}")
+    payload = load_checkpoint(run_dir / CHECKPOINT)
+    path = run_dir / STATE
+    copy = files.read_json(path)
+    if all(_count(payload.get(k)) for k in _STATE_KEYS):
+        state = {k: payload[k] for k in _STATE_KEYS} | {"seconds": float(payload.get("seconds", 0.0))}
+    else:  # a checkpoint of an earlier version: the state file holds the counts
+        if not path.is_file():
+            raise ValueError(f"--resume: {run_dir} has no {STATE} and its checkpoint holds no counts, so the DAgger "
+                             f"run in it cannot be continued. Start anew without --resume in a new --run-dir")
+        if copy is None or not all(_count(copy.get(k)) for k in _STATE_KEYS):
+            raise ValueError(f"{path} is not a DAgger state (it needs the counts {', '.join(_STATE_KEYS)})")
+        state = {k: copy[k] for k in _STATE_KEYS} | {"seconds": float(copy.get("seconds", 0.0))}
+        if payload["step"] != state["env_steps"]:
+            raise ValueError(f"--resume: {run_dir / CHECKPOINT} holds the weights of step {payload['step']}, but "
+                             f"{path} counts {state['env_steps']} steps (stopped between the two writes); the "
+                             f"iteration cannot be redone from those weights. Start anew in a new --run-dir")
+    missing = [str(_data_path(run_dir, i)) for i in range(state["iteration"]) if not _data_path(run_dir, i).is_file()]
+    if missing:
+        raise ValueError(f"--resume: the aggregated data of finished iterations is missing ({', '.join(missing)}), "
+                         f"so the DAgger run in {run_dir} cannot be continued. Start anew without --resume in a "
+                         f"new --run-dir")
+    load_weights(net, run_dir / CHECKPOINT)
+    if copy != state:
+        write_run_json(path, state)
+    return state
+
+
+def _count(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
+
+
+def _iterations(config: DAggerConfig, run_dir: Path, net: RecurrentActorCritic, state: dict[str, Any], *,
+                resume: bool, progress: bool) -> DAggerResult:
+    """The iterations after the last finished one (``state``, updated in place)."""
     first_iteration = state["iteration"]
     dataset: list[Episode] = []
     for i in range(state["iteration"]):
         dataset += _load_episodes(_data_path(run_dir, i))
-    log = MetricLog(run_dir, {"dagger": _TABLE}, resume_step=state["env_steps"] if resume else None)
+    # The row at the checkpoint's step is the last finished iteration's (written before it): kept.
+    log = MetricLog(run_dir, {"dagger": _TABLE}, resume_step=state["env_steps"] if resume else None,
+                    keep_at_resume_step=("dagger",))
     started = time.monotonic() - state.get("seconds", 0.0)
     final_eval = None
     learner = config.learner
@@ -292,24 +376,26 @@ def _dagger(config: DAggerConfig, run_dir: Path | str, *, resume: bool, init: st
                                                           episodes=config.eval_episodes, seed=evaluation_seed(learner.seed),
                                                           time_limit=learner.time_limit)
                               if config.eval_episodes else None)
+                done = dict(state)
                 for key in ("env_steps", "expert_sim_steps", "labels"):
-                    state[key] += costs[key]
-                state["iteration"] = iteration + 1
-                state["seconds"] = time.monotonic() - started
+                    done[key] += costs[key]
+                done["iteration"] = iteration + 1
+                done["seconds"] = time.monotonic() - started
                 row = {"iteration": iteration, "beta": beta, "episodes": len(dataset),
                        "dataset_steps": sum(len(e) for e in dataset),
-                       "expert_sim_steps": state["expert_sim_steps"], "labels": state["labels"],
+                       "expert_sim_steps": done["expert_sim_steps"], "labels": done["labels"],
                        "train_loss": summary["loss"], "train_accuracy": summary["accuracy"],
                        "rollout_success_rate": costs["successes"] / config.episodes_per_iteration,
-                       "seconds": state["seconds"], **(final_eval or {})}
-                save_checkpoint(run_dir / CHECKPOINT, model=net.state_dict(), step=state["env_steps"],
-                                iteration=state["iteration"])
-                # The log row before the state: a run killed in between redoes the iteration, and
-                # the resumed log drops the orphaned row (rows after the state's step).
-                log.write("dagger", state["env_steps"], row,
+                       "seconds": done["seconds"], **(final_eval or {})}
+                # The log row before the checkpoint, which commits the iteration (weights and counts):
+                # a run killed in between redoes the iteration from the weights before it, and the
+                # resumed log drops the orphaned row (rows after the checkpoint's step).
+                log.write("dagger", done["env_steps"], row,
                           scalars=("train_loss", "train_accuracy", "rollout_success_rate", "greedy_success_rate",
                                    "sampled_success_rate", "dataset_steps", "expert_sim_steps"))
-                write_json(run_dir / STATE, state)
+                save_checkpoint(run_dir / CHECKPOINT, model=net.state_dict(), step=done["env_steps"], **done)
+                state.update(done)
+                write_run_json(run_dir / STATE, done)  # a copy of the counts for readers
                 success = row.get("greedy_success_rate")
                 bar.update(completed=iteration + 1,
                            info=f"β {row['beta']:.2f}  dataset {row['dataset_steps']:,} steps"

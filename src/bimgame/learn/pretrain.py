@@ -29,20 +29,23 @@ import torch
 
 from bimgame.expert.datasets import dataset_manifest, iterate_sequences, load_dataset
 from bimgame.expert.episode import Episode, relabel
-from bimgame.learn.common import evaluate_greedy_and_sampled
+from bimgame.learn.common import check_seed, evaluate_greedy_and_sampled
 from bimgame.learn.nets import RecurrentActorCritic, ValueNetwork
-from bimgame.learn.runs import (CHECKPOINT, CONFIG, KIND_POLICY, KIND_VALUE, MetricLog, load_weights, save_checkpoint,
-                                torch_threads)
+from bimgame.learn.runs import (CHECKPOINT, CONFIG, KIND_POLICY, KIND_VALUE, SUMMARY, MetricLog, RunWriteError,
+                                discard_new_run, load_weights, prepare_new_run, save_checkpoint, torch_threads,
+                                write_run_json)
 from bimgame.learn.supervised import (PretrainConfig, l2_penalty, policy_epoch, split_episodes,
                                       summarise)
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.tasks import Task, parse_task
-from bimgame.util.files import write_json
 from bimgame.util.progress import ProgressBar
+from bimgame.util.signals import sigterm_as_interrupt
 
 __all__ = ["PretrainResult", "pretrain", "load_sequences", "build_model", "evaluate_policy"]
 _TABLE = ["train_loss", "train_accuracy", "train_value_rmse", "val_loss", "val_accuracy", "val_value_rmse",
           "seconds"]
+#: Every file and folder pre-training writes in its directory (removed again if it stops early).
+_RUN_FILES = (CONFIG, CHECKPOINT, SUMMARY, "pretrain.csv", "tb")
 
 
 # ------------------------------------------------------------------------------------- data
@@ -121,15 +124,28 @@ def pretrain(config: PretrainConfig, data_dir: str | Path, out_dir: str | Path, 
     """Train π^s or V̂ on the dataset in ``data_dir``; everything is written to ``out_dir``:
     ``config.json``, ``checkpoint.pt`` (the best held-out weights), ``pretrain.csv`` and TensorBoard
     scalars per epoch, ``summary.json``. ``sequences`` (already loaded with
-    :func:`load_sequences`) skips reading the dataset."""
+    :func:`load_sequences`) skips reading the dataset.
+
+    ``out_dir`` must be new or empty. Pre-training cannot resume: if it stops before its summary is
+    written (an error, Ctrl-C, SIGTERM, a full disk), it removes what it wrote, so the same call can
+    be repeated."""
+    check_seed("PretrainConfig", config.seed)
+    out_dir = Path(out_dir)
+    created = prepare_new_run(out_dir, what="pre-training", flag="--out")
     with torch_threads():
-        return _pretrain(config, data_dir, Path(out_dir), progress=progress, sequences=sequences)
+        try:
+            with sigterm_as_interrupt():
+                return _pretrain(config, data_dir, out_dir, progress=progress, sequences=sequences)
+        except BaseException as error:
+            discard_new_run(out_dir, created, _RUN_FILES)
+            if isinstance(error, RunWriteError):
+                raise error.advise(f"Pre-training cannot resume, so its files are removed from {out_dir}: free "
+                                   f"some space and run the same command again") from error
+            raise
 
 
 def _pretrain(config: PretrainConfig, data_dir: str | Path, out_dir: Path, *, progress: bool,
               sequences: list[Episode] | None) -> PretrainResult:
-    if (out_dir / CONFIG).exists() or (out_dir / CHECKPOINT).exists():
-        raise ValueError(f"{out_dir} already holds a run; choose a new --out")
     maze = MazeSpec.merl()
     if sequences is None:
         sequences = load_sequences(data_dir, config.task, config.obs, config.gamma, maze, progress=progress)
@@ -137,11 +153,10 @@ def _pretrain(config: PretrainConfig, data_dir: str | Path, out_dir: Path, *, pr
     train_idx, val_idx = split_episodes(len(sequences), config.val_fraction, rng)
     net = build_model(config, maze)
     kind = KIND_POLICY if config.target == "policy" else KIND_VALUE
-    out_dir.mkdir(parents=True, exist_ok=True)
-    write_json(out_dir / CONFIG, {"kind": kind, "task": config.task, "seed": config.seed,
-                                  "network": config.network_settings().to_dict(), "net": net.config.to_dict(),
-                                  "pretrain": config.to_dict(), "data": str(data_dir),
-                                  "episodes": {"train": len(train_idx), "held_out": len(val_idx)}})
+    write_run_json(out_dir / CONFIG, {"kind": kind, "task": config.task, "seed": config.seed,
+                                      "network": config.network_settings().to_dict(), "net": net.config.to_dict(),
+                                      "pretrain": config.to_dict(), "data": str(data_dir),
+                                      "episodes": {"train": len(train_idx), "held_out": len(val_idx)}})
     optimizer = torch.optim.Adam(net.parameters(), lr=config.lr)
     max_tilt = maze.max_tilt
     if config.target == "value":
@@ -198,7 +213,7 @@ def _pretrain(config: PretrainConfig, data_dir: str | Path, out_dir: Path, *, pr
         policy_eval = evaluate_policy(net, config)
     result = PretrainResult(out_dir, best["epoch"], epochs_run, best["accuracy"], best["value_rmse"],
                             time.monotonic() - started, policy_eval)
-    write_json(out_dir / "summary.json", {"kind": kind, "best_epoch": result.best_epoch, "epochs_run": epochs_run,
+    write_run_json(out_dir / SUMMARY, {"kind": kind, "best_epoch": result.best_epoch, "epochs_run": epochs_run,
                                           "val_accuracy": result.val_accuracy,
                                           "val_value_rmse": result.val_value_rmse, "chance_accuracy": 0.2,
                                           "seconds": result.seconds, "policy_eval": policy_eval,

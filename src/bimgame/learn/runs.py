@@ -3,16 +3,23 @@
 Layout of ``RUN_DIR``::
 
     config.json          the run's settings (written once; a resumed run must match them)
-    checkpoint.pt        latest checkpoint: weights, optimiser statistics, environment steps
+    checkpoint.pt        latest checkpoint: weights, optimiser statistics, environment steps, seconds
     episodes.csv         one row per finished training episode
     updates.csv          losses, entropy, gradient norm and SPS against environment steps
     eval.csv             periodic evaluation (greedy and sampled episodes)
     tb/                  TensorBoard event files of the same numbers
 
+A new run goes into a new or empty directory only (:func:`prepare_new_run`), never over someone's
+files, and writes its ``config.json`` and a first checkpoint before anything else, so a run
+directory always has both; ``--resume`` continues a run of its own kind only
+(:func:`check_resumable`). A new run that fails before it has trained anything removes what it wrote
+(:func:`discard_new_run`), so the same command can be run again.
+
 Checkpoints are written atomically and read with ``torch.load(weights_only=True)``: a checkpoint is a
 dict of tensors, numbers and strings only, so a file someone sent cannot run code when loaded.
-CSV logs are appended line by line and flushed; a resumed run first drops the rows logged after its
-checkpoint, so no step is counted twice.
+CSV logs are appended line by line and flushed; a resumed run first keeps the rows logged before its
+checkpoint (:func:`resumed_rows`), so no step is counted twice, and refuses a log it did not write.
+A file that cannot be written (a full disk) raises :class:`RunWriteError`, which names it.
 """
 
 from __future__ import annotations
@@ -24,23 +31,57 @@ import os
 import json
 import math
 import pickle
+import re
+import shutil
 from pathlib import Path
-from typing import Any, Iterable, Iterator
+from typing import Any, Callable, Iterable, Iterator, Sequence, TypeVar
 
 import torch
 
-from bimgame.util.files import atomic_write_bytes
+from bimgame.util import files
 
-__all__ = ["torch_threads", "run_kind", "KIND_A3C", "KIND_POLICY", "KIND_VALUE", "CheckpointError", "save_checkpoint", "load_checkpoint", "load_weights", "CsvLog",
-           "MetricLog", "read_run_config", "CHECKPOINT", "CONFIG"]
+__all__ = ["torch_threads", "run_kind", "KIND_A3C", "KIND_POLICY", "KIND_VALUE", "CheckpointError", "save_checkpoint",
+           "load_checkpoint", "load_weights", "CsvLog", "MetricLog", "read_run_config", "read_run_settings",
+           "CHECKPOINT", "CONFIG", "SUMMARY", "RunWriteError", "write_run_json", "prepare_new_run", "check_resumable",
+           "discard_new_run", "directory_entries", "resumed_rows"]
 
 CHECKPOINT = "checkpoint.pt"
 CONFIG = "config.json"
+SUMMARY = "summary.json"
 #: What a run directory holds (config.json's "kind"; A3C runs have none).
 KIND_A3C = "a3c"
 KIND_POLICY = "pretrained-policy"
 KIND_VALUE = "value-function"
 _REQUIRED = {"model": dict, "step": int}
+T = TypeVar("T")
+
+
+class RunWriteError(OSError):
+    """A file of a run could not be written (e.g. the disk is full). The message names the file and,
+    with ``advice``, how to go on; files are written atomically and logs by whole rows, so what was
+    written before is intact."""
+
+    def __init__(self, path: str | Path, reason: str, advice: str = ""):
+        self.path, self.reason, self.advice = Path(path), reason, advice
+        super().__init__(f"cannot write {path}: {reason}" + (f". {advice}" if advice else ""))
+
+    def advise(self, advice: str) -> RunWriteError:
+        """The same error with ``advice`` (what the caller knows about going on)."""
+        return RunWriteError(self.path, self.reason, advice)
+
+
+def _write_error(path: str | Path, error: OSError) -> RunWriteError:
+    if isinstance(error, RunWriteError):
+        return error
+    return RunWriteError(path, error.strerror or str(error) or type(error).__name__)
+
+
+def write_run_json(path: str | Path, values: dict[str, Any]) -> Path:
+    """:func:`~bimgame.util.files.write_json` raising :class:`RunWriteError` (naming the file) when it fails."""
+    try:
+        return files.write_json(path, values)
+    except OSError as error:
+        raise _write_error(path, error) from error
 
 
 @contextlib.contextmanager
@@ -74,27 +115,163 @@ def read_run_config(run_dir: str | Path) -> dict[str, Any]:
     return stored
 
 
+def read_run_settings(run_dir: str | Path, key: str, parse: Callable[[dict[str, Any]], T]) -> T:
+    """``parse(config[key])`` for the run in ``run_dir``: a missing or malformed block, or settings that
+    ``parse`` refuses, raise ``ValueError`` naming the ``config.json``."""
+    path = Path(run_dir)
+    path = (path.parent if path.is_file() else path) / CONFIG
+    block = read_run_config(path.parent).get(key)
+    if not isinstance(block, dict):
+        raise ValueError(f"{path} has no {key!r} settings (a JSON object); it is not a run of this kind, or damaged")
+    try:
+        return parse(block)
+    except (ValueError, TypeError, KeyError) as error:
+        raise ValueError(f"{path}: {error}") from None
+
+
 def run_kind(run_dir: str | Path) -> str:
     """What a run directory (or a checkpoint file in one) holds: :data:`KIND_A3C`,
     :data:`KIND_POLICY`, :data:`KIND_VALUE` or another tool's kind (e.g. DAgger's)."""
     return read_run_config(run_dir).get("kind", KIND_A3C)
 
 
+# ------------------------------------------------------------------------- run directories
+def _is_temporary(name: str) -> bool:
+    """A temporary of an atomic write (``.NAME.xxxx.tmp``) left by a killed process."""
+    return name.startswith(".") and name.endswith(".tmp")
+
+
+def directory_entries(directory: Path) -> list[str]:
+    """The names in ``directory`` (folders with a trailing ``/``), sorted, without the temporaries
+    of atomic writes."""
+    return sorted(p.name + ("/" if p.is_dir() else "") for p in directory.iterdir() if not _is_temporary(p.name))
+
+
+def _shown(entries: Sequence[str]) -> str:
+    return (f"found {len(entries)} entr{'y' if len(entries) == 1 else 'ies'}: "
+            + ", ".join(repr(name) for name in entries[:5]) + (", …" if len(entries) > 5 else ""))
+
+
+def prepare_new_run(run_dir: str | Path, *, what: str, flag: str, kind: str | None = None) -> bool:
+    """Check that a new run of ``what`` (e.g. "A3C") may go into ``run_dir`` — a new or empty
+    directory — before anything is written; returns whether the directory does not exist yet (so
+    that :func:`discard_new_run` may remove it). A directory holding anything else is refused,
+    naming what is in it: nothing of the user's is ever overwritten. ``kind``: the run kind that
+    ``--resume`` continues (None: the tool cannot resume)."""
+    run_dir = Path(run_dir)
+    if run_dir.exists() and not run_dir.is_dir():
+        raise ValueError(f"{flag} {run_dir} exists and is not a directory")
+    if not run_dir.exists():
+        return True
+    found = directory_entries(run_dir)
+    if not found:
+        return False
+    if (run_dir / CONFIG).is_file():
+        try:
+            actual = run_kind(run_dir)
+        except ValueError:
+            actual = None
+        if kind is not None and actual == kind:
+            hint = f"pass --resume to continue it or choose a new {flag}"
+        else:
+            hint = f"choose a new {flag}" + (f" (it is a {actual} run, not {_article(what)} {what} run)"
+                                             if actual is not None and kind is not None and actual != kind else "")
+        raise ValueError(f"{run_dir} already holds a run; {hint}. Nothing was changed.")
+    raise ValueError(f"{run_dir} is not empty and is not {_article(what)} {what} run (no {CONFIG}; {_shown(found)}); "
+                     f"nothing was changed. Use a new or empty {flag}.")
+
+
+def _article(word: str) -> str:
+    return "an" if word[:1].upper() in "AEIOU" else "a"
+
+
+def check_resumable(run_dir: str | Path, *, kind: str, what: str, flag: str = "--run-dir",
+                    needs: Iterable[str] = ()) -> dict[str, Any]:
+    """Check that ``run_dir`` holds a run of ``kind`` that ``--resume`` can continue — its
+    ``config.json`` and the files in ``needs`` (e.g. its checkpoint) — and return its config. Refuses,
+    naming what is missing or what the directory holds instead."""
+    run_dir = Path(run_dir)
+    if not (run_dir / CONFIG).is_file():
+        found = directory_entries(run_dir) if run_dir.is_dir() else []
+        there = f"{run_dir} is not {_article(what)} {what} run ({_shown(found)})" if found else \
+            f"{run_dir} does not exist" if not run_dir.exists() else f"{run_dir} is empty"
+        raise ValueError(f"--resume: {run_dir} has no {CONFIG}: {there}; start a new run without --resume "
+                         f"(in a new or empty {flag})")
+    stored = read_run_config(run_dir)
+    actual = stored.get("kind", KIND_A3C)
+    if actual != kind:
+        raise ValueError(f"--resume: {run_dir} holds a {actual} run, not {_article(what)} {what} run ({kind}); "
+                         f"nothing was changed")
+    missing = [name for name in needs if not (run_dir / name).is_file()]
+    if missing:
+        raise ValueError(f"--resume: {run_dir} has no {' or '.join(missing)}, so the {what} run in it cannot be "
+                         f"continued (its logs were kept unchanged). Start anew without --resume in a new "
+                         f"{flag}, or remove {run_dir} first")
+    return stored
+
+
+def discard_new_run(run_dir: str | Path, created: bool, names: Iterable[str]) -> None:
+    """Remove what a new run wrote (the files and folders ``names``, and their temporaries) after it
+    failed before training anything, so that it blocks no rerun; and the directory itself if the run
+    created it and it is empty now. Nothing else is touched."""
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        return
+    names = set(names)
+    for path in run_dir.iterdir():
+        own_temporary = _is_temporary(path.name) and any(path.name.startswith(f".{name}.") for name in names)
+        if path.name in names or own_temporary:
+            if path.is_dir() and not path.is_symlink():
+                shutil.rmtree(path, ignore_errors=True)
+            else:
+                with contextlib.suppress(OSError):
+                    path.unlink()
+    if created:
+        with contextlib.suppress(OSError):
+            run_dir.rmdir()  # only if empty
+
+
+# ------------------------------------------------------------------------------ checkpoints
 class CheckpointError(ValueError):
     """A checkpoint that cannot be used: missing, unreadable, unsafe, or not from a bimgame run."""
 
 
 def save_checkpoint(path: str | Path, *, model: dict[str, torch.Tensor], step: int,
                     optimizer: dict | None = None, **extra: Any) -> Path:
-    """Write a checkpoint atomically. ``extra`` values must be tensors, numbers, strings or
-    containers of them (what ``weights_only`` loading accepts)."""
+    """Write a checkpoint atomically (:class:`RunWriteError` naming it if that fails). ``extra``
+    values must be tensors, numbers, strings or containers of them (what ``weights_only`` loading
+    accepts)."""
     payload = {"format": "bimgame-checkpoint-1", "model": {k: v.detach().clone() for k, v in model.items()},
                "step": int(step), **extra}
     if optimizer is not None:
         payload["optimizer"] = optimizer
     buffer = io.BytesIO()
     torch.save(payload, buffer)
-    return atomic_write_bytes(path, buffer.getvalue())
+    try:
+        return files.atomic_write_bytes(path, buffer.getvalue())
+    except OSError as error:
+        raise _write_error(path, error) from error
+
+
+def _load_failure(path: Path, error: BaseException) -> CheckpointError:
+    """Why ``torch.load(weights_only=True)`` refused ``path``, in our words: torch's own message
+    advises loading with ``weights_only=False``, which would run whatever code the file holds, so none
+    of its advice is passed on."""
+    text = str(error)
+    # torch words it two ways: "Unsupported global: GLOBAL x.y" and "unsupported GLOBAL x.y whose module ...".
+    unsafe = re.search(r"[Uu]nsupported (?:global: )?GLOBAL ([\w.]+)", text)
+    if unsafe:
+        return CheckpointError(f"refused to load {path}: it holds objects other than tensors and plain data "
+                               f"({unsafe.group(1)}); loading such a file could run code, so bimgame never does")
+    if isinstance(error, EOFError) or "failed finding central directory" in text:
+        return CheckpointError(f"cannot read checkpoint {path}: it is truncated (an unfinished copy or download?)")
+    reason = re.search(r"WeightsUnpickler error:\s*(.+?)\s*(?:\n\n|$)", text, re.S)
+    detail = reason.group(1) if reason else text.split(". ")[0]
+    detail = " ".join(detail.split())
+    if "weights_only" in detail or not detail:
+        detail = type(error).__name__
+    return CheckpointError(f"cannot read checkpoint {path}: it is not a PyTorch checkpoint, or it is damaged "
+                           f"({detail})")
 
 
 def load_checkpoint(path: str | Path) -> dict[str, Any]:
@@ -105,12 +282,18 @@ def load_checkpoint(path: str | Path) -> dict[str, Any]:
     if not path.is_file():
         raise CheckpointError(f"no checkpoint at {path}")
     try:
+        size = path.stat().st_size
+    except OSError as error:
+        raise CheckpointError(f"cannot read checkpoint {path}: {error.strerror or error}") from None
+    if size == 0:
+        raise CheckpointError(f"cannot read checkpoint {path}: the file is empty (0 bytes; truncated, or never "
+                              f"written to the end)")
+    try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
-    except pickle.UnpicklingError as error:
-        raise CheckpointError(f"refused to load {path}: it holds objects other than tensors and plain "
-                              f"data (loading it could run code): {str(error).splitlines()[0]}") from None
-    except (RuntimeError, EOFError, OSError, ValueError) as error:
-        raise CheckpointError(f"cannot read checkpoint {path}: {error}") from None
+    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError) as error:
+        raise _load_failure(path, error) from None
+    except OSError as error:
+        raise CheckpointError(f"cannot read checkpoint {path}: {error.strerror or error}") from None
     if not isinstance(payload, dict) or payload.get("format") != "bimgame-checkpoint-1":
         raise CheckpointError(f"{path} is not a bimgame checkpoint (no 'format': 'bimgame-checkpoint-1')")
     for key, kind in _REQUIRED.items():
@@ -141,42 +324,81 @@ def load_weights(module: torch.nn.Module, source: str | Path) -> int:
     return payload["step"]
 
 
-class CsvLog:
-    """An append-only CSV file with a fixed header, flushed after every row."""
+# ------------------------------------------------------------------------------------- logs
+def resumed_rows(path: str | Path, fields: Sequence[str], before: int, *, keep_equal: bool = False,
+                 step_field: str = "step") -> list[dict[str, str]]:
+    """The rows of the CSV log ``path`` that a run resumed from a checkpoint at step ``before`` keeps:
+    those logged strictly before it (also those at exactly ``before`` with ``keep_equal``, for a table
+    whose rows at a checkpoint's step were logged before the checkpoint was written). A last line cut
+    off by a kill or a full disk is dropped. A log this run did not write — another header, a row
+    that does not parse — is refused (``ValueError`` naming the file), before anything is changed:
+    its rows are never dropped silently. A missing file has no rows."""
+    path = Path(path)
+    if not path.is_file():
+        return []
+    try:
+        with path.open(encoding="utf-8", newline="") as handle:
+            text = handle.read()
+    except (OSError, UnicodeDecodeError) as error:
+        raise ValueError(f"cannot read the log {path} to resume: {error}") from None
+    lines = text.splitlines(keepends=True)
+    if lines and not lines[-1].endswith("\n"):
+        lines.pop()  # a row cut off mid-write: it was never complete
+    reader = csv.reader(lines)
+    header = next(reader, None)
+    if header != list(fields):
+        raise ValueError(f"cannot resume: {path} has the header {','.join(header) if header else '(none: empty)'} "
+                         f"but this run writes {','.join(fields)}; it was not written by this run (or by another "
+                         f"version of bimgame). Nothing was changed: move the file away to resume without its "
+                         f"rows, or start a new run")
+    kept = []
+    for number, values in enumerate(reader, start=2):
+        if len(values) != len(header):
+            raise ValueError(f"cannot resume: {path} line {number} has {len(values)} fields, its header "
+                             f"{len(header)}; nothing was changed")
+        row = dict(zip(header, values))
+        try:
+            step = float(row[step_field])
+        except ValueError:
+            raise ValueError(f"cannot resume: {path} line {number}: {step_field} {row[step_field]!r} is not a "
+                             f"number; nothing was changed") from None
+        if step < before or (keep_equal and step == before):
+            kept.append(row)
+    return kept
 
-    def __init__(self, path: str | Path, fields: Iterable[str], *, step_field: str = "step",
-                 keep_until: int | None = None):
-        """``keep_until``: when resuming, drop existing rows whose ``step_field`` exceeds it
-        (rewritten atomically); None starts a fresh file."""
+
+class CsvLog:
+    """An append-only CSV file with a fixed header, flushed after every row; write failures raise
+    :class:`RunWriteError` naming the file."""
+
+    def __init__(self, path: str | Path, fields: Iterable[str], *, rows: Iterable[dict[str, Any]] = ()):
+        """Start the file (atomically) with its header and ``rows`` (e.g. a resumed run's
+        :func:`resumed_rows`)."""
         self.path = Path(path)
         self.fields = list(fields)
-        rows: list[dict[str, str]] = []
-        if keep_until is not None and self.path.is_file():
-            with self.path.open(newline="") as handle:
-                reader = csv.DictReader(handle)
-                if reader.fieldnames == self.fields:
-                    rows = [r for r in reader if _as_number(r.get(step_field)) <= keep_until]
         text = io.StringIO()
         writer = csv.DictWriter(text, self.fields)
         writer.writeheader()
         writer.writerows(rows)
-        atomic_write_bytes(self.path, text.getvalue().encode())
-        self._handle = self.path.open("a", newline="")
+        try:
+            files.atomic_write_bytes(self.path, text.getvalue().encode())
+            self._handle = self.path.open("a", newline="", encoding="utf-8")
+        except OSError as error:
+            raise _write_error(self.path, error) from error
         self._writer = csv.DictWriter(self._handle, self.fields)
 
     def write(self, row: dict[str, Any]) -> None:
-        self._writer.writerow({k: _format(row.get(k)) for k in self.fields})
-        self._handle.flush()
+        try:
+            self._writer.writerow({k: _format(row.get(k)) for k in self.fields})
+            self._handle.flush()
+        except OSError as error:
+            raise _write_error(self.path, error) from error
 
     def close(self) -> None:
-        self._handle.close()
-
-
-def _as_number(text: str | None) -> float:
-    try:
-        return float(text)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        return math.inf
+        """Close the file. Every row was flushed when written, so after a failed write (which was
+        reported) closing cannot lose more: a second failure is not raised."""
+        with contextlib.suppress(OSError):
+            self._handle.close()
 
 
 def _format(value: Any) -> Any:
@@ -186,19 +408,40 @@ def _format(value: Any) -> Any:
 
 
 class MetricLog:
-    """CSV files plus TensorBoard scalars, keyed by environment steps."""
+    """CSV files plus TensorBoard scalars, keyed by environment steps.
+
+    ``resume_step``: the step of the checkpoint a resumed run continues from; each table keeps its
+    rows logged before it (:func:`resumed_rows`; ``keep_at_resume_step`` names the tables whose rows at
+    exactly that step are kept too). Every table is read and checked before any is rewritten, so a
+    refusal changes nothing. ``kept`` holds the kept rows by table."""
 
     def __init__(self, run_dir: str | Path, tables: dict[str, list[str]], *, resume_step: int | None = None,
-                 tensorboard: bool = True):
+                 keep_at_resume_step: Iterable[str] = (), tensorboard: bool = True):
         self.run_dir = Path(run_dir)
-        self.tables = {name: CsvLog(self.run_dir / f"{name}.csv", ["step", *fields], keep_until=resume_step)
-                       for name, fields in tables.items()}
+        keep_equal = set(keep_at_resume_step)
+        fields = {name: ["step", *columns] for name, columns in tables.items()}
+        self.kept: dict[str, list[dict[str, str]]] = {name: [] for name in tables}
+        if resume_step is not None:
+            self.kept = {name: resumed_rows(self._path(name), fields[name], resume_step, keep_equal=name in keep_equal)
+                         for name in tables}
+        self.tables: dict[str, CsvLog] = {}
+        try:
+            for name in tables:
+                self.tables[name] = CsvLog(self._path(name), fields[name], rows=self.kept[name])
+        except BaseException:
+            self.close()
+            raise
         self.writer = None
         if tensorboard:
             # Lazy: importing TensorBoard's writer costs about a second, paid only by runs that log.
             from torch.utils.tensorboard import SummaryWriter
 
-            self.writer = SummaryWriter(str(self.run_dir / "tb"), purge_step=resume_step)
+            # Events at or after purge_step are hidden: those of the steps the CSV files dropped.
+            purge = None if resume_step is None else resume_step + (1 if keep_equal >= set(tables) else 0)
+            self.writer = SummaryWriter(str(self.run_dir / "tb"), purge_step=purge)
+
+    def _path(self, table: str) -> Path:
+        return self.run_dir / f"{table}.csv"
 
     def write(self, table: str, step: int, values: dict[str, Any], *, scalars: Iterable[str] = ()) -> None:
         self.tables[table].write({"step": step, **values})
@@ -211,6 +454,6 @@ class MetricLog:
     def close(self) -> None:
         for table in self.tables.values():
             table.close()
-        if self.writer is not None:
-            self.writer.close()
-
+        if getattr(self, "writer", None) is not None:
+            with contextlib.suppress(OSError):
+                self.writer.close()

@@ -21,10 +21,14 @@ __all__ = ["atomic_write_bytes", "exclusive_lock", "write_json", "read_json"]
 
 
 def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
-    """Write ``data`` to ``path`` atomically (creating parent directories); returns the path."""
+    """Write ``data`` to ``path`` atomically (creating parent directories); returns the path. An
+    ``OSError`` (e.g. a full disk) names ``path``; the file keeps its old content, if any."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    except OSError as error:
+        raise _naming(error, path) from error
     try:
         umask = os.umask(0)
         os.umask(umask)
@@ -34,11 +38,21 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
             handle.flush()
             os.fsync(handle.fileno())
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as error:
         if os.path.exists(tmp):
             os.unlink(tmp)
+        if isinstance(error, OSError):
+            raise _naming(error, path) from error
         raise
     return path
+
+
+def _naming(error: OSError, path: Path) -> OSError:
+    """``error`` naming ``path`` (the file being written, not a temporary): "[Errno 28] No space
+    left on device: 'runs/a/checkpoint.pt'". Errors without an errno are passed on as they are."""
+    if error.errno is None:
+        return error
+    return OSError(error.errno, error.strerror or os.strerror(error.errno), str(path))  # the errno's subclass
 
 
 @contextlib.contextmanager
