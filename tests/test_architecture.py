@@ -16,7 +16,7 @@ LEARNERS = {"bimgame.learn.a3c", "bimgame.learn.pretrain", "bimgame.learn.dagger
 #: Imports allowed inside functions: heavy optional or slow dependencies, each with its reason in the code.
 LAZY_ALLOWED = {"ray", "torch.utils.tensorboard"}
 #: Modules allowed over 500 lines; the README's Architecture section says why.
-LONG_ALLOWED = {"bimgame.learn.a3c", "bimgame.expert.datasets", "bimgame.sim.render"}
+LONG_ALLOWED = {"bimgame.sim.render"}
 
 
 def _module_name(path: pathlib.Path) -> str:

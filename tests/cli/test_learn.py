@@ -8,6 +8,7 @@ import json
 import math
 
 import pytest
+from support.disk import disk_fills_up
 
 from bimgame.cli.main import main
 from bimgame.expert.datasets import generate_dataset
@@ -271,15 +272,7 @@ def test_pretraining_that_stops_early_leaves_nothing_that_blocks_a_rerun(tiny_da
 
 
 def test_disk_full_during_pretraining_names_the_file(tiny_dataset, tmp_path, monkeypatch, capsys):
-    from bimgame.util import files
-
-    real = files.atomic_write_bytes
-
-    def write(path, data):
-        if path.name == "checkpoint.pt":
-            raise OSError(28, "No space left on device")
-        return real(path, data)
-    monkeypatch.setattr(files, "atomic_write_bytes", write)
+    disk_fills_up(monkeypatch, "checkpoint.pt")
     out = tmp_path / "pi"
     assert main(["pretrain", "--data", str(tiny_dataset), "--out", str(out), *PRETRAIN_TINY]) == 2
     err = _flat(capsys.readouterr().err)

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support import procfs
 
 from bimgame.expert.pool import episode_progress, expert_episodes
 from bimgame.expert.mpc import MPCConfig, episode_seed, run_expert_episode
@@ -43,34 +44,6 @@ def test_progress_counts_resumed_and_new_episodes():
 
 
 # ------------------------------------------------------------------------------ a killed parent
-def _stat(pid: int) -> tuple[str, int, int] | None:
-    """(state, parent pid, start time) of a process from /proc, or None if it is gone."""
-    try:
-        text = Path(f"/proc/{pid}/stat").read_text()
-    except OSError:
-        return None
-    fields = text.rsplit(")", 1)[1].split()  # after "pid (comm)": state, ppid, ..., starttime (22nd field)
-    return fields[0], int(fields[1]), int(fields[19])
-
-
-def _descendants(pid: int) -> dict[int, int]:
-    """Every process below ``pid`` → its start time (which tells a reused pid apart)."""
-    stats = {int(name): _stat(int(name)) for name in os.listdir("/proc") if name.isdigit()}
-    found, frontier = {}, [pid]
-    while frontier:
-        parent = frontier.pop()
-        for child, stat in stats.items():
-            if stat is not None and stat[1] == parent and child not in found:
-                found[child] = stat[2]
-                frontier.append(child)
-    return found
-
-
-def _running(pid: int, start: int) -> bool:
-    stat = _stat(pid)
-    return stat is not None and stat[2] == start and stat[0] not in "ZX"  # a zombie has exited
-
-
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="finds the worker processes in /proc")
 def test_workers_exit_when_generate_is_killed(tmp_path):
     """kill -9 of `bimgame generate` with 2 workers: no worker outlives it (they used to wait forever
@@ -87,53 +60,18 @@ def test_workers_exit_when_generate_is_killed(tmp_path):
             assert process.poll() is None, "generate exited early"
             assert time.monotonic() < deadline, "no episodes were written"
             time.sleep(0.05)
-        children = _descendants(process.pid)
+        children = procfs.descendants(process.pid)
         assert len(children) >= 2
     finally:
         process.send_signal(signal.SIGKILL)
         process.wait()
     try:
         deadline = time.monotonic() + 15
-        while any(_running(pid, start) for pid, start in children.items()) and time.monotonic() < deadline:
+        while any(procfs.running(pid, start) for pid, start in children.items()) and time.monotonic() < deadline:
             time.sleep(0.1)
-        left = [pid for pid, start in children.items() if _running(pid, start)]
+        left = [pid for pid, start in children.items() if procfs.running(pid, start)]
         assert not left, f"processes {left} of the killed generate still run"
     finally:
         for pid, start in children.items():  # clean up after a failure: only the ones we started
-            if _running(pid, start):
+            if procfs.running(pid, start):
                 os.kill(pid, signal.SIGKILL)
-
-
-ORPHAN = """
-import subprocess, sys, time
-child = subprocess.Popen([sys.executable, "-c", "import os, sys, time; sys.path[:] = %r; "
-                          "from bimgame.expert.pool import exit_when_parent_dies; "
-                          "exit_when_parent_dies(os.getppid(), poll_seconds=0.05); print('watching', flush=True); "
-                          "time.sleep(60)"], stdout=sys.stdout)
-time.sleep(60)
-"""
-
-
-@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="finds the processes in /proc")
-def test_a_helper_process_exits_when_its_parent_is_killed():
-    """The same for a process that is not a multiprocessing child (the Minari build process)."""
-    parent = subprocess.Popen([sys.executable, "-c", ORPHAN % (sys.path,)], stdout=subprocess.PIPE, text=True)
-    children: dict[int, int] = {}
-    try:
-        assert parent.stdout.readline() == "watching\n"
-        children = _descendants(parent.pid)
-        assert len(children) == 1
-    finally:
-        parent.kill()
-        parent.wait()
-        parent.stdout.close()
-    try:
-        deadline = time.monotonic() + 5
-        while any(_running(pid, start) for pid, start in children.items()) and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert not any(_running(pid, start) for pid, start in children.items())
-    finally:
-        for pid, start in children.items():
-            if _running(pid, start):
-                os.kill(pid, signal.SIGKILL)
-

@@ -4,6 +4,7 @@ import json
 
 import numpy as np
 import pytest
+from support.logs import running_log
 
 from bimgame.cli.main import main
 from bimgame.learn.a3c import A3CConfig, train
@@ -56,35 +57,11 @@ def test_booleans_as_the_a3c_logs_write_them_and_a_comparison_figure(tmp_path):
 
 
 # ------------------------------------------------------------- episodes still running at the end
-def _running_log(steps: int, *, envs: int = 64, limit: int = 200, rate: float = 0.5, seed: int = 0) -> dict:
-    """The episodes.csv columns of ``envs`` environments stepped in lockstep until ``steps`` (the
-    x-axis counts the steps of all environments together, as A3C's does): every episode succeeds
-    with probability ``rate`` whatever its start, in 5–30 steps, or fails at the time limit
-    ``limit``. Only the episodes that ended by ``steps`` are logged, as in a run's log."""
-    rng = np.random.default_rng(seed)
-    start = np.zeros(envs)
-    length = np.zeros(envs)
-    wins = rng.random(envs) < rate
-    target = np.where(wins, rng.integers(5, 31, envs), limit)
-    rows = []
-    for tick in range(steps // envs):
-        length += 1
-        now = (tick + 1) * envs
-        for i in np.flatnonzero(length >= target):
-            rows.append((now, start[i], length[i], float(wins[i])))
-            start[i], length[i] = now, 0
-            wins[i] = rng.random() < rate
-            target[i] = rng.integers(5, 31) if wins[i] else limit
-    step, start_step, lengths, success = map(np.array, zip(*rows))
-    return {"step": step, "start_step": start_step, "worker": np.zeros(len(step)), "return": success,
-            "length": lengths, "success": success}
-
-
 def test_bins_whose_episodes_may_still_be_running_are_left_out():
     # Success does not depend on the start step: every bin should show ≈ 50%. The episodes that
     # started in the last 200 × 64 steps and fail (run to the time limit) had not ended when the
     # log stopped, so the last bins held only short successes: 100% (the old, biased curve).
-    episodes = _running_log(400_000)
+    episodes = running_log(400_000)
     span = 200 * 64
     assert np.max(episodes["step"] - episodes["start_step"]) == span
     edges = np.linspace(0, 400_000, 41)
@@ -96,7 +73,7 @@ def test_bins_whose_episodes_may_still_be_running_are_left_out():
     assert steps.max() + 5_000 <= episodes["step"].max() - span + 1  # only bins whose episodes all ended
     assert len(steps) == 38  # the two bins after 387k are left out, no more
     # What is kept is what the whole log shows: the same run logged until every episode had ended.
-    whole = _running_log(400_000 + span)
+    whole = running_log(400_000 + span)
     np.testing.assert_allclose(means, binned_by_start(whole, "success", edges=edges)[1][:38])
     # Bins chosen by the function span the complete part of the run only.
     steps, means = binned_by_start(episodes, "success", bins=40)
@@ -129,7 +106,7 @@ def test_episode_span_from_the_run_settings_and_the_log():
 def test_plot_run_and_compare_draw_runs_with_an_unfinished_tail(tmp_path):
     run = tmp_path / "run"
     run.mkdir()
-    episodes = _running_log(200_000)
+    episodes = running_log(200_000)
     with (run / "episodes.csv").open("w") as handle:
         handle.write("step,start_step,worker,return,length,success\n")
         for row in zip(*(episodes[k] for k in ("step", "start_step", "worker", "return", "length", "success"))):

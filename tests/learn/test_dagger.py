@@ -12,6 +12,7 @@ import shutil
 
 import numpy as np
 import pytest
+from support.disk import disk_fills_up
 import torch
 
 from bimgame.learn import runs
@@ -489,15 +490,7 @@ def test_a_new_dagger_run_that_fails_in_its_first_iteration_leaves_nothing(tmp_p
 
 
 def test_disk_full_during_dagger_names_the_file_and_keeps_the_finished_iterations(tmp_path, monkeypatch, capsys):
-    from bimgame.util import files
-
-    real = files.atomic_write_bytes
-
-    def write(path, data):
-        if path.name == "iteration_001.npz":
-            raise OSError(28, "No space left on device")
-        return real(path, data)
-    monkeypatch.setattr(files, "atomic_write_bytes", write)
+    disk_fills_up(monkeypatch, "iteration_001.npz")
     run_dir = tmp_path / "run"
     config = dataclasses.replace(SMALL, iterations=2, eval_episodes=0)
     with pytest.raises(runs.RunWriteError, match=r"cannot write .*iteration_001.npz: No space left on device. The "

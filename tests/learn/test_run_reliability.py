@@ -15,9 +15,9 @@ import sys
 from pathlib import Path
 
 import pytest
+from support.disk import disk_fills_up
 import torch
 
-from bimgame.util import files
 from bimgame.cli.main import main
 from bimgame.learn.a3c import A3CConfig, network_for, resolve_config, train
 from bimgame.learn.runs import CheckpointError, load_checkpoint, save_checkpoint
@@ -210,23 +210,9 @@ def test_sigterm_during_the_final_evaluation_then_resume_does_just_the_evaluatio
 
 
 # ------------------------------------------------------------------------------ full disks
-def _disk_fills_up(monkeypatch, name: str, after: int) -> None:
-    """Writes of ``name`` fail with ENOSPC after the first ``after``."""
-    real = files.atomic_write_bytes
-    count = {"writes": 0}
-
-    def write(path, data):
-        if Path(path).name == name:
-            count["writes"] += 1
-            if count["writes"] > after:
-                raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
-        return real(path, data)
-    monkeypatch.setattr(files, "atomic_write_bytes", write)
-
-
 def test_disk_full_while_training_names_the_file_and_how_to_resume(tmp_path, monkeypatch, capsys):
     run_dir = tmp_path / "run"
-    _disk_fills_up(monkeypatch, "checkpoint.pt", after=2)  # step 0 and the first interval are saved
+    disk_fills_up(monkeypatch, "checkpoint.pt", after=2)  # step 0 and the first interval are saved
     assert main(["train", "--run-dir", str(run_dir), "--steps", "2000", "--checkpoint-every", "400",
                  *TINY_FLAGS]) == 1
     err = " ".join(capsys.readouterr().err.split())
@@ -277,7 +263,7 @@ def test_disk_full_while_logging_names_the_log_and_the_run_resumes(tmp_path, mon
 
 
 def test_disk_full_before_anything_was_trained_leaves_nothing(tmp_path, monkeypatch, capsys):
-    _disk_fills_up(monkeypatch, "checkpoint.pt", after=0)
+    disk_fills_up(monkeypatch, "checkpoint.pt", after=0)
     assert main(["train", "--run-dir", str(tmp_path / "run"), "--steps", "400", *TINY_FLAGS]) == 2
     assert f"cannot write {tmp_path / 'run' / 'checkpoint.pt'}: No space left on device" in capsys.readouterr().err
     assert not (tmp_path / "run").exists()

@@ -45,3 +45,44 @@ def test_a_full_disk_names_the_file_being_written(tmp_path, monkeypatch):
     (tmp_path / "file").write_text("x")
     with pytest.raises(OSError, match="file/out.json"):
         atomic_write_bytes(tmp_path / "file" / "out.json", b"{}")
+
+
+# ------------------------------------------------------------------------------ write errors
+def test_a_write_error_names_the_file_the_reason_and_the_advice(tmp_path):
+    import errno
+    import pickle
+
+    from bimgame.util.files import FileWriteError
+
+    error = FileWriteError.from_error(tmp_path / "a.csv", OSError(errno.ENOSPC, os.strerror(errno.ENOSPC)))
+    assert isinstance(error, OSError) and error.errno == errno.ENOSPC and error.path == tmp_path / "a.csv"
+    assert str(error) == f"cannot write {tmp_path / 'a.csv'}: No space left on device"
+    advised = error.with_advice("Resume later")
+    assert str(advised) == f"cannot write {tmp_path / 'a.csv'}: No space left on device. Resume later"
+    assert error.advise("x").advice == "x" and FileWriteError.from_error("b", advised) is advised
+    again = pickle.loads(pickle.dumps(advised))
+    assert type(again) is FileWriteError and str(again) == str(advised) and again.errno == errno.ENOSPC
+
+
+def test_a_full_disk_is_reported_in_one_line_naming_the_file(tmp_path):
+    import errno
+    import pickle
+
+    from bimgame.util.files import DiskFullError, FileWriteError, disk_full_errno, reporting_full_disk
+
+    target = tmp_path / "data.hdf5"
+    with pytest.raises(DiskFullError) as failed:
+        with reporting_full_disk(target, "rerun to resume"):
+            raise RuntimeError("Can't write data (file write failed: errno = 28, error message = 'No space …')")
+    error = failed.value
+    assert str(error) == f"no space left on device while writing {target}; rerun to resume"
+    assert isinstance(error, FileWriteError) and error.errno == errno.ENOSPC and error.path == target
+    assert str(error.with_advice("later")) == f"no space left on device while writing {target}; later"
+    assert str(pickle.loads(pickle.dumps(error))) == str(error)
+    quota = DiskFullError(target, code=errno.EDQUOT)
+    assert str(quota) == f"{os.strerror(errno.EDQUOT)[:1].lower()}{os.strerror(errno.EDQUOT)[1:]} while writing {target}"
+    assert disk_full_errno(OSError(errno.EACCES, "Permission denied")) is None
+    assert disk_full_errno("errno = 122") == errno.EDQUOT
+    with pytest.raises(PermissionError):  # other errors pass unchanged
+        with reporting_full_disk(target):
+            raise PermissionError(errno.EACCES, "Permission denied")

@@ -16,7 +16,7 @@ from bimgame.cli.flags import add_settings_flags
 from bimgame.expert.datasets import BACKENDS, MINARI_DIR, dataset_summary, generate_dataset
 from bimgame.expert.evaluation import evaluate_expert, plot_length_histogram, summarise, write_results
 from bimgame.expert.mpc import MPCConfig
-from bimgame.expert.pool import DiskFullError
+from bimgame.util.files import DiskFullError
 
 #: The expert's settings with a flag (the hold lengths and threads keep their defaults).
 MPC_FLAGS = ("n_samples", "horizon", "sampling", "reward")

@@ -6,7 +6,9 @@ whether a piece is finished.
 never from ``status.json`` alone: a dataset with its ``COMPLETE`` marker, a pre-training with its
 ``summary.json``, an A3C run with a ``summary.json`` that says it finished its steps, a DAgger run
 whose ``dagger_state.json`` counts all its iterations. Finished pieces are skipped; an unfinished
-A3C or DAgger run is resumed from its last checkpoint, an unfinished dataset from its saved
+A3C or DAgger run is resumed from its last checkpoint (an A3C run stopped in its final evaluation,
+whose checkpoint holds all its steps, then only evaluates and writes its summary), an unfinished
+dataset from its saved
 episodes; an unfinished pre-training (not resumable, and cheap) is started again. So an
 interrupted reproduction — Ctrl-C, a crash, ``stop_after`` — continues where it stopped when the
 same command is run again. ``status.json`` records what happened, for the report's wall times and
@@ -25,7 +27,6 @@ from bimgame.experiments.budgets import GRID_FIELDS, Budget
 from bimgame.experiments.costs import COSTS, CostModel, estimate_seconds
 from bimgame.experiments.grid import PIECE_KINDS, Piece, plan_pieces
 from bimgame.expert.datasets import DatasetError, dataset_summary
-from bimgame.learn.runs import CheckpointError, load_checkpoint
 from bimgame.util.files import read_json, write_json
 
 __all__ = ["PLAN", "STATUS", "timestamp", "write_plan", "load_plan", "load_status", "check_compatible",
@@ -113,24 +114,12 @@ def piece_done(piece: Piece, out_dir: str | Path, budget: Budget) -> bool:
     if piece.kind in ("pretrain-policy", "pretrain-value"):
         return (path / "summary.json").is_file() and (path / "checkpoint.pt").is_file()
     if piece.kind == "a3c":
+        # Not the checkpoint: one holding all the steps, without a summary, is a run stopped during its
+        # final evaluation, which a resume finishes (it only evaluates and writes summary.json).
         summary = read_json(path / "summary.json")
-        if summary is not None and summary.get("stopped") == "finished" and \
-                int(summary.get("steps", 0)) >= budget.steps_for(piece.task):
-            return True
-        return _checkpoint_step(path) >= budget.steps_for(piece.task)
+        return summary is not None and summary.get("stopped") == "finished" and \
+            int(summary.get("steps", 0)) >= budget.steps_for(piece.task)
     if piece.kind == "dagger":
         state = read_json(path / "dagger_state.json")
         return state is not None and int(state.get("iteration", 0)) >= budget.dagger_iterations
     raise ValueError(f"unknown piece kind {piece.kind!r}; allowed: {', '.join(PIECE_KINDS)}")
-
-
-def _checkpoint_step(run_dir: Path) -> int:
-    """The step of a run's checkpoint (-1 when there is none). A run whose checkpoint already holds
-    all its steps but that stopped before writing its summary (killed during the final evaluation)
-    cannot be resumed by :func:`bimgame.learn.a3c.train`, and needs nothing more: its logs are complete."""
-    if not (run_dir / "checkpoint.pt").is_file():
-        return -1
-    try:
-        return int(load_checkpoint(run_dir / "checkpoint.pt")["step"])
-    except CheckpointError:
-        return -1

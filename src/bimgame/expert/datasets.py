@@ -10,10 +10,10 @@ A generation run owns one directory, ``out_dir``::
       bimgame/<task>-expert-v0/data/{metadata.json, main_data.hdf5}
     COMPLETE                         written last: counts, a content hash and every file's SHA-256
 
-A full disk stops the run with :class:`~bimgame.expert.pool.DiskFullError` ("no space left on device
-while writing FILE; rerun the same command to resume"), losing no finished episode. The Minari
-(HDF5) file is written by a child process: HDF5 does not survive a failed write cleanly (errors
-from every object it frees, then often a segmentation fault), so only that process fails.
+A full disk stops the run with :class:`~bimgame.util.files.DiskFullError` ("no space left on device
+while writing FILE; rerun the same command to resume"), losing no finished episode. The episode
+files and the Minari (HDF5) file, written by a child process so that a failed HDF5 write kills only
+that process, are :mod:`bimgame.expert.minari_build`'s.
 
 Episode ``i`` is ``run_expert_episode(task, episode_seed(seed, i), config)``: it depends on the run
 seed and its index only, so the dataset is the same whatever the number of workers, the backend
@@ -32,60 +32,47 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import errno
 import hashlib
-import io
 import json
 import multiprocessing
 import os
 import shutil
-import subprocess
-import sys
 import tempfile
-import traceback
 import warnings
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-import gymnasium as gym
 import minari
 import numpy as np
 from minari import MinariDataset
-from minari.data_collector import EpisodeBuffer
 
 import bimgame
 from bimgame.envs.observe import Observer
 from bimgame.expert.episode import Episode
-from bimgame.expert.pool import (BACKENDS, MAIN_GUARD, DiskFullError, disk_full_errno, episode_progress,
-                                 exit_when_parent_dies, expert_episodes, import_ray, reporting_full_disk)
+from bimgame.expert.minari_build import (EPISODES_DIR, DatasetError, episode_bytes, episode_path, hash_arrays,
+                                         read_episode, run_build_process)
+from bimgame.expert.pool import BACKENDS, MAIN_GUARD, episode_progress, expert_episodes, import_ray
 from bimgame.expert.mpc import MPCConfig, episode_seed
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.physics import MazeSim
 from bimgame.sim.tasks import Task, parse_task
-from bimgame.util.files import atomic_write_bytes, exclusive_lock
+from bimgame.util.files import (DiskFullError, atomic_write_bytes, disk_full_errno, exclusive_lock,
+                                reporting_full_disk)
 
 __all__ = ["DatasetError", "generate_dataset", "load_dataset", "iterate_sequences", "dataset_summary",
            "dataset_id_for", "dataset_manifest", "BACKENDS", "MINARI_DIR", "FORMAT_VERSION"]
 
 FORMAT_NAME = "bimgame-expert-dataset"
 FORMAT_VERSION = 1
-ALGORITHM_NAME = "RandomShootingMPC"
 
 MANIFEST_NAME = "generation.json"
 MARKER_NAME = "COMPLETE"
-EPISODES_DIR = "episodes"
 MINARI_DIR = "minari"
 LOCK_NAME = ".lock"
 _BUILD_PREFIX = ".minari-build-"
-_EPISODE_KEYS = ("actions", "rewards", "terminations", "truncations", "observations", "sim_states",
-                 "channels", "seed", "success")
 # Episodes handed to Minari per write (bounds memory for large datasets).
 _BUILD_CHUNK = 64
-
-
-class DatasetError(ValueError):
-    """A dataset directory that is missing, incomplete, truncated or tampered with."""
 
 
 # ---------------------------------------------------------------------------------- generation
@@ -178,10 +165,10 @@ def _generate(out_dir: Path, manifest: dict, config: MPCConfig, progress: bool, 
         done_success: list[bool] = []
         todo: list[int] = []
         for index in range(episodes):
-            path = _episode_path(out_dir, index)
+            path = episode_path(out_dir, index)
             if path.exists():
                 try:
-                    done_success.append(bool(_read_episode(path, index, episode_seed(seed, index))["success"]))
+                    done_success.append(bool(read_episode(path, index, episode_seed(seed, index))["success"]))
                     continue
                 except DatasetError as error:
                     warnings.warn(f"{error}; generating episode {index} again", stacklevel=3)
@@ -193,9 +180,9 @@ def _generate(out_dir: Path, manifest: dict, config: MPCConfig, progress: bool, 
                 for index, episode, _ in expert_episodes(task, todo, seed, config, max_steps=max_steps,
                                                          workers=workers, backend=backend,
                                                          ray_address=ray_address):
-                    path = _episode_path(out_dir, index)
+                    path = episode_path(out_dir, index)
                     with _full_disk_reported(out_dir, episodes, path):
-                        atomic_write_bytes(path, _episode_bytes(index, episode))
+                        atomic_write_bytes(path, episode_bytes(index, episode))
                     update(bool(episode["success"]))
 
         _build_minari(out_dir, manifest)
@@ -216,7 +203,7 @@ def _full_disk_reported(out_dir: Path, episodes: int, path: Path | None = None) 
 
 
 def _resume_advice(out_dir: Path, episodes: int) -> str:
-    saved = sum(_episode_path(out_dir, i).exists() for i in range(episodes))
+    saved = sum(episode_path(out_dir, i).exists() for i in range(episodes))
     return f"rerun the same command to resume ({saved} of {episodes} episodes are saved)"
 
 
@@ -300,39 +287,6 @@ def _remove_stale_temporaries(out_dir: Path) -> None:
         path.unlink(missing_ok=True)
 
 
-def _episode_path(out_dir: Path, index: int) -> Path:
-    return out_dir / EPISODES_DIR / f"episode_{index:06d}.npz"
-
-
-def _episode_bytes(index: int, episode: dict[str, np.ndarray]) -> bytes:
-    buffer = io.BytesIO()
-    np.savez(buffer, index=np.int64(index), **{key: episode[key] for key in _EPISODE_KEYS})
-    return buffer.getvalue()
-
-
-def _read_episode(path: Path, index: int, expected_seed: int) -> dict[str, np.ndarray]:
-    """An episode file's arrays, checked for completeness and consistency (else DatasetError)."""
-    try:
-        with open(path, "rb") as handle, np.load(handle, allow_pickle=False) as archive:
-            data = {key: archive[key] for key in archive.files}
-    except Exception as exc:  # zipfile.BadZipFile, EOFError, ValueError, OSError …
-        raise DatasetError(f"episode file {path} is unreadable ({type(exc).__name__}: {exc})") from None
-    missing = [key for key in (*_EPISODE_KEYS, "index") if key not in data]
-    if missing:
-        raise DatasetError(f"episode file {path} lacks {', '.join(missing)}")
-    if int(data["index"]) != index or int(data["seed"]) != expected_seed:
-        raise DatasetError(f"episode file {path} holds episode {int(data['index'])} with seed "
-                           f"{int(data['seed'])}, expected episode {index} with seed {expected_seed}")
-    steps = len(data["actions"])
-    ends = data["terminations"] | data["truncations"]
-    if (steps < 1 or any(len(data[k]) != steps for k in ("rewards", "terminations", "truncations"))
-            or any(len(data[k]) != steps + 1 for k in ("observations", "sim_states", "channels"))
-            or not ends[-1] or ends[:-1].any()
-            or data["actions"].min() < 0 or data["actions"].max() > 4):
-        raise DatasetError(f"episode file {path} is inconsistent (lengths, episode end or actions)")
-    return data
-
-
 # ------------------------------------------------------------------------------ Minari building
 def _build_minari(out_dir: Path, manifest: dict) -> None:
     """Build the Minari dataset from the episode files in a temporary datasets root (in a child
@@ -341,15 +295,15 @@ def _build_minari(out_dir: Path, manifest: dict) -> None:
     content = hashlib.sha256()
     totals = {"steps": 0, "successes": 0}
     for index in range(episodes):
-        data = _read_episode(_episode_path(out_dir, index), index, episode_seed(seed, index))
-        _hash_arrays(content, data)
+        data = read_episode(episode_path(out_dir, index), index, episode_seed(seed, index))
+        hash_arrays(content, data)
         totals["steps"] += len(data["actions"])
         totals["successes"] += bool(data["success"])
 
     build_root = Path(tempfile.mkdtemp(prefix=_BUILD_PREFIX, dir=out_dir))
     try:
         with reporting_full_disk(_data_path(out_dir, manifest["dataset_id"]) / "main_data.hdf5"):
-            _run_build_process(out_dir, manifest, build_root)
+            run_build_process(out_dir, manifest, build_root, _BUILD_CHUNK)
         final = out_dir / MINARI_DIR
         if final.exists():  # an earlier build of this run that never got its marker
             shutil.rmtree(final)
@@ -358,7 +312,7 @@ def _build_minari(out_dir: Path, manifest: dict) -> None:
         shutil.rmtree(build_root, ignore_errors=True)
 
     files = {}
-    for path in [_episode_path(out_dir, i) for i in range(episodes)] + sorted(
+    for path in [episode_path(out_dir, i) for i in range(episodes)] + sorted(
             p for p in (out_dir / MINARI_DIR).rglob("*") if p.is_file()):
         files[path.relative_to(out_dir).as_posix()] = {"size": path.stat().st_size, "sha256": _file_sha256(path)}
     marker = {
@@ -373,113 +327,6 @@ def _build_minari(out_dir: Path, manifest: dict) -> None:
     }
     with reporting_full_disk(out_dir / MARKER_NAME):
         atomic_write_bytes(out_dir / MARKER_NAME, (json.dumps(marker, indent=1) + "\n").encode())
-
-
-#: What the build process runs: the job comes on stdin as JSON (with this process's sys.path).
-_BUILD_SCRIPT = ("import json, sys\n"
-                 "job = json.load(sys.stdin)\n"
-                 "sys.path[:] = job['sys_path']\n"
-                 "from bimgame.expert.datasets import _build_process_main\n"
-                 "_build_process_main(job)\n")
-#: Lines of a failed build process's error output kept in the error raised here.
-_BUILD_ERROR_LINES = 30
-#: Exit statuses of the build process for a full disk and an exceeded quota: the errno itself.
-_DISK_FULL_EXITS = (errno.ENOSPC, errno.EDQUOT)
-
-
-def _run_build_process(out_dir: Path, manifest: dict, build_root: Path) -> None:
-    """Write the Minari dataset into ``build_root`` with a child process (:func:`_write_minari`).
-
-    HDF5 does not survive a failed write cleanly: after a full disk every object it frees prints
-    an error and the interpreter then often dies of a segmentation fault. In a child, that kills
-    only the child; its error output stays here (captured) and is read for the cause: a full disk
-    raises ``OSError(ENOSPC)``, anything else a RuntimeError with the output's last lines."""
-    job = {"sys_path": sys.path, "parent_pid": os.getpid(), "out_dir": str(out_dir), "manifest": manifest,
-           "build_root": str(build_root), "chunk": _BUILD_CHUNK}
-    result = subprocess.run([sys.executable, "-c", _BUILD_SCRIPT], input=json.dumps(job).encode(),
-                            capture_output=True, env={**os.environ, "MINARI_DATASETS_PATH": str(build_root)})
-    output = result.stderr.decode(errors="replace")
-    if result.returncode == 0:
-        sys.stderr.write(output)  # warnings, if any
-        return
-    code = result.returncode if result.returncode in _DISK_FULL_EXITS else disk_full_errno(output)
-    if code is not None:
-        raise OSError(code, os.strerror(code))
-    how = f"killed by signal {-result.returncode}" if result.returncode < 0 else f"exit status {result.returncode}"
-    tail = "\n".join(output.rstrip().splitlines()[-_BUILD_ERROR_LINES:])
-    raise RuntimeError(f"building the Minari dataset of {out_dir} failed ({how}):\n{tail}")
-
-
-def _build_process_main(job: dict) -> None:
-    """The build process: write the Minari dataset, or exit with the errno of a full disk (else 1
-    with the traceback on stderr) without the interpreter's cleanup, which HDF5 objects left by a
-    failed write can crash."""
-    exit_when_parent_dies(job["parent_pid"])
-    try:
-        _write_minari(Path(job["out_dir"]), job["manifest"], job["chunk"])
-    except BaseException as error:
-        code = disk_full_errno(error)
-        if code is None:
-            traceback.print_exc()
-            code = 1
-        sys.stdout.flush()
-        sys.stderr.flush()
-        os._exit(code)
-
-
-def _write_minari(out_dir: Path, manifest: dict, chunk: int) -> None:
-    """Write the Minari dataset of the episode files in ``out_dir`` into the datasets root
-    ``MINARI_DATASETS_PATH`` (the build process runs this)."""
-    episodes, seed = manifest["episodes"], manifest["seed"]
-
-    def buffers(indices: Iterable[int]) -> list:
-        buffer = []
-        for index in indices:
-            data = _read_episode(_episode_path(out_dir, index), index, episode_seed(seed, index))
-            buffer.append(EpisodeBuffer(
-                id=index, seed=int(data["seed"]), observations=data["observations"],
-                actions=data["actions"], rewards=data["rewards"], terminations=data["terminations"],
-                truncations=data["truncations"],
-                infos={"sim_state": data["sim_states"], "channel": data["channels"]}))
-        return buffer
-
-    kwargs: dict[str, Any] = {"obs_mode": "state"}
-    if manifest["max_steps"] is not None:
-        kwargs["max_episode_steps"] = manifest["max_steps"]
-    env = gym.make(manifest["env_id"], **kwargs)
-    env.spec.to_json()  # raises if the spec cannot be stored
-    try:
-        with warnings.catch_warnings():
-            warnings.filterwarnings("ignore", message=r"`(code_permalink|author|author_email)` is set to None")
-            dataset = minari.create_dataset_from_buffers(
-                dataset_id=manifest["dataset_id"], buffer=buffers(range(min(chunk, episodes))),
-                env=env, eval_env=env.spec, algorithm_name=ALGORITHM_NAME,
-                description=_description(manifest), data_format="hdf5",
-                requirements=[f"bimgame=={manifest['bimgame_version']}"])
-            for start in range(chunk, episodes, chunk):
-                dataset.update_dataset_from_buffer(buffers(range(start, min(start + chunk, episodes))))
-    finally:
-        env.close()
-
-
-def _description(manifest: dict) -> str:
-    limit = manifest["max_steps"] if manifest["max_steps"] is not None else "the task's registered limit"
-    return (f"Expert trajectories of bimgame's random-shooting MPC expert ({ALGORITHM_NAME}, acting on "
-            f"simulator states) on {manifest['env_id']}: {manifest['episodes']} episodes; episode i starts "
-            f"from reset(seed=bimgame.expert.mpc.episode_seed({manifest['seed']}, i)); time limit {limit} steps; "
-            f"MPC config {json.dumps(manifest['mpc_config'])}; bimgame {manifest['bimgame_version']}. "
-            "Observations are state observations; infos['sim_state'] (T+1, S) MuJoCo physics states and "
-            "infos['channel'] (T+1, n) task channels re-render pixel observations exactly "
-            "(bimgame.expert.datasets.iterate_sequences(..., obs='pixels')).")
-
-
-def _hash_arrays(digest, data: dict[str, np.ndarray]) -> None:
-    """Feed an episode's arrays (names, dtypes, shapes, bytes) to a hash: identical episodes hash
-    identically however their files were written."""
-    for key in _EPISODE_KEYS:
-        array = np.ascontiguousarray(data[key])
-        digest.update(f"{key}:{array.dtype.str}:{array.shape};".encode())
-        digest.update(array.tobytes())
 
 
 def _file_sha256(path: Path) -> str:
@@ -500,7 +347,7 @@ def _verify(out_dir: Path, manifest: dict, *, hashes: bool) -> dict:
     marker_path = out_dir / MARKER_NAME
     episodes = manifest["episodes"]
     if not marker_path.exists():
-        present = sum(_episode_path(out_dir, i).exists() for i in range(episodes))
+        present = sum(episode_path(out_dir, i).exists() for i in range(episodes))
         raise DatasetError(
             f"dataset in {out_dir} is incomplete ({present} of {episodes} episode files, no {MARKER_NAME} "
             "marker): its generation was interrupted or is still running; run the generation again with "
@@ -515,7 +362,7 @@ def _verify(out_dir: Path, manifest: dict, *, hashes: bool) -> dict:
     if marker.get("episodes") != episodes or marker.get("dataset_id") != manifest["dataset_id"]:
         raise DatasetError(f"{marker_path} describes {marker.get('episodes')!r} episodes of "
                            f"{marker.get('dataset_id')!r}, the manifest {episodes} of {manifest['dataset_id']!r}")
-    expected = {_episode_path(out_dir, i).relative_to(out_dir).as_posix() for i in range(episodes)}
+    expected = {episode_path(out_dir, i).relative_to(out_dir).as_posix() for i in range(episodes)}
     expected |= {(Path(MINARI_DIR) / manifest["dataset_id"] / "data" / name).as_posix()
                  for name in ("metadata.json", "main_data.hdf5")}
     unlisted = sorted(expected - set(files))

@@ -7,35 +7,32 @@ Episode ``i`` of a run is ``run_expert_episode(task, episode_seed(seed, i), conf
 on the run seed and its index only, so results do not depend on the backend, the number of
 workers or the order in which episodes finish.
 
-Also two safety helpers the expert's long jobs share: :func:`exit_when_parent_dies` (a worker or
-helper process must not outlive a parent killed with ``kill -9``) and :class:`DiskFullError` /
-:func:`disk_full_errno` (a full disk is reported with the file it hit, in one line).
+Local workers end when their parent dies (:func:`bimgame.util.processes.exit_when_parent_dies`). A
+full disk is reported with :class:`~bimgame.util.files.DiskFullError` (re-exported here with
+:func:`reporting_full_disk` and :func:`disk_full_errno`, where the expert's modules import them).
 """
 
 from __future__ import annotations
 
 import contextlib
 import dataclasses
-import errno
 import multiprocessing
-import multiprocessing.connection
 import os
-import re
-import threading
 import time
 from collections.abc import Iterator
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
-from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
 from bimgame.expert.mpc import MPCConfig, episode_seed, run_expert_episode
+from bimgame.util.files import DiskFullError, disk_full_errno, reporting_full_disk
+from bimgame.util.processes import exit_when_parent_dies
 from bimgame.util.progress import ProgressBar
 
 __all__ = ["BACKENDS", "MAIN_GUARD", "expert_episodes", "episode_progress", "environment", "import_ray",
-           "exit_when_parent_dies", "DiskFullError", "disk_full_errno", "reporting_full_disk"]
+           "DiskFullError", "disk_full_errno", "reporting_full_disk"]
 
 BACKENDS = ("local", "ray")
 _THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMEXPR_NUM_THREADS")
@@ -177,88 +174,3 @@ def episode_progress(enabled: bool, description: str, total: int, done: int = 0,
             counts["success"] += success
             bar.update(advance=1, info=info())
         yield update
-
-
-# ---------------------------------------------------------------- safety of long-running jobs
-#: The exit status of a process that ended because its parent died.
-_ORPHANED_EXIT = 1
-_FULL_DISK_ERRNOS = (errno.ENOSPC, errno.EDQUOT)
-#: How C libraries report a full disk in an error's text only (HDF5: "errno = 28, error message = …").
-_FULL_DISK_TEXT = {code: re.compile(rf"errno = {code}\b|{re.escape(os.strerror(code))}") for code in _FULL_DISK_ERRNOS}
-
-
-def exit_when_parent_dies(parent_pid: int | None = None, poll_seconds: float = 0.5) -> threading.Thread:
-    """End this process (``os._exit``) as soon as its parent process is gone, from a daemon thread:
-    wherever the main thread is (planning, blocked on a pipe nobody reads), a process started by a
-    job that was killed with ``kill -9`` does not live on. ``parent_pid``: the parent to watch
-    (default: the current parent; pass the pid the parent had if it may already be gone). A
-    multiprocessing child waits on its parent's sentinel; other processes poll ``os.getppid()``."""
-    expected = os.getppid() if parent_pid is None else parent_pid
-    parent = multiprocessing.parent_process()
-
-    def watch() -> None:
-        if parent is not None and parent.pid == expected:
-            multiprocessing.connection.wait([parent.sentinel])  # ready when the parent has exited
-        else:
-            while os.getppid() == expected:
-                time.sleep(poll_seconds)
-        os._exit(_ORPHANED_EXIT)
-
-    thread = threading.Thread(target=watch, name="bimgame-exit-with-parent", daemon=True)
-    thread.start()
-    return thread
-
-
-def disk_full_errno(error: BaseException | str) -> int | None:
-    """``errno.ENOSPC`` or ``errno.EDQUOT`` if ``error`` — an exception, anything it was raised from
-    or during, or a process's error output — says the disk (or the quota) is full; else None.
-    Recognises ``OSError`` and the errors of C libraries that carry the errno only in their text
-    (h5py's ``RuntimeError: … errno = 28, error message = 'No space left on device'``)."""
-    if isinstance(error, str):
-        return next((code for code, pattern in _FULL_DISK_TEXT.items() if pattern.search(error)), None)
-    seen: set[int] = set()
-    current: BaseException | None = error
-    while current is not None and id(current) not in seen:
-        seen.add(id(current))
-        if isinstance(current, OSError) and current.errno in _FULL_DISK_ERRNOS:
-            return current.errno
-        code = disk_full_errno(str(current))
-        if code is not None:
-            return code
-        current = current.__cause__ or current.__context__
-    return None
-
-
-class DiskFullError(OSError):
-    """A write found the disk full (or the quota used up): "no space left on device while writing
-    PATH; ADVICE". ``errno`` is ``ENOSPC`` (or ``EDQUOT``), ``path`` the file being written."""
-
-    def __init__(self, path: str | os.PathLike, advice: str = "", code: int = errno.ENOSPC) -> None:
-        reason = os.strerror(code)
-        message = f"{reason[:1].lower()}{reason[1:]} while writing {path}" + (f"; {advice}" if advice else "")
-        super().__init__(message)
-        self.errno = code
-        self.path = Path(path)
-        self.advice = advice
-
-    def with_advice(self, advice: str) -> "DiskFullError":
-        """The same error with other advice."""
-        return DiskFullError(self.path, advice, self.errno)
-
-    def __reduce__(self):  # pickles (to and from worker processes) with its own arguments
-        return DiskFullError, (self.path, self.advice, self.errno)
-
-
-@contextlib.contextmanager
-def reporting_full_disk(path: str | os.PathLike, advice: str = "") -> Iterator[None]:
-    """Within the block, an error that says the disk is full becomes :class:`DiskFullError` naming
-    ``path`` (other errors pass unchanged)."""
-    try:
-        yield
-    except DiskFullError:
-        raise
-    except (OSError, RuntimeError) as error:
-        code = disk_full_errno(error)
-        if code is None:
-            raise
-        raise DiskFullError(path, advice, code) from error

@@ -19,6 +19,11 @@ on Ctrl-C, on a non-finite loss, or when the step budget is spent.
 
 Why our own implementation: no maintained library ships recurrent A3C for PyTorch (RLlib removed
 A3C; Stable-Baselines3 has no recurrent A2C).
+
+This module owns :func:`train` and the parent process (the run directory, checkpoints, logs,
+progress); it re-exports the rest of the public API. The settings, loss and update that the worker
+processes share with it live in :mod:`bimgame.learn.a3c_core`, the worker and evaluator processes
+in :mod:`bimgame.learn.a3c_workers`.
 """
 
 from __future__ import annotations
@@ -26,243 +31,36 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import multiprocessing as std_mp
 import os
 import queue as queue_module
-import signal
 import time
-import traceback
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import torch
 import torch.multiprocessing as mp
 
-from bimgame.envs.vector import BallInMazeVectorEnv
-from bimgame.learn.actor import RecurrentActor, tilt_input
-from bimgame.learn.common import (NetworkSettings, check_seed, evaluate_greedy_and_sampled, evaluation_seed,
-                                  init_network_settings)
+from bimgame.learn.a3c_core import (MAX_STEPS, OPTIMIZERS, A3CConfig, EnvWrapper, a3c_segment_loss, apply_update,
+                                    evaluate, make_optimizer, network_for, shared_optimizer_state)
+from bimgame.learn.a3c_workers import _evaluator, _worker
+from bimgame.learn.common import init_network_settings
 from bimgame.learn.curves import plot_run
 from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.learn.runs import (CHECKPOINT, CONFIG, KIND_A3C, SUMMARY, CheckpointError, MetricLog, RunWriteError,
                                 check_resumable, discard_new_run, load_checkpoint, load_weights, prepare_new_run,
                                 read_run_settings, save_checkpoint, torch_threads, write_run_json)
-from bimgame.sim.maze import MazeSpec
-from bimgame.sim.tasks import MAX_EPISODE_STEPS, Task, parse_task
 from bimgame.util.files import read_json
 from bimgame.util.progress import ProgressBar
-from bimgame.util.settings import from_dict, require_int
 from bimgame.util.signals import sigterm_as_interrupt
 
 __all__ = ["A3CConfig", "TrainingError", "TrainResult", "train", "network_for", "make_optimizer", "evaluate",
            "OPTIMIZERS", "MAX_STEPS", "EnvWrapper", "resolve_config", "a3c_segment_loss", "apply_update",
            "shared_optimizer_state"]
 
-OPTIMIZERS = ("rmsprop", "adam")
-#: The most environment steps a run (or a checkpoint or evaluation interval) may count: 10¹², about
-#: 30 years at this machine's 1,000 steps/s. More is a typo (``--steps 1e30``), found before any work.
-MAX_STEPS = 10**12
-#: The largest value of the settings that size what is allocated at once (processes, environments,
-#: segment memory, evaluation episodes run side by side), far above any sensible value: larger is a
-#: typo that would otherwise fail only when memory runs out.
-_LARGEST = {**{name: (MAX_STEPS, "1e12 environment steps") for name in
-               ("steps", "checkpoint_every", "eval_every", "log_every", "max_episode_steps")},
-            "workers": (256, "processes"), "envs_per_worker": (4096, "environments in one process"),
-            "n_steps": (10_000, "steps kept in memory per update"),
-            "eval_episodes": (10_000, "episodes run side by side")}
-#: A callable that wraps a worker's vector env (e.g. reward shaping). It is sent to spawned worker
-#: processes, so it must be picklable (a module-level function or an instance of a module-level class).
-EnvWrapper = Callable[[BallInMazeVectorEnv], Any]
-
 
 class TrainingError(RuntimeError):
     """Training stopped because something went wrong (a non-finite loss, a crashed worker)."""
-
-
-@dataclasses.dataclass(frozen=True)
-class A3CConfig(NetworkSettings):
-    """Settings of an A3C run. Learning defaults follow the A3C paper and its widely used reference
-    implementations (OpenAI Baselines' A2C settings for the loss, RMSProp with shared statistics).
-    The network settings (``obs``, ``hidden``, ``features``, …) are inherited from
-    :class:`~bimgame.learn.common.NetworkSettings`."""
-
-    task: str = "STG1"
-    """FULL, STG1 … STG4."""
-    steps: int = 5_000_000
-    """Environment steps to train for (all workers together)."""
-    workers: int = 2
-    """Worker processes (one thread each)."""
-    envs_per_worker: int = 16
-    """Environments per worker, stepped as one batch (one forward pass acts for all); 1 is exactly
-    the paper's A3C. Batching is what makes the network affordable on a CPU: one LSTM step costs
-    about the same for 1 environment as for 16."""
-    n_steps: int = 20
-    """t_max: steps per update (n-step returns)."""
-    gamma: float = 0.99
-    """Discount."""
-    gae_lambda: float = 1.0
-    """1.0 gives A3C's n-step returns; below 1, generalised advantage estimation."""
-    lr: float = 7e-4
-    """Learning rate of the shared optimiser."""
-    optimizer: str = "rmsprop"
-    """``rmsprop`` (A3C's, statistics shared by all workers) or ``adam`` (also shared)."""
-    rmsprop_alpha: float = 0.99
-    """RMSProp's smoothing constant."""
-    optimizer_eps: float = 1e-5
-    """The optimiser's epsilon (numerical stability)."""
-    entropy_coef: float = 0.01
-    """Weight of the entropy bonus in the loss."""
-    value_coef: float = 0.5
-    """Weight of the value loss against the policy loss."""
-    max_grad_norm: float = 0.5
-    """Clip each update's gradient to this global norm (losses are means over the segment)."""
-    seed: int = 0
-    """Seeds the network's initial weights, the workers' environments and sampling, and the evaluations."""
-    max_episode_steps: int | None = None
-    """Time limit; None uses the task's (STG1 300, STG2 500, STG3 750, STG4/FULL 1000)."""
-    checkpoint_every: int = 100_000
-    """Environment steps between checkpoints (``--resume`` loses at most this many)."""
-    eval_every: int = 100_000
-    """Environment steps between evaluations; 0 disables the evaluator process."""
-    eval_episodes: int = 10
-    """Episodes per evaluation, each greedy and sampled."""
-    log_every: int = 2_000
-    """Environment steps (per worker) between loss reports."""
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        try:
-            object.__setattr__(self, "task", parse_task(self.task).value)
-        except ValueError as error:
-            raise ValueError(f"A3CConfig.task: {error}") from None
-        if self.optimizer not in OPTIMIZERS:
-            raise ValueError(f"A3CConfig.optimizer must be one of {OPTIMIZERS}, got {self.optimizer!r}")
-        positive_ints = ("steps", "workers", "envs_per_worker", "n_steps", "checkpoint_every", "eval_episodes",
-                         "log_every")
-        for name in positive_ints:
-            require_int("A3CConfig", name, getattr(self, name), 1)
-        check_seed("A3CConfig", self.seed)  # numpy's seed sequences take no negative seeds, torch none of 2**64
-        if not (isinstance(self.eval_every, int) and self.eval_every >= 0):
-            raise ValueError(f"A3CConfig.eval_every must be an integer >= 0 (0: no evaluator), got {self.eval_every!r}")
-        require_int("A3CConfig", "max_episode_steps", self.max_episode_steps, 1, optional=True)
-        for name, (largest, unit) in _LARGEST.items():
-            value = getattr(self, name)
-            if value is not None and value > largest:
-                raise ValueError(f"A3CConfig.{name} must be at most {largest:,} ({unit}), got {value!r}")
-        ranges = {"gamma": (0.0, 1.0), "gae_lambda": (0.0, 1.0), "rmsprop_alpha": (0.0, 1.0)}
-        for name, (low, high) in ranges.items():
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and low <= value <= high):
-                raise ValueError(f"A3CConfig.{name} must be in [{low}, {high}], got {value!r}")
-        for name in ("lr", "optimizer_eps", "max_grad_norm"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ValueError(f"A3CConfig.{name} must be a finite number > 0, got {value!r}")
-        for name in ("entropy_coef", "value_coef"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
-                raise ValueError(f"A3CConfig.{name} must be a finite number >= 0, got {value!r}")
-
-    @property
-    def time_limit(self) -> int:
-        return self.max_episode_steps or MAX_EPISODE_STEPS[Task(self.task)]
-
-    @property
-    def steps_per_update(self) -> int:
-        return self.n_steps * self.envs_per_worker
-
-    def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
-
-    @classmethod
-    def from_dict(cls, values: dict[str, Any]) -> A3CConfig:
-        return from_dict(cls, values, "A3C settings")
-
-    # What a resumed run may change without changing what is being learned.
-    RESUMABLE_CHANGES = ("steps", "workers", "checkpoint_every", "eval_every", "eval_episodes", "log_every")
-
-
-def network_for(config: A3CConfig, maze: MazeSpec | None = None) -> RecurrentActorCritic:
-    """A fresh network for ``config``'s run, initialised from its seed."""
-    return config.build_policy(config.seed, maze)
-
-
-def make_optimizer(config: A3CConfig, params) -> torch.optim.Optimizer:
-    if config.optimizer == "rmsprop":
-        return torch.optim.RMSprop(params, lr=config.lr, alpha=config.rmsprop_alpha, eps=config.optimizer_eps)
-    return torch.optim.Adam(params, lr=config.lr, eps=config.optimizer_eps)
-
-
-def shared_optimizer_state(optimizer: torch.optim.Optimizer) -> list[dict[str, torch.Tensor]]:
-    """Create every parameter's optimiser statistics (if not loaded) and move them to shared memory,
-    so all workers update the same statistics (A3C's 'shared RMSProp')."""
-    params = [p for group in optimizer.param_groups for p in group["params"]]
-    if not optimizer.state:
-        # One step with zero gradients creates the statistics without changing any weight (RMSProp
-        # and Adam both move by 0 for a zero gradient); then the step counts are reset to 0.
-        for p in params:
-            p.grad = torch.zeros_like(p)
-        optimizer.step()
-        for p in params:
-            p.grad = None
-            optimizer.state[p]["step"].zero_()
-    states = []
-    for p in params:
-        state = optimizer.state[p]
-        for value in state.values():
-            if torch.is_tensor(value):
-                value.share_memory_()
-        states.append(state)
-    return states
-
-
-def a3c_segment_loss(net: RecurrentActorCritic, segment: dict[str, torch.Tensor], config: A3CConfig,
-                     ) -> tuple[torch.Tensor, dict[str, float]]:
-    """The actor-critic loss of one segment (T steps × B envs), recomputed with gradients.
-
-    ``segment`` holds ``obs``, ``prev_action``, ``prev_reward``, ``tilt`` and ``starts`` for T+1
-    steps (the last is the bootstrap state), ``actions``, ``rewards`` (with γ·V(final observation)
-    already added at time-limit truncations) and ``ends`` (the episode ended after this step) for T
-    steps, and the LSTM state ``h0``/``c0`` at the segment start."""
-    logits, values, _ = net.unroll(segment["obs"], segment["prev_action"], segment["prev_reward"],
-                                   segment.get("tilt"), (segment["h0"], segment["c0"]), segment["starts"])
-    logits, bootstrap, values = logits[:-1], values[-1].detach(), values[:-1]
-    rewards, ends = segment["rewards"], segment["ends"].float()
-    advantages = torch.zeros_like(rewards)
-    next_value, running = bootstrap, torch.zeros_like(bootstrap)
-    detached = values.detach()
-    for t in reversed(range(rewards.shape[0])):
-        not_end = 1.0 - ends[t]
-        delta = rewards[t] + config.gamma * next_value * not_end - detached[t]
-        running = delta + config.gamma * config.gae_lambda * not_end * running
-        advantages[t] = running
-        next_value = detached[t]
-    targets = advantages + detached
-    log_probs = torch.log_softmax(logits, dim=-1)
-    chosen = log_probs.gather(-1, segment["actions"].unsqueeze(-1)).squeeze(-1)
-    entropy = -(log_probs.exp() * log_probs).sum(-1).mean()
-    policy_loss = -(chosen * advantages).mean()
-    value_loss = 0.5 * (targets - values).pow(2).mean()
-    loss = policy_loss + config.value_coef * value_loss - config.entropy_coef * entropy
-    return loss, {"policy_loss": policy_loss.item(), "value_loss": value_loss.item(), "entropy": entropy.item()}
-
-
-def apply_update(local: RecurrentActorCritic, shared_params: list[torch.Tensor], optimizer: torch.optim.Optimizer,
-                 segment: dict[str, torch.Tensor], config: A3CConfig) -> dict[str, float]:
-    """One A3C update: the segment's loss, its gradient (norm clipped) on the local network, applied
-    to the shared weights by the shared optimiser. A non-finite loss or gradient is not applied
-    (``applied`` is False in the returned losses)."""
-    loss, parts = a3c_segment_loss(local, segment, config)
-    local.zero_grad(set_to_none=True)
-    loss.backward()
-    grad_norm = float(torch.nn.utils.clip_grad_norm_(local.parameters(), config.max_grad_norm))
-    applied = math.isfinite(loss.item()) and math.isfinite(grad_norm)
-    if applied:
-        for shared_param, param in zip(shared_params, local.parameters()):
-            shared_param.grad = param.grad
-        optimizer.step()
-    return {**parts, "loss": loss.item(), "grad_norm": grad_norm, "applied": applied}
 
 
 @dataclasses.dataclass
@@ -273,176 +71,6 @@ class TrainResult:
     """``finished`` (budget spent) or ``interrupted`` (Ctrl-C)."""
     final_eval: dict[str, Any] | None
     seconds: float
-
-
-# ---------------------------------------------------------------------- processes
-def _worker_seeds(config: A3CConfig, rank: int, start_step: int) -> tuple[int, int]:
-    """(env seed, torch seed) of a worker; a resumed run (start_step > 0) draws fresh episodes."""
-    sequence = np.random.SeedSequence([config.seed, rank, start_step])
-    env_seed, torch_seed = sequence.generate_state(2)
-    return int(env_seed), int(torch_seed)
-
-
-def _make_env(config: A3CConfig, num_envs: int, **kwargs: Any) -> BallInMazeVectorEnv:
-    return BallInMazeVectorEnv(num_envs, task=config.task, obs_mode=config.obs, nthread=1,
-                               max_episode_steps=config.time_limit, autoreset_mode="same_step", **kwargs)
-
-
-def _parent_alive() -> bool:
-    parent = std_mp.parent_process()
-    return parent is None or parent.is_alive()
-
-
-def _worker(rank: int, config: A3CConfig, shared: RecurrentActorCritic, optimizer_state: list[dict],
-            counter, stop, messages, env_wrapper: EnvWrapper | None, start_step: int) -> None:
-    """One A3C worker process: act, compute the segment's gradient, apply it to the shared weights."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and stops us
-    torch.set_num_threads(1)
-    try:
-        _worker_loop(rank, config, shared, optimizer_state, counter, stop, messages, env_wrapper, start_step)
-    except Exception:
-        messages.put(("error", rank, traceback.format_exc()))
-    finally:
-        messages.put(("exit", rank, None))
-
-
-def _worker_loop(rank, config, shared, optimizer_state, counter, stop, messages, env_wrapper, start_step):
-    env_seed, torch_seed = _worker_seeds(config, rank, start_step)
-    base_env = _make_env(config, config.envs_per_worker)
-    env = env_wrapper(base_env) if env_wrapper is not None else base_env
-    max_tilt = base_env.maze.max_tilt
-    local = network_for(config, base_env.maze)
-    optimizer = make_optimizer(config, shared.parameters())
-    shared_params = list(shared.parameters())
-    for param, state in zip(shared_params, optimizer_state):
-        optimizer.state[param] = state
-    generator = torch.Generator().manual_seed(torch_seed)
-    actor = RecurrentActor(local, config.envs_per_worker, generator=generator)
-    obs, info = env.reset(seed=env_seed)
-    tilt = tilt_input(info, max_tilt)
-    n, batch = config.n_steps, config.envs_per_worker
-    episode_return = np.zeros(batch)
-    episode_length = np.zeros(batch, dtype=np.int64)
-    episode_start = np.full(batch, counter.value, dtype=np.int64)
-    stats = {"policy_loss": 0.0, "value_loss": 0.0, "entropy": 0.0, "grad_norm": 0.0, "updates": 0}
-    since_report = 0
-    while not stop.is_set() and counter.value < config.steps and _parent_alive():
-        local.load_state_dict(shared.state_dict())
-        h0, c0 = actor.state
-        seg: dict[str, list] = {k: [] for k in ("obs", "prev_action", "prev_reward", "tilt", "starts",
-                                                "actions", "rewards", "ends")}
-        step_at_start = counter.value
-        for _ in range(n):
-            seg["obs"].append(torch.as_tensor(obs))
-            seg["prev_action"].append(actor.prev_action)
-            seg["prev_reward"].append(actor.prev_reward)
-            seg["tilt"].append(tilt)
-            seg["starts"].append(actor.starts)
-            actions, _, _ = actor.act(obs, tilt)
-            obs, reward, terminated, truncated, info = env.step(actions.numpy())
-            reward = np.asarray(reward, dtype=np.float64)
-            if not np.all(np.isfinite(reward)):
-                messages.put(("nan", rank, {"step": int(counter.value), "what": "reward from the env",
-                                            "rewards": reward.tolist()}))
-                return
-            done = terminated | truncated
-            rewards_t = torch.as_tensor(reward, dtype=torch.float32)
-            cut = truncated & ~terminated
-            if cut.any():
-                # A time limit is not a terminal state: bootstrap from the value of the last
-                # observation, which SAME_STEP autoreset keeps in info["final_obs"].
-                rewards_t = rewards_t + config.gamma * _final_values(actor, actions, reward, info, cut, max_tilt)
-            seg["actions"].append(actions)
-            seg["rewards"].append(rewards_t)
-            seg["ends"].append(torch.as_tensor(done))
-            # Learning curves show the task's own reward, also when a wrapper shapes it.
-            episode_return += np.asarray(info.get("task_reward", reward), dtype=np.float64)
-            episode_length += 1
-            for i in np.flatnonzero(done):
-                messages.put(("episode", rank, {
-                    "start_step": int(episode_start[i]), "end_step": int(counter.value),
-                    "return": float(episode_return[i]), "length": int(episode_length[i]),
-                    "success": bool(terminated[i])}))
-            episode_return[done] = 0.0
-            episode_length[done] = 0
-            episode_start[done] = step_at_start
-            actor.observe(actions, reward, done)
-            tilt = tilt_input(info, max_tilt)
-        seg["obs"].append(torch.as_tensor(obs))
-        seg["prev_action"].append(actor.prev_action)
-        seg["prev_reward"].append(actor.prev_reward)
-        seg["tilt"].append(tilt)
-        seg["starts"].append(actor.starts)
-        segment = {k: torch.stack(v) for k, v in seg.items()}
-        segment.update(h0=h0, c0=c0)
-        if not config.tilt_input:
-            segment.pop("tilt")
-        parts = apply_update(local, shared_params, optimizer, segment, config)
-        grad_norm = parts.pop("grad_norm")
-        if not parts.pop("applied"):
-            messages.put(("nan", rank, {"step": int(counter.value), "what": "loss", "grad_norm": grad_norm,
-                                        **parts}))
-            return
-        with counter.get_lock():
-            counter.value += n * batch
-        for key in ("policy_loss", "value_loss", "entropy"):
-            stats[key] += parts[key]
-        stats["grad_norm"] += grad_norm
-        stats["updates"] += 1
-        since_report += n * batch
-        if since_report >= config.log_every:
-            count = stats.pop("updates")
-            messages.put(("update", rank, {"step": int(counter.value), **{k: v / count for k, v in stats.items()}}))
-            stats = {k: 0.0 for k in stats} | {"updates": 0}
-            since_report = 0
-
-
-def _final_values(actor: RecurrentActor, actions: torch.Tensor, reward: np.ndarray, info: dict,
-                  cut: np.ndarray, max_tilt: float) -> torch.Tensor:
-    """V of the last observation of time-limited episodes (0 elsewhere), from the state after the
-    step, without changing the actor."""
-    final_obs = info["final_obs"]
-    final_tilt = tilt_input(info["final_info"], max_tilt)
-    with torch.no_grad():
-        _, values, _ = actor.net.step(torch.as_tensor(final_obs), actions,
-                                      torch.as_tensor(reward, dtype=torch.float32), final_tilt, actor.state)
-    return values * torch.as_tensor(cut, dtype=torch.float32)
-
-
-def _evaluator(config: A3CConfig, shared: RecurrentActorCritic, counter, stop, messages, start_step: int,
-               initial_weights: dict[str, torch.Tensor]) -> None:
-    """Evaluator process: greedy and sampled episodes (same start positions every time) of the weights
-    the session starts from, at its first step — step 0 of a fresh run (the initial random or
-    pre-trained policy), the checkpoint's step of a resumed one, whose earlier rows from that step on
-    were dropped — then every ``eval_every`` steps of the shared weights."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    torch.set_num_threads(1)
-    try:
-        local = network_for(config)
-        # A copy of the weights taken before any worker started.
-        local.load_state_dict(initial_weights)
-        messages.put(("eval", -1, {"step": start_step, **evaluate(local, config)}))
-        next_eval = (start_step // config.eval_every + 1) * config.eval_every
-        while not stop.is_set() and _parent_alive():
-            step = counter.value
-            if step >= config.steps:
-                break
-            if step < next_eval:
-                time.sleep(0.1)
-                continue
-            local.load_state_dict(shared.state_dict())
-            messages.put(("eval", -1, {"step": int(step), **evaluate(local, config)}))
-            next_eval = (step // config.eval_every + 1) * config.eval_every
-    except Exception:
-        messages.put(("error", -1, traceback.format_exc()))
-    finally:
-        messages.put(("exit", -1, None))
-
-
-def evaluate(net: RecurrentActorCritic, config: A3CConfig) -> dict[str, float]:
-    """The run's periodic evaluation: greedy and sampled, on its evaluation episodes and seed."""
-    return evaluate_greedy_and_sampled(net, task=config.task, obs=config.obs, episodes=config.eval_episodes,
-                                       seed=evaluation_seed(config.seed), time_limit=config.time_limit)
 
 
 # ---------------------------------------------------------------------- the parent process

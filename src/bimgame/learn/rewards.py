@@ -24,7 +24,7 @@ from bimgame.envs.shaping import Chain, GeodesicReward, PotentialShapedVectorEnv
 from bimgame.learn.actor import tilt_input
 from bimgame.learn.common import load_value_network
 from bimgame.learn.nets import ValueNetwork
-from bimgame.learn.runs import read_run_config
+from bimgame.learn.runs import CONFIG, read_run_config
 from bimgame.sim.maze import MazeSpec
 
 __all__ = ["RewardSettings", "ValueFunctionPotential", "ValueReward", "env_wrapper_for", "resolve_reward_settings"]
@@ -60,11 +60,34 @@ def resolve_reward_settings(given: RewardSettings, run_dir: str | Path, *, resum
     a different one given explicitly."""
     if not resume:
         return given
-    stored = RewardSettings(**read_run_config(run_dir).get("reward", {}))
+    stored = _stored_reward_settings(run_dir)
     changed = [k for k, v in given.to_dict().items() if v is not None and v != getattr(stored, k)]
     if changed:
         raise ValueError(f"--resume must keep the run's reward; it was {stored.to_dict()}, got {given.to_dict()}")
     return stored
+
+
+def _stored_reward_settings(run_dir: str | Path) -> RewardSettings:
+    """The ``"reward"`` block of a run's ``config.json`` (none: the task's reward); a malformed one
+    raises ``ValueError`` naming the file and the allowed keys."""
+    path = Path(run_dir)
+    path = (path.parent if path.is_file() else path) / CONFIG
+    block = read_run_config(path.parent).get("reward", {})
+    allowed = [field.name for field in dataclasses.fields(RewardSettings)]
+    refusal = f"{path}: its \"reward\" settings must be a JSON object with the keys {', '.join(allowed)}"
+    if not isinstance(block, dict):
+        raise ValueError(f"{refusal}; got {block!r}")
+    unknown = sorted(set(block) - set(allowed), key=str)
+    if unknown:
+        raise ValueError(f"{refusal}; got unknown key{'s' if len(unknown) > 1 else ''} "
+                         f"{', '.join(repr(key) for key in unknown)}")
+    if block.get("value_reward") is not None and not isinstance(block["value_reward"], str):
+        raise ValueError(f"{refusal}; value_reward must be a run directory (a string) or null, "
+                         f"got {block['value_reward']!r}")
+    try:
+        return RewardSettings(**block)
+    except (ValueError, TypeError) as error:
+        raise ValueError(f"{refusal}; {error}") from None
 
 
 class ValueFunctionPotential:

@@ -56,24 +56,14 @@ _REQUIRED = {"model": dict, "step": int}
 T = TypeVar("T")
 
 
-class RunWriteError(OSError):
-    """A file of a run could not be written (e.g. the disk is full). The message names the file and,
-    with ``advice``, how to go on; files are written atomically and logs by whole rows, so what was
-    written before is intact."""
-
-    def __init__(self, path: str | Path, reason: str, advice: str = ""):
-        self.path, self.reason, self.advice = Path(path), reason, advice
-        super().__init__(f"cannot write {path}: {reason}" + (f". {advice}" if advice else ""))
-
-    def advise(self, advice: str) -> RunWriteError:
-        """The same error with ``advice`` (what the caller knows about going on)."""
-        return RunWriteError(self.path, self.reason, advice)
+#: A file of a run could not be written (e.g. the disk is full): "cannot write PATH: REASON. ADVICE"
+#: (:class:`~bimgame.util.files.FileWriteError`; ``advise`` adds how to go on). Files are written
+#: atomically and logs by whole rows, so what was written before is intact.
+RunWriteError = files.FileWriteError
 
 
 def _write_error(path: str | Path, error: OSError) -> RunWriteError:
-    if isinstance(error, RunWriteError):
-        return error
-    return RunWriteError(path, error.strerror or str(error) or type(error).__name__)
+    return RunWriteError.from_error(path, error)
 
 
 def write_run_json(path: str | Path, values: dict[str, Any]) -> Path:

@@ -1,12 +1,23 @@
 """File safety: atomic writes (write to a temporary file in the same directory, then rename, so a
 crash never leaves a half-written file under the final name), JSON files written that way and read
-back tolerantly, and an exclusive directory lock."""
+back tolerantly, an exclusive directory lock, and the one way a failed write is reported.
+
+Write errors: :func:`atomic_write_bytes` raises the ``OSError`` it met, naming the file it was
+writing. A caller that reports the failure to the user raises :class:`FileWriteError` ("cannot
+write PATH: REASON. ADVICE"; :meth:`FileWriteError.from_error`), or, for a full disk or quota,
+:class:`DiskFullError` ("no space left on device while writing PATH; ADVICE";
+:func:`reporting_full_disk`, :func:`disk_full_errno`). Both are ``OSError`` with ``path``,
+``reason``, ``advice`` and ``errno``; :meth:`FileWriteError.with_advice` adds what the caller knows
+about going on.
+"""
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
+import re
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -17,7 +28,8 @@ try:
 except ImportError:  # pragma: no cover - not POSIX: directories are not locked
     fcntl = None  # type: ignore[assignment]
 
-__all__ = ["atomic_write_bytes", "exclusive_lock", "write_json", "read_json"]
+__all__ = ["atomic_write_bytes", "exclusive_lock", "write_json", "read_json", "FileWriteError", "DiskFullError",
+           "disk_full_errno", "reporting_full_disk"]
 
 
 def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
@@ -88,3 +100,96 @@ def read_json(path: str | Path) -> dict[str, Any] | None:
     except (OSError, ValueError):
         return None
     return value if isinstance(value, dict) else None
+
+
+# ------------------------------------------------------------------------------ write errors
+_FULL_DISK_ERRNOS = (errno.ENOSPC, errno.EDQUOT)
+#: How C libraries report a full disk in an error's text only (HDF5: "errno = 28, error message = …").
+_FULL_DISK_TEXT = {code: re.compile(rf"errno = {code}\b|{re.escape(os.strerror(code))}") for code in _FULL_DISK_ERRNOS}
+
+
+class FileWriteError(OSError):
+    """A file could not be written (e.g. the disk is full): "cannot write PATH: REASON. ADVICE". The
+    message names the file and, with ``advice``, how to go on. ``path`` is the file, ``reason`` why
+    (an ``OSError``'s text), ``errno`` the error number if known."""
+
+    def __init__(self, path: str | os.PathLike, reason: str, advice: str = "", code: int | None = None) -> None:
+        super().__init__(self._message(path, reason, advice))
+        self.path, self.reason, self.advice = Path(path), reason, advice
+        self.errno = code
+
+    @staticmethod
+    def _message(path: str | os.PathLike, reason: str, advice: str) -> str:
+        return f"cannot write {os.fspath(path)}: {reason}" + (f". {advice}" if advice else "")
+
+    @classmethod
+    def from_error(cls, path: str | os.PathLike, error: OSError) -> "FileWriteError":
+        """``error`` (met while writing ``path``) as a :class:`FileWriteError`; one already is is kept."""
+        if isinstance(error, FileWriteError):
+            return error
+        return cls(path, error.strerror or str(error) or type(error).__name__, code=error.errno)
+
+    def with_advice(self, advice: str) -> "FileWriteError":
+        """The same error with ``advice`` (what the caller knows about going on) instead of its own."""
+        return FileWriteError(self.path, self.reason, advice, self.errno)
+
+    #: The name the learners use.
+    advise = with_advice
+
+    def __reduce__(self):  # pickles (to and from worker processes) with its own arguments
+        return FileWriteError, (self.path, self.reason, self.advice, self.errno)
+
+
+class DiskFullError(FileWriteError):
+    """A write found the disk full (or the quota used up): "no space left on device while writing
+    PATH; ADVICE". ``errno`` is ``ENOSPC`` (or ``EDQUOT``), ``path`` the file being written."""
+
+    def __init__(self, path: str | os.PathLike, advice: str = "", code: int = errno.ENOSPC) -> None:
+        reason = os.strerror(code)
+        OSError.__init__(self, f"{reason[:1].lower()}{reason[1:]} while writing {os.fspath(path)}"
+                               + (f"; {advice}" if advice else ""))
+        self.path, self.reason, self.advice = Path(path), reason, advice
+        self.errno = code
+
+    def with_advice(self, advice: str) -> "DiskFullError":
+        return DiskFullError(self.path, advice, self.errno)
+
+    advise = with_advice
+
+    def __reduce__(self):
+        return DiskFullError, (self.path, self.advice, self.errno)
+
+
+def disk_full_errno(error: BaseException | str) -> int | None:
+    """``errno.ENOSPC`` or ``errno.EDQUOT`` if ``error`` — an exception, anything it was raised from
+    or during, or a process's error output — says the disk (or the quota) is full; else None.
+    Recognises ``OSError`` and the errors of C libraries that carry the errno only in their text
+    (h5py's ``RuntimeError: … errno = 28, error message = 'No space left on device'``)."""
+    if isinstance(error, str):
+        return next((code for code, pattern in _FULL_DISK_TEXT.items() if pattern.search(error)), None)
+    seen: set[int] = set()
+    current: BaseException | None = error
+    while current is not None and id(current) not in seen:
+        seen.add(id(current))
+        if isinstance(current, OSError) and current.errno in _FULL_DISK_ERRNOS:
+            return current.errno
+        code = disk_full_errno(str(current))
+        if code is not None:
+            return code
+        current = current.__cause__ or current.__context__
+    return None
+
+
+@contextlib.contextmanager
+def reporting_full_disk(path: str | os.PathLike, advice: str = "") -> Iterator[None]:
+    """Within the block, an error that says the disk is full becomes :class:`DiskFullError` naming
+    ``path`` (other errors pass unchanged)."""
+    try:
+        yield
+    except DiskFullError:
+        raise
+    except (OSError, RuntimeError) as error:
+        code = disk_full_errno(error)
+        if code is None:
+            raise
+        raise DiskFullError(path, advice, code) from error

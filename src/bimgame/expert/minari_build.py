@@ -1,0 +1,188 @@
+"""The episode files of a dataset generation run and the Minari dataset built from them (used by
+:mod:`bimgame.expert.datasets`).
+
+Each finished episode is one ``.npz`` file (:func:`episode_bytes`, read back checked by
+:func:`read_episode`). The Minari (HDF5) file is written by a child process
+(:func:`run_build_process`): HDF5 does not survive a failed write cleanly (errors from every object
+it frees, then often a segmentation fault), so only that process fails; its error output is
+captured here and a full disk is recognised in it (or in its exit status, the errno).
+"""
+
+from __future__ import annotations
+
+import errno
+import io
+import json
+import os
+import subprocess
+import sys
+import traceback
+import warnings
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import minari
+import numpy as np
+from minari.data_collector import EpisodeBuffer
+
+from bimgame.expert.mpc import episode_seed
+from bimgame.util.files import disk_full_errno
+from bimgame.util.processes import exit_when_parent_dies
+
+__all__ = ["DatasetError", "ALGORITHM_NAME", "EPISODES_DIR", "EPISODE_KEYS", "episode_path", "episode_bytes",
+           "read_episode", "hash_arrays", "run_build_process"]
+
+ALGORITHM_NAME = "RandomShootingMPC"
+EPISODES_DIR = "episodes"
+EPISODE_KEYS = ("actions", "rewards", "terminations", "truncations", "observations", "sim_states",
+                "channels", "seed", "success")
+
+
+class DatasetError(ValueError):
+    """A dataset directory that is missing, incomplete, truncated or tampered with."""
+
+
+# ---------------------------------------------------------------------------------- episode files
+def episode_path(out_dir: Path, index: int) -> Path:
+    return out_dir / EPISODES_DIR / f"episode_{index:06d}.npz"
+
+
+def episode_bytes(index: int, episode: dict[str, np.ndarray]) -> bytes:
+    buffer = io.BytesIO()
+    np.savez(buffer, index=np.int64(index), **{key: episode[key] for key in EPISODE_KEYS})
+    return buffer.getvalue()
+
+
+def read_episode(path: Path, index: int, expected_seed: int) -> dict[str, np.ndarray]:
+    """An episode file's arrays, checked for completeness and consistency (else DatasetError)."""
+    try:
+        with open(path, "rb") as handle, np.load(handle, allow_pickle=False) as archive:
+            data = {key: archive[key] for key in archive.files}
+    except Exception as exc:  # zipfile.BadZipFile, EOFError, ValueError, OSError …
+        raise DatasetError(f"episode file {path} is unreadable ({type(exc).__name__}: {exc})") from None
+    missing = [key for key in (*EPISODE_KEYS, "index") if key not in data]
+    if missing:
+        raise DatasetError(f"episode file {path} lacks {', '.join(missing)}")
+    if int(data["index"]) != index or int(data["seed"]) != expected_seed:
+        raise DatasetError(f"episode file {path} holds episode {int(data['index'])} with seed "
+                           f"{int(data['seed'])}, expected episode {index} with seed {expected_seed}")
+    steps = len(data["actions"])
+    ends = data["terminations"] | data["truncations"]
+    if (steps < 1 or any(len(data[k]) != steps for k in ("rewards", "terminations", "truncations"))
+            or any(len(data[k]) != steps + 1 for k in ("observations", "sim_states", "channels"))
+            or not ends[-1] or ends[:-1].any()
+            or data["actions"].min() < 0 or data["actions"].max() > 4):
+        raise DatasetError(f"episode file {path} is inconsistent (lengths, episode end or actions)")
+    return data
+
+
+def hash_arrays(digest, data: dict[str, np.ndarray]) -> None:
+    """Feed an episode's arrays (names, dtypes, shapes, bytes) to a hash: identical episodes hash
+    identically however their files were written."""
+    for key in EPISODE_KEYS:
+        array = np.ascontiguousarray(data[key])
+        digest.update(f"{key}:{array.dtype.str}:{array.shape};".encode())
+        digest.update(array.tobytes())
+
+
+# ---------------------------------------------------------------------------- the build process
+#: What the build process runs: the job comes on stdin as JSON (with this process's sys.path).
+_BUILD_SCRIPT = ("import json, sys\n"
+                 "job = json.load(sys.stdin)\n"
+                 "sys.path[:] = job['sys_path']\n"
+                 "from bimgame.expert.minari_build import _build_process_main\n"
+                 "_build_process_main(job)\n")
+#: Lines of a failed build process's error output kept in the error raised here.
+_BUILD_ERROR_LINES = 30
+#: Exit statuses of the build process for a full disk and an exceeded quota: the errno itself.
+_DISK_FULL_EXITS = (errno.ENOSPC, errno.EDQUOT)
+
+
+def run_build_process(out_dir: Path, manifest: dict, build_root: Path, chunk: int) -> None:
+    """Write the Minari dataset of the episode files in ``out_dir`` into the datasets root
+    ``build_root`` with a child process (:func:`_write_minari`), handing Minari ``chunk`` episodes
+    per write.
+
+    HDF5 does not survive a failed write cleanly: after a full disk every object it frees prints
+    an error and the interpreter then often dies of a segmentation fault. In a child, that kills
+    only the child; its error output stays here (captured) and is read for the cause: a full disk
+    raises ``OSError(ENOSPC)``, anything else a RuntimeError with the output's last lines."""
+    job = {"sys_path": sys.path, "parent_pid": os.getpid(), "out_dir": str(out_dir), "manifest": manifest,
+           "build_root": str(build_root), "chunk": chunk}
+    result = subprocess.run([sys.executable, "-c", _BUILD_SCRIPT], input=json.dumps(job).encode(),
+                            capture_output=True, env={**os.environ, "MINARI_DATASETS_PATH": str(build_root)})
+    output = result.stderr.decode(errors="replace")
+    if result.returncode == 0:
+        sys.stderr.write(output)  # warnings, if any
+        return
+    code = result.returncode if result.returncode in _DISK_FULL_EXITS else disk_full_errno(output)
+    if code is not None:
+        raise OSError(code, os.strerror(code))
+    how = f"killed by signal {-result.returncode}" if result.returncode < 0 else f"exit status {result.returncode}"
+    tail = "\n".join(output.rstrip().splitlines()[-_BUILD_ERROR_LINES:])
+    raise RuntimeError(f"building the Minari dataset of {out_dir} failed ({how}):\n{tail}")
+
+
+def _build_process_main(job: dict) -> None:
+    """The build process: write the Minari dataset, or exit with the errno of a full disk (else 1
+    with the traceback on stderr) without the interpreter's cleanup, which HDF5 objects left by a
+    failed write can crash."""
+    exit_when_parent_dies(job["parent_pid"])
+    try:
+        _write_minari(Path(job["out_dir"]), job["manifest"], job["chunk"])
+    except BaseException as error:
+        code = disk_full_errno(error)
+        if code is None:
+            traceback.print_exc()
+            code = 1
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+
+
+def _write_minari(out_dir: Path, manifest: dict, chunk: int) -> None:
+    """Write the Minari dataset of the episode files in ``out_dir`` into the datasets root
+    ``MINARI_DATASETS_PATH`` (the build process runs this)."""
+    episodes, seed = manifest["episodes"], manifest["seed"]
+
+    def buffers(indices: Iterable[int]) -> list:
+        buffer = []
+        for index in indices:
+            data = read_episode(episode_path(out_dir, index), index, episode_seed(seed, index))
+            buffer.append(EpisodeBuffer(
+                id=index, seed=int(data["seed"]), observations=data["observations"],
+                actions=data["actions"], rewards=data["rewards"], terminations=data["terminations"],
+                truncations=data["truncations"],
+                infos={"sim_state": data["sim_states"], "channel": data["channels"]}))
+        return buffer
+
+    kwargs: dict[str, Any] = {"obs_mode": "state"}
+    if manifest["max_steps"] is not None:
+        kwargs["max_episode_steps"] = manifest["max_steps"]
+    env = gym.make(manifest["env_id"], **kwargs)
+    env.spec.to_json()  # raises if the spec cannot be stored
+    try:
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message=r"`(code_permalink|author|author_email)` is set to None")
+            dataset = minari.create_dataset_from_buffers(
+                dataset_id=manifest["dataset_id"], buffer=buffers(range(min(chunk, episodes))),
+                env=env, eval_env=env.spec, algorithm_name=ALGORITHM_NAME,
+                description=_description(manifest), data_format="hdf5",
+                requirements=[f"bimgame=={manifest['bimgame_version']}"])
+            for start in range(chunk, episodes, chunk):
+                dataset.update_dataset_from_buffer(buffers(range(start, min(start + chunk, episodes))))
+    finally:
+        env.close()
+
+
+def _description(manifest: dict) -> str:
+    limit = manifest["max_steps"] if manifest["max_steps"] is not None else "the task's registered limit"
+    return (f"Expert trajectories of bimgame's random-shooting MPC expert ({ALGORITHM_NAME}, acting on "
+            f"simulator states) on {manifest['env_id']}: {manifest['episodes']} episodes; episode i starts "
+            f"from reset(seed=bimgame.expert.mpc.episode_seed({manifest['seed']}, i)); time limit {limit} steps; "
+            f"MPC config {json.dumps(manifest['mpc_config'])}; bimgame {manifest['bimgame_version']}. "
+            "Observations are state observations; infos['sim_state'] (T+1, S) MuJoCo physics states and "
+            "infos['channel'] (T+1, n) task channels re-render pixel observations exactly "
+            "(bimgame.expert.datasets.iterate_sequences(..., obs='pixels')).")

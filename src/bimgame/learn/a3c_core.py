@@ -1,0 +1,229 @@
+"""A3C's settings and the pieces both the parent and the worker processes use: :class:`A3CConfig`,
+the network and shared optimiser a run starts from, the loss of one segment and the Hogwild update,
+and the run's periodic evaluation. :mod:`bimgame.learn.a3c` describes the algorithm and re-exports
+all of these."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any, Callable
+
+import torch
+
+from bimgame.envs.vector import BallInMazeVectorEnv
+from bimgame.learn.common import NetworkSettings, check_seed, evaluate_greedy_and_sampled, evaluation_seed
+from bimgame.learn.nets import RecurrentActorCritic
+from bimgame.sim.maze import MazeSpec
+from bimgame.sim.tasks import MAX_EPISODE_STEPS, Task, parse_task
+from bimgame.util.settings import from_dict, require_int
+
+__all__ = ["A3CConfig", "OPTIMIZERS", "MAX_STEPS", "EnvWrapper", "network_for", "make_optimizer",
+           "shared_optimizer_state", "a3c_segment_loss", "apply_update", "evaluate"]
+
+OPTIMIZERS = ("rmsprop", "adam")
+#: The most environment steps a run (or a checkpoint or evaluation interval) may count: 10¹², about
+#: 30 years at this machine's 1,000 steps/s. More is a typo (``--steps 1e30``), found before any work.
+MAX_STEPS = 10**12
+#: The largest value of the settings that size what is allocated at once (processes, environments,
+#: segment memory, evaluation episodes run side by side), far above any sensible value: larger is a
+#: typo that would otherwise fail only when memory runs out.
+_LARGEST = {**{name: (MAX_STEPS, "1e12 environment steps") for name in
+               ("steps", "checkpoint_every", "eval_every", "log_every", "max_episode_steps")},
+            "workers": (256, "processes"), "envs_per_worker": (4096, "environments in one process"),
+            "n_steps": (10_000, "steps kept in memory per update"),
+            "eval_episodes": (10_000, "episodes run side by side")}
+#: A callable that wraps a worker's vector env (e.g. reward shaping). It is sent to spawned worker
+#: processes, so it must be picklable (a module-level function or an instance of a module-level class).
+EnvWrapper = Callable[[BallInMazeVectorEnv], Any]
+
+
+@dataclasses.dataclass(frozen=True)
+class A3CConfig(NetworkSettings):
+    """Settings of an A3C run. Learning defaults follow the A3C paper and its widely used reference
+    implementations (OpenAI Baselines' A2C settings for the loss, RMSProp with shared statistics).
+    The network settings (``obs``, ``hidden``, ``features``, …) are inherited from
+    :class:`~bimgame.learn.common.NetworkSettings`."""
+
+    task: str = "STG1"
+    """FULL, STG1 … STG4."""
+    steps: int = 5_000_000
+    """Environment steps to train for (all workers together)."""
+    workers: int = 2
+    """Worker processes (one thread each)."""
+    envs_per_worker: int = 16
+    """Environments per worker, stepped as one batch (one forward pass acts for all); 1 is exactly
+    the paper's A3C. Batching is what makes the network affordable on a CPU: one LSTM step costs
+    about the same for 1 environment as for 16."""
+    n_steps: int = 20
+    """t_max: steps per update (n-step returns)."""
+    gamma: float = 0.99
+    """Discount."""
+    gae_lambda: float = 1.0
+    """1.0 gives A3C's n-step returns; below 1, generalised advantage estimation."""
+    lr: float = 7e-4
+    """Learning rate of the shared optimiser."""
+    optimizer: str = "rmsprop"
+    """``rmsprop`` (A3C's, statistics shared by all workers) or ``adam`` (also shared)."""
+    rmsprop_alpha: float = 0.99
+    """RMSProp's smoothing constant."""
+    optimizer_eps: float = 1e-5
+    """The optimiser's epsilon (numerical stability)."""
+    entropy_coef: float = 0.01
+    """Weight of the entropy bonus in the loss."""
+    value_coef: float = 0.5
+    """Weight of the value loss against the policy loss."""
+    max_grad_norm: float = 0.5
+    """Clip each update's gradient to this global norm (losses are means over the segment)."""
+    seed: int = 0
+    """Seeds the network's initial weights, the workers' environments and sampling, and the evaluations."""
+    max_episode_steps: int | None = None
+    """Time limit; None uses the task's (STG1 300, STG2 500, STG3 750, STG4/FULL 1000)."""
+    checkpoint_every: int = 100_000
+    """Environment steps between checkpoints (``--resume`` loses at most this many)."""
+    eval_every: int = 100_000
+    """Environment steps between evaluations; 0 disables the evaluator process."""
+    eval_episodes: int = 10
+    """Episodes per evaluation, each greedy and sampled."""
+    log_every: int = 2_000
+    """Environment steps (per worker) between loss reports."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        try:
+            object.__setattr__(self, "task", parse_task(self.task).value)
+        except ValueError as error:
+            raise ValueError(f"A3CConfig.task: {error}") from None
+        if self.optimizer not in OPTIMIZERS:
+            raise ValueError(f"A3CConfig.optimizer must be one of {OPTIMIZERS}, got {self.optimizer!r}")
+        positive_ints = ("steps", "workers", "envs_per_worker", "n_steps", "checkpoint_every", "eval_episodes",
+                         "log_every")
+        for name in positive_ints:
+            require_int("A3CConfig", name, getattr(self, name), 1)
+        check_seed("A3CConfig", self.seed)  # numpy's seed sequences take no negative seeds, torch none of 2**64
+        if not (isinstance(self.eval_every, int) and self.eval_every >= 0):
+            raise ValueError(f"A3CConfig.eval_every must be an integer >= 0 (0: no evaluator), got {self.eval_every!r}")
+        require_int("A3CConfig", "max_episode_steps", self.max_episode_steps, 1, optional=True)
+        for name, (largest, unit) in _LARGEST.items():
+            value = getattr(self, name)
+            if value is not None and value > largest:
+                raise ValueError(f"A3CConfig.{name} must be at most {largest:,} ({unit}), got {value!r}")
+        ranges = {"gamma": (0.0, 1.0), "gae_lambda": (0.0, 1.0), "rmsprop_alpha": (0.0, 1.0)}
+        for name, (low, high) in ranges.items():
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and low <= value <= high):
+                raise ValueError(f"A3CConfig.{name} must be in [{low}, {high}], got {value!r}")
+        for name in ("lr", "optimizer_eps", "max_grad_norm"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"A3CConfig.{name} must be a finite number > 0, got {value!r}")
+        for name in ("entropy_coef", "value_coef"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                raise ValueError(f"A3CConfig.{name} must be a finite number >= 0, got {value!r}")
+
+    @property
+    def time_limit(self) -> int:
+        return self.max_episode_steps or MAX_EPISODE_STEPS[Task(self.task)]
+
+    @property
+    def steps_per_update(self) -> int:
+        return self.n_steps * self.envs_per_worker
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, values: dict[str, Any]) -> A3CConfig:
+        return from_dict(cls, values, "A3C settings")
+
+    # What a resumed run may change without changing what is being learned.
+    RESUMABLE_CHANGES = ("steps", "workers", "checkpoint_every", "eval_every", "eval_episodes", "log_every")
+
+
+def network_for(config: A3CConfig, maze: MazeSpec | None = None) -> RecurrentActorCritic:
+    """A fresh network for ``config``'s run, initialised from its seed."""
+    return config.build_policy(config.seed, maze)
+
+
+def make_optimizer(config: A3CConfig, params) -> torch.optim.Optimizer:
+    if config.optimizer == "rmsprop":
+        return torch.optim.RMSprop(params, lr=config.lr, alpha=config.rmsprop_alpha, eps=config.optimizer_eps)
+    return torch.optim.Adam(params, lr=config.lr, eps=config.optimizer_eps)
+
+
+def shared_optimizer_state(optimizer: torch.optim.Optimizer) -> list[dict[str, torch.Tensor]]:
+    """Create every parameter's optimiser statistics (if not loaded) and move them to shared memory,
+    so all workers update the same statistics (A3C's 'shared RMSProp')."""
+    params = [p for group in optimizer.param_groups for p in group["params"]]
+    if not optimizer.state:
+        # One step with zero gradients creates the statistics without changing any weight (RMSProp
+        # and Adam both move by 0 for a zero gradient); then the step counts are reset to 0.
+        for p in params:
+            p.grad = torch.zeros_like(p)
+        optimizer.step()
+        for p in params:
+            p.grad = None
+            optimizer.state[p]["step"].zero_()
+    states = []
+    for p in params:
+        state = optimizer.state[p]
+        for value in state.values():
+            if torch.is_tensor(value):
+                value.share_memory_()
+        states.append(state)
+    return states
+
+
+def a3c_segment_loss(net: RecurrentActorCritic, segment: dict[str, torch.Tensor], config: A3CConfig,
+                     ) -> tuple[torch.Tensor, dict[str, float]]:
+    """The actor-critic loss of one segment (T steps × B envs), recomputed with gradients.
+
+    ``segment`` holds ``obs``, ``prev_action``, ``prev_reward``, ``tilt`` and ``starts`` for T+1
+    steps (the last is the bootstrap state), ``actions``, ``rewards`` (with γ·V(final observation)
+    already added at time-limit truncations) and ``ends`` (the episode ended after this step) for T
+    steps, and the LSTM state ``h0``/``c0`` at the segment start."""
+    logits, values, _ = net.unroll(segment["obs"], segment["prev_action"], segment["prev_reward"],
+                                   segment.get("tilt"), (segment["h0"], segment["c0"]), segment["starts"])
+    logits, bootstrap, values = logits[:-1], values[-1].detach(), values[:-1]
+    rewards, ends = segment["rewards"], segment["ends"].float()
+    advantages = torch.zeros_like(rewards)
+    next_value, running = bootstrap, torch.zeros_like(bootstrap)
+    detached = values.detach()
+    for t in reversed(range(rewards.shape[0])):
+        not_end = 1.0 - ends[t]
+        delta = rewards[t] + config.gamma * next_value * not_end - detached[t]
+        running = delta + config.gamma * config.gae_lambda * not_end * running
+        advantages[t] = running
+        next_value = detached[t]
+    targets = advantages + detached
+    log_probs = torch.log_softmax(logits, dim=-1)
+    chosen = log_probs.gather(-1, segment["actions"].unsqueeze(-1)).squeeze(-1)
+    entropy = -(log_probs.exp() * log_probs).sum(-1).mean()
+    policy_loss = -(chosen * advantages).mean()
+    value_loss = 0.5 * (targets - values).pow(2).mean()
+    loss = policy_loss + config.value_coef * value_loss - config.entropy_coef * entropy
+    return loss, {"policy_loss": policy_loss.item(), "value_loss": value_loss.item(), "entropy": entropy.item()}
+
+
+def apply_update(local: RecurrentActorCritic, shared_params: list[torch.Tensor], optimizer: torch.optim.Optimizer,
+                 segment: dict[str, torch.Tensor], config: A3CConfig) -> dict[str, float]:
+    """One A3C update: the segment's loss, its gradient (norm clipped) on the local network, applied
+    to the shared weights by the shared optimiser. A non-finite loss or gradient is not applied
+    (``applied`` is False in the returned losses)."""
+    loss, parts = a3c_segment_loss(local, segment, config)
+    local.zero_grad(set_to_none=True)
+    loss.backward()
+    grad_norm = float(torch.nn.utils.clip_grad_norm_(local.parameters(), config.max_grad_norm))
+    applied = math.isfinite(loss.item()) and math.isfinite(grad_norm)
+    if applied:
+        for shared_param, param in zip(shared_params, local.parameters()):
+            shared_param.grad = param.grad
+        optimizer.step()
+    return {**parts, "loss": loss.item(), "grad_norm": grad_norm, "applied": applied}
+
+
+def evaluate(net: RecurrentActorCritic, config: A3CConfig) -> dict[str, float]:
+    """The run's periodic evaluation: greedy and sampled, on its evaluation episodes and seed."""
+    return evaluate_greedy_and_sampled(net, task=config.task, obs=config.obs, episodes=config.eval_episodes,
+                                       seed=evaluation_seed(config.seed), time_limit=config.time_limit)

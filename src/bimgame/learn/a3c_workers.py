@@ -1,0 +1,184 @@
+"""What runs inside an A3C run's spawned processes: the worker (act for a segment, apply its
+gradient to the shared weights) and the evaluator (greedy and sampled episodes of the shared
+weights every ``eval_every`` steps). :func:`bimgame.learn.a3c.train` starts them; they report to
+the parent through its message queue. The entry points are module-level functions, so that the
+``spawn`` start method can pickle them by name."""
+
+from __future__ import annotations
+
+import multiprocessing as std_mp
+import signal
+import time
+import traceback
+from typing import Any
+
+import numpy as np
+import torch
+
+from bimgame.envs.vector import BallInMazeVectorEnv
+from bimgame.learn.a3c_core import A3CConfig, EnvWrapper, apply_update, evaluate, make_optimizer, network_for
+from bimgame.learn.actor import RecurrentActor, tilt_input
+from bimgame.learn.nets import RecurrentActorCritic
+
+
+def _worker_seeds(config: A3CConfig, rank: int, start_step: int) -> tuple[int, int]:
+    """(env seed, torch seed) of a worker; a resumed run (start_step > 0) draws fresh episodes."""
+    sequence = np.random.SeedSequence([config.seed, rank, start_step])
+    env_seed, torch_seed = sequence.generate_state(2)
+    return int(env_seed), int(torch_seed)
+
+
+def _make_env(config: A3CConfig, num_envs: int, **kwargs: Any) -> BallInMazeVectorEnv:
+    return BallInMazeVectorEnv(num_envs, task=config.task, obs_mode=config.obs, nthread=1,
+                               max_episode_steps=config.time_limit, autoreset_mode="same_step", **kwargs)
+
+
+def _parent_alive() -> bool:
+    parent = std_mp.parent_process()
+    return parent is None or parent.is_alive()
+
+
+def _worker(rank: int, config: A3CConfig, shared: RecurrentActorCritic, optimizer_state: list[dict],
+            counter, stop, messages, env_wrapper: EnvWrapper | None, start_step: int) -> None:
+    """One A3C worker process: act, compute the segment's gradient, apply it to the shared weights."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and stops us
+    torch.set_num_threads(1)
+    try:
+        _worker_loop(rank, config, shared, optimizer_state, counter, stop, messages, env_wrapper, start_step)
+    except Exception:
+        messages.put(("error", rank, traceback.format_exc()))
+    finally:
+        messages.put(("exit", rank, None))
+
+
+def _worker_loop(rank, config, shared, optimizer_state, counter, stop, messages, env_wrapper, start_step):
+    env_seed, torch_seed = _worker_seeds(config, rank, start_step)
+    base_env = _make_env(config, config.envs_per_worker)
+    env = env_wrapper(base_env) if env_wrapper is not None else base_env
+    max_tilt = base_env.maze.max_tilt
+    local = network_for(config, base_env.maze)
+    optimizer = make_optimizer(config, shared.parameters())
+    shared_params = list(shared.parameters())
+    for param, state in zip(shared_params, optimizer_state):
+        optimizer.state[param] = state
+    generator = torch.Generator().manual_seed(torch_seed)
+    actor = RecurrentActor(local, config.envs_per_worker, generator=generator)
+    obs, info = env.reset(seed=env_seed)
+    tilt = tilt_input(info, max_tilt)
+    n, batch = config.n_steps, config.envs_per_worker
+    episode_return = np.zeros(batch)
+    episode_length = np.zeros(batch, dtype=np.int64)
+    episode_start = np.full(batch, counter.value, dtype=np.int64)
+    stats = {"policy_loss": 0.0, "value_loss": 0.0, "entropy": 0.0, "grad_norm": 0.0, "updates": 0}
+    since_report = 0
+    while not stop.is_set() and counter.value < config.steps and _parent_alive():
+        local.load_state_dict(shared.state_dict())
+        h0, c0 = actor.state
+        seg: dict[str, list] = {k: [] for k in ("obs", "prev_action", "prev_reward", "tilt", "starts",
+                                                "actions", "rewards", "ends")}
+        step_at_start = counter.value
+        for _ in range(n):
+            seg["obs"].append(torch.as_tensor(obs))
+            seg["prev_action"].append(actor.prev_action)
+            seg["prev_reward"].append(actor.prev_reward)
+            seg["tilt"].append(tilt)
+            seg["starts"].append(actor.starts)
+            actions, _, _ = actor.act(obs, tilt)
+            obs, reward, terminated, truncated, info = env.step(actions.numpy())
+            reward = np.asarray(reward, dtype=np.float64)
+            if not np.all(np.isfinite(reward)):
+                messages.put(("nan", rank, {"step": int(counter.value), "what": "reward from the env",
+                                            "rewards": reward.tolist()}))
+                return
+            done = terminated | truncated
+            rewards_t = torch.as_tensor(reward, dtype=torch.float32)
+            cut = truncated & ~terminated
+            if cut.any():
+                # A time limit is not a terminal state: bootstrap from the value of the last
+                # observation, which SAME_STEP autoreset keeps in info["final_obs"].
+                rewards_t = rewards_t + config.gamma * _final_values(actor, actions, reward, info, cut, max_tilt)
+            seg["actions"].append(actions)
+            seg["rewards"].append(rewards_t)
+            seg["ends"].append(torch.as_tensor(done))
+            # Learning curves show the task's own reward, also when a wrapper shapes it.
+            episode_return += np.asarray(info.get("task_reward", reward), dtype=np.float64)
+            episode_length += 1
+            for i in np.flatnonzero(done):
+                messages.put(("episode", rank, {
+                    "start_step": int(episode_start[i]), "end_step": int(counter.value),
+                    "return": float(episode_return[i]), "length": int(episode_length[i]),
+                    "success": bool(terminated[i])}))
+            episode_return[done] = 0.0
+            episode_length[done] = 0
+            episode_start[done] = step_at_start
+            actor.observe(actions, reward, done)
+            tilt = tilt_input(info, max_tilt)
+        seg["obs"].append(torch.as_tensor(obs))
+        seg["prev_action"].append(actor.prev_action)
+        seg["prev_reward"].append(actor.prev_reward)
+        seg["tilt"].append(tilt)
+        seg["starts"].append(actor.starts)
+        segment = {k: torch.stack(v) for k, v in seg.items()}
+        segment.update(h0=h0, c0=c0)
+        if not config.tilt_input:
+            segment.pop("tilt")
+        parts = apply_update(local, shared_params, optimizer, segment, config)
+        grad_norm = parts.pop("grad_norm")
+        if not parts.pop("applied"):
+            messages.put(("nan", rank, {"step": int(counter.value), "what": "loss", "grad_norm": grad_norm,
+                                        **parts}))
+            return
+        with counter.get_lock():
+            counter.value += n * batch
+        for key in ("policy_loss", "value_loss", "entropy"):
+            stats[key] += parts[key]
+        stats["grad_norm"] += grad_norm
+        stats["updates"] += 1
+        since_report += n * batch
+        if since_report >= config.log_every:
+            count = stats.pop("updates")
+            messages.put(("update", rank, {"step": int(counter.value), **{k: v / count for k, v in stats.items()}}))
+            stats = {k: 0.0 for k in stats} | {"updates": 0}
+            since_report = 0
+
+
+def _final_values(actor: RecurrentActor, actions: torch.Tensor, reward: np.ndarray, info: dict,
+                  cut: np.ndarray, max_tilt: float) -> torch.Tensor:
+    """V of the last observation of time-limited episodes (0 elsewhere), from the state after the
+    step, without changing the actor."""
+    final_obs = info["final_obs"]
+    final_tilt = tilt_input(info["final_info"], max_tilt)
+    with torch.no_grad():
+        _, values, _ = actor.net.step(torch.as_tensor(final_obs), actions,
+                                      torch.as_tensor(reward, dtype=torch.float32), final_tilt, actor.state)
+    return values * torch.as_tensor(cut, dtype=torch.float32)
+
+
+def _evaluator(config: A3CConfig, shared: RecurrentActorCritic, counter, stop, messages, start_step: int,
+               initial_weights: dict[str, torch.Tensor]) -> None:
+    """Evaluator process: greedy and sampled episodes (same start positions every time) of the weights
+    the session starts from, at its first step — step 0 of a fresh run (the initial random or
+    pre-trained policy), the checkpoint's step of a resumed one, whose earlier rows from that step on
+    were dropped — then every ``eval_every`` steps of the shared weights."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    torch.set_num_threads(1)
+    try:
+        local = network_for(config)
+        # A copy of the weights taken before any worker started.
+        local.load_state_dict(initial_weights)
+        messages.put(("eval", -1, {"step": start_step, **evaluate(local, config)}))
+        next_eval = (start_step // config.eval_every + 1) * config.eval_every
+        while not stop.is_set() and _parent_alive():
+            step = counter.value
+            if step >= config.steps:
+                break
+            if step < next_eval:
+                time.sleep(0.1)
+                continue
+            local.load_state_dict(shared.state_dict())
+            messages.put(("eval", -1, {"step": int(step), **evaluate(local, config)}))
+            next_eval = (step // config.eval_every + 1) * config.eval_every
+    except Exception:
+        messages.put(("error", -1, traceback.format_exc()))
+    finally:
+        messages.put(("exit", -1, None))

@@ -1,0 +1,1 @@
+"""Helpers shared by several test modules (importable: ``tests`` is on the test path)."""
