@@ -14,6 +14,7 @@ Verbs:
   dagger       DAgger with the MPC expert labelling the learner's states
   reproduce    the paper's experiments in one resumable command: dataset, pre-training, runs, report
   report       rebuild a reproduction's figures, tables and report.md from its saved results
+  score        any policy scored with the benchmark protocol, normalised (random 0, expert 100)
 
 Each verb family has its module (:mod:`~bimgame.cli.maze`, :mod:`~bimgame.cli.expert`,
 :mod:`~bimgame.cli.train`, :mod:`~bimgame.cli.learn`, :mod:`~bimgame.cli.reproduce`) with its
@@ -30,6 +31,7 @@ from bimgame.cli import expert as cli_expert
 from bimgame.cli import learn as cli_learn
 from bimgame.cli import maze as cli_maze
 from bimgame.cli import reproduce as cli_reproduce
+from bimgame.cli import score as cli_score
 from bimgame.cli import train as cli_train
 from bimgame.learn.curves import plot_comparison, plot_run
 
@@ -47,6 +49,8 @@ _LEARNING_VERBS = (
      cli_reproduce.run_reproduce),
     ("report", "rebuild a reproduction's figures, tables and report", cli_reproduce.add_report_arguments,
      cli_reproduce.run_report),
+    ("score", "score any policy with the benchmark protocol (normalised: random 0, expert 100)",
+     cli_score.add_score_arguments, cli_score.run_score),
 )
 
 

@@ -28,6 +28,7 @@ import numpy as np
 from minari.data_collector import EpisodeBuffer
 
 from bimgame.expert.mpc import episode_seed
+from bimgame.expert.references import references_for
 from bimgame.util.files import disk_full_errno
 from bimgame.util.processes import exit_when_parent_dies
 
@@ -169,12 +170,20 @@ def _write_minari(out_dir: Path, manifest: dict, chunk: int) -> None:
             dataset = minari.create_dataset_from_buffers(
                 dataset_id=manifest["dataset_id"], buffer=buffers(range(min(chunk, episodes))),
                 env=env, eval_env=env.spec, algorithm_name=ALGORITHM_NAME,
-                description=_description(manifest), data_format="hdf5",
+                description=_description(manifest), data_format="hdf5", **_reference_scores(manifest),
                 requirements=[f"bimgame=={manifest['bimgame_version']}"])
             for start in range(chunk, episodes, chunk):
                 dataset.update_dataset_from_buffer(buffers(range(start, min(start + chunk, episodes))))
     finally:
         env.close()
+
+
+def _reference_scores(manifest: dict) -> dict[str, float]:
+    """Minari's ``ref_min_score``/``ref_max_score``: the task's random and expert reference returns
+    (:mod:`bimgame.expert.references`), so that ``minari.get_normalized_score`` gives bimgame's
+    normalised score; none for a run with its own time limit (the references use the task's)."""
+    pair = references_for(manifest["task"]) if manifest.get("max_steps") is None else None
+    return {} if pair is None else {"ref_min_score": pair[0], "ref_max_score": pair[1]}
 
 
 def _description(manifest: dict) -> str:

@@ -1,0 +1,75 @@
+"""``bimgame score``: any policy scored with the benchmark protocol (:mod:`bimgame.experiments.protocol`),
+printed as a table and written as JSON; ``--measure-references`` measures the random and expert
+references of the normalised score anew."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from rich.console import Console
+from rich.table import Table
+
+from bimgame.cli.argtypes import TASK_NAMES, positive_int
+from bimgame.envs.observe import OBS_MODES
+from bimgame.experiments.policy_sources import load_policy
+from bimgame.experiments.protocol import PROTOCOL_EPISODES, Protocol, measure_references, run_protocol
+from bimgame.util.files import write_json
+
+__all__ = ["add_score_arguments", "run_score"]
+
+
+def add_score_arguments(parser: argparse.ArgumentParser) -> None:
+    add = parser.add_argument
+    add("policy", nargs="?", metavar="POLICY",
+        help="random | noop | geodesic | expert | a bimgame run directory or checkpoint | an SB3 model .zip | "
+             "module:callable (observation -> action)")
+    add("--task", choices=TASK_NAMES, type=str.upper, default="STG1", help="(default STG1)")
+    add("--obs", choices=OBS_MODES, default="state", help="observations the policy gets (default state)")
+    add("--episodes", type=positive_int, default=PROTOCOL_EPISODES,
+        help=f"episodes of the protocol (default {PROTOCOL_EPISODES}; scores are comparable only at the default)")
+    add("--sampled", action="store_true", help="a network samples its actions instead of acting greedily")
+    add("--out", type=Path, default=None, help="write the result as JSON here")
+    add("--no-progress", action="store_true", help="no progress bar")
+    add("--measure-references", action="store_true",
+        help="measure the random and expert reference returns of every task (writes --out; takes minutes)")
+
+
+def _pair(value: float | None, interval: list[float] | None, percent: bool = False) -> str:
+    if value is None:
+        return "–"
+    shown = (lambda v: f"{100 * v:.0f}%") if percent else (lambda v: f"{v:.2f}")  # noqa: E731
+    return f"{shown(value)} [{shown(interval[0])}, {shown(interval[1])}]" if interval else shown(value)
+
+
+def run_score(args: argparse.Namespace) -> int:
+    console = Console()
+    if args.measure_references:
+        if args.out is None:
+            raise ValueError("--measure-references needs --out FILE for the measured references")
+        references = measure_references(list(TASK_NAMES), episodes=args.episodes, progress=not args.no_progress)
+        console.print(f"wrote {write_json(args.out, references)}")
+        return 0
+    if args.policy is None:
+        raise ValueError("POLICY is required (or --measure-references)")
+    if args.out is not None and args.out.is_dir():
+        raise ValueError(f"--out {args.out} is a directory; give a file name for the JSON")
+    protocol = Protocol(task=args.task, obs=args.obs, episodes=args.episodes)
+    policy = load_policy(args.policy, obs=args.obs, sampled=args.sampled)
+    summary = run_protocol(policy, protocol, progress=not args.no_progress).summary()
+    table = Table(title=f"{args.policy} on {protocol.task} ({protocol.obs}), {protocol.episodes} protocol episodes")
+    for column in ("success [95% CI]", "mean return", "mean length (solved)", "normalised score"):
+        table.add_column(column, justify="right")
+    table.add_row(_pair(summary["success_rate"], summary["success_rate_ci"], percent=True),
+                  _pair(summary["mean_return"], summary["mean_return_ci"]),
+                  _pair(summary["mean_length_solved"], summary["mean_length_solved_ci"]),
+                  _pair(summary["normalised_score"], summary["normalised_score_ci"]))
+    console.print(table)
+    if args.out is not None:
+        console.print(f"wrote {write_json(args.out, {'policy': args.policy, **summary})}")
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit("use: bimgame score ...")
