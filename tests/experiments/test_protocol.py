@@ -8,7 +8,7 @@ import json
 import pytest
 
 from bimgame.experiments.policy_sources import builtin_policy, load_policy
-from bimgame.experiments.protocol import PROTOCOL_SEED, Protocol, measure_references, run_protocol
+from bimgame.experiments.protocol import PROTOCOL_SEED, Protocol, measure_references, run_protocol, score
 from bimgame.expert import references
 from bimgame.expert.evaluation import evaluate_expert
 from bimgame.expert.mpc import episode_seed
@@ -32,6 +32,8 @@ def test_same_policy_same_score_and_another_policy_differs():
     again = run_protocol(builtin_policy("random"), protocol).summary()
     first.pop("seconds"), again.pop("seconds")
     assert first == again
+    again.pop("normalised_score"), again.pop("normalised_score_ci")
+    assert {k: v for k, v in score("random", "stg1", episodes=6).items() if k in again} == again
     geodesic = run_protocol(builtin_policy("geodesic"), protocol)
     assert geodesic.returns != run_protocol(builtin_policy("noop"), protocol).returns
 

@@ -25,7 +25,7 @@ import numpy as np
 
 from bimgame.envs.env import BallInMazeEnv
 from bimgame.envs.observe import OBS_MODES
-from bimgame.experiments.policy_sources import EpisodePolicy, builtin_policy
+from bimgame.experiments.policy_sources import EpisodePolicy, builtin_policy, load_policy
 from bimgame.experiments.statistics import percentile_interval
 from bimgame.expert.evaluation import evaluate_expert
 from bimgame.expert.mpc import MPCConfig, episode_seed
@@ -33,7 +33,7 @@ from bimgame.expert.references import normalised_score, references_for
 from bimgame.sim.tasks import MAX_EPISODE_STEPS, Task, parse_task
 from bimgame.util.progress import ProgressBar
 
-__all__ = ["Protocol", "Score", "PROTOCOL_SEED", "PROTOCOL_EPISODES", "run_protocol", "measure_references"]
+__all__ = ["Protocol", "Score", "PROTOCOL_SEED", "PROTOCOL_EPISODES", "score", "run_protocol", "measure_references"]
 
 #: The run seed the protocol's start seeds derive from (fixed: changing it changes every score).
 PROTOCOL_SEED = 20_181_105
@@ -106,6 +106,14 @@ def _interval(values: np.ndarray, rng: np.random.Generator) -> tuple[float, floa
     """Percentile-bootstrap 95% interval of the mean of ``values`` over episodes."""
     means = values[rng.integers(len(values), size=(_RESAMPLES, len(values)))].mean(axis=1)
     return percentile_interval(means)
+
+
+def score(policy: str, task: str = "STG1", *, obs: str = "state", episodes: int = PROTOCOL_EPISODES,
+          sampled: bool = False, progress: bool = False) -> dict[str, Any]:
+    """The protocol's numbers for the policy named by ``policy`` (see
+    :func:`~bimgame.experiments.policy_sources.load_policy`): what ``bimgame score`` prints."""
+    protocol = Protocol(task=task, obs=obs, episodes=episodes)
+    return run_protocol(load_policy(policy, obs=obs, sampled=sampled), protocol, progress=progress).summary()
 
 
 def run_protocol(policy: EpisodePolicy, protocol: Protocol, *, progress: bool = False) -> Score:
