@@ -9,8 +9,8 @@ import pytest
 
 from bimgame.expert.datasets import generate_dataset
 from bimgame.learn.pretrain import PretrainResult, pretrain
-from bimgame.learn.supervised import PretrainConfig
 from bimgame.learn.runs import torch_threads
+from bimgame.learn.supervised import PretrainConfig
 
 #: Episodes of :func:`stg1_dataset` (≈0.6 s of MPC planning each on one core).
 STG1_DATASET_EPISODES = 60

@@ -5,11 +5,10 @@ import json
 
 import pytest
 
-from bimgame.learn.a3c import A3CConfig, train
-from bimgame.cli.main import build_parser, main
+from bimgame.cli.argtypes import step_count
 from bimgame.cli.flags import given_settings
-from bimgame.cli.train import step_count
-from bimgame.learn.a3c import resolve_config
+from bimgame.cli.main import build_parser, main
+from bimgame.learn.a3c import A3CConfig, resolve_config, train
 
 
 def a3c_config_from(args: argparse.Namespace) -> A3CConfig:

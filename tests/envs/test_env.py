@@ -12,9 +12,8 @@ from gymnasium.utils.env_checker import check_env
 
 import bimgame
 from bimgame.envs.env import BallInMazeEnv
-from bimgame.sim.tasks import MAX_EPISODE_STEPS
 from bimgame.sim.maze import MazeSpec
-from bimgame.sim.tasks import Task
+from bimgame.sim.tasks import MAX_EPISODE_STEPS, Task
 
 IDS = bimgame.ENV_IDS
 

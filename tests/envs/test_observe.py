@@ -6,8 +6,8 @@ import math
 
 import numpy as np
 
-from bimgame.sim.maze import MazeSpec
 from bimgame.envs.observe import Observer
+from bimgame.sim.maze import MazeSpec
 from bimgame.sim.physics import MazeSim
 
 

@@ -15,8 +15,12 @@ from gymnasium.vector.utils import batch_space
 
 import bimgame  # noqa: F401
 from bimgame.envs.env import BallInMazeEnv
-from bimgame.envs.shaping import (GeodesicProgressReward, GeodesicProgressVectorEnv, GeodesicReward,
-                             PotentialShapedVectorEnv)
+from bimgame.envs.shaping import (
+    GeodesicProgressReward,
+    GeodesicProgressVectorEnv,
+    GeodesicReward,
+    PotentialShapedVectorEnv,
+)
 from bimgame.envs.vector import BallInMazeVectorEnv
 
 NUM_ENVS = 3

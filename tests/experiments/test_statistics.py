@@ -6,9 +6,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bimgame.experiments.statistics import (MIN_EPISODES, Crossing, bootstrap_mean_band, dagger_crossing,
-                                            first_crossing, percentile_interval, run_crossing, speedup,
-                                            stratified_bootstrap)
+from bimgame.experiments.statistics import (
+    MIN_EPISODES,
+    Crossing,
+    bootstrap_mean_band,
+    dagger_crossing,
+    first_crossing,
+    percentile_interval,
+    run_crossing,
+    speedup,
+    stratified_bootstrap,
+)
 from bimgame.learn import curves
 from bimgame.learn.curves import binned_means
 

@@ -25,9 +25,8 @@ import bimgame.expert.datasets as data
 import bimgame.expert.pool as parallel
 from bimgame.cli.expert import add_generate_arguments
 from bimgame.cli.main import main
-from bimgame.expert.datasets import (DatasetError, dataset_summary, generate_dataset, iterate_sequences,
-                                     load_dataset)
 from bimgame.envs.env import NO_ACTION, BallInMazeEnv
+from bimgame.expert.datasets import DatasetError, dataset_summary, generate_dataset, iterate_sequences, load_dataset
 from bimgame.expert.mpc import MPCConfig, episode_seed
 
 CONFIG = MPCConfig(n_samples=4, horizon=8)

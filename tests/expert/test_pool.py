@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 from support import procfs
 
-from bimgame.expert.pool import episode_progress, expert_episodes
 from bimgame.expert.mpc import MPCConfig, episode_seed, run_expert_episode
+from bimgame.expert.pool import episode_progress, expert_episodes
 
 CONFIG = MPCConfig(n_samples=4, horizon=6)
 

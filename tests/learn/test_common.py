@@ -9,8 +9,14 @@ import pytest
 import torch
 
 from bimgame.learn.a3c import A3CConfig
-from bimgame.learn.common import (NetworkSettings, evaluation_seed, init_network_settings, load_run_network,
-                                  network_settings_of, read_run)
+from bimgame.learn.common import (
+    NetworkSettings,
+    evaluation_seed,
+    init_network_settings,
+    load_run_network,
+    network_settings_of,
+    read_run,
+)
 from bimgame.learn.runs import CHECKPOINT, KIND_A3C, KIND_POLICY, KIND_VALUE, save_checkpoint
 from bimgame.learn.supervised import PretrainConfig
 

@@ -7,8 +7,8 @@ import pytest
 from support.logs import running_log
 
 from bimgame.cli.main import main
-from bimgame.learn.a3c import A3CConfig, train
 from bimgame.learn import curves
+from bimgame.learn.a3c import A3CConfig, train
 from bimgame.learn.curves import binned_by_start, plot_run, read_table
 from bimgame.learn.runs import CsvLog
 

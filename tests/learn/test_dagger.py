@@ -6,24 +6,25 @@ from __future__ import annotations
 import csv
 import dataclasses
 import itertools
-from types import SimpleNamespace
 import json
 import shutil
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from support.disk import disk_fills_up
 import torch
+from support.disk import disk_fills_up
 
-from bimgame.learn import runs
-from bimgame.learn.common import evaluate_greedy_and_sampled, evaluation_seed, load_run_network
-from bimgame.learn.actor import evaluate_network
 from bimgame.cli.main import main
-from bimgame.learn.dagger import KIND_DAGGER, DAggerConfig, collect_episodes, dagger, resolve_dagger_config
+from bimgame.envs.env import NO_ACTION
 from bimgame.expert.episode import Episode
 from bimgame.expert.mpc import MPCConfig
-from bimgame.envs.env import NO_ACTION
+from bimgame.learn import runs
+from bimgame.learn.actor import evaluate_network
+from bimgame.learn.common import evaluate_greedy_and_sampled, evaluation_seed, load_run_network
+from bimgame.learn.dagger import KIND_DAGGER, DAggerConfig, collect_episodes, dagger, resolve_dagger_config
 from bimgame.learn.supervised import PretrainConfig
+from bimgame.util.files import FileWriteError
 
 
 # ----------------------------------------------------------------------------------- helpers
@@ -493,7 +494,7 @@ def test_disk_full_during_dagger_names_the_file_and_keeps_the_finished_iteration
     disk_fills_up(monkeypatch, "iteration_001.npz")
     run_dir = tmp_path / "run"
     config = dataclasses.replace(SMALL, iterations=2, eval_episodes=0)
-    with pytest.raises(runs.RunWriteError, match=r"cannot write .*iteration_001.npz: No space left on device. The "
+    with pytest.raises(FileWriteError, match=r"cannot write .*iteration_001.npz: No space left on device. The "
                                                  r"iterations finished before \(1\) are saved .* --resume"):
         dagger(config, run_dir, progress=False)
     assert [r["iteration"] for r in _csv_rows(run_dir / "dagger.csv")] == ["0"]

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 import torch
 
-from bimgame.sim.maze import MazeSpec
 from bimgame.learn.nets import NO_ACTION, NetConfig, build_network, state_obs_scale
+from bimgame.sim.maze import MazeSpec
 
 
 def _inputs(config: NetConfig, steps: int, batch: int, seed: int = 0):

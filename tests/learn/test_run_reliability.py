@@ -15,8 +15,8 @@ import sys
 from pathlib import Path
 
 import pytest
-from support.disk import disk_fills_up
 import torch
+from support.disk import disk_fills_up
 
 from bimgame.cli.main import main
 from bimgame.learn.a3c import A3CConfig, network_for, resolve_config, train

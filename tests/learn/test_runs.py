@@ -9,9 +9,19 @@ import pytest
 import torch
 
 import bimgame.learn.runs as runs
+from bimgame.learn.runs import (
+    CheckpointError,
+    CsvLog,
+    MetricLog,
+    discard_new_run,
+    load_checkpoint,
+    load_weights,
+    prepare_new_run,
+    resumed_rows,
+    save_checkpoint,
+)
 from bimgame.util import files
-from bimgame.learn.runs import (CheckpointError, CsvLog, MetricLog, RunWriteError, discard_new_run, load_checkpoint,
-                                load_weights, prepare_new_run, resumed_rows, save_checkpoint)
+from bimgame.util.files import FileWriteError
 
 
 def test_checkpoint_round_trip(tmp_path):
@@ -163,18 +173,18 @@ def test_writes_that_fail_name_the_file(tmp_path, monkeypatch):
             _no_space()
     log._handle = FullDisk()
     log._writer = csv.DictWriter(log._handle, log.fields)
-    with pytest.raises(RunWriteError, match=rf"cannot write {tmp_path / 'x.csv'}: No space left on device"):
+    with pytest.raises(FileWriteError, match=rf"cannot write {tmp_path / 'x.csv'}: No space left on device"):
         log.write({"step": 1, "value": 2})
     log.close()  # the failure was reported once; closing does not raise it again
     monkeypatch.setattr(files, "atomic_write_bytes", _no_space)  # what every writer of a run uses
-    with pytest.raises(RunWriteError, match=rf"cannot write {tmp_path / 'c.pt'}: No space left on device"):
+    with pytest.raises(FileWriteError, match=rf"cannot write {tmp_path / 'c.pt'}: No space left on device"):
         save_checkpoint(tmp_path / "c.pt", model={"w": torch.zeros(2)}, step=1)
-    with pytest.raises(RunWriteError, match="summary.json: No space left on device. Resume later"):
+    with pytest.raises(FileWriteError, match="summary.json: No space left on device. Resume later"):
         try:
             runs.write_run_json(tmp_path / "summary.json", {"a": 1})
-        except RunWriteError as error:
-            raise error.advise("Resume later")
-    assert isinstance(RunWriteError("x", "y"), OSError)
+        except FileWriteError as error:
+            raise error.with_advice("Resume later")
+    assert isinstance(FileWriteError("x", "y"), OSError)
 
 
 # ------------------------------------------------------------------------- checkpoints

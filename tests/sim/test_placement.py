@@ -9,8 +9,16 @@ import numpy as np
 import pytest
 
 from bimgame.sim.maze import Gate, MazeSpec, Wall
-from bimgame.sim.placement import (MAX_START_DRAWS, check_marble_xy, check_n_marbles, finite_array,
-                                   max_start_marbles, sample_start, start_radius, start_separation)
+from bimgame.sim.placement import (
+    MAX_START_DRAWS,
+    check_marble_xy,
+    check_n_marbles,
+    finite_array,
+    max_start_marbles,
+    sample_start,
+    start_radius,
+    start_separation,
+)
 
 SPEC = MazeSpec.merl()
 

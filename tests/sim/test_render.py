@@ -12,8 +12,7 @@ import numpy as np
 import pytest
 
 from bimgame.sim.maze import MazeSpec
-from bimgame.sim.render import (DEFAULT_RGB_SIZE, FLOOR, GOAL, MARBLE, TILT_ARROW_RGB, WALL,
-                            MazeRenderer)
+from bimgame.sim.render import DEFAULT_RGB_SIZE, FLOOR, GOAL, MARBLE, TILT_ARROW_RGB, WALL, MazeRenderer
 
 SPEC = MazeSpec.merl()
 EXTENT = SPEC.rim_radius + SPEC.rim_thickness

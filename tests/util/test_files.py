@@ -59,7 +59,7 @@ def test_a_write_error_names_the_file_the_reason_and_the_advice(tmp_path):
     assert str(error) == f"cannot write {tmp_path / 'a.csv'}: No space left on device"
     advised = error.with_advice("Resume later")
     assert str(advised) == f"cannot write {tmp_path / 'a.csv'}: No space left on device. Resume later"
-    assert error.advise("x").advice == "x" and FileWriteError.from_error("b", advised) is advised
+    assert error.with_advice("x").advice == "x" and FileWriteError.from_error("b", advised) is advised
     again = pickle.loads(pickle.dumps(advised))
     assert type(again) is FileWriteError and str(again) == str(advised) and again.errno == errno.ENOSPC
 

@@ -12,7 +12,6 @@ from pathlib import Path
 import pytest
 from support import procfs
 
-
 ORPHAN = """
 import subprocess, sys, time
 child = subprocess.Popen([sys.executable, "-c", "import os, sys, time; sys.path[:] = %r; "

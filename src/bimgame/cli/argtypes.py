@@ -4,13 +4,16 @@ names the value and what is allowed, and the flags several verbs share (``--task
 from __future__ import annotations
 
 import argparse
+import re
 from pathlib import Path
 
+from bimgame.learn.a3c_core import MAX_STEPS
 from bimgame.learn.common import MAX_SEED
 from bimgame.sim.tasks import Task
 
 __all__ = ["positive_int", "non_negative_int", "positive_float", "non_negative_float", "seed", "episode_count",
-           "episode_count_or_zero", "MAX_EPISODES", "TASK_NAMES", "add_task_argument", "add_max_steps_argument", "check_output_file"]
+           "episode_count_or_zero", "MAX_EPISODES", "TASK_NAMES", "add_task_argument", "add_max_steps_argument", "check_output_file",
+           "step_count", "step_count_or_zero"]
 
 #: The most episodes a verb runs side by side (each has its own simulator): more is a typo that would
 #: fail only when memory runs out.
@@ -77,9 +80,9 @@ def non_negative_float(text: str) -> float:
     return _number(text, strictly_positive=False)
 
 
-def add_task_argument(parser: argparse.ArgumentParser, default: str) -> None:
+def add_task_argument(parser: argparse.ArgumentParser, default: str, help: str | None = None) -> None:
     """``--task``: one of :data:`TASK_NAMES`, in any case."""
-    parser.add_argument("--task", choices=TASK_NAMES, default=default, type=str.upper)
+    parser.add_argument("--task", choices=TASK_NAMES, default=default, type=str.upper, help=help)
 
 
 def add_max_steps_argument(parser: argparse.ArgumentParser) -> None:
@@ -100,3 +103,25 @@ def check_output_file(path: Path | None, flag: str, example: str) -> None:
             if not parent.is_dir():
                 raise ValueError(f"{flag} {path}: {parent} is a file, not a directory")
             break
+
+
+_SUFFIXES = {"": 1, "k": 1_000, "m": 1_000_000, "g": 1_000_000_000}
+
+
+def step_count(text: str) -> int:
+    """A number of environment steps: ``300000``, ``200k``, ``5M``, ``2.5M``, ``1e6``; at most
+    :data:`~bimgame.learn.a3c.MAX_STEPS` (10¹²)."""
+    match = re.fullmatch(r"\s*([0-9]*\.?[0-9]+(?:[eE][0-9]+)?)\s*([kKmMgG]?)\s*", text)
+    if not match:
+        raise argparse.ArgumentTypeError(f"expected a step count such as 300000, 200k, 5M or 1e6, got {text!r}")
+    value = float(match.group(1)) * _SUFFIXES[match.group(2).lower()]
+    if not value <= MAX_STEPS:  # also inf (1e400)
+        raise argparse.ArgumentTypeError(f"expected at most 1e12 (10^12) steps, got {text!r}")
+    if value < 1 or value != int(value):
+        raise argparse.ArgumentTypeError(f"expected a positive whole number of steps, got {text!r}")
+    return int(value)
+
+
+def step_count_or_zero(text: str) -> int:
+    """:func:`step_count`, or 0 (e.g. ``--eval-every 0``: never)."""
+    return 0 if text.strip() == "0" else step_count(text)

@@ -9,11 +9,11 @@ import sys
 from pathlib import Path
 
 from bimgame.cli.argtypes import episode_count, episode_count_or_zero, seed
-from bimgame.cli.flags import add_settings_flags
+from bimgame.cli.flags import add_settings_flags, given_settings
 from bimgame.learn.dagger import DAggerConfig, dagger, resolve_dagger_config
 from bimgame.learn.pretrain import pretrain
-from bimgame.learn.runs import RunWriteError
 from bimgame.learn.supervised import PretrainConfig
+from bimgame.util.files import FileWriteError
 
 __all__ = ["add_pretrain_arguments", "run_pretrain", "add_dagger_arguments", "run_dagger"]
 
@@ -90,7 +90,7 @@ def add_dagger_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run_dagger(args: argparse.Namespace) -> int:
     learner = dataclasses.replace(DAggerConfig().learner, **{name: getattr(args, name) for name in DAGGER_LEARNER_FLAGS})
-    given = {name: getattr(args, name) for name in DAGGER_FLAGS if getattr(args, name) is not None}
+    given = given_settings(args, DAggerConfig, DAGGER_FLAGS)
     config = resolve_dagger_config(learner, given, args.run_dir, resume=args.resume)
     print(f"DAgger on {config.learner.task} ({config.learner.obs}): {config.iterations} iterations x "
           f"{config.episodes_per_iteration} episodes -> {args.run_dir}", file=sys.stderr)
@@ -100,7 +100,7 @@ def run_dagger(args: argparse.Namespace) -> int:
         print(f"interrupted; the finished iterations are saved. Continue with: bimgame dagger --run-dir "
               f"{args.run_dir} --resume", file=sys.stderr)
         return 130
-    except RunWriteError as error:
+    except FileWriteError as error:
         print(f"bimgame dagger: stopped: {error}", file=sys.stderr)
         return 1
     if result.iterations_run == 0:

@@ -33,6 +33,7 @@ from bimgame.cli import maze as cli_maze
 from bimgame.cli import reproduce as cli_reproduce
 from bimgame.cli import score as cli_score
 from bimgame.cli import train as cli_train
+from bimgame.cli.argtypes import step_count
 from bimgame.learn.curves import plot_comparison, plot_run
 
 __all__ = ["main", "build_parser"]
@@ -74,7 +75,7 @@ def build_parser() -> argparse.ArgumentParser:
                          help="a label and the run directories averaged under it (e.g. seeds)")
     compare.add_argument("--out", type=Path, required=True, help="PNG path")
     compare.add_argument("--title", default="", help="figure title")
-    compare.add_argument("--max-step", type=cli_train.step_count, default=None,
+    compare.add_argument("--max-step", type=step_count, default=None,
                          help="cut runs at this many steps (e.g. 1.2M)")
     compare.set_defaults(run=_compare)
     return parser

@@ -11,10 +11,9 @@ from pathlib import Path
 from rich.console import Console
 from rich.table import Table
 
-from bimgame.cli.argtypes import TASK_NAMES, positive_int
+from bimgame.cli.argtypes import TASK_NAMES, add_task_argument, check_output_file, positive_int
 from bimgame.envs.observe import OBS_MODES
-from bimgame.experiments.policy_sources import load_policy
-from bimgame.experiments.protocol import PROTOCOL_EPISODES, Protocol, measure_references, run_protocol
+from bimgame.experiments.protocol import PROTOCOL_EPISODES, measure_references, score
 from bimgame.util.files import write_json
 
 __all__ = ["add_score_arguments", "run_score"]
@@ -25,7 +24,7 @@ def add_score_arguments(parser: argparse.ArgumentParser) -> None:
     add("policy", nargs="?", metavar="POLICY",
         help="random | noop | geodesic | expert | a bimgame run directory or checkpoint | an SB3 model .zip | "
              "module:callable (observation -> action)")
-    add("--task", choices=TASK_NAMES, type=str.upper, default="STG1", help="(default STG1)")
+    add_task_argument(parser, "STG1", help="(default STG1)")
     add("--obs", choices=OBS_MODES, default="state", help="observations the policy gets (default state)")
     add("--episodes", type=positive_int, default=PROTOCOL_EPISODES,
         help=f"episodes of the protocol (default {PROTOCOL_EPISODES}; scores are comparable only at the default)")
@@ -53,12 +52,10 @@ def run_score(args: argparse.Namespace) -> int:
         return 0
     if args.policy is None:
         raise ValueError("POLICY is required (or --measure-references)")
-    if args.out is not None and args.out.is_dir():
-        raise ValueError(f"--out {args.out} is a directory; give a file name for the JSON")
-    protocol = Protocol(task=args.task, obs=args.obs, episodes=args.episodes)
-    policy = load_policy(args.policy, obs=args.obs, sampled=args.sampled)
-    summary = run_protocol(policy, protocol, progress=not args.no_progress).summary()
-    table = Table(title=f"{args.policy} on {protocol.task} ({protocol.obs}), {protocol.episodes} protocol episodes")
+    check_output_file(args.out, "--out", "score.json")
+    summary = score(args.policy, args.task, obs=args.obs, episodes=args.episodes, sampled=args.sampled,
+                    progress=not args.no_progress)
+    table = Table(title=f"{args.policy} on {summary['task']} ({summary['obs']}), {summary['episodes']} protocol episodes")
     for column in ("success [95% CI]", "mean return", "mean length (solved)", "normalised score"):
         table.add_column(column, justify="right")
     table.add_row(_pair(summary["success_rate"], summary["success_rate_ci"], percent=True),

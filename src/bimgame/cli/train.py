@@ -4,17 +4,16 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import re
 import sys
 from pathlib import Path
 
 from rich.console import Console
 from rich.table import Table
 
-from bimgame.cli.argtypes import check_output_file, episode_count, positive_float, seed
+from bimgame.cli.argtypes import check_output_file, episode_count, positive_float, seed, step_count, step_count_or_zero
 from bimgame.cli.flags import add_settings_flags, given_settings
 from bimgame.envs.shaping import DEFAULT_GEODESIC_COEF
-from bimgame.learn.a3c import MAX_STEPS, A3CConfig, TrainingError, resolve_config, train
+from bimgame.learn.a3c import A3CConfig, TrainingError, resolve_config, train
 from bimgame.learn.actor import evaluate_network
 from bimgame.learn.common import load_run_network
 from bimgame.learn.rewards import RewardSettings, env_wrapper_for, resolve_reward_settings
@@ -23,29 +22,7 @@ from bimgame.util.files import write_json
 from bimgame.util.images import write_gif
 from bimgame.util.settings import field_docs
 
-__all__ = ["add_train_arguments", "add_evaluate_arguments", "run_train", "run_evaluate", "step_count"]
-
-_SUFFIXES = {"": 1, "k": 1_000, "m": 1_000_000, "g": 1_000_000_000}
-
-
-def step_count(text: str) -> int:
-    """A number of environment steps: ``300000``, ``200k``, ``5M``, ``2.5M``, ``1e6``; at most
-    :data:`~bimgame.learn.a3c.MAX_STEPS` (10¹²)."""
-    match = re.fullmatch(r"\s*([0-9]*\.?[0-9]+(?:[eE][0-9]+)?)\s*([kKmMgG]?)\s*", text)
-    if not match:
-        raise argparse.ArgumentTypeError(f"expected a step count such as 300000, 200k, 5M or 1e6, got {text!r}")
-    value = float(match.group(1)) * _SUFFIXES[match.group(2).lower()]
-    if not value <= MAX_STEPS:  # also inf (1e400)
-        raise argparse.ArgumentTypeError(f"expected at most 1e12 (10^12) steps, got {text!r}")
-    if value < 1 or value != int(value):
-        raise argparse.ArgumentTypeError(f"expected a positive whole number of steps, got {text!r}")
-    return int(value)
-
-
-def step_count_or_zero(text: str) -> int:
-    """:func:`step_count`, or 0 (e.g. ``--eval-every 0``: never)."""
-    return 0 if text.strip() == "0" else step_count(text)
-
+__all__ = ["add_train_arguments", "add_evaluate_arguments", "run_train", "run_evaluate"]
 
 def add_train_arguments(parser: argparse.ArgumentParser) -> None:
     """``bimgame train``: every :class:`~bimgame.learn.a3c.A3CConfig` setting as a flag (defaults of None,

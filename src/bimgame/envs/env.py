@@ -18,7 +18,8 @@ from bimgame.envs.observe import OBS_MODES, Observer
 from bimgame.sim.maze import MazeSpec, MazeSpecError
 from bimgame.sim.physics import MazeSim
 from bimgame.sim.placement import check_marble_xy, check_n_marbles, finite_array, sample_start
-from bimgame.sim.tasks import MAX_EPISODE_STEPS, Task, initial_task_state, parse_task, task_step_one
+from bimgame.sim.tasks import Task, initial_task_state, parse_task, task_step_one
+from bimgame.util.settings import is_integer, is_real
 
 __all__ = ["BallInMazeEnv", "ACTION_TYPES", "DISCRETE_TILTS", "NO_ACTION", "sample_start",
            "action_to_tilt_delta"]
@@ -29,10 +30,10 @@ ACTION_TYPES = ("discrete", "continuous")
 #: Discrete actions as (sign about x, sign about y) of one tilt step.
 DISCRETE_TILTS = np.array([[0, 0], [1, 0], [-1, 0], [0, 1], [0, -1]], dtype=np.float64)
 ACTION_MEANINGS = ("noop", "tilt +x", "tilt -x", "tilt +y", "tilt -y")
-#: What the discrete actions mean, for error messages.
 #: The "previous action" before an episode's first step (not a valid action): what the networks'
 #: previous-action input and the datasets' ``prev_actions`` hold at step 0.
 NO_ACTION = -1
+#: What the discrete actions mean, for error messages.
 ACTIONS_HELP = ", ".join(f"{i}={m}" for i, m in enumerate(ACTION_MEANINGS))
 _FAST_INTS = (int, np.int64, np.int32)
 #: Largest ``render_size``: the raster draws up to this size; MuJoCo's offscreen buffer is 640 pixels.
@@ -161,13 +162,9 @@ class BallInMazeEnv(gym.Env):
             raise ValueError(f"unknown render_mode {render_mode!r}; allowed: None, 'rgb_array'")
         if renderer not in ("raster", "mujoco"):
             raise ValueError(f"unknown renderer {renderer!r}; allowed: 'raster', 'mujoco'")
-        if not self.maze.walls:
-            raise ValueError("maze has no walls: the whole board would be the goal region (channel 0) "
-                             "and random starts (on the outermost channel) would not exist; give it a wall")
-        n_marbles = check_n_marbles(self.maze, n_marbles)
+        n_marbles = check_n_marbles(self.maze, n_marbles)  # also refuses a maze without walls
         limit = MAX_RENDER_SIZE[renderer]
-        if isinstance(render_size, (bool, np.bool_)) or not (
-                isinstance(render_size, (int, np.integer)) and 16 <= render_size <= limit):
+        if not (is_integer(render_size) and 16 <= render_size <= limit):
             raise ValueError(f"render_size must be an integer in 16..{limit} (renderer={renderer!r}), "
                              f"got {render_size!r}")
         self._init_kwargs = dict(task=self.task.value, obs_mode=obs_mode, action_type=action_type,
@@ -311,8 +308,7 @@ class BallInMazeEnv(gym.Env):
 
 
 def _positive(name: str, value: float) -> float:
-    real = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
-    if not (real and math.isfinite(value) and value > 0):
+    if not (is_real(value) and math.isfinite(value) and value > 0):
         raise ValueError(f"{name} must be a positive number, got {value!r}")
     return float(value)
 

@@ -41,6 +41,8 @@ import gymnasium as gym
 import numpy as np
 from gymnasium.vector import AutoresetMode
 
+from bimgame.util.settings import is_real
+
 __all__ = ["Potential", "PotentialShapedVectorEnv", "GeodesicProgressVectorEnv", "GeodesicProgressReward",
            "GeodesicReward", "Chain", "DEFAULT_GEODESIC_COEF", "unit_interval"]
 
@@ -268,17 +270,13 @@ def _add_shaping(reward: Any, shaping: np.ndarray, infos: dict[str, Any]) -> np.
     return reward + shaping
 
 
-def _is_real(value: Any) -> bool:
-    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
-
-
 def unit_interval(name: str, value: SupportsFloat) -> float:
-    if not (_is_real(value) and 0.0 <= float(value) <= 1.0):
+    if not (is_real(value) and 0.0 <= float(value) <= 1.0):
         raise ValueError(f"{name} must be a number in [0, 1], got {value!r}")
     return float(value)
 
 
 def _positive_finite(name: str, value: SupportsFloat) -> float:
-    if not (_is_real(value) and math.isfinite(float(value)) and float(value) > 0):
+    if not (is_real(value) and math.isfinite(float(value)) and float(value) > 0):
         raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
     return float(value)

@@ -26,6 +26,7 @@ from gymnasium.vector.utils import batch_space
 from bimgame.envs.env import ACTIONS_HELP, DISCRETE_TILTS, BallInMazeEnv
 from bimgame.sim.placement import sample_start
 from bimgame.sim.tasks import TaskState, initial_task_state, task_step
+from bimgame.util.settings import is_integer
 
 __all__ = ["BallInMazeVectorEnv"]
 
@@ -47,9 +48,9 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
 
     def __init__(self, num_envs: int, *, max_episode_steps: int | None = None, nthread: int | None = None,
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP, **env_kwargs: Any):
-        if not (_is_int(num_envs) and num_envs >= 1):
+        if not (is_integer(num_envs) and num_envs >= 1):
             raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
-        if max_episode_steps is not None and not (_is_int(max_episode_steps) and max_episode_steps >= 1):
+        if max_episode_steps is not None and not (is_integer(max_episode_steps) and max_episode_steps >= 1):
             raise ValueError(f"max_episode_steps must be a positive integer or None, got {max_episode_steps!r}")
         modes = {m.name.lower(): m for m in (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP)}
         modes.update({m.value: m for m in list(modes.values())})
@@ -60,7 +61,7 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
         self.metadata = {**self.metadata, "autoreset_mode": self.autoreset_mode}
         if nthread is None:
             nthread = 1 if num_envs < 32 else max(1, min(2, os.cpu_count() or 1))
-        if not (_is_int(nthread) and nthread >= 1):
+        if not (is_integer(nthread) and nthread >= 1):
             raise ValueError(f"nthread must be an integer >= 1, got {nthread!r}")
         # One template env validates the arguments and owns the model, observer and spaces.
         self.template = BallInMazeEnv(**env_kwargs)
@@ -213,8 +214,3 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
             infos[key] = value
             infos[f"_{key}"] = every_env
         return obs, infos
-
-
-def _is_int(value: Any) -> bool:
-    """An integer, not a bool (``True`` is an ``int`` to Python, not a count to a user)."""
-    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))

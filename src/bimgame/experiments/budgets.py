@@ -135,7 +135,7 @@ class Budget:
                 parse_task(key)
             except ValueError:
                 raise ValueError(f"Budget.a3c_steps: unknown task {key!r}; allowed: {allowed_tasks}") from None
-            _check_int(f"a3c_steps[{key!r}]", value, 1)
+            require_int("Budget", f"a3c_steps[{key!r}]", value, 1)
         missing = [t for t in self.tasks if t not in steps]
         if missing and any(a != "dagger" for a in self.algorithms):
             raise ValueError(f"Budget.a3c_steps has no entry for {missing}; give steps for every task of the grid")
@@ -143,12 +143,12 @@ class Budget:
         for name in ("seeds", "workers", "envs_per_worker", "eval_episodes", "checkpoint_every", "dataset_episodes",
                      "dataset_workers", "pretrain_epochs", "pretrain_patience", "value_epochs", "value_patience",
                      "value_batch_frames", "dagger_iterations", "dagger_episodes", "dagger_epochs", "torch_threads"):
-            _check_int(name, getattr(self, name), 1)
+            require_int("Budget", name, getattr(self, name), 1)
         for name in ("eval_every", "dataset_seed", "pretrain_eval_episodes", "dagger_eval_episodes"):
-            _check_int(name, getattr(self, name), 0)
+            require_int("Budget", name, getattr(self, name), 0)
         for name in ("hidden", "features", "dataset_max_steps"):
             if getattr(self, name) is not None:
-                _check_int(name, getattr(self, name), 1)
+                require_int("Budget", name, getattr(self, name), 1)
         if not isinstance(self.subtract_background, bool):
             raise ValueError(f"Budget.subtract_background must be True or False, got {self.subtract_background!r}")
         if not (isinstance(self.threshold_fraction, (int, float)) and not isinstance(self.threshold_fraction, bool)
@@ -194,16 +194,27 @@ class Budget:
     @property
     def needs_policy(self) -> bool:
         """Whether an algorithm of the grid starts from a pre-trained π^s."""
-        return any(a.startswith("pretrain") for a in self.algorithms)
+        return any(uses_policy(a) for a in self.algorithms)
 
     @property
     def needs_value(self) -> bool:
         """Whether an algorithm of the grid is rewarded with a pre-trained V̂."""
-        return any(a.endswith("+value") for a in self.algorithms)
+        return any(uses_value(a) for a in self.algorithms)
+
+    @property
+    def network_subtract_background(self) -> bool:
+        """``subtract_background`` as the networks get it: a pixel-only setting, off for state."""
+        return self.subtract_background and self.obs == "pixels"
 
 
-def _check_int(name: str, value: Any, minimum: int) -> None:
-    require_int("Budget", name, value, minimum)
+def uses_policy(algorithm: str) -> bool:
+    """Whether ``algorithm`` starts from the pre-trained π^s (``pretrain+…``)."""
+    return algorithm.startswith("pretrain")
+
+
+def uses_value(algorithm: str) -> bool:
+    """Whether ``algorithm`` is rewarded with the pre-trained V̂ (``…+value``)."""
+    return algorithm.endswith("+value")
 
 
 #: The presets. ``quick`` shows the comparison on STG1 within half an hour on two cores: state

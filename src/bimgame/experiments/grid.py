@@ -21,7 +21,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from bimgame.experiments.budgets import Budget
+from bimgame.experiments.budgets import Budget, uses_policy, uses_value
 
 __all__ = ["PIECE_KINDS", "Piece", "algorithm_slug", "policy_path", "value_path", "run_path", "plan_pieces"]
 
@@ -86,8 +86,8 @@ def plan_pieces(budget: Budget) -> list[Piece]:
                 if algorithm == "dagger":
                     pieces.append(Piece(id=path, kind="dagger", path=path, task=task, algorithm=algorithm, seed=seed))
                     continue
-                needs = tuple(p for p, used in ((policy, algorithm.startswith("pretrain")),
-                                                (value, algorithm.endswith("+value"))) if used)
+                needs = tuple(p for p, used in ((policy, uses_policy(algorithm)), (value, uses_value(algorithm)))
+                              if used)
                 pieces.append(Piece(id=path, kind="a3c", path=path, task=task, algorithm=algorithm, seed=seed,
                                     needs=needs))
     return pieces

@@ -48,11 +48,12 @@ def write_plan(out_dir: str | Path, budget: Budget, costs: CostModel = COSTS) ->
     out_dir = Path(out_dir)
     pieces = plan_pieces(budget)
 
+    estimates = [estimate_seconds(p, budget, costs) for p in pieces]
     write_json(out_dir / PLAN, {
         "format": _PLAN_FORMAT, "bimgame_version": __version__, "written": timestamp(),
         "budget": budget.to_dict(),
-        "pieces": [{**p.to_dict(), "estimate_seconds": round(estimate_seconds(p, budget, costs), 1)} for p in pieces],
-        "estimate_seconds": round(sum(estimate_seconds(p, budget, costs) for p in pieces), 1)})
+        "pieces": [{**p.to_dict(), "estimate_seconds": round(e, 1)} for p, e in zip(pieces, estimates)],
+        "estimate_seconds": round(sum(estimates), 1)})
     return pieces
 
 
@@ -91,9 +92,9 @@ def check_compatible(out_dir: str | Path, budget: Budget) -> None:
         return
     stored, _ = load_plan(out_dir)
     old, new = stored.to_dict(), budget.to_dict()
-    for values in (old, new):  # a pixel-only setting changes nothing with state observations
-        if values["obs"] != "pixels":
-            values["subtract_background"] = False
+    # a pixel-only setting changes nothing with state observations
+    old["subtract_background"] = stored.network_subtract_background
+    new["subtract_background"] = budget.network_subtract_background
     changed = [k for k in new if k not in GRID_FIELDS and k != "name" and old.get(k) != new[k]]
     if changed:
         details = "; ".join(f"{k}: {old.get(k)!r} there, {new[k]!r} now" for k in changed)

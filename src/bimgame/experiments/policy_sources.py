@@ -14,7 +14,8 @@ from __future__ import annotations
 import importlib
 import zipfile
 from pathlib import Path
-from typing import Any, Callable, Protocol as TypingProtocol
+from typing import Any, Callable
+from typing import Protocol as TypingProtocol
 
 import numpy as np
 import torch

@@ -26,20 +26,20 @@ import numpy as np
 from bimgame.envs.env import BallInMazeEnv
 from bimgame.envs.observe import OBS_MODES
 from bimgame.experiments.policy_sources import EpisodePolicy, builtin_policy, load_policy
-from bimgame.experiments.statistics import percentile_interval
-from bimgame.expert.evaluation import evaluate_expert
+from bimgame.experiments.statistics import percentile_interval, stratified_bootstrap
+from bimgame.expert.evaluation import evaluate_expert, summarise
 from bimgame.expert.mpc import MPCConfig, episode_seed
 from bimgame.expert.references import normalised_score, references_for
-from bimgame.sim.tasks import MAX_EPISODE_STEPS, Task, parse_task
+from bimgame.sim.tasks import Task, task_setting
 from bimgame.util.progress import ProgressBar
+from bimgame.util.settings import require_int
 
 __all__ = ["Protocol", "Score", "PROTOCOL_SEED", "PROTOCOL_EPISODES", "score", "run_protocol", "measure_references"]
 
 #: The run seed the protocol's start seeds derive from (fixed: changing it changes every score).
 PROTOCOL_SEED = 20_181_105
 PROTOCOL_EPISODES = 100
-#: Bootstrap resamples of the confidence intervals, and their generator's seed.
-_RESAMPLES = 2000
+#: Seed of the bootstrap's generator (the intervals are the same for the same episodes).
 _BOOTSTRAP_SEED = 0
 
 
@@ -55,18 +55,14 @@ class Protocol:
     """Episodes, from the protocol's fixed start seeds (the first ``episodes`` of them)."""
 
     def __post_init__(self) -> None:
-        try:
-            object.__setattr__(self, "task", parse_task(self.task).value)
-        except ValueError as error:
-            raise ValueError(f"Protocol.task: {error}") from None
+        object.__setattr__(self, "task", task_setting("Protocol", self.task))
         if self.obs not in OBS_MODES:
             raise ValueError(f"Protocol.obs must be one of {OBS_MODES}, got {self.obs!r}")
-        if not (isinstance(self.episodes, int) and not isinstance(self.episodes, bool) and self.episodes >= 1):
-            raise ValueError(f"Protocol.episodes must be an integer >= 1, got {self.episodes!r}")
+        require_int("Protocol", "episodes", self.episodes, 1)
 
     @property
     def time_limit(self) -> int:
-        return MAX_EPISODE_STEPS[Task(self.task)]
+        return Task(self.task).time_limit
 
     def start_seeds(self) -> list[int]:
         return [episode_seed(PROTOCOL_SEED, i) for i in range(self.episodes)]
@@ -104,8 +100,7 @@ class Score:
 
 def _interval(values: np.ndarray, rng: np.random.Generator) -> tuple[float, float]:
     """Percentile-bootstrap 95% interval of the mean of ``values`` over episodes."""
-    means = values[rng.integers(len(values), size=(_RESAMPLES, len(values)))].mean(axis=1)
-    return percentile_interval(means)
+    return percentile_interval(stratified_bootstrap([values], lambda drawn: drawn[0].mean(axis=1), rng=rng))
 
 
 def score(policy: str, task: str = "STG1", *, obs: str = "state", episodes: int = PROTOCOL_EPISODES,
@@ -155,8 +150,8 @@ def measure_references(tasks: list[str], *, episodes: int = PROTOCOL_EPISODES, w
         protocol = Protocol(task=task, obs="state", episodes=episodes)
         random = run_protocol(builtin_policy("random"), protocol, progress=progress).summary()
         expert = evaluate_expert(task, episodes, seed=PROTOCOL_SEED, workers=workers, progress=progress)
+        expert_summary = summarise(expert)
         out["tasks"][protocol.task] = {
-            "random": random["mean_return"], "expert": float(np.mean([r.episode_return for r in expert])),
-            "random_success_rate": random["success_rate"],
-            "expert_success_rate": float(np.mean([r.success for r in expert]))}
+            "random": random["mean_return"], "expert": expert_summary["mean_return"],
+            "random_success_rate": random["success_rate"], "expert_success_rate": expert_summary["success_rate"]}
     return out

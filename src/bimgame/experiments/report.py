@@ -35,10 +35,25 @@ from bimgame.experiments.figures import plot_curves, plot_expert_lengths
 from bimgame.experiments.grid import Piece
 from bimgame.experiments.markdown import report_markdown, tables_markdown
 from bimgame.experiments.plan import load_plan, load_status
-from bimgame.experiments.results import (collect_runs, dataset_sequences, expert_success_by_task, final_eval,
-                                         final_training_success, finished_pieces)
-from bimgame.experiments.statistics import (CONFIDENCE, CURVE_BINS, DEFAULT_RESAMPLES, MIN_EPISODES, Crossing,
-                                            dagger_crossing, nanmean, run_crossing, speedup)
+from bimgame.experiments.results import (
+    collect_runs,
+    dataset_sequences,
+    expert_success_by_task,
+    final_eval,
+    final_training_success,
+    finished_pieces,
+)
+from bimgame.experiments.statistics import (
+    CONFIDENCE,
+    CURVE_BINS,
+    DEFAULT_RESAMPLES,
+    MIN_EPISODES,
+    Crossing,
+    dagger_crossing,
+    nanmean,
+    run_crossing,
+    speedup,
+)
 from bimgame.expert.datasets import dataset_summary
 from bimgame.util.files import atomic_write_bytes, read_json, write_json
 

@@ -26,7 +26,8 @@ from bimgame.experiments.budgets import Budget
 from bimgame.experiments.costs import COSTS, CostModel, estimate_seconds, format_duration
 from bimgame.experiments.grid import Piece
 from bimgame.experiments.plan import STATUS, check_compatible, load_status, piece_done, timestamp, write_plan
-from bimgame.experiments.runners import RUNNERS, library_threads
+from bimgame.experiments.runners import RUNNERS
+from bimgame.learn.runs import torch_threads
 from bimgame.util.files import exclusive_lock, write_json
 from bimgame.util.progress import ProgressBar, escape
 from bimgame.util.signals import sigterm_as_interrupt
@@ -135,7 +136,7 @@ def reproduce(out_dir: str | Path, budget: Budget, *, progress: bool = True, sto
                 display.start(piece)
                 t0 = time.monotonic()
                 try:
-                    with library_threads(budget.torch_threads):
+                    with torch_threads(budget.torch_threads):
                         note = RUNNERS[piece.kind](piece, budget, out_dir)
                 except KeyboardInterrupt:
                     entry.update(state="interrupted", seconds=entry.get("seconds", 0.0) + time.monotonic() - t0)

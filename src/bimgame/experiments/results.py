@@ -11,6 +11,7 @@ short, successful episodes that started there but not the long ones still runnin
 from __future__ import annotations
 
 import dataclasses
+import functools
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -23,7 +24,7 @@ from bimgame.expert.datasets import iterate_sequences
 from bimgame.expert.episode import Episode, relabel
 from bimgame.learn.curves import complete_until, episode_span, finished_at, read_table, run_config
 from bimgame.sim.maze import MazeSpec
-from bimgame.sim.tasks import MAX_EPISODE_STEPS, parse_task
+from bimgame.sim.tasks import parse_task
 from bimgame.util.files import read_json
 
 __all__ = ["FINAL_SHARE", "RunResults", "finished_pieces", "collect_runs", "final_training_success", "final_eval",
@@ -46,13 +47,13 @@ class RunResults:
     config: dict[str, Any] = dataclasses.field(default_factory=dict)
     """config.json (A3C; {} when there is none)."""
 
-    @property
+    @functools.cached_property
     def span(self) -> float:
         """The most environment steps one training episode can take from its start to its logged end
         (:func:`bimgame.learn.curves.episode_span`)."""
         return episode_span(self.episodes, self.config)
 
-    @property
+    @functools.cached_property
     def until(self) -> float:
         """Every training episode that started before this step has ended and is in the log
         (:func:`bimgame.learn.curves.complete_until`)."""
@@ -116,7 +117,7 @@ def expert_success_by_task(sequences: list[Episode], tasks: Sequence[str]) -> di
     spec = MazeSpec.merl()
     rates = {}
     for task in tasks:
-        limit = MAX_EPISODE_STEPS[parse_task(task)]
+        limit = parse_task(task).time_limit
         wins = [s.terminated and len(s) <= limit
                 for s in (relabel(sequence, task, 0.99, spec) for sequence in sequences)]
         rates[task] = float(np.mean(wins)) if wins else float("nan")

@@ -11,34 +11,33 @@ it failed.
 two-core machine that is also running something else, two intra-op threads made a small state
 network's pre-training ten times slower than one (54 s against 5 s, measured with another training
 run on the machine). The budget's ``torch_threads`` (default 1) sets the count for these library
-calls (see :func:`library_threads`); A3C workers always use one thread each.
+calls (:func:`bimgame.learn.runs.torch_threads`); A3C workers always use one thread each.
 """
 
 from __future__ import annotations
 
-import contextlib
 import shutil
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import Callable
 
-from bimgame.experiments.budgets import Budget
+from bimgame.experiments.budgets import Budget, uses_policy, uses_value
 from bimgame.experiments.grid import Piece, policy_path, value_path
 from bimgame.expert.datasets import generate_dataset
 from bimgame.learn.a3c import A3CConfig, train
 from bimgame.learn.dagger import DAggerConfig, dagger
 from bimgame.learn.pretrain import pretrain
 from bimgame.learn.rewards import RewardSettings, env_wrapper_for
-from bimgame.learn.runs import KIND_POLICY, KIND_VALUE, torch_threads
+from bimgame.learn.runs import KIND_POLICY, KIND_VALUE
 from bimgame.learn.supervised import PretrainConfig
 from bimgame.util.files import read_json
 
-__all__ = ["pretrain_config_for", "a3c_config_for", "dagger_config_for", "library_threads", "RUNNERS"]
+__all__ = ["pretrain_config_for", "a3c_config_for", "dagger_config_for", "RUNNERS"]
 
 
 def pretrain_config_for(budget: Budget, task: str, seed: int, target: str) -> PretrainConfig:
     """The pre-training settings of π^s (``target="policy"``) or V̂ (``"value"``) for a task and seed."""
     common = dict(task=task, obs=budget.obs, seed=seed, hidden=budget.hidden, features=budget.features,
-                  subtract_background=budget.subtract_background and budget.obs == "pixels")
+                  subtract_background=budget.network_subtract_background)
     if target == "policy":
         return PretrainConfig(target="policy", epochs=budget.pretrain_epochs, patience=budget.pretrain_patience,
                               eval_episodes=budget.pretrain_eval_episodes, **common)
@@ -53,7 +52,7 @@ def a3c_config_for(budget: Budget, task: str, seed: int) -> A3CConfig:
     the initial weights and the reward, not in these)."""
     return A3CConfig(task=task, obs=budget.obs, steps=budget.steps_for(task), workers=budget.workers,
                      envs_per_worker=budget.envs_per_worker, seed=seed, hidden=budget.hidden, features=budget.features,
-                     subtract_background=budget.subtract_background and budget.obs == "pixels",
+                     subtract_background=budget.network_subtract_background,
                      eval_every=budget.eval_every, eval_episodes=budget.eval_episodes,
                      checkpoint_every=budget.checkpoint_every)
 
@@ -61,20 +60,11 @@ def a3c_config_for(budget: Budget, task: str, seed: int) -> A3CConfig:
 def dagger_config_for(budget: Budget, task: str, seed: int) -> DAggerConfig:
     """DAgger's settings for a task and seed (the learner is the same network as A3C's)."""
     learner = PretrainConfig(task=task, obs=budget.obs, seed=seed, hidden=budget.hidden, features=budget.features,
-                             subtract_background=budget.subtract_background and budget.obs == "pixels",
+                             subtract_background=budget.network_subtract_background,
                              eval_episodes=0)
     return DAggerConfig(learner=learner, iterations=budget.dagger_iterations,
                         episodes_per_iteration=budget.dagger_episodes, epochs_per_iteration=budget.dagger_epochs,
                         eval_episodes=budget.dagger_eval_episodes)
-
-
-@contextlib.contextmanager
-def library_threads(count: int) -> Iterator[None]:
-    """Run a block — the pieces' library calls — with ``count`` torch threads, restoring the caller's
-    setting afterwards. :func:`bimgame.learn.pretrain.pretrain` and :func:`bimgame.learn.dagger.dagger`
-    use at most the caller's count (:func:`bimgame.learn.runs.torch_threads`), so this decides theirs."""
-    with torch_threads(count):
-        yield
 
 
 def _run_dataset(piece: Piece, budget: Budget, out_dir: Path) -> str:
@@ -105,10 +95,8 @@ def _run_pretrain(piece: Piece, budget: Budget, out_dir: Path) -> str:
 def _run_a3c(piece: Piece, budget: Budget, out_dir: Path) -> str:
     path = out_dir / piece.path
     config = a3c_config_for(budget, piece.task, piece.seed)
-    init = (out_dir / policy_path(piece.task, piece.seed)).resolve() if piece.algorithm.startswith("pretrain") \
-        else None
-    value = (out_dir / value_path(piece.task, piece.seed)).resolve() if piece.algorithm.endswith("+value") \
-        else None
+    init = (out_dir / policy_path(piece.task, piece.seed)).resolve() if uses_policy(piece.algorithm) else None
+    value = (out_dir / value_path(piece.task, piece.seed)).resolve() if uses_value(piece.algorithm) else None
     reward = RewardSettings(value_reward=None if value is None else str(value))
     wrapper = env_wrapper_for(reward, obs=config.obs, gamma=config.gamma)
     resume = (path / "config.json").is_file()

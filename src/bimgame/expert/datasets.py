@@ -30,7 +30,6 @@ is Minari's episode metadata ``seed``.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import hashlib
 import json
@@ -50,15 +49,22 @@ from minari import MinariDataset
 import bimgame
 from bimgame.envs.observe import Observer
 from bimgame.expert.episode import Episode
-from bimgame.expert.minari_build import (EPISODES_DIR, DatasetError, episode_bytes, episode_path, hash_arrays,
-                                         read_episode, run_build_process)
-from bimgame.expert.pool import BACKENDS, MAIN_GUARD, episode_progress, expert_episodes, import_ray
+from bimgame.expert.minari_build import (
+    EPISODES_DIR,
+    DatasetError,
+    episode_bytes,
+    episode_path,
+    hash_arrays,
+    read_episode,
+    run_build_process,
+)
 from bimgame.expert.mpc import MPCConfig, episode_seed
+from bimgame.expert.pool import BACKENDS, MAIN_GUARD, episode_progress, expert_episodes, import_ray
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.physics import MazeSim
 from bimgame.sim.tasks import Task, parse_task
-from bimgame.util.files import (DiskFullError, atomic_write_bytes, disk_full_errno, exclusive_lock,
-                                reporting_full_disk)
+from bimgame.util.files import atomic_write_bytes, exclusive_lock, reporting_full_disk
+from bimgame.util.settings import is_integer
 
 __all__ = ["DatasetError", "generate_dataset", "load_dataset", "iterate_sequences", "dataset_summary",
            "dataset_id_for", "dataset_manifest", "BACKENDS", "MINARI_DIR", "FORMAT_VERSION"]
@@ -140,7 +146,7 @@ def generate_dataset(out_dir: str | Path, task: str = "FULL", episodes: int = 50
     config = dataclasses.replace(config, nthread=1)
     manifest = _manifest(task_enum, int(episodes), int(seed), config, max_steps)
 
-    with _full_disk_reported(out_dir, episodes):
+    with reporting_full_disk(None, lambda: _resume_advice(out_dir, episodes), default_path=out_dir):
         _generate(out_dir, manifest, config, progress, workers, backend, ray_address)
     return out_dir
 
@@ -181,25 +187,11 @@ def _generate(out_dir: Path, manifest: dict, config: MPCConfig, progress: bool, 
                                                          workers=workers, backend=backend,
                                                          ray_address=ray_address):
                     path = episode_path(out_dir, index)
-                    with _full_disk_reported(out_dir, episodes, path):
+                    with reporting_full_disk(path, lambda: _resume_advice(out_dir, episodes)):
                         atomic_write_bytes(path, episode_bytes(index, episode))
                     update(bool(episode["success"]))
 
         _build_minari(out_dir, manifest)
-
-
-@contextlib.contextmanager
-def _full_disk_reported(out_dir: Path, episodes: int, path: Path | None = None) -> Iterator[None]:
-    """A full disk within the block raises DiskFullError naming the file (``path``, else the one
-    the error names, else ``out_dir``), saying how to resume and how many episodes are saved."""
-    try:
-        yield
-    except (OSError, RuntimeError) as error:
-        code = disk_full_errno(error)
-        if code is None or (isinstance(error, DiskFullError) and error.advice):  # not full, or reported
-            raise
-        where = path or getattr(error, "path", None) or getattr(error, "filename", None) or out_dir
-        raise DiskFullError(where, _resume_advice(out_dir, episodes), code) from error
 
 
 def _resume_advice(out_dir: Path, episodes: int) -> str:
@@ -493,6 +485,6 @@ def _pixel_observer(n_marbles: int) -> Observer:
 
 
 def _check_int(name: str, value: Any, *, minimum: int) -> None:
-    if not (isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_)) and value >= minimum):
+    if not (is_integer(value) and value >= minimum):
         raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
 

@@ -11,10 +11,10 @@ from typing import Any
 
 import numpy as np
 
-from bimgame.expert.pool import episode_progress, expert_episodes, reporting_full_disk
 from bimgame.expert.mpc import MPCConfig
+from bimgame.expert.pool import episode_progress, expert_episodes
 from bimgame.sim.tasks import parse_task
-from bimgame.util.files import atomic_write_bytes
+from bimgame.util.files import atomic_write_bytes, reporting_full_disk
 from bimgame.util.images import save_png, subplots
 
 __all__ = ["evaluate_expert", "summarise", "plot_length_histogram", "write_results", "EpisodeResult"]
@@ -70,7 +70,7 @@ def summarise(results: list[EpisodeResult]) -> dict[str, Any]:
 
 def plot_length_histogram(results: list[EpisodeResult], path: str | Path, *, title: str) -> Path:
     """The paper's Fig. 1b: histogram of the lengths of successful expert trajectories (PNG,
-    written atomically; a full disk raises :class:`~bimgame.expert.pool.DiskFullError` naming it)."""
+    written atomically; a full disk raises :class:`~bimgame.util.files.DiskFullError` naming it)."""
     solved = [r.length for r in results if r.success]
     failed = sum(not r.success for r in results)
     fig, ax = subplots(figsize=(6, 3.6))
@@ -89,7 +89,7 @@ def plot_length_histogram(results: list[EpisodeResult], path: str | Path, *, tit
 
 def write_results(results: list[EpisodeResult], summary: dict, config: MPCConfig, task: str, path: str | Path) -> Path:
     """Per-episode results, summary and settings as JSON (atomically; a full disk raises
-    :class:`~bimgame.expert.pool.DiskFullError` naming the file)."""
+    :class:`~bimgame.util.files.DiskFullError` naming the file)."""
     payload = {"task": task, "config": dataclasses.asdict(config), "summary": summary,
                "episodes": [dataclasses.asdict(r) for r in results]}
     with reporting_full_disk(path):

@@ -29,7 +29,8 @@ import numpy as np
 from bimgame.envs.env import DISCRETE_TILTS, BallInMazeEnv
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.physics import MazeSim
-from bimgame.sim.tasks import MAX_EPISODE_STEPS, Task, parse_task
+from bimgame.sim.tasks import Task, parse_task
+from bimgame.util.settings import is_integer
 
 __all__ = ["MPCConfig", "RandomShootingMPC", "SAMPLINGS", "PLANNING_REWARDS", "run_expert_episode",
            "episode_seed"]
@@ -60,7 +61,7 @@ class MPCConfig:
     def __post_init__(self) -> None:
         for name in ("n_samples", "horizon", "hold_min", "hold_max", "nthread"):
             value = getattr(self, name)
-            if not (isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value >= 1):
+            if not (is_integer(value) and value >= 1):
                 raise ValueError(f"MPCConfig.{name} must be a positive integer, got {value!r}")
         if self.hold_max < self.hold_min:
             raise ValueError(f"MPCConfig.hold_max ({self.hold_max}) must be >= hold_min ({self.hold_min})")
@@ -156,7 +157,7 @@ def run_expert_episode(task: str, seed: int, config: MPCConfig | None = None, *,
     maze = maze if maze is not None else MazeSpec.merl()
     env = BallInMazeEnv(task_enum, obs_mode="state", maze=maze)
     expert = RandomShootingMPC(maze, config, rng=np.random.default_rng(seed), task=task_enum)
-    limit = max_steps if max_steps is not None else MAX_EPISODE_STEPS[task_enum]
+    limit = max_steps if max_steps is not None else task_enum.time_limit
     obs, info = env.reset(seed=seed)
     observations, sim_states, channels = [obs], [env.sim.get_state()], [info["channel"]]
     actions, rewards, terminations, truncations = [], [], [], []

@@ -7,9 +7,7 @@ Episode ``i`` of a run is ``run_expert_episode(task, episode_seed(seed, i), conf
 on the run seed and its index only, so results do not depend on the backend, the number of
 workers or the order in which episodes finish.
 
-Local workers end when their parent dies (:func:`bimgame.util.processes.exit_when_parent_dies`). A
-full disk is reported with :class:`~bimgame.util.files.DiskFullError` (re-exported here with
-:func:`reporting_full_disk` and :func:`disk_full_errno`, where the expert's modules import them).
+Local workers end when their parent dies (:func:`bimgame.util.processes.exit_when_parent_dies`).
 """
 
 from __future__ import annotations
@@ -27,12 +25,11 @@ from typing import Callable
 import numpy as np
 
 from bimgame.expert.mpc import MPCConfig, episode_seed, run_expert_episode
-from bimgame.util.files import DiskFullError, disk_full_errno, reporting_full_disk
 from bimgame.util.processes import exit_when_parent_dies
 from bimgame.util.progress import ProgressBar
+from bimgame.util.settings import is_integer
 
-__all__ = ["BACKENDS", "MAIN_GUARD", "expert_episodes", "episode_progress", "environment", "import_ray",
-           "DiskFullError", "disk_full_errno", "reporting_full_disk"]
+__all__ = ["BACKENDS", "MAIN_GUARD", "expert_episodes", "episode_progress", "environment", "import_ray"]
 
 BACKENDS = ("local", "ray")
 _THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMEXPR_NUM_THREADS")
@@ -61,7 +58,7 @@ def expert_episodes(task: str, indices: list[int], seed: int, config: MPCConfig,
     this process. ``backend="ray"`` runs Ray tasks of one CPU each, on ``ray_address`` or a local
     Ray started with ``num_cpus=workers`` (an already initialised Ray is used as is).
     """
-    if not (isinstance(workers, (int, np.integer)) and not isinstance(workers, bool) and workers >= 1):
+    if not (is_integer(workers) and workers >= 1):
         raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
     if backend not in BACKENDS:
         raise ValueError(f"unknown backend {backend!r}; allowed: {', '.join(BACKENDS)}")

@@ -8,8 +8,8 @@ import time
 import gymnasium as gym
 import numpy as np
 
-from bimgame.expert.pool import episode_progress
 from bimgame.expert.policies import make_policy
+from bimgame.expert.pool import episode_progress
 
 __all__ = ["run_episodes"]
 

@@ -31,7 +31,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import os
 import queue as queue_module
 import time
 from pathlib import Path
@@ -41,16 +40,41 @@ import numpy as np
 import torch
 import torch.multiprocessing as mp
 
-from bimgame.learn.a3c_core import (MAX_STEPS, OPTIMIZERS, A3CConfig, EnvWrapper, a3c_segment_loss, apply_update,
-                                    evaluate, make_optimizer, network_for, shared_optimizer_state)
+from bimgame.learn.a3c_core import (
+    MAX_STEPS,
+    OPTIMIZERS,
+    A3CConfig,
+    EnvWrapper,
+    a3c_segment_loss,
+    apply_update,
+    evaluate,
+    make_optimizer,
+    network_for,
+    shared_optimizer_state,
+)
 from bimgame.learn.a3c_workers import _evaluator, _worker
-from bimgame.learn.common import init_network_settings
+from bimgame.learn.common import EVAL_COLUMNS, init_network_settings
 from bimgame.learn.curves import plot_run
 from bimgame.learn.nets import RecurrentActorCritic
-from bimgame.learn.runs import (CHECKPOINT, CONFIG, KIND_A3C, SUMMARY, CheckpointError, MetricLog, RunWriteError,
-                                check_resumable, discard_new_run, load_checkpoint, load_weights, prepare_new_run,
-                                read_run_settings, save_checkpoint, torch_threads, write_run_json)
-from bimgame.util.files import read_json
+from bimgame.learn.runs import (
+    CHECKPOINT,
+    CONFIG,
+    KIND_A3C,
+    SUMMARY,
+    CheckpointError,
+    MetricLog,
+    apply_weights,
+    check_resumable,
+    discard_new_run,
+    load_checkpoint,
+    load_weights,
+    prepare_new_run,
+    read_run_settings,
+    save_checkpoint,
+    torch_threads,
+    write_run_json,
+)
+from bimgame.util.files import FileWriteError, read_json
 from bimgame.util.progress import ProgressBar
 from bimgame.util.signals import sigterm_as_interrupt
 
@@ -78,8 +102,7 @@ _TABLES = {
     "episodes": ["start_step", "worker", "return", "length", "success"],
     "updates": ["seconds", "sps", "policy_loss", "value_loss", "entropy", "grad_norm", "recent_success", "recent_return",
                 "recent_length"],
-    "eval": ["greedy_success_rate", "greedy_mean_length", "greedy_mean_return", "sampled_success_rate",
-             "sampled_mean_length", "sampled_mean_return"],
+    "eval": list(EVAL_COLUMNS),
 }
 
 
@@ -166,7 +189,7 @@ def _train(config: A3CConfig, run_dir: Path, *, resume: bool, init: str | Path |
     if resume:
         _check_resume(run_dir, config)
         payload = load_checkpoint(run_dir / CHECKPOINT)
-        load_weights(shared, run_dir / CHECKPOINT)
+        apply_weights(shared, payload, run_dir / CHECKPOINT)
         start = _Start(step=payload["step"], seconds=float(payload.get("seconds", 0.0)),
                        optimizer=payload.get("optimizer"), fresh=False, checkpoint_step=payload["step"])
         if start.step >= config.steps and _summarised(run_dir, start.step):
@@ -198,7 +221,7 @@ def _session(config: A3CConfig, run_dir: Path, shared: RecurrentActorCritic, sta
     and write the summary."""
     log = MetricLog(run_dir, _TABLES, resume_step=None if start.fresh else start.step,
                     keep_at_resume_step=("updates",))  # an update's row is logged before its step's checkpoint
-    monitor = _Monitor(config, start.step)
+    monitor = _Monitor(start.step)
     monitor.restore(log.kept["episodes"])
     started = time.monotonic() - start.seconds  # seconds count the whole run, across resumes
     step, stopped = start.step, "finished"
@@ -223,7 +246,7 @@ def _session(config: A3CConfig, run_dir: Path, shared: RecurrentActorCritic, sta
         seconds = time.monotonic() - started
         write_run_json(run_dir / SUMMARY, {"steps": step, "stopped": stopped, "seconds": seconds,
                                            "final_eval": final_eval, **monitor.recent()})
-    except RunWriteError as error:
+    except FileWriteError as error:
         log.close()
         raise TrainingError(f"{error}. The checkpoint {run_dir / CHECKPOINT} (step {step:,}) is saved: free some "
                             f"space and continue with --resume (a run whose steps are all done then only evaluates "
@@ -261,7 +284,7 @@ def _run_processes(config: A3CConfig, run_dir: Path, shared: RecurrentActorCriti
                                                initial_weights), daemon=True))
     stopped = "finished"
     failure: str | None = None
-    write_failure: RunWriteError | None = None
+    write_failure: FileWriteError | None = None
 
     def checkpoint() -> None:
         step = int(counter.value)
@@ -315,7 +338,7 @@ def _run_processes(config: A3CConfig, run_dir: Path, shared: RecurrentActorCriti
                     checkpoint()
     except KeyboardInterrupt:
         stopped = "interrupted"
-    except RunWriteError as error:
+    except FileWriteError as error:
         write_failure = error
     finally:
         stop.set()
@@ -335,7 +358,7 @@ def _run_processes(config: A3CConfig, run_dir: Path, shared: RecurrentActorCriti
                 all(torch.isfinite(p).all() for p in shared.parameters()):
             checkpoint()  # the weights before the failing update, for inspection or a resume
             saved = True
-    except RunWriteError as error:
+    except FileWriteError as error:
         write_failure = error
     discarded = start.fresh and start.checkpoint_step == 0  # _train removes a new run that kept nothing
     if write_failure is not None:
@@ -362,10 +385,9 @@ class _Monitor:
     """Recent training episodes (by the step they started at) and throughput, for the progress bar
     and the logs."""
 
-    def __init__(self, config: A3CConfig, start_step: int, window: int = 100):
+    def __init__(self, start_step: int, window: int = 100):
         self.window = window
         self.episodes: list[dict] = []
-        self.start_step = start_step
         self.start_time = time.monotonic()
         self._marks: list[tuple[float, int]] = [(self.start_time, start_step)]
 
@@ -401,7 +423,3 @@ class _Monitor:
             self._marks.pop(0)
         (t0, s0) = self._marks[0]
         return (step - s0) / (now - t0) if now > t0 else 0.0
-
-
-def default_workers() -> int:
-    return max(1, os.cpu_count() or 1)

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any, Callable
+from typing import Any, Callable, ClassVar
 
 import torch
 
@@ -15,8 +15,8 @@ from bimgame.envs.vector import BallInMazeVectorEnv
 from bimgame.learn.common import NetworkSettings, check_seed, evaluate_greedy_and_sampled, evaluation_seed
 from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.sim.maze import MazeSpec
-from bimgame.sim.tasks import MAX_EPISODE_STEPS, Task, parse_task
-from bimgame.util.settings import from_dict, require_int
+from bimgame.sim.tasks import Task, task_setting
+from bimgame.util.settings import require_int
 
 __all__ = ["A3CConfig", "OPTIMIZERS", "MAX_STEPS", "EnvWrapper", "network_for", "make_optimizer",
            "shared_optimizer_state", "a3c_segment_loss", "apply_update", "evaluate"]
@@ -90,10 +90,7 @@ class A3CConfig(NetworkSettings):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        try:
-            object.__setattr__(self, "task", parse_task(self.task).value)
-        except ValueError as error:
-            raise ValueError(f"A3CConfig.task: {error}") from None
+        object.__setattr__(self, "task", task_setting("A3CConfig", self.task))
         if self.optimizer not in OPTIMIZERS:
             raise ValueError(f"A3CConfig.optimizer must be one of {OPTIMIZERS}, got {self.optimizer!r}")
         positive_ints = ("steps", "workers", "envs_per_worker", "n_steps", "checkpoint_every", "eval_episodes",
@@ -124,18 +121,13 @@ class A3CConfig(NetworkSettings):
 
     @property
     def time_limit(self) -> int:
-        return self.max_episode_steps or MAX_EPISODE_STEPS[Task(self.task)]
+        return self.max_episode_steps or Task(self.task).time_limit
 
     @property
     def steps_per_update(self) -> int:
         return self.n_steps * self.envs_per_worker
 
-    def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
-
-    @classmethod
-    def from_dict(cls, values: dict[str, Any]) -> A3CConfig:
-        return from_dict(cls, values, "A3C settings")
+    SETTINGS_NAME: ClassVar[str] = "A3C settings"
 
     # What a resumed run may change without changing what is being learned.
     RESUMABLE_CHANGES = ("steps", "workers", "checkpoint_every", "eval_every", "eval_episodes", "log_every")

@@ -6,7 +6,6 @@ the parent through its message queue. The entry points are module-level function
 
 from __future__ import annotations
 
-import multiprocessing as std_mp
 import signal
 import time
 import traceback
@@ -19,6 +18,7 @@ from bimgame.envs.vector import BallInMazeVectorEnv
 from bimgame.learn.a3c_core import A3CConfig, EnvWrapper, apply_update, evaluate, make_optimizer, network_for
 from bimgame.learn.actor import RecurrentActor, tilt_input
 from bimgame.learn.nets import RecurrentActorCritic
+from bimgame.util.processes import exit_when_parent_dies
 
 
 def _worker_seeds(config: A3CConfig, rank: int, start_step: int) -> tuple[int, int]:
@@ -33,15 +33,11 @@ def _make_env(config: A3CConfig, num_envs: int, **kwargs: Any) -> BallInMazeVect
                                max_episode_steps=config.time_limit, autoreset_mode="same_step", **kwargs)
 
 
-def _parent_alive() -> bool:
-    parent = std_mp.parent_process()
-    return parent is None or parent.is_alive()
-
-
 def _worker(rank: int, config: A3CConfig, shared: RecurrentActorCritic, optimizer_state: list[dict],
             counter, stop, messages, env_wrapper: EnvWrapper | None, start_step: int) -> None:
     """One A3C worker process: act, compute the segment's gradient, apply it to the shared weights."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and stops us
+    exit_when_parent_dies()  # a parent killed with kill -9 leaves no worker behind
     torch.set_num_threads(1)
     try:
         _worker_loop(rank, config, shared, optimizer_state, counter, stop, messages, env_wrapper, start_step)
@@ -71,14 +67,15 @@ def _worker_loop(rank, config, shared, optimizer_state, counter, stop, messages,
     episode_start = np.full(batch, counter.value, dtype=np.int64)
     stats = {"policy_loss": 0.0, "value_loss": 0.0, "entropy": 0.0, "grad_norm": 0.0, "updates": 0}
     since_report = 0
-    while not stop.is_set() and counter.value < config.steps and _parent_alive():
+    while not stop.is_set() and counter.value < config.steps:
         local.load_state_dict(shared.state_dict())
         h0, c0 = actor.state
         seg: dict[str, list] = {k: [] for k in ("obs", "prev_action", "prev_reward", "tilt", "starts",
-                                                "actions", "rewards", "ends")}
+                                                "actions", "rewards")}
         step_at_start = counter.value
         for _ in range(n):
-            seg["obs"].append(torch.as_tensor(obs))
+            obs = torch.as_tensor(obs)
+            seg["obs"].append(obs)
             seg["prev_action"].append(actor.prev_action)
             seg["prev_reward"].append(actor.prev_reward)
             seg["tilt"].append(tilt)
@@ -99,7 +96,6 @@ def _worker_loop(rank, config, shared, optimizer_state, counter, stop, messages,
                 rewards_t = rewards_t + config.gamma * _final_values(actor, actions, reward, info, cut, max_tilt)
             seg["actions"].append(actions)
             seg["rewards"].append(rewards_t)
-            seg["ends"].append(torch.as_tensor(done))
             # Learning curves show the task's own reward, also when a wrapper shapes it.
             episode_return += np.asarray(info.get("task_reward", reward), dtype=np.float64)
             episode_length += 1
@@ -119,7 +115,8 @@ def _worker_loop(rank, config, shared, optimizer_state, counter, stop, messages,
         seg["tilt"].append(tilt)
         seg["starts"].append(actor.starts)
         segment = {k: torch.stack(v) for k, v in seg.items()}
-        segment.update(h0=h0, c0=c0)
+        # Which episodes ended at each step: what the actor marks as starting the step after.
+        segment.update(ends=segment["starts"][1:], h0=h0, c0=c0)
         if not config.tilt_input:
             segment.pop("tilt")
         parts = apply_update(local, shared_params, optimizer, segment, config)
@@ -129,12 +126,12 @@ def _worker_loop(rank, config, shared, optimizer_state, counter, stop, messages,
                                         **parts}))
             return
         with counter.get_lock():
-            counter.value += n * batch
+            counter.value += config.steps_per_update
         for key in ("policy_loss", "value_loss", "entropy"):
             stats[key] += parts[key]
         stats["grad_norm"] += grad_norm
         stats["updates"] += 1
-        since_report += n * batch
+        since_report += config.steps_per_update
         if since_report >= config.log_every:
             count = stats.pop("updates")
             messages.put(("update", rank, {"step": int(counter.value), **{k: v / count for k, v in stats.items()}}))
@@ -161,6 +158,7 @@ def _evaluator(config: A3CConfig, shared: RecurrentActorCritic, counter, stop, m
     pre-trained policy), the checkpoint's step of a resumed one, whose earlier rows from that step on
     were dropped — then every ``eval_every`` steps of the shared weights."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    exit_when_parent_dies()
     torch.set_num_threads(1)
     try:
         local = network_for(config)
@@ -168,7 +166,7 @@ def _evaluator(config: A3CConfig, shared: RecurrentActorCritic, counter, stop, m
         local.load_state_dict(initial_weights)
         messages.put(("eval", -1, {"step": start_step, **evaluate(local, config)}))
         next_eval = (start_step // config.eval_every + 1) * config.eval_every
-        while not stop.is_set() and _parent_alive():
+        while not stop.is_set():
             step = counter.value
             if step >= config.steps:
                 break

@@ -14,10 +14,10 @@ from typing import Any
 import numpy as np
 import torch
 
-from bimgame.sim.maze import MazeSpec
-from bimgame.learn.nets import NO_ACTION, LSTMState, RecurrentActorCritic
 from bimgame.envs.vector import BallInMazeVectorEnv
-from bimgame.sim.tasks import MAX_EPISODE_STEPS, parse_task
+from bimgame.learn.nets import NO_ACTION, LSTMState, RecurrentActorCritic
+from bimgame.sim.maze import MazeSpec
+from bimgame.sim.tasks import parse_task
 
 __all__ = ["RecurrentActor", "EvalResult", "evaluate_network", "tilt_input"]
 
@@ -113,7 +113,7 @@ def evaluate_network(net: RecurrentActorCritic, *, task: str, obs_mode: str, epi
         kwargs["maze"] = maze
     if record:
         kwargs.update(render_mode="rgb_array", render_size=render_size)
-    limit = max_episode_steps or MAX_EPISODE_STEPS[parse_task(task)]
+    limit = max_episode_steps or parse_task(task).time_limit
     env = BallInMazeVectorEnv(episodes, max_episode_steps=limit, nthread=1, autoreset_mode="same_step", **kwargs)
     generator = torch.Generator().manual_seed(int(seed))
     actor = RecurrentActor(net, episodes, generator=generator, greedy=greedy)

@@ -13,21 +13,27 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Any
-
-import numpy as np
+from typing import Any, ClassVar, Self
 
 from bimgame.envs.observe import OBS_MODES
+from bimgame.expert.mpc import episode_seed
 from bimgame.learn.actor import evaluate_network
-from bimgame.learn.nets import (NetConfig, RecurrentActorCritic, ValueNetwork, build_network, build_value_network,
-                                maze_background, state_obs_scale)
+from bimgame.learn.nets import (
+    NetConfig,
+    RecurrentActorCritic,
+    ValueNetwork,
+    build_network,
+    build_value_network,
+    maze_background,
+    state_obs_scale,
+)
 from bimgame.learn.runs import CONFIG, KIND_A3C, KIND_VALUE, load_weights, read_run_config
 from bimgame.sim.maze import MazeSpec
-from bimgame.sim.tasks import MAX_EPISODE_STEPS, Task, parse_task
-from bimgame.util.settings import from_dict
+from bimgame.sim.tasks import Task, parse_task
+from bimgame.util.settings import from_dict, require_int
 
 __all__ = ["NetworkSettings", "RunInfo", "read_run", "load_run_network", "load_value_network", "network_settings_of", "init_network_settings",
-           "evaluate_greedy_and_sampled", "evaluation_seed", "MAX_SEED", "MAX_NETWORK_SIZE", "check_seed"]
+           "evaluate_greedy_and_sampled", "evaluation_seed", "EVAL_COLUMNS", "MAX_SEED", "MAX_NETWORK_SIZE", "check_seed"]
 
 #: The largest seed a run takes: seeds go to numpy's and torch's generators (torch's takes 64 bits at
 #: most); 32 bits is numpy's classic seed range, plenty for distinct runs.
@@ -71,9 +77,9 @@ class NetworkSettings:
             value = getattr(self, name)
             if value is None:
                 object.__setattr__(self, name, default_size)
-            elif not (isinstance(value, int) and not isinstance(value, bool) and value >= 1):
-                raise ValueError(f"{owner}.{name} must be an integer >= 1, got {value!r}")
-            elif value > MAX_NETWORK_SIZE:
+                continue
+            require_int(owner, name, value, 1)
+            if value > MAX_NETWORK_SIZE:
                 raise ValueError(f"{owner}.{name} must be at most {MAX_NETWORK_SIZE} (the paper's networks use "
                                  f"256), got {value!r}")
         for name in ("tilt_input", "keypoints", "subtract_background"):
@@ -86,7 +92,7 @@ class NetworkSettings:
 
     def network_settings(self) -> NetworkSettings:
         """Just the network settings (of a learner's settings, which inherit them)."""
-        return NetworkSettings(**{name: getattr(self, name) for name in self.field_names()})
+        return network_settings_of(dataclasses.asdict(self))
 
     def net_config(self, maze: MazeSpec | None = None) -> tuple[NetConfig, dict[str, Any]]:
         """The network sizes and the fixed inputs to build it with (``obs_scale`` or ``background``,
@@ -112,12 +118,15 @@ class NetworkSettings:
         net_config, inputs = self.net_config(maze)
         return build_value_network(net_config, seed=seed, **inputs)
 
+    #: What a settings dict of this class is called in errors ("unknown A3C settings [...]").
+    SETTINGS_NAME: ClassVar[str] = "network settings"
+
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
 
     @classmethod
-    def from_dict(cls, values: dict[str, Any]) -> NetworkSettings:
-        return from_dict(cls, values, "network settings")
+    def from_dict(cls, values: dict[str, Any]) -> Self:
+        return from_dict(cls, values, cls.SETTINGS_NAME)
 
 
 def network_settings_of(values: dict[str, Any]) -> NetworkSettings:
@@ -167,7 +176,7 @@ def read_run(source: str | Path) -> RunInfo:
     except (ValueError, TypeError) as error:
         raise ValueError(f"{run_dir / CONFIG}: {error}") from None
     return RunInfo(run_dir=run_dir, kind=kind, task=task, network=network, seed=int(seed),
-                   time_limit=int(limit or MAX_EPISODE_STEPS[Task(task)]), config=stored)
+                   time_limit=int(limit or Task(task).time_limit), config=stored)
 
 
 def init_network_settings(source: str | Path) -> dict[str, Any]:
@@ -223,7 +232,12 @@ def load_value_network(source: str | Path) -> tuple[ValueNetwork, RunInfo]:
 def evaluation_seed(seed: int) -> int:
     """Seed of the start positions of a run's evaluations, derived from the run's seed (the same
     every time, different from the training episodes' starts)."""
-    return int(np.random.SeedSequence([seed, 999_983]).generate_state(1)[0])
+    return episode_seed(seed, 999_983)
+
+
+#: The keys of :func:`evaluate_greedy_and_sampled`, in the order the learners' logs list them.
+EVAL_COLUMNS = tuple(f"{mode}_{key}" for mode in ("greedy", "sampled")
+                     for key in ("success_rate", "mean_length", "mean_return"))
 
 
 def evaluate_greedy_and_sampled(net: RecurrentActorCritic, *, task: str, obs: str, episodes: int, seed: int,

@@ -40,21 +40,35 @@ from typing import Any
 import numpy as np
 import torch
 
-from bimgame.learn.common import check_seed, evaluate_greedy_and_sampled, evaluation_seed
-from bimgame.learn.actor import RecurrentActor, tilt_input
-from bimgame.expert.episode import Episode
 from bimgame.envs.env import BallInMazeEnv
-from bimgame.expert.mpc import MPCConfig, RandomShootingMPC
-from bimgame.util import files
-from bimgame.sim.maze import MazeSpec
+from bimgame.expert.episode import Episode
+from bimgame.expert.mpc import MPCConfig, RandomShootingMPC, episode_seed
+from bimgame.learn.actor import RecurrentActor, tilt_input
+from bimgame.learn.common import EVAL_COLUMNS, evaluate_greedy_and_sampled, evaluation_seed
 from bimgame.learn.nets import RecurrentActorCritic
+from bimgame.learn.runs import (
+    CHECKPOINT,
+    CONFIG,
+    CheckpointError,
+    MetricLog,
+    apply_weights,
+    check_resumable,
+    discard_new_run,
+    load_checkpoint,
+    load_weights,
+    prepare_new_run,
+    read_run_settings,
+    save_checkpoint,
+    torch_threads,
+    write_run_json,
+)
 from bimgame.learn.supervised import PretrainConfig, train_policy_epochs
-from bimgame.learn.runs import (CHECKPOINT, CONFIG, CheckpointError, MetricLog, RunWriteError, check_resumable,
-                                discard_new_run, load_checkpoint, load_weights, prepare_new_run, read_run_settings,
-                                save_checkpoint, torch_threads, write_run_json)
-from bimgame.util.signals import sigterm_as_interrupt
+from bimgame.sim.maze import MazeSpec
+from bimgame.util import files
+from bimgame.util.files import FileWriteError
 from bimgame.util.progress import ProgressBar
 from bimgame.util.settings import from_dict, require_int
+from bimgame.util.signals import sigterm_as_interrupt
 
 __all__ = ["resolve_dagger_config", "DAggerConfig", "DAggerResult", "dagger", "collect_episodes", "KIND_DAGGER"]
 
@@ -69,8 +83,7 @@ _LARGEST = {"episodes_per_iteration": (10_000, "rollouts run side by side"),
             "eval_episodes": (10_000, "episodes run side by side"),
             "max_episode_steps": (10**9, "steps")}
 _TABLE = ["iteration", "beta", "episodes", "dataset_steps", "expert_sim_steps", "labels", "train_loss",
-          "train_accuracy", "rollout_success_rate", "greedy_success_rate", "greedy_mean_length",
-          "greedy_mean_return", "sampled_success_rate", "sampled_mean_length", "sampled_mean_return", "seconds"]
+          "train_accuracy", "rollout_success_rate", *EVAL_COLUMNS, "seconds"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -106,7 +119,6 @@ class DAggerConfig:
                 raise ValueError(f"DAggerConfig.{name} must be in [0, 1], got {value!r}")
         require_int("DAggerConfig", "eval_episodes", self.eval_episodes, 0)
         require_int("DAggerConfig", "max_episode_steps", self.max_episode_steps, 1, optional=True)
-        check_seed("DAggerConfig.learner", self.learner.seed)
         for name, (largest, unit) in _LARGEST.items():
             value = getattr(self, name)
             if value is not None and value > largest:
@@ -230,7 +242,7 @@ def _save_episodes(path: Path, episodes: list[Episode]) -> None:
     try:
         files.atomic_write_bytes(path, buffer.getvalue())
     except OSError as error:
-        raise RunWriteError(path, error.strerror or str(error)) from error
+        raise FileWriteError.from_error(path, error) from error
 
 
 def _load_episodes(path: Path) -> list[Episode]:
@@ -289,12 +301,12 @@ def _dagger(config: DAggerConfig, run_dir: Path | str, *, resume: bool, init: st
             write_run_json(run_dir / STATE, state)
         with sigterm_as_interrupt():
             return _iterations(config, run_dir, net, state, resume=resume, progress=progress)
-    except RunWriteError as error:
+    except FileWriteError as error:
         if not resume and state["iteration"] == 0:
             discard_new_run(run_dir, created, _RUN_FILES)
-            raise error.advise(f"No iteration had finished, so the new run's files are removed from {run_dir}: "
+            raise error.with_advice(f"No iteration had finished, so the new run's files are removed from {run_dir}: "
                                f"free some space and run the same command again") from error
-        raise error.advise(f"The iterations finished before ({state['iteration']}) are saved in {run_dir}: free "
+        raise error.with_advice(f"The iterations finished before ({state['iteration']}) are saved in {run_dir}: free "
                            f"some space and continue with --resume") from error
     except Exception:
         if not resume and state["iteration"] == 0:
@@ -337,7 +349,7 @@ def _resume_state(run_dir: Path, config: DAggerConfig, net: RecurrentActorCritic
         raise ValueError(f"--resume: the aggregated data of finished iterations is missing ({', '.join(missing)}), "
                          f"so the DAgger run in {run_dir} cannot be continued. Start anew without --resume in a "
                          f"new --run-dir")
-    load_weights(net, run_dir / CHECKPOINT)
+    apply_weights(net, payload, run_dir / CHECKPOINT)
     if copy != state:
         write_run_json(path, state)
     return state
@@ -364,7 +376,7 @@ def _iterations(config: DAggerConfig, run_dir: Path, net: RecurrentActorCritic, 
         with ProgressBar(f"DAgger {learner.task} {learner.obs}", config.iterations, completed=state["iteration"],
                          enabled=progress) as bar:
             for iteration in range(state["iteration"], config.iterations):
-                seed = int(np.random.SeedSequence([config.learner.seed, iteration]).generate_state(1)[0])
+                seed = episode_seed(config.learner.seed, iteration)
                 beta = config.beta(iteration)
                 episodes, costs = collect_episodes(net, config, beta, seed)
                 _save_episodes(_data_path(run_dir, iteration), episodes)

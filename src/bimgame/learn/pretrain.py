@@ -29,15 +29,26 @@ import torch
 
 from bimgame.expert.datasets import dataset_manifest, iterate_sequences, load_dataset
 from bimgame.expert.episode import Episode, relabel
-from bimgame.learn.common import check_seed, evaluate_greedy_and_sampled
+from bimgame.learn.common import evaluate_greedy_and_sampled
 from bimgame.learn.nets import RecurrentActorCritic, ValueNetwork
-from bimgame.learn.runs import (CHECKPOINT, CONFIG, KIND_POLICY, KIND_VALUE, SUMMARY, MetricLog, RunWriteError,
-                                discard_new_run, load_weights, prepare_new_run, save_checkpoint, torch_threads,
-                                write_run_json)
-from bimgame.learn.supervised import (PretrainConfig, l2_penalty, policy_epoch, split_episodes,
-                                      summarise)
+from bimgame.learn.runs import (
+    CHECKPOINT,
+    CONFIG,
+    KIND_POLICY,
+    KIND_VALUE,
+    SUMMARY,
+    MetricLog,
+    discard_new_run,
+    load_weights,
+    prepare_new_run,
+    save_checkpoint,
+    torch_threads,
+    write_run_json,
+)
+from bimgame.learn.supervised import PretrainConfig, l2_penalty, policy_batches, policy_epoch, split_episodes, summarise
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.tasks import Task, parse_task
+from bimgame.util.files import FileWriteError
 from bimgame.util.progress import ProgressBar
 from bimgame.util.signals import sigterm_as_interrupt
 
@@ -129,7 +140,6 @@ def pretrain(config: PretrainConfig, data_dir: str | Path, out_dir: str | Path, 
     ``out_dir`` must be new or empty. Pre-training cannot resume: if it stops before its summary is
     written (an error, Ctrl-C, SIGTERM, a full disk), it removes what it wrote, so the same call can
     be repeated."""
-    check_seed("PretrainConfig", config.seed)
     out_dir = Path(out_dir)
     created = prepare_new_run(out_dir, what="pre-training", flag="--out")
     with torch_threads():
@@ -138,8 +148,8 @@ def pretrain(config: PretrainConfig, data_dir: str | Path, out_dir: str | Path, 
                 return _pretrain(config, data_dir, out_dir, progress=progress, sequences=sequences)
         except BaseException as error:
             discard_new_run(out_dir, created, _RUN_FILES)
-            if isinstance(error, RunWriteError):
-                raise error.advise(f"Pre-training cannot resume, so its files are removed from {out_dir}: free "
+            if isinstance(error, FileWriteError):
+                raise error.with_advice(f"Pre-training cannot resume, so its files are removed from {out_dir}: free "
                                    f"some space and run the same command again") from error
             raise
 
@@ -166,9 +176,13 @@ def _pretrain(config: PretrainConfig, data_dir: str | Path, out_dir: Path, *, pr
             return _value_epoch(net, train_frames if training else val_frames, config, rng,
                                 optimizer if training else None)
     else:
+        held_out = list(policy_batches(sequences, val_idx, config, max_tilt))  # the same every epoch: built once
+
         def run_epoch(training: bool) -> dict[str, float]:
-            return policy_epoch(net, sequences, train_idx if training else val_idx, config, max_tilt, rng,
-                                 optimizer if training else None)
+            if training:
+                order = rng.permutation(train_idx)
+                return policy_epoch(net, policy_batches(sequences, order, config, max_tilt), config, optimizer)
+            return policy_epoch(net, held_out, config, None)
 
     log = MetricLog(out_dir, {"pretrain": _TABLE})
     started = time.monotonic()

@@ -19,7 +19,7 @@ Checkpoints are written atomically and read with ``torch.load(weights_only=True)
 dict of tensors, numbers and strings only, so a file someone sent cannot run code when loaded.
 CSV logs are appended line by line and flushed; a resumed run first keeps the rows logged before its
 checkpoint (:func:`resumed_rows`), so no step is counted twice, and refuses a log it did not write.
-A file that cannot be written (a full disk) raises :class:`RunWriteError`, which names it.
+A file that cannot be written (a full disk) raises :class:`~bimgame.util.files.FileWriteError`, which names it.
 """
 
 from __future__ import annotations
@@ -27,9 +27,9 @@ from __future__ import annotations
 import contextlib
 import csv
 import io
-import os
 import json
 import math
+import os
 import pickle
 import re
 import shutil
@@ -39,10 +39,11 @@ from typing import Any, Callable, Iterable, Iterator, Sequence, TypeVar
 import torch
 
 from bimgame.util import files
+from bimgame.util.files import FileWriteError
 
 __all__ = ["torch_threads", "run_kind", "KIND_A3C", "KIND_POLICY", "KIND_VALUE", "CheckpointError", "save_checkpoint",
-           "load_checkpoint", "load_weights", "CsvLog", "MetricLog", "read_run_config", "read_run_settings",
-           "CHECKPOINT", "CONFIG", "SUMMARY", "RunWriteError", "write_run_json", "prepare_new_run", "check_resumable",
+           "load_checkpoint", "load_weights", "apply_weights", "CsvLog", "MetricLog", "read_run_config", "read_run_settings",
+           "CHECKPOINT", "CONFIG", "SUMMARY", "write_run_json", "prepare_new_run", "check_resumable",
            "discard_new_run", "directory_entries", "resumed_rows"]
 
 CHECKPOINT = "checkpoint.pt"
@@ -56,22 +57,12 @@ _REQUIRED = {"model": dict, "step": int}
 T = TypeVar("T")
 
 
-#: A file of a run could not be written (e.g. the disk is full): "cannot write PATH: REASON. ADVICE"
-#: (:class:`~bimgame.util.files.FileWriteError`; ``advise`` adds how to go on). Files are written
-#: atomically and logs by whole rows, so what was written before is intact.
-RunWriteError = files.FileWriteError
-
-
-def _write_error(path: str | Path, error: OSError) -> RunWriteError:
-    return RunWriteError.from_error(path, error)
-
-
 def write_run_json(path: str | Path, values: dict[str, Any]) -> Path:
-    """:func:`~bimgame.util.files.write_json` raising :class:`RunWriteError` (naming the file) when it fails."""
+    """:func:`~bimgame.util.files.write_json` raising :class:`~bimgame.util.files.FileWriteError` (naming the file) when it fails."""
     try:
         return files.write_json(path, values)
     except OSError as error:
-        raise _write_error(path, error) from error
+        raise FileWriteError.from_error(path, error) from error
 
 
 @contextlib.contextmanager
@@ -228,7 +219,7 @@ class CheckpointError(ValueError):
 
 def save_checkpoint(path: str | Path, *, model: dict[str, torch.Tensor], step: int,
                     optimizer: dict | None = None, **extra: Any) -> Path:
-    """Write a checkpoint atomically (:class:`RunWriteError` naming it if that fails). ``extra``
+    """Write a checkpoint atomically (:class:`~bimgame.util.files.FileWriteError` naming it if that fails). ``extra``
     values must be tensors, numbers, strings or containers of them (what ``weights_only`` loading
     accepts)."""
     payload = {"format": "bimgame-checkpoint-1", "model": {k: v.detach().clone() for k, v in model.items()},
@@ -240,7 +231,7 @@ def save_checkpoint(path: str | Path, *, model: dict[str, torch.Tensor], step: i
     try:
         return files.atomic_write_bytes(path, buffer.getvalue())
     except OSError as error:
-        raise _write_error(path, error) from error
+        raise FileWriteError.from_error(path, error) from error
 
 
 def _load_failure(path: Path, error: BaseException) -> CheckpointError:
@@ -301,7 +292,12 @@ def load_checkpoint(path: str | Path) -> dict[str, Any]:
 def load_weights(module: torch.nn.Module, source: str | Path) -> int:
     """Load a checkpoint's (or run directory's) weights into ``module``; returns the checkpoint's
     step. Shapes must match exactly."""
-    payload = load_checkpoint(source)
+    return apply_weights(module, load_checkpoint(source), source)
+
+
+def apply_weights(module: torch.nn.Module, payload: dict[str, Any], source: str | Path) -> int:
+    """Put the weights of a checkpoint already read (:func:`load_checkpoint`) from ``source`` into
+    ``module``; returns its step. Shapes must match exactly."""
     expected = module.state_dict()
     missing = sorted(set(expected) - set(payload["model"]))
     unexpected = sorted(set(payload["model"]) - set(expected))
@@ -359,7 +355,7 @@ def resumed_rows(path: str | Path, fields: Sequence[str], before: int, *, keep_e
 
 class CsvLog:
     """An append-only CSV file with a fixed header, flushed after every row; write failures raise
-    :class:`RunWriteError` naming the file."""
+    :class:`~bimgame.util.files.FileWriteError` naming the file."""
 
     def __init__(self, path: str | Path, fields: Iterable[str], *, rows: Iterable[dict[str, Any]] = ()):
         """Start the file (atomically) with its header and ``rows`` (e.g. a resumed run's
@@ -374,7 +370,7 @@ class CsvLog:
             files.atomic_write_bytes(self.path, text.getvalue().encode())
             self._handle = self.path.open("a", newline="", encoding="utf-8")
         except OSError as error:
-            raise _write_error(self.path, error) from error
+            raise FileWriteError.from_error(self.path, error) from error
         self._writer = csv.DictWriter(self._handle, self.fields)
 
     def write(self, row: dict[str, Any]) -> None:
@@ -382,7 +378,7 @@ class CsvLog:
             self._writer.writerow({k: _format(row.get(k)) for k in self.fields})
             self._handle.flush()
         except OSError as error:
-            raise _write_error(self.path, error) from error
+            raise FileWriteError.from_error(self.path, error) from error
 
     def close(self) -> None:
         """Close the file. Every row was flushed when written, so after a failed write (which was

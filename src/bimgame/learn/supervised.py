@@ -16,7 +16,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any
+from collections.abc import Iterable, Iterator
+from typing import ClassVar
 
 import numpy as np
 import torch
@@ -24,13 +25,13 @@ import torch.nn.functional as F
 
 from bimgame.envs.env import NO_ACTION
 from bimgame.expert.episode import Episode
-from bimgame.learn.common import NetworkSettings
+from bimgame.learn.common import NetworkSettings, check_seed
 from bimgame.learn.nets import RecurrentActorCritic
-from bimgame.sim.tasks import MAX_EPISODE_STEPS, Task, parse_task
-from bimgame.util.settings import from_dict, require_int
+from bimgame.sim.tasks import Task, task_setting
+from bimgame.util.settings import require_int
 
 __all__ = ["PretrainConfig", "TARGETS", "split_episodes", "padded_batch", "l2_penalty", "policy_loss_terms",
-           "policy_epoch", "summarise", "train_policy_epochs"]
+           "policy_epoch", "policy_batches", "summarise", "train_policy_epochs"]
 
 TARGETS = ("policy", "value")
 
@@ -74,15 +75,12 @@ class PretrainConfig(NetworkSettings):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        try:
-            object.__setattr__(self, "task", parse_task(self.task).value)
-        except ValueError as error:
-            raise ValueError(f"PretrainConfig.task: {error}") from None
+        object.__setattr__(self, "task", task_setting("PretrainConfig", self.task))
         if self.target not in TARGETS:
             raise ValueError(f"PretrainConfig.target must be one of {TARGETS}, got {self.target!r}")
         for name in ("epochs", "patience", "batch_episodes", "batch_frames", "bptt"):
             require_int("PretrainConfig", name, getattr(self, name), 1)
-        require_int("PretrainConfig", "seed", self.seed, 0)  # numpy's seed sequences take no negative seeds
+        check_seed("PretrainConfig", self.seed)  # numpy's seed sequences take no negative seeds, torch none of 2**64
         require_int("PretrainConfig", "eval_episodes", self.eval_episodes, 0)
         for name, low, high, open_low in (("lr", 0, math.inf, True), ("max_grad_norm", 0, math.inf, True),
                                           ("l2", 0, math.inf, False), ("value_coef", 0, math.inf, False),
@@ -97,14 +95,9 @@ class PretrainConfig(NetworkSettings):
     @property
     def time_limit(self) -> int:
         """The task's time limit (evaluations of the learned policy use it)."""
-        return MAX_EPISODE_STEPS[Task(self.task)]
+        return Task(self.task).time_limit
 
-    def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
-
-    @classmethod
-    def from_dict(cls, values: dict[str, Any]) -> PretrainConfig:
-        return from_dict(cls, values, "pre-training settings")
+    SETTINGS_NAME: ClassVar[str] = "pre-training settings"
 
 
 
@@ -194,13 +187,20 @@ def summarise(totals: dict[str, float], value_coef: float, policy: bool) -> dict
             "value_rmse": math.sqrt(value_mse)}
 
 
-def policy_epoch(net, sequences, indices, config, max_tilt, rng, optimizer) -> dict[str, float]:
-    order = rng.permutation(indices) if optimizer is not None else indices
+def policy_batches(sequences: list[Episode], order: np.ndarray, config: PretrainConfig,
+                   max_tilt: float) -> Iterator[dict[str, torch.Tensor]]:
+    """The padded batches of ``config.batch_episodes`` episodes each, in ``order``."""
+    for start in range(0, len(order), config.batch_episodes):
+        yield padded_batch([sequences[i] for i in order[start:start + config.batch_episodes]], max_tilt)
+
+
+def policy_epoch(net: RecurrentActorCritic, batches: Iterable[dict[str, torch.Tensor]], config: PretrainConfig,
+                 optimizer: torch.optim.Optimizer | None) -> dict[str, float]:
+    """One pass of the loss over ``batches``: training with ``optimizer``, else measuring only."""
     totals = {"ce": 0.0, "value_se": 0.0, "correct": 0.0, "count": 0.0}
     net.train(optimizer is not None)
     with torch.set_grad_enabled(optimizer is not None):
-        for start in range(0, len(order), config.batch_episodes):
-            batch = padded_batch([sequences[i] for i in order[start:start + config.batch_episodes]], max_tilt)
+        for batch in batches:
             for key, value in policy_loss_terms(net, batch, config, optimizer).items():
                 totals[key] += value
     return summarise(totals, config.value_coef, policy=True)
@@ -213,5 +213,6 @@ def train_policy_epochs(net: RecurrentActorCritic, sequences: list[Episode], con
     optimizer = torch.optim.Adam(net.parameters(), lr=config.lr)
     summary: dict[str, float] = {}
     for _ in range(epochs):
-        summary = policy_epoch(net, sequences, np.arange(len(sequences)), config, max_tilt, rng, optimizer)
+        order = rng.permutation(np.arange(len(sequences)))
+        summary = policy_epoch(net, policy_batches(sequences, order, config, max_tilt), config, optimizer)
     return summary

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from bimgame.sim.maze import MazeSpec
+from bimgame.util.settings import is_integer
 
 __all__ = ["start_radius", "start_separation", "max_start_marbles", "check_n_marbles", "sample_start",
            "finite_array", "check_marble_xy", "MAX_START_DRAWS"]
@@ -50,11 +51,12 @@ def max_start_marbles(spec: MazeSpec) -> int:
 def check_n_marbles(spec: MazeSpec, n_marbles: Any) -> int:
     """``n_marbles`` as an int, or a ``ValueError`` if it is not an integer ≥ 1 or more marbles
     than :func:`max_start_marbles` (random starts could never be drawn)."""
-    if isinstance(n_marbles, (bool, np.bool_)) or not isinstance(n_marbles, (int, np.integer)) or n_marbles < 1:
+    if not (is_integer(n_marbles) and n_marbles >= 1):
         raise ValueError(f"n_marbles must be an integer >= 1, got {n_marbles!r}")
     if not spec.walls:
-        raise ValueError("random starts need a maze with at least one wall: they lie on the centre "
-                         "circle of the outermost channel, which a maze without walls does not have")
+        raise ValueError("maze has no walls: random starts need a maze with at least one wall: they lie on "
+                         "the centre circle of the outermost channel, and without walls the whole board is "
+                         "the goal region (channel 0)")
     limit = max_start_marbles(spec)
     if n_marbles > limit:
         radius = start_radius(spec)

@@ -23,7 +23,7 @@ import numpy as np
 from bimgame.sim.maze import MazeSpec
 
 __all__ = ["Task", "TaskState", "parse_task", "task_step", "task_step_one", "initial_task_state", "MAX_EPISODE_STEPS",
-           "rewards_from_channels"]
+           "rewards_from_channels", "task_setting"]
 
 
 class Task(str, enum.Enum):
@@ -75,6 +75,15 @@ def parse_task(task: str | Task, spec: MazeSpec | None = None) -> Task:
         raise ValueError(f"task {parsed.value} needs a maze with at least {parsed.steps_to_go} walls; "
                          f"this maze has {len(spec.walls)}")
     return parsed
+
+
+def task_setting(owner: str, task: str | Task) -> str:
+    """The name of ``task`` (``FULL``, ``STG1`` …) as a settings class stores it; a ``ValueError``
+    names the setting (``owner.task``) and the allowed tasks."""
+    try:
+        return parse_task(task).value
+    except ValueError as error:
+        raise ValueError(f"{owner}.task: {error}") from None
 
 
 @dataclasses.dataclass

@@ -19,7 +19,7 @@ import json
 import os
 import re
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -133,9 +133,6 @@ class FileWriteError(OSError):
         """The same error with ``advice`` (what the caller knows about going on) instead of its own."""
         return FileWriteError(self.path, self.reason, advice, self.errno)
 
-    #: The name the learners use.
-    advise = with_advice
-
     def __reduce__(self):  # pickles (to and from worker processes) with its own arguments
         return FileWriteError, (self.path, self.reason, self.advice, self.errno)
 
@@ -153,8 +150,6 @@ class DiskFullError(FileWriteError):
 
     def with_advice(self, advice: str) -> "DiskFullError":
         return DiskFullError(self.path, advice, self.errno)
-
-    advise = with_advice
 
     def __reduce__(self):
         return DiskFullError, (self.path, self.advice, self.errno)
@@ -181,15 +176,17 @@ def disk_full_errno(error: BaseException | str) -> int | None:
 
 
 @contextlib.contextmanager
-def reporting_full_disk(path: str | os.PathLike, advice: str = "") -> Iterator[None]:
+def reporting_full_disk(path: str | os.PathLike | None, advice: str | Callable[[], str] = "", *,
+                        default_path: str | os.PathLike | None = None) -> Iterator[None]:
     """Within the block, an error that says the disk is full becomes :class:`DiskFullError` naming
-    ``path`` (other errors pass unchanged)."""
+    ``path`` (None: the file the error names, else ``default_path``) with ``advice`` (a callable is
+    asked when the error happens, e.g. to count what was saved). A :class:`DiskFullError` raised
+    inside gets the advice if it has none; other errors pass unchanged."""
     try:
         yield
-    except DiskFullError:
-        raise
     except (OSError, RuntimeError) as error:
         code = disk_full_errno(error)
-        if code is None:
+        if code is None or (isinstance(error, DiskFullError) and (error.advice or not advice)):
             raise
-        raise DiskFullError(path, advice, code) from error
+        where = path or getattr(error, "path", None) or getattr(error, "filename", None) or default_path
+        raise DiskFullError(where, advice() if callable(advice) else advice, code) from error

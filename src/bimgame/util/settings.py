@@ -14,7 +14,9 @@ import inspect
 import textwrap
 from typing import Any, TypeVar
 
-__all__ = ["from_dict", "require_int", "field_docs"]
+import numpy as np
+
+__all__ = ["from_dict", "require_int", "field_docs", "is_integer", "is_real"]
 
 T = TypeVar("T")
 
@@ -27,6 +29,16 @@ def from_dict(cls: type[T], values: dict[str, Any], what: str) -> T:
     if unknown:
         raise ValueError(f"unknown {what} {unknown}; allowed: {sorted(known)}")
     return cls(**values)
+
+
+def is_integer(value: Any) -> bool:
+    """A Python or numpy integer, not a bool (``True`` is an ``int`` to Python, not a count to a user)."""
+    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+
+
+def is_real(value: Any) -> bool:
+    """A Python or numpy integer or float, not a bool."""
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
 
 
 def require_int(owner: str, name: str, value: Any, minimum: int, *, optional: bool = False) -> None:
