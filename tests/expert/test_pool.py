@@ -3,7 +3,6 @@ backend are checked end to end in test_evaluation.py and test_datasets.py)."""
 
 from __future__ import annotations
 
-import os
 import signal
 import subprocess
 import sys
@@ -66,12 +65,7 @@ def test_workers_exit_when_generate_is_killed(tmp_path):
         process.send_signal(signal.SIGKILL)
         process.wait()
     try:
-        deadline = time.monotonic() + 15
-        while any(procfs.running(pid, start) for pid, start in children.items()) and time.monotonic() < deadline:
-            time.sleep(0.1)
-        left = [pid for pid, start in children.items() if procfs.running(pid, start)]
+        left = procfs.still_running_after(children, 15)
         assert not left, f"processes {left} of the killed generate still run"
     finally:
-        for pid, start in children.items():  # clean up after a failure: only the ones we started
-            if procfs.running(pid, start):
-                os.kill(pid, signal.SIGKILL)
+        procfs.kill_left(children)

@@ -4,6 +4,8 @@ apart), for the tests that kill a parent and check that no child outlives it."""
 from __future__ import annotations
 
 import os
+import signal
+import time
 from pathlib import Path
 
 
@@ -40,3 +42,18 @@ def running(pid: int, start: int) -> bool:
     """Whether the process ``pid`` that started at ``start`` is still running (a zombie has exited)."""
     info = stat(pid)
     return info is not None and info[2] == start and info[0] not in "ZX"
+
+
+def still_running_after(processes: dict[int, int], seconds: float) -> list[int]:
+    """Wait up to ``seconds`` for the processes (pid → start time) to end; the pids still running."""
+    deadline = time.monotonic() + seconds
+    while any(running(pid, start) for pid, start in processes.items()) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    return [pid for pid, start in processes.items() if running(pid, start)]
+
+
+def kill_left(processes: dict[int, int]) -> None:
+    """SIGKILL those of the processes still running (after a failed test: only the ones it started)."""
+    for pid, start in processes.items():
+        if running(pid, start):
+            os.kill(pid, signal.SIGKILL)

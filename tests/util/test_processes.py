@@ -3,10 +3,8 @@
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -36,14 +34,9 @@ def test_a_helper_process_exits_when_its_parent_is_killed():
         parent.wait()
         parent.stdout.close()
     try:
-        deadline = time.monotonic() + 5
-        while any(procfs.running(pid, start) for pid, start in children.items()) and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert not any(procfs.running(pid, start) for pid, start in children.items())
+        assert not procfs.still_running_after(children, 5)
     finally:
-        for pid, start in children.items():
-            if procfs.running(pid, start):
-                os.kill(pid, signal.SIGKILL)
+        procfs.kill_left(children)
 
 
 CHILD = """
@@ -81,10 +74,7 @@ def test_a_multiprocessing_child_exits_when_its_parent_is_killed(tmp_path):
         parent.wait()
         parent.stdout.close()
     try:
-        deadline = time.monotonic() + 5
-        while procfs.running(*child) and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert not procfs.running(*child)
+        assert not procfs.still_running_after(dict([child]), 5)
     finally:
-        if child is not None and procfs.running(*child):
-            os.kill(child[0], signal.SIGKILL)
+        if child is not None:
+            procfs.kill_left(dict([child]))
