@@ -54,7 +54,7 @@ def _network_worker(config: A3CConfig, shared, optimizer_state, seconds: float, 
     torch.set_num_threads(1)
     frames, tilts = _recorded_inputs(config)
     local = network_for(config)
-    optimizer = make_optimizer(config, shared.parameters())
+    optimizer = make_optimizer(config, shared)
     shared_params = list(shared.parameters())
     for param, state in zip(shared_params, optimizer_state):
         optimizer.state[param] = state
@@ -92,7 +92,7 @@ def network_only_sps(config: A3CConfig, seconds: float) -> float:
     torch.set_num_threads(1)
     shared = network_for(config)
     shared.share_memory()
-    optimizer_state = shared_optimizer_state(make_optimizer(config, shared.parameters()))
+    optimizer_state = shared_optimizer_state(make_optimizer(config, shared))
     context = mp.get_context("spawn")
     results = context.Queue()
     processes = [context.Process(target=_network_worker, args=(config, shared, optimizer_state, seconds, results))

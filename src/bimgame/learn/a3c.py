@@ -55,6 +55,7 @@ from bimgame.learn.a3c_core import (
 from bimgame.learn.a3c_workers import _evaluator, _worker
 from bimgame.learn.common import EVAL_COLUMNS, init_network_settings
 from bimgame.learn.curves import plot_run
+from bimgame.learn.finetune import DEFAULT_FINETUNE, FINETUNE_PRESETS
 from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.learn.runs import (
     CHECKPOINT,
@@ -101,13 +102,15 @@ class TrainResult:
 _TABLES = {
     "episodes": ["start_step", "worker", "return", "length", "success"],
     "updates": ["seconds", "sps", "policy_loss", "value_loss", "entropy", "grad_norm", "recent_success", "recent_return",
-                "recent_length"],
+                "recent_length", "kl", "bc", "actor_weight", "kl_weight", "bc_weight"],
     "eval": list(EVAL_COLUMNS),
 }
 
 
+#: The frozen π^s of a run with the KL term (kickstarting): the weights it started from.
+TEACHER = "teacher.pt"
 #: Every file and folder a run writes in its directory (removed again if a new run fails at once).
-_RUN_FILES = (CONFIG, CHECKPOINT, SUMMARY, "curves.png", "tb", *(f"{name}.csv" for name in _TABLES))
+_RUN_FILES = (CONFIG, CHECKPOINT, SUMMARY, TEACHER, "curves.png", "tb", *(f"{name}.csv" for name in _TABLES))
 
 
 def resolve_config(given: dict[str, Any], run_dir: str | Path, *, resume: bool = False,
@@ -115,13 +118,23 @@ def resolve_config(given: dict[str, Any], run_dir: str | Path, *, resume: bool =
     """A run's settings from the ones a user gave (``given``: field → value, only those given): the
     defaults, or with ``resume`` the run's stored settings, overridden by ``given``; with ``init``, the
     network settings of the run it points at unless given (a pre-trained π^s fixes the network's
-    shape). The command line and the reproduction both build their A3C settings here."""
+    shape) and the fine-tuning preset's settings (``finetune``, default ``keep``) unless given. The
+    command line and the reproduction both build their A3C settings here."""
     if resume:
         check_resumable(run_dir, kind=KIND_A3C, what="A3C")
         return read_run_settings(run_dir, "a3c", lambda stored: A3CConfig.from_dict({**stored, **given}))
     if init is not None:
-        given = {**init_network_settings(init), **given}
+        given = {**init_network_settings(init), **finetune_settings(given.get("finetune")), **given}
     return A3CConfig.from_dict(given)
+
+
+def finetune_settings(preset: str | None) -> dict[str, Any]:
+    """The settings a run started from a pre-trained policy takes unless given: those of the fine-tuning
+    ``preset`` (None: :data:`~bimgame.learn.finetune.DEFAULT_FINETUNE`), with its name recorded."""
+    preset = DEFAULT_FINETUNE if preset is None else preset
+    if preset not in FINETUNE_PRESETS:
+        raise ValueError(f"A3CConfig.finetune must be one of {', '.join(FINETUNE_PRESETS)}, got {preset!r}")
+    return {**FINETUNE_PRESETS[preset], "finetune": preset}
 
 
 def _check_resume(run_dir: Path, config: A3CConfig) -> None:
@@ -179,6 +192,8 @@ class _Start:
     optimizer: dict | None = None
     fresh: bool = True
     created: bool = False
+    teacher: dict[str, torch.Tensor] | None = None
+    """π^s for the KL term (kickstarting), or None."""
     checkpoint_step: int = 0
     """Step of the newest checkpoint written (0 until the first one after the start)."""
 
@@ -192,20 +207,29 @@ def _train(config: A3CConfig, run_dir: Path, *, resume: bool, init: str | Path |
         apply_weights(shared, payload, run_dir / CHECKPOINT)
         start = _Start(step=payload["step"], seconds=float(payload.get("seconds", 0.0)),
                        optimizer=payload.get("optimizer"), fresh=False, checkpoint_step=payload["step"])
+        if config.kl_coef > 0:
+            start.teacher = load_checkpoint(run_dir / TEACHER)["model"]
         if start.step >= config.steps and _summarised(run_dir, start.step):
             raise ValueError(f"the run in {run_dir} already has {start.step} steps >= steps={config.steps}; "
                              f"pass a larger --steps to continue")
     else:
+        if config.kl_coef > 0 and init is None:
+            raise ValueError("A3CConfig.kl_coef > 0 (kickstarting) needs a pre-trained policy to stay close to: "
+                             "pass --init (or set kl_coef to 0)")
         start = _Start(created=prepare_new_run(run_dir, what="A3C", flag="--run-dir", kind=KIND_A3C))
         if init is not None:
             try:
                 load_weights(shared, init)
             except CheckpointError as error:
                 raise CheckpointError(f"--init: {error}") from None
+        if config.kl_coef > 0:
+            start.teacher = {k: v.detach().clone() for k, v in shared.state_dict().items()}
     try:
         if start.fresh:
             write_run_json(run_dir / CONFIG, {"a3c": config.to_dict(), "net": shared.config.to_dict(),
                                               "init": str(init) if init is not None else None, **(extra_config or {})})
+            if start.teacher is not None:
+                save_checkpoint(run_dir / TEACHER, model=start.teacher, step=0, source=str(init))
             save_checkpoint(run_dir / CHECKPOINT, model=shared.state_dict(), step=0, seconds=0.0,
                             config=json.dumps(config.to_dict()))
         return _session(config, run_dir, shared, start, env_wrapper=env_wrapper, progress=progress)
@@ -264,7 +288,7 @@ def _run_processes(config: A3CConfig, run_dir: Path, shared: RecurrentActorCriti
     """The workers and the evaluator, until the steps are done, Ctrl-C, or a failure; writes the
     checkpoints. Returns (step, "finished" or "interrupted"); raises :class:`TrainingError`."""
     shared.share_memory()
-    optimizer = make_optimizer(config, shared.parameters())
+    optimizer = make_optimizer(config, shared)
     if start.optimizer is not None:
         optimizer.load_state_dict(start.optimizer)
     optimizer_state = shared_optimizer_state(optimizer)
@@ -276,7 +300,7 @@ def _run_processes(config: A3CConfig, run_dir: Path, shared: RecurrentActorCriti
     messages = context.Queue()
     processes = [context.Process(target=_worker, name=f"a3c-worker-{rank}",
                                  args=(rank, config, shared, optimizer_state, counter, stop, messages,
-                                       env_wrapper, start.step), daemon=True)
+                                       env_wrapper, start.step, start.teacher), daemon=True)
                  for rank in range(config.workers)]
     if config.eval_every > 0:
         processes.append(context.Process(target=_evaluator, name="a3c-evaluator",
@@ -317,7 +341,8 @@ def _run_processes(config: A3CConfig, run_dir: Path, shared: RecurrentActorCriti
                     row = {**payload, **monitor.recent(), "sps": monitor.sps(counter.value),
                            "seconds": time.monotonic() - started}
                     log.write("updates", payload["step"], row,
-                              scalars=("sps", "policy_loss", "value_loss", "entropy", "grad_norm", "recent_success"))
+                              scalars=("sps", "policy_loss", "value_loss", "entropy", "grad_norm", "recent_success",
+                                       "kl", "actor_weight", "kl_weight", "bc_weight"))
                 elif kind == "eval":
                     log.write("eval", payload["step"], payload, scalars=tuple(_TABLES["eval"]))
                 elif kind == "nan":

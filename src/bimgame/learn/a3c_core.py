@@ -13,15 +13,19 @@ import torch
 
 from bimgame.envs.vector import BallInMazeVectorEnv
 from bimgame.learn.common import NetworkSettings, check_seed, evaluate_greedy_and_sampled, evaluation_seed
+from bimgame.learn.finetune import FINETUNE_PRESETS, LossWeights, RunningScale, bc_loss, kl_to_teacher
 from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.tasks import Task, task_setting
 from bimgame.util.settings import require_int
 
-__all__ = ["A3CConfig", "OPTIMIZERS", "MAX_STEPS", "EnvWrapper", "network_for", "make_optimizer",
+__all__ = ["A3CConfig", "OPTIMIZERS", "START_CURRICULA", "MAX_STEPS", "EnvWrapper", "network_for", "make_optimizer",
            "shared_optimizer_state", "a3c_segment_loss", "apply_update", "evaluate"]
 
 OPTIMIZERS = ("rmsprop", "adam")
+#: Where training episodes start: ``none`` (the task's own starts), ``demo`` (demonstration starts,
+#: from ``expert_data``) or ``reverse`` (reverse curriculum, no expert); see :mod:`bimgame.learn.starts`.
+START_CURRICULA = ("none", "demo", "reverse")
 #: The most environment steps a run (or a checkpoint or evaluation interval) may count: 10¹², about
 #: 30 years at this machine's 1,000 steps/s. More is a typo (``--steps 1e30``), found before any work.
 MAX_STEPS = 10**12
@@ -87,6 +91,37 @@ class A3CConfig(NetworkSettings):
     """Episodes per evaluation, each greedy and sampled."""
     log_every: int = 2_000
     """Environment steps (per worker) between loss reports."""
+    finetune: str | None = None
+    """Fine-tuning preset the fine-tuning settings below started from (``paper``: plain fine-tuning,
+    which forgets; ``keep``: the default with ``--init``); None: none (a run from scratch). See
+    :mod:`bimgame.learn.finetune`."""
+    critic_warmup_steps: int = 0
+    """Fine-tuning: environment steps at the start during which only the value head learns."""
+    actor_ramp_steps: int = 0
+    """Fine-tuning: steps after the warm-up over which the actor's learning rate and loss terms ramp
+    up linearly from zero."""
+    kl_coef: float = 0.0
+    """Fine-tuning (kickstarting): initial weight of KL(π^s ‖ π) on the learner's rollouts; π^s is
+    the network the run started from (``--init``)."""
+    kl_decay_steps: int = 0
+    """Steps over which the KL weight decays linearly to zero (0: it stays constant)."""
+    advantage_norm: bool = False
+    """Divide advantages by their running RMS, so the policy gradient (against the entropy and KL
+    terms) has the same scale on every task."""
+    expert_data: str | None = None
+    """Expert dataset directory (``bimgame generate``) for the behaviour-cloning term and
+    demonstration starts."""
+    bc_coef: float = 0.0
+    """Fine-tuning (DAPG): initial weight of the cross-entropy to the expert's actions on windows of
+    ``expert_data``."""
+    bc_decay_steps: int = 0
+    """Steps over which the behaviour-cloning weight decays linearly to zero (0: constant)."""
+    start_curriculum: str = "none"
+    """Where training episodes start: ``none`` (the task's own starts), ``demo`` (states of the
+    expert's episodes, moving back from the goal as success grows) or ``reverse`` (grown backwards
+    from the goal by random exploration, no expert). Evaluations always use the task's own starts."""
+    curriculum_threshold: float = 0.8
+    """Start curricula: success on the current starts that moves them further from the goal."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -114,7 +149,21 @@ class A3CConfig(NetworkSettings):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ValueError(f"A3CConfig.{name} must be a finite number > 0, got {value!r}")
-        for name in ("entropy_coef", "value_coef"):
+        if self.finetune is not None and self.finetune not in FINETUNE_PRESETS:
+            raise ValueError(f"A3CConfig.finetune must be None or one of {tuple(FINETUNE_PRESETS)}, "
+                             f"got {self.finetune!r}")
+        if self.start_curriculum not in START_CURRICULA:
+            raise ValueError(f"A3CConfig.start_curriculum must be one of {START_CURRICULA}, "
+                             f"got {self.start_curriculum!r}")
+        for name in ("critic_warmup_steps", "actor_ramp_steps", "kl_decay_steps", "bc_decay_steps"):
+            require_int("A3CConfig", name, getattr(self, name), 0)
+        needs_data = [name for name, on in (("bc_coef", self.bc_coef > 0), ("start_curriculum='demo'",
+                                                                               self.start_curriculum == "demo")) if on]
+        if needs_data and self.expert_data is None:
+            raise ValueError(f"A3CConfig.{needs_data[0]} needs expert_data (an expert dataset directory)")
+        if not (isinstance(self.curriculum_threshold, (int, float)) and 0 < self.curriculum_threshold <= 1):
+            raise ValueError(f"A3CConfig.curriculum_threshold must be in (0, 1], got {self.curriculum_threshold!r}")
+        for name in ("entropy_coef", "value_coef", "kl_coef", "bc_coef"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
                 raise ValueError(f"A3CConfig.{name} must be a finite number >= 0, got {value!r}")
@@ -127,6 +176,12 @@ class A3CConfig(NetworkSettings):
     def steps_per_update(self) -> int:
         return self.n_steps * self.envs_per_worker
 
+    @property
+    def schedules_actor(self) -> bool:
+        """Whether the actor's learning rate follows a schedule (critic warm-up or actor ramp): the
+        policy head then has its own optimiser parameter group."""
+        return self.critic_warmup_steps > 0 or self.actor_ramp_steps > 0
+
     SETTINGS_NAME: ClassVar[str] = "A3C settings"
 
     # What a resumed run may change without changing what is being learned.
@@ -138,7 +193,15 @@ def network_for(config: A3CConfig, maze: MazeSpec | None = None) -> RecurrentAct
     return config.build_policy(config.seed, maze)
 
 
-def make_optimizer(config: A3CConfig, params) -> torch.optim.Optimizer:
+def make_optimizer(config: A3CConfig, net: RecurrentActorCritic) -> torch.optim.Optimizer:
+    """The optimiser of ``net``'s parameters; with a scheduled actor, the policy head is parameter
+    group 0 (its learning rate is set per update) and the rest group 1."""
+    if config.schedules_actor:
+        head = {id(p) for p in net.policy.parameters()}
+        params: Any = [{"params": list(net.policy.parameters())},
+                       {"params": [p for p in net.parameters() if id(p) not in head]}]
+    else:
+        params = net.parameters()
     if config.optimizer == "rmsprop":
         return torch.optim.RMSprop(params, lr=config.lr, alpha=config.rmsprop_alpha, eps=config.optimizer_eps)
     return torch.optim.Adam(params, lr=config.lr, eps=config.optimizer_eps)
@@ -168,13 +231,20 @@ def shared_optimizer_state(optimizer: torch.optim.Optimizer) -> list[dict[str, t
 
 
 def a3c_segment_loss(net: RecurrentActorCritic, segment: dict[str, torch.Tensor], config: A3CConfig,
+                     weights: LossWeights = LossWeights(), *, teacher_log_probs: torch.Tensor | None = None,
+                     advantage_scale: RunningScale | None = None, demo_windows: dict[str, torch.Tensor] | None = None,
                      ) -> tuple[torch.Tensor, dict[str, float]]:
     """The actor-critic loss of one segment (T steps × B envs), recomputed with gradients.
 
     ``segment`` holds ``obs``, ``prev_action``, ``prev_reward``, ``tilt`` and ``starts`` for T+1
     steps (the last is the bootstrap state), ``actions``, ``rewards`` (with γ·V(final observation)
     already added at time-limit truncations) and ``ends`` (the episode ended after this step) for T
-    steps, and the LSTM state ``h0``/``c0`` at the segment start."""
+    steps, and the LSTM state ``h0``/``c0`` at the segment start.
+
+    The fine-tuning terms (:mod:`bimgame.learn.finetune`): ``weights`` scales the actor's terms and
+    adds KL(π^s ‖ π) (with ``teacher_log_probs``, (T, B, A)) and the behaviour-cloning term (with
+    ``demo_windows``); during a critic warm-up the loss is the value loss alone. ``advantage_scale``
+    divides the advantages by their running RMS."""
     logits, values, _ = net.unroll(segment["obs"], segment["prev_action"], segment["prev_reward"],
                                    segment.get("tilt"), (segment["h0"], segment["c0"]), segment["starts"])
     logits, bootstrap, values = logits[:-1], values[-1].detach(), values[:-1]
@@ -189,26 +259,50 @@ def a3c_segment_loss(net: RecurrentActorCritic, segment: dict[str, torch.Tensor]
         advantages[t] = running
         next_value = detached[t]
     targets = advantages + detached
-    log_probs = torch.log_softmax(logits, dim=-1)
-    chosen = log_probs.gather(-1, segment["actions"].unsqueeze(-1)).squeeze(-1)
-    entropy = -(log_probs.exp() * log_probs).sum(-1).mean()
-    policy_loss = -(chosen * advantages).mean()
     value_loss = 0.5 * (targets - values).pow(2).mean()
-    loss = policy_loss + config.value_coef * value_loss - config.entropy_coef * entropy
-    return loss, {"policy_loss": policy_loss.item(), "value_loss": value_loss.item(), "entropy": entropy.item()}
+    log_probs = torch.log_softmax(logits, dim=-1)
+    entropy = -(log_probs.exp() * log_probs).sum(-1).mean()
+    if advantage_scale is not None:
+        advantages = advantages / advantage_scale.update(advantages)
+    chosen = log_probs.gather(-1, segment["actions"].unsqueeze(-1)).squeeze(-1)
+    policy_loss = -(chosen * advantages).mean()
+    parts = {"policy_loss": policy_loss.item(), "value_loss": value_loss.item(), "entropy": entropy.item()}
+    kl = None if teacher_log_probs is None else kl_to_teacher(teacher_log_probs, log_probs)
+    if kl is not None:
+        parts["kl"] = kl.item()
+    if weights.critic_only:
+        return config.value_coef * value_loss, parts
+    loss = weights.actor * (policy_loss - config.entropy_coef * entropy) + config.value_coef * value_loss
+    if kl is not None and weights.kl > 0:
+        loss = loss + weights.kl * kl
+    if demo_windows is not None and weights.bc > 0:
+        bc = bc_loss(net, demo_windows)
+        parts["bc"] = bc.item()
+        loss = loss + weights.bc * bc
+    return loss, parts
 
 
 def apply_update(local: RecurrentActorCritic, shared_params: list[torch.Tensor], optimizer: torch.optim.Optimizer,
-                 segment: dict[str, torch.Tensor], config: A3CConfig) -> dict[str, float]:
+                 segment: dict[str, torch.Tensor], config: A3CConfig, weights: LossWeights = LossWeights(),
+                 **finetuning: Any) -> dict[str, float]:
     """One A3C update: the segment's loss, its gradient (norm clipped) on the local network, applied
     to the shared weights by the shared optimiser. A non-finite loss or gradient is not applied
-    (``applied`` is False in the returned losses)."""
-    loss, parts = a3c_segment_loss(local, segment, config)
+    (``applied`` is False in the returned losses). ``weights`` and ``finetuning`` (the keywords of
+    :func:`a3c_segment_loss`) add the fine-tuning terms; during a critic warm-up only the value head
+    changes, and with a scheduled actor the policy head's learning rate is ``lr · weights.actor``."""
+    loss, parts = a3c_segment_loss(local, segment, config, weights, **finetuning)
     local.zero_grad(set_to_none=True)
     loss.backward()
+    if weights.critic_only:
+        value_head = {id(p) for p in local.value.parameters()}
+        for param in local.parameters():
+            if id(param) not in value_head:
+                param.grad = None  # the optimiser leaves parameters without a gradient untouched
     grad_norm = float(torch.nn.utils.clip_grad_norm_(local.parameters(), config.max_grad_norm))
     applied = math.isfinite(loss.item()) and math.isfinite(grad_norm)
     if applied:
+        if config.schedules_actor:
+            optimizer.param_groups[0]["lr"] = config.lr * weights.actor
         for shared_param, param in zip(shared_params, local.parameters()):
             shared_param.grad = param.grad
         optimizer.step()

@@ -17,6 +17,7 @@ import torch
 from bimgame.envs.vector import BallInMazeVectorEnv
 from bimgame.learn.a3c_core import A3CConfig, EnvWrapper, apply_update, evaluate, make_optimizer, network_for
 from bimgame.learn.actor import RecurrentActor, tilt_input
+from bimgame.learn.finetune import DemoWindows, RunningScale, Teacher, loss_weights
 from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.util.processes import exit_when_parent_dies
 
@@ -34,30 +35,44 @@ def _make_env(config: A3CConfig, num_envs: int, **kwargs: Any) -> BallInMazeVect
 
 
 def _worker(rank: int, config: A3CConfig, shared: RecurrentActorCritic, optimizer_state: list[dict],
-            counter, stop, messages, env_wrapper: EnvWrapper | None, start_step: int) -> None:
-    """One A3C worker process: act, compute the segment's gradient, apply it to the shared weights."""
+            counter, stop, messages, env_wrapper: EnvWrapper | None, start_step: int,
+            teacher_weights: dict[str, torch.Tensor] | None = None) -> None:
+    """One A3C worker process: act, compute the segment's gradient, apply it to the shared weights.
+    ``teacher_weights``: π^s for the KL term (see :mod:`bimgame.learn.finetune`)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and stops us
     exit_when_parent_dies()  # a parent killed with kill -9 leaves no worker behind
     torch.set_num_threads(1)
     try:
-        _worker_loop(rank, config, shared, optimizer_state, counter, stop, messages, env_wrapper, start_step)
+        _worker_loop(rank, config, shared, optimizer_state, counter, stop, messages, env_wrapper, start_step,
+                     teacher_weights)
     except Exception:
         messages.put(("error", rank, traceback.format_exc()))
     finally:
         messages.put(("exit", rank, None))
 
 
-def _worker_loop(rank, config, shared, optimizer_state, counter, stop, messages, env_wrapper, start_step):
+def _worker_loop(rank, config, shared, optimizer_state, counter, stop, messages, env_wrapper, start_step,
+                 teacher_weights):
     env_seed, torch_seed = _worker_seeds(config, rank, start_step)
     base_env = _make_env(config, config.envs_per_worker)
     env = env_wrapper(base_env) if env_wrapper is not None else base_env
     max_tilt = base_env.maze.max_tilt
     local = network_for(config, base_env.maze)
-    optimizer = make_optimizer(config, shared.parameters())
+    optimizer = make_optimizer(config, shared)
     shared_params = list(shared.parameters())
-    for param, state in zip(shared_params, optimizer_state):
+    # The shared statistics are listed in the optimiser's parameter order (see shared_optimizer_state).
+    for param, state in zip([p for group in optimizer.param_groups for p in group["params"]], optimizer_state):
         optimizer.state[param] = state
     generator = torch.Generator().manual_seed(torch_seed)
+    finetuning: dict = {"advantage_scale": RunningScale() if config.advantage_norm else None}
+    teacher = None
+    if teacher_weights is not None:
+        teacher_net = network_for(config, base_env.maze)
+        teacher_net.load_state_dict(teacher_weights)
+        teacher = Teacher(teacher_net, config.envs_per_worker)
+    demos, demo_rng = None, np.random.default_rng(np.random.SeedSequence([config.seed, rank, start_step, 1]))
+    if config.bc_coef > 0:
+        demos = DemoWindows.from_dataset(config.expert_data, config.task, config.obs, config.gamma, base_env.maze)
     actor = RecurrentActor(local, config.envs_per_worker, generator=generator)
     obs, info = env.reset(seed=env_seed)
     tilt = tilt_input(info, max_tilt)
@@ -65,7 +80,8 @@ def _worker_loop(rank, config, shared, optimizer_state, counter, stop, messages,
     episode_return = np.zeros(batch)
     episode_length = np.zeros(batch, dtype=np.int64)
     episode_start = np.full(batch, counter.value, dtype=np.int64)
-    stats = {"policy_loss": 0.0, "value_loss": 0.0, "entropy": 0.0, "grad_norm": 0.0, "updates": 0}
+    stats = {"policy_loss": 0.0, "value_loss": 0.0, "entropy": 0.0, "kl": 0.0, "bc": 0.0, "grad_norm": 0.0,
+             "updates": 0}
     since_report = 0
     while not stop.is_set() and counter.value < config.steps:
         local.load_state_dict(shared.state_dict())
@@ -119,7 +135,14 @@ def _worker_loop(rank, config, shared, optimizer_state, counter, stop, messages,
         segment.update(ends=segment["starts"][1:], h0=h0, c0=c0)
         if not config.tilt_input:
             segment.pop("tilt")
-        parts = apply_update(local, shared_params, optimizer, segment, config)
+        weights = loss_weights(config, step_at_start)
+        if teacher is not None:  # it follows every segment, so that its LSTM state stays the learner's
+            finetuning["teacher_log_probs"] = teacher.follow(segment)
+            if weights.kl == 0 and config.kl_decay_steps > 0 and step_at_start >= config.kl_decay_steps:
+                teacher, finetuning["teacher_log_probs"] = None, None  # annealed away: stop paying for it
+        finetuning["demo_windows"] = demos.sample(batch, demo_rng) if demos is not None and weights.bc > 0 else None
+        parts = apply_update(local, shared_params, optimizer, segment, config, weights, **finetuning)
+        parts.pop("loss")
         grad_norm = parts.pop("grad_norm")
         if not parts.pop("applied"):
             messages.put(("nan", rank, {"step": int(counter.value), "what": "loss", "grad_norm": grad_norm,
@@ -127,14 +150,16 @@ def _worker_loop(rank, config, shared, optimizer_state, counter, stop, messages,
             return
         with counter.get_lock():
             counter.value += config.steps_per_update
-        for key in ("policy_loss", "value_loss", "entropy"):
-            stats[key] += parts[key]
+        for key in ("policy_loss", "value_loss", "entropy", "kl", "bc"):
+            stats[key] += parts.get(key, float("nan") if key in ("kl", "bc") else 0.0)
         stats["grad_norm"] += grad_norm
         stats["updates"] += 1
         since_report += config.steps_per_update
         if since_report >= config.log_every:
             count = stats.pop("updates")
-            messages.put(("update", rank, {"step": int(counter.value), **{k: v / count for k, v in stats.items()}}))
+            messages.put(("update", rank, {"step": int(counter.value), **{k: v / count for k, v in stats.items()},
+                                           "actor_weight": weights.actor, "kl_weight": weights.kl,
+                                           "bc_weight": weights.bc}))
             stats = {k: 0.0 for k in stats} | {"updates": 0}
             since_report = 0
 

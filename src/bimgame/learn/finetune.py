@@ -1,0 +1,200 @@
+"""Fine-tuning a pre-trained policy π^s with A3C without forgetting it.
+
+The paper's open problem: A3C started from π^s "gradually forgets its previous training" on the
+sparse tasks (STG3, STG4). Measured here, three causes: the inherited critic does not fit the new
+task, so the first advantages are noise; the entropy bonus (0.01 · ln 5) dwarfs a sparse +1 that
+is worth 0.99^400 ≈ 0.02 at the start, so the entropy term alone unlearns the cloned policy; and the
+step size of a from-scratch run is too large for a policy that is already good. The methods here
+address one cause each, as A3C settings (:class:`~bimgame.learn.a3c_core.A3CConfig`):
+
+- **critic warm-up** (``critic_warmup_steps``): only the value head learns, on the learner's own
+  rollouts, so the advantages mean something before the policy moves; then the actor's learning
+  rate (and its loss terms) ramp up from zero over ``actor_ramp_steps``;
+- **kickstarting** (Schmitt et al. 2018, ``kl_coef`` / ``kl_decay_steps``): an annealed
+  KL(π^s ‖ π) on the learner's own rollouts; the frozen teacher follows the same episodes with its
+  own LSTM state (:class:`Teacher`);
+- **behaviour cloning on the expert data** (DAPG, Rajeswaran et al. 2018, ``bc_data`` /
+  ``bc_coef`` / ``bc_decay_steps``): a cross-entropy term on windows of the expert episodes
+  (:class:`DemoWindows`), its weight decaying to zero;
+- **advantage scaling** (``advantage_norm``): advantages divided by a running RMS of the
+  advantages (:class:`RunningScale`), so the policy gradient has unit scale whatever the task's
+  reward density — this is what keeps the entropy bonus and the KL weight meaningful on every task
+  without tuning them per task. A running scale instead of per-segment normalisation: a segment
+  without any reward holds only the critic's noise, which per-segment normalisation would blow up
+  to unit size.
+
+Demonstration-start and reverse curricula change where episodes start, not the loss: see
+:mod:`bimgame.learn.starts`.
+
+:data:`FINETUNE_PRESETS` names the combinations: ``paper`` (plain fine-tuning, which forgets) and
+``keep`` (the default of ``bimgame train --init``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import numpy as np
+import torch
+
+from bimgame.expert.datasets import iterate_sequences
+from bimgame.expert.episode import Episode, relabel
+from bimgame.learn.nets import NO_ACTION, LSTMState, RecurrentActorCritic
+from bimgame.sim.maze import MazeSpec
+
+__all__ = ["FINETUNE_PRESETS", "DEFAULT_FINETUNE", "FINETUNE_FIELDS", "LossWeights", "loss_weights", "Teacher",
+           "kl_to_teacher", "RunningScale", "DemoWindows", "bc_loss"]
+
+#: The A3C settings each fine-tuning preset sets (any of them can still be given explicitly).
+FINETUNE_PRESETS: dict[str, dict[str, Any]] = {
+    "paper": {"critic_warmup_steps": 0, "actor_ramp_steps": 0, "kl_coef": 0.0, "kl_decay_steps": 0,
+              "bc_coef": 0.0, "advantage_norm": False},
+    "keep": {"critic_warmup_steps": 50_000, "actor_ramp_steps": 100_000, "kl_coef": 1.0,
+             "kl_decay_steps": 1_000_000, "bc_coef": 0.0, "advantage_norm": True},
+}
+#: The preset ``bimgame train --init`` uses unless told otherwise (the one that measured best).
+DEFAULT_FINETUNE = "keep"
+#: The settings the presets decide.
+FINETUNE_FIELDS = tuple(FINETUNE_PRESETS["paper"])
+
+
+@dataclasses.dataclass(frozen=True)
+class LossWeights:
+    """The weights of an update's loss terms at one point of a run."""
+
+    actor: float = 1.0
+    """Multiplies the policy-gradient and entropy terms and the policy head's learning rate."""
+    kl: float = 0.0
+    """Weight of KL(π^s ‖ π)."""
+    bc: float = 0.0
+    """Weight of the behaviour-cloning cross-entropy."""
+    critic_only: bool = False
+    """Critic warm-up: only the value head learns."""
+
+
+def _linear_decay(initial: float, step: int, over: int) -> float:
+    if over <= 0:
+        return initial
+    return initial * max(0.0, 1.0 - step / over)
+
+
+def loss_weights(config: Any, step: int) -> LossWeights:
+    """The loss weights at environment step ``step`` of a run with A3C settings ``config``."""
+    warmup, ramp = config.critic_warmup_steps, config.actor_ramp_steps
+    if step < warmup:
+        actor = 0.0
+    elif ramp > 0:
+        actor = min(1.0, (step - warmup) / ramp)
+    else:
+        actor = 1.0
+    return LossWeights(actor=actor, kl=_linear_decay(config.kl_coef, step, config.kl_decay_steps),
+                       bc=_linear_decay(config.bc_coef, step, config.bc_decay_steps), critic_only=step < warmup)
+
+
+class Teacher:
+    """The frozen pre-trained policy π^s, following the learner's episodes.
+
+    It sees exactly what the learner saw (observations, previous actions and rewards, tilts, episode
+    starts), one segment at a time, and carries its own LSTM state across segments, so its action
+    distribution is the one π^s would have had in the learner's situation."""
+
+    def __init__(self, net: RecurrentActorCritic, batch: int):
+        self.net = net.eval()
+        for param in self.net.parameters():
+            param.requires_grad_(False)
+        self.state: LSTMState = net.initial_state(batch)
+
+    @torch.no_grad()
+    def follow(self, segment: dict[str, torch.Tensor]) -> torch.Tensor:
+        """Log-probabilities (T, B, A) of the teacher over a segment's T acting steps (the segment
+        holds T+1 observations, the last being the bootstrap one); advances the teacher's state."""
+        steps = segment["actions"].shape[0]
+        tilt = segment.get("tilt")
+        logits, _, self.state = self.net.unroll(segment["obs"][:steps], segment["prev_action"][:steps],
+                                                segment["prev_reward"][:steps],
+                                                None if tilt is None else tilt[:steps], self.state,
+                                                segment["starts"][:steps])
+        return torch.log_softmax(logits, dim=-1)
+
+
+def kl_to_teacher(teacher_log_probs: torch.Tensor, log_probs: torch.Tensor) -> torch.Tensor:
+    """Mean over steps of KL(π^s ‖ π) = Σ_a π^s(a) (log π^s(a) − log π(a)); zero when π = π^s.
+    Its gradient is that of the cross-entropy to the teacher's distribution (kickstarting)."""
+    return (teacher_log_probs.exp() * (teacher_log_probs - log_probs)).sum(-1).mean()
+
+
+class RunningScale:
+    """A running root-mean-square of the advantages (exponential average over updates), that
+    advantages are divided by: the policy gradient then has unit scale on every task."""
+
+    def __init__(self, decay: float = 0.99, eps: float = 1e-8):
+        self.decay, self.eps = decay, eps
+        self.mean_square: float | None = None
+
+    def update(self, advantages: torch.Tensor) -> float:
+        """Fold in one update's advantages; returns the scale to divide them by."""
+        value = float(advantages.detach().pow(2).mean())
+        if math.isfinite(value):
+            self.mean_square = value if self.mean_square is None else \
+                self.decay * self.mean_square + (1.0 - self.decay) * value
+        return math.sqrt(self.mean_square or 0.0) + self.eps
+
+
+class DemoWindows:
+    """Windows of the expert's episodes for the behaviour-cloning term: ``batch`` windows of
+    ``length`` steps, each from a random episode and a random start, the LSTM starting from zero at
+    the window's first step (the loss skips the first ``burn_in`` steps, where its state is not yet
+    the one the episode would have built). Episodes are relabelled for the task, so they end where
+    the task's goal is reached."""
+
+    def __init__(self, episodes: list[Episode], max_tilt: float, *, length: int = 40, burn_in: int = 10):
+        if not episodes:
+            raise ValueError("the behaviour-cloning data holds no episode")
+        self.episodes = episodes
+        self.max_tilt = max_tilt
+        self.length, self.burn_in = length, burn_in
+
+    @classmethod
+    def from_dataset(cls, path: str, task: str, obs: str, gamma: float, maze: MazeSpec, **kwargs: Any) -> DemoWindows:
+        episodes = [relabel(e, task, gamma, maze) for e in iterate_sequences(path, obs=obs, gamma=gamma)]
+        return cls([e for e in episodes if len(e) > 0], maze.max_tilt, **kwargs)
+
+    def sample(self, batch: int, rng: np.random.Generator) -> dict[str, torch.Tensor]:
+        """(L, B, …) tensors ``obs``, ``prev_action``, ``prev_reward``, ``tilt``, ``actions`` and
+        ``mask`` (real steps after the burn-in)."""
+        first = self.episodes[0]
+        steps = self.length
+        obs = np.zeros((steps, batch, *first.obs.shape[1:]), dtype=first.obs.dtype)
+        out = {"actions": np.zeros((steps, batch), np.int64),
+               "prev_action": np.full((steps, batch), NO_ACTION, np.int64),
+               "prev_reward": np.zeros((steps, batch), np.float32), "tilt": np.zeros((steps, batch, 2), np.float32),
+               "mask": np.zeros((steps, batch), bool)}
+        for b in range(batch):
+            episode = self.episodes[int(rng.integers(len(self.episodes)))]
+            start = int(rng.integers(max(1, len(episode) - self.burn_in)))
+            window = slice(start, min(len(episode), start + steps))
+            n = window.stop - window.start
+            obs[:n, b] = episode.obs[window]
+            out["actions"][:n, b] = episode.actions[window]
+            out["prev_action"][:n, b] = episode.prev_actions[window]
+            out["prev_reward"][:n, b] = episode.prev_rewards[window]
+            out["tilt"][:n, b] = episode.tilt[window] / self.max_tilt
+            out["mask"][self.burn_in if start > 0 else 0:n, b] = True
+        tensors = {k: torch.as_tensor(v) for k, v in out.items()}
+        tensors["obs"] = torch.as_tensor(obs)
+        return tensors
+
+
+def bc_loss(net: RecurrentActorCritic, windows: dict[str, torch.Tensor]) -> torch.Tensor:
+    """Mean cross-entropy of the expert's actions over the real, burnt-in steps of ``windows``."""
+    steps, batch = windows["actions"].shape
+    starts = torch.zeros(steps, batch, dtype=torch.bool)
+    starts[0] = True
+    logits, _, _ = net.unroll(windows["obs"], windows["prev_action"], windows["prev_reward"],
+                              windows["tilt"] if net.config.tilt_input else None, net.initial_state(batch), starts)
+    ce = torch.nn.functional.cross_entropy(logits.reshape(-1, logits.shape[-1]), windows["actions"].reshape(-1),
+                                           reduction="none").reshape(steps, batch)
+    mask = windows["mask"].float()
+    return (ce * mask).sum() / mask.sum().clamp(min=1.0)
