@@ -17,7 +17,7 @@ from gymnasium import spaces
 from bimgame.envs.observe import OBS_MODES, Observer
 from bimgame.sim.maze import MazeSpec, MazeSpecError
 from bimgame.sim.physics import MazeSim
-from bimgame.sim.placement import check_marble_xy, check_n_marbles, finite_array, sample_start
+from bimgame.sim.placement import check_marble_xy, check_n_marbles, check_sim_state, finite_array, sample_start
 from bimgame.sim.tasks import Task, initial_task_state, parse_task, task_step_one
 from bimgame.util.settings import is_integer, is_real
 
@@ -33,6 +33,8 @@ ACTION_MEANINGS = ("noop", "tilt +x", "tilt -x", "tilt +y", "tilt -y")
 #: The "previous action" before an episode's first step (not a valid action): what the networks'
 #: previous-action input and the datasets' ``prev_actions`` hold at step 0.
 NO_ACTION = -1
+#: The keys ``reset(options=...)`` takes, for error messages.
+RESET_OPTIONS = "'marble_xy', 'sim_state'"
 #: What the discrete actions mean, for error messages.
 ACTIONS_HELP = ", ".join(f"{i}={m}" for i, m in enumerate(ACTION_MEANINGS))
 _FAST_INTS = (int, np.int64, np.int32)
@@ -100,6 +102,18 @@ class BallInMazeEnv(gym.Env):
     another marble is refused (``ValueError`` naming the wall or the marbles). A marble placed at
     its goal already (FULL: the centre; STGk: past the k-th wall) earns nothing for it; if every
     marble is, the first step ends the episode with reward 0.
+
+    ``reset(options={"sim_state": state})`` starts from a whole physics state, a vector from
+    ``env.sim.get_state()`` (e.g. a row of an expert dataset's ``infos["sim_state"]``): marbles,
+    board and servo targets move on exactly as in the run it was taken from — replaying that run's
+    actions reproduces its following states and observations bit for bit. The state must be finite,
+    of length ``env.sim.state_size``, with the board's and the target tilt within ``±max_tilt`` and
+    the marbles on the floor clear of walls, rim and each other up to what the soft contacts allow
+    (:func:`~bimgame.sim.placement.check_sim_state`); else ``ValueError`` naming
+    ``options['sim_state']``. The task's state (each marble's channel, whether it reached its goal)
+    is derived from the marbles' positions as for ``marble_xy``: a marble inside a gate counts on
+    the side of the wall's mid-line it is on (the run itself may still have counted it on the other
+    side, until it cleared the wall). ``marble_xy`` and ``sim_state`` exclude each other.
 
     ## Episode End
 
@@ -199,17 +213,25 @@ class BallInMazeEnv(gym.Env):
         super().reset(seed=seed)
         options = {} if options is None else options
         if not isinstance(options, Mapping):
-            raise ValueError(f"reset options must be a dict (allowed key: 'marble_xy'), got {options!r}")
-        unknown = set(options) - {"marble_xy"}
+            raise ValueError(f"reset options must be a dict (allowed keys: {RESET_OPTIONS}), got {options!r}")
+        unknown = set(options) - {"marble_xy", "sim_state"}
         if unknown:
-            raise ValueError(f"unknown reset options {sorted(unknown)}; allowed: 'marble_xy'")
-        if "marble_xy" in options:
-            xy = finite_array("options['marble_xy']", options["marble_xy"], (self.n_marbles, 2),
-                              f" (x, y in metres, board frame, for each of the {self.n_marbles} marble(s))")
-            check_marble_xy(self.maze, xy, "options['marble_xy']")
+            raise ValueError(f"unknown reset options {sorted(unknown)}; allowed: {RESET_OPTIONS} (one of them)")
+        if "marble_xy" in options and "sim_state" in options:
+            raise ValueError("reset options 'marble_xy' and 'sim_state' exclude each other: give the marbles' "
+                             "positions (a start at rest) or a whole physics state, not both")
+        if "sim_state" in options:
+            state, xy = check_sim_state(self.maze, self.sim.layout, options["sim_state"], "options['sim_state']")
+            self.sim.data.qacc_warmstart[:] = 0  # as MazeSim.reset; step() clears it anyway
+            self.sim.set_state(state)
         else:
-            xy = sample_start(self.maze, self.n_marbles, self.np_random)
-        self.sim.reset(xy)
+            if "marble_xy" in options:
+                xy = finite_array("options['marble_xy']", options["marble_xy"], (self.n_marbles, 2),
+                                  f" (x, y in metres, board frame, for each of the {self.n_marbles} marble(s))")
+                check_marble_xy(self.maze, xy, "options['marble_xy']")
+            else:
+                xy = sample_start(self.maze, self.n_marbles, self.np_random)
+            self.sim.reset(xy)
         start = initial_task_state(self.maze, xy[None], self.task)
         self._channels = start.channel[0].tolist()
         self._reached = start.reached[0].tolist()

@@ -10,12 +10,16 @@ learners. ``gym.make_vec(id, num_envs)`` returns it by default (``vector_entry_p
 Gymnasium's SAME_STEP mode: ``infos["final_obs"]`` and ``infos["final_info"]`` hold the last
 observation and info, masked by ``infos["_final_obs"]``), so every step is a real transition — what
 the n-step actor-critic learners use.
+
+``start_sampler`` (a :class:`StartSampler`) chooses where episodes start — a start curriculum: at
+every reset of an env it returns a physics state to start from, or None for the task's own random
+start, and a tag that :attr:`BallInMazeVectorEnv.start_tags` keeps for the episode.
 """
 
 from __future__ import annotations
 
 import os
-from typing import Any
+from typing import Any, Protocol
 
 import gymnasium as gym
 import numpy as np
@@ -24,11 +28,24 @@ from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
 from bimgame.envs.env import ACTIONS_HELP, DISCRETE_TILTS, BallInMazeEnv
-from bimgame.sim.placement import sample_start
+from bimgame.sim.placement import check_sim_state, sample_start
 from bimgame.sim.tasks import TaskState, initial_task_state, task_step
 from bimgame.util.settings import is_integer
 
-__all__ = ["BallInMazeVectorEnv"]
+__all__ = ["BallInMazeVectorEnv", "StartSampler"]
+
+
+class StartSampler(Protocol):
+    """Chooses the start of each episode of a :class:`BallInMazeVectorEnv` (``start_sampler=``)."""
+
+    def __call__(self, index: int, rng: np.random.Generator) -> tuple[np.ndarray | None, int]:
+        """The start of the next episode of env ``index``: ``(state, tag)``, ``state`` a physics
+        state (``MazeSim.get_state()``, checked as ``BallInMazeEnv.reset(options={"sim_state": …})``
+        checks it) or None for the task's own random start, drawn exactly as without a sampler;
+        ``tag`` an integer the env keeps in ``start_tags[index]`` for the episode. Draw every random
+        choice from ``rng``, the env's own generator (seeded by ``reset(seed=…)``), so the same seed
+        gives the same starts."""
+        ...
 
 
 class BallInMazeVectorEnv(gym.vector.VectorEnv):
@@ -41,13 +58,23 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
             thread does not pay for its dispatch on small batches), else all cores up to 2.
             Use 1 inside worker processes that already use every core.
         autoreset_mode: ``NEXT_STEP`` (default, as ``gym.make_vec``) or ``SAME_STEP``.
+        start_sampler: where episodes start (:class:`StartSampler`), called at every reset of every
+            env — the first ``reset()`` and each autoreset — with the env's index and its own
+            generator. None (default): the task's random starts.
         **env_kwargs: the keyword arguments of :class:`~bimgame.envs.env.BallInMazeEnv`.
+
+    Attributes:
+        start_tags: int64 (num_envs,), the tag the sampler gave each env's current episode (0
+            without a sampler). Read it *before* calling ``step()``: with ``SAME_STEP`` the step
+            that ends an episode also starts the env's next one and overwrites its tag; with
+            ``NEXT_STEP`` the tag stays until the following (resetting) step.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 30, "autoreset_mode": AutoresetMode.NEXT_STEP}
 
     def __init__(self, num_envs: int, *, max_episode_steps: int | None = None, nthread: int | None = None,
-                 autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP, **env_kwargs: Any):
+                 autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
+                 start_sampler: StartSampler | None = None, **env_kwargs: Any):
         if not (is_integer(num_envs) and num_envs >= 1):
             raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
         if max_episode_steps is not None and not (is_integer(max_episode_steps) and max_episode_steps >= 1):
@@ -63,6 +90,10 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
             nthread = 1 if num_envs < 32 else max(1, min(2, os.cpu_count() or 1))
         if not (is_integer(nthread) and nthread >= 1):
             raise ValueError(f"nthread must be an integer >= 1, got {nthread!r}")
+        if start_sampler is not None and not callable(start_sampler):
+            raise ValueError(f"start_sampler must be None or a callable (index, rng) -> (state or None, tag), "
+                             f"got {start_sampler!r}")
+        self.start_sampler = start_sampler
         # One template env validates the arguments and owns the model, observer and spaces.
         self.template = BallInMazeEnv(**env_kwargs)
         self.num_envs = int(num_envs)
@@ -81,6 +112,7 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
         self._task_state = TaskState(np.zeros((self.num_envs, n), dtype=np.int64),
                                      np.zeros((self.num_envs, n), dtype=bool))
         self._elapsed = np.zeros(self.num_envs, dtype=np.int64)
+        self.start_tags = np.zeros(self.num_envs, dtype=np.int64)
         self._autoreset = np.zeros(self.num_envs, dtype=bool)
         self._rngs: list[np.random.Generator] = []
         self._has_reset = False
@@ -97,7 +129,8 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
                 raise ValueError(f"seed list must have {self.num_envs} entries, got {len(seeds)}")
         if options:
             shown = sorted(options) if isinstance(options, dict) else repr(options)
-            raise ValueError(f"BallInMazeVectorEnv.reset takes no options (starts are random), got {shown}")
+            raise ValueError("BallInMazeVectorEnv.reset takes no options (starts are random, or chosen by "
+                             f"start_sampler), got {shown}")
         if not self._rngs:
             self._rngs = [seeding.np_random(s)[0] for s in seeds]
         else:
@@ -189,13 +222,33 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
     def _reset_envs(self, mask: np.ndarray) -> None:
         n = self.template.n_marbles
         for i in np.flatnonzero(mask):
-            xy = sample_start(self.maze, n, self._rngs[i])
-            self.sim.reset(xy)
-            self._states[i] = self.sim.get_state()
+            state = None
+            if self.start_sampler is not None:
+                state, self.start_tags[i] = self._sampled_start(int(i))
+            if state is None:
+                xy = sample_start(self.maze, n, self._rngs[i])
+                self.sim.reset(xy)
+                self._states[i] = self.sim.get_state()
+            else:
+                # Stepped by mujoco.rollout from a zero warm start, as every state: exactly the
+                # single env's reset(options={"sim_state": state}).
+                self._states[i], xy = state
             start = initial_task_state(self.maze, xy[None], self.task)
             self._task_state.channel[i] = start.channel[0]
             self._task_state.reached[i] = start.reached[0]
             self._elapsed[i] = 0
+
+    def _sampled_start(self, index: int) -> tuple[tuple[np.ndarray, np.ndarray] | None, int]:
+        """The sampler's start for env ``index``: ``((state, marble_xy) or None, tag)``, checked."""
+        result = self.start_sampler(index, self._rngs[index])
+        if not (isinstance(result, tuple) and len(result) == 2 and is_integer(result[1])):
+            raise ValueError(f"start_sampler must return (state or None, integer tag); for env {index} it "
+                             f"returned {result!r}")
+        state, tag = result
+        if state is None:
+            return None, int(tag)
+        name = f"the start_sampler's state for env {index} (tag {int(tag)})"
+        return check_sim_state(self.maze, self.sim.layout, state, name), int(tag)
 
     def _observe_and_info(self, positions: np.ndarray, velocities: np.ndarray, crossings: np.ndarray,
                           success: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:

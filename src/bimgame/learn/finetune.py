@@ -50,9 +50,10 @@ __all__ = ["FINETUNE_PRESETS", "DEFAULT_FINETUNE", "FINETUNE_FIELDS", "LossWeigh
 #: The A3C settings each fine-tuning preset sets (any of them can still be given explicitly).
 FINETUNE_PRESETS: dict[str, dict[str, Any]] = {
     "paper": {"critic_warmup_steps": 0, "actor_ramp_steps": 0, "kl_coef": 0.0, "kl_decay_steps": 0,
-              "bc_coef": 0.0, "advantage_norm": False},
+              "bc_coef": 0.0, "bc_decay_steps": 0, "advantage_norm": False, "start_curriculum": "none"},
     "keep": {"critic_warmup_steps": 50_000, "actor_ramp_steps": 100_000, "kl_coef": 1.0,
-             "kl_decay_steps": 1_000_000, "bc_coef": 0.0, "advantage_norm": True},
+             "kl_decay_steps": 1_000_000, "bc_coef": 0.0, "bc_decay_steps": 0, "advantage_norm": True,
+             "start_curriculum": "none"},
 }
 #: The preset ``bimgame train --init`` uses unless told otherwise (the one that measured best).
 DEFAULT_FINETUNE = "keep"
