@@ -85,6 +85,16 @@ def test_reset_refuses_bad_sim_states_naming_the_option():
     inside[layout.marble_pos[0]] = (0.0, -SPEC.walls[1].mid_radius, SPEC.marble_radius)
     with pytest.raises(ValueError, match=r"options\['sim_state'\]: marble_xy\[0\] .* overlaps walls\[1\]"):
         env.reset(options={"sim_state": inside})
+    # Pressed into the rim by less than STATE_OVERLAP, as in a fast impact: fine; deeper: refused.
+    rm = SPEC.marble_radius
+    for sink, ok in [(0.7 * rm, True), (0.8 * rm, False)]:
+        rim = good.copy()
+        rim[layout.marble_pos[0]] = (0.0, SPEC.rim_radius - rm + sink, rm)
+        if ok:
+            env.reset(options={"sim_state": rim})
+        else:
+            with pytest.raises(ValueError, match=r"overlaps the rim .*overlaps up to 4\.76 mm are allowed"):
+                env.reset(options={"sim_state": rim})
     flying = good.copy()
     flying[layout.marble_pos[0][2]] = 0.05
     with pytest.raises(ValueError, match=r"options\['sim_state'\]: marble 0's centre is 50\.00 mm above"):

@@ -11,12 +11,14 @@ import numpy as np
 import pytest
 import torch
 
+from bimgame.expert.datasets import generate_dataset
 from bimgame.expert.episode import Episode
 from bimgame.learn.a3c import A3CConfig, apply_update, make_optimizer, network_for, resolve_config, train
 from bimgame.learn.a3c_core import a3c_segment_loss
 from bimgame.learn.finetune import (
     FINETUNE_PRESETS,
     DemoWindows,
+    EntropyTarget,
     LossWeights,
     RunningScale,
     Teacher,
@@ -74,7 +76,7 @@ def test_kl_is_zero_for_the_teacher_itself_and_positive_otherwise():
         student.policy.bias += torch.tensor([1.0, 0.0, 0.0, -1.0, 0.5])
     logits, _, _ = student.unroll(seg["obs"], seg["prev_action"], seg["prev_reward"], seg["tilt"],
                                   (seg["h0"], seg["c0"]), seg["starts"])
-    assert float(kl_to_teacher(teacher_log_probs, torch.log_softmax(logits[:-1], dim=-1))) > 0.05
+    assert kl_to_teacher(teacher_log_probs, torch.log_softmax(logits[:-1], dim=-1)).item() > 0.05
 
 
 def test_teacher_carries_its_lstm_state_across_segments():
@@ -160,13 +162,13 @@ def test_demo_windows_are_slices_of_the_episodes_and_the_bc_term_learns_them():
     net = network_for(A3CConfig(**SMALL))
     optimizer = torch.optim.Adam(net.parameters(), lr=1e-2)
     sample_rng = np.random.default_rng(2)
-    first = float(bc_loss(net, windows.sample(8, sample_rng)))
+    first = bc_loss(net, windows.sample(8, sample_rng)).item()
     for _ in range(60):
         loss = bc_loss(net, windows.sample(8, sample_rng))
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
-    assert first > 1.4 and float(bc_loss(net, windows.sample(32, sample_rng))) < 0.5 * first
+    assert first > 1.4 and bc_loss(net, windows.sample(32, sample_rng)).item() < 0.5 * first
 
 
 def test_presets_apply_with_init_and_yield_to_given_settings(tmp_path):
@@ -211,3 +213,46 @@ def test_fine_tuned_run_keeps_its_teacher_logs_the_terms_and_resumes(tmp_path):
     assert json.loads((tmp_path / "run" / "config.json").read_text())["a3c"]["finetune"] == "keep"
     resumed = resolve_config({"steps": 3_000}, tmp_path / "run", resume=True)
     assert train(resumed, tmp_path / "run", resume=True, progress=False).steps >= 3_000
+
+
+def test_entropy_target_sharpens_above_the_target_and_protects_below_it():
+    target = EntropyTarget(final=0.5, steps=1000, initial_coef=0.01, rate=1e-2, bound=0.05)
+    assert target.update(1.5, 0) == 0.01  # first update: its entropy is where the target starts
+    assert target.target(500) == pytest.approx(1.0) and target.target(5000) == pytest.approx(0.5)
+    for _ in range(100):
+        coef = target.update(1.5, 1000)  # far above the final target: the coefficient turns into a penalty
+    assert coef == pytest.approx(-0.05)  # and stays within its bound
+    for _ in range(100):
+        coef = target.update(0.1, 1000)  # collapsed below it: a bonus again
+    assert coef == pytest.approx(0.05)
+    assert target.update(float("nan"), 1000) == coef
+    with pytest.raises(ValueError, match="entropy_target must be None or in"):
+        A3CConfig(**SMALL, entropy_target=2.0)
+
+
+@pytest.mark.parametrize("curriculum", ["demo", "reverse"])
+def test_start_curricula_train_and_keep_training_success_to_the_true_starts(tmp_path, curriculum):
+    """A run with a start curriculum logs which episodes began at the task's own starts, counts only
+    those in its training success, and reports the curriculum's state with each update."""
+    data = None
+    if curriculum == "demo":
+        data = tmp_path / "data"
+        generate_dataset(data, task="STG1", episodes=2, seed=0, workers=1, progress=False)
+    config = A3CConfig(task="STG1", workers=1, envs_per_worker=4, n_steps=10, eval_every=0, log_every=200, steps=3_000,
+                       start_curriculum=curriculum, expert_data=None if data is None else str(data),
+                       entropy_target=1.0, entropy_target_steps=2_000, **SMALL)
+    result = train(config, tmp_path / "run", progress=False)
+    assert result.stopped == "finished"
+    with open(tmp_path / "run" / "episodes.csv") as handle:
+        episodes = list(csv.DictReader(handle))
+    kinds = {row["true_start"] for row in episodes}
+    assert "False" in kinds  # most episodes start from the curriculum's starts
+    with open(tmp_path / "run" / "updates.csv") as handle:
+        updates = list(csv.DictReader(handle))
+    assert all(row["curriculum_stage"] != "" for row in updates)
+    assert float(updates[-1]["entropy_coef"]) != config.entropy_coef  # the coefficient adapted
+    true_starts = [row["success"] == "True" for row in episodes if row["true_start"] == "True"]
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    if true_starts:
+        recent = true_starts[-100:]
+        assert summary["recent_success"] == pytest.approx(sum(recent) / len(recent), abs=0.2)

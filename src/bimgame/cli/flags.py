@@ -30,7 +30,8 @@ from bimgame.cli.argtypes import TASK_NAMES, non_negative_float, non_negative_in
 from bimgame.envs.observe import OBS_MODES
 from bimgame.experiments.budgets import ALGORITHMS
 from bimgame.expert.mpc import PLANNING_REWARDS, SAMPLINGS
-from bimgame.learn.a3c import OPTIMIZERS
+from bimgame.learn.a3c import OPTIMIZERS, START_CURRICULA
+from bimgame.learn.finetune import FINETUNE_PRESETS
 from bimgame.learn.supervised import TARGETS
 from bimgame.util.settings import field_docs
 
@@ -40,7 +41,10 @@ __all__ = ["add_settings_flags", "given_settings", "FIELD_CHOICES"]
 FIELD_CHOICES: dict[str, tuple[str, ...]] = {
     "task": TASK_NAMES, "tasks": TASK_NAMES, "obs": OBS_MODES, "optimizer": OPTIMIZERS, "target": TARGETS,
     "sampling": SAMPLINGS, "reward": PLANNING_REWARDS, "algorithms": ALGORITHMS,
+    "finetune": tuple(FINETUNE_PRESETS), "start_curriculum": START_CURRICULA,
 }
+#: Switches a fine-tuning preset may turn on: they get both ``--x`` and ``--no-x``.
+_TWO_WAY_SWITCHES = {name for name, value in FINETUNE_PRESETS["keep"].items() if isinstance(value, bool)}
 #: Fields whose values are parsed case-insensitively (``--task stg1``).
 _UPPER = {"task", "tasks"}
 
@@ -72,6 +76,12 @@ def add_settings_flags(parser: argparse.ArgumentParser | Any, cls: type, names: 
         text = helps.get(name, _plain(docs.get(name, "")))
         flag = flags.get(name, "--" + name.replace("_", "-"))
         kind = _base_type(hints[name])
+        if kind is bool and name in _TWO_WAY_SWITCHES:
+            for switch, value in ((flag, True), ("--no-" + name.replace("_", "-"), False)):
+                parser.add_argument(switch, dest=name, action="store_const", const=value,
+                                    default=None if default_none else default,
+                                    help=f"{text} (default {_shown(default)})" if value else argparse.SUPPRESS)
+            continue
         if kind is bool:
             switch = flag if not default else flags.get(name, "--no-" + name.replace("_", "-"))
             parser.add_argument(switch, dest=name, action="store_const", const=not default,

@@ -43,6 +43,7 @@ import torch.multiprocessing as mp
 from bimgame.learn.a3c_core import (
     MAX_STEPS,
     OPTIMIZERS,
+    START_CURRICULA,
     A3CConfig,
     EnvWrapper,
     a3c_segment_loss,
@@ -80,7 +81,7 @@ from bimgame.util.progress import ProgressBar
 from bimgame.util.signals import sigterm_as_interrupt
 
 __all__ = ["A3CConfig", "TrainingError", "TrainResult", "train", "network_for", "make_optimizer", "evaluate",
-           "OPTIMIZERS", "MAX_STEPS", "EnvWrapper", "resolve_config", "a3c_segment_loss", "apply_update",
+           "OPTIMIZERS", "START_CURRICULA", "MAX_STEPS", "EnvWrapper", "resolve_config", "a3c_segment_loss", "apply_update",
            "shared_optimizer_state"]
 
 
@@ -100,9 +101,11 @@ class TrainResult:
 
 # ---------------------------------------------------------------------- the parent process
 _TABLES = {
-    "episodes": ["start_step", "worker", "return", "length", "success"],
+    "episodes": ["start_step", "worker", "return", "length", "success", "true_start"],
     "updates": ["seconds", "sps", "policy_loss", "value_loss", "entropy", "grad_norm", "recent_success", "recent_return",
-                "recent_length", "kl", "bc", "actor_weight", "kl_weight", "bc_weight"],
+                "recent_length", "kl", "bc", "actor_weight", "kl_weight", "bc_weight", "entropy_coef", "curriculum_stage",
+                "curriculum_steps_back", "curriculum_pool", "curriculum_good", "curriculum_mastered",
+                "curriculum_start_distance", "curriculum_window_success", "true_start_share"],
     "eval": list(EVAL_COLUMNS),
 }
 
@@ -342,7 +345,8 @@ def _run_processes(config: A3CConfig, run_dir: Path, shared: RecurrentActorCriti
                            "seconds": time.monotonic() - started}
                     log.write("updates", payload["step"], row,
                               scalars=("sps", "policy_loss", "value_loss", "entropy", "grad_norm", "recent_success",
-                                       "kl", "actor_weight", "kl_weight", "bc_weight"))
+                                       "kl", "actor_weight", "kl_weight", "bc_weight", "entropy_coef",
+                                       "curriculum_stage", "curriculum_steps_back", "curriculum_start_distance"))
                 elif kind == "eval":
                     log.write("eval", payload["step"], payload, scalars=tuple(_TABLES["eval"]))
                 elif kind == "nan":
@@ -422,11 +426,14 @@ class _Monitor:
         for row in rows[-4 * self.window:]:
             try:
                 self.episode({"start_step": int(float(row["start_step"])), "return": float(row["return"]),
-                              "length": int(float(row["length"])), "success": row["success"] == "True"})
+                              "length": int(float(row["length"])), "success": row["success"] == "True",
+                              "true_start": row.get("true_start", "True") != "False"})
             except (KeyError, ValueError):
                 continue  # a row another version wrote differently: not worth refusing the resume for
 
     def episode(self, payload: dict) -> None:
+        if not payload.get("true_start", True):
+            return  # a start curriculum's episode: training success counts the task's own starts only
         self.episodes.append(payload)
         if len(self.episodes) > 4 * self.window:
             self.episodes = self.episodes[-2 * self.window:]

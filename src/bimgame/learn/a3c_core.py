@@ -120,6 +120,12 @@ class A3CConfig(NetworkSettings):
     """Where training episodes start: ``none`` (the task's own starts), ``demo`` (states of the
     expert's episodes, moving back from the goal as success grows) or ``reverse`` (grown backwards
     from the goal by random exploration, no expert). Evaluations always use the task's own starts."""
+    entropy_target: float | None = None
+    """Final target entropy of the policy in nats (at most ln 5 ≈ 1.61); the entropy coefficient then
+    adapts (starting from ``entropy_coef``) so that the entropy follows a target falling linearly from
+    the policy's initial entropy to this over ``entropy_target_steps``. None: a fixed ``entropy_coef``."""
+    entropy_target_steps: int = 0
+    """Steps over which the entropy target falls to ``entropy_target`` (0: at once)."""
     curriculum_threshold: float = 0.8
     """Start curricula: success on the current starts that moves them further from the goal."""
 
@@ -155,7 +161,12 @@ class A3CConfig(NetworkSettings):
         if self.start_curriculum not in START_CURRICULA:
             raise ValueError(f"A3CConfig.start_curriculum must be one of {START_CURRICULA}, "
                              f"got {self.start_curriculum!r}")
-        for name in ("critic_warmup_steps", "actor_ramp_steps", "kl_decay_steps", "bc_decay_steps"):
+        if self.entropy_target is not None and not (isinstance(self.entropy_target, (int, float))
+                                                    and 0 < self.entropy_target <= math.log(5)):
+            raise ValueError(f"A3CConfig.entropy_target must be None or in (0, ln 5 = {math.log(5):.4f}] nats, "
+                             f"got {self.entropy_target!r}")
+        for name in ("critic_warmup_steps", "actor_ramp_steps", "kl_decay_steps", "bc_decay_steps",
+                     "entropy_target_steps"):
             require_int("A3CConfig", name, getattr(self, name), 0)
         needs_data = [name for name, on in (("bc_coef", self.bc_coef > 0), ("start_curriculum='demo'",
                                                                                self.start_curriculum == "demo")) if on]
@@ -233,7 +244,7 @@ def shared_optimizer_state(optimizer: torch.optim.Optimizer) -> list[dict[str, t
 def a3c_segment_loss(net: RecurrentActorCritic, segment: dict[str, torch.Tensor], config: A3CConfig,
                      weights: LossWeights = LossWeights(), *, teacher_log_probs: torch.Tensor | None = None,
                      advantage_scale: RunningScale | None = None, demo_windows: dict[str, torch.Tensor] | None = None,
-                     ) -> tuple[torch.Tensor, dict[str, float]]:
+                     entropy_coef: float | None = None) -> tuple[torch.Tensor, dict[str, float]]:
     """The actor-critic loss of one segment (T steps × B envs), recomputed with gradients.
 
     ``segment`` holds ``obs``, ``prev_action``, ``prev_reward``, ``tilt`` and ``starts`` for T+1
@@ -244,7 +255,8 @@ def a3c_segment_loss(net: RecurrentActorCritic, segment: dict[str, torch.Tensor]
     The fine-tuning terms (:mod:`bimgame.learn.finetune`): ``weights`` scales the actor's terms and
     adds KL(π^s ‖ π) (with ``teacher_log_probs``, (T, B, A)) and the behaviour-cloning term (with
     ``demo_windows``); during a critic warm-up the loss is the value loss alone. ``advantage_scale``
-    divides the advantages by their running RMS."""
+    divides the advantages by their running RMS; ``entropy_coef`` replaces ``config.entropy_coef``
+    (an adapting coefficient, see :class:`~bimgame.learn.finetune.EntropyTarget`)."""
     logits, values, _ = net.unroll(segment["obs"], segment["prev_action"], segment["prev_reward"],
                                    segment.get("tilt"), (segment["h0"], segment["c0"]), segment["starts"])
     logits, bootstrap, values = logits[:-1], values[-1].detach(), values[:-1]
@@ -272,7 +284,8 @@ def a3c_segment_loss(net: RecurrentActorCritic, segment: dict[str, torch.Tensor]
         parts["kl"] = kl.item()
     if weights.critic_only:
         return config.value_coef * value_loss, parts
-    loss = weights.actor * (policy_loss - config.entropy_coef * entropy) + config.value_coef * value_loss
+    beta = config.entropy_coef if entropy_coef is None else entropy_coef
+    loss = weights.actor * (policy_loss - beta * entropy) + config.value_coef * value_loss
     if kl is not None and weights.kl > 0:
         loss = loss + weights.kl * kl
     if demo_windows is not None and weights.bc > 0:

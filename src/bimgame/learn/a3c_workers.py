@@ -17,8 +17,10 @@ import torch
 from bimgame.envs.vector import BallInMazeVectorEnv
 from bimgame.learn.a3c_core import A3CConfig, EnvWrapper, apply_update, evaluate, make_optimizer, network_for
 from bimgame.learn.actor import RecurrentActor, tilt_input
-from bimgame.learn.finetune import DemoWindows, RunningScale, Teacher, loss_weights
+from bimgame.learn.finetune import DemoWindows, EntropyTarget, RunningScale, Teacher, loss_weights
+from bimgame.learn.starts import TRUE_START, DemoStartCurriculum, ReverseCurriculum
 from bimgame.learn.nets import RecurrentActorCritic
+from bimgame.sim.maze import MazeSpec
 from bimgame.util.processes import exit_when_parent_dies
 
 
@@ -27,6 +29,16 @@ def _worker_seeds(config: A3CConfig, rank: int, start_step: int) -> tuple[int, i
     sequence = np.random.SeedSequence([config.seed, rank, start_step])
     env_seed, torch_seed = sequence.generate_state(2)
     return int(env_seed), int(torch_seed)
+
+
+def _start_sampler(config: A3CConfig, maze):
+    """The start curriculum of a worker's training episodes (None: the task's own starts)."""
+    if config.start_curriculum == "demo":
+        return DemoStartCurriculum.from_dataset(config.expert_data, config.task, maze,
+                                                threshold=config.curriculum_threshold)
+    if config.start_curriculum == "reverse":
+        return ReverseCurriculum(config.task, maze, high=config.curriculum_threshold)
+    return None
 
 
 def _make_env(config: A3CConfig, num_envs: int, **kwargs: Any) -> BallInMazeVectorEnv:
@@ -54,7 +66,8 @@ def _worker(rank: int, config: A3CConfig, shared: RecurrentActorCritic, optimize
 def _worker_loop(rank, config, shared, optimizer_state, counter, stop, messages, env_wrapper, start_step,
                  teacher_weights):
     env_seed, torch_seed = _worker_seeds(config, rank, start_step)
-    base_env = _make_env(config, config.envs_per_worker)
+    curriculum = _start_sampler(config, MazeSpec.merl())
+    base_env = _make_env(config, config.envs_per_worker, start_sampler=curriculum)
     env = env_wrapper(base_env) if env_wrapper is not None else base_env
     max_tilt = base_env.maze.max_tilt
     local = network_for(config, base_env.maze)
@@ -65,6 +78,8 @@ def _worker_loop(rank, config, shared, optimizer_state, counter, stop, messages,
         optimizer.state[param] = state
     generator = torch.Generator().manual_seed(torch_seed)
     finetuning: dict = {"advantage_scale": RunningScale() if config.advantage_norm else None}
+    entropy_target = None if config.entropy_target is None else \
+        EntropyTarget(config.entropy_target, config.entropy_target_steps, config.entropy_coef)
     teacher = None
     if teacher_weights is not None:
         teacher_net = network_for(config, base_env.maze)
@@ -97,6 +112,7 @@ def _worker_loop(rank, config, shared, optimizer_state, counter, stop, messages,
             seg["tilt"].append(tilt)
             seg["starts"].append(actor.starts)
             actions, _, _ = actor.act(obs, tilt)
+            start_tags = base_env.start_tags.copy()  # the step resets finished envs and their tags
             obs, reward, terminated, truncated, info = env.step(actions.numpy())
             reward = np.asarray(reward, dtype=np.float64)
             if not np.all(np.isfinite(reward)):
@@ -116,10 +132,13 @@ def _worker_loop(rank, config, shared, optimizer_state, counter, stop, messages,
             episode_return += np.asarray(info.get("task_reward", reward), dtype=np.float64)
             episode_length += 1
             for i in np.flatnonzero(done):
+                tag = int(start_tags[i]) if curriculum is not None else TRUE_START
+                if curriculum is not None:
+                    curriculum.record(tag, bool(terminated[i]))
                 messages.put(("episode", rank, {
                     "start_step": int(episode_start[i]), "end_step": int(counter.value),
                     "return": float(episode_return[i]), "length": int(episode_length[i]),
-                    "success": bool(terminated[i])}))
+                    "success": bool(terminated[i]), "true_start": tag == TRUE_START}))
             episode_return[done] = 0.0
             episode_length[done] = 0
             episode_start[done] = step_at_start
@@ -143,6 +162,8 @@ def _worker_loop(rank, config, shared, optimizer_state, counter, stop, messages,
         finetuning["demo_windows"] = demos.sample(batch, demo_rng) if demos is not None and weights.bc > 0 else None
         parts = apply_update(local, shared_params, optimizer, segment, config, weights, **finetuning)
         parts.pop("loss")
+        if entropy_target is not None and parts["applied"]:
+            finetuning["entropy_coef"] = entropy_target.update(parts["entropy"], step_at_start)
         grad_norm = parts.pop("grad_norm")
         if not parts.pop("applied"):
             messages.put(("nan", rank, {"step": int(counter.value), "what": "loss", "grad_norm": grad_norm,
@@ -159,7 +180,9 @@ def _worker_loop(rank, config, shared, optimizer_state, counter, stop, messages,
             count = stats.pop("updates")
             messages.put(("update", rank, {"step": int(counter.value), **{k: v / count for k, v in stats.items()},
                                            "actor_weight": weights.actor, "kl_weight": weights.kl,
-                                           "bc_weight": weights.bc}))
+                                           "bc_weight": weights.bc, "entropy_coef": finetuning.get(
+                                               "entropy_coef", config.entropy_coef),
+                                           **(curriculum.status() if curriculum is not None else {})}))
             stats = {k: 0.0 for k in stats} | {"updates": 0}
             since_report = 0
 

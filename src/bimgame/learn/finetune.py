@@ -45,7 +45,7 @@ from bimgame.learn.nets import NO_ACTION, LSTMState, RecurrentActorCritic
 from bimgame.sim.maze import MazeSpec
 
 __all__ = ["FINETUNE_PRESETS", "DEFAULT_FINETUNE", "FINETUNE_FIELDS", "LossWeights", "loss_weights", "Teacher",
-           "kl_to_teacher", "RunningScale", "DemoWindows", "bc_loss"]
+           "kl_to_teacher", "RunningScale", "EntropyTarget", "DemoWindows", "bc_loss"]
 
 #: The A3C settings each fine-tuning preset sets (any of them can still be given explicitly).
 FINETUNE_PRESETS: dict[str, dict[str, Any]] = {
@@ -141,6 +141,40 @@ class RunningScale:
             self.mean_square = value if self.mean_square is None else \
                 self.decay * self.mean_square + (1.0 - self.decay) * value
         return math.sqrt(self.mean_square or 0.0) + self.eps
+
+
+class EntropyTarget:
+    """An entropy coefficient that adapts so that the policy's entropy follows a target, instead of a
+    fixed bonus whose effect depends on the scale of the task's rewards.
+
+    The target falls linearly from the policy's entropy at the first update (π^s's, when fine-tuning)
+    to ``final`` nats over ``steps`` environment steps. After each update the coefficient β moves by
+    ``rate · (target − entropy)``, within ±``bound``: above the target β turns negative and the
+    term sharpens the policy, below it β turns positive and keeps the policy from collapsing. Why:
+    the cloned π^s is nearly uniform (entropy ≈ 1.45 of at most ln 5 ≈ 1.61 nats); a fixed bonus
+    keeps it so, and a nearly uniform policy that succeeds when sampled has an arbitrary greedy
+    action — measured: sampled evaluation 95–100% on STG3 with greedy 10–75%."""
+
+    def __init__(self, final: float, steps: int, initial_coef: float, *, rate: float = 1e-3, bound: float = 0.05):
+        self.final, self.steps, self.rate, self.bound = final, steps, rate, bound
+        self.coef = float(initial_coef)
+        self.start: float | None = None
+
+    def target(self, step: int) -> float:
+        start = self.final if self.start is None else self.start
+        if self.steps <= 0:
+            return self.final
+        return start + (self.final - start) * min(1.0, step / self.steps)
+
+    def update(self, entropy: float, step: int) -> float:
+        """Fold in an update's mean entropy at environment step ``step``; returns the coefficient of
+        the next update."""
+        if not math.isfinite(entropy):
+            return self.coef
+        if self.start is None:
+            self.start = max(entropy, self.final)
+        self.coef = min(self.bound, max(-self.bound, self.coef + self.rate * (self.target(step) - entropy)))
+        return self.coef
 
 
 class DemoWindows:

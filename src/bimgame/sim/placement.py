@@ -35,12 +35,14 @@ MAX_START_DRAWS = 100_000
 #: Slack (m) for round-off when a marble exactly touches a wall, the rim or another marble.
 TOUCH_TOLERANCE = 1e-9
 #: Overlap (in marble radii) :func:`check_sim_state` allows between a marble and a wall, the rim or
-#: another marble. Simulated contacts are soft: on impact a marble sinks into a wall (up to 1.3 mm
-#: seen in 190,000 states of random play on MERL's maze, 5% of them overlapping a wall by some
-#: amount) and the walls' flat box faces lie up to ``arc_tolerance`` inside the true circles. Half a
-#: radius accepts every such state while keeping the marble's centre outside the wall, so the
-#: contact cannot push it through to the other side.
-STATE_OVERLAP = 0.5
+#: another marble. Contacts are found only once bodies overlap, at 150 Hz: on impact a marble sinks
+#: into a wall by about one physics step of travel (up to 1.3 mm seen in 190,000 states of random
+#: play on MERL's maze, 5% of them overlapping a wall by some amount; 2.8 mm at 0.5 m/s, 4.2 mm at
+#: 0.7 m/s in tests/sim/test_physics.py), and the walls' flat box faces lie up to ``arc_tolerance``
+#: inside the true circles. Three quarters of a radius (4.8 mm on MERL's maze) accepts such states
+#: while keeping the marble's centre outside the wall, so the contact pushes it back out on the side
+#: it came from, never through the wall.
+STATE_OVERLAP = 0.75
 #: How far (as a share of ``max_tilt``) :func:`check_sim_state` lets the board's tilt exceed
 #: ``±max_tilt``: the servo overshoots its clamped target slightly (≤ 1.1% measured).
 STATE_TILT_TOLERANCE = 0.05
@@ -200,8 +202,8 @@ def check_sim_state(spec: MazeSpec, layout: Any, state: Any, name: str = "sim_st
     of the layout's length (a ``MazeSim.get_state()`` vector of a maze with as many marbles), the
     board's tilt and the servos' target tilt lie within ``±max_tilt`` (the board's with
     :data:`STATE_TILT_TOLERANCE`), every marble lies on the floor clear of the walls, the rim and the
-    other marbles up to the soft contacts' :data:`STATE_OVERLAP`, and its centre sits between half
-    a radius above the floor and the walls' tops."""
+    other marbles up to the contacts' :data:`STATE_OVERLAP`, and its centre sits between
+    ``(1 − STATE_OVERLAP)`` radii above the floor and the walls' tops."""
     n = layout.n_marbles
     array = finite_array(name, state, (layout.size,),
                          f" (a MazeSim.get_state() vector of a maze with {n} marble(s))").copy()
