@@ -67,6 +67,18 @@ def test_dry_run_applies_the_budget_and_grid_flags(tmp_path, capsys):
     assert not out.exists()
 
 
+@pytest.mark.parametrize("name", ["beyond", "ablation"])
+def test_dry_run_of_the_budgets_beyond_the_paper_lists_their_plan_within_two_hours(tmp_path, capsys, name):
+    err = _dry_run(["--out", str(tmp_path / name), "--budget", name], capsys)
+    budget = BUDGETS[name]
+    assert list(_listed(err)) == [p.id for p in plan_pieces(budget)]
+    flat = " ".join(err.split())
+    assert f"budget {name}: tasks {', '.join(budget.tasks)}; {', '.join(budget.algorithms)}; 3 seeds" in flat
+    estimate = re.search(r"≈ ([\d.]+) (min|h) for all", flat)
+    assert estimate is not None and (estimate.group(2) == "min" or float(estimate.group(1)) <= 2.0), flat
+    assert not (tmp_path / name).exists()
+
+
 def test_dry_run_of_a_started_directory_marks_finished_pieces_and_changes_nothing(tmp_path, capsys):
     out = tmp_path / "repro"
     pieces = plan_pieces(BUDGETS["quick"])

@@ -6,15 +6,20 @@ import dataclasses
 
 import pytest
 
-from bimgame.experiments.budgets import ALGORITHMS, BUDGETS, budget_named
+from bimgame.experiments.budgets import ALGORITHMS, BUDGETS, PAPER_ALGORITHMS, budget_named
 from bimgame.experiments.costs import estimate_seconds
 from bimgame.experiments.grid import plan_pieces
+from bimgame.experiments.methods import needs_expert_data
+from bimgame.experiments.plan import check_compatible, write_plan
 
 
 @pytest.mark.parametrize("changes, message", [
     ({"tasks": ("STG9",)}, r"Budget.tasks: unknown task 'STG9'; allowed: FULL, STG1, STG2, STG3, STG4"),
     ({"tasks": ()}, r"Budget.tasks must name at least one task"),
-    ({"algorithms": ("ppo",)}, r"Budget.algorithms: unknown \['ppo'\]; allowed: a3c, pretrain\+a3c"),
+    ({"algorithms": ("ppo",)}, r"Budget.algorithms: unknown \['ppo'\]; allowed: a3c, pretrain\+a3c, a3c\+value, "
+                               r"pretrain\+a3c\+value, dagger, pretrain\+a3c\+warmup, pretrain\+a3c\+kl, "
+                               r"pretrain\+a3c\+norm, pretrain\+a3c\+bc, pretrain\+a3c\+demo, pretrain\+a3c\+keep, "
+                               r"a3c\+reverse$"),
     ({"seeds": 0}, r"Budget.seeds must be an integer >= 1, got 0"),
     ({"obs": "rgb"}, r"Budget.obs must be one of pixels, state, got 'rgb'"),
     ({"threshold_fraction": 0.0}, r"Budget.threshold_fraction must be in \(0, 1\], got 0.0"),
@@ -26,7 +31,7 @@ from bimgame.experiments.grid import plan_pieces
 def test_bad_budgets_are_rejected_naming_the_field_and_what_is_allowed(changes, message, tiny_budget):
     with pytest.raises(ValueError, match=message):
         dataclasses.replace(tiny_budget, **changes)
-    with pytest.raises(ValueError, match="unknown budget 'huge'; allowed: quick, paper"):
+    with pytest.raises(ValueError, match="unknown budget 'huge'; allowed: quick, paper, beyond, ablation$"):
         budget_named("huge")
 
 
@@ -37,7 +42,8 @@ def test_plan_of_the_presets_and_their_estimates():
         "data", "pretrain/STG1/policy-seed0", "pretrain/STG1/value-seed0", "runs/STG1/a3c/seed0",
         "runs/STG1/pretrain-a3c/seed0", "runs/STG1/a3c-value/seed0", "runs/STG1/pretrain-a3c-value/seed0",
         "runs/STG1/dagger/seed0"]
-    assert len(pieces) == 1 + 2 * 2 + 2 * len(ALGORITHMS) and len({p.id for p in pieces}) == len(pieces)
+    assert quick.algorithms == paper.algorithms == PAPER_ALGORITHMS  # the paper's presets: the paper's methods
+    assert len(pieces) == 1 + 2 * 2 + 2 * len(PAPER_ALGORITHMS) and len({p.id for p in pieces}) == len(pieces)
     by_id = {p.id: p for p in pieces}
     assert by_id["runs/STG1/pretrain-a3c-value/seed1"].needs == ("pretrain/STG1/policy-seed1",
                                                                   "pretrain/STG1/value-seed1")
@@ -52,3 +58,31 @@ def test_plan_of_the_presets_and_their_estimates():
     # Only the pieces the algorithms need are planned.
     ids = [p.id for p in plan_pieces(quick.with_grid(algorithms=["dagger", "a3c"], seeds=1))]
     assert ids == ["data", "runs/STG1/a3c/seed0", "runs/STG1/dagger/seed0"]
+
+
+def test_the_presets_beyond_the_paper_plan_their_grids_within_two_hours(tmp_path):
+    beyond, ablation = BUDGETS["beyond"], BUDGETS["ablation"]
+    assert beyond.tasks == ("STG2", "STG3", "STG4", "FULL") and beyond.seeds == ablation.seeds == 3
+    assert beyond.algorithms == ("a3c", "pretrain+a3c", "pretrain+a3c+keep")
+    assert ablation.tasks == ("STG3",) and set(ablation.algorithms) == set(ALGORITHMS[5:]) | {"pretrain+a3c"}
+    assert [beyond.steps_for(t) for t in beyond.tasks] == [400_000, 500_000, 500_000, 500_000]
+    for budget in (beyond, ablation):
+        assert (budget.obs, budget.eval_every, budget.eval_episodes) == ("state", 50_000, 20)
+        assert (budget.dataset_task, budget.dataset_episodes, budget.pretrain_eval_episodes) == ("FULL", 80, 50)
+    pieces = plan_pieces(beyond)
+    # The dataset, then per task and seed π^s and the three runs.
+    assert len(pieces) == 1 + 4 * 3 * (1 + 3)
+    assert [p.id for p in pieces[:5]] == ["data", "pretrain/STG2/policy-seed0", "runs/STG2/a3c/seed0",
+                                          "runs/STG2/pretrain-a3c/seed0", "runs/STG2/pretrain-a3c-keep/seed0"]
+    keep = next(p for p in pieces if p.id == "runs/FULL/pretrain-a3c-keep/seed2")
+    assert keep.needs == (("data",) if needs_expert_data("pretrain+a3c+keep") else ()) + ("pretrain/FULL/policy-seed2",)
+    pieces = plan_pieces(ablation)
+    assert len(pieces) == 1 + 3 * (1 + 8) and not any(p.kind == "pretrain-value" for p in pieces)
+    by_id = {p.id: p for p in pieces}
+    assert by_id["runs/STG3/pretrain-a3c-bc/seed1"].needs == ("data", "pretrain/STG3/policy-seed1")
+    assert by_id["runs/STG3/a3c-reverse/seed1"].needs == ()
+    for budget in (beyond, ablation):
+        assert sum(estimate_seconds(p, budget) for p in plan_pieces(budget)) < 2 * 3600, budget.name
+    # Only the grid differs: either preset continues the other's directory.
+    write_plan(tmp_path, beyond)
+    check_compatible(tmp_path, ablation)

@@ -125,6 +125,9 @@ def test_report_is_rebuilt_from_saved_results(tmp_path, tiny_dataset, fake_run):
     assert "STG2 and FULL not measured in this budget" in report
     assert "![STG1 learning curves](fig_curves_STG1.png)" in report
     assert "![expert trajectory lengths](fig_expert_lengths.png)" in report
+    # The paper's grid gets no section beyond it, nor its figures or numbers.
+    assert "Beyond the paper" not in report and numbers["beyond"] is None
+    assert not list(tmp_path.glob("fig_eval_*.png"))
 
     # The same results and seed give the same numbers; another threshold gives other crossings.
     again = build_report(tmp_path, resamples=500, seed=3)

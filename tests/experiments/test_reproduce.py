@@ -164,3 +164,26 @@ def _check_table_against_logs(out: Path, numbers: dict) -> None:
 
 def _expert_successes(out: Path) -> list[bool]:
     return [s.terminated and len(s) <= 300 for s in iterate_sequences(out / "data", obs="state")]
+
+
+def test_tiny_reproduction_beyond_the_paper_gives_the_runs_their_settings_and_the_dataset(tmp_path, tiny_budget):
+    """Real runs of the two methods that read the expert's dataset: their pieces need it, they record
+    the reproduction's DIR/data and the paper preset, and the report gets its section and figure."""
+    budget = dataclasses.replace(tiny_budget, algorithms=("pretrain+a3c+bc", "pretrain+a3c+demo"), seeds=1,
+                                 eval_every=1_000)
+    result = reproduce(tmp_path, budget, progress=False)
+    assert result.complete and result.computed == [
+        "data", "pretrain/STG1/policy-seed0", "runs/STG1/pretrain-a3c-bc/seed0", "runs/STG1/pretrain-a3c-demo/seed0"]
+    for algorithm, changed in (("pretrain-a3c-bc", {"bc_coef": 0.1, "bc_decay_steps": 2_000}),
+                               ("pretrain-a3c-demo", {"start_curriculum": "demo"})):
+        stored = json.loads((tmp_path / "runs/STG1" / algorithm / "seed0/config.json").read_text())
+        settings = stored["a3c"]
+        assert settings["expert_data"] == str(tmp_path.resolve() / "data") and settings["finetune"] == "paper"
+        assert {k: settings[k] for k in changed} == changed
+        assert stored["init"].endswith("pretrain/STG1/policy-seed0")
+        assert read_table(tmp_path / "runs/STG1" / algorithm / "seed0/eval.csv")["step"][0] == 0
+    paths = build_report(tmp_path, resamples=100)
+    assert (tmp_path / "fig_eval_STG1.png").is_file()
+    numbers = json.loads(paths.table_json.read_text())["beyond"]["tasks"]["STG1"]["algorithms"]
+    assert all(numbers[a]["seeds_finished"] == 1 for a in budget.algorithms)
+    assert "## Beyond the paper" in paths.report.read_text()

@@ -1,5 +1,6 @@
-"""``bimgame reproduce`` and ``bimgame report``: the paper's experiments in one command, and the
-figures, tables and report rebuilt from the saved results."""
+"""``bimgame reproduce`` and ``bimgame report``: the paper's experiments in one command (and, with
+``--budget beyond`` or ``ablation``, fine-tuning beyond them), and the figures, tables and report
+rebuilt from the saved results."""
 
 from __future__ import annotations
 
@@ -42,8 +43,10 @@ def add_reproduce_arguments(parser: argparse.ArgumentParser) -> None:
     add("--out", type=Path, required=True,
         help="directory of the reproduction (created; run the same command again to continue it)")
     add("--budget", choices=list(BUDGETS), default=None,
-        help="preset: quick (STG1, state observations, 2 seeds, < 30 min on 2 cores) or paper (FULL/STG1/STG2, "
-             "pixels, 5 seeds, about two and a half days). Default: the budget stored in --out, else quick")
+        help="preset: quick (STG1, state observations, 2 seeds, < 30 min on 2 cores), paper (FULL/STG1/STG2, "
+             "pixels, 5 seeds, about two and a half days), beyond (fine-tuning π^s without forgetting it: "
+             "STG2/STG3/STG4/FULL, A3C, pre-train + A3C and the keep preset, 3 seeds, < 2 h) or ablation (each "
+             "fine-tuning method on STG3, 3 seeds, < 1 h). Default: the budget stored in --out, else quick")
     # The grid: Budget settings that change what is computed; not given: the budget's (as --budget).
     add_settings_flags(parser, Budget, GRID_FLAGS, default_none=True, defaults=BUDGETS["quick"],
                        default_text="the budget's")

@@ -1,5 +1,6 @@
 """What a reproduction computes: the compared algorithms and the :class:`Budget` — the grid (tasks ×
-algorithms × seeds) and every piece's settings — with its two presets, ``quick`` and ``paper``.
+algorithms × seeds) and every piece's settings — with its presets: ``quick`` and ``paper`` for the
+paper's comparison, ``beyond`` and ``ablation`` for fine-tuning beyond it.
 
 The budget is the one input of a reproduction: it is stored in ``plan.json``
 (:mod:`bimgame.experiments.plan`) and decides every piece (:mod:`bimgame.experiments.grid`) and
@@ -13,6 +14,18 @@ The compared algorithms, in the order of the paper's figures:
 - ``a3c+value``: A3C from random weights on r + γV̂(s') − V̂(s), V̂ pre-trained on the dataset;
 - ``pretrain+a3c+value``: both;
 - ``dagger``: DAgger with the MPC expert, from random weights.
+
+Beyond the paper, the methods that fine-tune π^s without forgetting it (their A3C settings are
+:func:`bimgame.experiments.methods.finetune_overrides`; ``pretrain+a3c`` is plain fine-tuning, the
+``paper`` preset of :mod:`bimgame.learn.finetune`):
+
+- ``pretrain+a3c+warmup``: critic warm-up, then the actor's learning rate ramped up;
+- ``pretrain+a3c+kl``: kickstarting, an annealed KL(π^s ‖ π);
+- ``pretrain+a3c+norm``: advantages divided by their running RMS;
+- ``pretrain+a3c+bc``: a behaviour-cloning term on the expert's dataset, decaying over the run (DAPG);
+- ``pretrain+a3c+demo``: episodes start from the expert's states, moving back from the goal;
+- ``pretrain+a3c+keep``: the ``keep`` preset (the combination ``bimgame train --init`` uses);
+- ``a3c+reverse``: from random weights, a reverse start curriculum (no expert, no π^s).
 """
 
 from __future__ import annotations
@@ -25,13 +38,22 @@ from bimgame.sim.maze import MazeSpec
 from bimgame.sim.tasks import Task, parse_task
 from bimgame.util.settings import from_dict, require_int
 
-__all__ = ["ALGORITHMS", "ALGORITHM_LABELS", "PAPER_TASKS", "GRID_FIELDS", "Budget", "BUDGETS", "budget_named"]
+__all__ = ["PAPER_ALGORITHMS", "ALGORITHMS", "ALGORITHM_LABELS", "PAPER_TASKS", "GRID_FIELDS", "Budget", "BUDGETS",
+           "budget_named"]
 
-#: The compared methods, in the order of the paper's figures.
-ALGORITHMS = ("a3c", "pretrain+a3c", "a3c+value", "pretrain+a3c+value", "dagger")
+#: The paper's compared methods, in the order of its figures (the presets' default grid).
+PAPER_ALGORITHMS = ("a3c", "pretrain+a3c", "a3c+value", "pretrain+a3c+value", "dagger")
+#: Every method a reproduction can run: the paper's, then the fine-tuning methods beyond it.
+ALGORITHMS = (*PAPER_ALGORITHMS, "pretrain+a3c+warmup", "pretrain+a3c+kl", "pretrain+a3c+norm", "pretrain+a3c+bc",
+              "pretrain+a3c+demo", "pretrain+a3c+keep", "a3c+reverse")
 #: The algorithms' names in figures and tables.
 ALGORITHM_LABELS = {"a3c": "A3C", "pretrain+a3c": "pre-train + A3C", "a3c+value": "A3C + value reward",
-                    "pretrain+a3c+value": "pre-train + A3C + value reward", "dagger": "DAgger"}
+                    "pretrain+a3c+value": "pre-train + A3C + value reward", "dagger": "DAgger",
+                    "pretrain+a3c+warmup": "pre-train + A3C + critic warm-up",
+                    "pretrain+a3c+kl": "pre-train + A3C + KL", "pretrain+a3c+norm": "pre-train + A3C + advantage norm.",
+                    "pretrain+a3c+bc": "pre-train + A3C + BC (DAPG)",
+                    "pretrain+a3c+demo": "pre-train + A3C + demo starts",
+                    "pretrain+a3c+keep": "pre-train + A3C, keep preset", "a3c+reverse": "A3C + reverse curriculum"}
 #: The tasks of the paper's learning curves (STG3/STG4 can be added: the paper reports them unlearned).
 PAPER_TASKS = ("FULL", "STG1", "STG2")
 #: Budget fields that only change which pieces exist (not what any piece computes): a reproduction
@@ -43,15 +65,17 @@ GRID_FIELDS = ("tasks", "algorithms", "seeds")
 class Budget:
     """Everything that decides what a reproduction computes: the grid and every piece's settings.
 
-    The presets are :data:`BUDGETS` (``quick`` and ``paper``); any field can be changed with
-    :func:`dataclasses.replace`. Invalid values raise ``ValueError`` naming the field."""
+    The presets are :data:`BUDGETS` (``quick``, ``paper``, ``beyond``, ``ablation``); any field can
+    be changed with :func:`dataclasses.replace`. Invalid values raise ``ValueError`` naming the field."""
 
     name: str = "custom"
     """A label for reports (``quick``, ``paper`` or anything else)."""
     tasks: tuple[str, ...] = ("STG1",)
     """Tasks of the grid (FULL, STG1 … STG4)."""
-    algorithms: tuple[str, ...] = ALGORITHMS
-    """Methods of the grid (see :data:`ALGORITHMS`)."""
+    algorithms: tuple[str, ...] = PAPER_ALGORITHMS
+    """Methods of the grid: the paper's a3c, pretrain+a3c, a3c+value, pretrain+a3c+value, dagger (the
+    default) and the fine-tuning methods beyond it: pretrain+a3c+warmup, pretrain+a3c+kl,
+    pretrain+a3c+norm, pretrain+a3c+bc, pretrain+a3c+demo, pretrain+a3c+keep, a3c+reverse."""
     seeds: int = 2
     """Runs per task and algorithm (seeds 0 … seeds−1)."""
     obs: str = "state"
@@ -213,9 +237,26 @@ def uses_policy(algorithm: str) -> bool:
 
 
 def uses_value(algorithm: str) -> bool:
-    """Whether ``algorithm`` is rewarded with the pre-trained V̂ (``…+value``)."""
-    return algorithm.endswith("+value")
+    """Whether ``algorithm`` is rewarded with the pre-trained V̂ (``…+value``; not e.g. ``…+keep``)."""
+    return "value" in algorithm.split("+")
 
+
+#: The settings of the ``beyond`` and ``ablation`` presets. Everything but the grid is the same, so
+#: either can continue the other's reproduction directory, reusing its dataset, π^s and shared runs.
+#: Steps: STG2 400k, STG3/STG4/FULL 500k (2.5–4× fewer than ``quick`` sets for these tasks), chosen
+#: so that ``beyond`` (36 A3C runs) stays within two hours on two cores: the cost model
+#: (:mod:`bimgame.experiments.costs`, ``bimgame reproduce --budget beyond --dry-run``) expects 43
+#: minutes on idle cores, ``ablation`` (24 runs) 28 minutes. The model counts 9,000 A3C steps/s,
+#: measured for plain A3C, and leaves out the periodic evaluations (up to ≈ 1 minute per run here);
+#: a ``keep`` run on STG3 (KL teacher, these evaluations) measured ≈ 3,400 steps/s while a
+#: pre-training kept one core busy, no slower than plain A3C under load (2,000–3,000). Evaluations
+#: every 50k steps with 20 episodes show the dip when fine-tuning forgets π^s; 80 FULL expert
+#: episodes as in ``quick``.
+_BEYOND_SETTINGS: dict[str, Any] = dict(
+    seeds=3, obs="state", subtract_background=True,
+    a3c_steps={"STG1": 300_000, "STG2": 400_000, "STG3": 500_000, "STG4": 500_000, "FULL": 500_000},
+    eval_every=50_000, eval_episodes=20, checkpoint_every=50_000,
+    dataset_task="FULL", dataset_episodes=80, dataset_workers=2, pretrain_eval_episodes=50)
 
 #: The presets. ``quick`` shows the comparison on STG1 within half an hour on two cores: state
 #: observations, where A3C from scratch reached 80% success after 210k–255k steps in six runs, so
@@ -224,7 +265,9 @@ def uses_value(algorithm: str) -> bool:
 #: sped A3C up 2.3×); with a 40-episode dataset it took 23 minutes while other training jobs kept
 #: both cores busy. ``paper`` is the paper's grid: pixels, FULL/STG1/STG2, five seeds, 5M steps per
 #: A3C run, a 300-episode FULL dataset — about two and a half days on two cores (``bimgame
-#: reproduce --dry-run`` prints the estimate per piece).
+#: reproduce --dry-run`` prints the estimate per piece). ``beyond`` and ``ablation`` go beyond the
+#: paper: fine-tuning π^s without forgetting it on STG2/STG3/STG4/FULL, and each fine-tuning method
+#: on its own on STG3 (see :data:`_BEYOND_SETTINGS`).
 BUDGETS: dict[str, Budget] = {
     "quick": Budget(
         name="quick", tasks=("STG1",), seeds=2, obs="state", subtract_background=True,
@@ -239,6 +282,14 @@ BUDGETS: dict[str, Budget] = {
         dataset_task="FULL", dataset_episodes=300, dataset_workers=2,
         pretrain_eval_episodes=50, dagger_iterations=10, dagger_episodes=20, dagger_epochs=10,
         dagger_eval_episodes=20),
+    "beyond": Budget(
+        name="beyond", tasks=("STG2", "STG3", "STG4", "FULL"), algorithms=("a3c", "pretrain+a3c", "pretrain+a3c+keep"),
+        **_BEYOND_SETTINGS),
+    "ablation": Budget(
+        name="ablation", tasks=("STG3",), algorithms=("pretrain+a3c", "pretrain+a3c+warmup", "pretrain+a3c+kl",
+                                                      "pretrain+a3c+norm", "pretrain+a3c+bc", "pretrain+a3c+demo",
+                                                      "pretrain+a3c+keep", "a3c+reverse"),
+        **_BEYOND_SETTINGS),
 }
 
 

@@ -1,5 +1,6 @@
 """The report's figures, drawn from the runs' saved logs: the learning curves of each task (the
-paper's Fig. 2) and the lengths of the expert's dataset episodes (Fig. 1b).
+paper's Fig. 2), the lengths of the expert's dataset episodes (Fig. 1b), and beyond the paper the
+periodic evaluations of each task's A3C runs (:func:`plot_eval_curves`).
 
 Curves are training episodes binned by the step they *started* at, up to where the log holds all
 of them (:attr:`bimgame.experiments.results.RunResults.until`), the task's own reward (also for
@@ -17,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from bimgame.experiments.beyond import MODES, eval_curve
 from bimgame.experiments.budgets import ALGORITHM_LABELS, ALGORITHMS, Budget
 from bimgame.experiments.results import RunResults
 from bimgame.experiments.statistics import CONFIDENCE, bootstrap_mean_band
@@ -25,7 +27,12 @@ from bimgame.expert.evaluation import EpisodeResult, plot_length_histogram
 from bimgame.learn.curves import binned_means
 from bimgame.util.images import save_png, subplots
 
-__all__ = ["plot_curves", "plot_expert_lengths"]
+__all__ = ["ALGORITHM_COLOURS", "plot_curves", "plot_eval_curves", "plot_expert_lengths"]
+
+#: One colour per algorithm, the same in every figure: matplotlib's ten cycle colours in
+#: :data:`ALGORITHMS`' order (the paper's five keep C0–C4), then a few more.
+_PALETTE = [f"C{i}" for i in range(10)] + ["navy", "magenta", "darkgoldenrod", "teal"]
+ALGORITHM_COLOURS = {algorithm: _PALETTE[i % len(_PALETTE)] for i, algorithm in enumerate(ALGORITHMS)}
 
 
 def plot_curves(task: str, runs: dict[str, list[RunResults]], edges: np.ndarray, threshold: float | None,
@@ -35,11 +42,11 @@ def plot_curves(task: str, runs: dict[str, list[RunResults]], edges: np.ndarray,
     dashed line. Written to ``path``."""
     centres = (edges[:-1] + edges[1:]) / 2
     fig, (ax_return, ax_success) = subplots(1, 2, figsize=(12, 4.4))
-    for index, algorithm in enumerate(ALGORITHMS):
+    for algorithm in ALGORITHMS:
         group = runs.get(algorithm) or []
         if not group:
             continue
-        colour = f"C{index}"
+        colour = ALGORITHM_COLOURS[algorithm]
         label = f"{ALGORITHM_LABELS[algorithm]} ({len(group)} seed{'s' if len(group) != 1 else ''})"
         if algorithm == "dagger":
             _plot_dagger(ax_return, ax_success, task, group, colour, label, resamples=resamples, rng=rng)
@@ -95,6 +102,43 @@ def _plot_dagger(ax_return: Any, ax_success: Any, task: str, group: list[RunResu
         mean, low, high = bootstrap_mean_band(values, resamples=resamples, rng=rng)
         axis.plot(steps, mean, "o-", color=colour, label=label + ", greedy eval.", markersize=4)
         axis.fill_between(steps, low, high, color=colour, alpha=0.18, linewidth=0)
+
+
+def plot_eval_curves(task: str, runs: dict[str, list[RunResults]], path: Path, *, budget: Budget,
+                     target: float | None = None) -> Path:
+    """Beyond the paper, for ``task``: greedy and sampled evaluation success (``eval.csv``, the task's
+    own starts) against environment steps, one colour per A3C algorithm, a thin line per seed and a
+    thick line for the mean over seeds (each seed interpolated between its evaluations; the mean
+    only where every seed was evaluated); ``target`` as a dashed line. Written to ``path``."""
+    fig, axes = subplots(1, len(MODES), figsize=(12, 4.4), sharey=True)
+    for algorithm in ALGORITHMS:
+        group = [r for r in runs.get(algorithm) or [] if len(r.table.get("step", ())) > 0]
+        if algorithm == "dagger" or not group:
+            continue
+        colour = ALGORITHM_COLOURS[algorithm]
+        curves = [eval_curve(r.table) for r in group]
+        grid = np.unique(np.concatenate([steps for steps, _ in curves]))
+        label = f"{ALGORITHM_LABELS[algorithm]} ({len(group)} seed{'s' if len(group) != 1 else ''})"
+        for axis, mode in zip(axes, MODES):
+            aligned = []
+            for steps, success in curves:
+                axis.plot(steps, success[mode], color=colour, lw=0.7, alpha=0.35)
+                inside = (grid >= steps[0]) & (grid <= steps[-1])
+                aligned.append(np.where(inside, np.interp(grid, steps, success[mode]), np.nan))
+            mean = np.mean(aligned, axis=0)  # NaN where a seed has no evaluation around the step
+            axis.plot(grid, mean, color=colour, lw=2.2, label=label)
+    axes[0].set_ylabel("success rate")
+    for axis, mode in zip(axes, MODES):
+        if target is not None:
+            axis.axhline(target, color="black", ls="--", lw=0.8, label=f"{target:.0%}")
+        axis.set(xlabel="environment steps", title=f"{mode} evaluation", ylim=(-0.02, 1.02))
+        axis.grid(alpha=0.3)
+        axis.legend(fontsize=7)
+    fig.suptitle(f"{task}, {budget.obs} observations: evaluation episodes from the task's own starts "
+                 f"({budget.eval_episodes} per evaluation); thin: one seed, thick: mean over seeds; step 0 is "
+                 f"the starting policy (π^s for pre-trained starts)", fontsize=9)
+    fig.tight_layout()
+    return save_png(fig, path, dpi=120)
 
 
 def plot_expert_lengths(sequences: list[Episode], task: str, path: Path) -> Path:

@@ -22,6 +22,7 @@ import dataclasses
 from typing import Any
 
 from bimgame.experiments.budgets import Budget, uses_policy, uses_value
+from bimgame.experiments.methods import needs_expert_data
 
 __all__ = ["PIECE_KINDS", "Piece", "algorithm_slug", "policy_path", "value_path", "run_path", "plan_pieces"]
 
@@ -70,7 +71,8 @@ def run_path(task: str, algorithm: str, seed: int) -> str:
 def plan_pieces(budget: Budget) -> list[Piece]:
     """Every piece of the grid in the order they run: the dataset, then per task and seed the
     pre-trainings that seed needs and its runs (seed 0 of every algorithm before seed 1, so a
-    partial reproduction already holds whole comparisons)."""
+    partial reproduction already holds whole comparisons). A run needs the dataset piece when its
+    algorithm reads the expert's data (:func:`~bimgame.experiments.methods.needs_expert_data`)."""
     pieces = [Piece(id="data", kind="dataset", path="data", task=budget.dataset_task)]
     for task in budget.tasks:
         for seed in range(budget.seeds):
@@ -86,7 +88,8 @@ def plan_pieces(budget: Budget) -> list[Piece]:
                 if algorithm == "dagger":
                     pieces.append(Piece(id=path, kind="dagger", path=path, task=task, algorithm=algorithm, seed=seed))
                     continue
-                needs = tuple(p for p, used in ((policy, uses_policy(algorithm)), (value, uses_value(algorithm)))
+                needs = tuple(p for p, used in (("data", needs_expert_data(algorithm)),
+                                                (policy, uses_policy(algorithm)), (value, uses_value(algorithm)))
                               if used)
                 pieces.append(Piece(id=path, kind="a3c", path=path, task=task, algorithm=algorithm, seed=seed,
                                     needs=needs))

@@ -1,7 +1,8 @@
 """The report's text: ``table_speedup.md`` (steps to threshold, speed-ups, final success, pre-training)
 and ``report.md`` (each claim of the paper next to what this run measured, the figures, the tables,
-the settings and wall times, and how the numbers are computed), written from the numbers
-:func:`bimgame.experiments.report.build_report` assembles.
+the section beyond the paper (:func:`beyond_markdown`), the settings and wall times, and how the
+numbers are computed), written from the numbers :func:`bimgame.experiments.report.build_report`
+assembles.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from bimgame.experiments.grid import Piece
 from bimgame.experiments.plan import STATUS, timestamp
 from bimgame.experiments.statistics import nanmean
 
-__all__ = ["PAPER_ACCURACY", "tables_markdown", "report_markdown"]
+__all__ = ["PAPER_ACCURACY", "tables_markdown", "beyond_markdown", "report_markdown"]
 
 #: The paper's held-out action accuracy of pre-training.
 PAPER_ACCURACY = 0.275
@@ -58,6 +59,9 @@ def _speedup_text(result: dict[str, Any] | None) -> str:
 def tables_markdown(numbers: dict[str, Any], budget: Budget) -> str:
     """``table_speedup.md``: per task, steps to threshold and speed-ups per algorithm; then pre-training."""
     lines = ["# Steps to threshold and speed-up over A3C", ""]
+    if "a3c" not in budget.algorithms:
+        lines += ["A3C from random weights is not in this grid: there is no baseline, so no speed-up over it is "
+                  "given (add it with `--algorithms`).", ""]
     for task, entry in numbers["tasks"].items():
         lines.append(f"## {task}")
         lines.append("")
@@ -97,6 +101,11 @@ def tables_markdown(numbers: dict[str, Any], budget: Budget) -> str:
                          f"{mean_text} | {speed} | {'–' if training is None else _pct(training)} | "
                          f"{_pct(a['final_greedy_success'])} | {_pct(a['final_sampled_success'])} |")
         lines.append("")
+        curricula = [a for a, v in entry["algorithms"].items() if v.get("start_curriculum")]
+        if curricula:
+            lines += [f"{', '.join(ALGORITHM_LABELS[a] for a in curricula)}: no steps to threshold or training "
+                      f"success — with a start curriculum the training episodes start nearer the goal than the "
+                      f"task's; see the evaluations beyond the paper.", ""]
         extra = [(o, b, entry["algorithms"][o].get(f"speedup_vs_{b}")) for b, o in
                  (("a3c", "a3c+value"), ("pretrain+a3c", "pretrain+a3c+value")) if o in entry["algorithms"]]
         extra = [(o, b, s) for o, b, s in extra if s is not None]
@@ -250,6 +259,8 @@ def report_markdown(numbers: dict[str, Any], tables: str, budget: Budget, pieces
         lines += ["No finished expert dataset.", ""]
     lines += ["#" + line if line.startswith("#") else line for line in tables.splitlines()]
     lines.append("")
+    if numbers.get("beyond") is not None:
+        lines += [beyond_markdown(numbers["beyond"], budget), ""]
     lines += ["## Settings", "", "| setting | value |", "|---|---|"]
     for key, value in budget.to_dict().items():
         if isinstance(value, dict):
@@ -274,7 +285,107 @@ def report_markdown(numbers: dict[str, Any], tables: str, budget: Budget, pieces
               f"on it). The reproduction ran in {len(invocations)} invocation(s) of `bimgame reproduce` taking "
               f"{format_duration(elapsed)} in all.", ""]
     lines += ["## How the numbers are computed", "", _METHODS, ""]
+    if numbers.get("beyond") is not None:
+        lines += [_METHODS_BEYOND, ""]
     return "\n".join(lines)
+
+
+def _mean_text(summary: dict[str, Any], show: Any) -> str:
+    """``mean [low, high]`` of a :func:`~bimgame.experiments.beyond.mean_ci` summary."""
+    if summary["n"] == 0:
+        return "–"
+    text = f"**{show(summary['mean'])}**"
+    return text + (f" [{show(summary['ci'][0])}, {show(summary['ci'][1])}]" if summary["ci"] is not None else "")
+
+
+def _points(value: float | None) -> str:
+    """A difference of success rates in percentage points."""
+    return "–" if value is None or math.isnan(value) else f"{100 * value:.0f} pts"
+
+
+def _cell(a: dict[str, Any], name: str, show: Any, step: str | None = None) -> str:
+    """Every seed's value of ``name`` (with the step it was at), then the mean over seeds and its interval."""
+    values = [show(r[name]) + (f" @ {_steps_text(r[step])}" if step and r[step] is not None else "")
+              for r in a["runs"]]
+    return f"{', '.join(values) or '–'}; mean {_mean_text(a[name], show)}"
+
+
+def _target_cell(a: dict[str, Any]) -> str:
+    """Steps to the target: per seed ("> N": not reached by the last evaluation, at N), then the mean."""
+    per_seed = ", ".join(_steps_text(r["steps_to_target"]) if r["steps_to_target"] is not None
+                         else f"> {_steps_text(r['censored_at'])}" if r["censored_at"] is not None else "–"
+                         for r in a["runs"]) or "–"
+    s = a["steps_to_target"]
+    if s["bound"] is None:
+        mean = "–"
+    elif s["bound"] == "not reached":
+        mean = "not reached"
+    else:
+        mean = ("≥ " if s["bound"] == "lower" else "") + f"**{_steps_text(s['mean'])}**"
+        if s["ci"] is not None:
+            mean += f" [{_steps_text(s['ci'][0])}, {_steps_text(s['ci'][1])}]"
+    return f"{per_seed}; mean {mean} ({s['reached']}/{len(a['runs'])} reached)"
+
+
+def beyond_markdown(beyond: dict[str, Any], budget: Budget) -> str:
+    """The report's section beyond the paper: per task, the evaluations' figure and two tables —
+    success (step 0, final, steps to the target) and forgetting (the dip after step 0) — with every
+    seed's value and the mean over seeds with its bootstrap interval."""
+    target = beyond["target"]
+    every = f"every {_steps_text(budget.eval_every)} steps" if budget.eval_every else "at the end only"
+    lines = ["## Beyond the paper: fine-tuning that keeps π^s", "",
+             f"From each A3C run's evaluations ({budget.eval_episodes} greedy and {budget.eval_episodes} sampled "
+             f"episodes from the task's own starts, {every}; step 0 is the policy the run started from — π^s for "
+             f"the pre-trained starts — and the last evaluation the final one). Each cell: every seed's value, then "
+             f"the mean over seeds with its 95% percentile-bootstrap interval over seeds (never the best seed). "
+             f"Dip: the lowest success after step 0 (@ the step it was at) and how far it fell below step 0's. "
+             f"Steps to {target:.0%}: the first evaluation with greedy success ≥ {target:.0%} (0: the starting "
+             f"policy already was; \"> N\": not reached by the last evaluation, at N, and the mean is then a "
+             f"lower bound). DAgger has no such evaluations and is left out.", ""]
+    if budget.seeds < 5:
+        lines += [f"With {budget.seeds} seed(s) the intervals are rough (a handful of distinct resampled means).", ""]
+    for task, entry in beyond["tasks"].items():
+        lines += [f"### {task}", ""]
+        groups = {a: v for a, v in entry["algorithms"].items() if v["runs"]}
+        if not groups:
+            lines += ["No finished A3C run yet.", ""]
+            continue
+        if "figure" in entry:
+            lines += [f"![{task} evaluations]({entry['figure']})", ""]
+        lines += [f"| algorithm | seeds | step 0, greedy | step 0, sampled | final greedy | final sampled | "
+                  f"steps to {target:.0%} greedy |", "|---|---:|---|---|---|---|---|"]
+        for algorithm, a in groups.items():
+            lines.append(f"| {ALGORITHM_LABELS[algorithm]} | {a['seeds_finished']}/{a['seeds_planned']} | "
+                         f"{_cell(a, 'start_greedy', _pct)} | {_cell(a, 'start_sampled', _pct)} | "
+                         f"{_cell(a, 'final_greedy', _pct)} | {_cell(a, 'final_sampled', _pct)} | {_target_cell(a)} |")
+        lines += ["", "| algorithm | dip: lowest greedy after step 0 | greedy drop below step 0 | "
+                      "dip: lowest sampled after step 0 | sampled drop below step 0 |", "|---|---|---|---|---|"]
+        for algorithm, a in groups.items():
+            lines.append(f"| {ALGORITHM_LABELS[algorithm]} | {_cell(a, 'lowest_greedy', _pct, 'lowest_greedy_step')} | "
+                         f"{_cell(a, 'drop_greedy', _points)} | "
+                         f"{_cell(a, 'lowest_sampled', _pct, 'lowest_sampled_step')} | "
+                         f"{_cell(a, 'drop_sampled', _points)} |")
+        lines.append("")
+        lines += [_beyond_summary(groups), ""]
+    return "\n".join(lines).rstrip("\n")
+
+
+def _beyond_summary(groups: dict[str, dict[str, Any]]) -> str:
+    """One line per task: the algorithm with the highest mean final greedy success and the one that
+    fell furthest below its start."""
+    def best(name: str) -> tuple[str, float] | None:
+        means = {a: v[name]["mean"] for a, v in groups.items() if v[name]["n"]}
+        return max(means.items(), key=lambda item: item[1]) if means else None
+
+    parts = []
+    final = best("final_greedy")
+    if final is not None:
+        parts.append(f"highest mean final greedy success: {ALGORITHM_LABELS[final[0]]} ({_pct(final[1])})")
+    drop = best("drop_greedy")
+    if drop is not None:
+        parts.append(f"largest mean greedy drop below step 0: {ALGORITHM_LABELS[drop[0]]} ({_points(drop[1])})"
+                     if drop[1] > 0 else "no run's greedy success fell below its step 0")
+    return ("In short: " + "; ".join(parts) + ".") if parts else ""
 
 
 _METHODS = (
@@ -290,3 +401,10 @@ _METHODS = (
     "95% interval from a stratified bootstrap over seeds (each algorithm's seeds resampled on their own). Final "
     "success: training episodes that started in the last 10% of a run's steps before that cut; greedy: the run's final "
     "evaluation.")
+
+_METHODS_BEYOND = (
+    "Beyond the paper: from each A3C run's periodic evaluations (eval.csv, the task's own starts, also for start-"
+    "curriculum runs), step 0 being the starting policy and the last row the final evaluation; dip = the lowest "
+    "success after step 0, drop = step 0's success minus the dip (0 when it never fell); steps to 80% = the first "
+    "evaluation step with greedy success ≥ 80%, unreached runs counted at their last evaluation (a lower bound). "
+    "Means over seeds with a 95% percentile-bootstrap interval over seeds (their own seeded generator).")

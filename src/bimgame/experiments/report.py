@@ -7,6 +7,9 @@ Outputs in DIR:
   for shaped runs) and success rate of the training episodes against environment steps, one line
   per algorithm, the mean over seeds with a bootstrap 95% band (:mod:`bimgame.experiments.figures`).
 - ``fig_expert_lengths.png`` — the paper's Fig. 1b: lengths of the expert's dataset episodes.
+- ``fig_eval_<TASK>.png`` — beyond the paper (a grid with a fine-tuning method, STG3 or STG4): greedy
+  and sampled evaluation success against environment steps, a line per seed and their mean
+  (:func:`~bimgame.experiments.figures.plot_eval_curves`; the numbers: :mod:`bimgame.experiments.beyond`).
 - ``table_speedup.md`` / ``table_speedup.json`` — steps to a success threshold, speed-up over A3C,
   final success, pre-training accuracy and π^s alone.
 - ``report.md`` — each claim of the paper next to what this run measured, the figures, the tables
@@ -18,7 +21,9 @@ pieces' logs (:mod:`bimgame.experiments.results`) with the statistics of
 bootstrap. **The threshold** of a task is ``threshold_fraction`` (default 0.8) × the expert's
 success rate on it, measured on the dataset's episodes relabelled for the task and counted as
 successes only within the task's time limit; without a finished dataset, or with an expert that
-never succeeds on the task, there is no threshold.
+never succeeds on the task, there is no threshold. Runs with a start curriculum get no
+steps-to-threshold, training success or training curve: their training episodes start nearer the
+goal than the task's; their evaluations are in the section beyond the paper.
 """
 
 from __future__ import annotations
@@ -30,12 +35,15 @@ from typing import Any
 
 import numpy as np
 
+from bimgame.experiments.beyond import EVAL_TARGET, beyond_numbers, shows_beyond
 from bimgame.experiments.budgets import Budget
-from bimgame.experiments.figures import plot_curves, plot_expert_lengths
+from bimgame.experiments.figures import plot_curves, plot_eval_curves, plot_expert_lengths
 from bimgame.experiments.grid import Piece
 from bimgame.experiments.markdown import report_markdown, tables_markdown
+from bimgame.experiments.methods import uses_start_curriculum
 from bimgame.experiments.plan import load_plan, load_status
 from bimgame.experiments.results import (
+    RunResults,
     collect_runs,
     dataset_sequences,
     expert_success_by_task,
@@ -100,12 +108,14 @@ def build_report(out_dir: str | Path, *, threshold_fraction: float | None = None
         figures.append(plot_expert_lengths(sequences, budget.dataset_task, out_dir / "fig_expert_lengths.png"))
 
     tasks: dict[str, Any] = {}
+    all_runs: dict[str, dict[str, list[RunResults]]] = {}
     for task in budget.tasks:
         steps = budget.steps_for(task) if task in budget.a3c_steps else 0
         edges = np.linspace(0.0, float(steps), CURVE_BINS + 1) if steps else np.array([0.0, 1.0])
         # No threshold without an expert that succeeds: 0 × anything would be "reached" at once.
         threshold = threshold_fraction * expert[task] if expert.get(task, 0.0) > 0 else None
         runs = {a: collect_runs(finished, out_dir, task, a) for a in budget.algorithms}
+        all_runs[task] = runs
         crossings: dict[str, list[Crossing]] = {}
         entry: dict[str, Any] = {"expert_success": expert.get(task), "threshold": threshold,
                                  "a3c_steps": steps, "curve_bin_steps": float(edges[1] - edges[0]),
@@ -113,8 +123,9 @@ def build_report(out_dir: str | Path, *, threshold_fraction: float | None = None
         for algorithm, group in runs.items():
             planned = sum(1 for p in pieces if p.task == task and p.algorithm == algorithm)
             rows = []
+            curriculum = uses_start_curriculum(algorithm)
             for run in group:
-                if threshold is None:
+                if threshold is None or curriculum:
                     crossing = None
                 elif algorithm == "dagger":
                     crossing = dagger_crossing(run.table, threshold)
@@ -125,7 +136,7 @@ def build_report(out_dir: str | Path, *, threshold_fraction: float | None = None
                 rows.append({"seed": run.seed, "dir": str(run.path.relative_to(out_dir)),
                              "steps_to_threshold": crossing.steps if crossing and crossing.reached else None,
                              "censored_at": crossing.steps if crossing and not crossing.reached else None,
-                             "final_success_training": None if algorithm == "dagger" else
+                             "final_success_training": None if algorithm == "dagger" or curriculum else
                              final_training_success(run, steps),
                              "final_greedy_success": final_eval(run, algorithm, "greedy"),
                              "final_sampled_success": final_eval(run, algorithm, "sampled"),
@@ -138,7 +149,8 @@ def build_report(out_dir: str | Path, *, threshold_fraction: float | None = None
                 "mean_steps_censored_at_last": float(np.mean([c.steps for c in group_crossings]))
                 if group_crossings else None,
                 "final_success_training": nanmean([r["final_success_training"] for r in rows])
-                if algorithm != "dagger" else None,
+                if algorithm != "dagger" and not curriculum else None,
+                "start_curriculum": curriculum,
                 "final_greedy_success": nanmean([r["final_greedy_success"] for r in rows]),
                 "final_sampled_success": nanmean([r["final_sampled_success"] for r in rows])}
         for algorithm, group_crossings in crossings.items():
@@ -149,17 +161,31 @@ def build_report(out_dir: str | Path, *, threshold_fraction: float | None = None
             if crossings.get(base) and crossings.get(other):
                 entry["algorithms"][other][f"speedup_vs_{base}"] = speedup(
                     crossings[base], crossings[other], resamples=resamples, rng=rng)
-        if any(runs.values()):
-            figures.append(plot_curves(task, runs, edges, threshold, threshold_fraction,
+        curves = {a: group for a, group in runs.items() if not uses_start_curriculum(a)}
+        if any(curves.values()):
+            figures.append(plot_curves(task, curves, edges, threshold, threshold_fraction,
                                        out_dir / f"fig_curves_{task}.png", resamples=resamples, rng=rng,
                                        budget=budget))
             entry["figure"] = f"fig_curves_{task}.png"
         tasks[task] = entry
 
     pretraining = _pretraining(finished, out_dir, budget)
+    beyond = None
+    if shows_beyond(budget):
+        planned = {(p.task, p.algorithm): sum(1 for q in pieces if (q.task, q.algorithm) == (p.task, p.algorithm))
+                   for p in pieces if p.algorithm is not None}
+        # Its own generator: the paper's numbers stay what they were without this section.
+        beyond = beyond_numbers(all_runs, planned, out_dir=out_dir, resamples=resamples,
+                                rng=np.random.default_rng([seed, 1]))
+        for task, entry in beyond["tasks"].items():
+            if any(r["evaluations"] for a in entry["algorithms"].values() for r in a["runs"]):
+                figures.append(plot_eval_curves(task, all_runs[task], out_dir / f"fig_eval_{task}.png", budget=budget,
+                                                target=EVAL_TARGET))
+                entry["figure"] = f"fig_eval_{task}.png"
     numbers = {"threshold_fraction": threshold_fraction, "bootstrap": {"resamples": resamples, "seed": seed,
                                                                        "confidence": CONFIDENCE},
-               "expert": {"dataset": dataset, "success_by_task": expert}, "tasks": tasks, "pretraining": pretraining}
+               "expert": {"dataset": dataset, "success_by_task": expert}, "tasks": tasks, "pretraining": pretraining,
+               "beyond": beyond}
     table_json = write_json(out_dir / "table_speedup.json", _without_nan(numbers))
     table_text = tables_markdown(numbers, budget)
     table_md = atomic_write_bytes(out_dir / "table_speedup.md", table_text.encode())

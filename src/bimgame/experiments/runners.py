@@ -16,15 +16,18 @@ calls (:func:`bimgame.learn.runs.torch_threads`); A3C workers always use one thr
 
 from __future__ import annotations
 
+import dataclasses
 import shutil
 from pathlib import Path
 from typing import Callable
 
 from bimgame.experiments.budgets import Budget, uses_policy, uses_value
 from bimgame.experiments.grid import Piece, policy_path, value_path
+from bimgame.experiments.methods import finetune_overrides
 from bimgame.expert.datasets import generate_dataset
 from bimgame.learn.a3c import A3CConfig, train
 from bimgame.learn.dagger import DAggerConfig, dagger
+from bimgame.learn.finetune import FINETUNE_FIELDS
 from bimgame.learn.pretrain import pretrain
 from bimgame.learn.rewards import RewardSettings, env_wrapper_for
 from bimgame.learn.runs import KIND_POLICY, KIND_VALUE
@@ -47,14 +50,19 @@ def pretrain_config_for(budget: Budget, task: str, seed: int, target: str) -> Pr
     raise ValueError(f"unknown pre-training target {target!r}; allowed: policy, value")
 
 
-def a3c_config_for(budget: Budget, task: str, seed: int) -> A3CConfig:
-    """The A3C settings of every A3C algorithm's run for a task and seed (the algorithms differ in
-    the initial weights and the reward, not in these)."""
-    return A3CConfig(task=task, obs=budget.obs, steps=budget.steps_for(task), workers=budget.workers,
+def a3c_config_for(budget: Budget, task: str, seed: int, algorithm: str = "a3c",
+                   data_dir: str | Path | None = None) -> A3CConfig:
+    """The A3C settings of ``algorithm``'s run for a task and seed: the budget's, with the
+    algorithm's fine-tuning settings (:func:`~bimgame.experiments.methods.finetune_overrides`;
+    ``data_dir``, the reproduction's expert dataset, for the algorithms that read it). The paper's
+    algorithms differ in the initial weights and the reward, not in these."""
+    steps = budget.steps_for(task)
+    overrides = finetune_overrides(algorithm, steps, None if data_dir is None else str(data_dir))
+    return A3CConfig(task=task, obs=budget.obs, steps=steps, workers=budget.workers,
                      envs_per_worker=budget.envs_per_worker, seed=seed, hidden=budget.hidden, features=budget.features,
                      subtract_background=budget.network_subtract_background,
                      eval_every=budget.eval_every, eval_episodes=budget.eval_episodes,
-                     checkpoint_every=budget.checkpoint_every)
+                     checkpoint_every=budget.checkpoint_every, **overrides)
 
 
 def dagger_config_for(budget: Budget, task: str, seed: int) -> DAggerConfig:
@@ -94,18 +102,31 @@ def _run_pretrain(piece: Piece, budget: Budget, out_dir: Path) -> str:
 
 def _run_a3c(piece: Piece, budget: Budget, out_dir: Path) -> str:
     path = out_dir / piece.path
-    config = a3c_config_for(budget, piece.task, piece.seed)
+    config = a3c_config_for(budget, piece.task, piece.seed, piece.algorithm, (out_dir / "data").resolve())
     init = (out_dir / policy_path(piece.task, piece.seed)).resolve() if uses_policy(piece.algorithm) else None
     value = (out_dir / value_path(piece.task, piece.seed)).resolve() if uses_value(piece.algorithm) else None
     reward = RewardSettings(value_reward=None if value is None else str(value))
     wrapper = env_wrapper_for(reward, obs=config.obs, gamma=config.gamma)
     resume = (path / "config.json").is_file()
+    if resume:
+        config = _with_stored_preset_name(path, config)
     extra = {"reward": reward.to_dict(),
              "reproduction": {"algorithm": piece.algorithm, "task": piece.task, "seed": piece.seed}}
     result = train(config, path, resume=resume, init=init, env_wrapper=wrapper, progress=False, extra_config=extra)
     if result.stopped != "finished":
         raise KeyboardInterrupt
     return "resumed from its checkpoint" if resume else ""
+
+
+def _with_stored_preset_name(path: Path, config: A3CConfig) -> A3CConfig:
+    """``config`` with the fine-tuning preset name of the unfinished run in ``path`` when only the name
+    differs: a ``pretrain+a3c`` run started before it recorded ``finetune="paper"`` (None then) has
+    the same settings and resumes as it was started."""
+    previous = (read_json(path / "config.json") or {}).get("a3c")
+    if not isinstance(previous, dict) or previous.get("finetune") == config.finetune:
+        return config
+    same = all(previous.get(field, getattr(A3CConfig, field)) == getattr(config, field) for field in FINETUNE_FIELDS)
+    return dataclasses.replace(config, finetune=previous.get("finetune")) if same else config
 
 
 def _run_dagger(piece: Piece, budget: Budget, out_dir: Path) -> str:

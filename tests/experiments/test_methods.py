@@ -1,0 +1,129 @@
+"""Each algorithm's A3C settings (methods.finetune_overrides), derived from the fine-tuning presets at
+run time, and what follows from them: which pieces a run needs and how an unfinished run resumes."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import pytest
+
+from bimgame.experiments.budgets import ALGORITHMS, PAPER_ALGORITHMS, Budget, uses_policy, uses_value
+from bimgame.experiments.grid import plan_pieces
+from bimgame.experiments.methods import (
+    A3C_ALGORITHMS,
+    BC_COEF,
+    finetune_overrides,
+    needs_expert_data,
+    uses_start_curriculum,
+)
+from bimgame.experiments.runners import _with_stored_preset_name, a3c_config_for
+from bimgame.learn.a3c import A3CConfig
+from bimgame.learn.finetune import FINETUNE_FIELDS, FINETUNE_PRESETS
+
+STEPS = 500_000
+DATA = "/repro/data"
+
+
+def _changed_from_paper(algorithm: str) -> dict:
+    """The settings an algorithm sets beyond plain fine-tuning (its preset name left out)."""
+    settings = finetune_overrides(algorithm, STEPS, DATA)
+    return {k: v for k, v in settings.items() if k != "finetune" and FINETUNE_PRESETS["paper"].get(k) != v}
+
+
+def test_every_algorithm_but_dagger_is_an_a3c_run_and_the_paper_ones_come_first():
+    assert ALGORITHMS[:5] == PAPER_ALGORITHMS
+    assert set(A3C_ALGORITHMS) == set(ALGORITHMS) - {"dagger"}
+    # The paper's A3C algorithms keep A3C's defaults; pre-train + A3C records the paper preset (all off).
+    for algorithm in ("a3c", "a3c+value", "pretrain+a3c+value"):
+        assert finetune_overrides(algorithm, STEPS, DATA) == {}
+    assert finetune_overrides("pretrain+a3c", STEPS, DATA) == {**FINETUNE_PRESETS["paper"], "finetune": "paper"}
+    default = A3CConfig()
+    assert all(getattr(default, field) == value for field, value in FINETUNE_PRESETS["paper"].items())
+
+
+def test_each_method_turns_on_the_keep_presets_values_of_its_own_settings_only():
+    keep = FINETUNE_PRESETS["keep"]
+    assert _changed_from_paper("pretrain+a3c+warmup") == {"critic_warmup_steps": keep["critic_warmup_steps"],
+                                                           "actor_ramp_steps": keep["actor_ramp_steps"]}
+    assert _changed_from_paper("pretrain+a3c+kl") == {"kl_coef": keep["kl_coef"],
+                                                       "kl_decay_steps": keep["kl_decay_steps"]}
+    assert _changed_from_paper("pretrain+a3c+norm") == {"advantage_norm": True}
+    assert _changed_from_paper("pretrain+a3c+bc") == {"bc_coef": BC_COEF, "bc_decay_steps": STEPS, "expert_data": DATA}
+    assert _changed_from_paper("pretrain+a3c+demo") == {"start_curriculum": "demo", "expert_data": DATA}
+    for algorithm in ("pretrain+a3c+warmup", "pretrain+a3c+kl", "pretrain+a3c+norm", "pretrain+a3c+bc",
+                      "pretrain+a3c+demo"):
+        assert finetune_overrides(algorithm, STEPS, DATA)["finetune"] == "paper", algorithm
+    settings = finetune_overrides("pretrain+a3c+keep", STEPS, DATA)
+    assert settings == {**keep, "finetune": "keep"}  # the shipped keep preset reads no expert data
+    assert finetune_overrides("a3c+reverse", STEPS, DATA) == {"start_curriculum": "reverse"}
+
+
+def test_the_settings_follow_the_presets_at_run_time(monkeypatch):
+    monkeypatch.setitem(FINETUNE_PRESETS, "keep", {**FINETUNE_PRESETS["keep"], "kl_coef": 0.25, "bc_coef": 0.05,
+                                                   "bc_decay_steps": 123})
+    assert finetune_overrides("pretrain+a3c+kl", STEPS, DATA)["kl_coef"] == 0.25
+    keep = finetune_overrides("pretrain+a3c+keep", STEPS, DATA)
+    assert keep["bc_coef"] == 0.05 and keep["expert_data"] == DATA  # a keep preset with BC reads the dataset
+    assert needs_expert_data("pretrain+a3c+keep")
+    piece = next(p for p in plan_pieces(Budget(tasks=("STG3",), algorithms=("pretrain+a3c+keep",), seeds=1))
+                 if p.kind == "a3c")
+    assert piece.needs == ("data", "pretrain/STG3/policy-seed0")
+
+
+def test_which_runs_need_the_dataset_pi_s_or_v_hat():
+    assert [a for a in ALGORITHMS if needs_expert_data(a)] == ["pretrain+a3c+bc", "pretrain+a3c+demo"]
+    assert [a for a in ALGORITHMS if uses_start_curriculum(a)] == ["pretrain+a3c+demo", "a3c+reverse"]
+    assert [a for a in ALGORITHMS if uses_value(a)] == ["a3c+value", "pretrain+a3c+value"]
+    assert not uses_policy("a3c+reverse") and all(uses_policy(a) for a in ALGORITHMS if a.startswith("pretrain"))
+    budget = Budget(tasks=("STG3",), algorithms=A3C_ALGORITHMS, seeds=1)
+    needs = {p.algorithm: p.needs for p in plan_pieces(budget) if p.kind == "a3c"}
+    policy, value = "pretrain/STG3/policy-seed0", "pretrain/STG3/value-seed0"
+    assert needs == {"a3c": (), "pretrain+a3c": (policy,), "a3c+value": (value,),
+                     "pretrain+a3c+value": (policy, value), "pretrain+a3c+warmup": (policy,),
+                     "pretrain+a3c+kl": (policy,), "pretrain+a3c+norm": (policy,),
+                     "pretrain+a3c+bc": ("data", policy), "pretrain+a3c+demo": ("data", policy),
+                     "pretrain+a3c+keep": (policy,), "a3c+reverse": ()}
+    # Without π^s in the grid no policy is pre-trained.
+    ids = [p.id for p in plan_pieces(Budget(tasks=("STG3",), algorithms=("a3c+reverse",), seeds=1))]
+    assert ids == ["data", "runs/STG3/a3c-reverse/seed0"]
+
+
+def test_a3c_settings_of_every_algorithm_are_valid_and_record_the_dataset(tiny_budget):
+    budget = dataclasses.replace(tiny_budget, algorithms=A3C_ALGORITHMS)
+    for algorithm in A3C_ALGORITHMS:
+        config = a3c_config_for(budget, "STG1", 1, algorithm, DATA)
+        assert config.steps == 2_000 and config.seed == 1, algorithm
+        assert config.expert_data == (DATA if needs_expert_data(algorithm) else None), algorithm
+        assert config.kl_coef == 0 or uses_policy(algorithm), algorithm  # kickstarting needs π^s to start from
+    assert a3c_config_for(budget, "STG1", 0, "pretrain+a3c+bc", DATA).bc_decay_steps == 2_000  # decays over the run
+    assert a3c_config_for(budget, "STG1", 0) == a3c_config_for(budget, "STG1", 0, "a3c")
+
+
+@pytest.mark.parametrize("call, message", [
+    (lambda: finetune_overrides("ppo", STEPS, DATA),
+     r"unknown A3C algorithm 'ppo'; allowed: a3c, pretrain\+a3c, a3c\+value, .*pretrain\+a3c\+keep, a3c\+reverse$"),
+    (lambda: finetune_overrides("dagger", STEPS, DATA), r"unknown A3C algorithm 'dagger'.*not an A3C run"),
+    (lambda: finetune_overrides("pretrain+a3c+bc", 0, DATA), r"steps must be an integer >= 1, got 0"),
+    (lambda: finetune_overrides("pretrain+a3c+demo", STEPS, None),
+     r"pretrain\+a3c\+demo reads the expert dataset .*give data_dir"),
+])
+def test_bad_requests_are_refused_naming_what_is_allowed(call, message):
+    with pytest.raises(ValueError, match=message):
+        call()
+
+
+def test_an_unfinished_run_resumes_with_the_preset_name_it_was_started_with(tmp_path, tiny_budget):
+    """A pre-train + A3C run started before it recorded finetune="paper" (None then) has the same
+    settings: it resumes as it was started instead of failing the resume's settings check."""
+    config = a3c_config_for(tiny_budget, "STG1", 0, "pretrain+a3c", DATA)
+    assert config.finetune == "paper"
+    stored = {f: v for f, v in dataclasses.asdict(config).items() if f not in FINETUNE_FIELDS and f != "finetune"}
+    (tmp_path / "config.json").write_text(json.dumps({"kind": "a3c", "a3c": stored}))
+    assert _with_stored_preset_name(tmp_path, config).finetune is None
+    # Other settings than the name: left as they are (the resume then names the difference).
+    (tmp_path / "config.json").write_text(json.dumps({"kind": "a3c", "a3c": {**stored, "kl_coef": 1.0}}))
+    assert _with_stored_preset_name(tmp_path, config) == config
+    keep = a3c_config_for(tiny_budget, "STG1", 0, "pretrain+a3c+keep", DATA)
+    (tmp_path / "config.json").write_text(json.dumps({"kind": "a3c", "a3c": dataclasses.asdict(keep)}))
+    assert _with_stored_preset_name(tmp_path, keep) == keep
