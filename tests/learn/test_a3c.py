@@ -254,3 +254,18 @@ def test_a3c_learns_stg1_from_state_observations(tmp_path):
     assert trained.success_rate >= untrained.success_rate + 0.4, (trained.summary(), untrained.summary())
     assert trained.mean_length < 0.7 * untrained.mean_length
     assert result.final_eval is None or result.final_eval["sampled_success_rate"] >= 0
+
+
+def test_workers_that_die_silently_fail_the_run_instead_of_finishing_it(tmp_path):
+    """A script without a ``__main__`` guard makes every spawned worker fail while starting, before its
+    own error handling: the run must fail with advice, not be recorded as finished at step 0."""
+    script = tmp_path / "unguarded.py"
+    script.write_text("import sys\nfrom bimgame.learn.a3c import A3CConfig, train\n"
+                      "train(A3CConfig(task='STG1', obs='state', workers=1, envs_per_worker=2, steps=2000, "
+                      "eval_every=0, hidden=16, features=16), sys.argv[1], progress=False)\n")
+    done = subprocess.run([sys.executable, str(script), str(tmp_path / "run")], capture_output=True, text=True,
+                          timeout=120, cwd=tmp_path)
+    assert done.returncode != 0
+    assert "exited at step 0 of 2,000 without reporting an error" in done.stderr
+    assert "__main__" in done.stderr
+    assert not (tmp_path / "run" / "summary.json").exists()

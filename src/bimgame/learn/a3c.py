@@ -379,6 +379,13 @@ def _run_processes(config: A3CConfig, run_dir: Path, shared: RecurrentActorCriti
                 process.terminate()
                 process.join()
     step = int(counter.value)
+    if stopped == "finished" and failure is None and write_failure is None and step < config.steps:
+        # Every process exited without reporting an error (e.g. killed, or failed while starting,
+        # before its own error handling ran): not a finished run.
+        codes = ", ".join(f"{p.name} {p.exitcode}" for p in processes)
+        failure = (f"the worker processes exited at step {step:,} of {config.steps:,} without reporting an error "
+                   f"(exit codes: {codes}). If training was started from a script, the script needs an "
+                   f"`if __name__ == '__main__':` guard: workers are spawned and import it again.")
     saved = False
     try:
         if failure is None and write_failure is None:
