@@ -18,8 +18,8 @@ from bimgame.envs.vector import BallInMazeVectorEnv
 from bimgame.learn.a3c_core import A3CConfig, EnvWrapper, apply_update, evaluate, make_optimizer, network_for
 from bimgame.learn.actor import RecurrentActor, tilt_input
 from bimgame.learn.finetune import DemoWindows, EntropyTarget, RunningScale, Teacher, loss_weights
-from bimgame.learn.starts import TRUE_START, DemoStartCurriculum, ReverseCurriculum
 from bimgame.learn.nets import RecurrentActorCritic
+from bimgame.learn.starts import TRUE_START, DemoStartCurriculum, ReverseCurriculum
 from bimgame.sim.maze import MazeSpec
 from bimgame.util.processes import exit_when_parent_dies
 
@@ -37,7 +37,9 @@ def _start_sampler(config: A3CConfig, maze):
         return DemoStartCurriculum.from_dataset(config.expert_data, config.task, maze,
                                                 threshold=config.curriculum_threshold)
     if config.start_curriculum == "reverse":
-        return ReverseCurriculum(config.task, maze, high=config.curriculum_threshold)
+        # A pool of 32 starts (not the class's 100): each start is tried 3 times before the pool grows,
+        # and a failed STG3 episode lasts 750 steps, so 100 starts held one pool for ≈ 230k steps.
+        return ReverseCurriculum(config.task, maze, high=config.curriculum_threshold, pool_size=32)
     return None
 
 
