@@ -74,3 +74,9 @@ def test_resume_takes_the_stored_settings_and_evaluate_reports(tmp_path, capsys)
     assert "greedy" in printed and "STG1" in printed and "wrote" in printed
     assert main(["evaluate", str(tmp_path)]) == 2
     assert "is not a training run" in capsys.readouterr().err
+
+
+def test_resume_refuses_init_instead_of_ignoring_it(tmp_path, capsys):
+    assert main(["train", "--run-dir", str(tmp_path / "r"), "--resume", "--init", str(tmp_path / "pi")]) == 2
+    err = capsys.readouterr().err
+    assert "--init" in err and "a resumed run continues from its own checkpoint" in err
