@@ -256,3 +256,19 @@ def test_start_curricula_train_and_keep_training_success_to_the_true_starts(tmp_
     if true_starts:
         recent = true_starts[-100:]
         assert summary["recent_success"] == pytest.approx(sum(recent) / len(recent), abs=0.2)
+
+
+def test_a_cooler_teacher_is_sharper_with_the_same_greedy_action():
+    config = A3CConfig(**SMALL)
+    net = network_for(config)
+    with torch.no_grad():
+        net.policy.bias += torch.tensor([0.3, 0.0, -0.2, 0.1, 0.0])
+    seg = _segment(config, 6, 2)
+    warm = Teacher(copy.deepcopy(net), 2).follow(seg)
+    cool = Teacher(copy.deepcopy(net), 2, temperature=0.25).follow(seg)
+    entropy = lambda lp: -(lp.exp() * lp).sum(-1)  # noqa: E731
+    assert torch.all(entropy(cool) < entropy(warm))
+    assert torch.equal(cool.argmax(-1), warm.argmax(-1))
+    assert torch.allclose(cool, torch.log_softmax(warm * 4, dim=-1), atol=1e-5)
+    with pytest.raises(ValueError, match="kl_temperature must be a finite number > 0"):
+        A3CConfig(**SMALL, kl_temperature=0)

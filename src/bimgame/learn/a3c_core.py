@@ -105,6 +105,9 @@ class A3CConfig(NetworkSettings):
     the network the run started from (``--init``)."""
     kl_decay_steps: int = 0
     """Steps over which the KL weight decays linearly to zero (0: it stays constant)."""
+    kl_temperature: float = 1.0
+    """Temperature of the teacher's distribution in the KL term: 1 is π^s itself, below 1 a sharper
+    π^s (towards its greedy action)."""
     advantage_norm: bool = False
     """Divide advantages by their running RMS, so the policy gradient (against the entropy and KL
     terms) has the same scale on every task."""
@@ -174,6 +177,9 @@ class A3CConfig(NetworkSettings):
             raise ValueError(f"A3CConfig.{needs_data[0]} needs expert_data (an expert dataset directory)")
         if not (isinstance(self.curriculum_threshold, (int, float)) and 0 < self.curriculum_threshold <= 1):
             raise ValueError(f"A3CConfig.curriculum_threshold must be in (0, 1], got {self.curriculum_threshold!r}")
+        if not (isinstance(self.kl_temperature, (int, float)) and math.isfinite(self.kl_temperature)
+                and self.kl_temperature > 0):
+            raise ValueError(f"A3CConfig.kl_temperature must be a finite number > 0, got {self.kl_temperature!r}")
         for name in ("entropy_coef", "value_coef", "kl_coef", "bc_coef"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):

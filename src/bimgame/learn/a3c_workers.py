@@ -86,7 +86,7 @@ def _worker_loop(rank, config, shared, optimizer_state, counter, stop, messages,
     if teacher_weights is not None:
         teacher_net = network_for(config, base_env.maze)
         teacher_net.load_state_dict(teacher_weights)
-        teacher = Teacher(teacher_net, config.envs_per_worker)
+        teacher = Teacher(teacher_net, config.envs_per_worker, config.kl_temperature)
     demos, demo_rng = None, np.random.default_rng(np.random.SeedSequence([config.seed, rank, start_step, 1]))
     if config.bc_coef > 0:
         demos = DemoWindows.from_dataset(config.expert_data, config.task, config.obs, config.gamma, base_env.maze)

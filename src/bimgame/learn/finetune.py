@@ -107,8 +107,9 @@ class Teacher:
     starts), one segment at a time, and carries its own LSTM state across segments, so its action
     distribution is the one π^s would have had in the learner's situation."""
 
-    def __init__(self, net: RecurrentActorCritic, batch: int):
+    def __init__(self, net: RecurrentActorCritic, batch: int, temperature: float = 1.0):
         self.net = net.eval()
+        self.temperature = temperature
         for param in self.net.parameters():
             param.requires_grad_(False)
         self.state: LSTMState = net.initial_state(batch)
@@ -116,14 +117,15 @@ class Teacher:
     @torch.no_grad()
     def follow(self, segment: dict[str, torch.Tensor]) -> torch.Tensor:
         """Log-probabilities (T, B, A) of the teacher over a segment's T acting steps (the segment
-        holds T+1 observations, the last being the bootstrap one); advances the teacher's state."""
+        holds T+1 observations, the last being the bootstrap one), of its logits divided by the
+        temperature (below 1: a sharper teacher, towards its greedy action); advances its state."""
         steps = segment["actions"].shape[0]
         tilt = segment.get("tilt")
         logits, _, self.state = self.net.unroll(segment["obs"][:steps], segment["prev_action"][:steps],
                                                 segment["prev_reward"][:steps],
                                                 None if tilt is None else tilt[:steps], self.state,
                                                 segment["starts"][:steps])
-        return torch.log_softmax(logits, dim=-1)
+        return torch.log_softmax(logits / self.temperature, dim=-1)
 
 
 def kl_to_teacher(teacher_log_probs: torch.Tensor, log_probs: torch.Tensor) -> torch.Tensor:
