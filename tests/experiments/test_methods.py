@@ -47,8 +47,9 @@ def test_each_method_turns_on_the_keep_presets_values_of_its_own_settings_only()
     assert _changed_from_paper("pretrain+a3c+warmup") == {"critic_warmup_steps": keep["critic_warmup_steps"],
                                                            "actor_ramp_steps": keep["actor_ramp_steps"]}
     kl = finetune_overrides("pretrain+a3c+kl", STEPS, DATA)
-    assert (kl["kl_coef"], kl["kl_decay_steps"]) == (keep["kl_coef"], keep["kl_decay_steps"])
-    assert set(_changed_from_paper("pretrain+a3c+kl")) <= {"kl_coef", "kl_decay_steps"}
+    assert (kl["kl_coef"], kl["kl_decay_steps"], kl["kl_temperature"]) == \
+        (keep["kl_coef"], keep["kl_decay_steps"], keep["kl_temperature"])
+    assert set(_changed_from_paper("pretrain+a3c+kl")) <= {"kl_coef", "kl_decay_steps", "kl_temperature"}
     assert _changed_from_paper("pretrain+a3c+norm") == {"advantage_norm": True}
     assert _changed_from_paper("pretrain+a3c+bc") == {"bc_coef": BC_COEF, "bc_decay_steps": STEPS, "expert_data": DATA}
     assert _changed_from_paper("pretrain+a3c+demo") == {"start_curriculum": "demo", "expert_data": DATA}

@@ -45,7 +45,7 @@ _METHODS: dict[str, Callable[[int], dict[str, Any]]] = {
     "a3c+value": lambda steps: {},
     "pretrain+a3c+value": lambda steps: {},
     "pretrain+a3c+warmup": lambda steps: _paper_with_keep("critic_warmup_steps", "actor_ramp_steps"),
-    "pretrain+a3c+kl": lambda steps: _paper_with_keep("kl_coef", "kl_decay_steps"),
+    "pretrain+a3c+kl": lambda steps: _paper_with_keep("kl_coef", "kl_decay_steps", "kl_temperature"),
     "pretrain+a3c+norm": lambda steps: _preset("paper", advantage_norm=True),
     "pretrain+a3c+bc": lambda steps: _preset("paper", bc_coef=BC_COEF, bc_decay_steps=steps),
     "pretrain+a3c+demo": lambda steps: _preset("paper", start_curriculum="demo"),
