@@ -129,6 +129,10 @@ def test_resume_without_a_checkpoint_is_refused(finished_run, tmp_path, capsys):
     assert _files(run_dir) == before
 
 
+def _header(path: Path) -> list[str]:
+    return path.read_text().splitlines()[0].split(",")
+
+
 def test_resume_keeps_the_rows_before_the_checkpoint_and_counts_the_whole_run(tmp_path):
     """Rows logged at exactly the checkpoint's step S: episodes that ended there came after it (the
     segment from S on is trained again) and are dropped; the update row of step S was logged before
@@ -144,8 +148,9 @@ def test_resume_keeps_the_rows_before_the_checkpoint_and_counts_the_whole_run(tm
                     seconds=1000.0, config=payload["config"])  # as if the run had trained 1000 s so far
     first_eval = [int(r["step"]) for r in _rows(run_dir / "eval.csv")]
     assert first_eval[0] == 0 and first_eval[-1] == step
-    _append(run_dir / "episodes.csv", f"{step - 1},0,8,1,5,True\r\n{step},0,7,1,5,True\r\n")
-    _append(run_dir / "updates.csv", f"{step},1,12345,0,0,0,0,,,\r\n{step + 20},1,54321,0,0,0,0,,,\r\n")
+    _append(run_dir / "episodes.csv", f"{step - 1},0,8,1,5,True,True\r\n{step},0,7,1,5,True,True\r\n")
+    blanks = "," * (len(_header(run_dir / "updates.csv")) - 7)  # the update row's columns after the losses
+    _append(run_dir / "updates.csv", f"{step},1,12345,0,0,0,0{blanks}\r\n{step + 20},1,54321,0,0,0,0{blanks}\r\n")
     _append(run_dir / "episodes.csv", f"{step + 1},0,9,1")  # cut off by a kill
 
     result = train(A3CConfig(**{**config.to_dict(), "steps": 800}), run_dir, resume=True, progress=False)
