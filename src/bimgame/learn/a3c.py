@@ -371,13 +371,7 @@ def _run_processes(config: A3CConfig, run_dir: Path, shared: RecurrentActorCriti
         write_failure = error
     finally:
         stop.set()
-        for process in processes:
-            if process.pid is None:
-                continue  # never started (e.g. its arguments could not be sent to it)
-            process.join(timeout=30)
-            if process.is_alive():
-                process.terminate()
-                process.join()
+        _stop_processes(processes, messages)
     step = int(counter.value)
     if stopped == "finished" and failure is None and write_failure is None and step < config.steps:
         # Every process exited without reporting an error (e.g. killed, or failed while starting,
@@ -415,6 +409,27 @@ def _run_processes(config: A3CConfig, run_dir: Path, shared: RecurrentActorCriti
                  f"The last checkpoint ({run_dir / CHECKPOINT}, step {start.checkpoint_step:,}) is kept.")
         raise TrainingError(f"{failure} {where}")
     return step, stopped
+
+
+def _stop_processes(processes: list, messages, timeout: float = 30.0) -> None:
+    """Wait for the (already told to stop) processes to exit, reading what they still send meanwhile:
+    a process that has put messages on the queue cannot exit until they are read (its queue's feeder
+    thread flushes them into the pipe first), so joining without reading can wait for nothing but
+    the timeout. Processes still alive after ``timeout`` seconds are terminated."""
+    started = [p for p in processes if p.pid is not None]  # not started: e.g. its arguments could not be sent
+    deadline = time.monotonic() + timeout
+    while any(p.is_alive() for p in started) and time.monotonic() < deadline:
+        try:
+            while True:
+                messages.get_nowait()  # what arrives after the stop is not logged
+        except (queue_module.Empty, OSError, ValueError, EOFError):
+            pass
+        for process in started:
+            process.join(timeout=0.05)
+    for process in started:
+        if process.is_alive():
+            process.terminate()
+            process.join()
 
 
 class _Monitor:
