@@ -225,16 +225,30 @@ def _running(pid: int) -> bool:
     return "\nState:\tZ" not in status
 
 
+def _as_from_a_terminal() -> None:
+    """In the child before it runs: SIGINT delivered and handled by default, as from a terminal. A
+    process inherits an ignored or blocked signal from its parent (a test runner's worker may have
+    one), and Python then never raises KeyboardInterrupt."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+
+
 def test_ctrl_c_stops_cleanly_with_a_final_checkpoint(tmp_path):
     run_dir = tmp_path / "run"
     process = subprocess.Popen(_train_command(run_dir, "--steps", "1M", "--checkpoint-every", "500k"),
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               preexec_fn=_as_from_a_terminal)
     deadline = time.monotonic() + 120
     while not (run_dir / "updates.csv").is_file() or len((run_dir / "updates.csv").read_text().splitlines()) < 3:
         assert time.monotonic() < deadline and process.poll() is None, process.communicate()
         time.sleep(0.2)
     process.send_signal(signal.SIGINT)
-    _, stderr = process.communicate(timeout=60)
+    try:
+        _, stderr = process.communicate(timeout=90)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        _, stderr = process.communicate()
+        raise AssertionError(f"no exit within 90 s of Ctrl-C: {stderr}") from None
     assert process.returncode == 130, stderr
     assert "interrupted" in stderr and "--resume" in stderr
     assert 0 < load_checkpoint(run_dir)["step"] < 1_000_000
