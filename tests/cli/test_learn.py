@@ -9,6 +9,7 @@ import math
 
 import pytest
 from support.disk import disk_fills_up
+from support.files import snapshot
 
 from bimgame.cli.main import main
 from bimgame.expert.datasets import generate_dataset
@@ -41,12 +42,6 @@ def tiny_dataset(tmp_path_factory):
 def _csv_rows(path) -> list[dict[str, str]]:
     with open(path, newline="") as handle:
         return list(csv.DictReader(handle))
-
-
-def _files(root) -> dict[str, bytes]:
-    """Every file under ``root`` (TensorBoard event files aside) by relative path, with its bytes."""
-    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*"))
-            if p.is_file() and "tfevents" not in p.name}
 
 
 def _flat(text: str) -> str:
@@ -151,11 +146,11 @@ def test_tiny_pretrain_writes_its_summary_and_checkpoint(tiny_dataset, tmp_path,
                 assert summary["policy_eval"][f"{mode}_{key}"] == pytest.approx(value), (mode, key)
 
     # The run is never overwritten.
-    before = _files(out)
+    before = snapshot(out, without_tensorboard=True)
     assert main(["pretrain", "--data", str(tiny_dataset), "--out", str(out), "--task", "STG1", "--obs", "state",
                  "--epochs", "1", "--eval-episodes", "0", "--no-progress"]) == 2
     assert "already holds a run" in capsys.readouterr().err
-    assert _files(out) == before
+    assert snapshot(out, without_tensorboard=True) == before
 
 
 def test_tiny_value_only_pretrain(tiny_dataset, tmp_path, capsys):
@@ -220,13 +215,13 @@ def test_resuming_a_finished_dagger_run_does_no_work(tiny_dagger, tmp_path, caps
     import shutil
 
     run_dir = shutil.copytree(tiny_dagger, tmp_path / "run")
-    before = _files(run_dir)
+    before = snapshot(run_dir, without_tensorboard=True)
     capsys.readouterr()
     # The run's own settings are used; the same number of iterations means nothing is left.
     assert main(["dagger", "--run-dir", str(run_dir), "--resume", "--no-progress"]) == 0
     out = _flat(capsys.readouterr().out)
     assert "nothing to do" in out and "1 iterations" in out and "--iterations" in out
-    after = _files(run_dir)
+    after = snapshot(run_dir, without_tensorboard=True)
     assert after == before  # no new data, weights, state or log rows
     assert not (run_dir / "data" / "iteration_001.npz").exists()
 
@@ -248,12 +243,12 @@ def test_pretrain_refuses_a_directory_holding_other_files(tiny_dataset, tmp_path
     out.mkdir()
     (out / "pretrain.csv").write_text("my,own\n")
     (out / "summary.json").write_text("{}\n")
-    before = _files(out)
+    before = snapshot(out, without_tensorboard=True)
     assert main(["pretrain", "--data", str(tiny_dataset), "--out", str(out), *PRETRAIN_TINY]) == 2
     err = _flat(capsys.readouterr().err)
     assert (f"{out} is not empty and is not a pre-training run (no config.json; found 2 entries: 'pretrain.csv', "
             f"'summary.json'); nothing was changed") in err
-    assert _files(out) == before
+    assert snapshot(out, without_tensorboard=True) == before
 
 
 @pytest.mark.parametrize("stop, code", [(ValueError("a bad setting found late"), 2), (KeyboardInterrupt(), 130)])

@@ -9,14 +9,11 @@ import json
 import re
 
 import pytest
+from support.files import snapshot
 
 from bimgame.cli.main import main
 from bimgame.experiments.budgets import BUDGETS
 from bimgame.experiments.grid import plan_pieces
-
-
-def _files(root) -> dict[str, bytes]:
-    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
 
 
 def _listed(err: str) -> dict[str, str]:
@@ -87,13 +84,13 @@ def test_dry_run_of_a_started_directory_marks_finished_pieces_and_changes_nothin
     (out / done.path).mkdir(parents=True)
     (out / done.path / "summary.json").write_text("{}")
     (out / done.path / "checkpoint.pt").write_bytes(b"weights")
-    before = _files(out)
+    before = snapshot(out)
     err = _dry_run(["--out", str(out)], capsys)
     listed = _listed(err)
     assert listed[done.id] == "done"
     assert [i for i, state in listed.items() if state == "to do"] == [p.id for p in pieces if p is not done]
     assert f"for the {len(pieces) - 1} not finished yet" in " ".join(err.split())
-    assert _files(out) == before  # no plan, status or lock file written
+    assert snapshot(out) == before  # no plan, status or lock file written
 
 
 def test_bad_budget_names_the_allowed_budgets(tmp_path, capsys):
@@ -139,14 +136,14 @@ def _not_a_reproduction(tmp_path, kind: str):
 ])
 def test_report_on_something_else_fails_with_a_message(tmp_path, capsys, kind, message):
     path = _not_a_reproduction(tmp_path, kind)
-    before = _files(tmp_path)
+    before = snapshot(tmp_path)
     capsys.readouterr()
     code = main(["report", str(path), "--resamples", "10"])
     captured = capsys.readouterr()
     assert code == 2
     assert captured.err.startswith("bimgame report: error:") and message in captured.err, captured.err
     assert "Traceback" not in captured.err and captured.out == ""
-    assert _files(tmp_path) == before  # no figures, tables or report written
+    assert snapshot(tmp_path) == before  # no figures, tables or report written
     if kind == "missing":
         assert not path.exists()  # not created either
 

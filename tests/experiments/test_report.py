@@ -3,27 +3,19 @@ crossings, and the report's refusals of bad input."""
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import json
 import shutil
 from pathlib import Path
 
 import pytest
+from support.logs import write_csv
 
 from bimgame.experiments.budgets import Budget
 from bimgame.experiments.plan import write_plan
 from bimgame.experiments.report import build_report
 from bimgame.experiments.statistics import CURVE_BINS
 from bimgame.expert.datasets import generate_dataset
-
-
-def _write_csv(path: Path, rows: list[dict]) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("w", newline="") as handle:
-        writer = csv.DictWriter(handle, list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
 
 
 @pytest.fixture
@@ -43,8 +35,8 @@ def _write_run(path: Path, steps: int, episodes: dict, config: dict | None = Non
     rows = [{"step": int(e), "start_step": int(s), "worker": 0, "return": float(r), "length": int(n),
              "success": bool(r)} for e, s, r, n in zip(episodes["step"], episodes["start_step"],
                                                         episodes["success"], episodes["length"])]
-    _write_csv(path / "episodes.csv", rows)
-    _write_csv(path / "eval.csv", [{"step": steps, "greedy_success_rate": 0.9, "greedy_mean_length": 40,
+    write_csv(path / "episodes.csv", rows)
+    write_csv(path / "eval.csv", [{"step": steps, "greedy_success_rate": 0.9, "greedy_mean_length": 40,
                                     "greedy_mean_return": 0.9, "sampled_success_rate": 0.8,
                                     "sampled_mean_length": 45, "sampled_mean_return": 0.8}])
     (path / "summary.json").write_text(json.dumps({"steps": steps, "stopped": "finished",
@@ -80,7 +72,7 @@ def test_report_is_rebuilt_from_saved_results(tmp_path, tiny_dataset, fake_run):
         fake_run(root / "pretrain-a3c-value" / f"seed{seed}", steps,
                  [(0, prevalue[seed] - 2_500, 0.5), (prevalue[seed] - 2_500, steps, 0.95)])
         dagger = root / "dagger" / f"seed{seed}"
-        _write_csv(dagger / "dagger.csv", [{"step": s, "iteration": i, "greedy_success_rate": g,
+        write_csv(dagger / "dagger.csv", [{"step": s, "iteration": i, "greedy_success_rate": g,
                                             "greedy_mean_length": 100, "sampled_success_rate": g}
                                            for i, (s, g) in enumerate([(200, 0.1), (900, 0.5), (1800, 0.6)])])
         (dagger / "dagger_state.json").write_text(json.dumps({"iteration": 3, "env_steps": 1800}))

@@ -3,11 +3,11 @@ without A3C from random weights (the ablation's kind), with start-curriculum run
 
 from __future__ import annotations
 
-import csv
 import json
 from pathlib import Path
 
 import pytest
+from support.logs import write_csv
 
 from bimgame.experiments.budgets import Budget
 from bimgame.experiments.plan import write_plan
@@ -17,20 +17,12 @@ from bimgame.experiments.statistics import CURVE_BINS
 STEPS = 200_000
 
 
-def _write_csv(path: Path, rows: list[dict]) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("w", newline="") as handle:
-        writer = csv.DictWriter(handle, list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
-
-
 def _fake_run(path: Path, evaluations: list[tuple[int, float, float]], episodes: dict) -> None:
     """A finished A3C run's logs: its training episodes and its evaluations ((step, greedy, sampled))."""
-    _write_csv(path / "episodes.csv", [{"step": int(s) + 50, "start_step": int(s), "worker": 0, "return": float(r),
+    write_csv(path / "episodes.csv", [{"step": int(s) + 50, "start_step": int(s), "worker": 0, "return": float(r),
                                         "length": 50, "success": bool(r)}
                                        for s, r in zip(episodes["start_step"], episodes["success"])])
-    _write_csv(path / "eval.csv", [{"step": step, "greedy_success_rate": g, "greedy_mean_length": 300,
+    write_csv(path / "eval.csv", [{"step": step, "greedy_success_rate": g, "greedy_mean_length": 300,
                                     "greedy_mean_return": g, "sampled_success_rate": s, "sampled_mean_length": 400,
                                     "sampled_mean_return": s} for step, g, s in evaluations])
     final = evaluations[-1]

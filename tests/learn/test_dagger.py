@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 import torch
 from support.disk import disk_fills_up
+from support.files import snapshot
 
 from bimgame.cli.main import main
 from bimgame.envs.env import NO_ACTION
@@ -405,22 +406,17 @@ def test_cli_dagger_resume_and_evaluate(tmp_path, capsys, one_torch_thread):
 
 
 # ------------------------------------------------------------------------------ reliability
-def _all_files(root) -> dict[str, bytes]:
-    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*"))
-            if p.is_file() and "tfevents" not in p.name}
-
-
 def test_dagger_refuses_directories_that_are_not_dagger_runs(tmp_path):
     mine = tmp_path / "mine"
     mine.mkdir()
     (mine / "dagger.csv").write_text("my,own\n")
-    before = _all_files(mine)
+    before = snapshot(mine, without_tensorboard=True)
     with pytest.raises(ValueError, match=r"is not empty and is not a DAgger run \(no config.json; found 1 entry: "
                                          r"'dagger.csv'\); nothing was changed"):
         dagger(SMALL, mine, progress=False)
     with pytest.raises(ValueError, match=r"--resume: .* has no config.json: .* is not a DAgger run"):
         dagger(SMALL, mine, resume=True, progress=False)
-    assert _all_files(mine) == before
+    assert snapshot(mine, without_tensorboard=True) == before
     a3c = tmp_path / "a3c"
     a3c.mkdir()
     (a3c / "config.json").write_text(json.dumps({"a3c": {"task": "STG1", "obs": "state"}}))
@@ -437,18 +433,18 @@ def test_dagger_resume_refuses_to_start_over_without_its_checkpoint_or_data(smal
     whole, _ = small_runs
     run_dir = shutil.copytree(whole.run_dir, tmp_path / "no-checkpoint")
     (run_dir / "checkpoint.pt").unlink()
-    before = _all_files(run_dir)
+    before = snapshot(run_dir, without_tensorboard=True)
     with pytest.raises(ValueError, match=r"has no checkpoint.pt, so the DAgger run in it cannot be continued .*Start "
                                          r"anew without --resume in a new --run-dir"):
         dagger(dataclasses.replace(SMALL, iterations=4), run_dir, resume=True, progress=False)
-    assert _all_files(run_dir) == before
+    assert snapshot(run_dir, without_tensorboard=True) == before
 
     run_dir = shutil.copytree(whole.run_dir, tmp_path / "no-data")
     (run_dir / "data" / "iteration_001.npz").unlink()
-    before = _all_files(run_dir)
+    before = snapshot(run_dir, without_tensorboard=True)
     with pytest.raises(ValueError, match=r"aggregated data of finished iterations is missing \(.*iteration_001.npz\)"):
         dagger(dataclasses.replace(SMALL, iterations=4), run_dir, resume=True, progress=False)
-    assert _all_files(run_dir) == before
+    assert snapshot(run_dir, without_tensorboard=True) == before
 
     # The checkpoint holds the counts: a lost (or damaged) state file is rewritten, nothing redone.
     run_dir = shutil.copytree(whole.run_dir, tmp_path / "no-state")

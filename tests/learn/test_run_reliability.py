@@ -17,6 +17,7 @@ from pathlib import Path
 import pytest
 import torch
 from support.disk import disk_fills_up
+from support.files import snapshot
 
 from bimgame.cli.main import main
 from bimgame.learn.a3c import A3CConfig, network_for, resolve_config, train
@@ -45,11 +46,6 @@ def _copy(run_dir: Path, tmp_path: Path) -> Path:
     return Path(shutil.copytree(run_dir, tmp_path / "copy"))
 
 
-def _files(root: Path) -> dict[str, bytes]:
-    """Every file under ``root`` by relative path, with its bytes."""
-    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
-
-
 def _rows(path: Path) -> list[dict[str, str]]:
     with open(path, newline="") as handle:
         return list(csv.DictReader(handle))
@@ -67,7 +63,7 @@ def test_train_refuses_a_directory_that_is_not_an_a3c_run(tmp_path, capsys):
     mine.mkdir()
     for name, text in (("episodes.csv", "my,own\n1,2\n"), ("summary.json", '{"mine": true}\n'), ("notes.txt", "x")):
         (mine / name).write_text(text)
-    before = _files(mine)
+    before = snapshot(mine)
     with pytest.raises(ValueError, match=r"mine is not empty and is not an A3C run \(no config.json; found 3 entries: "
                                          r"'episodes.csv', 'notes.txt', 'summary.json'\); nothing was changed"):
         train(config, mine, progress=False)
@@ -78,20 +74,20 @@ def test_train_refuses_a_directory_that_is_not_an_a3c_run(tmp_path, capsys):
     assert main(["train", "--run-dir", str(mine), *TINY_FLAGS]) == 2
     err = capsys.readouterr().err
     assert str(mine) in err and "'episodes.csv'" in err
-    assert _files(mine) == before
+    assert snapshot(mine) == before
 
     # A run of another kind (here a pre-training run of the earlier layout, with an "a3c" block).
     other = tmp_path / "pretrained"
     other.mkdir()
     (other / "config.json").write_text(json.dumps({"kind": "pretrained-policy", "a3c": config.to_dict()}))
-    before = _files(other)
+    before = snapshot(other)
     with pytest.raises(ValueError, match="already holds a run; choose a new --run-dir .it is a pretrained-policy run"):
         train(config, other, progress=False)
     with pytest.raises(ValueError, match="holds a pretrained-policy run, not an A3C run"):
         train(config, other, resume=True, progress=False)
     with pytest.raises(ValueError, match="holds a pretrained-policy run, not an A3C run"):
         resolve_config({}, other, resume=True)
-    assert _files(other) == before
+    assert snapshot(other) == before
 
     (tmp_path / "file").write_text("x")
     with pytest.raises(ValueError, match="exists and is not a directory"):
@@ -106,27 +102,27 @@ def test_resume_refuses_a_log_whose_header_differs(finished_run, tmp_path):
     lines = path.read_text().splitlines(keepends=True)
     assert len(lines) > 2
     path.write_text(lines[0].replace("return", "reward") + "".join(lines[1:]))
-    before = _files(run_dir)
+    before = snapshot(run_dir)
     with pytest.raises(ValueError) as refused:
         train(A3CConfig(**{**FINISHED, "steps": 3200}), run_dir, resume=True, progress=False)
     message = str(refused.value)
     assert str(path) in message
     assert "step,start_step,worker,reward,length,success" in message  # found
     assert "step,start_step,worker,return,length,success" in message  # expected
-    assert _files(run_dir) == before, "a refused resume changes nothing"
+    assert snapshot(run_dir) == before, "a refused resume changes nothing"
 
 
 def test_resume_without_a_checkpoint_is_refused(finished_run, tmp_path, capsys):
     """A missing checkpoint.pt used to restart from step 0 and drop every logged row."""
     run_dir = _copy(finished_run, tmp_path)
     (run_dir / "checkpoint.pt").unlink()
-    before = _files(run_dir)
+    before = snapshot(run_dir)
     with pytest.raises(ValueError, match=r"--resume: .* has no checkpoint.pt, so the A3C run in it cannot be "
                                          r"continued .*Start anew without --resume in a new --run-dir"):
         train(A3CConfig(**{**FINISHED, "steps": 3200}), run_dir, resume=True, progress=False)
     assert main(["train", "--run-dir", str(run_dir), "--resume", "--steps", "3200", "--no-progress"]) == 2
     assert "has no checkpoint.pt" in capsys.readouterr().err
-    assert _files(run_dir) == before
+    assert snapshot(run_dir) == before
 
 
 def _header(path: Path) -> list[str]:

@@ -1,6 +1,9 @@
-"""Synthetic training logs shared by the curve and report tests."""
+"""Synthetic training logs shared by the curve and report tests, and writing them as a run does."""
 
 from __future__ import annotations
+
+import csv
+from pathlib import Path
 
 import numpy as np
 
@@ -28,3 +31,12 @@ def running_log(steps: int, *, envs: int = 64, limit: int = 200, rate: float = 0
     step, start_step, lengths, success = map(np.array, zip(*rows))
     return {"step": step, "start_step": start_step, "worker": np.zeros(len(step)), "return": success,
             "length": lengths, "success": success}
+
+
+def write_csv(path: Path, rows: list[dict]) -> None:
+    """A log table as a run writes it: a header from the first row's keys, then the rows."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w", newline="") as handle:
+        writer = csv.DictWriter(handle, list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)

@@ -25,7 +25,7 @@ import numpy as np
 from bimgame.experiments.budgets import PAPER_ALGORITHMS, Budget, uses_policy
 from bimgame.experiments.methods import uses_start_curriculum
 from bimgame.experiments.results import RunResults
-from bimgame.experiments.statistics import DEFAULT_RESAMPLES, percentile_interval, stratified_bootstrap
+from bimgame.experiments.statistics import DEFAULT_RESAMPLES, first_crossing, mean_interval
 
 __all__ = ["EVAL_TARGET", "BEYOND_TASKS", "MODES", "SUMMARISED", "shows_beyond", "eval_curve", "run_metrics", "mean_ci",
            "beyond_numbers"]
@@ -80,9 +80,8 @@ def run_metrics(table: dict[str, np.ndarray], *, target: float = EVAL_TARGET) ->
         out[f"lowest_{mode}_step"] = float(steps[after][index]) if index is not None else None
         out[f"drop_{mode}"] = max(0.0, start - lowest) if not (math.isnan(start) or math.isnan(lowest)) \
             else float("nan")
-    reached = np.flatnonzero(np.nan_to_num(success["greedy"], nan=-np.inf) >= target)
-    out["steps_to_target"] = float(steps[reached[0]]) if len(reached) else None
-    out["censored_at"] = None if len(reached) or not len(steps) else float(steps[-1])
+    out["steps_to_target"] = first_crossing(steps, success["greedy"], target)
+    out["censored_at"] = None if out["steps_to_target"] is not None or not len(steps) else float(steps[-1])
     return out
 
 
@@ -93,11 +92,7 @@ def mean_ci(values: Sequence[float | None], *, resamples: int = DEFAULT_RESAMPLE
     kept = np.array([v for v in values if v is not None and not math.isnan(v)], dtype=np.float64)
     if len(kept) == 0:
         return {"mean": float("nan"), "ci": None, "n": 0}
-    ci = None
-    if len(kept) >= 2:
-        low, high = percentile_interval(stratified_bootstrap([kept], lambda d: d[0].mean(axis=1),
-                                                             resamples=resamples, rng=rng))
-        ci = [float(low), float(high)]
+    ci = list(mean_interval(kept, resamples=resamples, rng=rng)) if len(kept) >= 2 else None
     return {"mean": float(kept.mean()), "ci": ci, "n": int(len(kept))}
 
 

@@ -26,7 +26,7 @@ import numpy as np
 from bimgame.envs.env import BallInMazeEnv
 from bimgame.envs.observe import OBS_MODES
 from bimgame.experiments.policy_sources import EpisodePolicy, builtin_policy, load_policy
-from bimgame.experiments.statistics import percentile_interval, stratified_bootstrap
+from bimgame.experiments.statistics import mean_interval
 from bimgame.expert.evaluation import evaluate_expert, summarise
 from bimgame.expert.mpc import MPCConfig, episode_seed
 from bimgame.expert.references import normalised_score, references_for
@@ -89,18 +89,13 @@ class Score:
         for name, values in (("success_rate", successes), ("mean_return", returns),
                              ("mean_length_solved", solved)):
             out[name] = float(values.mean()) if len(values) else None
-            out[f"{name}_ci"] = list(_interval(values, rng)) if len(values) else None
+            out[f"{name}_ci"] = list(mean_interval(values, rng=rng)) if len(values) else None
         out["normalised_score"] = None
         out["normalised_score_ci"] = None
         if references_for(self.protocol.task) is not None:
             out["normalised_score"] = normalised_score(self.protocol.task, out["mean_return"])
             out["normalised_score_ci"] = [normalised_score(self.protocol.task, v) for v in out["mean_return_ci"]]
         return out
-
-
-def _interval(values: np.ndarray, rng: np.random.Generator) -> tuple[float, float]:
-    """Percentile-bootstrap 95% interval of the mean of ``values`` over episodes."""
-    return percentile_interval(stratified_bootstrap([values], lambda drawn: drawn[0].mean(axis=1), rng=rng))
 
 
 def score(policy: str, task: str = "STG1", *, obs: str = "state", episodes: int = PROTOCOL_EPISODES,

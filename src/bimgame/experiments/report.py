@@ -28,6 +28,7 @@ goal than the task's; their evaluations are in the section beyond the paper.
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import math
 from pathlib import Path
@@ -109,6 +110,7 @@ def build_report(out_dir: str | Path, *, threshold_fraction: float | None = None
 
     tasks: dict[str, Any] = {}
     all_runs: dict[str, dict[str, list[RunResults]]] = {}
+    planned_runs = collections.Counter((p.task, p.algorithm) for p in pieces if p.algorithm is not None)
     for task in budget.tasks:
         steps = budget.steps_for(task) if task in budget.a3c_steps else 0
         edges = np.linspace(0.0, float(steps), CURVE_BINS + 1) if steps else np.array([0.0, 1.0])
@@ -121,7 +123,7 @@ def build_report(out_dir: str | Path, *, threshold_fraction: float | None = None
                                  "a3c_steps": steps, "curve_bin_steps": float(edges[1] - edges[0]),
                                  "min_episodes_per_bin": MIN_EPISODES, "algorithms": {}}
         for algorithm, group in runs.items():
-            planned = sum(1 for p in pieces if p.task == task and p.algorithm == algorithm)
+            planned = planned_runs[task, algorithm]
             rows = []
             curriculum = uses_start_curriculum(algorithm)
             for run in group:
@@ -172,10 +174,8 @@ def build_report(out_dir: str | Path, *, threshold_fraction: float | None = None
     pretraining = _pretraining(finished, out_dir, budget)
     beyond = None
     if shows_beyond(budget):
-        planned = {(p.task, p.algorithm): sum(1 for q in pieces if (q.task, q.algorithm) == (p.task, p.algorithm))
-                   for p in pieces if p.algorithm is not None}
         # Its own generator: the paper's numbers stay what they were without this section.
-        beyond = beyond_numbers(all_runs, planned, out_dir=out_dir, resamples=resamples,
+        beyond = beyond_numbers(all_runs, planned_runs, out_dir=out_dir, resamples=resamples,
                                 rng=np.random.default_rng([seed, 1]))
         for task, entry in beyond["tasks"].items():
             if any(r["evaluations"] for a in entry["algorithms"].values() for r in a["runs"]):

@@ -82,6 +82,14 @@ def percentile_interval(values: np.ndarray, confidence: float = CONFIDENCE) -> t
     return low, high
 
 
+def mean_interval(values: np.ndarray, *, resamples: int = DEFAULT_RESAMPLES, rng: np.random.Generator,
+                  confidence: float = CONFIDENCE) -> tuple[float, float]:
+    """Percentile-bootstrap interval of the mean of ``values`` (its units resampled with replacement)."""
+    low, high = percentile_interval(stratified_bootstrap([values], lambda drawn: drawn[0].mean(axis=1),
+                                                         resamples=resamples, rng=rng), confidence)
+    return float(low), float(high)
+
+
 def bootstrap_mean_band(curves: np.ndarray, *, resamples: int = DEFAULT_RESAMPLES, rng: np.random.Generator,
                         confidence: float = CONFIDENCE) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Mean over seeds of curves (seeds, points) with a bootstrap band: seeds are resampled with

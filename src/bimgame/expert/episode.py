@@ -100,6 +100,10 @@ class Episode:
     def __len__(self) -> int:
         return len(self.actions)
 
+    def window(self, start: int, stop: int) -> Episode:
+        """Steps ``start`` to ``stop`` (exclusive) of the episode: its per-step arrays sliced."""
+        return Episode(**{name: getattr(self, name)[start:stop] for name in self.STEP_FIELDS})
+
     def step_arrays(self) -> dict[str, np.ndarray]:
         """The per-step arrays by name (:data:`STEP_FIELDS`)."""
         return {name: getattr(self, name) for name in self.STEP_FIELDS}

@@ -20,7 +20,6 @@ from bimgame.learn.actor import RecurrentActor, tilt_input
 from bimgame.learn.finetune import DemoWindows, EntropyTarget, RunningScale, Teacher, loss_weights
 from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.learn.starts import TRUE_START, DemoStartCurriculum, ReverseCurriculum
-from bimgame.sim.maze import MazeSpec
 from bimgame.util.processes import exit_when_parent_dies
 
 
@@ -31,15 +30,16 @@ def _worker_seeds(config: A3CConfig, rank: int, start_step: int) -> tuple[int, i
     return int(env_seed), int(torch_seed)
 
 
-def _start_sampler(config: A3CConfig, maze):
-    """The start curriculum of a worker's training episodes (None: the task's own starts)."""
+def _start_sampler(config: A3CConfig):
+    """The start curriculum of a worker's training episodes (None: the task's own starts), for the
+    maze the workers' envs are built with (MERL's)."""
     if config.start_curriculum == "demo":
-        return DemoStartCurriculum.from_dataset(config.expert_data, config.task, maze,
+        return DemoStartCurriculum.from_dataset(config.expert_data, config.task,
                                                 threshold=config.curriculum_threshold)
     if config.start_curriculum == "reverse":
         # A pool of 32 starts (not the class's 100): each start is tried 3 times before the pool grows,
         # and a failed STG3 episode lasts 750 steps, so 100 starts held one pool for ≈ 230k steps.
-        return ReverseCurriculum(config.task, maze, high=config.curriculum_threshold, pool_size=32)
+        return ReverseCurriculum(config.task, high=config.curriculum_threshold, pool_size=32)
     return None
 
 
@@ -68,7 +68,7 @@ def _worker(rank: int, config: A3CConfig, shared: RecurrentActorCritic, optimize
 def _worker_loop(rank, config, shared, optimizer_state, counter, stop, messages, env_wrapper, start_step,
                  teacher_weights):
     env_seed, torch_seed = _worker_seeds(config, rank, start_step)
-    curriculum = _start_sampler(config, MazeSpec.merl())
+    curriculum = _start_sampler(config)
     base_env = _make_env(config, config.envs_per_worker, start_sampler=curriculum)
     env = env_wrapper(base_env) if env_wrapper is not None else base_env
     max_tilt = base_env.maze.max_tilt
@@ -114,7 +114,8 @@ def _worker_loop(rank, config, shared, optimizer_state, counter, stop, messages,
             seg["tilt"].append(tilt)
             seg["starts"].append(actor.starts)
             actions, _, _ = actor.act(obs, tilt)
-            start_tags = base_env.start_tags.copy()  # the step resets finished envs and their tags
+            if curriculum is not None:
+                start_tags = base_env.start_tags.copy()  # the step resets finished envs and their tags
             obs, reward, terminated, truncated, info = env.step(actions.numpy())
             reward = np.asarray(reward, dtype=np.float64)
             if not np.all(np.isfinite(reward)):
@@ -134,8 +135,9 @@ def _worker_loop(rank, config, shared, optimizer_state, counter, stop, messages,
             episode_return += np.asarray(info.get("task_reward", reward), dtype=np.float64)
             episode_length += 1
             for i in np.flatnonzero(done):
-                tag = int(start_tags[i]) if curriculum is not None else TRUE_START
+                tag = TRUE_START
                 if curriculum is not None:
+                    tag = int(start_tags[i])
                     curriculum.record(tag, bool(terminated[i]))
                 messages.put(("episode", rank, {
                     "start_step": int(episode_start[i]), "end_step": int(counter.value),

@@ -52,7 +52,8 @@ import torch
 
 from bimgame.expert.datasets import iterate_sequences
 from bimgame.expert.episode import Episode, relabel
-from bimgame.learn.nets import NO_ACTION, LSTMState, RecurrentActorCritic
+from bimgame.learn.nets import LSTMState, RecurrentActorCritic
+from bimgame.learn.supervised import padded_batch
 from bimgame.sim.maze import MazeSpec
 
 __all__ = ["FINETUNE_PRESETS", "DEFAULT_FINETUNE", "FINETUNE_FIELDS", "LossWeights", "loss_weights", "Teacher",
@@ -212,28 +213,19 @@ class DemoWindows:
 
     def sample(self, batch: int, rng: np.random.Generator) -> dict[str, torch.Tensor]:
         """(L, B, …) tensors ``obs``, ``prev_action``, ``prev_reward``, ``tilt``, ``actions`` and
-        ``mask`` (real steps after the burn-in)."""
-        first = self.episodes[0]
-        steps = self.length
-        obs = np.zeros((steps, batch, *first.obs.shape[1:]), dtype=first.obs.dtype)
-        out = {"actions": np.zeros((steps, batch), np.int64),
-               "prev_action": np.full((steps, batch), NO_ACTION, np.int64),
-               "prev_reward": np.zeros((steps, batch), np.float32), "tilt": np.zeros((steps, batch, 2), np.float32),
-               "mask": np.zeros((steps, batch), bool)}
-        for b in range(batch):
+        ``mask`` (real steps after the burn-in), as :func:`~bimgame.learn.supervised.padded_batch`
+        lays episodes out."""
+        windows, starts = [], []
+        for _ in range(batch):
             episode = self.episodes[int(rng.integers(len(self.episodes)))]
             start = int(rng.integers(max(1, len(episode) - self.burn_in)))
-            window = slice(start, min(len(episode), start + steps))
-            n = window.stop - window.start
-            obs[:n, b] = episode.obs[window]
-            out["actions"][:n, b] = episode.actions[window]
-            out["prev_action"][:n, b] = episode.prev_actions[window]
-            out["prev_reward"][:n, b] = episode.prev_rewards[window]
-            out["tilt"][:n, b] = episode.tilt[window] / self.max_tilt
-            out["mask"][self.burn_in if start > 0 else 0:n, b] = True
-        tensors = {k: torch.as_tensor(v) for k, v in out.items()}
-        tensors["obs"] = torch.as_tensor(obs)
-        return tensors
+            windows.append(episode.window(start, start + self.length))
+            starts.append(start)
+        out = padded_batch(windows, self.max_tilt, steps=self.length)
+        for b, start in enumerate(starts):
+            if start > 0:  # the LSTM starts from zero mid-episode: no loss until its state has built up
+                out["mask"][:self.burn_in, b] = False
+        return out
 
 
 def bc_loss(net: RecurrentActorCritic, windows: dict[str, torch.Tensor]) -> torch.Tensor:

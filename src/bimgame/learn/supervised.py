@@ -111,9 +111,10 @@ def split_episodes(count: int, val_fraction: float, rng: np.random.Generator) ->
     return np.sort(order[held:]), np.sort(order[:held])
 
 
-def padded_batch(sequences: list[Episode], max_tilt: float) -> dict[str, torch.Tensor]:
-    """Episodes side by side, (T, B, …), padded at the end; ``mask`` marks real steps."""
-    steps = max(len(s) for s in sequences)
+def padded_batch(sequences: list[Episode], max_tilt: float, steps: int | None = None) -> dict[str, torch.Tensor]:
+    """Episodes side by side, (T, B, …), padded at the end to the longest (or to ``steps``); ``mask``
+    marks real steps."""
+    steps = max(len(s) for s in sequences) if steps is None else steps
     batch = len(sequences)
     obs_shape = sequences[0].obs.shape[1:]
     obs = np.zeros((steps, batch, *obs_shape), dtype=sequences[0].obs.dtype)
