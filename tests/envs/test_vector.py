@@ -89,3 +89,33 @@ def test_same_step_autoreset_gives_the_same_transitions_as_next_step():
             np.testing.assert_array_equal(r_n, 0)
         np.testing.assert_array_equal(obs_n, obs_s)
     assert finished >= 4
+
+
+def test_state_info_is_the_state_of_the_frame_it_comes_with():
+    """``infos["state"]`` lines up with the pixel observation of the same step — also across
+    same-step autoresets, where both belong to the new episode — and ``final_info`` holds the state
+    of ``final_obs``: re-rendering the reported marble position gives the frame exactly."""
+    from bimgame.sim.render import MazeRenderer
+    env = BallInMazeVectorEnv(8, task="STG1", obs_mode="pixels", max_episode_steps=15, autoreset_mode="same_step",
+                              state_info=True)
+    renderer = MazeRenderer(env.maze, 84)
+    obs, info = env.reset(seed=4)
+    rng = np.random.default_rng(0)
+    resets = 0
+    for _ in range(40):
+        assert info["state"].shape == (8, 7) and info["state"].dtype == np.float32
+        np.testing.assert_array_equal(renderer.gray(info["state"][:, None, :2].astype(np.float64))[:, None], obs)
+        np.testing.assert_array_equal(info["state"][:, 6], info["channel"][:, 0])
+        np.testing.assert_allclose(info["state"][:, 4:6], info["tilt"], atol=1e-6)
+        obs, _, terminated, truncated, info = env.step(rng.integers(0, 5, 8))
+        if "final_obs" in info:
+            done = info["_final_obs"]
+            resets += int(done.sum())
+            final_state = info["final_info"]["state"][done]
+            np.testing.assert_array_equal(renderer.gray(final_state[:, None, :2].astype(np.float64))[:, None],
+                                          info["final_obs"][done])
+    assert resets >= 8
+    plain = BallInMazeVectorEnv(2, task="STG1", obs_mode="pixels")
+    assert "state" not in plain.reset(seed=0)[1]
+    with pytest.raises(ValueError, match="state_info"):
+        BallInMazeVectorEnv(2, state_info="yes")

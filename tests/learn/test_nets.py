@@ -112,3 +112,129 @@ def test_pixel_features_vary_with_the_marble():
         assert spread > min_spread, (subtract, float(spread))
     with pytest.raises(ValueError, match="subtract_background needs the empty-maze frame"):
         build_network(NetConfig(subtract_background=True))
+
+
+# ------------------------------------------------------------------ privileged heads, bf16
+def _privileged_net(**overrides) -> "RecurrentActorCritic":  # noqa: F821
+    from bimgame.learn.common import NetworkSettings
+    settings = NetworkSettings(obs="pixels", hidden=32, features=32, **overrides)
+    return settings.build_policy(seed=0)
+
+
+def _privileged_inputs(steps: int, batch: int, seed: int = 0) -> torch.Tensor:
+    g = torch.Generator().manual_seed(seed)
+    scale = torch.as_tensor(state_obs_scale(MazeSpec.merl()))
+    return (torch.rand(steps, batch, 7, generator=g) * 2 - 1) * scale
+
+
+def test_frame_head_reads_position_and_channel_only():
+    from bimgame.learn.nets import frame_visible
+    assert frame_visible(7) == [0, 1, 6]  # x, y, channel of one marble
+    assert frame_visible(12) == [0, 1, 4, 5, 10, 11]  # two marbles
+
+
+def test_aux_loss_is_the_error_of_both_heads_in_scaled_units():
+    net = _privileged_net(aux_heads=True)
+    config = net.config
+    obs, prev_action, prev_reward, tilt, starts = _inputs(config, 4, 3)
+    privileged = _privileged_inputs(4, 3)
+    out = net.unroll_features(obs, prev_action, prev_reward, tilt, net.initial_state(3), starts)
+    loss, parts = net.aux_loss(out.features, out.hidden, privileged)
+    target = privileged / net.privileged_scale
+    frame = (net.aux_frame(out.features) - target[..., [0, 1, 6]]).pow(2).mean()
+    memory = (net.aux_memory(out.hidden) - target).pow(2).mean()
+    torch.testing.assert_close(loss, frame + memory)
+    assert parts == pytest.approx({"aux_frame": frame.item(), "aux_memory": memory.item()})
+    # A mask counts only the selected steps.
+    mask = torch.zeros(4, 3, dtype=torch.bool)
+    mask[1, 2] = True
+    masked, _ = net.aux_loss(out.features, out.hidden, privileged, mask)
+    expected = ((net.aux_frame(out.features[1, 2]) - target[1, 2, [0, 1, 6]]).pow(2).mean()
+                + (net.aux_memory(out.hidden[1, 2]) - target[1, 2]).pow(2).mean())
+    torch.testing.assert_close(masked, expected)
+
+
+def test_aux_heads_learn_and_leave_the_policy_head_alone():
+    """Gradient steps on the auxiliary loss alone lower it and never touch π's head."""
+    net = _privileged_net(aux_heads=True)
+    obs, prev_action, prev_reward, tilt, starts = _inputs(net.config, 5, 4)
+    privileged = _privileged_inputs(5, 4)
+    policy_before = net.policy.weight.detach().clone()
+    optimizer = torch.optim.Adam(net.parameters(), lr=1e-2)
+    losses = []
+    for _ in range(30):
+        out = net.unroll_features(obs, prev_action, prev_reward, tilt, net.initial_state(4), starts)
+        loss, _ = net.aux_loss(out.features, out.hidden, privileged)
+        optimizer.zero_grad()
+        loss.backward()
+        assert net.policy.weight.grad is None or not net.policy.weight.grad.any()
+        optimizer.step()
+        losses.append(loss.item())
+    assert losses[-1] < 0.5 * losses[0]
+    assert torch.equal(net.policy.weight, policy_before)
+
+
+def test_network_without_aux_heads_refuses_the_aux_loss():
+    net = _privileged_net()
+    with pytest.raises(ValueError, match="no auxiliary heads"):
+        net.aux_loss(torch.zeros(1, 32), torch.zeros(1, 32), torch.zeros(1, 7))
+
+
+def test_asymmetric_critic_reads_the_state_and_only_the_value():
+    net = _privileged_net(asymmetric_critic=True)
+    obs, prev_action, prev_reward, tilt, starts = _inputs(net.config, 3, 2)
+    a, b = _privileged_inputs(3, 2, seed=1), _privileged_inputs(3, 2, seed=2)
+    state = net.initial_state(2)
+    logits_a, values_a, _ = net.unroll(obs, prev_action, prev_reward, tilt, state, starts, privileged=a)
+    logits_b, values_b, _ = net.unroll(obs, prev_action, prev_reward, tilt, state, starts, privileged=b)
+    torch.testing.assert_close(logits_a, logits_b)  # the policy does not see the privileged state
+    assert not torch.allclose(values_a, values_b)
+    _, values_none, _ = net.unroll(obs, prev_action, prev_reward, tilt, state, starts)
+    assert torch.isnan(values_none).all()  # acting without the state: no value, and no silent one
+    critic = {id(p) for p in net.critic_parameters()}
+    assert {id(p) for p in net.value.parameters()} | {id(p) for p in net.critic_state.parameters()} == critic
+
+
+def test_privileged_settings_need_the_state_size():
+    with pytest.raises(ValueError, match="privileged_size"):
+        NetConfig(aux_heads=True)
+    with pytest.raises(ValueError, match="privileged_size"):
+        NetConfig(asymmetric_critic=True)
+    with pytest.raises(ValueError, match="5·n \\+ 2"):
+        NetConfig(privileged_size=6)
+    with pytest.raises(ValueError, match="privileged_scale"):
+        build_network(NetConfig(privileged_size=7, aux_heads=True))
+    with pytest.raises(ValueError, match="precision"):
+        NetConfig(precision="fp16")
+
+
+def test_old_checkpoints_load_into_a_network_without_privileged_parts():
+    """The privileged scale is not stored: weights saved before it existed still load strictly."""
+    net = build_network(NetConfig())
+    assert "privileged_scale" not in net.state_dict()
+
+
+def test_bf16_and_fp32_act_alike_on_real_frames():
+    """bfloat16 autocast of the encoder changes a trained-scale policy's probabilities by little, and
+    its greedy actions only where two actions are nearly tied."""
+    from bimgame.envs.vector import BallInMazeVectorEnv
+    env = BallInMazeVectorEnv(64, task="FULL", obs_mode="pixels")
+    obs, info = env.reset(seed=0)
+    fp32 = build_network(NetConfig(), seed=3)
+    with torch.no_grad():
+        fp32.policy.weight.normal_(0, 0.3, generator=torch.Generator().manual_seed(0))  # decisive logits
+    bf16 = build_network(NetConfig(precision="bf16"), seed=3)
+    bf16.load_state_dict(fp32.state_dict())
+    prev_action = torch.full((64,), NO_ACTION)
+    tilt = torch.as_tensor(info["tilt"], dtype=torch.float32) / env.maze.max_tilt
+    with torch.no_grad():
+        logits32, values32, _ = fp32.step(torch.as_tensor(obs), prev_action, torch.zeros(64), tilt, fp32.initial_state(64))
+        logits16, values16, _ = bf16.step(torch.as_tensor(obs), prev_action, torch.zeros(64), tilt, bf16.initial_state(64))
+    p32, p16 = torch.softmax(logits32, -1), torch.softmax(logits16, -1)
+    assert (p32 - p16).abs().max() < 0.02
+    torch.testing.assert_close(values16, values32, atol=0.05, rtol=0.05)
+    top2 = p32.topk(2, dim=-1).values
+    decisive = (top2[:, 0] - top2[:, 1]) > 0.04
+    assert decisive.sum() > 10
+    assert torch.equal(logits32.argmax(-1)[decisive], logits16.argmax(-1)[decisive])
+    assert logits16.dtype == torch.float32

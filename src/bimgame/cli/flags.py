@@ -32,6 +32,7 @@ from bimgame.experiments.budgets import ALGORITHMS
 from bimgame.expert.mpc import PLANNING_REWARDS, SAMPLINGS
 from bimgame.learn.a3c import OPTIMIZERS, START_CURRICULA
 from bimgame.learn.finetune import FINETUNE_PRESETS
+from bimgame.learn.nets import PRECISIONS
 from bimgame.learn.supervised import TARGETS
 from bimgame.util.settings import field_docs
 
@@ -41,7 +42,7 @@ __all__ = ["add_settings_flags", "given_settings", "FIELD_CHOICES"]
 FIELD_CHOICES: dict[str, tuple[str, ...]] = {
     "task": TASK_NAMES, "tasks": TASK_NAMES, "obs": OBS_MODES, "optimizer": OPTIMIZERS, "target": TARGETS,
     "sampling": SAMPLINGS, "reward": PLANNING_REWARDS, "algorithms": ALGORITHMS,
-    "finetune": tuple(FINETUNE_PRESETS), "start_curriculum": START_CURRICULA,
+    "finetune": tuple(FINETUNE_PRESETS), "start_curriculum": START_CURRICULA, "precision": PRECISIONS,
 }
 #: Switches a fine-tuning preset may turn on: they get both ``--x`` and ``--no-x``.
 _TWO_WAY_SWITCHES = {name for name, value in FINETUNE_PRESETS["keep"].items() if isinstance(value, bool)}

@@ -21,10 +21,11 @@ __all__ = ["add_pretrain_arguments", "run_pretrain", "add_dagger_arguments", "ru
 #: Pre-training settings with a flag of their own; ``target`` is ``--value-only``.
 PRETRAIN_FLAGS = ("task", "obs", "epochs", "patience", "lr", "l2", "value_coef", "gamma", "val_fraction", "bptt",
                   "batch_episodes", "batch_frames", "max_grad_norm", "hidden", "features", "tilt_input", "keypoints",
-                  "subtract_background", "eval_episodes", "seed")
+                  "subtract_background", "aux_heads", "asymmetric_critic", "precision", "aux_coef", "eval_episodes",
+                  "seed")
 #: The learner settings of DAgger with a flag (the rest keep the defaults of DAgger's learner).
 DAGGER_LEARNER_FLAGS = ("task", "obs", "lr", "hidden", "features", "tilt_input", "keypoints", "subtract_background",
-                        "seed")
+                        "precision", "seed")
 #: DAgger's own settings with a flag (``expert`` is the default MPC expert).
 DAGGER_FLAGS = ("iterations", "episodes_per_iteration", "beta0", "beta_decay", "epochs_per_iteration",
                 "max_episode_steps", "eval_episodes")

@@ -28,6 +28,7 @@ from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
 from bimgame.envs.env import ACTIONS_HELP, DISCRETE_TILTS, BallInMazeEnv
+from bimgame.envs.observe import Observer
 from bimgame.sim.placement import check_sim_state, sample_start
 from bimgame.sim.tasks import TaskState, initial_task_state, task_step
 from bimgame.util.settings import is_integer
@@ -61,6 +62,10 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
         start_sampler: where episodes start (:class:`StartSampler`), called at every reset of every
             env — the first ``reset()`` and each autoreset — with the env's index and its own
             generator. None (default): the task's random starts.
+        state_info: also report ``infos["state"]``, the state observation (B, 7·n…; see
+            :class:`~bimgame.envs.observe.Observer`) of the same step as the observation, whatever
+            ``obs_mode`` is: privileged information for learners that train pixel policies with the
+            simulator's state (auxiliary losses, an asymmetric critic), never an input of the policy.
         **env_kwargs: the keyword arguments of :class:`~bimgame.envs.env.BallInMazeEnv`.
 
     Attributes:
@@ -74,7 +79,7 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
 
     def __init__(self, num_envs: int, *, max_episode_steps: int | None = None, nthread: int | None = None,
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
-                 start_sampler: StartSampler | None = None, **env_kwargs: Any):
+                 start_sampler: StartSampler | None = None, state_info: bool = False, **env_kwargs: Any):
         if not (is_integer(num_envs) and num_envs >= 1):
             raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
         if max_episode_steps is not None and not (is_integer(max_episode_steps) and max_episode_steps >= 1):
@@ -94,6 +99,9 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
             raise ValueError(f"start_sampler must be None or a callable (index, rng) -> (state or None, tag), "
                              f"got {start_sampler!r}")
         self.start_sampler = start_sampler
+        if not isinstance(state_info, bool):
+            raise ValueError(f"state_info must be True or False, got {state_info!r}")
+        self.state_info = state_info
         # One template env validates the arguments and owns the model, observer and spaces.
         self.template = BallInMazeEnv(**env_kwargs)
         self.num_envs = int(num_envs)
@@ -116,6 +124,7 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
         self._autoreset = np.zeros(self.num_envs, dtype=bool)
         self._rngs: list[np.random.Generator] = []
         self._has_reset = False
+        self._state_observer = Observer(self.maze, n, "state")
 
     # ------------------------------------------------------------------ API
     def reset(self, *, seed: int | list[int | None] | None = None, options: dict | None = None):
@@ -261,6 +270,9 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
             "is_success": success,
             "tilt": tilt,
         }
+        if self.state_info:
+            values["state"] = self._state_observer.from_kinematics(positions, velocities, tilt,
+                                                                   self._task_state.channel)
         every_env = np.ones(self.num_envs, dtype=bool)  # Gymnasium's per-key "_key" masks
         infos: dict[str, Any] = {}
         for key, value in values.items():

@@ -437,8 +437,9 @@ def iterate_sequences(dataset_or_dir, *, obs: str = "state", gamma: float = 0.99
     (opened with :func:`load_dataset`). Yields one :class:`~bimgame.expert.episode.Episode` per
     episode: ``obs`` ``"state"`` is (T, 7) float32 from the stored observations, ``"pixels"`` is
     (T, 1, 84, 84) uint8 re-rendered from the stored physics states (identical to the env's own
-    pixel observations); ``channels`` come from the stored infos (or the state observations); ``id``
-    is the episode's index in the dataset.
+    pixel observations); ``channels`` come from the stored infos (or the state observations);
+    ``state_obs`` are the stored state observations (also for pixels: the privileged targets of
+    auxiliary losses); ``id`` is the episode's index in the dataset.
     """
     if obs not in ("state", "pixels"):
         raise ValueError(f"unknown obs {obs!r}; allowed: 'state', 'pixels'")
@@ -473,7 +474,7 @@ def iterate_sequences(dataset_or_dir, *, obs: str = "state", gamma: float = 0.99
         yield Episode.from_steps(obs=frames, actions=episode.actions, rewards=episode.rewards,
                                  tilt=states[:, 4 * n_marbles:4 * n_marbles + 2], gamma=gamma, channels=channels,
                                  terminated=bool(episode.terminations[-1]),
-                                 truncated=bool(episode.truncations[-1]), id=int(episode.id))
+                                 truncated=bool(episode.truncations[-1]), id=int(episode.id), state_obs=states)
 
 
 def _pixel_observer(n_marbles: int) -> Observer:

@@ -76,6 +76,9 @@ class Episode:
     truncated: bool = False
     id: int | None = None
     """The episode's index in its dataset."""
+    state_obs: np.ndarray | None = None
+    """(T, 7·n…) float32: the state observation at each step, whatever ``obs`` is — privileged
+    information for auxiliary losses when learning from pixels; None where not recorded."""
 
     #: The per-step arrays, in the order they are stored (DAgger's ``.npz`` files).
     STEP_FIELDS = ("obs", "actions", "executed", "prev_actions", "prev_rewards", "tilt", "returns", "rewards")
@@ -83,7 +86,8 @@ class Episode:
     @classmethod
     def from_steps(cls, *, obs: np.ndarray, actions: np.ndarray, rewards: np.ndarray, tilt: np.ndarray,
                    gamma: float, executed: np.ndarray | None = None, channels: np.ndarray | None = None,
-                   terminated: bool = False, truncated: bool = False, id: int | None = None) -> Episode:
+                   terminated: bool = False, truncated: bool = False, id: int | None = None,
+                   state_obs: np.ndarray | None = None) -> Episode:
         """The record of an episode from what happened at each step; ``executed`` defaults to
         ``actions``."""
         actions = np.asarray(actions, dtype=np.int64)
@@ -95,14 +99,17 @@ class Episode:
                    returns=discounted_returns(rewards, gamma).astype(np.float32),
                    tilt=np.asarray(tilt, dtype=np.float32), executed=executed,
                    channels=None if channels is None else np.asarray(channels, dtype=np.int64),
-                   terminated=bool(terminated), truncated=bool(truncated), id=id)
+                   terminated=bool(terminated), truncated=bool(truncated), id=id,
+                   state_obs=None if state_obs is None else np.asarray(state_obs, dtype=np.float32))
 
     def __len__(self) -> int:
         return len(self.actions)
 
     def window(self, start: int, stop: int) -> Episode:
-        """Steps ``start`` to ``stop`` (exclusive) of the episode: its per-step arrays sliced."""
-        return Episode(**{name: getattr(self, name)[start:stop] for name in self.STEP_FIELDS})
+        """Steps ``start`` to ``stop`` (exclusive) of the episode: its per-step arrays (and state
+        observations, if recorded) sliced."""
+        return Episode(**{name: getattr(self, name)[start:stop] for name in self.STEP_FIELDS},
+                       state_obs=None if self.state_obs is None else self.state_obs[start:stop])
 
     def step_arrays(self) -> dict[str, np.ndarray]:
         """The per-step arrays by name (:data:`STEP_FIELDS`)."""
@@ -143,4 +150,5 @@ def relabel(episode: Episode, task: str | Task, gamma: float, spec: MazeSpec | N
                    prev_actions=episode.prev_actions[:end], prev_rewards=previous_values(rewards, 0.0),
                    returns=discounted_returns(rewards, gamma).astype(np.float32), tilt=episode.tilt[:end],
                    executed=episode.executed[:end], channels=channels[:end + 1], terminated=terminated,
-                   truncated=not terminated, id=episode.id)
+                   truncated=not terminated, id=episode.id,
+                   state_obs=None if episode.state_obs is None else episode.state_obs[:end])

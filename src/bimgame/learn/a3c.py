@@ -103,7 +103,7 @@ class TrainResult:
 _TABLES = {
     "episodes": ["start_step", "worker", "return", "length", "success", "true_start"],
     "updates": ["seconds", "sps", "policy_loss", "value_loss", "entropy", "grad_norm", "recent_success", "recent_return",
-                "recent_length", "kl", "bc", "actor_weight", "kl_weight", "bc_weight", "entropy_coef", "curriculum_stage",
+                "recent_length", "kl", "bc", "aux_frame", "aux_memory", "actor_weight", "kl_weight", "bc_weight", "entropy_coef", "curriculum_stage",
                 "curriculum_steps_back", "curriculum_pool", "curriculum_good", "curriculum_mastered",
                 "curriculum_start_distance", "curriculum_window_success", "true_start_share"],
     "eval": list(EVAL_COLUMNS),
@@ -345,7 +345,8 @@ def _run_processes(config: A3CConfig, run_dir: Path, shared: RecurrentActorCriti
                            "seconds": time.monotonic() - started}
                     log.write("updates", payload["step"], row,
                               scalars=("sps", "policy_loss", "value_loss", "entropy", "grad_norm", "recent_success",
-                                       "kl", "actor_weight", "kl_weight", "bc_weight", "entropy_coef",
+                                       "kl", "aux_frame", "aux_memory", "actor_weight", "kl_weight", "bc_weight",
+                                       "entropy_coef",
                                        "curriculum_stage", "curriculum_steps_back", "curriculum_start_distance"))
                 elif kind == "eval":
                     log.write("eval", payload["step"], payload, scalars=tuple(_TABLES["eval"]))

@@ -12,6 +12,7 @@ from typing import Any, Callable, ClassVar
 import torch
 
 from bimgame.envs.vector import BallInMazeVectorEnv
+from bimgame.learn.augment import MAX_SHIFT
 from bimgame.learn.common import NetworkSettings, check_seed, evaluate_greedy_and_sampled, evaluation_seed
 from bimgame.learn.finetune import FINETUNE_PRESETS, LossWeights, RunningScale, bc_loss, kl_to_teacher
 from bimgame.learn.nets import RecurrentActorCritic
@@ -131,6 +132,12 @@ class A3CConfig(NetworkSettings):
     """Steps over which the entropy target falls to ``entropy_target`` (0: at once)."""
     curriculum_threshold: float = 0.8
     """Start curricula: success on the current starts that moves them further from the goal."""
+    aux_coef: float = 1.0
+    """Weight of the auxiliary heads' loss (predicting the simulator's state) when the network has
+    them (``aux_heads``)."""
+    augment_shift: int = 0
+    """Pixels: shift each environment's frames in an update by up to this many pixels (DrQ random
+    shifts, replicate padding; 0: none). Acting always sees the frames as rendered."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -180,7 +187,11 @@ class A3CConfig(NetworkSettings):
         if not (isinstance(self.kl_temperature, (int, float)) and math.isfinite(self.kl_temperature)
                 and self.kl_temperature > 0):
             raise ValueError(f"A3CConfig.kl_temperature must be a finite number > 0, got {self.kl_temperature!r}")
-        for name in ("entropy_coef", "value_coef", "kl_coef", "bc_coef"):
+        require_int("A3CConfig", "augment_shift", self.augment_shift, 0)
+        if self.augment_shift > MAX_SHIFT or (self.augment_shift and self.obs != "pixels"):
+            raise ValueError(f"A3CConfig.augment_shift must be 0..{MAX_SHIFT} pixels, and 0 for state observations, "
+                             f"got {self.augment_shift!r} with obs={self.obs!r}")
+        for name in ("entropy_coef", "value_coef", "kl_coef", "bc_coef", "aux_coef"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
                 raise ValueError(f"A3CConfig.{name} must be a finite number >= 0, got {value!r}")
@@ -253,8 +264,9 @@ def a3c_segment_loss(net: RecurrentActorCritic, segment: dict[str, torch.Tensor]
                      entropy_coef: float | None = None) -> tuple[torch.Tensor, dict[str, float]]:
     """The actor-critic loss of one segment (T steps × B envs), recomputed with gradients.
 
-    ``segment`` holds ``obs``, ``prev_action``, ``prev_reward``, ``tilt`` and ``starts`` for T+1
-    steps (the last is the bootstrap state), ``actions``, ``rewards`` (with γ·V(final observation)
+    ``segment`` holds ``obs``, ``prev_action``, ``prev_reward``, ``tilt``, ``starts`` and — for a
+    network with auxiliary heads or an asymmetric critic — ``privileged`` (the simulator's state
+    observations) for T+1 steps (the last is the bootstrap state), ``actions``, ``rewards`` (with γ·V(final observation)
     already added at time-limit truncations) and ``ends`` (the episode ended after this step) for T
     steps, and the LSTM state ``h0``/``c0`` at the segment start.
 
@@ -262,10 +274,12 @@ def a3c_segment_loss(net: RecurrentActorCritic, segment: dict[str, torch.Tensor]
     adds KL(π^s ‖ π) (with ``teacher_log_probs``, (T, B, A)) and the behaviour-cloning term (with
     ``demo_windows``); during a critic warm-up the loss is the value loss alone. ``advantage_scale``
     divides the advantages by their running RMS; ``entropy_coef`` replaces ``config.entropy_coef``
-    (an adapting coefficient, see :class:`~bimgame.learn.finetune.EntropyTarget`)."""
-    logits, values, _ = net.unroll(segment["obs"], segment["prev_action"], segment["prev_reward"],
-                                   segment.get("tilt"), (segment["h0"], segment["c0"]), segment["starts"])
-    logits, bootstrap, values = logits[:-1], values[-1].detach(), values[:-1]
+    (an adapting coefficient, see :class:`~bimgame.learn.finetune.EntropyTarget`). A network with
+    auxiliary heads adds ``aux_coef`` times their loss (:meth:`~bimgame.learn.nets.RecurrentActorCritic.aux_loss`)."""
+    privileged = segment.get("privileged")
+    out = net.unroll_features(segment["obs"], segment["prev_action"], segment["prev_reward"], segment.get("tilt"),
+                              (segment["h0"], segment["c0"]), segment["starts"], privileged=privileged)
+    logits, bootstrap, values = out.logits[:-1], out.values[-1].detach(), out.values[:-1]
     rewards, ends = segment["rewards"], segment["ends"].float()
     advantages = torch.zeros_like(rewards)
     next_value, running = bootstrap, torch.zeros_like(bootstrap)
@@ -285,6 +299,12 @@ def a3c_segment_loss(net: RecurrentActorCritic, segment: dict[str, torch.Tensor]
     chosen = log_probs.gather(-1, segment["actions"].unsqueeze(-1)).squeeze(-1)
     policy_loss = -(chosen * advantages).mean()
     parts = {"policy_loss": policy_loss.item(), "value_loss": value_loss.item(), "entropy": entropy.item()}
+    aux = None
+    if net.config.aux_heads:
+        if privileged is None:
+            raise ValueError("a network with auxiliary heads needs the segment's privileged states (segment['privileged'])")
+        aux, aux_parts = net.aux_loss(out.features, out.hidden, privileged)
+        parts.update(aux_parts)
     kl = None if teacher_log_probs is None else kl_to_teacher(teacher_log_probs, log_probs)
     if kl is not None:
         parts["kl"] = kl.item()
@@ -292,6 +312,8 @@ def a3c_segment_loss(net: RecurrentActorCritic, segment: dict[str, torch.Tensor]
         return config.value_coef * value_loss, parts
     beta = config.entropy_coef if entropy_coef is None else entropy_coef
     loss = weights.actor * (policy_loss - beta * entropy) + config.value_coef * value_loss
+    if aux is not None:
+        loss = loss + config.aux_coef * aux
     if kl is not None and weights.kl > 0:
         loss = loss + weights.kl * kl
     if demo_windows is not None and weights.bc > 0:
@@ -313,7 +335,7 @@ def apply_update(local: RecurrentActorCritic, shared_params: list[torch.Tensor],
     local.zero_grad(set_to_none=True)
     loss.backward()
     if weights.critic_only:
-        value_head = {id(p) for p in local.value.parameters()}
+        value_head = {id(p) for p in local.critic_parameters()}
         for param in local.parameters():
             if id(param) not in value_head:
                 param.grad = None  # the optimiser leaves parameters without a gradient untouched

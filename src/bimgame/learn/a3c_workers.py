@@ -17,6 +17,7 @@ import torch
 from bimgame.envs.vector import BallInMazeVectorEnv
 from bimgame.learn.a3c_core import A3CConfig, EnvWrapper, apply_update, evaluate, make_optimizer, network_for
 from bimgame.learn.actor import RecurrentActor, tilt_input
+from bimgame.learn.augment import random_shift
 from bimgame.learn.finetune import DemoWindows, EntropyTarget, RunningScale, Teacher, loss_weights
 from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.learn.starts import TRUE_START, DemoStartCurriculum, ReverseCurriculum
@@ -45,7 +46,8 @@ def _start_sampler(config: A3CConfig):
 
 def _make_env(config: A3CConfig, num_envs: int, **kwargs: Any) -> BallInMazeVectorEnv:
     return BallInMazeVectorEnv(num_envs, task=config.task, obs_mode=config.obs, nthread=1,
-                               max_episode_steps=config.time_limit, autoreset_mode="same_step", **kwargs)
+                               max_episode_steps=config.time_limit, autoreset_mode="same_step",
+                               state_info=config.privileged, **kwargs)
 
 
 def _worker(rank: int, config: A3CConfig, shared: RecurrentActorCritic, optimizer_state: list[dict],
@@ -93,26 +95,24 @@ def _worker_loop(rank, config, shared, optimizer_state, counter, stop, messages,
     actor = RecurrentActor(local, config.envs_per_worker, generator=generator)
     obs, info = env.reset(seed=env_seed)
     tilt = tilt_input(info, max_tilt)
+    augment_generator = torch.Generator().manual_seed(int(np.random.SeedSequence([config.seed, rank, start_step, 2])
+                                                          .generate_state(1)[0]))
+    keys = ("obs", "prev_action", "prev_reward", "tilt", "starts") + (("privileged",) if config.privileged else ())
     n, batch = config.n_steps, config.envs_per_worker
     episode_return = np.zeros(batch)
     episode_length = np.zeros(batch, dtype=np.int64)
     episode_start = np.full(batch, counter.value, dtype=np.int64)
-    stats = {"policy_loss": 0.0, "value_loss": 0.0, "entropy": 0.0, "kl": 0.0, "bc": 0.0, "grad_norm": 0.0,
-             "updates": 0}
+    stats = {"policy_loss": 0.0, "value_loss": 0.0, "entropy": 0.0, "kl": 0.0, "bc": 0.0, "aux_frame": 0.0,
+             "aux_memory": 0.0, "grad_norm": 0.0, "updates": 0}
     since_report = 0
     while not stop.is_set() and counter.value < config.steps:
         local.load_state_dict(shared.state_dict())
         h0, c0 = actor.state
-        seg: dict[str, list] = {k: [] for k in ("obs", "prev_action", "prev_reward", "tilt", "starts",
-                                                "actions", "rewards")}
+        seg: dict[str, list] = {k: [] for k in keys + ("actions", "rewards")}
         step_at_start = counter.value
         for _ in range(n):
             obs = torch.as_tensor(obs)
-            seg["obs"].append(obs)
-            seg["prev_action"].append(actor.prev_action)
-            seg["prev_reward"].append(actor.prev_reward)
-            seg["tilt"].append(tilt)
-            seg["starts"].append(actor.starts)
+            _record_inputs(seg, obs, actor, tilt, info)
             actions, _, _ = actor.act(obs, tilt)
             if curriculum is not None:
                 start_tags = base_env.start_tags.copy()  # the step resets finished envs and their tags
@@ -128,7 +128,8 @@ def _worker_loop(rank, config, shared, optimizer_state, counter, stop, messages,
             if cut.any():
                 # A time limit is not a terminal state: bootstrap from the value of the last
                 # observation, which SAME_STEP autoreset keeps in info["final_obs"].
-                rewards_t = rewards_t + config.gamma * _final_values(actor, actions, reward, info, cut, max_tilt)
+                rewards_t = rewards_t + config.gamma * _final_values(actor, actions, reward, info, cut, max_tilt,
+                                                                     config.privileged)
             seg["actions"].append(actions)
             seg["rewards"].append(rewards_t)
             # Learning curves show the task's own reward, also when a wrapper shapes it.
@@ -148,11 +149,7 @@ def _worker_loop(rank, config, shared, optimizer_state, counter, stop, messages,
             episode_start[done] = step_at_start
             actor.observe(actions, reward, done)
             tilt = tilt_input(info, max_tilt)
-        seg["obs"].append(torch.as_tensor(obs))
-        seg["prev_action"].append(actor.prev_action)
-        seg["prev_reward"].append(actor.prev_reward)
-        seg["tilt"].append(tilt)
-        seg["starts"].append(actor.starts)
+        _record_inputs(seg, torch.as_tensor(obs), actor, tilt, info)
         segment = {k: torch.stack(v) for k, v in seg.items()}
         # Which episodes ended at each step: what the actor marks as starting the step after.
         segment.update(ends=segment["starts"][1:], h0=h0, c0=c0)
@@ -164,6 +161,8 @@ def _worker_loop(rank, config, shared, optimizer_state, counter, stop, messages,
             if weights.kl == 0 and config.kl_decay_steps > 0 and step_at_start >= config.kl_decay_steps:
                 teacher, finetuning["teacher_log_probs"] = None, None  # annealed away: stop paying for it
         finetuning["demo_windows"] = demos.sample(batch, demo_rng) if demos is not None and weights.bc > 0 else None
+        if config.augment_shift:  # after the teacher, which follows the frames as the learner acted on them
+            segment["obs"] = random_shift(segment["obs"], config.augment_shift, augment_generator)
         parts = apply_update(local, shared_params, optimizer, segment, config, weights, **finetuning)
         parts.pop("loss")
         if entropy_target is not None and parts["applied"]:
@@ -175,8 +174,8 @@ def _worker_loop(rank, config, shared, optimizer_state, counter, stop, messages,
             return
         with counter.get_lock():
             counter.value += config.steps_per_update
-        for key in ("policy_loss", "value_loss", "entropy", "kl", "bc"):
-            stats[key] += parts.get(key, float("nan") if key in ("kl", "bc") else 0.0)
+        for key in ("policy_loss", "value_loss", "entropy", "kl", "bc", "aux_frame", "aux_memory"):
+            stats[key] += parts.get(key, float("nan") if key in _OPTIONAL_TERMS else 0.0)
         stats["grad_norm"] += grad_norm
         stats["updates"] += 1
         since_report += config.steps_per_update
@@ -191,16 +190,36 @@ def _worker_loop(rank, config, shared, optimizer_state, counter, stop, messages,
             since_report = 0
 
 
+#: Loss terms that only some runs have: logged as NaN (an empty cell) where a run has none.
+_OPTIONAL_TERMS = ("kl", "bc", "aux_frame", "aux_memory")
+
+
+def _record_inputs(seg: dict[str, list], obs: torch.Tensor, actor: RecurrentActor, tilt: torch.Tensor,
+                   info: dict) -> None:
+    """Append one step's network inputs (and, where the segment keeps it, the privileged state of
+    the same step) to the segment being collected."""
+    seg["obs"].append(obs)
+    seg["prev_action"].append(actor.prev_action)
+    seg["prev_reward"].append(actor.prev_reward)
+    seg["tilt"].append(tilt)
+    seg["starts"].append(actor.starts)
+    if "privileged" in seg:
+        seg["privileged"].append(torch.as_tensor(info["state"]))
+
+
 def _final_values(actor: RecurrentActor, actions: torch.Tensor, reward: np.ndarray, info: dict,
-                  cut: np.ndarray, max_tilt: float) -> torch.Tensor:
+                  cut: np.ndarray, max_tilt: float, privileged: bool = False) -> torch.Tensor:
     """V of the last observation of time-limited episodes (0 elsewhere), from the state after the
-    step, without changing the actor."""
+    step, without changing the actor; ``privileged``: the critic also reads the final state."""
     final_obs = info["final_obs"]
     final_tilt = tilt_input(info["final_info"], max_tilt)
+    final_state = torch.as_tensor(info["final_info"]["state"]) if privileged else None
     with torch.no_grad():
         _, values, _ = actor.net.step(torch.as_tensor(final_obs), actions,
-                                      torch.as_tensor(reward, dtype=torch.float32), final_tilt, actor.state)
-    return values * torch.as_tensor(cut, dtype=torch.float32)
+                                      torch.as_tensor(reward, dtype=torch.float32), final_tilt, actor.state,
+                                      privileged=final_state)
+    # Envs that were not cut hold NaN with an asymmetric critic's partial state; only cut ones count.
+    return torch.where(torch.as_tensor(cut), values, torch.zeros_like(values))
 
 
 def _evaluator(config: A3CConfig, shared: RecurrentActorCritic, counter, stop, messages, start_step: int,

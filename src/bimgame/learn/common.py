@@ -19,6 +19,7 @@ from bimgame.envs.observe import OBS_MODES
 from bimgame.expert.mpc import episode_seed
 from bimgame.learn.actor import evaluate_network
 from bimgame.learn.nets import (
+    PRECISIONS,
     NetConfig,
     RecurrentActorCritic,
     ValueNetwork,
@@ -67,6 +68,16 @@ class NetworkSettings:
     """Pixels: add spatial soft-argmax keypoints to the conv encoder (see :mod:`bimgame.learn.nets`)."""
     subtract_background: bool = False
     """Pixels: subtract the empty-maze frame before the convolutions (see :mod:`bimgame.learn.nets`)."""
+    aux_heads: bool = False
+    """Train auxiliary heads that predict the simulator's state (marble position, velocity, channel,
+    tilt) from the network's features; the policy still acts from its observations alone (see
+    :mod:`bimgame.learn.nets`)."""
+    asymmetric_critic: bool = False
+    """The value head also reads the simulator's state (training only; a departure from the paper,
+    whose critic sees what the actor sees)."""
+    precision: str = "fp32"
+    """Pixels: the encoder's compute, ``fp32`` or ``bf16`` (bfloat16 autocast, faster on CPUs with
+    AVX512-BF16)."""
 
     def __post_init__(self) -> None:
         owner = type(self).__name__
@@ -82,9 +93,16 @@ class NetworkSettings:
             if value > MAX_NETWORK_SIZE:
                 raise ValueError(f"{owner}.{name} must be at most {MAX_NETWORK_SIZE} (the paper's networks use "
                                  f"256), got {value!r}")
-        for name in ("tilt_input", "keypoints", "subtract_background"):
+        for name in ("tilt_input", "keypoints", "subtract_background", "aux_heads", "asymmetric_critic"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"{owner}.{name} must be True or False, got {getattr(self, name)!r}")
+        if self.precision not in PRECISIONS:
+            raise ValueError(f"{owner}.precision must be one of {PRECISIONS}, got {self.precision!r}")
+
+    @property
+    def privileged(self) -> bool:
+        """Whether learning needs the simulator's state besides the observations."""
+        return self.aux_heads or self.asymmetric_critic
 
     @classmethod
     def field_names(cls) -> tuple[str, ...]:
@@ -98,15 +116,19 @@ class NetworkSettings:
         """The network sizes and the fixed inputs to build it with (``obs_scale`` or ``background``,
         keyword arguments of :func:`~bimgame.learn.nets.build_network`)."""
         maze = maze or MazeSpec.merl()
+        scale = state_obs_scale(maze)
+        privileged = {"privileged_size": len(scale), "aux_heads": self.aux_heads,
+                      "asymmetric_critic": self.asymmetric_critic} if self.privileged else {}
+        inputs: dict[str, Any] = {"privileged_scale": scale} if self.privileged else {}
         if self.obs == "pixels":
             net_config = NetConfig(encoder="conv", obs_shape=(1, 84, 84), features=self.features, hidden=self.hidden,
                                    tilt_input=self.tilt_input, keypoints=self.keypoints,
-                                   subtract_background=self.subtract_background)
-            return net_config, {"background": maze_background(maze) if self.subtract_background else None}
-        scale = state_obs_scale(maze)
+                                   subtract_background=self.subtract_background, precision=self.precision,
+                                   **privileged)
+            return net_config, {"background": maze_background(maze) if self.subtract_background else None, **inputs}
         net_config = NetConfig(encoder="mlp", obs_shape=(len(scale),), features=self.features, hidden=self.hidden,
-                               tilt_input=self.tilt_input)
-        return net_config, {"obs_scale": scale}
+                               tilt_input=self.tilt_input, **privileged)
+        return net_config, {"obs_scale": scale, **inputs}
 
     def build_policy(self, seed: int, maze: MazeSpec | None = None) -> RecurrentActorCritic:
         """A fresh actor-critic, initialised from ``seed``."""

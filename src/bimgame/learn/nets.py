@@ -11,6 +11,21 @@ actions change the tilt by ±1 step. The paper's network must integrate its own 
 LSTM to know the tilt; a robot reads it from its joint encoders. ``tilt_input=False`` gives the
 paper's inputs exactly.
 
+Options beyond the paper's network (each off by default, so the defaults of :class:`NetConfig` are the
+paper's network with the tilt input):
+
+- ``aux_heads``: two linear heads read the simulator's state (the *privileged* state observation,
+  see :class:`~bimgame.envs.observe.Observer`) back from the features — the frame head from the
+  encoder's features (what one frame shows: marble position and channel), the memory head from the
+  LSTM (everything: also velocities and tilt). Their regression loss (:meth:`RecurrentActorCritic.aux_loss`)
+  is a training signal only: the policy still acts from pixels alone. Without it the encoder must
+  find a ≈ 5 px marble on a high-contrast maze from the reward alone.
+- ``asymmetric_critic``: the value head also reads the privileged state (through a small MLP).
+  The critic is only used in training, so the policy stays a pixel policy; this departs from the
+  paper, whose critic shares the actor's pixel inputs (Pinto et al. 2017, asymmetric actor-critic).
+- ``precision="bf16"``: the encoder (convolutions and FC layer, most of the compute) runs under
+  bfloat16 autocast and returns float32 features; the LSTM and heads stay float32.
+
 Two entry points, one set of weights:
 
 - :meth:`RecurrentActorCritic.step` — one time step for a batch of environments (acting: an
@@ -34,12 +49,15 @@ from bimgame.sim.maze import MazeSpec
 from bimgame.sim.render import MazeRenderer
 from bimgame.util.settings import from_dict
 
-__all__ = ["NetConfig", "RecurrentActorCritic", "ValueNetwork", "build_value_network", "LSTMState", "build_network", "state_obs_scale", "maze_background",
+__all__ = ["NetConfig", "PRECISIONS", "Unrolled", "frame_visible", "RecurrentActorCritic", "ValueNetwork", "build_value_network", "LSTMState", "build_network", "state_obs_scale", "maze_background",
            "NO_ACTION", "N_ACTIONS", "ENCODERS"]
 
 #: The discrete action set of the env (noop, ±x, ±y).
 N_ACTIONS = 5
 ENCODERS = ("conv", "mlp")
+#: The encoder's compute precision: float32, or bfloat16 autocast (CPUs with AVX512-BF16 / AMX run it
+#: ≈ 1.5× faster; see benchmarks/bench_a3c.py).
+PRECISIONS = ("fp32", "bf16")
 
 
 class LSTMState(NamedTuple):
@@ -74,6 +92,15 @@ class NetConfig:
     """Conv encoder only: also feed the FC layer each conv channel's spatial soft-argmax (the
     expected image position of its activation; Levine et al. 2016), so the marble's position is
     one linear map away from the features instead of something the FC layer must discover."""
+    precision: str = "fp32"
+    """Conv encoder's compute: ``fp32`` or ``bf16`` (bfloat16 autocast, float32 features out)."""
+    privileged_size: int = 0
+    """Length of the privileged state vector (the state observation) the auxiliary heads predict and
+    an asymmetric critic reads; 0: none (neither option is available)."""
+    aux_heads: bool = False
+    """Heads that predict the privileged state from the encoder's and the LSTM's features."""
+    asymmetric_critic: bool = False
+    """The value head also reads the privileged state (training only; not the paper's)."""
 
     def __post_init__(self) -> None:
         if self.encoder not in ENCODERS:
@@ -89,6 +116,14 @@ class NetConfig:
         for name in ("features", "hidden", "n_actions"):
             if getattr(self, name) < 1:
                 raise ValueError(f"NetConfig.{name} must be >= 1, got {getattr(self, name)}")
+        if self.precision not in PRECISIONS:
+            raise ValueError(f"NetConfig.precision must be one of {PRECISIONS}, got {self.precision!r}")
+        if self.privileged_size < 0 or (self.privileged_size and (self.privileged_size - 2) % 5):
+            raise ValueError(f"NetConfig.privileged_size must be 0 or a state observation's length 5·n + 2, "
+                             f"got {self.privileged_size}")
+        for name in ("aux_heads", "asymmetric_critic"):
+            if getattr(self, name) and not self.privileged_size:
+                raise ValueError(f"NetConfig.{name} needs privileged_size > 0 (the state observation's length)")
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -105,6 +140,27 @@ def state_obs_scale(spec: MazeSpec, n_marbles: int = 1) -> np.ndarray:
     per_marble = [spec.rim_radius, spec.rim_radius, 0.5, 0.5] * n_marbles
     return np.array(per_marble + [spec.max_tilt] * 2 + [max(1, spec.outermost_channel)] * n_marbles,
                     dtype=np.float32)
+
+
+def frame_visible(privileged_size: int) -> list[int]:
+    """Indices of the privileged state one frame shows: each marble's x, y and channel (not its
+    velocity, nor the tilt: frames are drawn in the board's frame)."""
+    n = (privileged_size - 2) // 5
+    return [4 * i + k for i in range(n) for k in (0, 1)] + [4 * n + 2 + i for i in range(n)]
+
+
+class Unrolled(NamedTuple):
+    """What :meth:`RecurrentActorCritic.unroll_features` returns for a segment of T steps × B envs."""
+    logits: torch.Tensor
+    """(T, B, A)"""
+    values: torch.Tensor
+    """(T, B); NaN for an asymmetric critic given no privileged state."""
+    state: LSTMState
+    """The LSTM state after the last step."""
+    features: torch.Tensor
+    """(T, B, F) the encoder's output."""
+    hidden: torch.Tensor
+    """(T, B, H) the LSTM's output."""
 
 
 class SpatialSoftArgmax(nn.Module):
@@ -147,17 +203,19 @@ class ConvEncoder(nn.Module):
         # a mean of 0.015 with PyTorch's default init).
         self.fc = nn.Sequential(nn.Linear(flat, config.features), nn.LayerNorm(config.features), nn.ReLU())
         self.register_buffer("background", torch.zeros(config.obs_shape))
+        self.bf16 = config.precision == "bf16"
         for layer in (self.conv1, self.conv2, self.fc[0]):
             nn.init.orthogonal_(layer.weight, gain=nn.init.calculate_gain("relu"))
             nn.init.zeros_(layer.bias)
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        a1 = self.conv1((obs.float() - self.background) * (1.0 / 255.0))
-        a2 = self.conv2(torch.relu(a1))
-        parts = [torch.relu(a2).flatten(1)]
-        if self.keypoints is not None:
-            parts += [self.keypoints[0](a1), self.keypoints[1](a2)]
-        return self.fc(torch.cat(parts, dim=-1) if len(parts) > 1 else parts[0])
+        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=self.bf16):
+            a1 = self.conv1((obs.float() - self.background) * (1.0 / 255.0))
+            a2 = self.conv2(torch.relu(a1))
+            parts = [torch.relu(a2).flatten(1)]
+            if self.keypoints is not None:
+                parts += [self.keypoints[0](a1), self.keypoints[1](a2)]
+            return self.fc(torch.cat(parts, dim=-1) if len(parts) > 1 else parts[0]).float()
 
 
 class MLPEncoder(nn.Module):
@@ -184,7 +242,20 @@ class RecurrentActorCritic(nn.Module):
         self.aux_size = config.n_actions + 1 + (2 if config.tilt_input else 0)
         self.lstm = nn.LSTMCell(config.features + self.aux_size, config.hidden)
         self.policy = nn.Linear(config.hidden, config.n_actions)
-        self.value = nn.Linear(config.hidden, 1)
+        # Divisors that bring the privileged state to order 1 (set by build_network).
+        self.register_buffer("privileged_scale", torch.ones(config.privileged_size), persistent=False)
+        critic_inputs = config.hidden
+        self.critic_state = None
+        if config.asymmetric_critic:
+            self.critic_state = nn.Sequential(nn.Linear(config.privileged_size, 128), nn.Tanh(),
+                                              nn.Linear(128, 128), nn.Tanh())
+            critic_inputs += 128
+        self.value = nn.Linear(critic_inputs, 1)
+        self.aux_frame = self.aux_memory = None
+        if config.aux_heads:
+            self.register_buffer("frame_index", torch.tensor(frame_visible(config.privileged_size)), persistent=False)
+            self.aux_frame = nn.Linear(config.features, len(self.frame_index))
+            self.aux_memory = nn.Linear(config.hidden, config.privileged_size)
         self._init_weights()
 
     def _init_weights(self) -> None:
@@ -192,7 +263,7 @@ class RecurrentActorCritic(nn.Module):
         # reference implementations; LSTM biases zero.
         nn.init.normal_(self.policy.weight, std=0.01)
         nn.init.zeros_(self.policy.bias)
-        nn.init.normal_(self.value.weight, std=1.0 / np.sqrt(self.config.hidden))
+        nn.init.normal_(self.value.weight, std=1.0 / np.sqrt(self.value.in_features))
         nn.init.zeros_(self.value.bias)
         nn.init.zeros_(self.lstm.bias_ih)
         nn.init.zeros_(self.lstm.bias_hh)
@@ -215,20 +286,45 @@ class RecurrentActorCritic(nn.Module):
             parts.append(tilt.float())
         return torch.cat(parts, dim=-1)
 
+    def critic_parameters(self) -> list[nn.Parameter]:
+        """The weights only the value estimate uses: the value head and an asymmetric critic's state MLP."""
+        modules = [self.value] + ([self.critic_state] if self.critic_state is not None else [])
+        return [p for module in modules for p in module.parameters()]
+
+    def values_of(self, hidden: torch.Tensor, privileged: torch.Tensor | None) -> torch.Tensor:
+        """V from the LSTM output (…, H) and, for an asymmetric critic, the privileged state (…, P);
+        an asymmetric critic given no privileged state gives NaN (acting needs no value)."""
+        if self.critic_state is None:
+            return self.value(hidden).squeeze(-1)
+        if privileged is None:
+            return torch.full(hidden.shape[:-1], float("nan"))
+        state = self.critic_state(privileged.float() / self.privileged_scale)
+        return self.value(torch.cat([hidden, state], dim=-1)).squeeze(-1)
+
     def step(self, obs: torch.Tensor, prev_action: torch.Tensor, prev_reward: torch.Tensor,
-             tilt: torch.Tensor | None, state: LSTMState) -> tuple[torch.Tensor, torch.Tensor, LSTMState]:
-        """One time step for B environments → logits (B, A), values (B,), next state."""
+             tilt: torch.Tensor | None, state: LSTMState, *, privileged: torch.Tensor | None = None,
+             ) -> tuple[torch.Tensor, torch.Tensor, LSTMState]:
+        """One time step for B environments → logits (B, A), values (B,), next state.
+        ``privileged`` (B, P): the state observation an asymmetric critic reads."""
         x = torch.cat([self.encoder(obs), self.aux_inputs(prev_action, prev_reward, tilt)], dim=-1)
         h, c = self.lstm(x, state)
-        return self.policy(h), self.value(h).squeeze(-1), LSTMState(h, c)
+        return self.policy(h), self.values_of(h, privileged), LSTMState(h, c)
 
     def unroll(self, obs: torch.Tensor, prev_action: torch.Tensor, prev_reward: torch.Tensor,
-               tilt: torch.Tensor | None, state: LSTMState, starts: torch.Tensor,
-               ) -> tuple[torch.Tensor, torch.Tensor, LSTMState]:
+               tilt: torch.Tensor | None, state: LSTMState, starts: torch.Tensor, *,
+               privileged: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor, LSTMState]:
         """A segment of T steps for B environments → logits (T, B, A), values (T, B), final state.
 
         ``starts`` (T, B) marks the first step of an episode: the LSTM state is zeroed there (the
-        previous action and reward inputs should then be NO_ACTION and 0)."""
+        previous action and reward inputs should then be NO_ACTION and 0). ``privileged`` (T, B, P):
+        the state observations an asymmetric critic reads."""
+        out = self.unroll_features(obs, prev_action, prev_reward, tilt, state, starts, privileged=privileged)
+        return out.logits, out.values, out.state
+
+    def unroll_features(self, obs: torch.Tensor, prev_action: torch.Tensor, prev_reward: torch.Tensor,
+                        tilt: torch.Tensor | None, state: LSTMState, starts: torch.Tensor, *,
+                        privileged: torch.Tensor | None = None) -> Unrolled:
+        """:meth:`unroll`, also returning the encoder's and the LSTM's features (for :meth:`aux_loss`)."""
         steps, batch = obs.shape[:2]
         features = self.encoder(obs.reshape(steps * batch, *obs.shape[2:])).reshape(steps, batch, -1)
         x = torch.cat([features, self.aux_inputs(prev_action, prev_reward, tilt)], dim=-1)
@@ -239,7 +335,25 @@ class RecurrentActorCritic(nn.Module):
             h, c = self.lstm(x[t], (h * keep[t], c * keep[t]))
             outputs.append(h)
         hidden = torch.stack(outputs)
-        return self.policy(hidden), self.value(hidden).squeeze(-1), LSTMState(h, c)
+        return Unrolled(self.policy(hidden), self.values_of(hidden, privileged), LSTMState(h, c), features, hidden)
+
+    def aux_loss(self, features: torch.Tensor, hidden: torch.Tensor, privileged: torch.Tensor,
+                 mask: torch.Tensor | None = None) -> tuple[torch.Tensor, dict[str, float]]:
+        """The auxiliary heads' regression loss: mean squared error, in the privileged state's
+        order-1 units, of the frame head (position and channel, from the encoder's features) plus
+        the memory head (the whole state, from the LSTM). ``features`` (…, F), ``hidden`` (…, H) and
+        ``privileged`` (…, P) line up step by step; ``mask`` (…) selects the steps that count."""
+        if self.aux_frame is None or self.aux_memory is None:
+            raise ValueError("this network has no auxiliary heads (NetConfig.aux_heads=False)")
+        target = privileged.float() / self.privileged_scale
+        frame_error = (self.aux_frame(features) - target[..., self.frame_index]).pow(2).mean(-1)
+        memory_error = (self.aux_memory(hidden) - target).pow(2).mean(-1)
+        if mask is None:
+            frame, memory = frame_error.mean(), memory_error.mean()
+        else:
+            weights = mask.float() / mask.float().sum().clamp(min=1.0)
+            frame, memory = (frame_error * weights).sum(), (memory_error * weights).sum()
+        return frame + memory, {"aux_frame": frame.item(), "aux_memory": memory.item()}
 
 
 class ValueNetwork(nn.Module):
@@ -271,8 +385,15 @@ class ValueNetwork(nn.Module):
 
 
 def _configure_inputs(net: nn.Module, config: NetConfig, obs_scale: np.ndarray | None,
-                      background: np.ndarray | None) -> None:
-    """Set the encoder's fixed inputs: the empty-maze background (conv) or the state scale (mlp)."""
+                      background: np.ndarray | None, privileged_scale: np.ndarray | None = None) -> None:
+    """Set the network's fixed inputs: the empty-maze background (conv), the state scale (mlp), the
+    privileged state's scale (auxiliary heads, asymmetric critic)."""
+    if config.privileged_size:
+        if privileged_scale is None or np.shape(privileged_scale) != (config.privileged_size,):
+            raise ValueError(f"privileged_size {config.privileged_size} needs privileged_scale, that many divisors "
+                             f"(state_obs_scale(spec)), got {None if privileged_scale is None else np.shape(privileged_scale)}")
+        if hasattr(net, "privileged_scale"):
+            net.privileged_scale.copy_(torch.as_tensor(np.asarray(privileged_scale, dtype=np.float32)))
     if config.subtract_background:
         if background is None or np.shape(background) != config.obs_shape:
             raise ValueError(f"subtract_background needs the empty-maze frame of shape {config.obs_shape} "
@@ -292,28 +413,32 @@ def _configure_inputs(net: nn.Module, config: NetConfig, obs_scale: np.ndarray |
 
 
 def build_value_network(config: NetConfig, obs_scale: np.ndarray | None = None, *, seed: int = 0,
-                        background: np.ndarray | None = None) -> ValueNetwork:
-    """A fresh :class:`ValueNetwork`; arguments as :func:`build_network`."""
-    return _build(ValueNetwork, config, obs_scale, seed, background)
+                        background: np.ndarray | None = None,
+                        privileged_scale: np.ndarray | None = None) -> ValueNetwork:
+    """A fresh :class:`ValueNetwork`; arguments as :func:`build_network` (V̂ has no auxiliary heads
+    nor privileged critic: the privileged settings are ignored)."""
+    return _build(ValueNetwork, config, obs_scale, seed, background, privileged_scale)
 
 
 def build_network(config: NetConfig, obs_scale: np.ndarray | None = None, *, seed: int = 0,
-                  background: np.ndarray | None = None) -> RecurrentActorCritic:
+                  background: np.ndarray | None = None,
+                  privileged_scale: np.ndarray | None = None) -> RecurrentActorCritic:
     """A fresh network with initial weights drawn from ``seed`` (the global torch generator is
     left untouched); ``obs_scale`` sets the MLP encoder's input divisors (see
     :func:`state_obs_scale`); ``background`` is the empty-maze frame a ``subtract_background``
-    network subtracts (see :func:`maze_background`)."""
-    return _build(RecurrentActorCritic, config, obs_scale, seed, background)
+    network subtracts (see :func:`maze_background`); ``privileged_scale`` the privileged state's
+    divisors (:func:`state_obs_scale`) when ``config.privileged_size`` > 0."""
+    return _build(RecurrentActorCritic, config, obs_scale, seed, background, privileged_scale)
 
 
 def _build(cls: type, config: NetConfig, obs_scale: np.ndarray | None, seed: int,
-           background: np.ndarray | None):
+           background: np.ndarray | None, privileged_scale: np.ndarray | None = None):
     """``cls(config)`` with initial weights drawn from ``seed`` (the global torch generator is left
-    untouched), then the encoder's fixed inputs set."""
+    untouched), then the fixed inputs set."""
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)
         net = cls(config)
-    _configure_inputs(net, config, obs_scale, background)
+    _configure_inputs(net, config, obs_scale, background, privileged_scale)
     return net
 
 

@@ -53,7 +53,8 @@ from bimgame.util.progress import ProgressBar
 from bimgame.util.signals import sigterm_as_interrupt
 
 __all__ = ["PretrainResult", "pretrain", "load_sequences", "build_model", "evaluate_policy"]
-_TABLE = ["train_loss", "train_accuracy", "train_value_rmse", "val_loss", "val_accuracy", "val_value_rmse",
+_TABLE = ["train_loss", "train_accuracy", "train_value_rmse", "train_aux", "val_loss", "val_accuracy",
+          "val_value_rmse", "val_aux",
           "seconds"]
 #: Every file and folder pre-training writes in its directory (removed again if it stops early).
 _RUN_FILES = (CONFIG, CHECKPOINT, SUMMARY, "pretrain.csv", "tb")
@@ -189,8 +190,8 @@ def _pretrain(config: PretrainConfig, data_dir: str | Path, out_dir: Path, *, pr
     best: dict[str, Any] = {"loss": math.inf, "epoch": 0, "accuracy": float("nan"), "value_rmse": float("nan")}
     initial = run_epoch(False)
     log.write("pretrain", 0, {"val_loss": initial["loss"], "val_accuracy": initial["accuracy"],
-                              "val_value_rmse": initial["value_rmse"], "seconds": 0.0},
-              scalars=("val_loss", "val_accuracy", "val_value_rmse"))
+                              "val_value_rmse": initial["value_rmse"], "val_aux": initial["aux"], "seconds": 0.0},
+              scalars=("val_loss", "val_accuracy", "val_value_rmse", "val_aux"))
     epochs_run = 0
     try:
         with ProgressBar(f"pretrain {config.target} {config.task} {config.obs}", config.epochs,
@@ -203,8 +204,9 @@ def _pretrain(config: PretrainConfig, data_dir: str | Path, out_dir: Path, *, pr
                     raise RuntimeError(f"pre-training diverged at epoch {epoch} (training loss "
                                        f"{train_summary['loss']}); lower --lr (now {config.lr})")
                 row = {"train_loss": train_summary["loss"], "train_accuracy": train_summary["accuracy"],
-                       "train_value_rmse": train_summary["value_rmse"], "val_loss": val["loss"],
-                       "val_accuracy": val["accuracy"], "val_value_rmse": val["value_rmse"],
+                       "train_value_rmse": train_summary["value_rmse"], "train_aux": train_summary["aux"],
+                       "val_loss": val["loss"], "val_accuracy": val["accuracy"], "val_value_rmse": val["value_rmse"],
+                       "val_aux": val["aux"],
                        "seconds": time.monotonic() - started}
                 log.write("pretrain", epoch, row, scalars=_TABLE[:-1])
                 if val["loss"] < best["loss"]:

@@ -72,6 +72,9 @@ class PretrainConfig(NetworkSettings):
     """Seeds the network's initial weights, the train/held-out split and the batch order."""
     eval_episodes: int = 50
     """Episodes to measure π^s alone as a policy after training (0: skip)."""
+    aux_coef: float = 1.0
+    """Weight of the auxiliary heads' loss (predicting the recorded states) when the network has
+    them (``aux_heads``)."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -84,6 +87,7 @@ class PretrainConfig(NetworkSettings):
         require_int("PretrainConfig", "eval_episodes", self.eval_episodes, 0)
         for name, low, high, open_low in (("lr", 0, math.inf, True), ("max_grad_norm", 0, math.inf, True),
                                           ("l2", 0, math.inf, False), ("value_coef", 0, math.inf, False),
+                                          ("aux_coef", 0, math.inf, False),
                                           ("gamma", 0, 1, False), ("val_fraction", 0, 1, True)):
             value = getattr(self, name)
             ok = isinstance(value, (int, float)) and math.isfinite(value) and value <= high and (
@@ -113,7 +117,7 @@ def split_episodes(count: int, val_fraction: float, rng: np.random.Generator) ->
 
 def padded_batch(sequences: list[Episode], max_tilt: float, steps: int | None = None) -> dict[str, torch.Tensor]:
     """Episodes side by side, (T, B, …), padded at the end to the longest (or to ``steps``); ``mask``
-    marks real steps."""
+    marks real steps. ``privileged`` holds the state observations when every episode has them."""
     steps = max(len(s) for s in sequences) if steps is None else steps
     batch = len(sequences)
     obs_shape = sequences[0].obs.shape[1:]
@@ -130,6 +134,10 @@ def padded_batch(sequences: list[Episode], max_tilt: float, steps: int | None = 
         out["tilt"][:n, b] = s.tilt / max_tilt
         out["returns"][:n, b] = s.returns
         out["mask"][:n, b] = True
+    if all(s.state_obs is not None for s in sequences):
+        out["privileged"] = np.zeros((steps, batch, sequences[0].state_obs.shape[1]), np.float32)
+        for b, s in enumerate(sequences):
+            out["privileged"][:len(s), b] = s.state_obs
     tensors = {k: torch.as_tensor(v) for k, v in out.items()}
     tensors["obs"] = torch.as_tensor(obs)
     return tensors
@@ -145,11 +153,16 @@ def policy_loss_terms(net: RecurrentActorCritic, batch: dict[str, torch.Tensor],
                       optimizer: torch.optim.Optimizer | None = None) -> dict[str, float]:
     """The pre-training loss over a padded batch of episodes, chunk by chunk (truncated BPTT);
     with ``optimizer``, one update per chunk. Returns sums over real steps: ``ce``, ``value_se``
-    (squared value error), ``correct`` (argmax = expert), ``count``."""
+    (squared value error), ``correct`` (argmax = expert), ``count``, and for a network with
+    auxiliary heads ``aux`` (their loss, which is added with weight ``config.aux_coef``)."""
     steps, width = batch["actions"].shape
     state = net.initial_state(width)
-    totals = {"ce": 0.0, "value_se": 0.0, "correct": 0.0, "count": 0.0}
+    totals = {"ce": 0.0, "value_se": 0.0, "correct": 0.0, "count": 0.0, "aux": 0.0}
     tilt_on = net.config.tilt_input
+    privileged = batch.get("privileged")
+    if (net.config.aux_heads or net.config.asymmetric_critic) and privileged is None:
+        raise ValueError("this network's auxiliary heads / asymmetric critic need the episodes' state observations "
+                         "(Episode.state_obs), which these episodes lack")
     for t0 in range(0, steps, config.bptt):
         sl = slice(t0, min(steps, t0 + config.bptt))
         mask = batch["mask"][sl]
@@ -158,15 +171,21 @@ def policy_loss_terms(net: RecurrentActorCritic, batch: dict[str, torch.Tensor],
         starts = torch.zeros_like(mask)
         if t0 == 0:
             starts[0] = True
-        logits, values, state = net.unroll(batch["obs"][sl], batch["prev_action"][sl], batch["prev_reward"][sl],
-                                           batch["tilt"][sl] if tilt_on else None, state, starts)
-        state = type(state)(state.h.detach(), state.c.detach())
+        out = net.unroll_features(batch["obs"][sl], batch["prev_action"][sl], batch["prev_reward"][sl],
+                                  batch["tilt"][sl] if tilt_on else None, state, starts,
+                                  privileged=None if privileged is None else privileged[sl])
+        logits, values = out.logits, out.values
+        state = type(state)(out.state.h.detach(), out.state.c.detach())
         weights = mask.float()
         count = weights.sum()
         ce = F.cross_entropy(logits.reshape(-1, logits.shape[-1]), batch["actions"][sl].reshape(-1),
                              reduction="none").reshape(mask.shape)
         value_se = (values - batch["returns"][sl]).pow(2)
         data_loss = ((ce + config.value_coef * 0.5 * value_se) * weights).sum() / count
+        if net.config.aux_heads:
+            aux, _ = net.aux_loss(out.features, out.hidden, privileged[sl], mask)
+            data_loss = data_loss + config.aux_coef * aux
+            totals["aux"] += float(aux.detach()) * float(count)
         if optimizer is not None:
             loss = data_loss + config.l2 * l2_penalty(net)
             optimizer.zero_grad(set_to_none=True)
@@ -181,11 +200,14 @@ def policy_loss_terms(net: RecurrentActorCritic, batch: dict[str, torch.Tensor],
 
 
 def summarise(totals: dict[str, float], value_coef: float, policy: bool) -> dict[str, float]:
+    """Mean loss (the policy's and value's: what early stopping compares), accuracy, value RMSE and
+    the auxiliary heads' loss (NaN without them) from :func:`policy_loss_terms`' sums."""
     count = max(totals["count"], 1.0)
     value_mse = totals["value_se"] / count
     loss = (totals["ce"] / count if policy else 0.0) + value_coef * 0.5 * value_mse
+    aux = totals["aux"] / count if totals.get("aux") else float("nan")
     return {"loss": loss, "accuracy": totals["correct"] / count if policy else float("nan"),
-            "value_rmse": math.sqrt(value_mse)}
+            "value_rmse": math.sqrt(value_mse), "aux": aux}
 
 
 def policy_batches(sequences: list[Episode], order: np.ndarray, config: PretrainConfig,
@@ -198,7 +220,7 @@ def policy_batches(sequences: list[Episode], order: np.ndarray, config: Pretrain
 def policy_epoch(net: RecurrentActorCritic, batches: Iterable[dict[str, torch.Tensor]], config: PretrainConfig,
                  optimizer: torch.optim.Optimizer | None) -> dict[str, float]:
     """One pass of the loss over ``batches``: training with ``optimizer``, else measuring only."""
-    totals = {"ce": 0.0, "value_se": 0.0, "correct": 0.0, "count": 0.0}
+    totals = {"ce": 0.0, "value_se": 0.0, "correct": 0.0, "count": 0.0, "aux": 0.0}
     net.train(optimizer is not None)
     with torch.set_grad_enabled(optimizer is not None):
         for batch in batches:

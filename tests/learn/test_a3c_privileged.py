@@ -1,0 +1,94 @@
+"""A3C with privileged information and augmentation: auxiliary heads, an asymmetric critic, random
+shifts, and bf16 — the loss terms, and runs that use them end to end."""
+
+from __future__ import annotations
+
+import csv
+
+import numpy as np
+import pytest
+import torch
+
+from bimgame.learn.a3c import A3CConfig, a3c_segment_loss, apply_update, make_optimizer, network_for, train
+from bimgame.learn.finetune import LossWeights
+from bimgame.learn.nets import state_obs_scale
+from bimgame.learn.runs import load_checkpoint
+from bimgame.sim.maze import MazeSpec
+
+PIXELS = dict(task="STG1", obs="pixels", workers=1, envs_per_worker=2, n_steps=5, eval_every=0, hidden=16,
+              features=16, log_every=100)
+
+
+def _segment(config: A3CConfig, steps: int, batch: int, seed: int = 0) -> dict[str, torch.Tensor]:
+    g = torch.Generator().manual_seed(seed)
+    scale = torch.as_tensor(state_obs_scale(MazeSpec.merl()))
+    return {"obs": torch.randint(0, 256, (steps + 1, batch, 1, 84, 84), generator=g, dtype=torch.uint8),
+            "prev_action": torch.randint(-1, 5, (steps + 1, batch), generator=g),
+            "prev_reward": torch.zeros(steps + 1, batch), "tilt": torch.zeros(steps + 1, batch, 2),
+            "starts": torch.zeros(steps + 1, batch, dtype=torch.bool),
+            "privileged": (torch.rand(steps + 1, batch, 7, generator=g) * 2 - 1) * scale,
+            "actions": torch.randint(0, 5, (steps, batch), generator=g),
+            "rewards": (torch.rand(steps, batch, generator=g) < 0.2).float(),
+            "ends": torch.rand(steps, batch, generator=g) < 0.15,
+            "h0": torch.zeros(batch, config.hidden), "c0": torch.zeros(batch, config.hidden)}
+
+
+def test_aux_loss_is_added_with_its_weight():
+    config = A3CConfig(**PIXELS, aux_heads=True)
+    net = network_for(config)
+    seg = _segment(config, 4, 2)
+    loss, parts = a3c_segment_loss(net, seg, config)
+    heavier, _ = a3c_segment_loss(net, seg, A3CConfig(**PIXELS, aux_heads=True, aux_coef=3.0))
+    assert parts["aux_frame"] > 0 and parts["aux_memory"] > 0
+    assert heavier.item() - loss.item() == pytest.approx(2.0 * (parts["aux_frame"] + parts["aux_memory"]), rel=1e-4)
+    without = dict(seg)
+    without.pop("privileged")
+    with pytest.raises(ValueError, match="privileged"):
+        a3c_segment_loss(net, without, config)
+
+
+def test_critic_warmup_trains_the_whole_asymmetric_critic_and_nothing_else():
+    config = A3CConfig(**PIXELS, asymmetric_critic=True, critic_warmup_steps=1000)
+    local, shared = network_for(config), network_for(config)
+    optimizer = make_optimizer(config, shared)
+    before = {k: v.clone() for k, v in shared.state_dict().items()}
+    apply_update(local, list(shared.parameters()), optimizer, _segment(config, 4, 2), config,
+                 LossWeights(actor=0.0, critic_only=True))
+    after = shared.state_dict()
+    changed = {k for k in before if not torch.equal(before[k], after[k])}
+    assert changed and all(k.startswith(("value.", "critic_state.")) for k in changed), changed
+    assert any(k.startswith("critic_state.") for k in changed)
+
+
+def test_privileged_settings_are_checked():
+    with pytest.raises(ValueError, match="augment_shift"):
+        A3CConfig(obs="pixels", augment_shift=3)
+    with pytest.raises(ValueError, match="augment_shift"):
+        A3CConfig(obs="state", augment_shift=1)
+    with pytest.raises(ValueError, match="aux_coef"):
+        A3CConfig(aux_coef=-1.0)
+    with pytest.raises(ValueError, match="precision"):
+        A3CConfig(precision="fp8")
+
+
+def test_pixel_run_with_every_lever_logs_the_aux_losses_and_is_deterministic(tmp_path):
+    config = A3CConfig(**PIXELS, steps=300, seed=2, aux_heads=True, asymmetric_critic=True, augment_shift=2,
+                       precision="bf16", max_episode_steps=20)  # time limits: the critic bootstraps from the state
+    train(config, tmp_path / "a", progress=False)
+    train(config, tmp_path / "b", progress=False)
+    a, b = load_checkpoint(tmp_path / "a"), load_checkpoint(tmp_path / "b")
+    for key in a["model"]:
+        assert torch.equal(a["model"][key], b["model"][key]), key
+    rows = list(csv.DictReader(open(tmp_path / "a" / "updates.csv")))
+    assert rows
+    for row in rows:
+        assert np.isfinite(float(row["aux_frame"])) and np.isfinite(float(row["aux_memory"]))
+        assert np.isfinite(float(row["value_loss"]))  # the asymmetric critic got its states, even at time limits
+
+
+def test_runs_without_privileged_parts_log_no_aux_loss(tmp_path):
+    config = A3CConfig(task="STG1", obs="state", workers=1, envs_per_worker=2, n_steps=5, eval_every=0, hidden=8,
+                       features=8, log_every=20, steps=200)
+    train(config, tmp_path / "run", progress=False)
+    rows = list(csv.DictReader(open(tmp_path / "run" / "updates.csv")))
+    assert rows and all(row["aux_frame"] == "nan" and row["aux_memory"] == "nan" for row in rows)
