@@ -1,6 +1,8 @@
 """A3C throughput against the network's own limit, measured in the same run.
 
-For pixel and state observations:
+For state observations and for pixels in three settings — the paper's network in float32 and in
+bfloat16 (``--precision bf16``), and the default pixel network (bf16, auxiliary heads, asymmetric
+critic):
 
 - **network-only limit**: ``workers`` processes run exactly the A3C worker's network work — n_steps
   batched acting forwards, the segment's forward+backward, gradient clipping and the shared
@@ -12,13 +14,14 @@ For pixel and state observations:
 The ratio A3C / network-only says how much the environment costs on top of the network. Writes
 benchmarks/results/a3c.json.
 
-Usage: python benchmarks/bench_a3c.py [--seconds 60] [--workers 2] [--envs-per-worker 16]
+Usage: python benchmarks/bench_a3c.py [--seconds 60] [--workers 2] [--envs-per-worker 16] [--settings NAME ...]
 """
 
 from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import json
 import multiprocessing as mp
 import sys
@@ -37,22 +40,36 @@ from bimgame.util.files import atomic_write_bytes
 RESULTS = Path(__file__).parent / "results"
 
 
-def _recorded_inputs(config: A3CConfig) -> tuple[torch.Tensor, torch.Tensor]:
-    """A segment's worth of real observations and tilts (so the network sees realistic frames)."""
-    env = BallInMazeVectorEnv(config.envs_per_worker, task=config.task, obs_mode=config.obs, nthread=1)
+#: The measured settings: name → A3C settings beyond the observation mode.
+SETTINGS = {
+    "pixels-fp32-papernet": dict(obs="pixels", precision="fp32"),
+    "pixels-bf16-papernet": dict(obs="pixels", precision="bf16"),
+    "pixels-bf16-privileged": dict(obs="pixels", precision="bf16", aux_heads=True, asymmetric_critic=True),
+    "state": dict(obs="state"),
+}
+
+
+def _recorded_inputs(config: A3CConfig) -> dict[str, torch.Tensor]:
+    """A segment's worth of real observations, tilts and (for privileged networks) states, so the
+    network sees realistic frames."""
+    env = BallInMazeVectorEnv(config.envs_per_worker, task=config.task, obs_mode=config.obs, nthread=1,
+                              state_info=config.privileged)
     obs, info = env.reset(seed=0)
-    frames, tilts = [], []
+    recorded: dict[str, list] = {"obs": [], "tilt": [], "privileged": []}
     rng = np.random.default_rng(0)
     for _ in range(config.n_steps + 1):
-        frames.append(torch.as_tensor(obs))
-        tilts.append(torch.as_tensor(info["tilt"], dtype=torch.float32))
+        recorded["obs"].append(torch.as_tensor(obs))
+        recorded["tilt"].append(torch.as_tensor(info["tilt"], dtype=torch.float32))
+        if config.privileged:
+            recorded["privileged"].append(torch.as_tensor(info["state"]))
         obs, _, _, _, info = env.step(rng.integers(0, 5, config.envs_per_worker))
-    return torch.stack(frames), torch.stack(tilts)
+    return {k: torch.stack(v) for k, v in recorded.items() if v}
 
 
 def _network_worker(config: A3CConfig, shared, optimizer_state, seconds: float, results) -> None:
     torch.set_num_threads(1)
-    frames, tilts = _recorded_inputs(config)
+    inputs = _recorded_inputs(config)
+    frames, tilts = inputs["obs"], inputs["tilt"]
     local = network_for(config)
     optimizer = make_optimizer(config, shared)
     shared_params = list(shared.parameters())
@@ -80,8 +97,7 @@ def _network_worker(config: A3CConfig, shared, optimizer_state, seconds: float, 
         seg["prev_reward"].append(actor.prev_reward)
         seg["starts"].append(actor.starts)
         segment = {k: torch.stack(v) for k, v in seg.items()}
-        segment.update(obs=frames, tilt=tilts, rewards=torch.zeros(n, batch), ends=torch.zeros(n, batch, dtype=torch.bool),
-                       h0=h0, c0=c0)
+        segment.update(inputs, rewards=torch.zeros(n, batch), ends=torch.zeros(n, batch, dtype=torch.bool), h0=h0, c0=c0)
         apply_update(local, shared_params, optimizer, segment, config)
         samples += n * batch
         updates += 1
@@ -121,22 +137,21 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=60.0, help="measuring time per setting")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--envs-per-worker", type=int, default=16)
-    parser.add_argument("--obs", nargs="+", default=["pixels", "state"])
+    parser.add_argument("--settings", nargs="+", default=list(SETTINGS), choices=list(SETTINGS))
     args = parser.parse_args()
     results = {"workers": args.workers, "envs_per_worker": args.envs_per_worker, "cpu_threads_per_worker": 1,
                "settings": []}
-    for obs in args.obs:
-        probe = A3CConfig(task="STG1", obs=obs, workers=args.workers, envs_per_worker=args.envs_per_worker,
-                          steps=1, eval_every=0)
+    for name in args.settings:
+        probe = A3CConfig(task="STG1", workers=args.workers, envs_per_worker=args.envs_per_worker, steps=1,
+                          eval_every=0, **SETTINGS[name])
         limit = network_only_sps(probe, args.seconds)
         steps = int(max(limit, 500) * args.seconds * 1.2)
-        config = A3CConfig(task="STG1", obs=obs, workers=args.workers, envs_per_worker=args.envs_per_worker,
-                           steps=steps, eval_every=0, checkpoint_every=10 * steps, log_every=2_000)
+        config = dataclasses.replace(probe, steps=steps, checkpoint_every=10 * steps, log_every=2_000)
         sps = a3c_sps(config)
-        row = {"obs": obs, "hidden": config.hidden, "features": config.features, "network_only_sps": limit,
-               "a3c_sps": sps, "ratio": sps / limit}
+        row = {"setting": name, **SETTINGS[name], "hidden": config.hidden, "features": config.features,
+               "network_only_sps": limit, "a3c_sps": sps, "ratio": sps / limit}
         results["settings"].append(row)
-        print(f"{obs:>6}: A3C {sps:,.0f} env steps/s; network alone {limit:,.0f} samples/s; ratio {sps / limit:.2f}",
+        print(f"{name:>24}: A3C {sps:,.0f} env steps/s; network alone {limit:,.0f} samples/s; ratio {sps / limit:.2f}",
               flush=True)
     RESULTS.mkdir(exist_ok=True)
     atomic_write_bytes(RESULTS / "a3c.json", (json.dumps(results, indent=2) + "\n").encode())

@@ -85,7 +85,7 @@ def test_which_runs_need_the_dataset_pi_s_or_v_hat():
                      "pretrain+a3c+value": (policy, value), "pretrain+a3c+warmup": (policy,),
                      "pretrain+a3c+kl": (policy,), "pretrain+a3c+norm": (policy,),
                      "pretrain+a3c+bc": ("data", policy), "pretrain+a3c+demo": ("data", policy),
-                     "pretrain+a3c+keep": (policy,), "a3c+reverse": ()}
+                     "pretrain+a3c+keep": (policy,), "a3c+reverse": (), "a3c+papernet": ()}
     # Without π^s in the grid no policy is pre-trained.
     ids = [p.id for p in plan_pieces(Budget(tasks=("STG3",), algorithms=("a3c+reverse",), seeds=1))]
     assert ids == ["data", "runs/STG3/a3c-reverse/seed0"]
@@ -102,9 +102,30 @@ def test_a3c_settings_of_every_algorithm_are_valid_and_record_the_dataset(tiny_b
     assert a3c_config_for(budget, "STG1", 0) == a3c_config_for(budget, "STG1", 0, "a3c")
 
 
+def test_pixel_levers_reach_every_network_but_the_papers_and_daggers(tiny_budget):
+    """With the budget's levers on, every A3C run and π^s use them; ``a3c+papernet`` is the paper's
+    exact network; DAgger's learner has no privileged parts (its rollouts record no states)."""
+    from bimgame.experiments.runners import dagger_config_for, pretrain_config_for
+    budget = dataclasses.replace(tiny_budget, obs="pixels", aux_heads=True, asymmetric_critic=True, precision="bf16",
+                                 augment_shift=2, algorithms=A3C_ALGORITHMS)
+    for algorithm in A3C_ALGORITHMS:
+        config = a3c_config_for(budget, "STG1", 0, algorithm, DATA)
+        levers = (config.aux_heads, config.asymmetric_critic, config.augment_shift)
+        assert levers == ((False, False, 0) if algorithm == "a3c+papernet" else (True, True, 2)), algorithm
+        assert config.precision == "bf16"
+    policy = pretrain_config_for(budget, "STG1", 0, "policy")
+    assert (policy.aux_heads, policy.asymmetric_critic, policy.precision) == (True, True, "bf16")
+    learner = dagger_config_for(budget, "STG1", 0).learner
+    assert (learner.aux_heads, learner.asymmetric_critic, learner.precision) == (False, False, "bf16")
+    with pytest.raises(ValueError, match="augment_shift"):
+        dataclasses.replace(tiny_budget, obs="state", augment_shift=2)
+    with pytest.raises(ValueError, match="precision"):
+        dataclasses.replace(tiny_budget, precision="half")
+
+
 @pytest.mark.parametrize("call, message", [
     (lambda: finetune_overrides("ppo", STEPS, DATA),
-     r"unknown A3C algorithm 'ppo'; allowed: a3c, pretrain\+a3c, a3c\+value, .*pretrain\+a3c\+keep, a3c\+reverse$"),
+     r"unknown A3C algorithm 'ppo'; allowed: a3c, pretrain\+a3c, a3c\+value, .*pretrain\+a3c\+keep, a3c\+reverse, a3c\+papernet$"),
     (lambda: finetune_overrides("dagger", STEPS, DATA), r"unknown A3C algorithm 'dagger'.*not an A3C run"),
     (lambda: finetune_overrides("pretrain+a3c+bc", 0, DATA), r"steps must be an integer >= 1, got 0"),
     (lambda: finetune_overrides("pretrain+a3c+demo", STEPS, None),

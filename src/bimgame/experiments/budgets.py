@@ -15,6 +15,10 @@ The compared algorithms, in the order of the paper's figures:
 - ``pretrain+a3c+value``: both;
 - ``dagger``: DAgger with the MPC expert, from random weights.
 
+With the budget's privileged pixel levers on (``aux_heads``, ``asymmetric_critic``), every network
+of the grid uses them; ``a3c+papernet`` is then A3C with the paper's exact network (no auxiliary
+heads, no privileged critic, no augmentation), so that the report shows it beside the improved one.
+
 Beyond the paper, the methods that fine-tune π^s without forgetting it (their A3C settings are
 :func:`bimgame.experiments.methods.finetune_overrides`; ``pretrain+a3c`` is plain fine-tuning, the
 ``paper`` preset of :mod:`bimgame.learn.finetune`):
@@ -34,6 +38,8 @@ import dataclasses
 from typing import Any, Mapping
 
 from bimgame.envs.observe import OBS_MODES
+from bimgame.learn.augment import MAX_SHIFT
+from bimgame.learn.nets import PRECISIONS
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.tasks import Task, parse_task
 from bimgame.util.settings import from_dict, require_int
@@ -45,10 +51,11 @@ __all__ = ["PAPER_ALGORITHMS", "ALGORITHMS", "ALGORITHM_LABELS", "PAPER_TASKS", 
 PAPER_ALGORITHMS = ("a3c", "pretrain+a3c", "a3c+value", "pretrain+a3c+value", "dagger")
 #: Every method a reproduction can run: the paper's, then the fine-tuning methods beyond it.
 ALGORITHMS = (*PAPER_ALGORITHMS, "pretrain+a3c+warmup", "pretrain+a3c+kl", "pretrain+a3c+norm", "pretrain+a3c+bc",
-              "pretrain+a3c+demo", "pretrain+a3c+keep", "a3c+reverse")
+              "pretrain+a3c+demo", "pretrain+a3c+keep", "a3c+reverse", "a3c+papernet")
 #: The algorithms' names in figures and tables.
 ALGORITHM_LABELS = {"a3c": "A3C", "pretrain+a3c": "pre-train + A3C", "a3c+value": "A3C + value reward",
                     "pretrain+a3c+value": "pre-train + A3C + value reward", "dagger": "DAgger",
+                    "a3c+papernet": "A3C, the paper's network",
                     "pretrain+a3c+warmup": "pre-train + A3C + critic warm-up",
                     "pretrain+a3c+kl": "pre-train + A3C + KL", "pretrain+a3c+norm": "pre-train + A3C + advantage norm.",
                     "pretrain+a3c+bc": "pre-train + A3C + BC (DAPG)",
@@ -93,6 +100,15 @@ class Budget:
     subtract_background: bool = False
     """Pixels: subtract the empty-maze frame before the convolutions (ignored for state). The
     presets turn it on: without it the pixel agent did not learn STG1 (see the README)."""
+    aux_heads: bool = False
+    """Networks with auxiliary heads that predict the simulator's state (see
+    :mod:`bimgame.learn.nets`); DAgger's learner never has them (its own rollouts record no states)."""
+    asymmetric_critic: bool = False
+    """A3C's and π^s's value head also reads the simulator's state (not the paper's)."""
+    precision: str = "fp32"
+    """The pixel encoder's compute: ``fp32`` or ``bf16``."""
+    augment_shift: int = 0
+    """A3C from pixels: DrQ random shifts of up to this many pixels (0: none)."""
     eval_every: int = 100_000
     """A3C: environment steps between greedy/sampled evaluations (0: only the final one)."""
     eval_episodes: int = 10
@@ -173,8 +189,15 @@ class Budget:
         for name in ("hidden", "features", "dataset_max_steps"):
             if getattr(self, name) is not None:
                 require_int("Budget", name, getattr(self, name), 1)
-        if not isinstance(self.subtract_background, bool):
-            raise ValueError(f"Budget.subtract_background must be True or False, got {self.subtract_background!r}")
+        for name in ("subtract_background", "aux_heads", "asymmetric_critic"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"Budget.{name} must be True or False, got {getattr(self, name)!r}")
+        if self.precision not in PRECISIONS:
+            raise ValueError(f"Budget.precision must be one of {PRECISIONS}, got {self.precision!r}")
+        require_int("Budget", "augment_shift", self.augment_shift, 0)
+        if self.augment_shift > MAX_SHIFT or (self.augment_shift and self.obs != "pixels"):
+            raise ValueError(f"Budget.augment_shift must be 0..{MAX_SHIFT} pixels, and 0 for state observations, "
+                             f"got {self.augment_shift!r}")
         if not (isinstance(self.threshold_fraction, (int, float)) and not isinstance(self.threshold_fraction, bool)
                 and 0.0 < self.threshold_fraction <= 1.0):
             raise ValueError(f"Budget.threshold_fraction must be in (0, 1], got {self.threshold_fraction!r}")

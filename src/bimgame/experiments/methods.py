@@ -51,6 +51,8 @@ _METHODS: dict[str, Callable[[int], dict[str, Any]]] = {
     "pretrain+a3c+demo": lambda steps: _preset("paper", start_curriculum="demo"),
     "pretrain+a3c+keep": lambda steps: _preset("keep"),
     "a3c+reverse": lambda steps: {"start_curriculum": "reverse"},
+    # The paper's network whatever the budget's levers: no privileged heads or critic, no augmentation.
+    "a3c+papernet": lambda steps: {"aux_heads": False, "asymmetric_critic": False, "augment_shift": 0},
 }
 #: The algorithms whose runs are A3C runs (every one but DAgger), in :data:`ALGORITHMS`' order.
 A3C_ALGORITHMS = tuple(a for a in ALGORITHMS if a in _METHODS)

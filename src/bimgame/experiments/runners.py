@@ -40,10 +40,11 @@ __all__ = ["pretrain_config_for", "a3c_config_for", "dagger_config_for", "RUNNER
 def pretrain_config_for(budget: Budget, task: str, seed: int, target: str) -> PretrainConfig:
     """The pre-training settings of π^s (``target="policy"``) or V̂ (``"value"``) for a task and seed."""
     common = dict(task=task, obs=budget.obs, seed=seed, hidden=budget.hidden, features=budget.features,
-                  subtract_background=budget.network_subtract_background)
+                  subtract_background=budget.network_subtract_background, precision=budget.precision)
     if target == "policy":
         return PretrainConfig(target="policy", epochs=budget.pretrain_epochs, patience=budget.pretrain_patience,
-                              eval_episodes=budget.pretrain_eval_episodes, **common)
+                              eval_episodes=budget.pretrain_eval_episodes, aux_heads=budget.aux_heads,
+                              asymmetric_critic=budget.asymmetric_critic, **common)
     if target == "value":
         return PretrainConfig(target="value", epochs=budget.value_epochs, patience=budget.value_patience,
                               batch_frames=budget.value_batch_frames, eval_episodes=0, **common)
@@ -58,17 +59,19 @@ def a3c_config_for(budget: Budget, task: str, seed: int, algorithm: str = "a3c",
     algorithms differ in the initial weights and the reward, not in these."""
     steps = budget.steps_for(task)
     overrides = finetune_overrides(algorithm, steps, None if data_dir is None else str(data_dir))
-    return A3CConfig(task=task, obs=budget.obs, steps=steps, workers=budget.workers,
-                     envs_per_worker=budget.envs_per_worker, seed=seed, hidden=budget.hidden, features=budget.features,
-                     subtract_background=budget.network_subtract_background,
-                     eval_every=budget.eval_every, eval_episodes=budget.eval_episodes,
-                     checkpoint_every=budget.checkpoint_every, **overrides)
+    settings = dict(task=task, obs=budget.obs, steps=steps, workers=budget.workers,
+                    envs_per_worker=budget.envs_per_worker, seed=seed, hidden=budget.hidden, features=budget.features,
+                    subtract_background=budget.network_subtract_background, precision=budget.precision,
+                    aux_heads=budget.aux_heads, asymmetric_critic=budget.asymmetric_critic,
+                    augment_shift=budget.augment_shift, eval_every=budget.eval_every,
+                    eval_episodes=budget.eval_episodes, checkpoint_every=budget.checkpoint_every)
+    return A3CConfig(**{**settings, **overrides})
 
 
 def dagger_config_for(budget: Budget, task: str, seed: int) -> DAggerConfig:
     """DAgger's settings for a task and seed (the learner is the same network as A3C's)."""
     learner = PretrainConfig(task=task, obs=budget.obs, seed=seed, hidden=budget.hidden, features=budget.features,
-                             subtract_background=budget.network_subtract_background,
+                             subtract_background=budget.network_subtract_background, precision=budget.precision,
                              eval_episodes=0)
     return DAggerConfig(learner=learner, iterations=budget.dagger_iterations,
                         episodes_per_iteration=budget.dagger_episodes, epochs_per_iteration=budget.dagger_epochs,
