@@ -290,7 +290,13 @@ _BEYOND_SETTINGS: dict[str, Any] = dict(
 #: A3C run, a 300-episode FULL dataset — about two and a half days on two cores (``bimgame
 #: reproduce --dry-run`` prints the estimate per piece). ``beyond`` and ``ablation`` go beyond the
 #: paper: fine-tuning π^s without forgetting it on STG2/STG3/STG4/FULL, and each fine-tuning method
-#: on its own on STG3 (see :data:`_BEYOND_SETTINGS`).
+#: on its own on STG3 (see :data:`_BEYOND_SETTINGS`). ``pixels`` is the paper's grid from pixels
+#: within two hours on two cores: FULL/STG1/STG2 × the paper's five algorithms and ``a3c+papernet``
+#: × 3 seeds, with the pixel levers that measured best (auxiliary heads — from scratch, 80% training
+#: success on STG1 after ≈ 550k steps where the paper's network stayed near random play after 1M —
+#: an asymmetric critic and bf16, ≈ 3,600 steps/s); STG1 500k steps, STG2/FULL 300k; evaluations
+#: only at the end; 80 FULL expert episodes; DAgger 3 iterations × 6 episodes × 5 epochs. The cost
+#: model expects ≈ 1.9 h.
 BUDGETS: dict[str, Budget] = {
     "quick": Budget(
         name="quick", tasks=("STG1",), seeds=2, obs="state", subtract_background=True,
@@ -305,6 +311,13 @@ BUDGETS: dict[str, Budget] = {
         dataset_task="FULL", dataset_episodes=300, dataset_workers=2,
         pretrain_eval_episodes=50, dagger_iterations=10, dagger_episodes=20, dagger_epochs=10,
         dagger_eval_episodes=20),
+    "pixels": Budget(
+        name="pixels", tasks=PAPER_TASKS, algorithms=(*PAPER_ALGORITHMS, "a3c+papernet"), seeds=3, obs="pixels",
+        aux_heads=True, asymmetric_critic=True, precision="bf16",
+        a3c_steps={"STG1": 500_000, "STG2": 300_000, "FULL": 300_000, "STG3": 500_000, "STG4": 500_000},
+        eval_every=0, eval_episodes=20, checkpoint_every=50_000,
+        dataset_task="FULL", dataset_episodes=80, dataset_workers=2,
+        pretrain_eval_episodes=20, dagger_iterations=3, dagger_episodes=6, dagger_epochs=5, dagger_eval_episodes=20),
     "beyond": Budget(
         name="beyond", tasks=("STG2", "STG3", "STG4", "FULL"), algorithms=("a3c", "pretrain+a3c", "pretrain+a3c+keep"),
         **_BEYOND_SETTINGS),

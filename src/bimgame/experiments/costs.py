@@ -24,10 +24,12 @@ class CostModel:
     of the README); a concurrent job slows every piece down. Each field says where its number comes
     from; the totals were checked against whole runs of the ``quick`` budget."""
 
-    a3c_sps: Mapping[str, float] = dataclasses.field(default_factory=lambda: {"state": 9_000.0, "pixels": 1_870.0})
+    a3c_sps: Mapping[str, float] = dataclasses.field(default_factory=lambda: {
+        "state": 9_000.0, "pixels": 1_870.0, "pixels-bf16": 3_600.0})
     """A3C environment steps/s with 2 workers × 16 envs, scaled by workers/2 (state: 9,900 measured
     in the quick budget's runs on the idle machine, 2,000–3,000 while other training jobs ran;
-    pixels: the README's speed table)."""
+    pixels: the README's speed table; pixels-bf16: 3,200–4,300 measured in 1M-step STG1 runs of the
+    network with auxiliary heads, whose cost is small)."""
     a3c_overhead_s: float = 6.0
     """Per A3C run: starting the worker processes, the final evaluation, the curves figure."""
     expert_episode_s: Mapping[str, float] = dataclasses.field(default_factory=lambda: {
@@ -39,13 +41,15 @@ class CostModel:
     expert_steps: Mapping[str, float] = dataclasses.field(default_factory=lambda: {
         "FULL": 200.0, "STG1": 40.0, "STG2": 90.0, "STG3": 130.0, "STG4": 200.0})
     """Mean length of an expert episode (the dataset's size in steps)."""
-    train_frame_s: Mapping[str, float] = dataclasses.field(default_factory=lambda: {"state": 1.5e-4,
-                                                                                     "pixels": 8e-4})
+    train_frame_s: Mapping[str, float] = dataclasses.field(default_factory=lambda: {
+        "state": 1.5e-4, "pixels": 8e-4, "pixels-bf16": 5.5e-4})
     """Pre-training and DAgger: one frame through forward and backward, one thread (pixels: the
-    README's ≈ 750 µs per sample at batch 16; state: rough, from the quick budget's pre-trainings)."""
+    README's ≈ 750 µs per sample at batch 16; pixels-bf16: the 0.6–0.7× that bf16 autocast measured
+    for a segment's forward and backward; state: rough, from the quick budget's pre-trainings)."""
     pretrain_epochs_expected: float = 15.0
     """Epochs until early stopping typically ends a pre-training."""
-    eval_step_s: Mapping[str, float] = dataclasses.field(default_factory=lambda: {"state": 4e-3, "pixels": 1.2e-2})
+    eval_step_s: Mapping[str, float] = dataclasses.field(default_factory=lambda: {
+        "state": 4e-3, "pixels": 1.2e-2, "pixels-bf16": 1.0e-2})
     """One batched evaluation step (all episodes of an evaluation side by side; rough)."""
     piece_overhead_s: float = 2.0
     """Per pre-training or DAgger piece: loading the dataset, building the network."""
@@ -64,7 +68,8 @@ def _eval_seconds(task: str, obs: str, episodes: int, costs: CostModel) -> float
 
 def estimate_seconds(piece: Piece, budget: Budget, costs: CostModel = COSTS) -> float:
     """Expected wall time of one piece (see :class:`CostModel`)."""
-    obs = budget.obs
+    # The rates of the network's compute: pixels in bfloat16 have their own measured rates.
+    obs = "pixels-bf16" if budget.obs == "pixels" and budget.precision == "bf16" else budget.obs
     if piece.kind == "dataset":
         per_episode = costs.expert_episode_s[budget.dataset_task]
         return costs.piece_overhead_s + budget.dataset_episodes * per_episode / min(budget.dataset_workers, 2)
