@@ -6,7 +6,7 @@ import dataclasses
 
 import pytest
 
-from bimgame.experiments.budgets import ALGORITHMS, BUDGETS, PAPER_ALGORITHMS, budget_named
+from bimgame.experiments.budgets import ALGORITHMS, BUDGETS, PAPER_ALGORITHMS, PAPER_TASKS, budget_named
 from bimgame.experiments.costs import estimate_seconds
 from bimgame.experiments.grid import plan_pieces
 from bimgame.experiments.methods import needs_expert_data
@@ -31,7 +31,7 @@ from bimgame.experiments.plan import check_compatible, write_plan
 def test_bad_budgets_are_rejected_naming_the_field_and_what_is_allowed(changes, message, tiny_budget):
     with pytest.raises(ValueError, match=message):
         dataclasses.replace(tiny_budget, **changes)
-    with pytest.raises(ValueError, match="unknown budget 'huge'; allowed: quick, paper, beyond, ablation$"):
+    with pytest.raises(ValueError, match="unknown budget 'huge'; allowed: quick, paper, pixels, beyond, ablation$"):
         budget_named("huge")
 
 
@@ -86,3 +86,16 @@ def test_the_presets_beyond_the_paper_plan_their_grids_within_two_hours(tmp_path
     # Only the grid differs: either preset continues the other's directory.
     write_plan(tmp_path, beyond)
     check_compatible(tmp_path, ablation)
+
+
+def test_the_pixel_preset_is_the_papers_grid_from_pixels_within_two_hours():
+    pixels = BUDGETS["pixels"]
+    assert pixels.tasks == PAPER_TASKS and pixels.obs == "pixels" and pixels.seeds >= 3
+    assert set(PAPER_ALGORITHMS) | {"a3c+papernet"} == set(pixels.algorithms)
+    assert (pixels.aux_heads, pixels.asymmetric_critic, pixels.precision) == (True, True, "bf16")
+    assert not pixels.subtract_background  # the paper's network row is the paper's exact configuration
+    seconds = sum(estimate_seconds(p, pixels) for p in plan_pieces(pixels))
+    assert seconds <= 2 * 3600, seconds / 3600
+    # The bf16 rates are the ones that count: the same grid in float32 is expected to take far longer.
+    fp32 = sum(estimate_seconds(p, dataclasses.replace(pixels, precision="fp32")) for p in plan_pieces(pixels))
+    assert fp32 > 1.3 * seconds

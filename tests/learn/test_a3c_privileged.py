@@ -92,3 +92,35 @@ def test_runs_without_privileged_parts_log_no_aux_loss(tmp_path):
     train(config, tmp_path / "run", progress=False)
     rows = list(csv.DictReader(open(tmp_path / "run" / "updates.csv")))
     assert rows and all(row["aux_frame"] == "nan" and row["aux_memory"] == "nan" for row in rows)
+
+
+def test_pixel_defaults_are_the_measured_best_and_state_defaults_unchanged():
+    from bimgame.learn.common import native_bf16
+    pixels, state = A3CConfig(obs="pixels"), A3CConfig(obs="state")
+    assert (pixels.aux_heads, pixels.asymmetric_critic) == (True, True)
+    assert pixels.precision == ("bf16" if native_bf16() else "fp32")
+    assert (state.aux_heads, state.asymmetric_critic, state.precision) == (False, False, "fp32")
+    explicit = A3CConfig(obs="pixels", aux_heads=False, asymmetric_critic=False, precision="fp32")
+    assert (explicit.aux_heads, explicit.asymmetric_critic, explicit.precision) == (False, False, "fp32")
+
+
+def test_a_pixel_run_stored_before_the_privileged_settings_resumes_as_the_papers_network(tmp_path):
+    """A config.json without aux_heads / asymmetric_critic / precision was written when every network
+    was the paper's: it reads back as that network (whose weights the checkpoint holds), not as
+    today's pixel default."""
+    import json
+
+    from bimgame.learn.a3c import resolve_config
+    from bimgame.learn.common import read_run
+    config = A3CConfig(**{**PIXELS, "hidden": 8, "features": 8}, steps=40, aux_heads=False,
+                       asymmetric_critic=False, precision="fp32")
+    train(config, tmp_path / "old", progress=False)
+    stored = json.loads((tmp_path / "old" / "config.json").read_text())
+    for name in ("aux_heads", "asymmetric_critic", "precision"):
+        del stored["a3c"][name]
+    (tmp_path / "old" / "config.json").write_text(json.dumps(stored))
+    resumed = resolve_config({"steps": 80}, tmp_path / "old", resume=True)
+    assert (resumed.aux_heads, resumed.asymmetric_critic, resumed.precision) == (False, False, "fp32")
+    assert not read_run(tmp_path / "old").network.aux_heads
+    train(resumed, tmp_path / "old", resume=True, progress=False)  # the stored weights load into it
+    assert load_checkpoint(tmp_path / "old")["step"] >= 80

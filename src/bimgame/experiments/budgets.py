@@ -294,9 +294,9 @@ _BEYOND_SETTINGS: dict[str, Any] = dict(
 #: within two hours on two cores: FULL/STG1/STG2 × the paper's five algorithms and ``a3c+papernet``
 #: × 3 seeds, with the pixel levers that measured best (auxiliary heads — from scratch, 80% training
 #: success on STG1 after ≈ 550k steps where the paper's network stayed near random play after 1M —
-#: an asymmetric critic and bf16, ≈ 3,600 steps/s); STG1 500k steps, STG2/FULL 300k; evaluations
-#: only at the end; 80 FULL expert episodes; DAgger 3 iterations × 6 episodes × 5 epochs. The cost
-#: model expects ≈ 1.9 h.
+#: an asymmetric critic and bf16, ≈ 4,500 steps/s); STG1 600k steps (so that A3C from scratch can
+#: reach the threshold), STG2/FULL 300k; evaluations only at the end; 80 FULL expert episodes;
+#: DAgger 3 iterations × 6 episodes × 5 epochs. The cost model expects ≈ 1.8 h.
 BUDGETS: dict[str, Budget] = {
     "quick": Budget(
         name="quick", tasks=("STG1",), seeds=2, obs="state", subtract_background=True,
@@ -314,7 +314,7 @@ BUDGETS: dict[str, Budget] = {
     "pixels": Budget(
         name="pixels", tasks=PAPER_TASKS, algorithms=(*PAPER_ALGORITHMS, "a3c+papernet"), seeds=3, obs="pixels",
         aux_heads=True, asymmetric_critic=True, precision="bf16",
-        a3c_steps={"STG1": 500_000, "STG2": 300_000, "FULL": 300_000, "STG3": 500_000, "STG4": 500_000},
+        a3c_steps={"STG1": 600_000, "STG2": 300_000, "FULL": 300_000, "STG3": 500_000, "STG4": 500_000},
         eval_every=0, eval_episodes=20, checkpoint_every=50_000,
         dataset_task="FULL", dataset_episodes=80, dataset_workers=2,
         pretrain_eval_episodes=20, dagger_iterations=3, dagger_episodes=6, dagger_epochs=5, dagger_eval_episodes=20),

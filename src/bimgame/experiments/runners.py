@@ -72,7 +72,7 @@ def dagger_config_for(budget: Budget, task: str, seed: int) -> DAggerConfig:
     """DAgger's settings for a task and seed (the learner is the same network as A3C's)."""
     learner = PretrainConfig(task=task, obs=budget.obs, seed=seed, hidden=budget.hidden, features=budget.features,
                              subtract_background=budget.network_subtract_background, precision=budget.precision,
-                             eval_episodes=0)
+                             aux_heads=False, asymmetric_critic=False, eval_episodes=0)
     return DAggerConfig(learner=learner, iterations=budget.dagger_iterations,
                         episodes_per_iteration=budget.dagger_episodes, epochs_per_iteration=budget.dagger_epochs,
                         eval_episodes=budget.dagger_eval_episodes)

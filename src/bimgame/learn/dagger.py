@@ -89,9 +89,12 @@ _TABLE = ["iteration", "beta", "episodes", "dataset_steps", "expert_sim_steps", 
 @dataclasses.dataclass(frozen=True)
 class DAggerConfig:
     """Settings of a DAgger run; the network and its loss are ``learner``'s (a
-    :class:`~bimgame.learn.supervised.PretrainConfig`: task, observations, sizes, lr, L2, γ)."""
+    :class:`~bimgame.learn.supervised.PretrainConfig`: task, observations, sizes, lr, L2, γ). The
+    learner has no auxiliary heads nor asymmetric critic: it trains on its own rollouts, which record
+    no simulator states."""
 
-    learner: PretrainConfig = dataclasses.field(default_factory=lambda: PretrainConfig(task="STG1"))
+    learner: PretrainConfig = dataclasses.field(
+        default_factory=lambda: PretrainConfig(task="STG1", aux_heads=False, asymmetric_critic=False))
     iterations: int = 10
     """Iterations to run (roll out, label, aggregate, retrain)."""
     episodes_per_iteration: int = 20
@@ -111,6 +114,9 @@ class DAggerConfig:
     def __post_init__(self) -> None:
         if self.learner.target != "policy":
             raise ValueError("DAggerConfig.learner must train a policy (target='policy')")
+        if self.learner.aux_heads or self.learner.asymmetric_critic:
+            raise ValueError("DAggerConfig.learner must have aux_heads=False and asymmetric_critic=False: DAgger "
+                             "trains on its own rollouts, which record no simulator states")
         for name in ("iterations", "episodes_per_iteration", "epochs_per_iteration"):
             require_int("DAggerConfig", name, getattr(self, name), 1)
         for name in ("beta0", "beta_decay"):

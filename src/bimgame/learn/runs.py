@@ -93,7 +93,25 @@ def read_run_config(run_dir: str | Path) -> dict[str, Any]:
         raise ValueError(f"cannot read {path / CONFIG}: {error}") from None
     if not isinstance(stored, dict):
         raise ValueError(f"{path / CONFIG} is not a JSON object")
+    _fill_earlier_network_settings(stored)
     return stored
+
+
+#: Network settings added after runs were first stored, with the value every earlier run had: a
+#: stored network without them is the paper's (their defaults now depend on the observation).
+EARLIER_NETWORK_SETTINGS = {"aux_heads": False, "asymmetric_critic": False, "precision": "fp32"}
+
+
+def _fill_earlier_network_settings(block: dict[str, Any]) -> None:
+    """Give every stored settings block that describes a network (it has ``obs`` and ``tilt_input``)
+    the :data:`EARLIER_NETWORK_SETTINGS` it lacks, at any depth, so that a run stored before they
+    existed resumes and loads as the network it is."""
+    if "obs" in block and "tilt_input" in block:
+        for name, value in EARLIER_NETWORK_SETTINGS.items():
+            block.setdefault(name, value)
+    for value in block.values():
+        if isinstance(value, dict):
+            _fill_earlier_network_settings(value)
 
 
 def read_run_settings(run_dir: str | Path, key: str, parse: Callable[[dict[str, Any]], T]) -> T:
