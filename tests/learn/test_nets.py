@@ -117,7 +117,8 @@ def test_pixel_features_vary_with_the_marble():
 # ------------------------------------------------------------------ privileged heads, bf16
 def _privileged_net(**overrides) -> "RecurrentActorCritic":  # noqa: F821
     from bimgame.learn.common import NetworkSettings
-    settings = NetworkSettings(obs="pixels", hidden=32, features=32, **overrides)
+    settings = NetworkSettings(obs="pixels", hidden=32, features=32,
+                               **{"aux_heads": False, "asymmetric_critic": False, **overrides})
     return settings.build_policy(seed=0)
 
 
