@@ -287,8 +287,9 @@ _BEYOND_SETTINGS: dict[str, Any] = dict(
 #: alone, 80 gave 42–88%); two seeds. Measured: 8.4 minutes on the idle two-core machine (pre-training
 #: sped A3C up 2.3×); with a 40-episode dataset it took 23 minutes while other training jobs kept
 #: both cores busy. ``paper`` is the paper's grid: pixels, FULL/STG1/STG2, five seeds, 5M steps per
-#: A3C run, a 300-episode FULL dataset — about two and a half days on two cores (``bimgame
-#: reproduce --dry-run`` prints the estimate per piece). ``beyond`` and ``ablation`` go beyond the
+#: A3C run, a 300-episode FULL dataset, with the pixel levers of ``pixels`` — about a day on two
+#: cores (``bimgame reproduce --dry-run`` prints the estimate per piece; 57 h with the paper's
+#: network in float32 at the speed measured under load). ``beyond`` and ``ablation`` go beyond the
 #: paper: fine-tuning π^s without forgetting it on STG2/STG3/STG4/FULL, and each fine-tuning method
 #: on its own on STG3 (see :data:`_BEYOND_SETTINGS`). ``pixels`` is the paper's grid from pixels
 #: within two hours on two cores: FULL/STG1/STG2 × the paper's five algorithms and ``a3c+papernet``
@@ -305,7 +306,8 @@ BUDGETS: dict[str, Budget] = {
         dataset_task="FULL", dataset_episodes=80, dataset_workers=2,
         pretrain_eval_episodes=50, dagger_iterations=4, dagger_episodes=6, dagger_epochs=10, dagger_eval_episodes=20),
     "paper": Budget(
-        name="paper", tasks=PAPER_TASKS, seeds=5, obs="pixels", subtract_background=True,
+        name="paper", tasks=PAPER_TASKS, seeds=5, obs="pixels", aux_heads=True, asymmetric_critic=True,
+        precision="bf16",
         a3c_steps={t.value: 5_000_000 for t in Task},
         eval_every=250_000, eval_episodes=20, checkpoint_every=200_000,
         dataset_task="FULL", dataset_episodes=300, dataset_workers=2,

@@ -25,12 +25,12 @@ class CostModel:
     from; the totals were checked against whole runs of the ``quick`` budget."""
 
     a3c_sps: Mapping[str, float] = dataclasses.field(default_factory=lambda: {
-        "state": 9_000.0, "pixels": 1_870.0, "pixels-bf16": 4_500.0})
+        "state": 9_000.0, "pixels": 3_900.0, "pixels-bf16": 4_500.0})
     """A3C environment steps/s with 2 workers × 16 envs, scaled by workers/2 (state: 9,900 measured
     in the quick budget's runs on the idle machine, 2,000–3,000 while other training jobs ran;
-    pixels: the paper's network in float32 under load, the README's earlier speed table; pixels-bf16:
-    4,506 for the network with auxiliary heads and asymmetric critic in benchmarks/bench_a3c.py on
-    the idle machine, 3,200–4,300 in 1M-step STG1 runs with other work on the machine)."""
+    pixels: 3,942 for the paper's network in float32 in benchmarks/bench_a3c.py on the idle machine
+    (1,870 under load); pixels-bf16: 4,506 for the network with auxiliary heads and asymmetric critic
+    there, 3,200–4,300 in 1M-step STG1 runs with other work on the machine)."""
     a3c_overhead_s: float = 6.0
     """Per A3C run: starting the worker processes, the final evaluation, the curves figure."""
     expert_episode_s: Mapping[str, float] = dataclasses.field(default_factory=lambda: {
