@@ -15,6 +15,7 @@ import numpy as np
 from gymnasium import spaces
 
 from bimgame.envs.observe import OBS_MODES, Observer
+from bimgame.envs.randomization import EpisodeRandomizer, Randomization, observation_space
 from bimgame.sim.maze import MazeSpec, MazeSpecError
 from bimgame.sim.physics import MazeSim
 from bimgame.sim.placement import check_marble_xy, check_n_marbles, check_sim_state, finite_array, sample_start
@@ -129,7 +130,9 @@ class BallInMazeEnv(gym.Env):
 
     ``channel`` (n,) int, ``gate_crossings`` (n,) int (+1 inwards / -1 outwards this step),
     ``geodesic_distance`` (n,) float (m, shortest path to the centre through the gates),
-    ``is_success`` bool (the task's goal reached), ``tilt`` (2,) float (rad).
+    ``is_success`` bool (the task's goal reached), ``tilt`` (2,) float (rad). With ``randomize``:
+    ``randomization``, the current episode's draws (a dict of floats, ``latency`` an int; see
+    :class:`~bimgame.envs.randomization.Randomization` for names and units).
 
     ## Arguments
 
@@ -139,8 +142,11 @@ class BallInMazeEnv(gym.Env):
     centre circle two diameters apart: 22 on MERL's maze), ``obs_size`` (pixels, 16..1024, default
     84), ``render_mode`` (None or "rgb_array"), ``render_size`` (16..2048, at most 640 with
     ``renderer="mujoco"``; default 480), ``renderer`` ("raster" — numpy, always available — or
-    "mujoco" — MuJoCo's 3D OpenGL renderer). Each is checked at construction (``ValueError``
-    naming it and what is allowed).
+    "mujoco" — MuJoCo's 3D OpenGL renderer), ``randomize`` (None — the default, nothing drawn —
+    or a :class:`~bimgame.envs.randomization.Randomization` of ranges, or a dict of its fields:
+    domain randomisation, drawn from ``np_random`` at every reset after the start; camera ranges
+    need ``obs_mode="pixels"``). Each is checked at construction (``ValueError`` naming it and what
+    is allowed).
 
     ## Version History
 
@@ -153,7 +159,8 @@ class BallInMazeEnv(gym.Env):
                  action_type: str = "discrete", tilt_step_deg: float | None = None,
                  max_tilt_deg: float | None = None, maze: MazeSpec | None = None,
                  n_marbles: int = 1, obs_size: int = 84, render_mode: str | None = None,
-                 render_size: int = 480, renderer: str = "raster"):
+                 render_size: int = 480, renderer: str = "raster",
+                 randomize: Randomization | Mapping[str, Any] | None = None):
         spec = maze if maze is not None else MazeSpec.merl()
         if not isinstance(spec, MazeSpec):
             raise TypeError(f"maze must be a MazeSpec, got {type(spec).__name__}")
@@ -181,9 +188,13 @@ class BallInMazeEnv(gym.Env):
         if not (is_integer(render_size) and 16 <= render_size <= limit):
             raise ValueError(f"render_size must be an integer in 16..{limit} (renderer={renderer!r}), "
                              f"got {render_size!r}")
+        self.randomize = Randomization.from_value(randomize)
+        if self.randomize is not None:
+            self.randomize.check(self.maze, obs_mode, obs_size)
         self._init_kwargs = dict(task=self.task.value, obs_mode=obs_mode, action_type=action_type,
                                  maze=self.maze, n_marbles=int(n_marbles), obs_size=obs_size,
-                                 render_mode=render_mode, render_size=render_size, renderer=renderer)
+                                 render_mode=render_mode, render_size=render_size, renderer=renderer,
+                                 randomize=self.randomize)
         self.obs_mode = obs_mode
         self.action_type = action_type
         self.n_marbles = int(n_marbles)
@@ -193,7 +204,12 @@ class BallInMazeEnv(gym.Env):
         self.sim = MazeSim(self.maze, n_marbles=self.n_marbles)
         self.observer = Observer(self.maze, self.n_marbles, obs_mode, obs_size=obs_size,
                                  layout=self.sim.layout)
-        self.observation_space = self.observer.space
+        self.observation_space = observation_space(self.observer.space, self.randomize, self.maze,
+                                                   self.n_marbles, obs_mode)
+        #: The current episode's domain randomisation (None without ``randomize``).
+        self.randomizer = None if self.randomize is None else EpisodeRandomizer(
+            self.randomize, self.maze, 1, self.observer.raster if obs_mode == "pixels" else None)
+        self._steps = 0  # steps since reset, counted only with randomize (the per-step noise's counter)
         if action_type == "discrete":
             self.action_space = spaces.Discrete(5)
         else:
@@ -220,17 +236,21 @@ class BallInMazeEnv(gym.Env):
         if "marble_xy" in options and "sim_state" in options:
             raise ValueError("reset options 'marble_xy' and 'sim_state' exclude each other: give the marbles' "
                              "positions (a start at rest) or a whole physics state, not both")
+        state = None
         if "sim_state" in options:
             state, xy = check_sim_state(self.maze, self.sim.layout, options["sim_state"], "options['sim_state']")
+        elif "marble_xy" in options:
+            xy = finite_array("options['marble_xy']", options["marble_xy"], (self.n_marbles, 2),
+                              f" (x, y in metres, board frame, for each of the {self.n_marbles} marble(s))")
+            check_marble_xy(self.maze, xy, "options['marble_xy']")
+        else:
+            xy = sample_start(self.maze, self.n_marbles, self.np_random)
+        if self.randomizer is not None:  # drawn after the start: a seed's starts do not depend on it
+            self._start_randomized_episode()
+        if state is not None:
             self.sim.data.qacc_warmstart[:] = 0  # as MazeSim.reset; step() clears it anyway
             self.sim.set_state(state)
         else:
-            if "marble_xy" in options:
-                xy = finite_array("options['marble_xy']", options["marble_xy"], (self.n_marbles, 2),
-                                  f" (x, y in metres, board frame, for each of the {self.n_marbles} marble(s))")
-                check_marble_xy(self.maze, xy, "options['marble_xy']")
-            else:
-                xy = sample_start(self.maze, self.n_marbles, self.np_random)
             self.sim.reset(xy)
         start = initial_task_state(self.maze, xy[None], self.task)
         self._channels = start.channel[0].tolist()
@@ -249,6 +269,10 @@ class BallInMazeEnv(gym.Env):
             delta = self._discrete_deltas[action]  # the common case, validated cheaply
         else:
             delta = action_to_tilt_delta(action, self.action_type, self.maze.tilt_step)
+        if self.randomizer is not None:
+            delta = self.randomizer.tilt_deltas(np.array([delta], dtype=np.float64), np.zeros(1, dtype=np.intp),
+                                                np.array([self._steps]))[0]
+            self._steps += 1
         sim = self.sim
         sim.step(delta)
         kinematics = sim.layout.board_frame_one(sim.data.qpos, sim.data.qvel)
@@ -275,9 +299,19 @@ class BallInMazeEnv(gym.Env):
         self.sim.close()
 
     # ------------------------------------------------------------------ helpers
+    def _start_randomized_episode(self) -> None:
+        """Draw the episode's randomisation from ``np_random`` and set its physics on the model."""
+        self.randomizer.reset_row(0, self.np_random)
+        self._steps = 0
+        if self.randomizer.physical:
+            self.sim.set_parameters(**self.randomizer.physics(0))
+
     def _observe(self, kinematics: list[tuple[float, float, float, float]]) -> np.ndarray:
         if self.obs_mode == "pixels":
             xy = np.array([k[:2] for k in kinematics])
+            if self.randomizer is not None and self.randomizer.observing:
+                frame = self.observer.raster.gray(xy[None])[:, None]
+                return self.randomizer.pixels(frame, np.array([self._steps]), xy[None])[0]
             return self.observer.raster.gray(xy)[None]
         # The layout of Observer.from_kinematics, built from plain floats (the per-step fast path;
         # tests check the single env against the batched vector env observation by observation).
@@ -287,13 +321,16 @@ class BallInMazeEnv(gym.Env):
 
     def _info(self, kinematics, crossings: list[int], success: bool) -> dict[str, Any]:
         geodesic = self.maze.geodesic_distance_one
-        return {
+        info = {
             "channel": np.array(self._channels),
             "gate_crossings": np.array(crossings),
             "geodesic_distance": np.array([geodesic(k[0], k[1]) for k in kinematics]),
             "is_success": success,
             "tilt": self.sim.data.qpos[:2].copy(),
         }
+        if self.randomizer is not None:
+            info["randomization"] = self.randomizer.row(0)
+        return info
 
     def _render_mujoco(self) -> np.ndarray:
         if self._mujoco_renderer is None:
@@ -316,10 +353,18 @@ class BallInMazeEnv(gym.Env):
             "sim_state": self.sim.get_state(),
             "task": (list(self._channels), list(self._reached), self._has_reset, self._episode_over),
             "np_random": None if self._np_random is None else self._np_random.bit_generator.state,
+            "randomization": None if self.randomizer is None or not self._has_reset else
+            (self.randomizer.state(0), self.randomizer.history[0].copy(), self._steps),
         }
 
     def __setstate__(self, state: dict) -> None:
         self.__init__(**state["kwargs"])
+        if state.get("randomization") is not None:
+            values, history, self._steps = state["randomization"]
+            self.randomizer.set_row(0, values)
+            self.randomizer.history[0] = history
+            if self.randomizer.physical:
+                self.sim.set_parameters(**self.randomizer.physics(0))
         self.sim.set_state(state["sim_state"])
         self._channels, self._reached, self._has_reset, *over = state["task"]
         self._episode_over = over[0] if over else not self._has_reset  # pickles from before the flag

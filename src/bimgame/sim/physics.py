@@ -23,6 +23,11 @@ Determinism. The solver's warm start is cleared at the start of every action ste
 step is a pure function of the physics state ``(time, qpos, qvel, act)``: :meth:`MazeSim.step`, a
 restored state and :meth:`MazeSim.rollout` (``mujoco.rollout`` on threads) give bit-identical
 results.
+
+Per-episode parameters. :meth:`MazeSim.set_parameters` changes friction, the marble's mass and
+radius and the servo limit on the built model (or on copies of it, one per env of a batch, which
+:meth:`MazeSim.rollout` steps together): what domain randomisation (:mod:`bimgame.envs.randomization`)
+needs at every reset. The state's layout and board-frame decoding live in :mod:`bimgame.sim.layout`.
 """
 
 from __future__ import annotations
@@ -35,6 +40,7 @@ import mujoco
 import numpy as np
 from mujoco import rollout as mj_rollout
 
+from bimgame.sim.layout import STATE_SPEC, StateLayout
 from bimgame.sim.maze import Friction, MazeSpec
 from bimgame.sim.placement import finite_array
 
@@ -42,7 +48,6 @@ __all__ = ["MazeSim", "StateLayout", "PHYSICS_HZ", "CONTROL_HZ"]
 
 PHYSICS_HZ = 150.0
 CONTROL_HZ = 30.0
-STATE_SPEC = mujoco.mjtState.mjSTATE_FULLPHYSICS
 CONTROL_SPEC = int(mujoco.mjtState.mjSTATE_CTRL)
 
 # Board and servo constants: the board is stiffly position-controlled, so its own inertia only
@@ -120,80 +125,6 @@ def _trim_end_box(box, inner, outer, a0, a1, start, end):
     shift = 0.5 * (hi + lo)
     tx, ty = -math.sin(yaw), math.cos(yaw)
     return (cx + shift * tx, cy + shift * ty, new_half, half_depth, yaw)
-
-
-class StateLayout:
-    """Indices of the quantities inside a flat physics state (``mjSTATE_FULLPHYSICS``:
-    time, qpos, qvel, act) for a model with ``n_marbles`` marbles, and vectorised decoders that
-    work on arrays of states of any leading shape."""
-
-    def __init__(self, model: mujoco.MjModel, n_marbles: int):
-        self.n_marbles = n_marbles
-        self.size = mujoco.mj_stateSize(model, STATE_SPEC)
-        qpos0 = 1
-        qvel0 = 1 + model.nq
-        act0 = qvel0 + model.nv
-        self.tilt = np.array([qpos0, qpos0 + 1])
-        self.tilt_rate = np.array([qvel0, qvel0 + 1])
-        self.target_tilt = np.array([act0, act0 + 1])
-        self.marble_pos = np.array([[qpos0 + 2 + 7 * i + j for j in range(3)] for i in range(n_marbles)])
-        self.marble_quat = np.array([[qpos0 + 5 + 7 * i + j for j in range(4)] for i in range(n_marbles)])
-        self.marble_vel = np.array([[qvel0 + 2 + 6 * i + j for j in range(3)] for i in range(n_marbles)])
-        self.marble_angvel = np.array([[qvel0 + 5 + 6 * i + j for j in range(3)] for i in range(n_marbles)])
-
-    def board_frame(self, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Marble positions and velocities relative to the board, in the board frame.
-
-        Returns arrays of shape ``states.shape[:-1] + (n_marbles, 3)``. The velocity is the time
-        derivative of the board-frame position (the marble's motion as seen by a camera fixed to
-        the board).
-        """
-        a = states[..., self.tilt[0]][..., None]
-        b = states[..., self.tilt[1]][..., None]
-        da = states[..., self.tilt_rate[0]][..., None]
-        db = states[..., self.tilt_rate[1]][..., None]
-        p = states[..., self.marble_pos]
-        v = states[..., self.marble_vel]
-        ca, sa, cb, sb = np.cos(a), np.sin(a), np.cos(b), np.sin(b)
-        # Board angular velocity in world coordinates: da about x, db about Rx(a)·y.
-        wx = da
-        wy = db * ca
-        wz = db * sa
-        px, py, pz = p[..., 0], p[..., 1], p[..., 2]
-        vx = v[..., 0] - (wy * pz - wz * py)
-        vy = v[..., 1] - (wz * px - wx * pz)
-        vz = v[..., 2] - (wx * py - wy * px)
-        return _to_board(px, py, pz, ca, sa, cb, sb), _to_board(vx, vy, vz, ca, sa, cb, sb)
-
-    def board_frame_one(self, qpos: np.ndarray, qvel: np.ndarray) -> list[tuple[float, float, float, float]]:
-        """Scalar :meth:`board_frame` of one model's ``qpos``/``qvel``: per marble
-        ``(x, y, vx, vy)`` in the board frame. The single env's per-step fast path: plain floats
-        avoid numpy's per-call overhead on tiny arrays (tests check it equals the batched one)."""
-        q = qpos.tolist()
-        v = qvel.tolist()
-        a, b, da, db = q[0], q[1], v[0], v[1]
-        ca, sa, cb, sb = math.cos(a), math.sin(a), math.cos(b), math.sin(b)
-        wx, wy, wz = da, db * ca, db * sa
-        out = []
-        for i in range(self.n_marbles):
-            px, py, pz = q[2 + 7 * i], q[3 + 7 * i], q[4 + 7 * i]
-            vx = v[2 + 6 * i] - (wy * pz - wz * py)
-            vy = v[3 + 6 * i] - (wz * px - wx * pz)
-            vz = v[4 + 6 * i] - (wx * py - wy * px)
-            out.append((cb * px - sb * (-sa * py + ca * pz), ca * py + sa * pz,
-                        cb * vx - sb * (-sa * vy + ca * vz), ca * vy + sa * vz))
-        return out
-
-
-def _to_board(x, y, z, ca, sa, cb, sb) -> np.ndarray:
-    """Apply (Rx(a)·Ry(b))ᵀ to world vectors."""
-    # First Rx(a)ᵀ.
-    y1 = ca * y + sa * z
-    z1 = -sa * y + ca * z
-    # Then Ry(b)ᵀ.
-    xb = cb * x - sb * z1
-    zb = sb * x + cb * z1
-    return np.stack([xb, y1, zb], axis=-1)
 
 
 MUJOCO_MIN_FRICTION = 1e-5  # mjMINMU: MuJoCo raises smaller friction coefficients to this
@@ -319,6 +250,9 @@ class MazeSim:
         self.data = mujoco.MjData(self.model)
         self.control_dt = substeps * self.model.opt.timestep
         self.layout = StateLayout(self.model, n_marbles)
+        #: Servo limit (rad) and marble radius (m) of the current episode (:meth:`set_parameters`).
+        self.max_tilt, self.marble_radius = self.spec.max_tilt, self.spec.marble_radius
+        self._const_data: mujoco.MjData | None = None
         self._rollout_pool: ThreadPoolExecutor | None = None
         self._rollout_threads = 0
         self._rollout_data: list[tuple[mj_rollout.Rollout, mujoco.MjData]] = []
@@ -348,13 +282,13 @@ class MazeSim:
         """Put marbles at rest at board-frame positions ``marble_xy`` (n, 2) — not checked against the
         walls: ``placement.check_marble_xy`` is — and the board and servo targets at ``tilt`` (rad)."""
         marble_xy = finite_array("marble_xy", marble_xy, (self.n_marbles, 2), " (x, y per marble, m)")
-        tilt = np.clip(finite_array("tilt", tilt, (2,)), -self.spec.max_tilt, self.spec.max_tilt)
+        tilt = np.clip(finite_array("tilt", tilt, (2,)), -self.max_tilt, self.max_tilt)
         state = np.zeros(self.layout.size)
         state[self.layout.tilt] = tilt
         state[self.layout.target_tilt] = tilt
         ca, sa, cb, sb = math.cos(tilt[0]), math.sin(tilt[0]), math.cos(tilt[1]), math.sin(tilt[1])
         for i, (x, y) in enumerate(marble_xy):
-            z = self.spec.marble_radius
+            z = self.marble_radius
             # board -> world: Rx(a)·Ry(b)·p
             x1, z1 = cb * x + sb * z, -sb * x + cb * z
             state[self.layout.marble_pos[i]] = (x1, ca * y - sa * z1, sa * y + ca * z1)
@@ -362,11 +296,47 @@ class MazeSim:
         self.data.qacc_warmstart[:] = 0
         self.set_state(state)
 
+    def set_parameters(self, model: mujoco.MjModel | None = None, *, friction: Friction | None = None,
+                       marble_mass: float | None = None, marble_radius: float | None = None,
+                       max_tilt: float | None = None) -> None:
+        """Set physical parameters (SI; None: the spec's value) on ``model`` — this sim's own by
+        default, or a copy of it (``copy.copy(sim.model)``, e.g. one per env of a batch, stepped by
+        :meth:`rollout`'s ``models``) — as building from ``spec.replace(...)`` would (a test compares
+        the two), in ~30 µs against ~3 ms for a rebuild (``benchmarks/bench_randomization.py``).
+        Setting this sim's own model also sets
+        :attr:`max_tilt` and :attr:`marble_radius` (the height :meth:`reset` places marbles at)."""
+        spec, m = self.spec, self.model if model is None else model
+        f = spec.friction if friction is None else friction
+        mass = spec.marble_mass if marble_mass is None else float(marble_mass)
+        radius = spec.marble_radius if marble_radius is None else float(marble_radius)
+        limit = spec.max_tilt if max_tilt is None else float(max_tilt)
+        m.pair_friction[:] = (f.slide, f.slide, f.spin, f.roll, f.roll)  # all pairs share one friction
+        m.pair_dim[:] = contact_condim(f)
+        marbles = [f"marble{i}" for i in range(self.n_marbles)]
+        geoms = [m.geom(name).id for name in marbles]
+        bodies = [m.body(name).id for name in marbles]
+        m.geom_size[geoms, 0] = m.geom_rbound[geoms] = radius
+        m.geom_aabb[geoms, 3:] = radius
+        m.body_pos[bodies, 2] = m.qpos0[[m.jnt_qposadr[m.body_jntadr[b]] + 2 for b in bodies]] = radius
+        m.body_mass[bodies] = mass
+        m.body_inertia[bodies] = 0.4 * mass * radius * radius  # a solid sphere
+        m.actuator_actrange[[m.actuator("servo_x").id, m.actuator("servo_y").id]] = (-limit, limit)
+        if self._const_data is None:
+            self._const_data = mujoco.MjData(self.model)
+        mujoco.mj_setConst(m, self._const_data)  # the inverse weights the contact solver scales by
+        full = np.zeros((m.nv, m.nv))
+        mujoco.mj_fullM(m, self._const_data, full)  # and the solver's tolerance scale, trace(M)/nv
+        m.stat.meaninertia = np.trace(full) / m.nv
+        if model is None:
+            self.max_tilt, self.marble_radius = limit, radius
+
     # ------------------------------------------------------------------ stepping
-    def rates_for(self, target_tilt: np.ndarray, tilt_delta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """New (clamped) targets and the tilt rates (rad/s) that ramp to them in one action step
-        (batched; :meth:`step` does the same per float)."""
-        new_target = np.clip(target_tilt + tilt_delta, -self.spec.max_tilt, self.spec.max_tilt)
+    def rates_for(self, target_tilt: np.ndarray, tilt_delta: np.ndarray,
+                  max_tilt: np.ndarray | float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """New targets, clamped to ``±max_tilt`` (default :attr:`max_tilt`; per row: (B, 1)), and the
+        tilt rates (rad/s) that ramp to them in one action step (batched; :meth:`step` per float)."""
+        limit = self.max_tilt if max_tilt is None else max_tilt
+        new_target = np.clip(target_tilt + tilt_delta, -limit, limit)
         return new_target, (new_target - target_tilt) / self.control_dt
 
     def step(self, tilt_delta: np.ndarray | tuple[float, float]) -> None:
@@ -376,7 +346,7 @@ class MazeSim:
         # :meth:`rates_for` (so rollouts stay bit-identical), without numpy's per-call overhead.
         data = self.data
         ax, ay = data.act.tolist()[:2]
-        limit = self.spec.max_tilt
+        limit = self.max_tilt
         dt = self.control_dt
         rx = (min(max(ax + float(tilt_delta[0]), -limit), limit) - ax) / dt
         ry = (min(max(ay + float(tilt_delta[1]), -limit), limit) - ay) / dt
@@ -402,13 +372,16 @@ class MazeSim:
         return self.data.act[:2].copy()
 
     # ------------------------------------------------------------------ batched rollouts
-    def rollout(self, states: np.ndarray, tilt_deltas: np.ndarray, *, nthread: int = 1) -> np.ndarray:
+    def rollout(self, states: np.ndarray, tilt_deltas: np.ndarray, *, nthread: int = 1,
+                models: Sequence[mujoco.MjModel] | None = None, max_tilt: np.ndarray | None = None) -> np.ndarray:
         """Roll out open-loop tilt sequences from many states with ``mujoco.rollout``.
 
         Args:
             states: (B, state_size) initial states, or (state_size,) for one shared start.
             tilt_deltas: (B, H, 2) commanded tilt change per action step (rad), or (H, 2).
             nthread: threads, each rolling out a contiguous chunk of the batch.
+            models, max_tilt: per row of the batch, a model (copies of :attr:`model` with their own
+                :meth:`set_parameters`) and its servo limit (rad); None: :attr:`model`, :attr:`max_tilt`.
 
         Returns:
             (B, H, state_size) states after each action step; bit-identical to calling
@@ -431,9 +404,11 @@ class MazeSim:
         states = np.broadcast_to(states, (batch, states.shape[1]))
         tilt_deltas = np.broadcast_to(tilt_deltas, (batch,) + tilt_deltas.shape[1:])
         out = np.empty((batch, tilt_deltas.shape[1], self.layout.size))
+        models = [self.model] * batch if models is None else list(models)
+        limits = np.full((batch, 1), self.max_tilt) if max_tilt is None else np.reshape(max_tilt, (batch, 1))
         nthread = max(1, min(int(nthread), batch))
         if nthread == 1:
-            self._rollout_chunk(states, tilt_deltas, out, 0)
+            self._rollout_chunk(states, tilt_deltas, out, 0, models, limits)
             return out
         # One Python thread per chunk of the batch, each running all H action steps with its own
         # MjData: mujoco.rollout releases the GIL, so the chunks run in parallel, and the thread
@@ -441,17 +416,17 @@ class MazeSim:
         # dispatched H times per call, measured 1.40x the engine's floor per MPC decision).
         pool = self._thread_pool(nthread)
         bounds = np.linspace(0, batch, nthread + 1).astype(int)
-        futures = [pool.submit(self._rollout_chunk, states[lo:hi], tilt_deltas[lo:hi], out[lo:hi], i)
-                   for i, (lo, hi) in enumerate(zip(bounds[:-1], bounds[1:]))]
+        futures = [pool.submit(self._rollout_chunk, states[lo:hi], tilt_deltas[lo:hi], out[lo:hi], i,
+                               models[lo:hi], limits[lo:hi]) for i, (lo, hi) in enumerate(zip(bounds[:-1], bounds[1:]))]
         for future in futures:
             future.result()
         return out
 
-    def _rollout_chunk(self, states: np.ndarray, tilt_deltas: np.ndarray, out: np.ndarray, slot: int) -> None:
+    def _rollout_chunk(self, states: np.ndarray, tilt_deltas: np.ndarray, out: np.ndarray, slot: int,
+                       models: list[mujoco.MjModel], limits: np.ndarray) -> None:
         """Roll out one chunk on runner number ``slot``, writing (b, H, state_size) into ``out``."""
         runner, data = self._rollout_runner_for(slot)
         batch = states.shape[0]
-        models = [self.model] * batch
         current = np.ascontiguousarray(states)
         warmstart = np.zeros((batch, self.model.nv))
         control = np.empty((batch, self.substeps, self.model.nu))
@@ -461,7 +436,7 @@ class MazeSim:
             # servo target exactly as :meth:`step` does, keeps the two bit-identical. Arrays are
             # preallocated and MuJoCo's argument checks skipped: per-call overhead is what this
             # loop costs beyond the physics.
-            _, rate = self.rates_for(current[:, self.layout.target_tilt], tilt_deltas[:, t])
+            _, rate = self.rates_for(current[:, self.layout.target_tilt], tilt_deltas[:, t], limits)
             control[:, :, 0] = control[:, :, 1] = rate[:, None, 0]
             control[:, :, 2] = control[:, :, 3] = rate[:, None, 1]
             runner.rollout(models, [data], current, control, control_spec=CONTROL_SPEC,
