@@ -11,7 +11,7 @@ import pytest
 
 SOURCE = pathlib.Path(__file__).resolve().parents[1] / "src" / "bimgame"
 #: Bottom to top; a module may import its own layer and the ones before it.
-LAYERS = ("util", "sim", "envs", "expert", "learn", "experiments", "cli")
+LAYERS = ("util", "sim", "envs", "expert", "learn", "experiments", "play", "cli")
 LEARNERS = {"bimgame.learn.a3c", "bimgame.learn.pretrain", "bimgame.learn.dagger"}
 #: Imports allowed inside functions: heavy optional or slow dependencies, each with its reason in the code.
 LAZY_ALLOWED = {"ray", "torch.utils.tensorboard"}

@@ -15,9 +15,11 @@ Verbs:
   reproduce    the paper's experiments in one resumable command: dataset, pre-training, runs, report
   report       rebuild a reproduction's figures, tables and report.md from its saved results
   score        any policy scored with the benchmark protocol, normalised (random 0, expert 100)
+  play         play in a browser (arrow keys), watch a trained agent, record human episodes as a dataset
 
 Each verb family has its module (:mod:`~bimgame.cli.maze`, :mod:`~bimgame.cli.expert`,
-:mod:`~bimgame.cli.train`, :mod:`~bimgame.cli.learn`, :mod:`~bimgame.cli.reproduce`) with its
+:mod:`~bimgame.cli.train`, :mod:`~bimgame.cli.learn`, :mod:`~bimgame.cli.reproduce`,
+:mod:`~bimgame.cli.play`) with its
 arguments and its run function; this one builds the parser from them and dispatches.
 """
 
@@ -30,6 +32,7 @@ from pathlib import Path
 from bimgame.cli import expert as cli_expert
 from bimgame.cli import learn as cli_learn
 from bimgame.cli import maze as cli_maze
+from bimgame.cli import play as cli_play
 from bimgame.cli import reproduce as cli_reproduce
 from bimgame.cli import score as cli_score
 from bimgame.cli import train as cli_train
@@ -65,6 +68,7 @@ def build_parser() -> argparse.ArgumentParser:
         verb = verbs.add_parser(name, help=text)
         add_arguments(verb)
         verb.set_defaults(run=run)
+    cli_play.add_parsers(verbs)
 
     curves = verbs.add_parser("curves", help="plot a run's learning curves")
     curves.add_argument("run_dir", type=Path)

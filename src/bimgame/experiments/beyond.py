@@ -38,9 +38,15 @@ BEYOND_TASKS = ("STG3", "STG4")
 MODES = ("greedy", "sampled")
 
 
+#: Algorithms beyond the paper's five that are not fine-tuning methods: they have no section of their own.
+NOT_FINETUNING = ("a3c+papernet",)
+
+
 def shows_beyond(budget: Budget) -> bool:
-    """Whether the report has the section: an algorithm beyond the paper's five, or STG3/STG4, in the grid."""
-    return any(a not in PAPER_ALGORITHMS for a in budget.algorithms) or any(t in BEYOND_TASKS for t in budget.tasks)
+    """Whether the report has the section: evaluations during the runs (it measures dips between
+    them) and a fine-tuning method beyond the paper's five, or STG3/STG4, in the grid."""
+    beyond = [a for a in budget.algorithms if a not in PAPER_ALGORITHMS and a not in NOT_FINETUNING]
+    return budget.eval_every > 0 and (bool(beyond) or any(t in BEYOND_TASKS for t in budget.tasks))
 
 
 def eval_curve(table: dict[str, np.ndarray]) -> tuple[np.ndarray, dict[str, np.ndarray]]:

@@ -52,7 +52,7 @@ from bimgame.util.files import FileWriteError
 from bimgame.util.progress import ProgressBar
 from bimgame.util.signals import sigterm_as_interrupt
 
-__all__ = ["PretrainResult", "pretrain", "load_sequences", "build_model", "evaluate_policy"]
+__all__ = ["PretrainResult", "pretrain", "load_sequences", "build_model", "evaluate_policy", "data_source"]
 _TABLE = ["train_loss", "train_accuracy", "train_value_rmse", "train_aux", "val_loss", "val_accuracy",
           "val_value_rmse", "val_aux",
           "seconds"]
@@ -122,6 +122,8 @@ class PretrainResult:
     seconds: float
     policy_eval: dict[str, float] | None
     """π^s alone as a policy: greedy and sampled success rate and length (policy target only)."""
+    data_source: str = "expert"
+    """Where the dataset's episodes came from: ``expert`` (bimgame generate) or ``human`` (bimgame play)."""
 
 
 def build_model(config: PretrainConfig, maze: MazeSpec | None = None) -> RecurrentActorCritic | ValueNetwork:
@@ -228,13 +230,23 @@ def _pretrain(config: PretrainConfig, data_dir: str | Path, out_dir: Path, *, pr
     if config.target == "policy" and config.eval_episodes > 0:
         policy_eval = evaluate_policy(net, config)
     result = PretrainResult(out_dir, best["epoch"], epochs_run, best["accuracy"], best["value_rmse"],
-                            time.monotonic() - started, policy_eval)
-    write_run_json(out_dir / SUMMARY, {"kind": kind, "best_epoch": result.best_epoch, "epochs_run": epochs_run,
+                            time.monotonic() - started, policy_eval, data_source(data_dir))
+    write_run_json(out_dir / SUMMARY, {"kind": kind, "data_source": result.data_source,
+                                          "best_epoch": result.best_epoch, "epochs_run": epochs_run,
                                           "val_accuracy": result.val_accuracy,
                                           "val_value_rmse": result.val_value_rmse, "chance_accuracy": 0.2,
                                           "seconds": result.seconds, "policy_eval": policy_eval,
                                           "episodes": {"train": len(train_idx), "held_out": len(val_idx)}})
     return result
+
+
+def data_source(data_dir: str | Path) -> str:
+    """Who made a dataset's episodes, from its manifest: ``expert`` (bimgame generate, which names
+    none) or ``human`` (bimgame play --record); ``unknown`` if the manifest cannot be read."""
+    try:
+        return str(dataset_manifest(data_dir).get("source", "expert"))
+    except (ValueError, OSError):
+        return "unknown"
 
 
 def evaluate_policy(net: RecurrentActorCritic, config: PretrainConfig, seed: int = 12345) -> dict[str, float]:
