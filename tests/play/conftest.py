@@ -9,7 +9,13 @@ import pytest
 from bimgame.envs.env import BallInMazeEnv
 from bimgame.expert.mpc import episode_seed
 from bimgame.learn.common import NetworkSettings
-from bimgame.learn.runs import CHECKPOINT, CONFIG, KIND_POLICY, save_checkpoint, torch_threads
+from bimgame.learn.runs import (
+    CHECKPOINT,
+    CONFIG,
+    KIND_POLICY,
+    save_checkpoint,
+    torch_threads,
+)
 
 
 @pytest.fixture(scope="session")
@@ -44,3 +50,17 @@ def seed_with_start_on_x_axis(task: str = "STG1") -> int:
 @pytest.fixture
 def x_axis_seed() -> int:
     return seed_with_start_on_x_axis()
+
+
+@pytest.fixture(scope="session")
+def tiny_pixel_agent_run(tmp_path_factory):
+    """Like :func:`tiny_agent_run`, with a pixel network (its observations are rendered from the state)."""
+    run = tmp_path_factory.mktemp("pixel-agent") / "run"
+    run.mkdir()
+    settings = NetworkSettings(obs="pixels", hidden=8, features=8, precision="fp32")
+    with torch_threads(1):
+        net = settings.build_policy(0)
+    save_checkpoint(run / CHECKPOINT, model=net.state_dict(), step=0, epoch=0, kind=KIND_POLICY)
+    (run / CONFIG).write_text(json.dumps({"kind": KIND_POLICY, "task": "STG2", "seed": 0,
+                                          "network": settings.to_dict()}))
+    return run

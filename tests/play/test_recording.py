@@ -11,7 +11,12 @@ import numpy as np
 import pytest
 
 from bimgame.envs.env import BallInMazeEnv
-from bimgame.expert.datasets import DatasetError, dataset_manifest, iterate_sequences, load_dataset
+from bimgame.expert.datasets import (
+    DatasetError,
+    dataset_manifest,
+    iterate_sequences,
+    load_dataset,
+)
 from bimgame.expert.minari_build import episode_path
 from bimgame.learn.pretrain import data_source, pretrain
 from bimgame.learn.runs import torch_threads

@@ -142,6 +142,23 @@ def test_agent_plays_and_control_switches_mid_episode(tiny_agent_run):
     session.close()
 
 
+def test_a_pixel_agent_sees_the_pixels_a_pixel_dataset_would_hold(tiny_pixel_agent_run):
+    session = PlaySession(agent=tiny_pixel_agent_run, max_steps=20)
+    assert session.task.value == "STG2" and session.agent.obs_mode == "pixels"
+    seen = []
+    original = session.agent._actor.act
+    session.agent._actor.act = lambda obs, tilt: (seen.append(np.asarray(obs).copy()), original(obs, tilt))[1]
+    for _ in range(3):
+        assert session.tick() and 0 <= session.last_action <= 4
+    env = BallInMazeEnv("STG2", obs_mode="pixels")  # the env's own pixel observation of the same state
+    expected, _ = env.reset(options={"sim_state": session.env.sim.get_state()})
+    env.close()
+    session.tick()
+    assert seen[-1].shape == (1, 1, 84, 84) and seen[-1].dtype == np.uint8
+    np.testing.assert_array_equal(seen[-1][0], expected)
+    session.close()
+
+
 def test_no_agent_refuses_agent_control():
     session = PlaySession("STG1", max_steps=10)
     with pytest.raises(ValueError, match="--agent"):

@@ -8,7 +8,12 @@ import logging
 import sys
 from pathlib import Path
 
-from bimgame.cli.argtypes import add_max_steps_argument, add_task_argument, non_negative_int, seed
+from bimgame.cli.argtypes import (
+    add_max_steps_argument,
+    add_task_argument,
+    non_negative_int,
+    seed,
+)
 from bimgame.learn.common import read_run
 from bimgame.learn.runs import torch_threads
 from bimgame.play.recording import HumanRecording

@@ -33,6 +33,8 @@ __all__ = ["ALGORITHM_NAME", "run_build_process", "read_human_episode"]
 #: Minari's ``algorithm_name`` of human recordings (the expert's datasets say ``RandomShootingMPC``).
 ALGORITHM_NAME = "human (bimgame play)"
 _CHUNK = 64
+#: Seconds a build may take before it is given up (and retried): a hung child must not hang the server's exit.
+BUILD_TIMEOUT = 900
 _ERROR_LINES = 30
 _DISK_FULL_EXITS = (errno.ENOSPC, errno.EDQUOT)
 _SCRIPT = ("import json, sys\n"
@@ -60,7 +62,8 @@ def run_build_process(out_dir: Path, manifest: dict, episodes: int, build_root: 
     job = {"sys_path": sys.path, "parent_pid": os.getpid(), "out_dir": str(out_dir), "manifest": manifest,
            "episodes": episodes}
     result = subprocess.run([sys.executable, "-c", _SCRIPT], input=json.dumps(job).encode(), capture_output=True,
-                            env={**os.environ, "MINARI_DATASETS_PATH": str(build_root)}, start_new_session=True)
+                            env={**os.environ, "MINARI_DATASETS_PATH": str(build_root)}, start_new_session=True,
+                            timeout=BUILD_TIMEOUT, check=False)
     output = result.stderr.decode(errors="replace")
     if result.returncode == 0:
         return

@@ -115,6 +115,7 @@ class HumanRecording:
 
     def __init__(self, out_dir: str | Path, task: str | Task, *, max_steps: int | None = None, seed: int = 0):
         self.out_dir = Path(out_dir).absolute()
+        self.shown_dir = str(out_dir)  # as the person gave it, for the page
         self.task = parse_task(task)
         self.max_steps = max_steps
         self.seed = int(seed)
@@ -195,7 +196,7 @@ class HumanRecording:
 
     @property
     def status(self) -> dict:
-        return {"dir": str(self.out_dir), "episodes": self.episodes, "built": self.built, "error": self.last_error}
+        return {"dir": self.shown_dir, "episodes": self.episodes, "built": self.built, "error": self.last_error}
 
     # ----------------------------------------------------------------- building
     def _kick(self) -> None:
@@ -236,6 +237,9 @@ class HumanRecording:
             successes += bool(data["success"])
         manifest = self._manifest(episodes)
         build_root = Path(tempfile.mkdtemp(prefix=_BUILD_PREFIX, dir=out))
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(build_root, 0o777 & ~umask)  # mkdtemp's 0700 would hide the dataset from other users
         try:
             run_build_process(out, manifest, episodes, build_root)
             (out / MARKER_NAME).unlink(missing_ok=True)  # from here until the new marker: incomplete

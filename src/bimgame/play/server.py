@@ -13,8 +13,10 @@ stepped or recorded) and goes on when a page connects again.
 
 **Robustness.** A message that is not understood is answered with an ``error`` message, logged and
 ignored (:mod:`bimgame.play.protocol`); an error inside a tick is logged and the loop goes on.
-Websockets from another web site (an ``Origin`` that is not this server) are refused, so a page on
-the internet cannot drive the game or write into a recording through the person's browser.
+Websockets from another web site (an ``Origin`` that is not this server) are refused, and a server
+bound to a loopback address answers only requests for ``localhost``/``127.0.0.1``/``[::1]`` (no
+DNS rebinding), so a page on the internet cannot drive the game or write into a recording through
+the person's browser.
 
 **Stopping.** SIGINT (Ctrl-C) or SIGTERM stops the loop, tells the clients (``bye``), closes the
 sockets and the HTTP server; the caller then closes the session (which records the person's
@@ -31,7 +33,6 @@ import itertools
 import json
 import logging
 import signal
-import threading
 import time
 from collections.abc import Callable
 from typing import Any
@@ -41,7 +42,7 @@ from aiohttp import WSMsgType, web
 from PIL import Image
 
 from bimgame.play.controls import KEY_ACTIONS
-from bimgame.play.protocol import MAX_MESSAGE_CHARS, apply_message, error_reply
+from bimgame.play.protocol import MAX_MESSAGE_CHARS, apply_message
 from bimgame.play.session import TICK_HZ, PlaySession
 
 __all__ = ["PlayServer", "serve", "encode_jpeg"]
@@ -56,6 +57,10 @@ MAX_FRAME_BYTES = 64 * 1024
 #: Replies (errors) waiting for a slow client before the oldest are dropped.
 OUTBOX = 16
 JPEG_QUALITY = 90
+#: Errors logged per client (every one is still answered).
+LOGGED_ERRORS = 20
+#: Host names that mean this computer.
+LOOPBACK_NAMES = {"localhost", "127.0.0.1", "::1"}
 
 
 def encode_jpeg(rgb, quality: int = JPEG_QUALITY) -> bytes:
@@ -73,6 +78,7 @@ class _Client:
         self.outbox: collections.deque[str] = collections.deque(maxlen=OUTBOX)
         self.ready = asyncio.Event()
         self.sent_frames = 0
+        self.errors = 0
 
     def push(self, message: dict[str, Any]) -> None:
         self.outbox.append(json.dumps(message))
@@ -110,15 +116,16 @@ class PlayServer:
         self._frame: bytes = b""
         self._tick_times: collections.deque[float] = collections.deque(maxlen=TICK_HZ + 1)
         self.url = ""
+        self._loopback_only = _host_name(host) in LOOPBACK_NAMES
 
     # ----------------------------------------------------------------- life cycle
     async def start(self) -> str:
         """Start serving; returns the page's URL (with the port actually bound)."""
-        app = web.Application()
+        app = web.Application(middlewares=[self._check_host])
         app.router.add_get("/", self._index)
         app.router.add_get("/static/{name}", self._static_file)
         app.router.add_get("/ws", self._websocket)
-        self._runner = web.AppRunner(app, handle_signals=False, access_log=None)
+        self._runner = web.AppRunner(app, handle_signals=False, access_log=None, shutdown_timeout=5.0)
         await self._runner.setup()
         site = web.TCPSite(self._runner, self.host, self.port)
         await site.start()
@@ -197,6 +204,15 @@ class PlayServer:
         return web.Response(body=self._static[name], content_type=STATIC[name], charset="utf-8",
                             headers={"Cache-Control": "no-store"})
 
+    @web.middleware
+    async def _check_host(self, request: web.Request, handler) -> web.StreamResponse:
+        """Bound to a loopback address, answer only requests addressed to one: a web site whose name
+        is made to resolve to 127.0.0.1 (DNS rebinding) gets nothing."""
+        if self._loopback_only and _host_name(request.host) not in LOOPBACK_NAMES:
+            log.warning("refused a request for host %r (this server answers localhost only)", request.host)
+            raise web.HTTPForbidden(text="this server answers requests for localhost only")
+        return await handler(request)
+
     async def _websocket(self, request: web.Request) -> web.StreamResponse:
         origin = request.headers.get("Origin")
         if origin is not None and urlsplit(origin).netloc != request.host:
@@ -215,7 +231,11 @@ class PlayServer:
                 if msg.type in (WSMsgType.TEXT, WSMsgType.BINARY):
                     reply = apply_message(self.session, client.ident, msg.data)
                     if reply is not None:
-                        log.warning("client %d: %s", client.ident, reply["message"])
+                        client.errors += 1
+                        if client.errors <= LOGGED_ERRORS:  # a flood of bad messages does not flood the log
+                            last = client.errors == LOGGED_ERRORS
+                            log.warning("client %d: %s%s", client.ident, reply["message"],
+                                        " (further errors of this client are not logged)" if last else "")
                         client.push(reply)
                 elif msg.type == WSMsgType.ERROR:
                     log.warning("client %d: websocket error %s", client.ident, ws.exception())
@@ -240,30 +260,35 @@ class PlayServer:
 
 
 def serve(session: PlaySession, *, host: str = "127.0.0.1", port: int = 8765,
-          on_ready: Callable[[str], None] | None = None, stop: threading.Event | None = None) -> None:
-    """Serve ``session`` until SIGINT or SIGTERM (when called from the main thread) or until ``stop``
-    is set; ``on_ready(url)`` is called once the server listens. Does not close the session."""
+          on_ready: Callable[[str], None] | None = None) -> None:
+    """Serve ``session`` until SIGINT or SIGTERM; ``on_ready(url)`` is called once the server
+    listens. Must run in the main thread (signal handlers). Does not close the session."""
 
     async def main() -> None:
         server = PlayServer(session, host=host, port=port)
         url = await server.start()
         finished = asyncio.Event()
         loop = asyncio.get_running_loop()
-        handled = []
-        if threading.current_thread() is threading.main_thread():
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                loop.add_signal_handler(sig, finished.set)
-                handled.append(sig)
-        if stop is not None:
-            threading.Thread(target=lambda: (stop.wait(), loop.call_soon_threadsafe(finished.set)),
-                             daemon=True).start()
+        signals = (signal.SIGINT, signal.SIGTERM)
+        for sig in signals:
+            loop.add_signal_handler(sig, finished.set)
         if on_ready is not None:
             on_ready(url)
         try:
             await finished.wait()
         finally:
-            for sig in handled:
+            for sig in signals:  # a second Ctrl-C while stopping interrupts at once
                 loop.remove_signal_handler(sig)
             await server.stop()
 
     asyncio.run(main())
+
+
+def _host_name(host: str) -> str:
+    """The name in a ``Host`` header or bind address, without port and brackets (lower case)."""
+    host = host.strip().lower()
+    if host.startswith("["):  # [::1]:8765
+        return host[1:].split("]", 1)[0]
+    if host.count(":") == 1:  # name:port
+        return host.split(":", 1)[0]
+    return host  # a name, or a bare IPv6 address

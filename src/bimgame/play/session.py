@@ -15,8 +15,9 @@ several browser tabs share the one game: the latest pressed key of anyone counts
 
 **Recording** (with a :class:`~bimgame.play.recording.HumanRecording`): only steps a person
 controlled, see :mod:`bimgame.play.recording` for when an episode is written. Episode ``k`` of a
-session (counted from the episodes already in the recording, so a resumed recording does not repeat
-its starts) starts from ``reset(seed=episode_seed(seed, k))``.
+session starts from ``reset(seed=episode_seed(seed, k))``, ``k`` counted on from the number of
+episodes already in the recording: a resumed recording does not start again with the starts of its
+first episodes (another ``--seed`` gives entirely new ones).
 """
 
 from __future__ import annotations
@@ -57,6 +58,8 @@ class PlaySession:
     def __init__(self, task: str | Task | None = None, *, max_steps: int | None = None, seed: int = 0,
                  agent: str | Path | None = None, greedy: bool = True, recording: HumanRecording | None = None,
                  render_size: int = 480, over_ticks: int = 45):
+        if max_steps is not None and not (isinstance(max_steps, int) and max_steps >= 1):
+            raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
         if task is None:
             task = read_run(agent).task if agent is not None else "FULL"
         self.task = parse_task(task)
@@ -67,8 +70,6 @@ class PlaySession:
         except BaseException:
             self.env.close()
             raise
-        if max_steps is not None and not (isinstance(max_steps, int) and max_steps >= 1):
-            raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
         self.max_steps = int(max_steps or self.task.time_limit)
         self.seed = int(seed)
         self.recording = recording
