@@ -11,7 +11,7 @@ from bimgame.learn.a3c_core import MAX_STEPS
 from bimgame.learn.common import MAX_SEED
 from bimgame.sim.tasks import Task
 
-__all__ = ["positive_int", "non_negative_int", "positive_float", "non_negative_float", "seed", "episode_count",
+__all__ = ["positive_int", "non_negative_int", "positive_float", "non_negative_float", "seed", "episode_count", "run_group",
            "episode_count_or_zero", "MAX_EPISODES", "TASK_NAMES", "add_task_argument", "add_max_steps_argument", "check_output_file",
            "step_count", "step_count_or_zero"]
 
@@ -125,3 +125,15 @@ def step_count(text: str) -> int:
 def step_count_or_zero(text: str) -> int:
     """:func:`step_count`, or 0 (e.g. ``--eval-every 0``: never)."""
     return 0 if text.strip() == "0" else step_count(text)
+
+
+def run_group(text: str) -> tuple[str, list[Path]]:
+    """``LABEL=RUN[,RUN...]`` → (label, run directories)."""
+    label, sep, runs = text.partition("=")
+    paths = [Path(r) for r in runs.split(",") if r]
+    if not sep or not label or not paths:
+        raise argparse.ArgumentTypeError(f"expected LABEL=RUN[,RUN...], got {text!r}")
+    missing = [str(p) for p in paths if not p.is_dir()]
+    if missing:
+        raise argparse.ArgumentTypeError(f"not run directories: {', '.join(missing)}")
+    return label, paths

@@ -28,6 +28,7 @@ from typing import Any
 
 from bimgame.cli.argtypes import TASK_NAMES, non_negative_float, non_negative_int, positive_float, positive_int
 from bimgame.envs.observe import OBS_MODES
+from bimgame.envs.randomization import RANDOMIZATION_PRESETS
 from bimgame.experiments.budgets import ALGORITHMS
 from bimgame.expert.mpc import PLANNING_REWARDS, SAMPLINGS
 from bimgame.learn.a3c import OPTIMIZERS, START_CURRICULA
@@ -43,6 +44,7 @@ FIELD_CHOICES: dict[str, tuple[str, ...]] = {
     "task": TASK_NAMES, "tasks": TASK_NAMES, "obs": OBS_MODES, "optimizer": OPTIMIZERS, "target": TARGETS,
     "sampling": SAMPLINGS, "reward": PLANNING_REWARDS, "algorithms": ALGORITHMS,
     "finetune": tuple(FINETUNE_PRESETS), "start_curriculum": START_CURRICULA, "precision": PRECISIONS,
+    "randomize": tuple(RANDOMIZATION_PRESETS),
 }
 #: Switches a fine-tuning preset may turn on: they get both ``--x`` and ``--no-x``.
 _TWO_WAY_SWITCHES = {name for name, value in FINETUNE_PRESETS["keep"].items() if isinstance(value, bool)}

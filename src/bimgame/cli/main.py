@@ -15,6 +15,7 @@ Verbs:
   reproduce    the paper's experiments in one resumable command: dataset, pre-training, runs, report
   report       rebuild a reproduction's figures, tables and report.md from its saved results
   score        any policy scored with the benchmark protocol, normalised (random 0, expert 100)
+  robustness   policies and the MPC expert on the nominal board and on domain-randomised boards
   play         play in a browser (arrow keys), watch a trained agent, record human episodes as a dataset
 
 Each verb family has its module (:mod:`~bimgame.cli.maze`, :mod:`~bimgame.cli.expert`,
@@ -36,7 +37,7 @@ from bimgame.cli import play as cli_play
 from bimgame.cli import reproduce as cli_reproduce
 from bimgame.cli import score as cli_score
 from bimgame.cli import train as cli_train
-from bimgame.cli.argtypes import step_count
+from bimgame.cli.argtypes import run_group, step_count
 from bimgame.learn.curves import plot_comparison, plot_run
 
 __all__ = ["main", "build_parser"]
@@ -55,6 +56,8 @@ _LEARNING_VERBS = (
      cli_reproduce.run_report),
     ("score", "score any policy with the benchmark protocol (normalised: random 0, expert 100)",
      cli_score.add_score_arguments, cli_score.run_score),
+    ("robustness", "policies and the MPC expert on the nominal board and domain-randomised ones",
+     cli_score.add_robustness_arguments, cli_score.run_robustness),
 )
 
 
@@ -75,7 +78,7 @@ def build_parser() -> argparse.ArgumentParser:
     curves.add_argument("--out", type=Path, default=None, help="PNG path (default RUN_DIR/curves.png)")
     curves.set_defaults(run=_curves)
     compare = verbs.add_parser("compare", help="learning curves of groups of runs in one figure")
-    compare.add_argument("groups", nargs="+", type=_run_group, metavar="LABEL=RUN[,RUN...]",
+    compare.add_argument("groups", nargs="+", type=run_group, metavar="LABEL=RUN[,RUN...]",
                          help="a label and the run directories averaged under it (e.g. seeds)")
     compare.add_argument("--out", type=Path, required=True, help="PNG path")
     compare.add_argument("--title", default="", help="figure title")
@@ -94,18 +97,6 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, OSError) as error:
         print(f"bimgame {args.verb}: error: {error}", file=sys.stderr)
         return 2
-
-
-def _run_group(text: str) -> tuple[str, list[Path]]:
-    """``LABEL=RUN[,RUN...]`` → (label, run directories)."""
-    label, sep, runs = text.partition("=")
-    paths = [Path(r) for r in runs.split(",") if r]
-    if not sep or not label or not paths:
-        raise argparse.ArgumentTypeError(f"expected LABEL=RUN[,RUN...], got {text!r}")
-    missing = [str(p) for p in paths if not p.is_dir()]
-    if missing:
-        raise argparse.ArgumentTypeError(f"not run directories: {', '.join(missing)}")
-    return label, paths
 
 
 def _curves(args: argparse.Namespace) -> int:

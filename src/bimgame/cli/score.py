@@ -11,12 +11,14 @@ from pathlib import Path
 from rich.console import Console
 from rich.table import Table
 
-from bimgame.cli.argtypes import TASK_NAMES, add_task_argument, check_output_file, positive_int
+from bimgame.cli.argtypes import TASK_NAMES, add_task_argument, check_output_file, positive_int, run_group
 from bimgame.envs.observe import OBS_MODES
+from bimgame.envs.randomization import RANDOMIZATION_PRESETS, randomization_preset
 from bimgame.experiments.protocol import PROTOCOL_EPISODES, measure_references, score
+from bimgame.experiments.robustness import robustness_rows, write_robustness
 from bimgame.util.files import write_json
 
-__all__ = ["add_score_arguments", "run_score"]
+__all__ = ["add_score_arguments", "run_score", "add_robustness_arguments", "run_robustness"]
 
 
 def add_score_arguments(parser: argparse.ArgumentParser) -> None:
@@ -70,3 +72,38 @@ def run_score(args: argparse.Namespace) -> int:
 
 if __name__ == "__main__":  # pragma: no cover
     sys.exit("use: bimgame score ...")
+
+
+def add_robustness_arguments(parser: argparse.ArgumentParser) -> None:
+    """``bimgame robustness``: policies and the expert on the nominal board and randomised ones."""
+    add = parser.add_argument
+    add("groups", nargs="*", type=run_group, metavar="LABEL=RUN[,RUN...]",
+        help="a label and its run directories (e.g. one per seed)")
+    add_task_argument(parser, "STG1", help="(default STG1)")
+    add("--randomize", nargs="+", choices=tuple(RANDOMIZATION_PRESETS), default=["physics"],
+        help="randomised conditions besides the nominal board (default physics)")
+    add("--episodes", type=positive_int, default=50, help="episodes per source and condition (default 50)")
+    add("--expert-seeds", type=int, default=3, help="MPC expert: sources (seeds) to measure, 0: none (default 3)")
+    add("--expert-episodes", type=positive_int, default=None, help="episodes per expert seed (default --episodes)")
+    add("--sampled", action="store_true", help="networks sample their actions instead of acting greedily")
+    add("--seed", type=int, default=0, help="seed of the evaluation episodes (default 0)")
+    add("--out", type=Path, required=True, help="directory for robustness.csv and robustness.md")
+    add("--no-progress", action="store_true", help="no progress bar")
+
+
+def run_robustness(args: argparse.Namespace) -> int:
+    if args.expert_seeds < 0:
+        raise ValueError(f"--expert-seeds must be >= 0, got {args.expert_seeds}")
+    if not args.groups and args.expert_seeds == 0:
+        raise ValueError("nothing to measure: give LABEL=RUN groups or --expert-seeds > 0")
+    conditions = {"nominal": None, **{name: randomization_preset(name) for name in args.randomize}}
+    groups = {label: [str(p) for p in runs] for label, runs in args.groups}
+    rows = robustness_rows(groups, args.task, conditions, episodes=args.episodes, seed=args.seed,
+                           sampled=args.sampled, progress=not args.no_progress)
+    if args.expert_seeds:
+        rows += robustness_rows({}, args.task, conditions, episodes=args.expert_episodes or args.episodes,
+                                seed=args.seed, expert_seeds=args.expert_seeds, progress=not args.no_progress)
+    csv_path, md_path = write_robustness(rows, args.out)
+    print(md_path.read_text())
+    print(f"wrote {csv_path} and {md_path}", file=sys.stderr)
+    return 0

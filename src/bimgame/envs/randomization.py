@@ -42,7 +42,8 @@ from bimgame.sim.maze import Friction, MazeSpec
 from bimgame.sim.render import MazeRenderer
 from bimgame.util.settings import from_dict, is_integer, is_real
 
-__all__ = ["Randomization", "EpisodeRandomizer", "max_marble_radius_scale", "max_camera_shift",
+__all__ = ["Randomization", "EpisodeRandomizer", "RANDOMIZATION_PRESETS", "randomization_preset",
+           "max_marble_radius_scale", "max_camera_shift",
            "PHYSICS_FIELDS", "ACTION_FIELDS", "OBSERVATION_FIELDS", "MAX_LATENCY", "MAX_BLUR",
            "MAX_CAMERA_ROTATION"]
 
@@ -199,6 +200,22 @@ _ALLOWED: dict[str, tuple[float, float, bool, str]] = {
     "camera_rotation": (-MAX_CAMERA_ROTATION, MAX_CAMERA_ROTATION, False,
                         f"degrees in [-{MAX_CAMERA_ROTATION:g}, {MAX_CAMERA_ROTATION:g}]"),
 }
+
+
+#: Named randomisations (what ``A3CConfig.randomize`` and ``bimgame train --randomize`` take).
+#: ``physics``: what a real board differs by — friction ±30% (sliding and spin), mass ±20%, a
+#: marble up to 5% smaller or 3% larger (the gates allow 3.7%), servo steps ±20% with a 0.1-step
+#: error, up to 2 steps of latency and a servo limit ±10%. ``camera``: lighting and mounting of a
+#: camera for pixel policies — brightness ±20 gray levels, contrast ±20%, noise up to 6 levels,
+#: blur up to 0.8 px, a shift up to 2 px and a rotation up to 3°. ``all``: both.
+RANDOMIZATION_PRESETS: dict[str, Randomization] = {}
+
+
+def randomization_preset(name: str) -> Randomization:
+    """The randomisation called ``name`` in :data:`RANDOMIZATION_PRESETS`."""
+    if name not in RANDOMIZATION_PRESETS:
+        raise ValueError(f"unknown randomisation {name!r}; allowed: {', '.join(RANDOMIZATION_PRESETS)}")
+    return RANDOMIZATION_PRESETS[name]
 
 
 def _check_range(name: str, value: Any, lowest: float, highest: float, open_low: bool, what: str) -> tuple:
@@ -382,3 +399,12 @@ class EpisodeRandomizer:
             for row, offset in enumerate(_noise_offsets(self.noise_keys, frame_index, 1, n).tolist()):
                 noise[row] = table[offset:offset + n]
         return self.camera.apply(frames, self.raster.world_to_pixel(marble_xy), noise)
+
+
+_PHYSICS = dict(sliding_friction=(0.7, 1.3), torsional_friction=(0.7, 1.3), marble_mass=(0.8, 1.2),
+                marble_radius=(0.95, 1.03), max_tilt=(0.9, 1.1), tilt_step=(0.8, 1.2), tilt_error=(0.0, 0.1),
+                latency=(0, 2))
+_CAMERA = dict(brightness=(-20.0, 20.0), contrast=(0.8, 1.2), pixel_noise=(0.0, 6.0), blur=(0.0, 0.8),
+               camera_shift=(-2.0, 2.0), camera_rotation=(-3.0, 3.0))
+RANDOMIZATION_PRESETS.update(physics=Randomization(**_PHYSICS), camera=Randomization(**_CAMERA),
+                             all=Randomization(**_PHYSICS, **_CAMERA))

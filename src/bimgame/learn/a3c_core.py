@@ -11,6 +11,7 @@ from typing import Any, Callable, ClassVar
 
 import torch
 
+from bimgame.envs.randomization import OBSERVATION_FIELDS, RANDOMIZATION_PRESETS
 from bimgame.envs.vector import BallInMazeVectorEnv
 from bimgame.learn.augment import MAX_SHIFT
 from bimgame.learn.common import NetworkSettings, check_seed, evaluate_greedy_and_sampled, evaluation_seed
@@ -138,6 +139,10 @@ class A3CConfig(NetworkSettings):
     augment_shift: int = 0
     """Pixels: shift each environment's frames in an update by up to this many pixels (DrQ random
     shifts, replicate padding; 0: none). Acting always sees the frames as rendered."""
+    randomize: str | None = None
+    """Domain randomisation of the training episodes: a preset of
+    :data:`~bimgame.envs.randomization.RANDOMIZATION_PRESETS` (``physics``, ``camera``, ``all``; the
+    camera needs pixels); None: the nominal board. Evaluations use the nominal board."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -187,6 +192,13 @@ class A3CConfig(NetworkSettings):
         if not (isinstance(self.kl_temperature, (int, float)) and math.isfinite(self.kl_temperature)
                 and self.kl_temperature > 0):
             raise ValueError(f"A3CConfig.kl_temperature must be a finite number > 0, got {self.kl_temperature!r}")
+        if self.randomize is not None:
+            if self.randomize not in RANDOMIZATION_PRESETS:
+                raise ValueError(f"A3CConfig.randomize must be None or one of {tuple(RANDOMIZATION_PRESETS)}, "
+                                 f"got {self.randomize!r}")
+            if self.obs != "pixels" and RANDOMIZATION_PRESETS[self.randomize].active(OBSERVATION_FIELDS):
+                raise ValueError(f"A3CConfig.randomize={self.randomize!r} randomises the camera, which needs "
+                                 f"obs='pixels'; with state observations use 'physics'")
         require_int("A3CConfig", "augment_shift", self.augment_shift, 0)
         if self.augment_shift > MAX_SHIFT or (self.augment_shift and self.obs != "pixels"):
             raise ValueError(f"A3CConfig.augment_shift must be 0..{MAX_SHIFT} pixels, and 0 for state observations, "

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from bimgame.envs.randomization import RANDOMIZATION_PRESETS
 from bimgame.envs.vector import BallInMazeVectorEnv
 from bimgame.learn.a3c_core import A3CConfig, EnvWrapper, apply_update, evaluate, make_optimizer, network_for
 from bimgame.learn.actor import RecurrentActor, tilt_input
@@ -45,9 +46,10 @@ def _start_sampler(config: A3CConfig):
 
 
 def _make_env(config: A3CConfig, num_envs: int, **kwargs: Any) -> BallInMazeVectorEnv:
+    randomize = None if config.randomize is None else RANDOMIZATION_PRESETS[config.randomize]
     return BallInMazeVectorEnv(num_envs, task=config.task, obs_mode=config.obs, nthread=1,
                                max_episode_steps=config.time_limit, autoreset_mode="same_step",
-                               state_info=config.privileged, **kwargs)
+                               state_info=config.privileged, randomize=randomize, **kwargs)
 
 
 def _worker(rank: int, config: A3CConfig, shared: RecurrentActorCritic, optimizer_state: list[dict],

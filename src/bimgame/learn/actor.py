@@ -102,13 +102,14 @@ class EvalResult:
 @torch.no_grad()
 def evaluate_network(net: RecurrentActorCritic, *, task: str, obs_mode: str, episodes: int, seed: int,
                      greedy: bool = True, maze: MazeSpec | None = None, max_episode_steps: int | None = None,
-                     record: bool = False, render_size: int = 240) -> EvalResult:
+                     record: bool = False, render_size: int = 240, randomize: Any = None) -> EvalResult:
     """Run one episode in each of ``episodes`` environments (batched) with the true task reward.
 
     Start positions come from ``seed`` (the same seed gives the same starts, so evaluations along a
     run are comparable); sampled actions draw from a generator seeded with ``seed`` too.
-    ``record`` keeps RGB frames of the first environment's episode."""
-    kwargs: dict[str, Any] = {"task": task, "obs_mode": obs_mode}
+    ``record`` keeps RGB frames of the first environment's episode. ``randomize`` (a
+    :class:`~bimgame.envs.randomization.Randomization`) evaluates on domain-randomised boards."""
+    kwargs: dict[str, Any] = {"task": task, "obs_mode": obs_mode, "randomize": randomize}
     if maze is not None:
         kwargs["maze"] = maze
     if record:
