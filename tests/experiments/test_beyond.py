@@ -3,9 +3,8 @@ steps to 80% greedy success, and their means over seeds with bootstrap intervals
 
 from __future__ import annotations
 
-import dataclasses
-
 import csv
+import dataclasses
 import math
 from pathlib import Path
 
