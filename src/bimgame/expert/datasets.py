@@ -38,7 +38,7 @@ import os
 import shutil
 import tempfile
 import warnings
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -63,11 +63,12 @@ from bimgame.expert.pool import BACKENDS, MAIN_GUARD, episode_progress, expert_e
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.physics import MazeSim
 from bimgame.sim.tasks import Task, parse_task
-from bimgame.util.files import atomic_write_bytes, exclusive_lock, reporting_full_disk
+from bimgame.util.files import atomic_write_bytes, exclusive_lock, file_sha256, reporting_full_disk
 from bimgame.util.settings import is_integer
 
 __all__ = ["DatasetError", "generate_dataset", "load_dataset", "iterate_sequences", "dataset_summary",
-           "dataset_id_for", "dataset_manifest", "BACKENDS", "MINARI_DIR", "FORMAT_VERSION"]
+           "dataset_id_for", "dataset_manifest", "episode_totals", "write_marker", "BACKENDS", "MINARI_DIR",
+           "FORMAT_NAME", "FORMAT_VERSION", "MANIFEST_NAME", "MARKER_NAME", "LOCK_NAME"]
 
 FORMAT_NAME = "bimgame-expert-dataset"
 FORMAT_VERSION = 1
@@ -284,13 +285,8 @@ def _build_minari(out_dir: Path, manifest: dict) -> None:
     """Build the Minari dataset from the episode files in a temporary datasets root (in a child
     process), move it into place, then write the COMPLETE marker (the last step)."""
     episodes, seed = manifest["episodes"], manifest["seed"]
-    content = hashlib.sha256()
-    totals = {"steps": 0, "successes": 0}
-    for index in range(episodes):
-        data = read_episode(episode_path(out_dir, index), index, episode_seed(seed, index))
-        hash_arrays(content, data)
-        totals["steps"] += len(data["actions"])
-        totals["successes"] += bool(data["success"])
+    totals = episode_totals(episodes, lambda index: read_episode(episode_path(out_dir, index), index,
+                                                                 episode_seed(seed, index)))
 
     build_root = Path(tempfile.mkdtemp(prefix=_BUILD_PREFIX, dir=out_dir))
     try:
@@ -303,30 +299,34 @@ def _build_minari(out_dir: Path, manifest: dict) -> None:
     finally:
         shutil.rmtree(build_root, ignore_errors=True)
 
+    with reporting_full_disk(out_dir / MARKER_NAME):
+        write_marker(out_dir, manifest["dataset_id"], episodes, totals)
+
+
+def episode_totals(episodes: int, read: Callable[[int], dict[str, np.ndarray]]) -> dict[str, Any]:
+    """Steps, successes and the content hash of episode files 0 … ``episodes``−1 (``read(index)``
+    gives a file's checked arrays): what the COMPLETE marker records."""
+    content = hashlib.sha256()
+    totals = {"steps": 0, "successes": 0}
+    for index in range(episodes):
+        data = read(index)
+        hash_arrays(content, data)
+        totals["steps"] += len(data["actions"])
+        totals["successes"] += bool(data["success"])
+    return {**totals, "content_sha256": content.hexdigest()}
+
+
+def write_marker(out_dir: Path, dataset_id: str, episodes: int, totals: dict[str, Any]) -> None:
+    """Write the COMPLETE marker — the last step of a build: the counts and content hash of
+    :func:`episode_totals`, and every episode and Minari file's size and SHA-256."""
     files = {}
     for path in [episode_path(out_dir, i) for i in range(episodes)] + sorted(
             p for p in (out_dir / MINARI_DIR).rglob("*") if p.is_file()):
-        files[path.relative_to(out_dir).as_posix()] = {"size": path.stat().st_size, "sha256": _file_sha256(path)}
-    marker = {
-        "format": FORMAT_NAME,
-        "format_version": FORMAT_VERSION,
-        "dataset_id": manifest["dataset_id"],
-        "episodes": episodes,
-        "steps": totals["steps"],
-        "successes": totals["successes"],
-        "content_sha256": content.hexdigest(),
-        "files": files,
-    }
-    with reporting_full_disk(out_dir / MARKER_NAME):
-        atomic_write_bytes(out_dir / MARKER_NAME, (json.dumps(marker, indent=1) + "\n").encode())
-
-
-def _file_sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as handle:
-        for block in iter(lambda: handle.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
+        files[path.relative_to(out_dir).as_posix()] = {"size": path.stat().st_size, "sha256": file_sha256(path)}
+    marker = {"format": FORMAT_NAME, "format_version": FORMAT_VERSION, "dataset_id": dataset_id,
+              "episodes": episodes, "steps": totals["steps"], "successes": totals["successes"],
+              "content_sha256": totals["content_sha256"], "files": files}
+    atomic_write_bytes(out_dir / MARKER_NAME, (json.dumps(marker, indent=1) + "\n").encode())
 
 
 # ------------------------------------------------------------------------------------- loading
@@ -368,7 +368,7 @@ def _verify(out_dir: Path, manifest: dict, *, hashes: bool) -> dict:
         if size != entry["size"]:
             raise DatasetError(f"{path} has {size} bytes, {entry['size']} when the dataset was completed "
                                "(truncated or modified)")
-        if hashes and _file_sha256(path) != entry["sha256"]:
+        if hashes and file_sha256(path) != entry["sha256"]:
             raise DatasetError(f"{path} differs from the file the dataset was completed with "
                                "(SHA-256 mismatch: corrupted or modified)")
     return marker

@@ -11,6 +11,7 @@ captured here and a full disk is recognised in it (or in its exit status, the er
 from __future__ import annotations
 
 import errno
+import importlib
 import io
 import json
 import os
@@ -18,7 +19,7 @@ import subprocess
 import sys
 import traceback
 import warnings
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
@@ -33,7 +34,8 @@ from bimgame.util.files import disk_full_errno
 from bimgame.util.processes import exit_when_parent_dies
 
 __all__ = ["DatasetError", "ALGORITHM_NAME", "EPISODES_DIR", "EPISODE_KEYS", "episode_path", "episode_bytes",
-           "read_episode", "hash_arrays", "run_build_process"]
+           "read_episode", "hash_arrays", "run_build_process", "episode_buffer", "write_minari", "write_expert_minari",
+           "EXPERT_WRITER"]
 
 ALGORITHM_NAME = "RandomShootingMPC"
 EPISODES_DIR = "episodes"
@@ -99,21 +101,28 @@ _BUILD_SCRIPT = ("import json, sys\n"
 _BUILD_ERROR_LINES = 30
 #: Exit statuses of the build process for a full disk and an exceeded quota: the errno itself.
 _DISK_FULL_EXITS = (errno.ENOSPC, errno.EDQUOT)
+#: The writer of the expert's datasets (``module:function``, see :func:`run_build_process`).
+EXPERT_WRITER = "bimgame.expert.minari_build:write_expert_minari"
 
 
-def run_build_process(out_dir: Path, manifest: dict, build_root: Path, chunk: int) -> None:
-    """Write the Minari dataset of the episode files in ``out_dir`` into the datasets root
-    ``build_root`` with a child process (:func:`_write_minari`), handing Minari ``chunk`` episodes
-    per write.
+def run_build_process(out_dir: Path, manifest: dict, build_root: Path, chunk: int, *, episodes: int | None = None,
+                      writer: str = EXPERT_WRITER, timeout: float | None = None, own_session: bool = False) -> None:
+    """Write the Minari dataset of the episode files 0 … ``episodes``−1 (default
+    ``manifest["episodes"]``) in ``out_dir`` into the datasets root ``build_root`` with a child
+    process, handing Minari ``chunk`` episodes per write. ``writer`` names the function the child
+    calls, ``writer(out_dir, manifest, episodes, chunk)`` (the expert's by default; human
+    recordings have their own); ``timeout`` (s) gives a hung child up; ``own_session`` keeps a
+    terminal's Ctrl-C from reaching the child.
 
     HDF5 does not survive a failed write cleanly: after a full disk every object it frees prints
     an error and the interpreter then often dies of a segmentation fault. In a child, that kills
     only the child; its error output stays here (captured) and is read for the cause: a full disk
     raises ``OSError(ENOSPC)``, anything else a RuntimeError with the output's last lines."""
     job = {"sys_path": sys.path, "parent_pid": os.getpid(), "out_dir": str(out_dir), "manifest": manifest,
-           "build_root": str(build_root), "chunk": chunk}
+           "episodes": manifest["episodes"] if episodes is None else int(episodes), "chunk": chunk, "writer": writer}
     result = subprocess.run([sys.executable, "-c", _BUILD_SCRIPT], input=json.dumps(job).encode(),
-                            capture_output=True, env={**os.environ, "MINARI_DATASETS_PATH": str(build_root)})
+                            capture_output=True, env={**os.environ, "MINARI_DATASETS_PATH": str(build_root)},
+                            start_new_session=own_session, timeout=timeout, check=False)
     output = result.stderr.decode(errors="replace")
     if result.returncode == 0:
         sys.stderr.write(output)  # warnings, if any
@@ -127,12 +136,14 @@ def run_build_process(out_dir: Path, manifest: dict, build_root: Path, chunk: in
 
 
 def _build_process_main(job: dict) -> None:
-    """The build process: write the Minari dataset, or exit with the errno of a full disk (else 1
-    with the traceback on stderr) without the interpreter's cleanup, which HDF5 objects left by a
-    failed write can crash."""
+    """The build process: run the job's writer, or exit with the errno of a full disk (else 1 with
+    the traceback on stderr) without the interpreter's cleanup, which HDF5 objects left by a failed
+    write can crash."""
     exit_when_parent_dies(job["parent_pid"])
     try:
-        _write_minari(Path(job["out_dir"]), job["manifest"], job["chunk"])
+        module, name = job["writer"].split(":")
+        write = getattr(importlib.import_module(module), name)
+        write(Path(job["out_dir"]), job["manifest"], int(job["episodes"]), int(job["chunk"]))
     except BaseException as error:
         code = disk_full_errno(error)
         if code is None:
@@ -143,39 +154,48 @@ def _build_process_main(job: dict) -> None:
         os._exit(code)
 
 
-def _write_minari(out_dir: Path, manifest: dict, chunk: int) -> None:
-    """Write the Minari dataset of the episode files in ``out_dir`` into the datasets root
-    ``MINARI_DATASETS_PATH`` (the build process runs this)."""
-    episodes, seed = manifest["episodes"], manifest["seed"]
+def episode_buffer(index: int, data: dict[str, np.ndarray]) -> EpisodeBuffer:
+    """An episode file's arrays as Minari's buffer (the physics states and channels as infos)."""
+    return EpisodeBuffer(id=index, seed=int(data["seed"]), observations=data["observations"], actions=data["actions"],
+                         rewards=data["rewards"], terminations=data["terminations"], truncations=data["truncations"],
+                         infos={"sim_state": data["sim_states"], "channel": data["channels"]})
 
-    def buffers(indices: Iterable[int]) -> list:
-        buffer = []
-        for index in indices:
-            data = read_episode(episode_path(out_dir, index), index, episode_seed(seed, index))
-            buffer.append(EpisodeBuffer(
-                id=index, seed=int(data["seed"]), observations=data["observations"],
-                actions=data["actions"], rewards=data["rewards"], terminations=data["terminations"],
-                truncations=data["truncations"],
-                infos={"sim_state": data["sim_states"], "channel": data["channels"]}))
-        return buffer
 
+def write_minari(manifest: dict, episodes: int, chunk: int, read: Callable[[int], dict[str, np.ndarray]], *,
+                 algorithm_name: str, description: str, author: str | None = None) -> None:
+    """Write the Minari dataset of episodes 0 … ``episodes``−1 (``read(index)`` gives each file's
+    arrays) into the datasets root ``MINARI_DATASETS_PATH``, ``chunk`` episodes per write; the
+    environment, its time limit and the reference scores come from ``manifest``."""
     kwargs: dict[str, Any] = {"obs_mode": "state"}
     if manifest["max_steps"] is not None:
         kwargs["max_episode_steps"] = manifest["max_steps"]
     env = gym.make(manifest["env_id"], **kwargs)
     env.spec.to_json()  # raises if the spec cannot be stored
+
+    def buffers(indices: Iterable[int]) -> list[EpisodeBuffer]:
+        return [episode_buffer(index, read(index)) for index in indices]
+
     try:
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", message=r"`(code_permalink|author|author_email)` is set to None")
             dataset = minari.create_dataset_from_buffers(
                 dataset_id=manifest["dataset_id"], buffer=buffers(range(min(chunk, episodes))),
-                env=env, eval_env=env.spec, algorithm_name=ALGORITHM_NAME,
-                description=_description(manifest), data_format="hdf5", **_reference_scores(manifest),
+                env=env, eval_env=env.spec, algorithm_name=algorithm_name, author=author,
+                description=description, data_format="hdf5", **_reference_scores(manifest),
                 requirements=[f"bimgame=={manifest['bimgame_version']}"])
             for start in range(chunk, episodes, chunk):
                 dataset.update_dataset_from_buffer(buffers(range(start, min(start + chunk, episodes))))
     finally:
         env.close()
+
+
+def write_expert_minari(out_dir: Path, manifest: dict, episodes: int, chunk: int) -> None:
+    """The expert dataset's writer (the build process runs it): episode i's file holds the episode
+    of seed ``episode_seed(manifest["seed"], i)``."""
+    seed = manifest["seed"]
+    write_minari(manifest, episodes, chunk,
+                 lambda index: read_episode(episode_path(out_dir, index), index, episode_seed(seed, index)),
+                 algorithm_name=ALGORITHM_NAME, description=_description(manifest))
 
 
 def _reference_scores(manifest: dict) -> dict[str, float]:

@@ -30,9 +30,7 @@ servers from recording into one directory at once.
 
 from __future__ import annotations
 
-import hashlib
 import io
-import json
 import logging
 import os
 import shutil
@@ -44,11 +42,21 @@ import minari
 import numpy as np
 
 import bimgame
-from bimgame.expert.datasets import FORMAT_VERSION, MINARI_DIR, DatasetError
-from bimgame.expert.minari_build import EPISODES_DIR, episode_path, hash_arrays
+from bimgame.expert.datasets import (
+    FORMAT_NAME,
+    FORMAT_VERSION,
+    LOCK_NAME,
+    MANIFEST_NAME,
+    MARKER_NAME,
+    MINARI_DIR,
+    DatasetError,
+    episode_totals,
+    write_marker,
+)
+from bimgame.expert.minari_build import EPISODES_DIR, episode_path
 from bimgame.play.minari_human import read_human_episode, run_build_process
 from bimgame.sim.tasks import Task, parse_task
-from bimgame.util.files import atomic_write_bytes, exclusive_lock
+from bimgame.util.files import atomic_write_bytes, exclusive_lock, read_json, write_json
 
 __all__ = ["SOURCE", "EpisodeBuilder", "HumanRecording", "human_dataset_id"]
 
@@ -56,10 +64,6 @@ log = logging.getLogger("bimgame.play")
 
 #: ``generation.json``'s ``source`` for recordings (expert datasets have none, or ``"expert"``).
 SOURCE = "human"
-FORMAT_NAME = "bimgame-expert-dataset"  # the expert datasets' format name: the same layout
-MANIFEST_NAME = "generation.json"
-MARKER_NAME = "COMPLETE"
-LOCK_NAME = ".lock"
 _BUILD_PREFIX = ".minari-build-"
 _OLD_PREFIX = ".minari-old-"
 
@@ -135,7 +139,7 @@ class HumanRecording:
             raise NotADirectoryError(f"--record {out} exists and is not a directory")
         manifest_path = out / MANIFEST_NAME
         if manifest_path.exists():
-            self._check_existing(json_or_none(manifest_path))
+            self._check_existing(read_json(manifest_path))
         elif out.exists() and any(not p.name.startswith(".") for p in out.iterdir()):
             raise FileExistsError(f"--record {out} is not empty and is not a recording (no {MANIFEST_NAME}); "
                                   "nothing was changed. Use a new or empty directory, or an earlier recording")
@@ -147,10 +151,10 @@ class HumanRecording:
             while episode_path(out, self.episodes).exists():
                 read_human_episode(out, self.episodes)  # refuses an unreadable file, naming it
                 self.episodes += 1
-            manifest = json_or_none(manifest_path)
+            manifest = read_json(manifest_path)
             if manifest is None:
-                atomic_write_bytes(manifest_path, _json_bytes(self._manifest(0)))
-            marker = json_or_none(out / MARKER_NAME)
+                write_json(manifest_path, self._manifest(0))
+            marker = read_json(out / MARKER_NAME)
             self.built = self.episodes if (self.episodes and self._marker_matches(marker)) else 0
         except BaseException:
             self._release_lock()
@@ -228,13 +232,7 @@ class HumanRecording:
 
     def _build(self, episodes: int) -> None:
         out = self.out_dir
-        content = hashlib.sha256()
-        steps = successes = 0
-        for index in range(episodes):
-            data = read_human_episode(out, index)
-            hash_arrays(content, data)
-            steps += len(data["actions"])
-            successes += bool(data["success"])
+        totals = episode_totals(episodes, lambda index: read_human_episode(out, index))
         manifest = self._manifest(episodes)
         build_root = Path(tempfile.mkdtemp(prefix=_BUILD_PREFIX, dir=out))
         umask = os.umask(0)
@@ -253,19 +251,12 @@ class HumanRecording:
                 os.replace(build_root, final)
         finally:
             shutil.rmtree(build_root, ignore_errors=True)
-        atomic_write_bytes(out / MANIFEST_NAME, _json_bytes(manifest))
-        files = {}
-        for path in [episode_path(out, i) for i in range(episodes)] + sorted(
-                p for p in (out / MINARI_DIR).rglob("*") if p.is_file()):
-            files[path.relative_to(out).as_posix()] = {"size": path.stat().st_size, "sha256": _sha256(path)}
-        marker = {"format": FORMAT_NAME, "format_version": FORMAT_VERSION, "dataset_id": manifest["dataset_id"],
-                  "episodes": episodes, "steps": steps, "successes": successes,
-                  "content_sha256": content.hexdigest(), "files": files}
-        atomic_write_bytes(out / MARKER_NAME, (json.dumps(marker, indent=1) + "\n").encode())
+        write_json(out / MANIFEST_NAME, manifest)
+        write_marker(out, manifest["dataset_id"], episodes, totals)
 
     # ----------------------------------------------------------------- files
     def _manifest(self, episodes: int) -> dict:
-        existing = json_or_none(self.out_dir / MANIFEST_NAME) or {}
+        existing = read_json(self.out_dir / MANIFEST_NAME) or {}
         return {
             "format": FORMAT_NAME,
             "format_version": FORMAT_VERSION,
@@ -300,7 +291,7 @@ class HumanRecording:
 
     def _marker_matches(self, marker: dict | None) -> bool:
         """Whether the COMPLETE marker covers exactly the saved episodes, file sizes unchanged."""
-        manifest = json_or_none(self.out_dir / MANIFEST_NAME) or {}
+        manifest = read_json(self.out_dir / MANIFEST_NAME) or {}
         if not marker or marker.get("episodes") != self.episodes or manifest.get("episodes") != self.episodes:
             return False
         try:
@@ -319,24 +310,3 @@ class HumanRecording:
         if self._lock_context is not None:
             self._lock_context.__exit__(None, None, None)
             self._lock_context = None
-
-
-def json_or_none(path: Path) -> dict | None:
-    try:
-        value = json.loads(path.read_text())
-    except (OSError, ValueError):
-        return None
-    return value if isinstance(value, dict) else None
-
-
-def _json_bytes(values: dict) -> bytes:
-    return (json.dumps(values, indent=2) + "\n").encode()
-
-
-def _sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as handle:
-        for block in iter(lambda: handle.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
-

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import hashlib
 import json
 import os
 import re
@@ -28,7 +29,7 @@ try:
 except ImportError:  # pragma: no cover - not POSIX: directories are not locked
     fcntl = None  # type: ignore[assignment]
 
-__all__ = ["atomic_write_bytes", "exclusive_lock", "write_json", "read_json", "FileWriteError", "DiskFullError",
+__all__ = ["atomic_write_bytes", "exclusive_lock", "write_json", "read_json", "file_sha256", "FileWriteError", "DiskFullError",
            "disk_full_errno", "reporting_full_disk"]
 
 
@@ -100,6 +101,15 @@ def read_json(path: str | Path) -> dict[str, Any] | None:
     except (OSError, ValueError):
         return None
     return value if isinstance(value, dict) else None
+
+
+def file_sha256(path: str | Path) -> str:
+    """The SHA-256 of a file's bytes (hex), read in 1 MiB blocks."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
 
 
 # ------------------------------------------------------------------------------ write errors
