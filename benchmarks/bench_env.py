@@ -81,7 +81,7 @@ def env_engine_share(obs_mode: str, n: int, wrapped: bool) -> float:
         sim_module.mujoco = original
 
 
-def best_of(fn, repeats: int) -> float:
+def best_of(fn, repeats: int = 3) -> float:
     """Best rate (units/s) over repeats; fn returns (units, seconds)."""
     return max(units / seconds for units, seconds in (fn() for _ in range(repeats)))
 
@@ -132,8 +132,10 @@ def env_rate(obs_mode: str, n: int, wrapped: bool) -> float:
     return best_of(run, 3)
 
 
-def vector_rate(obs_mode: str, num_envs: int, steps: int, nthread: int) -> float:
-    env = BallInMazeVectorEnv(num_envs, task="FULL", obs_mode=obs_mode, max_episode_steps=1000, nthread=nthread)
+def vector_rate(obs_mode: str, num_envs: int, steps: int, nthread: int | None = None, **env_kwargs) -> float:
+    """Env steps/s of the vector env on FULL with random actions (``env_kwargs``: e.g. ``randomize``)."""
+    env = BallInMazeVectorEnv(num_envs, task="FULL", obs_mode=obs_mode, max_episode_steps=1000, nthread=nthread,
+                              **env_kwargs)
     env.reset(seed=0)
     actions = np.random.default_rng(0).integers(5, size=(steps, num_envs))
 

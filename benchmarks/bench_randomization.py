@@ -25,10 +25,10 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
+from bench_env import best_of, vector_rate  # benchmarks/ is the script's directory, on sys.path
 
 from bimgame.envs.env import BallInMazeEnv
 from bimgame.envs.randomization import EpisodeRandomizer, Randomization
-from bimgame.envs.vector import BallInMazeVectorEnv
 from bimgame.sim.maze import Friction, MazeSpec
 from bimgame.sim.physics import MazeSim
 from bimgame.sim.render import MazeRenderer
@@ -44,11 +44,6 @@ CAMERA_RANGES = dict(brightness=(-20.0, 20.0), contrast=(0.8, 1.2), pixel_noise=
 PHYSICS = Randomization(**PHYSICS_RANGES)
 CAMERA = Randomization(**CAMERA_RANGES)
 BOTH = Randomization(**PHYSICS_RANGES, **CAMERA_RANGES)
-
-
-def best_of(fn, repeats: int = 3) -> float:
-    """Best rate (units/s) over repeats; fn returns (units, seconds)."""
-    return max(units / seconds for units, seconds in (fn() for _ in range(repeats)))
 
 
 def set_parameters_us(n: int) -> tuple[float, float]:
@@ -83,21 +78,6 @@ def env_reset_us(randomize: Randomization | None, n: int) -> float:
             env.reset(seed=seed)
         return n, time.perf_counter() - start
     return 1e6 / best_of(run)
-
-
-def vector_rate(obs_mode: str, randomize: Randomization | None, steps: int, num_envs: int = 64) -> float:
-    env = BallInMazeVectorEnv(num_envs, task="FULL", obs_mode=obs_mode, max_episode_steps=1000, randomize=randomize)
-    env.reset(seed=0)
-    actions = np.random.default_rng(0).integers(5, size=(steps, num_envs))
-
-    def run():
-        start = time.perf_counter()
-        for action in actions:
-            env.step(action)
-        return steps * num_envs, time.perf_counter() - start
-    rate = best_of(run)
-    env.close()
-    return rate
 
 
 def camera_ms(n: int, batch: int = 64) -> float:
@@ -139,7 +119,7 @@ def main() -> None:
                                ("state", (("randomize=None", None), ("physics + actuation", PHYSICS)))):
         baseline = None
         for label, randomize in settings:
-            rate = vector_rate(obs_mode, randomize, steps)
+            rate = vector_rate(obs_mode, 64, steps, randomize=randomize)
             baseline = baseline or rate
             rows[f"vector env 64 envs, {obs_mode}, {label} (env steps/s)"] = (rate, "steps/s", rate / baseline)
     table = {}

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 
@@ -18,19 +19,23 @@ from bimgame.learn.runs import (
 )
 
 
-@pytest.fixture(scope="session")
-def tiny_agent_run(tmp_path_factory):
-    """A pre-trained-policy run directory (untrained weights, state observations, STG1): what
-    ``bimgame pretrain`` writes, small enough to build in a moment."""
-    run = tmp_path_factory.mktemp("agent") / "run"
+def _policy_run(run: Path, settings: NetworkSettings, task: str) -> Path:
+    """A pre-trained-policy run directory with untrained weights: what ``bimgame pretrain`` writes."""
     run.mkdir()
-    settings = NetworkSettings(obs="state", hidden=8, features=8)
     with torch_threads(1):
         net = settings.build_policy(0)
     save_checkpoint(run / CHECKPOINT, model=net.state_dict(), step=0, epoch=0, kind=KIND_POLICY)
-    (run / CONFIG).write_text(json.dumps({"kind": KIND_POLICY, "task": "STG1", "seed": 0,
+    (run / CONFIG).write_text(json.dumps({"kind": KIND_POLICY, "task": task, "seed": 0,
                                           "network": settings.to_dict()}))
     return run
+
+
+@pytest.fixture(scope="session")
+def tiny_agent_run(tmp_path_factory):
+    """A pre-trained-policy run directory (untrained weights, state observations, STG1), small
+    enough to build in a moment."""
+    return _policy_run(tmp_path_factory.mktemp("agent") / "run", NetworkSettings(obs="state", hidden=8, features=8),
+                       "STG1")
 
 
 def seed_with_start_on_x_axis(task: str = "STG1") -> int:
@@ -55,12 +60,5 @@ def x_axis_seed() -> int:
 @pytest.fixture(scope="session")
 def tiny_pixel_agent_run(tmp_path_factory):
     """Like :func:`tiny_agent_run`, with a pixel network (its observations are rendered from the state)."""
-    run = tmp_path_factory.mktemp("pixel-agent") / "run"
-    run.mkdir()
-    settings = NetworkSettings(obs="pixels", hidden=8, features=8, precision="fp32")
-    with torch_threads(1):
-        net = settings.build_policy(0)
-    save_checkpoint(run / CHECKPOINT, model=net.state_dict(), step=0, epoch=0, kind=KIND_POLICY)
-    (run / CONFIG).write_text(json.dumps({"kind": KIND_POLICY, "task": "STG2", "seed": 0,
-                                          "network": settings.to_dict()}))
-    return run
+    return _policy_run(tmp_path_factory.mktemp("pixel-agent") / "run",
+                       NetworkSettings(obs="pixels", hidden=8, features=8, precision="fp32"), "STG2")

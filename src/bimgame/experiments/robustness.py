@@ -19,13 +19,11 @@ from typing import Sequence
 
 import numpy as np
 
-from bimgame.envs.env import BallInMazeEnv
 from bimgame.envs.randomization import Randomization
 from bimgame.experiments.statistics import mean_interval
-from bimgame.expert.mpc import MPCConfig, RandomShootingMPC, episode_seed
+from bimgame.expert.mpc import MPCConfig, episode_seed, run_expert_episode
 from bimgame.learn.actor import evaluate_network
 from bimgame.learn.common import load_run_network
-from bimgame.sim.tasks import parse_task
 from bimgame.util.files import atomic_write_bytes
 from bimgame.util.progress import ProgressBar
 
@@ -51,22 +49,8 @@ def _expert_episodes(task: str, randomize: Randomization | None, episodes: int, 
                      config: MPCConfig) -> tuple[float, float]:
     """Success rate and mean length of the MPC expert, which plans on the nominal model, on
     ``episodes`` episodes of the (randomised) env."""
-    task_enum = parse_task(task)
-    successes, lengths = [], []
-    for index in range(episodes):
-        env = BallInMazeEnv(task_enum, obs_mode="state", randomize=randomize)
-        run_seed = episode_seed(seed, index)
-        expert = RandomShootingMPC(env.maze, config, rng=np.random.default_rng(run_seed), task=task_enum)
-        env.reset(seed=run_seed)
-        terminated, steps = False, 0
-        while not terminated and steps < task_enum.time_limit:
-            _, _, terminated, _, _ = env.step(expert.act(env.sim.get_state()))
-            steps += 1
-        successes.append(terminated)
-        lengths.append(steps)
-        expert.close()
-        env.close()
-    return float(np.mean(successes)), float(np.mean(lengths))
+    runs = [run_expert_episode(task, episode_seed(seed, index), config, randomize=randomize) for index in range(episodes)]
+    return float(np.mean([run["success"] for run in runs])), float(np.mean([len(run["actions"]) for run in runs]))
 
 
 def measure(source: str, task: str, condition: str, randomize: Randomization | None, *, episodes: int,

@@ -145,8 +145,11 @@ def episode_seed(run_seed: int, index: int) -> int:
 
 
 def run_expert_episode(task: str, seed: int, config: MPCConfig | None = None, *,
-                       maze: MazeSpec | None = None, max_steps: int | None = None) -> dict[str, np.ndarray]:
-    """One episode of the MPC expert on ``task`` from ``reset(seed=seed)``.
+                       maze: MazeSpec | None = None, max_steps: int | None = None,
+                       randomize: Any = None) -> dict[str, np.ndarray]:
+    """One episode of the MPC expert on ``task`` from ``reset(seed=seed)``; ``randomize`` (a
+    :class:`~bimgame.envs.randomization.Randomization`) plays it on a randomised board while the
+    expert plans with the nominal model.
 
     Returns arrays (T = episode length): ``actions`` (T,) int64, ``rewards`` (T,) float64,
     ``terminations``/``truncations`` (T,) bool, ``observations`` (T+1, obs_dim) float32 state
@@ -155,7 +158,7 @@ def run_expert_episode(task: str, seed: int, config: MPCConfig | None = None, *,
     """
     task_enum = parse_task(task)
     maze = maze if maze is not None else MazeSpec.merl()
-    env = BallInMazeEnv(task_enum, obs_mode="state", maze=maze)
+    env = BallInMazeEnv(task_enum, obs_mode="state", maze=maze, randomize=randomize)
     expert = RandomShootingMPC(maze, config, rng=np.random.default_rng(seed), task=task_enum)
     limit = max_steps if max_steps is not None else task_enum.time_limit
     obs, info = env.reset(seed=seed)

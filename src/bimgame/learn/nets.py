@@ -209,13 +209,18 @@ class ConvEncoder(nn.Module):
             nn.init.zeros_(layer.bias)
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=self.bf16):
-            a1 = self.conv1((obs.float() - self.background) * (1.0 / 255.0))
-            a2 = self.conv2(torch.relu(a1))
-            parts = [torch.relu(a2).flatten(1)]
-            if self.keypoints is not None:
-                parts += [self.keypoints[0](a1), self.keypoints[1](a2)]
-            return self.fc(torch.cat(parts, dim=-1) if len(parts) > 1 else parts[0]).float()
+        if not self.bf16:
+            return self._features(obs)
+        with torch.autocast("cpu", dtype=torch.bfloat16):
+            return self._features(obs).float()
+
+    def _features(self, obs: torch.Tensor) -> torch.Tensor:
+        a1 = self.conv1((obs.float() - self.background) * (1.0 / 255.0))
+        a2 = self.conv2(torch.relu(a1))
+        parts = [torch.relu(a2).flatten(1)]
+        if self.keypoints is not None:
+            parts += [self.keypoints[0](a1), self.keypoints[1](a2)]
+        return self.fc(torch.cat(parts, dim=-1) if len(parts) > 1 else parts[0])
 
 
 class MLPEncoder(nn.Module):

@@ -405,7 +405,8 @@ class MazeSim:
         tilt_deltas = np.broadcast_to(tilt_deltas, (batch,) + tilt_deltas.shape[1:])
         out = np.empty((batch, tilt_deltas.shape[1], self.layout.size))
         models = [self.model] * batch if models is None else list(models)
-        limits = np.full((batch, 1), self.max_tilt) if max_tilt is None else np.reshape(max_tilt, (batch, 1))
+        # One servo limit for all rows stays a float: the clamp in the per-step loop then needs no array.
+        limits = self.max_tilt if max_tilt is None else np.reshape(max_tilt, (batch, 1))
         nthread = max(1, min(int(nthread), batch))
         if nthread == 1:
             self._rollout_chunk(states, tilt_deltas, out, 0, models, limits)
@@ -416,14 +417,15 @@ class MazeSim:
         # dispatched H times per call, measured 1.40x the engine's floor per MPC decision).
         pool = self._thread_pool(nthread)
         bounds = np.linspace(0, batch, nthread + 1).astype(int)
-        futures = [pool.submit(self._rollout_chunk, states[lo:hi], tilt_deltas[lo:hi], out[lo:hi], i,
-                               models[lo:hi], limits[lo:hi]) for i, (lo, hi) in enumerate(zip(bounds[:-1], bounds[1:]))]
+        chunks = list(zip(bounds[:-1], bounds[1:]))
+        futures = [pool.submit(self._rollout_chunk, states[lo:hi], tilt_deltas[lo:hi], out[lo:hi], i, models[lo:hi],
+                               limits if np.isscalar(limits) else limits[lo:hi]) for i, (lo, hi) in enumerate(chunks)]
         for future in futures:
             future.result()
         return out
 
     def _rollout_chunk(self, states: np.ndarray, tilt_deltas: np.ndarray, out: np.ndarray, slot: int,
-                       models: list[mujoco.MjModel], limits: np.ndarray) -> None:
+                       models: list[mujoco.MjModel], limits: np.ndarray | float) -> None:
         """Roll out one chunk on runner number ``slot``, writing (b, H, state_size) into ``out``."""
         runner, data = self._rollout_runner_for(slot)
         batch = states.shape[0]
