@@ -11,9 +11,9 @@ from pathlib import Path
 from rich.console import Console
 from rich.table import Table
 
-from bimgame.cli.argtypes import add_max_steps_argument, add_task_argument, non_negative_int, positive_int
+from bimgame.cli.argtypes import add_backend_arguments, add_max_steps_argument, add_task_argument, non_negative_int, positive_int
 from bimgame.cli.flags import add_settings_flags
-from bimgame.expert.datasets import BACKENDS, MINARI_DIR, dataset_summary, generate_dataset
+from bimgame.expert.datasets import MINARI_DIR, dataset_summary, generate_dataset
 from bimgame.expert.evaluation import evaluate_expert, plot_length_histogram, summarise, write_results
 from bimgame.expert.mpc import MPCConfig
 from bimgame.util.files import DiskFullError
@@ -65,9 +65,7 @@ def add_generate_arguments(parser: argparse.ArgumentParser) -> argparse.Argument
     parser.add_argument("--seed", type=non_negative_int, default=0, help="run seed (default 0)")
     parser.add_argument("--workers", type=positive_int, default=None,
                         help="parallel episodes (default: the number of CPUs)")
-    parser.add_argument("--backend", choices=BACKENDS, default="local")
-    parser.add_argument("--ray-address", default=None,
-                        help="Ray cluster address (backend ray; default: start Ray locally)")
+    add_backend_arguments(parser, "episodes")
     add_max_steps_argument(parser)
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     return parser

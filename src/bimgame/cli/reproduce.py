@@ -11,7 +11,7 @@ from pathlib import Path
 from rich.console import Console
 from rich.markup import escape
 
-from bimgame.cli.argtypes import positive_int
+from bimgame.cli.argtypes import add_backend_arguments, non_negative_int, positive_int
 from bimgame.cli.flags import add_settings_flags
 from bimgame.experiments.budgets import BUDGETS, Budget, budget_named
 from bimgame.experiments.costs import estimate_seconds, format_duration
@@ -50,6 +50,9 @@ def add_reproduce_arguments(parser: argparse.ArgumentParser) -> None:
     # The grid: Budget settings that change what is computed; not given: the budget's (as --budget).
     add_settings_flags(parser, Budget, GRID_FLAGS, default_none=True, defaults=BUDGETS["quick"],
                        default_text="the budget's")
+    add_backend_arguments(parser, "pieces (dataset, pre-trainings, runs)")
+    add("--max-retries", type=non_negative_int, default=3, metavar="N",
+        help="with --backend ray: how often a piece whose node or worker died is started again (default 3)")
     add("--stop-after", type=positive_int, default=None, metavar="N",
         help="compute at most N pieces, then stop (run again to continue)")
     add("--dry-run", action="store_true", help="print the plan and its expected duration; run nothing")
@@ -103,9 +106,16 @@ def run_reproduce(args: argparse.Namespace) -> int:
             f"{kind} ×{sum(p.kind == kind for p in pieces)} ≈ "
             f"{format_duration(sum(estimate_seconds(p, budget) for p in pieces if p.kind == kind))}" for kind in kinds))
         return 0
+    if args.ray_address is not None and args.backend != "ray":
+        console.print("bimgame reproduce: error: --ray-address is only used with --backend ray")
+        return 2
     try:
         result = reproduce(args.out, budget, progress=not args.no_progress, stop_after=args.stop_after,
-                           console=console)
+                           console=console, backend=args.backend, ray_address=args.ray_address,
+                           max_retries=args.max_retries)
+    except ImportError as error:
+        console.print(f"bimgame reproduce: error: {escape(str(error))}")
+        return 2
     except KeyboardInterrupt:
         console.print(f"interrupted; finished pieces are kept. Continue with: bimgame reproduce --out {args.out}")
         return 130

@@ -15,7 +15,7 @@ from bimgame.experiments.budgets import Budget
 from bimgame.experiments.grid import PIECE_KINDS, Piece
 from bimgame.sim.tasks import Task
 
-__all__ = ["CostModel", "COSTS", "estimate_seconds", "format_duration"]
+__all__ = ["CostModel", "COSTS", "estimate_seconds", "piece_cpus", "cluster_seconds", "format_duration"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -98,6 +98,31 @@ def estimate_seconds(piece: Piece, budget: Budget, costs: CostModel = COSTS) -> 
                         + _eval_seconds(task, obs, budget.dagger_eval_episodes, costs))
         return seconds
     raise ValueError(f"unknown piece kind {piece.kind!r}; allowed: {', '.join(PIECE_KINDS)}")
+
+
+def piece_cpus(piece: Piece, budget: Budget) -> int:
+    """The CPUs ``piece`` keeps busy, which a cluster reserves for it: an A3C run its workers plus its
+    evaluator process (when it evaluates during training); the dataset its expert worker processes;
+    a pre-training or DAgger run its torch threads (the budget's ``torch_threads``)."""
+    if piece.kind == "a3c":
+        return budget.workers + (1 if budget.eval_every > 0 else 0)
+    if piece.kind == "dataset":
+        return budget.dataset_workers
+    return budget.torch_threads
+
+
+def cluster_seconds(pieces: list[Piece], budget: Budget, cpus: float, costs: CostModel = COSTS) -> float:
+    """Expected wall time of ``pieces`` on a cluster of ``cpus`` CPUs: the CPU time they reserve
+    (each piece's estimate times its :func:`piece_cpus`) spread over the CPUs, and never less than
+    the longest chain of pieces that wait for one another (pieces already finished cost nothing)."""
+    if cpus <= 0:
+        raise ValueError(f"a cluster needs CPUs to run pieces, got {cpus!r}")
+    estimates = {p.id: estimate_seconds(p, budget, costs) for p in pieces}
+    chain: dict[str, float] = {}
+    for piece in pieces:  # the plan's order puts every piece after the pieces it needs
+        chain[piece.id] = estimates[piece.id] + max((chain.get(n, 0.0) for n in piece.needs), default=0.0)
+    spread = sum(estimates[p.id] * piece_cpus(p, budget) for p in pieces) / cpus
+    return max(spread, max(chain.values(), default=0.0))
 
 
 def format_duration(seconds: float) -> str:

@@ -9,7 +9,10 @@ every unfinished piece of a budget in a reproduction directory ``DIR``::
 The driver only orders and records: what the grid is lives in :mod:`~bimgame.experiments.budgets`
 and :mod:`~bimgame.experiments.grid`, how long a piece takes in :mod:`~bimgame.experiments.costs`,
 the plan and status files and whether a piece is finished in :mod:`~bimgame.experiments.plan`,
-how each piece is computed in :mod:`~bimgame.experiments.runners`; the report is built afterwards
+how each piece is computed in :mod:`~bimgame.experiments.runners`, where in
+:mod:`~bimgame.experiments.backends` (this process, one piece at a time, in plan order) or
+:mod:`~bimgame.experiments.cluster` (Ray tasks side by side on a cluster, each started as soon as
+the pieces it needs are finished, results shipped back); the report is built afterwards
 from the saved results by :mod:`bimgame.experiments.report`. One process works in a directory at a
 time (a lock file); SIGTERM stops it like Ctrl-C.
 """
@@ -18,16 +21,16 @@ from __future__ import annotations
 
 import dataclasses
 import time
-import traceback
 from pathlib import Path
 from typing import Any
 
+from rich.console import Console
+
+from bimgame.experiments.backends import BACKENDS, Backend, LocalBackend
 from bimgame.experiments.budgets import Budget
-from bimgame.experiments.costs import COSTS, CostModel, estimate_seconds, format_duration
+from bimgame.experiments.costs import COSTS, CostModel, cluster_seconds, estimate_seconds, format_duration
 from bimgame.experiments.grid import Piece
 from bimgame.experiments.plan import STATUS, check_compatible, load_status, piece_done, timestamp, write_plan
-from bimgame.experiments.runners import RUNNERS
-from bimgame.learn.runs import torch_threads
 from bimgame.util.files import exclusive_lock, write_json
 from bimgame.util.progress import ProgressBar, escape
 from bimgame.util.signals import sigterm_as_interrupt
@@ -65,19 +68,25 @@ class ReproductionResult:
 
 
 def reproduce(out_dir: str | Path, budget: Budget, *, progress: bool = True, stop_after: int | None = None,
-              console: Any = None, costs: CostModel = COSTS) -> ReproductionResult:
+              console: Any = None, costs: CostModel = COSTS, backend: str = "local", ray_address: str | None = None,
+              max_retries: int = 3) -> ReproductionResult:
     """Run (or continue) the reproduction of ``budget`` in ``out_dir``.
 
-    Writes ``plan.json``, then runs every unfinished piece in order, rewriting ``status.json`` after
-    each. A failing piece is recorded and the pieces that do not need it still run. Ctrl-C stops
-    cleanly (the piece running is marked interrupted and resumes next time) and re-raises
-    ``KeyboardInterrupt``.
+    Writes ``plan.json``, then computes every unfinished piece once all it needs is finished,
+    rewriting ``status.json`` after each. A failing piece is recorded and the pieces that do not
+    need it still run. Ctrl-C stops cleanly (the pieces running are marked interrupted and resume
+    next time) and re-raises ``KeyboardInterrupt``.
 
     Args:
         stop_after: compute at most this many pieces in this call, then return (finished pieces do
             not count); run again to continue.
         progress: one overall rich progress bar over the pieces (each piece's own bars stay off).
         console: a ``rich.console.Console`` for the messages (default: stderr).
+        backend: ``local`` (one piece at a time in this process, in plan order) or ``ray`` (pieces
+            side by side as Ray tasks; :mod:`bimgame.experiments.cluster`).
+        ray_address: with ``backend="ray"``, the cluster to join (None: the Ray initialised in this
+            process, else a new local one).
+        max_retries: with ``backend="ray"``, how often a piece whose node died is started again.
     Returns:
         What was computed, reused, failed or left; the report is built by :mod:`bimgame.experiments.report`.
     """
@@ -85,6 +94,10 @@ def reproduce(out_dir: str | Path, budget: Budget, *, progress: bool = True, sto
         raise ValueError(f"stop_after must be None or an integer >= 1, got {stop_after!r}")
     if not isinstance(budget, Budget):
         raise TypeError(f"budget must be a Budget, got {type(budget).__name__}")
+    if backend not in BACKENDS:
+        raise ValueError(f"unknown backend {backend!r}; allowed: {', '.join(BACKENDS)}")
+    if ray_address is not None and backend != "ray":
+        raise ValueError("ray_address is only used with backend='ray'")
     # Absolute, so the paths the runs record in their config.json (init, value reward) hold from anywhere.
     out_dir = Path(out_dir).resolve()
     if out_dir.exists() and not out_dir.is_dir():
@@ -95,7 +108,7 @@ def reproduce(out_dir: str | Path, budget: Budget, *, progress: bool = True, sto
         pieces = write_plan(out_dir, budget, costs)
         status = load_status(out_dir)
         entries: dict[str, dict[str, Any]] = status.setdefault("pieces", {})
-        invocation = {"started": timestamp(), "budget": budget.name}
+        invocation = {"started": timestamp(), "budget": budget.name, "backend": backend}
         status.setdefault("invocations", []).append(invocation)
         result = ReproductionResult(out_dir, [], [], {}, [], [], 0.0)
         started = time.monotonic()
@@ -117,49 +130,88 @@ def reproduce(out_dir: str | Path, budget: Budget, *, progress: bool = True, sto
                 entry["state"] = "pending"
         save()
         todo = [p for p in pieces if p.id not in done]
+        if backend == "ray":
+            from bimgame.experiments.cluster import RayBackend  # imports Ray: only when asked for
+
+            runner: Backend = RayBackend(out_dir, budget, pieces, address=ray_address, max_retries=max_retries)
+            runner.check_fits(todo)
+            invocation["cluster_cpus"] = runner.cpus
+            _print(console, f"Ray cluster: {runner.cpus:g} CPUs on {runner.nodes} nodes; expected ≈ "
+                            f"{format_duration(cluster_seconds(todo, budget, runner.cpus, costs))} for the "
+                            f"{len(todo)} pieces not finished yet (their estimates spread over the CPUs, at "
+                            f"least the longest chain of pieces that wait for one another)")
+        else:
+            runner = LocalBackend(out_dir, budget)
         shown = todo if stop_after is None else todo[:stop_after]
-        with _Display(progress, console, shown, budget, costs) as display:
-            for piece in todo:
-                entry = entries[piece.id]
-                blocked = [n for n in piece.needs if n in result.failed or n in result.skipped]
-                if blocked:
-                    entry.update(state="skipped", error=f"needs {', '.join(blocked)}, which did not finish")
-                    result.skipped.append(piece.id)
+        finished = set(done)
+        in_flight: dict[str, float] = {}
+        pending = list(todo)
+        submitted = 0
+        try:
+            with _Display(progress, console, shown, budget, costs, runner) as display:
+                while True:
+                    for piece in list(pending):
+                        entry = entries[piece.id]
+                        blocked = [n for n in piece.needs if n in result.failed or n in result.skipped]
+                        if blocked:
+                            entry.update(state="skipped", error=f"needs {', '.join(blocked)}, which did not finish")
+                            result.skipped.append(piece.id)
+                            pending.remove(piece)
+                            save()
+                            continue
+                        if (not all(n in finished for n in piece.needs)
+                                or (runner.capacity is not None and len(in_flight) >= runner.capacity)
+                                or (stop_after is not None and submitted >= stop_after)):
+                            continue
+                        entry.update(state="running", started=timestamp())
+                        for stale in ("error", "traceback", "node"):
+                            entry.pop(stale, None)
+                        save()
+                        runner.submit(piece)
+                        pending.remove(piece)
+                        in_flight[piece.id] = time.monotonic()
+                        submitted += 1
+                        display.start(piece)
+                    if not in_flight:
+                        break
+                    outcome = runner.next_outcome()
+                    piece = outcome.piece
+                    del in_flight[piece.id]
+                    entry = entries[piece.id]
+                    # Wall time includes earlier interrupted or failed attempts of the same piece.
+                    entry["seconds"] = entry.get("seconds", 0.0) + outcome.seconds
+                    entry["finished"] = timestamp()
+                    if outcome.node is not None:
+                        entry["node"] = outcome.node
+                    if outcome.failed:
+                        entry.update(state="failed", error=outcome.error, traceback=outcome.traceback)
+                        result.failed[piece.id] = outcome.error
+                        save()
+                        display.finish(piece, f"[red]failed[/red]: {escape(outcome.error)}")
+                        continue
+                    entry.update(state="done", computed=entry.get("computed", 0) + 1)
+                    entry.pop("traceback", None)
+                    entry.pop("note", None)
+                    if outcome.note:
+                        entry["note"] = outcome.note
+                    finished.add(piece.id)
+                    result.computed.append(piece.id)
                     save()
-                    continue
-                if stop_after is not None and len(result.computed) + len(result.failed) >= stop_after:
-                    result.remaining.append(piece.id)
-                    continue
-                entry.update(state="running", started=timestamp())
-                entry.pop("error", None)
-                save()
-                display.start(piece)
-                t0 = time.monotonic()
-                try:
-                    with torch_threads(budget.torch_threads):
-                        note = RUNNERS[piece.kind](piece, budget, out_dir)
-                except KeyboardInterrupt:
-                    entry.update(state="interrupted", seconds=entry.get("seconds", 0.0) + time.monotonic() - t0)
-                    save()
-                    raise
-                except Exception as error:  # recorded; independent pieces still run
-                    entry.update(state="failed", error=f"{type(error).__name__}: {error}",
-                                 traceback=traceback.format_exc(), finished=timestamp(),
-                                 seconds=entry.get("seconds", 0.0) + time.monotonic() - t0)
-                    result.failed[piece.id] = entry["error"]
-                    save()
-                    display.finish(piece, f"[red]failed[/red]: {escape(entry['error'])}")
-                    continue
-                seconds = time.monotonic() - t0
-                # Wall time includes earlier interrupted or failed attempts of the same piece.
-                entry.update(state="done", finished=timestamp(), computed=entry.get("computed", 0) + 1,
-                             seconds=entry.get("seconds", 0.0) + seconds)
-                entry.pop("traceback", None)
-                if note:
-                    entry["note"] = note
-                result.computed.append(piece.id)
-                save()
-                display.finish(piece, f"done in {format_duration(seconds)}" + (f" ({escape(note)})" if note else ""))
+                    where = f" on {outcome.node}" if outcome.node else ""
+                    display.finish(piece, f"done in {format_duration(outcome.seconds)}{escape(where)}"
+                                   + (f" ({escape(outcome.note)})" if outcome.note else ""))
+        except KeyboardInterrupt:
+            now = time.monotonic()
+            for piece_id, submitted_at in in_flight.items():
+                entry = entries[piece_id]
+                # Locally the piece ran since it was submitted; on a cluster it may have waited in the queue.
+                spent = now - submitted_at if runner.capacity == 1 else 0.0
+                entry.update(state="interrupted", seconds=entry.get("seconds", 0.0) + spent)
+            save()
+            raise
+        finally:
+            runner.close()
+        result.remaining = [p.id for p in pending]
         result.seconds = time.monotonic() - started
         invocation.update(finished=timestamp(), seconds=round(result.seconds, 1), computed=len(result.computed),
                           reused=len(result.reused), failed=len(result.failed))
@@ -167,13 +219,20 @@ def reproduce(out_dir: str | Path, budget: Budget, *, progress: bool = True, sto
     return result
 
 
+def _print(console: Any, text: str) -> None:
+    """A line on ``console`` (default: stderr)."""
+    (console if console is not None else Console(stderr=True)).print(escape(text))
+
+
 class _Display:
     """One progress bar over the pieces, weighted by their estimated cost, showing pieces done/total,
     elapsed and remaining time and the piece running, with a line per finished piece; plain lines
     when the bar is off."""
 
-    def __init__(self, enabled: bool, console: Any, todo: list[Piece], budget: Budget, costs: CostModel):
+    def __init__(self, enabled: bool, console: Any, todo: list[Piece], budget: Budget, costs: CostModel,
+                 backend: Backend):
         self.budget, self.costs = budget, costs
+        self.verb = "running" if backend.capacity == 1 else "submitted"
         self.estimates = {p.id: estimate_seconds(p, budget, costs) for p in todo}
         self.count = len(todo)
         self.finished = 0
@@ -193,7 +252,7 @@ class _Display:
         if self.bar.enabled:
             self.bar.update(info=f"{self._pieces()}  {text}")
         else:
-            self.bar.print(f"running {text}")
+            self.bar.print(f"{self.verb} {text}")
 
     def finish(self, piece: Piece, message: str) -> None:
         """``message`` is rich markup (escape any text in it)."""

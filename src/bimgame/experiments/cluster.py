@@ -1,0 +1,179 @@
+"""The reproduction on a Ray cluster: :class:`RayBackend` runs every piece as a Ray task that
+reserves the CPUs the piece keeps busy (:func:`~bimgame.experiments.costs.piece_cpus`), so
+independent pieces run side by side across the nodes, each as soon as what it needs is finished.
+
+**No shared filesystem.** A task works in a fresh directory on its node
+(:func:`compute_on_node`): the driver sends it the finished pieces it reads (the expert dataset,
+π^s, V̂) as archives through Ray's object store, the task computes the piece there with the same
+runner as the local backend and returns the piece's directory as an archive (logs, summaries, final
+weights, figures); the driver unpacks it into the reproduction directory atomically
+(:func:`bimgame.util.archives.unpack_directory`) and only then records the piece as done. An
+archive that other pieces read is put into the object store once, by the driver, so it outlives
+the node that computed it.
+
+**Faults.** A task whose node dies, or whose worker process is killed, is retried by Ray on another
+node (``max_retries``), from scratch: nothing of an unfinished piece reaches the driver, and a piece
+only ever writes on its own node. A driver that is stopped and run again with the same command
+skips every piece whose outputs it already holds. A piece that raises is a failure (Ray does not
+retry it), recorded like a local failure.
+
+**Same results.** A piece computes exactly what it computes locally: the same runner, settings and
+seeds; only the directory differs. So the paths a run records in its ``config.json`` (its π^s, V̂
+and dataset) are the node's working paths; nothing reads them after the run has finished.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import socket
+import tarfile
+import tempfile
+import time
+import traceback
+from pathlib import Path
+from typing import Any
+
+from bimgame.experiments.backends import PieceOutcome, error_text, run_piece
+from bimgame.experiments.budgets import Budget
+from bimgame.experiments.costs import piece_cpus
+from bimgame.experiments.grid import Piece
+from bimgame.expert.pool import import_ray
+from bimgame.util.archives import pack_directory, unpack_directory
+
+__all__ = ["RayBackend", "compute_on_node", "WORK_ROOT_ENV", "PIECE_MARKER"]
+
+#: Environment variable naming the directory under which a node's tasks work (default: the node's
+#: temporary directory).
+WORK_ROOT_ENV = "BIMGAME_WORK_ROOT"
+#: The file a task writes first into its working directory: the piece, node and process, so a
+#: person (or a test) on the node can tell which piece a directory belongs to.
+PIECE_MARKER = "bimgame-piece.json"
+
+
+def compute_on_node(piece: Piece, budget: Budget, input_paths: list[str], *archives: bytes) -> dict[str, Any]:
+    """The body of a piece's Ray task: unpack the pieces it reads (``archives``, one per path of
+    ``input_paths``) into a fresh working directory, compute the piece there and return its
+    directory as an archive with the runner's note and the node's name. The working directory is
+    removed afterwards, whatever happens."""
+    import ray
+
+    root = os.environ.get(WORK_ROOT_ENV) or None
+    if root is not None:
+        Path(root).mkdir(parents=True, exist_ok=True)
+    work = Path(tempfile.mkdtemp(prefix="bimgame-piece-", dir=root))
+    node = f"{socket.gethostname()} ({ray.get_runtime_context().get_node_id()[:12]})"
+    try:
+        (work / PIECE_MARKER).write_text(json.dumps({
+            "piece": piece.id, "node_id": ray.get_runtime_context().get_node_id(), "pid": os.getpid()}))
+        for path, archive in zip(input_paths, archives, strict=True):
+            unpack_directory(archive, work / path)
+        started = time.monotonic()
+        try:
+            note = run_piece(piece, budget, work)
+        except KeyboardInterrupt:
+            raise RuntimeError(f"{piece.id} stopped before it finished on {node}") from None
+        return {"archive": pack_directory(work / piece.path), "note": note, "node": node,
+                "seconds": time.monotonic() - started}
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+class RayBackend:
+    """Pieces as Ray tasks on a cluster (see the module notes).
+
+    Args:
+        out_dir: the reproduction directory on the driver, where results are unpacked.
+        pieces: the plan's pieces (to know which finished pieces others read).
+        address: the cluster to join (``ray.init(address=...)``, e.g. ``auto`` or ``HOST:6379``);
+            None joins the Ray already initialised in this process, else starts a local one.
+        max_retries: how often Ray reruns a task whose node or worker process died.
+    """
+
+    name = "ray"
+    capacity = None
+
+    def __init__(self, out_dir: Path, budget: Budget, pieces: list[Piece], *, address: str | None = None,
+                 max_retries: int = 3):
+        if not (isinstance(max_retries, int) and max_retries >= 0):
+            raise ValueError(f"max_retries must be an integer >= 0, got {max_retries!r}")
+        self.ray = import_ray()
+        self.out_dir, self.budget, self.max_retries = out_dir, budget, max_retries
+        self.pieces = {p.id: p for p in pieces}
+        self._readers: dict[str, int] = {}
+        for piece in pieces:
+            for need in piece.needs:
+                self._readers[need] = self._readers.get(need, 0) + 1
+        self._started_ray = False
+        if not self.ray.is_initialized():
+            if address is None:
+                self.ray.init(include_dashboard=False, log_to_driver=False)
+            else:
+                self.ray.init(address=address, include_dashboard=False, log_to_driver=False)
+            self._started_ray = True
+        nodes = [n for n in self.ray.nodes() if n.get("Alive")]
+        self.nodes = len(nodes)
+        self.cpus = float(sum(n["Resources"].get("CPU", 0.0) for n in nodes))
+        self.largest_node_cpus = max((n["Resources"].get("CPU", 0.0) for n in nodes), default=0.0)
+        self._task = self.ray.remote(compute_on_node)
+        self._inputs: dict[str, Any] = {}
+        self._in_flight: dict[Any, tuple[Piece, float]] = {}
+
+    def check_fits(self, pieces: list[Piece]) -> None:
+        """Refuse (ValueError) pieces that need more CPUs than the cluster's largest node has: Ray
+        would queue them forever."""
+        too_big = sorted({(piece_cpus(p, self.budget), p.kind) for p in pieces
+                          if piece_cpus(p, self.budget) > self.largest_node_cpus})
+        if too_big:
+            wants = ", ".join(f"{kind} pieces need {cpus}" for cpus, kind in too_big)
+            raise ValueError(f"the cluster's largest node has {self.largest_node_cpus:g} CPUs, but {wants} "
+                             f"(an A3C run: its workers plus its evaluator). Add bigger nodes, or use a budget "
+                             f"with fewer workers per run")
+
+    def _input(self, piece_id: str) -> Any:
+        """The object-store reference of a finished piece's archive (put once, by the driver)."""
+        if piece_id not in self._inputs:
+            path = self.pieces[piece_id].path
+            self._inputs[piece_id] = self.ray.put(pack_directory(self.out_dir / path))
+        return self._inputs[piece_id]
+
+    def submit(self, piece: Piece) -> None:
+        paths = [self.pieces[n].path for n in piece.needs]
+        options = dict(num_cpus=piece_cpus(piece, self.budget), max_retries=self.max_retries,
+                       retry_exceptions=False, name=f"bimgame:{piece.id}")
+        ref = self._task.options(**options).remote(piece, self.budget, paths, *(self._input(n) for n in piece.needs))
+        self._in_flight[ref] = (piece, time.monotonic())
+
+    def next_outcome(self) -> PieceOutcome:
+        if not self._in_flight:
+            raise RuntimeError("no piece is in flight")
+        (ref,), _ = self.ray.wait(list(self._in_flight), num_returns=1)
+        piece, submitted = self._in_flight.pop(ref)
+        try:
+            result = self.ray.get(ref)
+        except self.ray.exceptions.RayTaskError as error:
+            cause = error.cause if getattr(error, "cause", None) is not None else error
+            return PieceOutcome(piece, time.monotonic() - submitted, error=error_text(cause), traceback=str(error))
+        except self.ray.exceptions.RayError as error:  # the node or worker died more often than max_retries
+            return PieceOutcome(piece, time.monotonic() - submitted, error=error_text(error),
+                                traceback=traceback.format_exc())
+        try:
+            unpack_directory(result["archive"], self.out_dir / piece.path)
+        except (OSError, tarfile.TarError) as error:
+            return PieceOutcome(piece, result["seconds"], error=error_text(error), traceback=traceback.format_exc(),
+                                node=result["node"])
+        if self._readers.get(piece.id):
+            self._inputs[piece.id] = self.ray.put(result["archive"])
+        return PieceOutcome(piece, result["seconds"], note=result["note"], node=result["node"])
+
+    def in_flight(self) -> list[Piece]:
+        return [piece for piece, _ in self._in_flight.values()]
+
+    def close(self) -> None:
+        for ref in list(self._in_flight):
+            self.ray.cancel(ref, force=True)
+        self._in_flight.clear()
+        self._inputs.clear()
+        if self._started_ray:
+            self.ray.shutdown()

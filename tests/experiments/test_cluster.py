@@ -1,0 +1,154 @@
+"""The reproduction on a Ray cluster, on Ray's own multi-node test cluster on this machine (a head
+without CPUs and two one-CPU nodes, so every piece runs on a node other than the driver's and
+independent pieces run on different nodes): the grid equals the local grid's numbers, a restarted
+driver recomputes nothing that finished, a piece whose node dies is computed on another node, a
+piece that raises on a node is a recorded failure, and pieces that fit no node are refused."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import shutil
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ray = pytest.importorskip("ray")
+from ray.cluster_utils import Cluster  # noqa: E402
+
+from bimgame.experiments.cluster import PIECE_MARKER, WORK_ROOT_ENV  # noqa: E402
+from bimgame.experiments.plan import load_status  # noqa: E402
+from bimgame.experiments.reproduce import reproduce  # noqa: E402
+from bimgame.learn.curves import read_table  # noqa: E402
+
+pytestmark = pytest.mark.xdist_group("ray-cluster")  # one cluster per test process
+
+
+@pytest.fixture(scope="module")
+def cluster(tmp_path_factory):
+    """A head node without CPUs and two worker nodes of one CPU each; the driver (this process)
+    joins it. Yields the cluster and the root under which the nodes' tasks work."""
+    work_root = tmp_path_factory.mktemp("node-work")
+    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 0, "include_dashboard": False})
+    for _ in range(2):
+        cluster.add_node(num_cpus=1)
+    cluster.wait_for_nodes()
+    ray.init(address=cluster.address, runtime_env={"env_vars": {WORK_ROOT_ENV: str(work_root)}},
+             log_to_driver=False)
+    yield cluster, work_root
+    ray.shutdown()
+    cluster.shutdown()
+
+
+def _equal_tables(a: Path, b: Path, skip: tuple[str, ...] = ()) -> None:
+    """Two CSV logs hold the same numbers, apart from the wall-clock columns ``skip``."""
+    left, right = read_table(a), read_table(b)
+    assert sorted(left) == sorted(right)
+    for column in left:
+        if column not in skip:
+            np.testing.assert_array_equal(left[column], right[column], err_msg=f"{a.name}: {column}")
+
+
+def _summary(path: Path) -> dict:
+    values = json.loads(path.read_text())
+    return {k: v for k, v in values.items() if k not in ("seconds", "steps_per_second", "updated", "written")}
+
+
+def _mtimes(root: Path) -> dict[str, int]:
+    """Modification times of every file of the pieces' directories."""
+    return {str(p): p.stat().st_mtime_ns for part in ("data", "pretrain", "runs") for p in (root / part).rglob("*")
+            if p.is_file()}
+
+
+def test_the_grid_on_two_nodes_equals_the_local_grid_and_a_restart_recomputes_nothing(cluster, tmp_path,
+                                                                                        tiny_budget):
+    budget = dataclasses.replace(tiny_budget, seeds=1)
+    local = reproduce(tmp_path / "local", budget, progress=False)
+    on_ray = reproduce(tmp_path / "ray", budget, progress=False, backend="ray")
+    assert local.complete and on_ray.complete
+    assert sorted(on_ray.computed) == sorted(local.computed) and len(on_ray.computed) == 6
+    status = load_status(tmp_path / "ray")
+    assert status["invocations"][-1]["backend"] == "ray" and status["invocations"][-1]["cluster_cpus"] == 2
+    nodes = {entry["node"] for entry in status["pieces"].values()}
+    assert len(nodes) == 2, nodes  # independent pieces ran side by side, on both nodes
+    # Every result equals the local backend's, apart from wall-clock columns.
+    a, b = tmp_path / "local", tmp_path / "ray"
+    for episode in sorted((a / "data" / "episodes").iterdir()):
+        assert episode.read_bytes() == (b / "data" / "episodes" / episode.name).read_bytes()
+    for target in ("policy", "value"):
+        piece = f"pretrain/STG1/{target}-seed0"
+        _equal_tables(a / piece / "pretrain.csv", b / piece / "pretrain.csv", skip=("seconds",))
+        assert _summary(a / piece / "summary.json") == _summary(b / piece / "summary.json")
+    for algorithm in ("a3c", "pretrain-a3c-value"):
+        run = f"runs/STG1/{algorithm}/seed0"
+        assert (a / run / "episodes.csv").read_bytes() == (b / run / "episodes.csv").read_bytes()
+        _equal_tables(a / run / "updates.csv", b / run / "updates.csv", skip=("seconds", "sps"))
+        assert _summary(a / run / "summary.json") == _summary(b / run / "summary.json")
+    _equal_tables(a / "runs/STG1/dagger/seed0/dagger.csv", b / "runs/STG1/dagger/seed0/dagger.csv",
+                  skip=("seconds",))
+    assert not list(b.rglob(".*.incoming-*")) and not list(b.rglob(".*.replaced-*"))
+
+    # A driver run again with the same command skips everything that finished ...
+    before = _mtimes(b)
+    again = reproduce(b, budget, progress=False, backend="ray")
+    assert again.computed == [] and len(again.reused) == 6 and _mtimes(b) == before
+    # ... and computes only what is missing, with the finished pieces it needs shipped from the driver.
+    shutil.rmtree(b / "runs/STG1/pretrain-a3c-value/seed0")
+    third = reproduce(b, budget, progress=False, backend="ray")
+    assert third.computed == ["runs/STG1/pretrain-a3c-value/seed0"] and len(third.reused) == 5
+    assert (a / "runs/STG1/pretrain-a3c-value/seed0/episodes.csv").read_bytes() == \
+        (b / "runs/STG1/pretrain-a3c-value/seed0/episodes.csv").read_bytes()
+    counts = {k: v["computed"] for k, v in load_status(b)["pieces"].items()}
+    assert counts.pop("runs/STG1/pretrain-a3c-value/seed0") == 2 and set(counts.values()) == {1}
+
+
+def test_a_piece_that_raises_on_a_node_is_a_recorded_failure(cluster, tmp_path, tiny_budget):
+    budget = dataclasses.replace(tiny_budget, algorithms=("pretrain+a3c",), seeds=1)
+    reproduce(tmp_path, budget, progress=False, stop_after=2)  # the dataset and π^s, locally
+    (tmp_path / "pretrain/STG1/policy-seed0/checkpoint.pt").write_bytes(b"damaged after it finished")
+    result = reproduce(tmp_path, budget, progress=False, backend="ray")
+    assert list(result.failed) == ["runs/STG1/pretrain-a3c/seed0"] and result.computed == []
+    entry = load_status(tmp_path)["pieces"]["runs/STG1/pretrain-a3c/seed0"]
+    assert entry["state"] == "failed" and "checkpoint.pt" in entry["error"] and entry["traceback"]
+    assert not (tmp_path / "runs").exists()  # nothing of a failed piece reaches the driver
+
+
+def test_pieces_that_fit_no_node_are_refused(cluster, tmp_path, tiny_budget):
+    budget = dataclasses.replace(tiny_budget, algorithms=("a3c",), seeds=1, workers=2)
+    with pytest.raises(ValueError, match=r"largest node has 1 CPUs, but a3c pieces need 2"):
+        reproduce(tmp_path, budget, progress=False, backend="ray")
+
+
+def test_a_piece_whose_node_dies_is_computed_on_another_node(cluster, tmp_path, tiny_budget):
+    """Last in the module: it removes a node (and adds a fresh one back)."""
+    test_cluster, work_root = cluster
+    budget = dataclasses.replace(tiny_budget, name="long", algorithms=("a3c",), seeds=1, a3c_steps={"STG1": 40_000},
+                                 checkpoint_every=5_000)
+    outcome: dict = {}
+    driver = threading.Thread(target=lambda: outcome.update(
+        result=reproduce(tmp_path, budget, progress=False, backend="ray")))
+    driver.start()
+    victim = None
+    deadline = time.monotonic() + 120
+    while victim is None and time.monotonic() < deadline:
+        for marker in work_root.glob(f"*/{PIECE_MARKER}"):
+            info = json.loads(marker.read_text())
+            if info["piece"] == "runs/STG1/a3c/seed0" and list(marker.parent.rglob("episodes.csv")):
+                victim = info["node_id"]  # the run is under way there
+        time.sleep(0.2)
+    assert victim is not None, "the A3C piece never started"
+    node = next(n for n in test_cluster.worker_nodes if n.node_id == victim)
+    test_cluster.remove_node(node, allow_graceful=False)
+    driver.join(timeout=300)
+    assert not driver.is_alive()
+    result = outcome["result"]
+    assert result.complete and sorted(result.computed) == ["data", "runs/STG1/a3c/seed0"]
+    entry = load_status(tmp_path)["pieces"]["runs/STG1/a3c/seed0"]
+    assert entry["state"] == "done" and victim[:12] not in entry["node"]
+    summary = json.loads((tmp_path / "runs/STG1/a3c/seed0/summary.json").read_text())
+    assert summary["stopped"] == "finished" and summary["steps"] >= 40_000
+    test_cluster.add_node(num_cpus=1)
+    test_cluster.wait_for_nodes()
