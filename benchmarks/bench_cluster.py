@@ -1,0 +1,96 @@
+"""What the Ray backend of ``bimgame reproduce`` costs: the same tiny grid on the local backend and
+on Ray's multi-node test cluster on this machine (a head without CPUs and two one-CPU nodes,
+``ray.cluster_utils.Cluster``), wall time side by side, with the cluster's start-up timed apart.
+
+The grid: STG1, state observations, 2 seeds; the dataset (8 expert episodes), π^s and V̂ per seed,
+A3C, pre-train + A3C + value reward (20k steps, one worker) and DAgger (2 iterations) — 11 pieces.
+On one machine the cluster cannot be faster than the 2 cores it shares; the figure is the price of
+the tasks, archives and object store, and what two pieces side by side win back. Results are
+checked equal between the backends (the runs' episode logs byte for byte).
+
+Usage: ``python benchmarks/bench_cluster.py [--steps N]``; writes ``benchmarks/results/cluster.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import tempfile
+import time
+from pathlib import Path
+
+from bimgame.experiments.budgets import Budget
+from bimgame.experiments.reproduce import reproduce
+from bimgame.util.files import atomic_write_bytes
+
+RESULTS = Path(__file__).parent / "results" / "cluster.json"
+
+
+def tiny_grid(steps: int) -> Budget:
+    """The benchmark's grid (see the module notes)."""
+    return Budget(name="bench-cluster", tasks=("STG1",), algorithms=("a3c", "pretrain+a3c+value", "dagger"), seeds=2,
+                  obs="state", a3c_steps={"STG1": steps}, workers=1, envs_per_worker=8, hidden=32, features=32,
+                  eval_every=0, eval_episodes=4, checkpoint_every=5_000, dataset_task="STG1", dataset_episodes=8,
+                  dataset_workers=1, pretrain_epochs=4, pretrain_patience=2, pretrain_eval_episodes=4,
+                  value_epochs=4, value_patience=2, dagger_iterations=2, dagger_episodes=3, dagger_epochs=2,
+                  dagger_eval_episodes=4)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--steps", type=int, default=20_000, help="A3C steps per run (default 20k)")
+    args = parser.parse_args()
+    import ray
+    from ray.cluster_utils import Cluster
+
+    budget = tiny_grid(args.steps)
+    with tempfile.TemporaryDirectory() as scratch:
+        root = Path(scratch)
+        started = time.monotonic()
+        local = reproduce(root / "local", budget, progress=False)
+        local_seconds = time.monotonic() - started
+
+        started = time.monotonic()
+        cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 0, "include_dashboard": False})
+        for _ in range(2):
+            cluster.add_node(num_cpus=1)
+        cluster.wait_for_nodes()
+        ray.init(address=cluster.address, log_to_driver=False)
+        startup_seconds = time.monotonic() - started
+        try:
+            started = time.monotonic()
+            on_ray = reproduce(root / "ray", budget, progress=False, backend="ray")
+            ray_seconds = time.monotonic() - started
+        finally:
+            ray.shutdown()
+            cluster.shutdown()
+        assert local.complete and on_ray.complete, (local, on_ray)
+        same = all((root / "local" / piece / "episodes.csv").read_bytes()
+                   == (root / "ray" / piece / "episodes.csv").read_bytes()
+                   for piece in local.computed if piece.startswith("runs/") and "dagger" not in piece)
+        piece_seconds = {backend: json.loads((root / backend / "status.json").read_text())["pieces"]
+                         for backend in ("local", "ray")}
+    busy = {backend: round(sum(e.get("seconds", 0.0) for e in entries.values()), 1)
+            for backend, entries in piece_seconds.items()}
+    result = {
+        "grid": {"pieces": len(local.computed), "a3c_steps": args.steps, "budget": budget.to_dict()},
+        "local_seconds": round(local_seconds, 1),
+        "ray_2_nodes_seconds": round(ray_seconds, 1),
+        "ray_cluster_startup_seconds": round(startup_seconds, 1),
+        "ratio_ray_to_local": round(ray_seconds / local_seconds, 2),
+        "sum_of_piece_seconds": busy,
+        "same_episode_logs": same,
+        "machine": {"cpus": __import__("os").cpu_count(), "python": platform.python_version(),
+                    "ray": ray.__version__},
+        "written": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+    }
+    print(f"tiny grid, {result['grid']['pieces']} pieces: local {local_seconds:.1f} s; 2-node Ray test cluster "
+          f"{ray_seconds:.1f} s ({result['ratio_ray_to_local']}×), plus {startup_seconds:.1f} s to start the "
+          f"cluster; summed piece times local {busy['local']} s, Ray {busy['ray']} s; same episode logs: {same}")
+    atomic_write_bytes(RESULTS, (json.dumps(result, indent=2) + "\n").encode())
+    print(f"wrote {RESULTS}")
+
+
+if __name__ == "__main__":
+    main()
