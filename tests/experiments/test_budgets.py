@@ -7,7 +7,7 @@ import dataclasses
 import pytest
 
 from bimgame.experiments.budgets import ALGORITHMS, BUDGETS, PAPER_ALGORITHMS, PAPER_TASKS, budget_named
-from bimgame.experiments.costs import estimate_seconds
+from bimgame.experiments.costs import cluster_seconds, estimate_seconds, piece_cpus
 from bimgame.experiments.grid import plan_pieces
 from bimgame.experiments.methods import needs_expert_data
 from bimgame.experiments.plan import check_compatible, write_plan
@@ -99,3 +99,21 @@ def test_the_pixel_preset_is_the_papers_grid_from_pixels_within_two_hours():
     # The bf16 rates are the ones that count: the same grid in float32 is expected to take longer.
     fp32 = sum(estimate_seconds(p, dataclasses.replace(pixels, precision="fp32")) for p in plan_pieces(pixels))
     assert fp32 > 1.1 * seconds
+
+
+def test_cpus_per_piece_and_the_expected_duration_on_a_cluster(tiny_budget):
+    budget = dataclasses.replace(tiny_budget, workers=2, eval_every=1_000, dataset_workers=3, torch_threads=1)
+    pieces = plan_pieces(budget)
+    cpus = {p.kind: piece_cpus(p, budget) for p in pieces}
+    assert cpus == {"dataset": 3, "pretrain-policy": 1, "pretrain-value": 1, "a3c": 3, "dagger": 1}
+    estimates = {p.id: estimate_seconds(p, budget) for p in pieces}
+    reserved = sum(estimates[p.id] * piece_cpus(p, budget) for p in pieces)
+    # Few CPUs: the reserved CPU time spread over them.
+    assert cluster_seconds(pieces, budget, 2) == pytest.approx(reserved / 2)
+    # Many CPUs: the longest chain of pieces that wait for one another (dataset → π^s → its A3C run).
+    chain = estimates["data"] + estimates["pretrain/STG1/policy-seed0"] + estimates["runs/STG1/pretrain-a3c-value/seed0"]
+    chain = max(chain, estimates["data"] + estimates["pretrain/STG1/value-seed0"]
+                + estimates["runs/STG1/pretrain-a3c-value/seed0"])
+    assert cluster_seconds(pieces, budget, 10_000) == pytest.approx(chain)
+    with pytest.raises(ValueError, match="needs CPUs"):
+        cluster_seconds(pieces, budget, 0)

@@ -22,6 +22,7 @@ from ray.cluster_utils import Cluster  # noqa: E402
 from bimgame.experiments.cluster import PIECE_MARKER, WORK_ROOT_ENV  # noqa: E402
 from bimgame.experiments.plan import load_status  # noqa: E402
 from bimgame.experiments.reproduce import reproduce  # noqa: E402
+from bimgame.expert.datasets import dataset_summary, generate_dataset  # noqa: E402
 from bimgame.learn.curves import read_table  # noqa: E402
 
 pytestmark = pytest.mark.xdist_group("ray-cluster")  # one cluster per test process
@@ -120,6 +121,13 @@ def test_pieces_that_fit_no_node_are_refused(cluster, tmp_path, tiny_budget):
     budget = dataclasses.replace(tiny_budget, algorithms=("a3c",), seeds=1, workers=2)
     with pytest.raises(ValueError, match=r"largest node has 1 CPUs, but a3c pieces need 2"):
         reproduce(tmp_path, budget, progress=False, backend="ray")
+
+
+def test_generate_on_two_nodes_gives_the_local_dataset(cluster, tmp_path):
+    args = dict(task="STG1", episodes=4, seed=3, max_steps=40, progress=False)
+    local = generate_dataset(tmp_path / "local", workers=1, **args)
+    on_ray = generate_dataset(tmp_path / "ray", backend="ray", workers=2, **args)
+    assert dataset_summary(local)["content_sha256"] == dataset_summary(on_ray)["content_sha256"]
 
 
 def test_a_piece_whose_node_dies_is_computed_on_another_node(cluster, tmp_path, tiny_budget):

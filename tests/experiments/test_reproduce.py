@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from bimgame.cli.main import main
+from bimgame.experiments.budgets import budget_named
 from bimgame.experiments.plan import load_plan, load_status
 from bimgame.experiments.report import build_report
 from bimgame.experiments.reproduce import reproduce
@@ -36,6 +37,17 @@ def test_cli_rejects_bad_flags(tmp_path, capsys):
     assert main(["report", str(tmp_path)]) == 2
     assert "not a reproduction directory" in capsys.readouterr().err
     assert not (tmp_path / "r").exists()
+
+
+def test_cli_refuses_a_ray_address_without_the_ray_backend(tmp_path, capsys):
+    assert main(["reproduce", "--out", str(tmp_path / "r"), "--address", "auto"]) == 2
+    assert "--ray-address is only used with --backend ray" in capsys.readouterr().err
+    assert not (tmp_path / "r").exists()
+    with pytest.raises(ValueError, match="unknown backend 'dask'; allowed: local, ray"):
+        reproduce(tmp_path / "r", budget_named("quick"), backend="dask")
+    with pytest.raises(SystemExit):
+        main(["reproduce", "--out", str(tmp_path / "r"), "--backend", "dask"])
+    assert "invalid choice: 'dask'" in capsys.readouterr().err
 
 
 def test_a_failing_piece_is_recorded_and_its_dependents_skipped(tmp_path, tiny_budget):

@@ -11,7 +11,13 @@ from pathlib import Path
 from rich.console import Console
 from rich.table import Table
 
-from bimgame.cli.argtypes import add_backend_arguments, add_max_steps_argument, add_task_argument, non_negative_int, positive_int
+from bimgame.cli.argtypes import (
+    add_backend_arguments,
+    add_max_steps_argument,
+    add_task_argument,
+    non_negative_int,
+    positive_int,
+)
 from bimgame.cli.flags import add_settings_flags
 from bimgame.expert.datasets import MINARI_DIR, dataset_summary, generate_dataset
 from bimgame.expert.evaluation import evaluate_expert, plot_length_histogram, summarise, write_results

@@ -44,7 +44,7 @@ def add_reproduce_arguments(parser: argparse.ArgumentParser) -> None:
         help="directory of the reproduction (created; run the same command again to continue it)")
     add("--budget", choices=list(BUDGETS), default=None,
         help="preset: quick (STG1, state observations, 2 seeds, < 30 min on 2 cores), paper (FULL/STG1/STG2, "
-             "pixels, 5 seeds, about two and a half days), beyond (fine-tuning π^s without forgetting it: "
+             "pixels, 5 seeds, about a day), pixels (FULL/STG1/STG2 from pixels, 3 seeds, < 2 h), beyond (fine-tuning π^s without forgetting it: "
              "STG2/STG3/STG4/FULL, A3C, pre-train + A3C and the keep preset, 3 seeds, < 2 h) or ablation (each "
              "fine-tuning method on STG3, 3 seeds, < 1 h). Default: the budget stored in --out, else quick")
     # The grid: Budget settings that change what is computed; not given: the budget's (as --budget).
@@ -85,6 +85,9 @@ def run_reproduce(args: argparse.Namespace) -> int:
     """``bimgame reproduce``: print the plan's expected duration, run (or continue) it, build the
     report. Exit status 0 when every piece finished, 1 when some failed, 130 when interrupted."""
     console = Console(stderr=True)
+    if args.ray_address is not None and args.backend != "ray":
+        console.print("bimgame reproduce: error: --ray-address is only used with --backend ray")
+        return 2
     budget = budget_from(args)
     check_compatible(args.out, budget)
     pieces = plan_pieces(budget)
@@ -106,9 +109,6 @@ def run_reproduce(args: argparse.Namespace) -> int:
             f"{kind} ×{sum(p.kind == kind for p in pieces)} ≈ "
             f"{format_duration(sum(estimate_seconds(p, budget) for p in pieces if p.kind == kind))}" for kind in kinds))
         return 0
-    if args.ray_address is not None and args.backend != "ray":
-        console.print("bimgame reproduce: error: --ray-address is only used with --backend ray")
-        return 2
     try:
         result = reproduce(args.out, budget, progress=not args.no_progress, stop_after=args.stop_after,
                            console=console, backend=args.backend, ray_address=args.ray_address,
