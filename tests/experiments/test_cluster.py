@@ -124,7 +124,7 @@ def test_pieces_that_fit_no_node_are_refused(cluster, tmp_path, tiny_budget):
 
 
 def test_generate_on_two_nodes_gives_the_local_dataset(cluster, tmp_path):
-    args = dict(task="STG1", episodes=4, seed=3, max_steps=40, progress=False)
+    args = dict(task="STG1", episodes=2, seed=3, max_steps=20, progress=False)
     local = generate_dataset(tmp_path / "local", workers=1, **args)
     on_ray = generate_dataset(tmp_path / "ray", backend="ray", workers=2, **args)
     assert dataset_summary(local)["content_sha256"] == dataset_summary(on_ray)["content_sha256"]
