@@ -163,7 +163,8 @@ def reproduce(out_dir: str | Path, budget: Budget, *, progress: bool = True, sto
                                 or (runner.capacity is not None and len(in_flight) >= runner.capacity)
                                 or (stop_after is not None and submitted >= stop_after)):
                             continue
-                        entry.update(state="running", started=timestamp())
+                        # On a cluster a submitted piece may wait in Ray's queue before it runs.
+                        entry.update(state="running" if runner.capacity == 1 else "submitted", started=timestamp())
                         for stale in ("error", "traceback", "node"):
                             entry.pop(stale, None)
                         save()
