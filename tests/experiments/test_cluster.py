@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import shutil
 import threading
 import time
@@ -31,17 +32,24 @@ pytestmark = pytest.mark.xdist_group("ray-cluster")  # one cluster per test proc
 @pytest.fixture(scope="module")
 def cluster(tmp_path_factory):
     """A head node without CPUs and two worker nodes of one CPU each; the driver (this process)
-    joins it. Yields the cluster and the root under which the nodes' tasks work."""
+    joins it through the head before the workers exist, so it never sits on a node a test removes.
+    Yields the cluster and the root under which the nodes' tasks work (the nodes inherit it from
+    this process's environment, as a real node would from its own)."""
     work_root = tmp_path_factory.mktemp("node-work")
+    previous = os.environ.get(WORK_ROOT_ENV)
+    os.environ[WORK_ROOT_ENV] = str(work_root)
     cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 0, "include_dashboard": False})
+    ray.init(address=cluster.address, log_to_driver=False)
     for _ in range(2):
         cluster.add_node(num_cpus=1)
     cluster.wait_for_nodes()
-    ray.init(address=cluster.address, runtime_env={"env_vars": {WORK_ROOT_ENV: str(work_root)}},
-             log_to_driver=False)
     yield cluster, work_root
     ray.shutdown()
     cluster.shutdown()
+    if previous is None:
+        os.environ.pop(WORK_ROOT_ENV, None)
+    else:
+        os.environ[WORK_ROOT_ENV] = previous
 
 
 def _equal_tables(a: Path, b: Path, skip: tuple[str, ...] = ()) -> None:

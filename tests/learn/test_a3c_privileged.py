@@ -97,7 +97,7 @@ def test_runs_without_privileged_parts_log_no_aux_loss(tmp_path):
 def test_pixel_defaults_are_the_measured_best_and_state_defaults_unchanged():
     from bimgame.learn.common import native_bf16
     pixels, state = A3CConfig(obs="pixels"), A3CConfig(obs="state")
-    assert (pixels.aux_heads, pixels.asymmetric_critic) == (True, True)
+    assert (pixels.aux_heads, pixels.asymmetric_critic) == (True, False)
     assert pixels.precision == ("bf16" if native_bf16() else "fp32")
     assert (state.aux_heads, state.asymmetric_critic, state.precision) == (False, False, "fp32")
     explicit = A3CConfig(obs="pixels", aux_heads=False, asymmetric_critic=False, precision="fp32")

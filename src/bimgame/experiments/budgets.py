@@ -287,15 +287,18 @@ _BEYOND_SETTINGS: dict[str, Any] = dict(
 #: alone, 80 gave 42–88%); two seeds. Measured: 8.4 minutes on the idle two-core machine (pre-training
 #: sped A3C up 2.3×); with a 40-episode dataset it took 23 minutes while other training jobs kept
 #: both cores busy. ``paper`` is the paper's grid: pixels, FULL/STG1/STG2, five seeds, 5M steps per
-#: A3C run, a 300-episode FULL dataset, with the pixel levers of ``pixels`` — about a day on two
+#: A3C run, a 300-episode FULL dataset, with the pixel levers that measured best (auxiliary heads
+#: and bf16; the asymmetric critic ``pixels`` ran with did not help, see
+#: :class:`~bimgame.learn.common.NetworkSettings`) — about a day on two
 #: cores (``bimgame reproduce --dry-run`` prints the estimate per piece; 57 h with the paper's
 #: network in float32 at the speed measured under load). ``beyond`` and ``ablation`` go beyond the
 #: paper: fine-tuning π^s without forgetting it on STG2/STG3/STG4/FULL, and each fine-tuning method
 #: on its own on STG3 (see :data:`_BEYOND_SETTINGS`). ``pixels`` is the paper's grid from pixels
 #: within two hours on two cores: FULL/STG1/STG2 × the paper's five algorithms and ``a3c+papernet``
-#: × 3 seeds, with the pixel levers that measured best (auxiliary heads — from scratch, 80% training
+#: × 3 seeds, with the pixel levers of its time (auxiliary heads — from scratch, 80% training
 #: success on STG1 after ≈ 550k steps where the paper's network stayed near random play after 1M —
-#: an asymmetric critic and bf16, ≈ 4,500 steps/s); STG1 600k steps (so that A3C from scratch can
+#: an asymmetric critic, which later measured no better, and bf16, ≈ 4,500 steps/s; the preset
+#: keeps the critic so that it stays the grid its committed report came from); STG1 600k steps (so that A3C from scratch can
 #: reach the threshold), STG2/FULL 300k; evaluations only at the end; 80 FULL expert episodes;
 #: DAgger 3 iterations × 6 episodes × 5 epochs. The cost model expects ≈ 1.8 h.
 BUDGETS: dict[str, Budget] = {
@@ -306,7 +309,7 @@ BUDGETS: dict[str, Budget] = {
         dataset_task="FULL", dataset_episodes=80, dataset_workers=2,
         pretrain_eval_episodes=50, dagger_iterations=4, dagger_episodes=6, dagger_epochs=10, dagger_eval_episodes=20),
     "paper": Budget(
-        name="paper", tasks=PAPER_TASKS, seeds=5, obs="pixels", aux_heads=True, asymmetric_critic=True,
+        name="paper", tasks=PAPER_TASKS, seeds=5, obs="pixels", aux_heads=True, asymmetric_critic=False,
         precision="bf16",
         a3c_steps={t.value: 5_000_000 for t in Task},
         eval_every=250_000, eval_episodes=20, checkpoint_every=200_000,

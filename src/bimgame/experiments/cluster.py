@@ -87,7 +87,7 @@ class RayBackend:
         out_dir: the reproduction directory on the driver, where results are unpacked.
         pieces: the plan's pieces (to know which finished pieces others read).
         address: the cluster to join (``ray.init(address=...)``, e.g. ``auto`` or ``HOST:6379``);
-            None joins the Ray already initialised in this process, else starts a local one.
+            None joins the Ray already initialised in this process, else starts a new local one.
         max_retries: how often Ray reruns a task whose node or worker process died.
     """
 
@@ -107,8 +107,8 @@ class RayBackend:
                 self._readers[need] = self._readers.get(need, 0) + 1
         self._started_ray = False
         if not self.ray.is_initialized():
-            if address is None:
-                self.ray.init(include_dashboard=False, log_to_driver=False)
+            if address is None:  # a new Ray on this machine, even if a cluster runs here too
+                self.ray.init(address="local", include_dashboard=False, log_to_driver=False)
             else:
                 self.ray.init(address=address, include_dashboard=False, log_to_driver=False)
             self._started_ray = True

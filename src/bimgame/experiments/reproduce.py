@@ -28,6 +28,7 @@ from rich.console import Console
 
 from bimgame.experiments.backends import BACKENDS, Backend, LocalBackend
 from bimgame.experiments.budgets import Budget
+from bimgame.experiments.cluster import RayBackend
 from bimgame.experiments.costs import COSTS, CostModel, cluster_seconds, estimate_seconds, format_duration
 from bimgame.experiments.grid import Piece
 from bimgame.experiments.plan import STATUS, check_compatible, load_status, piece_done, timestamp, write_plan
@@ -131,8 +132,6 @@ def reproduce(out_dir: str | Path, budget: Budget, *, progress: bool = True, sto
         save()
         todo = [p for p in pieces if p.id not in done]
         if backend == "ray":
-            from bimgame.experiments.cluster import RayBackend  # imports Ray: only when asked for
-
             runner: Backend = RayBackend(out_dir, budget, pieces, address=ray_address, max_retries=max_retries)
             runner.check_fits(todo)
             invocation["cluster_cpus"] = runner.cpus

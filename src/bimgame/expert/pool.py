@@ -132,8 +132,8 @@ def _ray_episodes(task: str, todo: list[int], seed: int, config: MPCConfig, max_
     ray = import_ray()
     started = False
     if not ray.is_initialized():
-        if ray_address is None:
-            ray.init(num_cpus=workers, include_dashboard=False)
+        if ray_address is None:  # a new Ray on this machine, even if a cluster runs here too
+            ray.init(address="local", num_cpus=workers, include_dashboard=False)
         else:
             ray.init(address=ray_address)
         started = True
