@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 from PIL import Image
 
-from bimgame.cli.main import main
+from bimgame.cli.main import build_parser, main
 
 
 def test_maze_writes_a_png(tmp_path):
@@ -41,3 +41,15 @@ def test_bad_flags_name_the_value_and_the_choices(argv, message, capsys):
         main(argv)
     assert exit_info.value.code == 2
     assert message in capsys.readouterr().err
+
+
+def test_every_verb_prints_its_help(capsys):
+    """Every verb's --help renders: help texts come from docstrings, where a bare % would break
+    argparse's formatting."""
+    verbs = next(a for a in build_parser()._actions if a.dest == "verb").choices
+    assert {"train", "reproduce", "generate", "pretrain", "play"} <= set(verbs)
+    for verb in verbs:
+        with pytest.raises(SystemExit) as exit_info:
+            main([verb, "--help"])
+        assert exit_info.value.code == 0, verb
+        assert "usage:" in capsys.readouterr().out

@@ -140,10 +140,11 @@ def _number_type(cls: type, name: str, kind: type) -> Callable[[str], Any]:
 
 
 def _plain(text: str) -> str:
-    """A docstring without its reStructuredText markup, for ``--help``."""
+    """A docstring without its reStructuredText markup, for ``--help`` (``%`` doubled: argparse
+    formats help texts with ``%``)."""
     text = re.sub(r":[a-z]+:`~?([^`]+)`", lambda m: m.group(1).rsplit(".", 1)[-1] if "~" in m.group(0) else m.group(1),
                   text)
-    return text.replace("``", "")
+    return text.replace("``", "").replace("%", "%%")
 
 
 def _shown(value: Any) -> str:
