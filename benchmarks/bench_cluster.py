@@ -15,12 +15,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import tempfile
 import time
 from pathlib import Path
 
 from bimgame.experiments.budgets import Budget
+from bimgame.experiments.cluster import local_cluster
 from bimgame.experiments.reproduce import reproduce
 from bimgame.util.files import atomic_write_bytes
 
@@ -42,7 +44,6 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=20_000, help="A3C steps per run (default 20k)")
     args = parser.parse_args()
     import ray
-    from ray.cluster_utils import Cluster
 
     budget = tiny_grid(args.steps)
     with tempfile.TemporaryDirectory() as scratch:
@@ -52,19 +53,11 @@ def main() -> None:
         local_seconds = time.monotonic() - started
 
         started = time.monotonic()
-        cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 0, "include_dashboard": False})
-        for _ in range(2):
-            cluster.add_node(num_cpus=1)
-        cluster.wait_for_nodes()
-        ray.init(address=cluster.address, log_to_driver=False)
-        startup_seconds = time.monotonic() - started
-        try:
+        with local_cluster(nodes=2, cpus_per_node=1):
+            startup_seconds = time.monotonic() - started
             started = time.monotonic()
             on_ray = reproduce(root / "ray", budget, progress=False, backend="ray")
             ray_seconds = time.monotonic() - started
-        finally:
-            ray.shutdown()
-            cluster.shutdown()
         assert local.complete and on_ray.complete, (local, on_ray)
         same = all((root / "local" / piece / "episodes.csv").read_bytes()
                    == (root / "ray" / piece / "episodes.csv").read_bytes()
@@ -81,7 +74,7 @@ def main() -> None:
         "ratio_ray_to_local": round(ray_seconds / local_seconds, 2),
         "sum_of_piece_seconds": busy,
         "same_episode_logs": same,
-        "machine": {"cpus": __import__("os").cpu_count(), "python": platform.python_version(),
+        "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
                     "ray": ray.__version__},
         "written": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
     }

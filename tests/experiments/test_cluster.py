@@ -18,9 +18,8 @@ import numpy as np
 import pytest
 
 ray = pytest.importorskip("ray")
-from ray.cluster_utils import Cluster  # noqa: E402
 
-from bimgame.experiments.cluster import PIECE_MARKER, WORK_ROOT_ENV  # noqa: E402
+from bimgame.experiments.cluster import PIECE_MARKER, WORK_ROOT_ENV, local_cluster  # noqa: E402
 from bimgame.experiments.plan import load_status  # noqa: E402
 from bimgame.experiments.reproduce import reproduce  # noqa: E402
 from bimgame.expert.datasets import dataset_summary, generate_dataset  # noqa: E402
@@ -38,14 +37,8 @@ def cluster(tmp_path_factory):
     work_root = tmp_path_factory.mktemp("node-work")
     previous = os.environ.get(WORK_ROOT_ENV)
     os.environ[WORK_ROOT_ENV] = str(work_root)
-    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 0, "include_dashboard": False})
-    ray.init(address=cluster.address, log_to_driver=False)
-    for _ in range(2):
-        cluster.add_node(num_cpus=1)
-    cluster.wait_for_nodes()
-    yield cluster, work_root
-    ray.shutdown()
-    cluster.shutdown()
+    with local_cluster(nodes=2, cpus_per_node=1) as cluster:
+        yield cluster, work_root
     if previous is None:
         os.environ.pop(WORK_ROOT_ENV, None)
     else:
@@ -140,7 +133,7 @@ def test_generate_on_two_nodes_gives_the_local_dataset(cluster, tmp_path):
 
 def test_a_piece_whose_node_dies_is_computed_on_another_node(cluster, tmp_path, tiny_budget):
     """Last in the module: it removes a node (and adds a fresh one back)."""
-    test_cluster, work_root = cluster
+    ray_cluster, work_root = cluster
     budget = dataclasses.replace(tiny_budget, name="long", algorithms=("a3c",), seeds=1, a3c_steps={"STG1": 40_000},
                                  checkpoint_every=5_000)
     outcome: dict = {}
@@ -156,8 +149,8 @@ def test_a_piece_whose_node_dies_is_computed_on_another_node(cluster, tmp_path, 
                 victim = info["node_id"]  # the run is under way there
         time.sleep(0.2)
     assert victim is not None, "the A3C piece never started"
-    node = next(n for n in test_cluster.worker_nodes if n.node_id == victim)
-    test_cluster.remove_node(node, allow_graceful=False)
+    node = next(n for n in ray_cluster.worker_nodes if n.node_id == victim)
+    ray_cluster.remove_node(node, allow_graceful=False)
     driver.join(timeout=300)
     assert not driver.is_alive()
     result = outcome["result"]
@@ -166,5 +159,5 @@ def test_a_piece_whose_node_dies_is_computed_on_another_node(cluster, tmp_path, 
     assert entry["state"] == "done" and victim[:12] not in entry["node"]
     summary = json.loads((tmp_path / "runs/STG1/a3c/seed0/summary.json").read_text())
     assert summary["stopped"] == "finished" and summary["steps"] >= 40_000
-    test_cluster.add_node(num_cpus=1)
-    test_cluster.wait_for_nodes()
+    ray_cluster.add_node(num_cpus=1)
+    ray_cluster.wait_for_nodes()

@@ -21,10 +21,9 @@ from typing import Protocol
 from bimgame.experiments.budgets import Budget
 from bimgame.experiments.grid import Piece
 from bimgame.experiments.runners import RUNNERS
-from bimgame.expert.pool import BACKENDS
 from bimgame.learn.runs import torch_threads
 
-__all__ = ["BACKENDS", "Backend", "PieceOutcome", "LocalBackend", "run_piece", "error_text"]
+__all__ = ["Backend", "PieceOutcome", "LocalBackend", "run_piece", "error_text"]
 
 
 
@@ -52,11 +51,10 @@ class PieceOutcome:
 class Backend(Protocol):
     """What the driver needs from a place that computes pieces."""
 
-    name: str
     capacity: int | None
     """Pieces in flight at once (None: as many as are ready; the cluster queues them by CPUs)."""
-    cpus: float
-    """CPUs the pieces share, for the expected duration."""
+    queues: bool
+    """Whether a submitted piece may wait in a queue before it runs (then "submitted", not "running")."""
 
     def submit(self, piece: Piece) -> None:
         """Start computing ``piece``; every piece it needs is finished in the reproduction directory."""
@@ -85,11 +83,11 @@ class LocalBackend:
     """One piece at a time, in this process (A3C runs start their own worker processes), directly in
     the reproduction directory: an unfinished piece continues from what it left there."""
 
-    name = "local"
     capacity = 1
+    queues = False
 
-    def __init__(self, out_dir: Path, budget: Budget, cpus: float = 2.0):
-        self.out_dir, self.budget, self.cpus = out_dir, budget, cpus
+    def __init__(self, out_dir: Path, budget: Budget):
+        self.out_dir, self.budget = out_dir, budget
         self._queue: deque[Piece] = deque()
 
     def submit(self, piece: Piece) -> None:

@@ -24,6 +24,7 @@ and dataset) are the node's working paths; nothing reads them after the run has 
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -33,7 +34,7 @@ import tempfile
 import time
 import traceback
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 from bimgame.experiments.backends import PieceOutcome, error_text, run_piece
 from bimgame.experiments.budgets import Budget
@@ -42,7 +43,7 @@ from bimgame.experiments.grid import Piece
 from bimgame.expert.pool import import_ray
 from bimgame.util.archives import pack_directory, unpack_directory
 
-__all__ = ["RayBackend", "compute_on_node", "WORK_ROOT_ENV", "PIECE_MARKER"]
+__all__ = ["RayBackend", "compute_on_node", "local_cluster", "WORK_ROOT_ENV", "PIECE_MARKER"]
 
 #: Environment variable naming the directory under which a node's tasks work (default: the node's
 #: temporary directory).
@@ -63,10 +64,10 @@ def compute_on_node(piece: Piece, budget: Budget, input_paths: list[str], *archi
     if root is not None:
         Path(root).mkdir(parents=True, exist_ok=True)
     work = Path(tempfile.mkdtemp(prefix="bimgame-piece-", dir=root))
-    node = f"{socket.gethostname()} ({ray.get_runtime_context().get_node_id()[:12]})"
+    node_id = ray.get_runtime_context().get_node_id()
+    node = f"{socket.gethostname()} ({node_id[:12]})"
     try:
-        (work / PIECE_MARKER).write_text(json.dumps({
-            "piece": piece.id, "node_id": ray.get_runtime_context().get_node_id(), "pid": os.getpid()}))
+        (work / PIECE_MARKER).write_text(json.dumps({"piece": piece.id, "node_id": node_id, "pid": os.getpid()}))
         for path, archive in zip(input_paths, archives, strict=True):
             unpack_directory(archive, work / path)
         started = time.monotonic()
@@ -91,8 +92,8 @@ class RayBackend:
         max_retries: how often Ray reruns a task whose node or worker process died.
     """
 
-    name = "ray"
     capacity = None
+    queues = True
 
     def __init__(self, out_dir: Path, budget: Budget, pieces: list[Piece], *, address: str | None = None,
                  max_retries: int = 3):
@@ -101,10 +102,7 @@ class RayBackend:
         self.ray = import_ray()
         self.out_dir, self.budget, self.max_retries = out_dir, budget, max_retries
         self.pieces = {p.id: p for p in pieces}
-        self._readers: dict[str, int] = {}
-        for piece in pieces:
-            for need in piece.needs:
-                self._readers[need] = self._readers.get(need, 0) + 1
+        self._read = {need for piece in pieces for need in piece.needs}  # pieces that others read
         self._started_ray = False
         if not self.ray.is_initialized():
             if address is None:  # a new Ray on this machine, even if a cluster runs here too
@@ -163,12 +161,9 @@ class RayBackend:
         except (OSError, tarfile.TarError) as error:
             return PieceOutcome(piece, result["seconds"], error=error_text(error), traceback=traceback.format_exc(),
                                 node=result["node"])
-        if self._readers.get(piece.id):
+        if piece.id in self._read:
             self._inputs[piece.id] = self.ray.put(result["archive"])
         return PieceOutcome(piece, result["seconds"], note=result["note"], node=result["node"])
-
-    def in_flight(self) -> list[Piece]:
-        return [piece for piece, _ in self._in_flight.values()]
 
     def close(self) -> None:
         for ref in list(self._in_flight):
@@ -177,3 +172,25 @@ class RayBackend:
         self._inputs.clear()
         if self._started_ray:
             self.ray.shutdown()
+
+
+@contextlib.contextmanager
+def local_cluster(nodes: int = 2, cpus_per_node: int = 1) -> Iterator[Any]:
+    """A multi-node Ray cluster on this machine (``ray.cluster_utils.Cluster``: a head without CPUs
+    and ``nodes`` worker nodes), with this process joined as its driver; yields the cluster. The
+    driver joins through the head before the worker nodes exist, so it never sits on a node that
+    ``cluster.remove_node`` takes away. For trying the Ray backend (the tests and
+    ``benchmarks/bench_cluster.py``); the nodes inherit this process's environment."""
+    ray = import_ray()
+    from ray.cluster_utils import Cluster  # part of Ray, which is optional
+
+    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 0, "include_dashboard": False})
+    try:
+        ray.init(address=cluster.address, log_to_driver=False)
+        for _ in range(nodes):
+            cluster.add_node(num_cpus=cpus_per_node)
+        cluster.wait_for_nodes()
+        yield cluster
+    finally:
+        ray.shutdown()
+        cluster.shutdown()

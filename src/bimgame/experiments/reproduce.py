@@ -26,12 +26,13 @@ from typing import Any
 
 from rich.console import Console
 
-from bimgame.experiments.backends import BACKENDS, Backend, LocalBackend
+from bimgame.experiments.backends import Backend, LocalBackend
 from bimgame.experiments.budgets import Budget
 from bimgame.experiments.cluster import RayBackend
 from bimgame.experiments.costs import COSTS, CostModel, cluster_seconds, estimate_seconds, format_duration
 from bimgame.experiments.grid import Piece
 from bimgame.experiments.plan import STATUS, check_compatible, load_status, piece_done, timestamp, write_plan
+from bimgame.expert.pool import BACKENDS
 from bimgame.util.files import exclusive_lock, write_json
 from bimgame.util.progress import ProgressBar, escape
 from bimgame.util.signals import sigterm_as_interrupt
@@ -131,23 +132,26 @@ def reproduce(out_dir: str | Path, budget: Budget, *, progress: bool = True, sto
                 entry["state"] = "pending"
         save()
         todo = [p for p in pieces if p.id not in done]
+        runner: Backend
         if backend == "ray":
-            runner: Backend = RayBackend(out_dir, budget, pieces, address=ray_address, max_retries=max_retries)
-            runner.check_fits(todo)
-            invocation["cluster_cpus"] = runner.cpus
-            _print(console, f"Ray cluster: {runner.cpus:g} CPUs on {runner.nodes} nodes; expected ≈ "
-                            f"{format_duration(cluster_seconds(todo, budget, runner.cpus, costs))} for the "
+            cluster = RayBackend(out_dir, budget, pieces, address=ray_address, max_retries=max_retries)
+            cluster.check_fits(todo)
+            invocation["cluster_cpus"] = cluster.cpus
+            _print(console, f"Ray cluster: {cluster.cpus:g} CPUs on {cluster.nodes} nodes; expected ≈ "
+                            f"{format_duration(cluster_seconds(todo, budget, cluster.cpus, costs))} for the "
                             f"{len(todo)} pieces not finished yet (their estimates spread over the CPUs, at "
                             f"least the longest chain of pieces that wait for one another)")
+            runner = cluster
         else:
             runner = LocalBackend(out_dir, budget)
+        started_state = "submitted" if runner.queues else "running"
         shown = todo if stop_after is None else todo[:stop_after]
         finished = set(done)
         in_flight: dict[str, float] = {}
         pending = list(todo)
         submitted = 0
         try:
-            with _Display(progress, console, shown, budget, costs, runner) as display:
+            with _Display(progress, console, shown, budget, costs, started_state) as display:
                 while True:
                     for piece in list(pending):
                         entry = entries[piece.id]
@@ -162,8 +166,7 @@ def reproduce(out_dir: str | Path, budget: Budget, *, progress: bool = True, sto
                                 or (runner.capacity is not None and len(in_flight) >= runner.capacity)
                                 or (stop_after is not None and submitted >= stop_after)):
                             continue
-                        # On a cluster a submitted piece may wait in Ray's queue before it runs.
-                        entry.update(state="running" if runner.capacity == 1 else "submitted", started=timestamp())
+                        entry.update(state=started_state, started=timestamp())
                         for stale in ("error", "traceback", "node"):
                             entry.pop(stale, None)
                         save()
@@ -204,8 +207,8 @@ def reproduce(out_dir: str | Path, budget: Budget, *, progress: bool = True, sto
             now = time.monotonic()
             for piece_id, submitted_at in in_flight.items():
                 entry = entries[piece_id]
-                # Locally the piece ran since it was submitted; on a cluster it may have waited in the queue.
-                spent = now - submitted_at if runner.capacity == 1 else 0.0
+                # Locally the piece ran since it was submitted; in a queue it may not have started.
+                spent = 0.0 if runner.queues else now - submitted_at
                 entry.update(state="interrupted", seconds=entry.get("seconds", 0.0) + spent)
             save()
             raise
@@ -230,9 +233,8 @@ class _Display:
     when the bar is off."""
 
     def __init__(self, enabled: bool, console: Any, todo: list[Piece], budget: Budget, costs: CostModel,
-                 backend: Backend):
-        self.budget, self.costs = budget, costs
-        self.verb = "running" if backend.capacity == 1 else "submitted"
+                 verb: str):
+        self.budget, self.costs, self.verb = budget, costs, verb
         self.estimates = {p.id: estimate_seconds(p, budget, costs) for p in todo}
         self.count = len(todo)
         self.finished = 0
