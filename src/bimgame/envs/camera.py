@@ -57,6 +57,9 @@ class CameraView:
         # Where each sampled pixel takes its value from, relative to the window's centre's source:
         # the offsets rotated by each env's camera (fixed for an episode).
         self._sampled_source = np.zeros((2, batch, rows.size))  # column, row
+        rows, cols = np.mgrid[0:self.size, 0:self.size].astype(np.float64)
+        self._frame_pixels = rows.reshape(1, -1), cols.reshape(1, -1)  # every pixel of a frame: row, col
+        self._frame_offsets = (np.arange(batch) * (self.size * self.size))[:, None]  # each env's first pixel
         self._work: dict[tuple, np.ndarray] = {}
 
     def set_row(self, row: int, shift_x: float, shift_y: float, rotation: float, blur: float,
@@ -73,8 +76,7 @@ class CameraView:
         self._sampled_source[0, row] = self.cos[row] * dc - self.sin[row] * dr
         self._sampled_source[1, row] = self.sin[row] * dc + self.cos[row] * dr
         size = self.size
-        rows, cols = np.mgrid[0:size, 0:size].astype(np.float64)
-        src_col, src_row = self._source(rows.reshape(1, -1), cols.reshape(1, -1), slice(row, row + 1))
+        src_col, src_row = self._source(*self._frame_pixels, slice(row, row + 1))
         index, weight = self._bilinear("base", src_col, src_row)
         view = (self.background[index] * weight).sum(axis=0)
         if self.radius:
@@ -169,9 +171,8 @@ class CameraView:
         source = self.buffer("source", (2, batch, sampled), np.float64)
         np.add(self._sampled_source, np.stack([src_col, src_row]), out=source)
         index, weight = self._bilinear("window", source[0], source[1])
-        offset = (np.arange(batch) * (size * size))[:, None]
         where = self.buffer("where", (4, batch, sampled), np.intp)
-        np.add(index, offset, out=where)
+        np.add(index, self._frame_offsets, out=where)
         seen = self.buffer("seen", (4, batch, sampled), np.uint8)
         np.take(frames.reshape(-1), where, out=seen, mode="clip")  # indices are valid: "clip" skips a copy
         difference = self.buffer("difference", (4, batch, sampled))
@@ -190,7 +191,7 @@ class CameraView:
         rows += cols
         target = self.buffer("target", (batch, m), np.intp)
         np.copyto(target, rows, casting="unsafe")
-        target += offset
+        target += self._frame_offsets
         target[~inside] = batch * size * size
         image[target] += view  # distinct pixels but the spare one, which is discarded
 

@@ -270,8 +270,9 @@ class BallInMazeEnv(gym.Env):
         else:
             delta = action_to_tilt_delta(action, self.action_type, self.maze.tilt_step)
         if self.randomizer is not None:
-            delta = self.randomizer.tilt_deltas(np.array([delta], dtype=np.float64), np.zeros(1, dtype=np.intp),
-                                                np.array([self._steps]))[0]
+            if self.randomizer.acting:
+                delta = self.randomizer.tilt_deltas(np.array([delta], dtype=np.float64), np.zeros(1, dtype=np.intp),
+                                                    np.array([self._steps]))[0]
             self._steps += 1
         sim = self.sim
         sim.step(delta)
@@ -302,6 +303,7 @@ class BallInMazeEnv(gym.Env):
     def _start_randomized_episode(self) -> None:
         """Draw the episode's randomisation from ``np_random`` and set its physics on the model."""
         self.randomizer.reset_row(0, self.np_random)
+        self._draws = self.randomizer.row(0)  # the episode's draws, for every step's info
         self._steps = 0
         if self.randomizer.physical:
             self.sim.set_parameters(**self.randomizer.physics(0))
@@ -329,7 +331,7 @@ class BallInMazeEnv(gym.Env):
             "tilt": self.sim.data.qpos[:2].copy(),
         }
         if self.randomizer is not None:
-            info["randomization"] = self.randomizer.row(0)
+            info["randomization"] = dict(self._draws)
         return info
 
     def _render_mujoco(self) -> np.ndarray:
@@ -362,6 +364,7 @@ class BallInMazeEnv(gym.Env):
         if state.get("randomization") is not None:
             values, history, self._steps = state["randomization"]
             self.randomizer.set_row(0, values)
+            self._draws = self.randomizer.row(0)
             self.randomizer.history[0] = history
             if self.randomizer.physical:
                 self.sim.set_parameters(**self.randomizer.physics(0))

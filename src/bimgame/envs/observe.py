@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 from gymnasium import spaces
 
+from bimgame.sim.layout import StateLayout
 from bimgame.sim.maze import MazeSpec
-from bimgame.sim.physics import StateLayout
 from bimgame.sim.render import MazeRenderer
 
 __all__ = ["OBS_MODES", "Observer"]

@@ -34,8 +34,9 @@ import numpy as np
 
 from bimgame.envs.env import DISCRETE_TILTS
 from bimgame.expert.datasets import load_dataset
+from bimgame.sim.layout import StateLayout
 from bimgame.sim.maze import MazeSpec
-from bimgame.sim.physics import MazeSim, StateLayout
+from bimgame.sim.physics import MazeSim
 from bimgame.sim.placement import check_marble_xy, check_sim_state
 from bimgame.sim.tasks import Task, parse_task
 from bimgame.util.settings import is_integer, is_real

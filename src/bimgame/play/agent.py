@@ -17,8 +17,8 @@ import torch
 from bimgame.envs.observe import Observer
 from bimgame.learn.actor import RecurrentActor, tilt_input
 from bimgame.learn.common import RunInfo, load_run_network
+from bimgame.sim.layout import StateLayout
 from bimgame.sim.maze import MazeSpec
-from bimgame.sim.physics import StateLayout
 
 __all__ = ["AgentPlayer"]
 
