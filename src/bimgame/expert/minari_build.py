@@ -58,8 +58,10 @@ def episode_bytes(index: int, episode: dict[str, np.ndarray]) -> bytes:
     return buffer.getvalue()
 
 
-def read_episode(path: Path, index: int, expected_seed: int) -> dict[str, np.ndarray]:
-    """An episode file's arrays, checked for completeness and consistency (else DatasetError)."""
+def read_episode(path: Path, index: int, expected_seed: int | None) -> dict[str, np.ndarray]:
+    """An episode file's arrays, checked for completeness and consistency (else DatasetError);
+    ``expected_seed`` None accepts the file's own seed (a human recording's episodes have no seed
+    derived from the run's)."""
     try:
         with open(path, "rb") as handle, np.load(handle, allow_pickle=False) as archive:
             data = {key: archive[key] for key in archive.files}
@@ -68,7 +70,7 @@ def read_episode(path: Path, index: int, expected_seed: int) -> dict[str, np.nda
     missing = [key for key in (*EPISODE_KEYS, "index") if key not in data]
     if missing:
         raise DatasetError(f"episode file {path} lacks {', '.join(missing)}")
-    if int(data["index"]) != index or int(data["seed"]) != expected_seed:
+    if int(data["index"]) != index or (expected_seed is not None and int(data["seed"]) != expected_seed):
         raise DatasetError(f"episode file {path} holds episode {int(data['index'])} with seed "
                            f"{int(data['seed'])}, expected episode {index} with seed {expected_seed}")
     steps = len(data["actions"])

@@ -31,15 +31,13 @@ class AgentPlayer:
 
     def __init__(self, source: str | Path, maze: MazeSpec, layout: StateLayout, *, greedy: bool = True,
                  seed: int = 0):
-        net, run, step = load_run_network(source)
+        net, run, _ = load_run_network(source)
         net.eval()
         self.run: RunInfo = run
-        self.checkpoint_step = step
         self.obs_mode = run.network.obs
         self.max_tilt = maze.max_tilt
         self._pixels = Observer(maze, 1, "pixels", layout=layout) if self.obs_mode == "pixels" else None
         self._actor = RecurrentActor(net, 1, generator=torch.Generator().manual_seed(int(seed)), greedy=greedy)
-        self._action: int | None = None
 
     @property
     def greedy(self) -> bool:
@@ -67,8 +65,7 @@ class AgentPlayer:
             obs = np.asarray(state_obs, dtype=np.float32)[None]
         tilt_t = tilt_input({"tilt": np.asarray(tilt, dtype=np.float64)[None]}, self.max_tilt)
         actions, _, _ = self._actor.act(obs, tilt_t)
-        self._action = int(actions[0])
-        return self._action
+        return int(actions[0])
 
     def observe(self, executed: int, reward: float, done: bool) -> None:
         """The action that was executed this step (the agent's or a person's) and its reward."""

@@ -77,9 +77,6 @@ class HeldKeys:
     def drop(self, client: Hashable) -> None:
         self._pressed.pop(client, None)
 
-    def clear(self) -> None:
-        self._pressed.clear()
-
     def latest(self) -> str | None:
         """The most recently pressed key still held by anyone, or None."""
         best, best_time = None, 0

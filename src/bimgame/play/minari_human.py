@@ -26,13 +26,7 @@ BUILD_TIMEOUT = 900
 
 def read_human_episode(out_dir: Path, index: int) -> dict[str, np.ndarray]:
     """Episode file ``index`` of a recording, checked as the expert's are (its seed is its own)."""
-    path = episode_path(out_dir, index)
-    try:
-        with open(path, "rb") as handle, np.load(handle, allow_pickle=False) as archive:
-            seed = int(archive["seed"])
-    except Exception:  # read_episode names the problem
-        seed = -1
-    return read_episode(path, index, seed)
+    return read_episode(episode_path(out_dir, index), index, None)
 
 
 def run_build_process(out_dir: Path, manifest: dict, episodes: int, build_root: Path) -> None:

@@ -77,7 +77,6 @@ class _Client:
         self.latest: tuple[str, bytes] | None = None
         self.outbox: collections.deque[str] = collections.deque(maxlen=OUTBOX)
         self.ready = asyncio.Event()
-        self.sent_frames = 0
         self.errors = 0
 
     def push(self, message: dict[str, Any]) -> None:
@@ -98,7 +97,6 @@ class _Client:
                 (state, frame), self.latest = self.latest, None
                 await self.ws.send_str(state)
                 await self.ws.send_bytes(frame)
-                self.sent_frames += 1
 
 
 class PlayServer:
