@@ -77,15 +77,16 @@ MANIFEST_NAME = "generation.json"
 MARKER_NAME = "COMPLETE"
 MINARI_DIR = "minari"
 LOCK_NAME = ".lock"
-_BUILD_PREFIX = ".minari-build-"
+BUILD_PREFIX = ".minari-build-"
 # Episodes handed to Minari per write (bounds memory for large datasets).
 _BUILD_CHUNK = 64
 
 
 # ---------------------------------------------------------------------------------- generation
-def dataset_id_for(task: str | Task) -> str:
-    """The Minari dataset id of a task's expert data, e.g. ``bimgame/full-expert-v0``."""
-    return f"bimgame/{parse_task(task).value.lower()}-expert-v0"
+def dataset_id_for(task: str | Task, source: str = "expert") -> str:
+    """The Minari dataset id of a task's data from ``source`` (``expert``, or ``human`` for
+    ``bimgame play`` recordings), e.g. ``bimgame/full-expert-v0``."""
+    return f"bimgame/{parse_task(task).value.lower()}-{source}-v0"
 
 
 def generate_dataset(out_dir: str | Path, task: str = "FULL", episodes: int = 500, *, seed: int = 0,
@@ -165,7 +166,7 @@ def _generate(out_dir: Path, manifest: dict, config: MPCConfig, progress: bool, 
             except DatasetError as error:  # repair: regenerate what is damaged, rebuild
                 warnings.warn(f"{out_dir}: {error}; repairing", stacklevel=3)
                 marker_path.unlink()
-        _remove_stale_temporaries(out_dir)
+        remove_stale_temporaries(out_dir)
 
         episodes_dir = out_dir / EPISODES_DIR
         episodes_dir.mkdir(exist_ok=True)
@@ -272,10 +273,12 @@ def _locked(out_dir: Path):
     return exclusive_lock(out_dir / LOCK_NAME, f"another process is generating into {out_dir}; wait for it to finish")
 
 
-def _remove_stale_temporaries(out_dir: Path) -> None:
-    """Leftovers of a killed run inside our own directory: partial builds and temporary files."""
-    for path in out_dir.glob(f"{_BUILD_PREFIX}*"):
-        shutil.rmtree(path, ignore_errors=True)
+def remove_stale_temporaries(out_dir: Path, prefixes: tuple[str, ...] = (BUILD_PREFIX,)) -> None:
+    """Leftovers of a killed run inside our own directory: partial builds (directories starting
+    with one of ``prefixes``) and temporary episode files."""
+    for prefix in prefixes:
+        for path in out_dir.glob(f"{prefix}*"):
+            shutil.rmtree(path, ignore_errors=True)
     for path in (out_dir / EPISODES_DIR).glob(".episode_*.tmp"):
         path.unlink(missing_ok=True)
 
@@ -288,7 +291,7 @@ def _build_minari(out_dir: Path, manifest: dict) -> None:
     totals = episode_totals(episodes, lambda index: read_episode(episode_path(out_dir, index), index,
                                                                  episode_seed(seed, index)))
 
-    build_root = Path(tempfile.mkdtemp(prefix=_BUILD_PREFIX, dir=out_dir))
+    build_root = Path(tempfile.mkdtemp(prefix=BUILD_PREFIX, dir=out_dir))
     try:
         with reporting_full_disk(_data_path(out_dir, manifest["dataset_id"]) / "main_data.hdf5"):
             run_build_process(out_dir, manifest, build_root, _BUILD_CHUNK)

@@ -43,6 +43,7 @@ import numpy as np
 
 import bimgame
 from bimgame.expert.datasets import (
+    BUILD_PREFIX,
     FORMAT_NAME,
     FORMAT_VERSION,
     LOCK_NAME,
@@ -50,27 +51,23 @@ from bimgame.expert.datasets import (
     MARKER_NAME,
     MINARI_DIR,
     DatasetError,
+    dataset_id_for,
     episode_totals,
+    remove_stale_temporaries,
     write_marker,
 )
-from bimgame.expert.minari_build import EPISODES_DIR, episode_path
+from bimgame.expert.minari_build import episode_path
 from bimgame.play.minari_human import read_human_episode, run_build_process
 from bimgame.sim.tasks import Task, parse_task
 from bimgame.util.files import atomic_write_bytes, exclusive_lock, read_json, write_json
 
-__all__ = ["SOURCE", "EpisodeBuilder", "HumanRecording", "human_dataset_id"]
+__all__ = ["SOURCE", "EpisodeBuilder", "HumanRecording"]
 
 log = logging.getLogger("bimgame.play")
 
 #: ``generation.json``'s ``source`` for recordings (expert datasets have none, or ``"expert"``).
 SOURCE = "human"
-_BUILD_PREFIX = ".minari-build-"
 _OLD_PREFIX = ".minari-old-"
-
-
-def human_dataset_id(task: str | Task) -> str:
-    """The Minari dataset id of a task's human recordings, e.g. ``bimgame/stg1-human-v0``."""
-    return f"bimgame/{parse_task(task).value.lower()}-human-v0"
 
 
 class EpisodeBuilder:
@@ -147,7 +144,7 @@ class HumanRecording:
         self._lock_context = exclusive_lock(out / LOCK_NAME, f"another process is recording into {out}")
         self._lock_context.__enter__()
         try:
-            self._remove_stale_temporaries()
+            remove_stale_temporaries(self.out_dir, (BUILD_PREFIX, _OLD_PREFIX))
             while episode_path(out, self.episodes).exists():
                 read_human_episode(out, self.episodes)  # refuses an unreadable file, naming it
                 self.episodes += 1
@@ -234,7 +231,7 @@ class HumanRecording:
         out = self.out_dir
         totals = episode_totals(episodes, lambda index: read_human_episode(out, index))
         manifest = self._manifest(episodes)
-        build_root = Path(tempfile.mkdtemp(prefix=_BUILD_PREFIX, dir=out))
+        build_root = Path(tempfile.mkdtemp(prefix=BUILD_PREFIX, dir=out))
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(build_root, 0o777 & ~umask)  # mkdtemp's 0700 would hide the dataset from other users
@@ -268,7 +265,7 @@ class HumanRecording:
             "mpc_config": None,
             "recorded_with": "bimgame play",
             "bimgame_version": bimgame.__version__,
-            "dataset_id": human_dataset_id(self.task),
+            "dataset_id": dataset_id_for(self.task, SOURCE),
             "env_id": f"BiMGame/{self.task.value}-v0",
             "minari_version": minari.__version__,
         }
@@ -298,13 +295,6 @@ class HumanRecording:
             return all((self.out_dir / name).stat().st_size == entry["size"] for name, entry in marker["files"].items())
         except (OSError, KeyError, TypeError, AttributeError):
             return False
-
-    def _remove_stale_temporaries(self) -> None:
-        for prefix in (_BUILD_PREFIX, _OLD_PREFIX):
-            for path in self.out_dir.glob(f"{prefix}*"):
-                shutil.rmtree(path, ignore_errors=True)
-        for path in (self.out_dir / EPISODES_DIR).glob(".episode_*.tmp"):
-            path.unlink(missing_ok=True)
 
     def _release_lock(self) -> None:
         if self._lock_context is not None:
