@@ -189,10 +189,7 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
         crossings = np.zeros_like(self._task_state.channel)
         if stepping.any():
             idx = np.flatnonzero(stepping)
-            if self.randomizer is None:
-                self._states[idx] = self.sim.rollout(self._states[idx], deltas[idx, None], nthread=self.nthread)[:, 0]
-            else:
-                self._randomized_rollout(idx, deltas[idx])
+            self._rollout(idx, deltas[idx])
         # One decode of every state serves the task, the observations and the infos; only envs
         # that were reset this step are decoded again.
         positions, velocities = self.sim.layout.board_frame(self._states)
@@ -256,17 +253,17 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
                              f"got {actions!r}")
         return array * step
 
-    def _randomized_rollout(self, idx: np.ndarray, deltas: np.ndarray) -> None:
-        """Step envs ``idx`` with their episodes' actuation and, if randomised, physics (a model each)."""
-        randomizer = self.randomizer
-        if randomizer.acting:
-            deltas = randomizer.tilt_deltas(deltas, idx, self._elapsed[idx])
-        if randomizer.physical:
-            self._states[idx] = self.sim.rollout(self._states[idx], deltas[:, None], nthread=self.nthread,
-                                                 models=[self._models[i] for i in idx],
-                                                 max_tilt=self._max_tilt[idx])[:, 0]
-        else:
-            self._states[idx] = self.sim.rollout(self._states[idx], deltas[:, None], nthread=self.nthread)[:, 0]
+    def _rollout(self, idx: np.ndarray, deltas: np.ndarray) -> None:
+        """Step envs ``idx`` by ``deltas``, with their episodes' actuation and physics when randomised
+        (then a model each)."""
+        randomizer, models, max_tilt = self.randomizer, None, None
+        if randomizer is not None:
+            if randomizer.acting:
+                deltas = randomizer.tilt_deltas(deltas, idx, self._elapsed[idx])
+            if randomizer.physical:
+                models, max_tilt = [self._models[i] for i in idx], self._max_tilt[idx]
+        self._states[idx] = self.sim.rollout(self._states[idx], deltas[:, None], nthread=self.nthread,
+                                             models=models, max_tilt=max_tilt)[:, 0]
 
     def _reset_envs(self, mask: np.ndarray) -> None:
         n = self.template.n_marbles
