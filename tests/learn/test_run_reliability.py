@@ -14,6 +14,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 from support.disk import disk_fills_up
@@ -282,7 +283,7 @@ def test_unreadable_init_checkpoints_say_why_and_never_advise_weights_only_false
     with pytest.raises(CheckpointError, match=r"--init: cannot read checkpoint .*empty.pt: the file is empty"):
         train(config, tmp_path / "run", init=tmp_path / "empty.pt", progress=False)
     assert not (tmp_path / "run").exists()
-    (tmp_path / "random.pt").write_bytes(os.urandom(200))
+    (tmp_path / "random.pt").write_bytes(np.random.default_rng(0).integers(0, 256, 200, dtype=np.uint8).tobytes())
     (tmp_path / "pickle.pt").write_bytes(pickle.dumps(_Code()))
     torch.save({"weights": _Code()}, tmp_path / "code.pt")
     full = tmp_path / "full.pt"
@@ -333,7 +334,7 @@ def test_a_broken_config_json_is_named_by_every_reader(tmp_path, capsys, text, s
 
 def test_evaluate_names_a_file_that_is_not_in_a_run(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
-    Path("rand.pt").write_bytes(os.urandom(100))
+    Path("rand.pt").write_bytes(np.random.default_rng(1).integers(0, 256, 100, dtype=np.uint8).tobytes())
     assert main(["evaluate", "rand.pt"]) == 2
     err = capsys.readouterr().err
     assert "rand.pt is a file outside a training run" in err and "expected a run directory" in err
