@@ -58,6 +58,10 @@ def test_each_method_turns_on_the_keep_presets_values_of_its_own_settings_only()
         assert finetune_overrides(algorithm, STEPS, DATA)["finetune"] == "paper", algorithm
     settings = finetune_overrides("pretrain+a3c+keep", STEPS, DATA)
     assert settings == {**keep, "finetune": "keep"}  # the shipped keep preset reads no expert data
+    # keepfade: keep, with its KL fading to zero over the first third of the run (200k of a 600k run).
+    assert finetune_overrides("pretrain+a3c+keepfade", 600_000, DATA) == {**keep, "finetune": "keep",
+                                                                         "kl_decay_steps": 200_000}
+    assert finetune_overrides("pretrain+a3c+keepfade", 2, DATA)["kl_decay_steps"] == 1
     assert finetune_overrides("a3c+reverse", STEPS, DATA) == {"start_curriculum": "reverse"}
 
 
@@ -85,7 +89,8 @@ def test_which_runs_need_the_dataset_pi_s_or_v_hat():
                      "pretrain+a3c+value": (policy, value), "pretrain+a3c+warmup": (policy,),
                      "pretrain+a3c+kl": (policy,), "pretrain+a3c+norm": (policy,),
                      "pretrain+a3c+bc": ("data", policy), "pretrain+a3c+demo": ("data", policy),
-                     "pretrain+a3c+keep": (policy,), "a3c+reverse": (), "a3c+papernet": ()}
+                     "pretrain+a3c+keep": (policy,), "pretrain+a3c+keepfade": (policy,), "a3c+reverse": (),
+                     "a3c+papernet": ()}
     # Without π^s in the grid no policy is pre-trained.
     ids = [p.id for p in plan_pieces(Budget(tasks=("STG3",), algorithms=("a3c+reverse",), seeds=1))]
     assert ids == ["data", "runs/STG3/a3c-reverse/seed0"]
@@ -125,7 +130,7 @@ def test_pixel_levers_reach_every_network_but_the_papers_and_daggers(tiny_budget
 
 @pytest.mark.parametrize("call, message", [
     (lambda: finetune_overrides("ppo", STEPS, DATA),
-     r"unknown A3C algorithm 'ppo'; allowed: a3c, pretrain\+a3c, a3c\+value, .*pretrain\+a3c\+keep, a3c\+reverse, a3c\+papernet$"),
+     r"unknown A3C algorithm 'ppo'; allowed: a3c, pretrain\+a3c, a3c\+value, .*pretrain\+a3c\+keep, pretrain\+a3c\+keepfade, a3c\+reverse, a3c\+papernet$"),
     (lambda: finetune_overrides("dagger", STEPS, DATA), r"unknown A3C algorithm 'dagger'.*not an A3C run"),
     (lambda: finetune_overrides("pretrain+a3c+bc", 0, DATA), r"steps must be an integer >= 1, got 0"),
     (lambda: finetune_overrides("pretrain+a3c+demo", STEPS, None),

@@ -29,6 +29,8 @@ Beyond the paper, the methods that fine-tune π^s without forgetting it (their A
 - ``pretrain+a3c+bc``: a behaviour-cloning term on the expert's dataset, decaying over the run (DAPG);
 - ``pretrain+a3c+demo``: episodes start from the expert's states, moving back from the goal;
 - ``pretrain+a3c+keep``: the ``keep`` preset (the combination ``bimgame train --init`` uses);
+- ``pretrain+a3c+keepfade``: the ``keep`` preset with the KL weight fading to zero over the first
+  third of the run (for π^s that are weak on the task, as from pixels);
 - ``a3c+reverse``: from random weights, a reverse start curriculum (no expert, no π^s).
 """
 
@@ -51,7 +53,7 @@ __all__ = ["PAPER_ALGORITHMS", "ALGORITHMS", "ALGORITHM_LABELS", "PAPER_TASKS", 
 PAPER_ALGORITHMS = ("a3c", "pretrain+a3c", "a3c+value", "pretrain+a3c+value", "dagger")
 #: Every method a reproduction can run: the paper's, then the fine-tuning methods beyond it.
 ALGORITHMS = (*PAPER_ALGORITHMS, "pretrain+a3c+warmup", "pretrain+a3c+kl", "pretrain+a3c+norm", "pretrain+a3c+bc",
-              "pretrain+a3c+demo", "pretrain+a3c+keep", "a3c+reverse", "a3c+papernet")
+              "pretrain+a3c+demo", "pretrain+a3c+keep", "pretrain+a3c+keepfade", "a3c+reverse", "a3c+papernet")
 #: The algorithms' names in figures and tables.
 ALGORITHM_LABELS = {"a3c": "A3C", "pretrain+a3c": "pre-train + A3C", "a3c+value": "A3C + value reward",
                     "pretrain+a3c+value": "pre-train + A3C + value reward", "dagger": "DAgger",
@@ -60,7 +62,8 @@ ALGORITHM_LABELS = {"a3c": "A3C", "pretrain+a3c": "pre-train + A3C", "a3c+value"
                     "pretrain+a3c+kl": "pre-train + A3C + KL", "pretrain+a3c+norm": "pre-train + A3C + advantage norm.",
                     "pretrain+a3c+bc": "pre-train + A3C + BC (DAPG)",
                     "pretrain+a3c+demo": "pre-train + A3C + demo starts",
-                    "pretrain+a3c+keep": "pre-train + A3C, keep preset", "a3c+reverse": "A3C + reverse curriculum"}
+                    "pretrain+a3c+keep": "pre-train + A3C, keep preset",
+                    "pretrain+a3c+keepfade": "pre-train + A3C, keep, fading KL", "a3c+reverse": "A3C + reverse curriculum"}
 #: The tasks of the paper's learning curves (STG3/STG4 can be added: the paper reports them unlearned).
 PAPER_TASKS = ("FULL", "STG1", "STG2")
 #: Budget fields that only change which pieces exist (not what any piece computes): a reproduction
@@ -82,7 +85,8 @@ class Budget:
     algorithms: tuple[str, ...] = PAPER_ALGORITHMS
     """Methods of the grid: the paper's a3c, pretrain+a3c, a3c+value, pretrain+a3c+value, dagger (the
     default) and the fine-tuning methods beyond it: pretrain+a3c+warmup, pretrain+a3c+kl,
-    pretrain+a3c+norm, pretrain+a3c+bc, pretrain+a3c+demo, pretrain+a3c+keep, a3c+reverse."""
+    pretrain+a3c+norm, pretrain+a3c+bc, pretrain+a3c+demo, pretrain+a3c+keep, pretrain+a3c+keepfade,
+    a3c+reverse, a3c+papernet."""
     seeds: int = 2
     """Runs per task and algorithm (seeds 0 … seeds−1)."""
     obs: str = "state"
