@@ -1,8 +1,9 @@
 """The reproduction on a Ray cluster, on Ray's own multi-node test cluster on this machine (a head
 without CPUs and two one-CPU nodes, so every piece runs on a node other than the driver's and
 independent pieces run on different nodes): the grid equals the local grid's numbers, a restarted
-driver recomputes nothing that finished, a piece whose node dies is computed on another node, a
-piece that raises on a node is a recorded failure, and pieces that fit no node are refused."""
+driver recomputes nothing that finished, a piece whose node dies is continued on another node from
+the last checkpoint it shipped back, a piece that raises on a node is a recorded failure, and
+pieces that fit no node are refused."""
 
 from __future__ import annotations
 
@@ -19,11 +20,18 @@ import pytest
 
 ray = pytest.importorskip("ray")
 
-from bimgame.experiments.cluster import PIECE_MARKER, WORK_ROOT_ENV, local_cluster  # noqa: E402
+from bimgame.experiments.cluster import (  # noqa: E402
+    PIECE_MARKER,
+    WORK_ROOT_ENV,
+    CheckpointShipper,
+    SnapshotStore,
+    local_cluster,
+)
 from bimgame.experiments.plan import load_status  # noqa: E402
 from bimgame.experiments.reproduce import reproduce  # noqa: E402
 from bimgame.expert.datasets import dataset_summary, generate_dataset  # noqa: E402
 from bimgame.learn.curves import read_table  # noqa: E402
+from bimgame.util.archives import unpack_directory  # noqa: E402
 
 pytestmark = pytest.mark.xdist_group("ray-cluster")  # one cluster per test process
 
@@ -131,6 +139,31 @@ def test_generate_on_two_nodes_gives_the_local_dataset(cluster, tmp_path):
     assert dataset_summary(local)["content_sha256"] == dataset_summary(on_ray)["content_sha256"]
 
 
+def test_a_running_piece_ships_each_new_checkpoint_to_the_driver_node(cluster, tmp_path):
+    store = ray.remote(SnapshotStore).options(num_cpus=0).remote()
+    run = tmp_path / "run"
+    run.mkdir()
+    marker = tmp_path / PIECE_MARKER
+    marker.write_text(json.dumps({"piece": "runs/STG1/a3c/seed0"}))
+    shipper = CheckpointShipper(store, "runs/STG1/a3c/seed0", run, marker, poll_seconds=60.0)
+    (run / "episodes.csv").write_text("step\n1\n")
+    assert not shipper.ship_if_new()  # no checkpoint yet: nothing to continue from
+    assert ray.get(store.latest.remote("runs/STG1/a3c/seed0")) is None
+    (run / "checkpoint.pt").write_bytes(b"first")
+    assert shipper.ship_if_new() and not shipper.ship_if_new()  # once per checkpoint
+    (run / "checkpoint.pt").write_bytes(b"second")
+    os.utime(run / "checkpoint.pt", ns=(1, 1))  # a new checkpoint (a new mtime)
+    assert shipper.ship_if_new()
+    unpack_directory(ray.get(store.latest.remote("runs/STG1/a3c/seed0")), tmp_path / "copy")
+    assert (tmp_path / "copy/checkpoint.pt").read_bytes() == b"second"
+    assert (tmp_path / "copy/episodes.csv").read_text() == "step\n1\n"
+    info = json.loads(marker.read_text())
+    assert info["piece"] == "runs/STG1/a3c/seed0" and info["shipped"] == 2 and info["shipped_bytes"] > 0
+    ray.get(store.drop.remote("runs/STG1/a3c/seed0"))
+    assert ray.get(store.latest.remote("runs/STG1/a3c/seed0")) is None
+    ray.kill(store)
+
+
 def test_a_piece_whose_node_dies_is_computed_on_another_node(cluster, tmp_path, tiny_budget):
     """Last in the module: it removes a node (and adds a fresh one back)."""
     ray_cluster, work_root = cluster
@@ -144,11 +177,14 @@ def test_a_piece_whose_node_dies_is_computed_on_another_node(cluster, tmp_path, 
     deadline = time.monotonic() + 120
     while victim is None and time.monotonic() < deadline:
         for marker in work_root.glob(f"*/{PIECE_MARKER}"):
-            info = json.loads(marker.read_text())
-            if info["piece"] == "runs/STG1/a3c/seed0" and list(marker.parent.rglob("episodes.csv")):
-                victim = info["node_id"]  # the run is under way there
+            try:
+                info = json.loads(marker.read_text())
+            except (OSError, ValueError):
+                continue  # being replaced
+            if info["piece"] == "runs/STG1/a3c/seed0" and info.get("shipped", 0) >= 1:
+                victim = info["node_id"]  # the run is under way there, and a checkpoint reached the driver
         time.sleep(0.2)
-    assert victim is not None, "the A3C piece never started"
+    assert victim is not None, "the A3C piece never shipped a checkpoint"
     node = next(n for n in ray_cluster.worker_nodes if n.node_id == victim)
     ray_cluster.remove_node(node, allow_graceful=False)
     driver.join(timeout=300)
@@ -157,6 +193,8 @@ def test_a_piece_whose_node_dies_is_computed_on_another_node(cluster, tmp_path, 
     assert result.complete and sorted(result.computed) == ["data", "runs/STG1/a3c/seed0"]
     entry = load_status(tmp_path)["pieces"]["runs/STG1/a3c/seed0"]
     assert entry["state"] == "done" and victim[:12] not in entry["node"]
+    # The retried task continued from the checkpoint the first node shipped, not from scratch.
+    assert entry["note"] == "resumed from its checkpoint, shipped back before its first node died", entry
     summary = json.loads((tmp_path / "runs/STG1/a3c/seed0/summary.json").read_text())
     assert summary["stopped"] == "finished" and summary["steps"] >= 40_000
     ray_cluster.add_node(num_cpus=1)

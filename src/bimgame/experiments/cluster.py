@@ -12,10 +12,15 @@ archive that other pieces read is put into the object store once, by the driver,
 the node that computed it.
 
 **Faults.** A task whose node dies, or whose worker process is killed, is retried by Ray on another
-node (``max_retries``), from scratch: nothing of an unfinished piece reaches the driver, and a piece
-only ever writes on its own node. A driver that is stopped and run again with the same command
-skips every piece whose outputs it already holds. A piece that raises is a failure (Ray does not
-retry it), recorded like a local failure.
+node (``max_retries``). Pieces that can continue from a checkpoint (A3C and DAgger runs,
+:data:`RESUMABLE_KINDS`) ship their directory to the driver's node each time they write a new
+checkpoint (:class:`SnapshotStore`, an actor pinned to the driver's node, keeps the latest one per
+piece in memory), so the retried task continues from the last checkpoint, as a local run continues
+after an interruption; the other pieces (dataset, pre-training) start again from scratch. Nothing
+of an unfinished piece reaches the reproduction directory, and a piece only ever writes on its own
+node. A driver that is stopped and run again with the same command skips every piece whose outputs
+it already holds (its unfinished pieces' snapshots die with it). A piece that raises is a failure
+(Ray does not retry it), recorded like a local failure.
 
 **Same results.** A piece computes exactly what it computes locally: the same runner, settings and
 seeds; only the directory differs. So the paths a run records in its ``config.json`` (its π^s, V̂
@@ -31,6 +36,7 @@ import shutil
 import socket
 import tarfile
 import tempfile
+import threading
 import time
 import traceback
 from pathlib import Path
@@ -41,9 +47,12 @@ from bimgame.experiments.budgets import Budget
 from bimgame.experiments.costs import piece_cpus
 from bimgame.experiments.grid import Piece
 from bimgame.expert.pool import import_ray
+from bimgame.learn.runs import CHECKPOINT
 from bimgame.util.archives import pack_directory, unpack_directory
+from bimgame.util.files import read_json, write_json
 
-__all__ = ["RayBackend", "compute_on_node", "local_cluster", "WORK_ROOT_ENV", "PIECE_MARKER"]
+__all__ = ["RayBackend", "SnapshotStore", "CheckpointShipper", "compute_on_node", "local_cluster", "WORK_ROOT_ENV",
+           "PIECE_MARKER", "RESUMABLE_KINDS", "SHIP_POLL_SECONDS"]
 
 #: Environment variable naming the directory under which a node's tasks work (default: the node's
 #: temporary directory).
@@ -51,11 +60,91 @@ WORK_ROOT_ENV = "BIMGAME_WORK_ROOT"
 #: The file a task writes first into its working directory: the piece, node and process, so a
 #: person (or a test) on the node can tell which piece a directory belongs to.
 PIECE_MARKER = "bimgame-piece.json"
+#: The kinds of piece whose runner continues from what an unfinished run left in its directory (its
+#: checkpoint, written atomically, is the commit point): their tasks ship snapshots to the driver.
+RESUMABLE_KINDS = ("a3c", "dagger")
+#: How often (seconds) a task looks for a new checkpoint to ship.
+SHIP_POLL_SECONDS = 2.0
 
 
-def compute_on_node(piece: Piece, budget: Budget, input_paths: list[str], *archives: bytes) -> dict[str, Any]:
+class SnapshotStore:
+    """The latest snapshot (a directory archive) of each unfinished resumable piece, kept in memory by
+    a Ray actor on the driver's node, so that it outlives the node that wrote it. Ray has no
+    store of its own for this: an object a task puts into the object store is lost with the task's
+    node, and the driver cannot read from a task while it runs."""
+
+    def __init__(self) -> None:
+        self._latest: dict[str, bytes] = {}
+
+    def put(self, piece_id: str, archive: bytes) -> int:
+        """Keep ``archive`` as ``piece_id``'s latest snapshot; returns its size in bytes."""
+        self._latest[piece_id] = archive
+        return len(archive)
+
+    def latest(self, piece_id: str) -> bytes | None:
+        """``piece_id``'s latest snapshot, or None if it never shipped one."""
+        return self._latest.get(piece_id)
+
+    def drop(self, piece_id: str) -> None:
+        """Forget ``piece_id``'s snapshot (its outcome reached the driver)."""
+        self._latest.pop(piece_id, None)
+
+
+class CheckpointShipper:
+    """Ships a running piece's directory to the :class:`SnapshotStore` each time its checkpoint file
+    is replaced, from a thread of the task, and records each shipment in the task's
+    :data:`PIECE_MARKER` (``shipped``: how many, ``shipped_bytes``: the last one's size).
+
+    A directory is packed while the run goes on: the checkpoint is replaced atomically, so the
+    archive holds a whole one, and the logs packed after it reach at least its step (a row cut off
+    mid-write is dropped on resume, as after a kill)."""
+
+    def __init__(self, store: Any, piece_id: str, directory: Path, marker: Path, poll_seconds: float):
+        import ray
+
+        self.ray, self.store, self.piece_id = ray, store, piece_id
+        self.directory, self.marker, self.poll_seconds = directory, marker, poll_seconds
+        self.shipped = 0
+        self._last_stamp: int | None = None
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._loop, name=f"ship {piece_id}", daemon=True)
+
+    def __enter__(self) -> CheckpointShipper:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join()
+
+    def _loop(self) -> None:
+        while not self._stop.wait(self.poll_seconds):
+            self.ship_if_new()
+
+    def ship_if_new(self) -> bool:
+        """Ship the directory if its checkpoint changed since the last shipment; whether it did."""
+        try:
+            stamp = (self.directory / CHECKPOINT).stat().st_mtime_ns
+        except OSError:
+            return False  # no checkpoint yet
+        if stamp == self._last_stamp:
+            return False
+        try:
+            archive = pack_directory(self.directory)
+        except OSError:
+            return False  # a temporary file vanished while it was packed: the next look ships it
+        size = self.ray.get(self.store.put.remote(self.piece_id, archive))
+        self._last_stamp, self.shipped = stamp, self.shipped + 1
+        write_json(self.marker, {**(read_json(self.marker) or {}), "shipped": self.shipped, "shipped_bytes": size})
+        return True
+
+
+def compute_on_node(piece: Piece, budget: Budget, input_paths: list[str], store: Any, *archives: bytes,
+                    poll_seconds: float = SHIP_POLL_SECONDS) -> dict[str, Any]:
     """The body of a piece's Ray task: unpack the pieces it reads (``archives``, one per path of
-    ``input_paths``) into a fresh working directory, compute the piece there and return its
+    ``input_paths``) into a fresh working directory, and the piece's latest snapshot in ``store``
+    (a :class:`SnapshotStore` actor) if an earlier attempt shipped one; compute the piece there —
+    shipping its directory to ``store`` at every new checkpoint if it is resumable — and return its
     directory as an archive with the runner's note and the node's name. The working directory is
     removed afterwards, whatever happens."""
     import ray
@@ -70,11 +159,20 @@ def compute_on_node(piece: Piece, budget: Budget, input_paths: list[str], *archi
         (work / PIECE_MARKER).write_text(json.dumps({"piece": piece.id, "node_id": node_id, "pid": os.getpid()}))
         for path, archive in zip(input_paths, archives, strict=True):
             unpack_directory(archive, work / path)
+        resumable = piece.kind in RESUMABLE_KINDS
+        snapshot = ray.get(store.latest.remote(piece.id)) if resumable else None
+        if snapshot is not None:  # an earlier attempt's node died: continue from its last checkpoint
+            unpack_directory(snapshot, work / piece.path)
         started = time.monotonic()
+        shipping = (CheckpointShipper(store, piece.id, work / piece.path, work / PIECE_MARKER, poll_seconds)
+                    if resumable else contextlib.nullcontext())
         try:
-            note = run_piece(piece, budget, work)
+            with shipping:
+                note = run_piece(piece, budget, work)
         except KeyboardInterrupt:
             raise RuntimeError(f"{piece.id} stopped before it finished on {node}") from None
+        if snapshot is not None:
+            note = f"{note}, shipped back before its first node died"
         return {"archive": pack_directory(work / piece.path), "note": note, "node": node,
                 "seconds": time.monotonic() - started}
     finally:
@@ -115,6 +213,10 @@ class RayBackend:
         self.cpus = float(sum(n["Resources"].get("CPU", 0.0) for n in nodes))
         self.largest_node_cpus = max((n["Resources"].get("CPU", 0.0) for n in nodes), default=0.0)
         self._task = self.ray.remote(compute_on_node)
+        from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy  # part of Ray, which is optional
+
+        driver_node = NodeAffinitySchedulingStrategy(node_id=self.ray.get_runtime_context().get_node_id(), soft=False)
+        self._store = self.ray.remote(SnapshotStore).options(num_cpus=0, scheduling_strategy=driver_node).remote()
         self._inputs: dict[str, Any] = {}
         self._in_flight: dict[Any, tuple[Piece, float]] = {}
 
@@ -140,7 +242,8 @@ class RayBackend:
         paths = [self.pieces[n].path for n in piece.needs]
         options = dict(num_cpus=piece_cpus(piece, self.budget), max_retries=self.max_retries,
                        retry_exceptions=False, name=f"bimgame:{piece.id}")
-        ref = self._task.options(**options).remote(piece, self.budget, paths, *(self._input(n) for n in piece.needs))
+        ref = self._task.options(**options).remote(piece, self.budget, paths, self._store,
+                                                   *(self._input(n) for n in piece.needs))
         self._in_flight[ref] = (piece, time.monotonic())
 
     def next_outcome(self) -> PieceOutcome:
@@ -148,6 +251,7 @@ class RayBackend:
             raise RuntimeError("no piece is in flight")
         (ref,), _ = self.ray.wait(list(self._in_flight), num_returns=1)
         piece, submitted = self._in_flight.pop(ref)
+        self._store.drop.remote(piece.id)
         try:
             result = self.ray.get(ref)
         except self.ray.exceptions.RayTaskError as error:
@@ -170,6 +274,7 @@ class RayBackend:
             self.ray.cancel(ref, force=True)
         self._in_flight.clear()
         self._inputs.clear()
+        self.ray.kill(self._store)
         if self._started_ray:
             self.ray.shutdown()
 

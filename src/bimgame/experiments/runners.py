@@ -30,7 +30,7 @@ from bimgame.learn.dagger import DAggerConfig, dagger
 from bimgame.learn.finetune import FINETUNE_FIELDS
 from bimgame.learn.pretrain import pretrain
 from bimgame.learn.rewards import RewardSettings, env_wrapper_for
-from bimgame.learn.runs import KIND_POLICY, KIND_VALUE
+from bimgame.learn.runs import CONFIG, KIND_POLICY, KIND_VALUE, write_run_json
 from bimgame.learn.supervised import PretrainConfig
 from bimgame.util.files import read_json
 
@@ -113,6 +113,7 @@ def _run_a3c(piece: Piece, budget: Budget, out_dir: Path) -> str:
     resume = (path / "config.json").is_file()
     if resume:
         config = _with_stored_preset_name(path, config)
+        _point_at_the_dataset_now(path, config)
     extra = {"reward": reward.to_dict(),
              "reproduction": {"algorithm": piece.algorithm, "task": piece.task, "seed": piece.seed}}
     result = train(config, path, resume=resume, init=init, env_wrapper=wrapper, progress=False, extra_config=extra)
@@ -130,6 +131,23 @@ def _with_stored_preset_name(path: Path, config: A3CConfig) -> A3CConfig:
         return config
     same = all(previous.get(field, getattr(A3CConfig, field)) == getattr(config, field) for field in FINETUNE_FIELDS)
     return dataclasses.replace(config, finetune=previous.get("finetune")) if same else config
+
+
+def _point_at_the_dataset_now(path: Path, config: A3CConfig) -> None:
+    """Record in the unfinished run in ``path`` the place its reproduction's dataset is now.
+
+    A reproduction's run reads the reproduction's own dataset piece (``DIR/data``, by absolute path
+    in its ``config.json``); a resumed run must keep its settings. When DIR has moved since the run
+    started — a Ray task continuing on another node a run shipped back from the node that died, or
+    a person who moved the directory — the same dataset piece is elsewhere, so the run's record is
+    pointed at it there (atomically), and it resumes instead of being refused."""
+    stored = read_json(path / CONFIG) or {}
+    settings = stored.get("a3c")
+    if not isinstance(settings, dict) or config.expert_data is None:
+        return
+    before = settings.get("expert_data")
+    if isinstance(before, str) and before != config.expert_data and Path(before).name == Path(config.expert_data).name:
+        write_run_json(path / CONFIG, {**stored, "a3c": {**settings, "expert_data": config.expert_data}})
 
 
 def _run_dagger(piece: Piece, budget: Budget, out_dir: Path) -> str:
