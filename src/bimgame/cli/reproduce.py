@@ -52,7 +52,8 @@ def add_reproduce_arguments(parser: argparse.ArgumentParser) -> None:
                        default_text="the budget's")
     add_backend_arguments(parser, "pieces (dataset, pre-trainings, runs)")
     add("--max-retries", type=non_negative_int, default=3, metavar="N",
-        help="with --backend ray: how often a piece whose node or worker died is started again (default 3)")
+        help="with --backend ray: how often a piece whose node or worker died is started again (default 3); "
+             "A3C and DAgger runs continue from the last checkpoint they shipped back")
     add("--stop-after", type=positive_int, default=None, metavar="N",
         help="compute at most N pieces, then stop (run again to continue)")
     add("--dry-run", action="store_true", help="print the plan and its expected duration; run nothing")

@@ -2,7 +2,8 @@
 
 Layout of ``RUN_DIR``::
 
-    config.json          the run's settings (written once; a resumed run must match them)
+    config.json          the run's settings (written once; a resumed run must match them; a
+                         reproduction updates its dataset's path when the reproduction moved)
     checkpoint.pt        latest checkpoint: weights, optimiser statistics, environment steps, seconds
     episodes.csv         one row per finished training episode
     updates.csv          losses, entropy, gradient norm and SPS against environment steps
