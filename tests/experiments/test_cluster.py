@@ -22,6 +22,7 @@ ray = pytest.importorskip("ray")
 
 from bimgame.experiments.cluster import (  # noqa: E402
     PIECE_MARKER,
+    SNAPSHOTS,
     WORK_ROOT_ENV,
     CheckpointShipper,
     SnapshotStore,
@@ -29,9 +30,11 @@ from bimgame.experiments.cluster import (  # noqa: E402
 )
 from bimgame.experiments.plan import load_status  # noqa: E402
 from bimgame.experiments.reproduce import reproduce  # noqa: E402
+from bimgame.experiments.runners import a3c_config_for  # noqa: E402
 from bimgame.expert.datasets import dataset_summary, generate_dataset  # noqa: E402
+from bimgame.learn.a3c import train  # noqa: E402
 from bimgame.learn.curves import read_table  # noqa: E402
-from bimgame.util.archives import unpack_directory  # noqa: E402
+from bimgame.util.archives import pack_directory, unpack_directory  # noqa: E402
 
 pytestmark = pytest.mark.xdist_group("ray-cluster")  # one cluster per test process
 
@@ -115,6 +118,28 @@ def test_the_grid_on_two_nodes_equals_the_local_grid_and_a_restart_recomputes_no
     assert counts.pop("runs/STG1/pretrain-a3c-value/seed0") == 2 and set(counts.values()) == {1}
 
 
+def test_a_restarted_driver_continues_an_unfinished_run_from_its_snapshot(cluster, tmp_path, tiny_budget):
+    """A driver stopped while a run was under way on a node left the run's last shipped snapshot in
+    the reproduction's .snapshots/; the same command continues the run from it."""
+    budget = dataclasses.replace(tiny_budget, algorithms=("a3c",), seeds=1)
+    partial = tmp_path / "elsewhere" / "run"
+    train(dataclasses.replace(a3c_config_for(budget, "STG1", 0), steps=800), partial, progress=False,
+          extra_config={"reward": {"value_reward": None, "geodesic_coef": None}})
+    # Mark the first attempt's first episode (length 9999), to tell a continued run from a new one.
+    log = partial / "episodes.csv"
+    header, first, *rest = log.read_text().splitlines(keepends=True)
+    fields = first.split(",")
+    fields[header.split(",").index("length")] = "9999"
+    log.write_text("".join([header, ",".join(fields), *rest]))
+    SnapshotStore(tmp_path / "out" / SNAPSHOTS).put("runs/STG1/a3c/seed0", pack_directory(partial))
+    result = reproduce(tmp_path / "out", budget, progress=False, backend="ray")
+    assert result.complete and result.computed == ["data", "runs/STG1/a3c/seed0"]
+    entry = load_status(tmp_path / "out")["pieces"]["runs/STG1/a3c/seed0"]
+    assert entry["note"] == "resumed from its checkpoint, shipped back by an earlier attempt", entry
+    assert read_table(tmp_path / "out/runs/STG1/a3c/seed0/episodes.csv")["length"][0] == 9999  # the first attempt's
+    assert not list((tmp_path / "out" / SNAPSHOTS).iterdir())
+
+
 def test_a_piece_that_raises_on_a_node_is_a_recorded_failure(cluster, tmp_path, tiny_budget):
     budget = dataclasses.replace(tiny_budget, algorithms=("pretrain+a3c",), seeds=1)
     reproduce(tmp_path, budget, progress=False, stop_after=2)  # the dataset and π^s, locally
@@ -139,8 +164,19 @@ def test_generate_on_two_nodes_gives_the_local_dataset(cluster, tmp_path):
     assert dataset_summary(local)["content_sha256"] == dataset_summary(on_ray)["content_sha256"]
 
 
+def test_snapshots_are_files_that_a_new_store_finds_until_they_are_dropped(tmp_path):
+    store = SnapshotStore(tmp_path / SNAPSHOTS)
+    assert store.latest("runs/STG1/a3c/seed0") is None
+    assert store.put("runs/STG1/a3c/seed0", b"first") == 5 and store.put("runs/STG1/a3c/seed0", b"second") == 6
+    assert SnapshotStore(tmp_path / SNAPSHOTS).latest("runs/STG1/a3c/seed0") == b"second"  # a restarted driver's
+    assert [p.name for p in (tmp_path / SNAPSHOTS).iterdir()] == ["runs--STG1--a3c--seed0.tar"]
+    store.drop("runs/STG1/a3c/seed0")
+    store.drop("runs/STG1/a3c/seed0")  # dropping twice is fine
+    assert SnapshotStore(tmp_path / SNAPSHOTS).latest("runs/STG1/a3c/seed0") is None
+
+
 def test_a_running_piece_ships_each_new_checkpoint_to_the_driver_node(cluster, tmp_path):
-    store = ray.remote(SnapshotStore).options(num_cpus=0).remote()
+    store = ray.remote(SnapshotStore).options(num_cpus=0).remote(tmp_path / SNAPSHOTS)
     run = tmp_path / "run"
     run.mkdir()
     marker = tmp_path / PIECE_MARKER
@@ -194,7 +230,8 @@ def test_a_piece_whose_node_dies_is_computed_on_another_node(cluster, tmp_path, 
     entry = load_status(tmp_path)["pieces"]["runs/STG1/a3c/seed0"]
     assert entry["state"] == "done" and victim[:12] not in entry["node"]
     # The retried task continued from the checkpoint the first node shipped, not from scratch.
-    assert entry["note"] == "resumed from its checkpoint, shipped back before its first node died", entry
+    assert entry["note"] == "resumed from its checkpoint, shipped back by an earlier attempt", entry
+    assert not list((tmp_path / SNAPSHOTS).iterdir())  # dropped once the piece was done
     summary = json.loads((tmp_path / "runs/STG1/a3c/seed0/summary.json").read_text())
     assert summary["stopped"] == "finished" and summary["steps"] >= 40_000
     ray_cluster.add_node(num_cpus=1)

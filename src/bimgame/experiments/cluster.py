@@ -15,12 +15,14 @@ the node that computed it.
 node (``max_retries``). Pieces that can continue from a checkpoint (A3C and DAgger runs,
 :data:`RESUMABLE_KINDS`) ship their directory to the driver's node each time they write a new
 checkpoint (:class:`SnapshotStore`, an actor pinned to the driver's node, keeps the latest one per
-piece in memory), so the retried task continues from the last checkpoint, as a local run continues
-after an interruption; the other pieces (dataset, pre-training) start again from scratch. Nothing
-of an unfinished piece reaches the reproduction directory, and a piece only ever writes on its own
-node. A driver that is stopped and run again with the same command skips every piece whose outputs
-it already holds (its unfinished pieces' snapshots die with it). A piece that raises is a failure
-(Ray does not retry it), recorded like a local failure.
+piece in the reproduction's :data:`SNAPSHOTS` directory), so the retried task continues from the
+last checkpoint, as a local run continues after an interruption; the other pieces (dataset,
+pre-training) start again from scratch. A driver that is stopped and run again with the same command
+skips every piece whose outputs it already holds, and continues the unfinished ones from their
+snapshots. A piece's outputs reach the reproduction directory only once it finished, and a piece
+only ever writes on its own node. A piece that raises is a failure (Ray does not retry it),
+recorded like a local failure; its snapshot is kept, so that running the command again continues it
+as the local backend continues a failed run from its directory.
 
 **Same results.** A piece computes exactly what it computes locally: the same runner, settings and
 seeds; only the directory differs. So the paths a run records in its ``config.json`` (its π^s, V̂
@@ -49,10 +51,10 @@ from bimgame.experiments.grid import Piece
 from bimgame.expert.pool import import_ray
 from bimgame.learn.runs import CHECKPOINT
 from bimgame.util.archives import pack_directory, unpack_directory
-from bimgame.util.files import read_json, write_json
+from bimgame.util.files import atomic_write_bytes, read_json, write_json
 
 __all__ = ["RayBackend", "SnapshotStore", "CheckpointShipper", "compute_on_node", "local_cluster", "WORK_ROOT_ENV",
-           "PIECE_MARKER", "RESUMABLE_KINDS", "SHIP_POLL_SECONDS"]
+           "PIECE_MARKER", "SNAPSHOTS", "RESUMABLE_KINDS", "SHIP_POLL_SECONDS"]
 
 #: Environment variable naming the directory under which a node's tasks work (default: the node's
 #: temporary directory).
@@ -60,6 +62,8 @@ WORK_ROOT_ENV = "BIMGAME_WORK_ROOT"
 #: The file a task writes first into its working directory: the piece, node and process, so a
 #: person (or a test) on the node can tell which piece a directory belongs to.
 PIECE_MARKER = "bimgame-piece.json"
+#: Where in the reproduction directory the driver's node keeps the unfinished pieces' snapshots.
+SNAPSHOTS = ".snapshots"
 #: The kinds of piece whose runner continues from what an unfinished run left in its directory (its
 #: checkpoint, written atomically, is the commit point): their tasks ship snapshots to the driver.
 RESUMABLE_KINDS = ("a3c", "dagger")
@@ -68,26 +72,36 @@ SHIP_POLL_SECONDS = 2.0
 
 
 class SnapshotStore:
-    """The latest snapshot (a directory archive) of each unfinished resumable piece, kept in memory by
-    a Ray actor on the driver's node, so that it outlives the node that wrote it. Ray has no
-    store of its own for this: an object a task puts into the object store is lost with the task's
-    node, and the driver cannot read from a task while it runs."""
+    """The latest snapshot (a directory archive) of each unfinished resumable piece, kept by a Ray
+    actor on the driver's node, so that it outlives the node that wrote it. Ray has no store of its
+    own for this: an object a task puts into the object store is lost with the task's node, and the
+    driver cannot read from a task while it runs.
 
-    def __init__(self) -> None:
-        self._latest: dict[str, bytes] = {}
+    Each snapshot is also written (atomically) as a file under ``directory`` — the reproduction's
+    ``.snapshots/``, on the driver's disk — so that a driver that is stopped and run again continues
+    its unfinished pieces from their last checkpoints too."""
+
+    def __init__(self, directory: str | Path) -> None:
+        self.directory = Path(directory)
+
+    def _file(self, piece_id: str) -> Path:
+        return self.directory / (piece_id.replace("/", "--") + ".tar")
 
     def put(self, piece_id: str, archive: bytes) -> int:
         """Keep ``archive`` as ``piece_id``'s latest snapshot; returns its size in bytes."""
-        self._latest[piece_id] = archive
+        atomic_write_bytes(self._file(piece_id), archive)
         return len(archive)
 
     def latest(self, piece_id: str) -> bytes | None:
-        """``piece_id``'s latest snapshot, or None if it never shipped one."""
-        return self._latest.get(piece_id)
+        """``piece_id``'s latest snapshot, or None if no attempt shipped one."""
+        try:
+            return self._file(piece_id).read_bytes()
+        except FileNotFoundError:
+            return None
 
     def drop(self, piece_id: str) -> None:
-        """Forget ``piece_id``'s snapshot (its outcome reached the driver)."""
-        self._latest.pop(piece_id, None)
+        """Forget ``piece_id``'s snapshot (the piece is done, its outputs in the reproduction)."""
+        self._file(piece_id).unlink(missing_ok=True)
 
 
 class CheckpointShipper:
@@ -172,7 +186,7 @@ def compute_on_node(piece: Piece, budget: Budget, input_paths: list[str], store:
         except KeyboardInterrupt:
             raise RuntimeError(f"{piece.id} stopped before it finished on {node}") from None
         if snapshot is not None:
-            note = f"{note}, shipped back before its first node died"
+            note = f"{note}, shipped back by an earlier attempt"
         return {"archive": pack_directory(work / piece.path), "note": note, "node": node,
                 "seconds": time.monotonic() - started}
     finally:
@@ -216,7 +230,8 @@ class RayBackend:
         from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy  # part of Ray, which is optional
 
         driver_node = NodeAffinitySchedulingStrategy(node_id=self.ray.get_runtime_context().get_node_id(), soft=False)
-        self._store = self.ray.remote(SnapshotStore).options(num_cpus=0, scheduling_strategy=driver_node).remote()
+        self._store = self.ray.remote(SnapshotStore).options(num_cpus=0, scheduling_strategy=driver_node).remote(
+            (out_dir / SNAPSHOTS).resolve())
         self._inputs: dict[str, Any] = {}
         self._in_flight: dict[Any, tuple[Piece, float]] = {}
 
@@ -251,7 +266,6 @@ class RayBackend:
             raise RuntimeError("no piece is in flight")
         (ref,), _ = self.ray.wait(list(self._in_flight), num_returns=1)
         piece, submitted = self._in_flight.pop(ref)
-        self._store.drop.remote(piece.id)
         try:
             result = self.ray.get(ref)
         except self.ray.exceptions.RayTaskError as error:
@@ -265,6 +279,7 @@ class RayBackend:
         except (OSError, tarfile.TarError) as error:
             return PieceOutcome(piece, result["seconds"], error=error_text(error), traceback=traceback.format_exc(),
                                 node=result["node"])
+        self.ray.get(self._store.drop.remote(piece.id))  # its outputs are in place: no attempt continues it
         if piece.id in self._read:
             self._inputs[piece.id] = self.ray.put(result["archive"])
         return PieceOutcome(piece, result["seconds"], note=result["note"], node=result["node"])
