@@ -19,6 +19,8 @@ def test_the_expert_plans_with_the_nominal_model_and_meets_the_same_boards():
     late = Randomization(latency=(2, 2), tilt_step=(0.67, 0.67))
     slowed = measure(EXPERT, "STG1", "late", late, episodes=3, seed=0, group="expert")
     assert slowed.mean_length != nominal.mean_length
+    # On two worker processes the randomised board reaches every episode: the same numbers.
+    assert measure(EXPERT, "STG1", "late", late, episodes=3, seed=0, group="expert", workers=2) == slowed
 
 
 def test_a_run_is_measured_on_every_condition(tmp_path):

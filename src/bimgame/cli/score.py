@@ -87,6 +87,8 @@ def add_robustness_arguments(parser: argparse.ArgumentParser) -> None:
     add("--expert-episodes", type=positive_int, default=None, help="episodes per expert seed (default --episodes)")
     add("--sampled", action="store_true", help="networks sample their actions instead of acting greedily")
     add("--seed", type=int, default=0, help="seed of the evaluation episodes (default 0)")
+    add("--workers", type=positive_int, default=1,
+        help="processes for the expert's episodes (they do not depend on it; default 1)")
     add("--out", type=Path, required=True, help="directory for robustness.csv and robustness.md")
     add("--no-progress", action="store_true", help="no progress bar")
 
@@ -102,7 +104,8 @@ def run_robustness(args: argparse.Namespace) -> int:
                            sampled=args.sampled, progress=not args.no_progress)
     if args.expert_seeds:
         rows += robustness_rows({}, args.task, conditions, episodes=args.expert_episodes or args.episodes,
-                                seed=args.seed, expert_seeds=args.expert_seeds, progress=not args.no_progress)
+                                seed=args.seed, expert_seeds=args.expert_seeds, progress=not args.no_progress,
+                                workers=args.workers)
     csv_path, md_path = write_robustness(rows, args.out)
     print(md_path.read_text())
     print(f"wrote {csv_path} and {md_path}", file=sys.stderr)

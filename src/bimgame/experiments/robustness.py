@@ -21,7 +21,8 @@ import numpy as np
 
 from bimgame.envs.randomization import Randomization
 from bimgame.experiments.statistics import mean_interval
-from bimgame.expert.mpc import MPCConfig, episode_seed, run_expert_episode
+from bimgame.expert.mpc import MPCConfig
+from bimgame.expert.pool import expert_episodes
 from bimgame.learn.actor import evaluate_network
 from bimgame.learn.common import load_run_network
 from bimgame.util.files import atomic_write_bytes
@@ -46,19 +47,23 @@ class Measurement:
 
 
 def _expert_episodes(task: str, randomize: Randomization | None, episodes: int, seed: int,
-                     config: MPCConfig) -> tuple[float, float]:
+                     config: MPCConfig, workers: int) -> tuple[float, float]:
     """Success rate and mean length of the MPC expert, which plans on the nominal model, on
-    ``episodes`` episodes of the (randomised) env."""
-    runs = [run_expert_episode(task, episode_seed(seed, index), config, randomize=randomize) for index in range(episodes)]
+    ``episodes`` episodes of the (randomised) env, on ``workers`` processes (the episodes do not
+    depend on them)."""
+    runs = [episode for _, episode, _ in expert_episodes(task, list(range(episodes)), seed, config, workers=workers,
+                                                         randomize=randomize)]
     return float(np.mean([run["success"] for run in runs])), float(np.mean([len(run["actions"]) for run in runs]))
 
 
 def measure(source: str, task: str, condition: str, randomize: Randomization | None, *, episodes: int,
-            seed: int, group: str, sampled: bool = False, expert_config: MPCConfig | None = None) -> Measurement:
+            seed: int, group: str, sampled: bool = False, expert_config: MPCConfig | None = None,
+            workers: int = 1) -> Measurement:
     """``source`` (``"expert"`` or a run directory) on ``episodes`` episodes of ``task`` under
-    ``randomize`` (None: the nominal board); networks act greedily unless ``sampled``."""
+    ``randomize`` (None: the nominal board); networks act greedily unless ``sampled``; the expert's
+    episodes run on ``workers`` processes."""
     if source == EXPERT:
-        success, length = _expert_episodes(task, randomize, episodes, seed, expert_config or MPCConfig())
+        success, length = _expert_episodes(task, randomize, episodes, seed, expert_config or MPCConfig(), workers)
     else:
         net, info, _ = load_run_network(source)
         result = evaluate_network(net, task=task, obs_mode=info.network.obs, episodes=episodes, seed=seed,
@@ -69,9 +74,10 @@ def measure(source: str, task: str, condition: str, randomize: Randomization | N
 
 def robustness_rows(groups: dict[str, Sequence[str]], task: str, conditions: dict[str, Randomization | None], *,
                     episodes: int, seed: int = 0, expert_seeds: int = 0, sampled: bool = False,
-                    progress: bool = False) -> list[Measurement]:
+                    progress: bool = False, workers: int = 1) -> list[Measurement]:
     """Every source of ``groups`` (label → run directories) and, with ``expert_seeds`` > 0, the expert
-    (one source per seed, seeds ``seed`` … ``seed + expert_seeds − 1``) on every condition."""
+    (one source per seed, seeds ``seed`` … ``seed + expert_seeds − 1``, its episodes on ``workers``
+    processes) on every condition."""
     sources = [(label, run, seed) for label, runs in groups.items() for run in runs]
     sources += [(EXPERT, EXPERT, seed + k) for k in range(expert_seeds)]
     rows = []
@@ -79,7 +85,7 @@ def robustness_rows(groups: dict[str, Sequence[str]], task: str, conditions: dic
         for label, source, source_seed in sources:
             for name, randomize in conditions.items():
                 rows.append(measure(source, task, name, randomize, episodes=episodes, seed=source_seed, group=label,
-                                    sampled=sampled))
+                                    sampled=sampled, workers=workers))
                 bar.update(advance=1)
     return rows
 

@@ -24,6 +24,7 @@ from typing import Callable
 
 import numpy as np
 
+from bimgame.envs.randomization import Randomization
 from bimgame.expert.mpc import MPCConfig, episode_seed, run_expert_episode
 from bimgame.util.processes import exit_when_parent_dies
 from bimgame.util.progress import ProgressBar
@@ -40,16 +41,19 @@ MAIN_GUARD = ("workers are started with multiprocessing's 'spawn' method, which 
 EpisodeOutcome = tuple[int, dict[str, np.ndarray], float]
 
 
-def _episode_job(task: str, index: int, seed: int, config: MPCConfig, max_steps: int | None) -> EpisodeOutcome:
+def _episode_job(task: str, index: int, seed: int, config: MPCConfig, max_steps: int | None,
+                 randomize: Randomization | None = None) -> EpisodeOutcome:
     start = time.perf_counter()
-    episode = run_expert_episode(task, episode_seed(seed, index), config, max_steps=max_steps)
+    episode = run_expert_episode(task, episode_seed(seed, index), config, max_steps=max_steps, randomize=randomize)
     return index, episode, time.perf_counter() - start
 
 
 def expert_episodes(task: str, indices: list[int], seed: int, config: MPCConfig, *,
                     max_steps: int | None = None, workers: int = 1, backend: str = "local",
-                    ray_address: str | None = None) -> Iterator[EpisodeOutcome]:
-    """Expert episodes ``indices`` of the run ``seed``, yielded as they finish.
+                    ray_address: str | None = None, randomize: Randomization | None = None,
+                    ) -> Iterator[EpisodeOutcome]:
+    """Expert episodes ``indices`` of the run ``seed``, yielded as they finish; with ``randomize``,
+    played on a randomised board while the expert plans with the nominal model.
 
     ``config.nthread`` is forced to 1 (each worker plans on one thread; the actions do not
     change). ``backend="local"`` runs ``workers`` processes, started with "spawn" (fresh
@@ -64,9 +68,9 @@ def expert_episodes(task: str, indices: list[int], seed: int, config: MPCConfig,
         raise ValueError(f"unknown backend {backend!r}; allowed: {', '.join(BACKENDS)}")
     config = dataclasses.replace(config, nthread=1)
     if backend == "ray":
-        yield from _ray_episodes(task, indices, seed, config, max_steps, workers, ray_address)
+        yield from _ray_episodes(task, indices, seed, config, max_steps, workers, ray_address, randomize)
     else:
-        yield from _local_episodes(task, indices, seed, config, max_steps, workers)
+        yield from _local_episodes(task, indices, seed, config, max_steps, workers, randomize)
 
 
 @contextlib.contextmanager
@@ -85,17 +89,17 @@ def environment(**values: str) -> Iterator[None]:
 
 
 def _local_episodes(task: str, todo: list[int], seed: int, config: MPCConfig, max_steps: int | None,
-                    workers: int) -> Iterator[EpisodeOutcome]:
+                    workers: int, randomize: Randomization | None) -> Iterator[EpisodeOutcome]:
     if workers == 1 or len(todo) == 1:
         for index in todo:
-            yield _episode_job(task, index, seed, config, max_steps)
+            yield _episode_job(task, index, seed, config, max_steps, randomize)
         return
     context = multiprocessing.get_context("spawn")
     with environment(**{name: "1" for name in _THREAD_VARS}):
         pool = ProcessPoolExecutor(max_workers=min(workers, len(todo)), mp_context=context,
                                    initializer=_worker_started)
         try:
-            pending = {pool.submit(_episode_job, task, index, seed, config, max_steps) for index in todo}
+            pending = {pool.submit(_episode_job, task, index, seed, config, max_steps, randomize) for index in todo}
             while pending:
                 finished, pending = wait(pending, return_when=FIRST_COMPLETED)
                 for future in finished:
@@ -128,7 +132,8 @@ def import_ray():
 
 
 def _ray_episodes(task: str, todo: list[int], seed: int, config: MPCConfig, max_steps: int | None,
-                  workers: int, ray_address: str | None) -> Iterator[EpisodeOutcome]:
+                  workers: int, ray_address: str | None, randomize: Randomization | None,
+                  ) -> Iterator[EpisodeOutcome]:
     ray = import_ray()
     started = False
     if not ray.is_initialized():
@@ -139,7 +144,7 @@ def _ray_episodes(task: str, todo: list[int], seed: int, config: MPCConfig, max_
         started = True
     try:
         job = ray.remote(num_cpus=1)(_episode_job)
-        pending = [job.remote(task, index, seed, config, max_steps) for index in todo]
+        pending = [job.remote(task, index, seed, config, max_steps, randomize) for index in todo]
         try:
             while pending:
                 finished, pending = ray.wait(pending, num_returns=1)
