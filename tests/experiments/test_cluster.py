@@ -200,7 +200,8 @@ def test_a_running_piece_ships_each_new_checkpoint_to_the_driver_node(cluster, t
     ray.kill(store)
 
 
-def test_a_piece_whose_node_dies_continues_on_another_node_from_its_shipped_checkpoint(cluster, tmp_path, tiny_budget):
+def test_a_piece_whose_node_dies_continues_on_another_node_from_its_shipped_checkpoint(cluster, tmp_path,
+                                                                                     tiny_budget):
     """Last in the module: it removes a node (and adds a fresh one back)."""
     ray_cluster, work_root = cluster
     budget = dataclasses.replace(tiny_budget, name="long", algorithms=("a3c",), seeds=1, a3c_steps={"STG1": 60_000},
