@@ -4,7 +4,6 @@ run time, and what follows from them: which pieces a run needs and how an unfini
 from __future__ import annotations
 
 import dataclasses
-import json
 
 import pytest
 
@@ -130,7 +129,8 @@ def test_pixel_levers_reach_every_network_but_the_papers_and_daggers(tiny_budget
 
 @pytest.mark.parametrize("call, message", [
     (lambda: finetune_overrides("ppo", STEPS, DATA),
-     r"unknown A3C algorithm 'ppo'; allowed: a3c, pretrain\+a3c, a3c\+value, .*pretrain\+a3c\+keep, pretrain\+a3c\+keepfade, a3c\+reverse, a3c\+papernet$"),
+     r"unknown A3C algorithm 'ppo'; allowed: a3c, pretrain\+a3c, a3c\+value, .*pretrain\+a3c\+keep, "
+     r"pretrain\+a3c\+keepfade, a3c\+reverse, a3c\+papernet$"),
     (lambda: finetune_overrides("dagger", STEPS, DATA), r"unknown A3C algorithm 'dagger'.*not an A3C run"),
     (lambda: finetune_overrides("pretrain+a3c+bc", 0, DATA), r"steps must be an integer >= 1, got 0"),
     (lambda: finetune_overrides("pretrain+a3c+demo", STEPS, None),
@@ -141,17 +141,14 @@ def test_bad_requests_are_refused_naming_what_is_allowed(call, message):
         call()
 
 
-def test_an_unfinished_run_resumes_with_the_preset_name_it_was_started_with(tmp_path, tiny_budget):
+def test_an_unfinished_run_resumes_with_the_preset_name_it_was_started_with(tiny_budget):
     """A pre-train + A3C run started before it recorded finetune="paper" (None then) has the same
     settings: it resumes as it was started instead of failing the resume's settings check."""
     config = a3c_config_for(tiny_budget, "STG1", 0, "pretrain+a3c", DATA)
     assert config.finetune == "paper"
     stored = {f: v for f, v in dataclasses.asdict(config).items() if f not in FINETUNE_FIELDS and f != "finetune"}
-    (tmp_path / "config.json").write_text(json.dumps({"kind": "a3c", "a3c": stored}))
-    assert _with_stored_preset_name(tmp_path, config).finetune is None
+    assert _with_stored_preset_name(stored, config).finetune is None
     # Other settings than the name: left as they are (the resume then names the difference).
-    (tmp_path / "config.json").write_text(json.dumps({"kind": "a3c", "a3c": {**stored, "kl_coef": 1.0}}))
-    assert _with_stored_preset_name(tmp_path, config) == config
+    assert _with_stored_preset_name({**stored, "kl_coef": 1.0}, config) == config
     keep = a3c_config_for(tiny_budget, "STG1", 0, "pretrain+a3c+keep", DATA)
-    (tmp_path / "config.json").write_text(json.dumps({"kind": "a3c", "a3c": dataclasses.asdict(keep)}))
-    assert _with_stored_preset_name(tmp_path, keep) == keep
+    assert _with_stored_preset_name(dataclasses.asdict(keep), keep) == keep

@@ -63,7 +63,8 @@ ALGORITHM_LABELS = {"a3c": "A3C", "pretrain+a3c": "pre-train + A3C", "a3c+value"
                     "pretrain+a3c+bc": "pre-train + A3C + BC (DAPG)",
                     "pretrain+a3c+demo": "pre-train + A3C + demo starts",
                     "pretrain+a3c+keep": "pre-train + A3C, keep preset",
-                    "pretrain+a3c+keepfade": "pre-train + A3C, keep, fading KL", "a3c+reverse": "A3C + reverse curriculum"}
+                    "pretrain+a3c+keepfade": "pre-train + A3C, keep, fading KL",
+                    "a3c+reverse": "A3C + reverse curriculum"}
 #: The tasks of the paper's learning curves (STG3/STG4 can be added: the paper reports them unlearned).
 PAPER_TASKS = ("FULL", "STG1", "STG2")
 #: Budget fields that only change which pieces exist (not what any piece computes): a reproduction
@@ -302,8 +303,8 @@ _BEYOND_SETTINGS: dict[str, Any] = dict(
 #: × 3 seeds, with the pixel levers of its time (auxiliary heads — from scratch, 80% training
 #: success on STG1 after ≈ 550k steps where the paper's network stayed near random play after 1M —
 #: an asymmetric critic, which later measured no better, and bf16, ≈ 4,500 steps/s; the preset
-#: keeps the critic so that it stays the grid its committed report came from); STG1 600k steps (so that A3C from scratch can
-#: reach the threshold), STG2/FULL 300k; evaluations only at the end; 80 FULL expert episodes;
+#: keeps the critic so that it stays the grid its committed report came from); STG1 600k steps (so
+#: that A3C from scratch can reach the threshold), STG2/FULL 300k; evaluations only at the end; 80 FULL expert episodes;
 #: DAgger 3 iterations × 6 episodes × 5 epochs. The cost model expects ≈ 1.8 h.
 BUDGETS: dict[str, Budget] = {
     "quick": Budget(

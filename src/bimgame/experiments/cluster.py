@@ -13,14 +13,14 @@ the node that computed it.
 
 **Faults.** A task whose node dies, or whose worker process is killed, is retried by Ray on another
 node (``max_retries``). Pieces that can continue from a checkpoint (A3C and DAgger runs,
-:data:`RESUMABLE_KINDS`) ship their directory to the driver's node each time they write a new
-checkpoint (:class:`SnapshotStore`, an actor pinned to the driver's node, keeps the latest one per
-piece in the reproduction's :data:`SNAPSHOTS` directory), so the retried task continues from the
-last checkpoint, as a local run continues after an interruption; the other pieces (dataset,
-pre-training) start again from scratch. A driver that is stopped and run again with the same command
-skips every piece whose outputs it already holds, and continues the unfinished ones from their
-snapshots. A piece's outputs reach the reproduction directory only once it finished, and a piece
-only ever writes on its own node. A piece that raises is a failure (Ray does not retry it),
+:data:`~bimgame.experiments.runners.RESUMABLE_KINDS`) ship their directory to the driver's node each
+time they write a new checkpoint (:class:`SnapshotStore`, an actor pinned to the driver's node,
+keeps the latest one per piece in the reproduction's :data:`SNAPSHOTS` directory), so the retried
+task continues from the last checkpoint, as a local run continues after an interruption; the other
+pieces (dataset, pre-training) start again from scratch. A driver that is stopped and run again with
+the same command skips every piece whose outputs it already holds, and continues the unfinished ones
+from their snapshots. A piece's outputs reach the reproduction directory only once it finished, and
+a piece only ever writes on its own node. A piece that raises is a failure (Ray does not retry it),
 recorded like a local failure; its snapshot is kept, so that running the command again continues it
 as the local backend continues a failed run from its directory.
 
@@ -32,7 +32,6 @@ and dataset) are the node's working paths; nothing reads them after the run has 
 from __future__ import annotations
 
 import contextlib
-import json
 import os
 import shutil
 import socket
@@ -48,13 +47,14 @@ from bimgame.experiments.backends import PieceOutcome, error_text, run_piece
 from bimgame.experiments.budgets import Budget
 from bimgame.experiments.costs import piece_cpus
 from bimgame.experiments.grid import Piece
+from bimgame.experiments.runners import RESUMABLE_KINDS
 from bimgame.expert.pool import import_ray
 from bimgame.learn.runs import CHECKPOINT
 from bimgame.util.archives import pack_directory, unpack_directory
 from bimgame.util.files import atomic_write_bytes, read_json, write_json
 
 __all__ = ["RayBackend", "SnapshotStore", "CheckpointShipper", "compute_on_node", "local_cluster", "WORK_ROOT_ENV",
-           "PIECE_MARKER", "SNAPSHOTS", "RESUMABLE_KINDS", "SHIP_POLL_SECONDS"]
+           "PIECE_MARKER", "SNAPSHOTS", "SHIP_POLL_SECONDS"]
 
 #: Environment variable naming the directory under which a node's tasks work (default: the node's
 #: temporary directory).
@@ -64,9 +64,6 @@ WORK_ROOT_ENV = "BIMGAME_WORK_ROOT"
 PIECE_MARKER = "bimgame-piece.json"
 #: Where in the reproduction directory the driver's node keeps the unfinished pieces' snapshots.
 SNAPSHOTS = ".snapshots"
-#: The kinds of piece whose runner continues from what an unfinished run left in its directory (its
-#: checkpoint, written atomically, is the commit point): their tasks ship snapshots to the driver.
-RESUMABLE_KINDS = ("a3c", "dagger")
 #: How often (seconds) a task looks for a new checkpoint to ship.
 SHIP_POLL_SECONDS = 2.0
 
@@ -170,7 +167,7 @@ def compute_on_node(piece: Piece, budget: Budget, input_paths: list[str], store:
     node_id = ray.get_runtime_context().get_node_id()
     node = f"{socket.gethostname()} ({node_id[:12]})"
     try:
-        (work / PIECE_MARKER).write_text(json.dumps({"piece": piece.id, "node_id": node_id, "pid": os.getpid()}))
+        write_json(work / PIECE_MARKER, {"piece": piece.id, "node_id": node_id, "pid": os.getpid()})
         for path, archive in zip(input_paths, archives, strict=True):
             unpack_directory(archive, work / path)
         resumable = piece.kind in RESUMABLE_KINDS

@@ -34,7 +34,7 @@ from bimgame.learn.runs import CONFIG, KIND_POLICY, KIND_VALUE, write_run_json
 from bimgame.learn.supervised import PretrainConfig
 from bimgame.util.files import read_json
 
-__all__ = ["pretrain_config_for", "a3c_config_for", "dagger_config_for", "RUNNERS"]
+__all__ = ["pretrain_config_for", "a3c_config_for", "dagger_config_for", "RUNNERS", "RESUMABLE_KINDS"]
 
 
 def pretrain_config_for(budget: Budget, task: str, seed: int, target: str) -> PretrainConfig:
@@ -89,7 +89,7 @@ def _run_pretrain(piece: Piece, budget: Budget, out_dir: Path) -> str:
     target = "policy" if piece.kind == "pretrain-policy" else "value"
     path = out_dir / piece.path
     note = ""
-    stored = read_json(path / "config.json")
+    stored = read_json(path / CONFIG)
     if stored is not None or (path / "checkpoint.pt").exists():
         # Started but unfinished (pre-training cannot resume): start it again. Only our own kind of
         # run directory is removed.
@@ -110,10 +110,12 @@ def _run_a3c(piece: Piece, budget: Budget, out_dir: Path) -> str:
     value = (out_dir / value_path(piece.task, piece.seed)).resolve() if uses_value(piece.algorithm) else None
     reward = RewardSettings(value_reward=None if value is None else str(value))
     wrapper = env_wrapper_for(reward, obs=config.obs, gamma=config.gamma)
-    resume = (path / "config.json").is_file()
+    resume = (path / CONFIG).is_file()
     if resume:
-        config = _with_stored_preset_name(path, config)
-        _point_at_the_dataset_now(path, config)
+        stored = read_json(path / CONFIG) or {}
+        if isinstance(stored.get("a3c"), dict):
+            config = _with_stored_preset_name(stored["a3c"], config)
+            _point_at_the_dataset_now(path, stored, config)
     extra = {"reward": reward.to_dict(),
              "reproduction": {"algorithm": piece.algorithm, "task": piece.task, "seed": piece.seed}}
     result = train(config, path, resume=resume, init=init, env_wrapper=wrapper, progress=False, extra_config=extra)
@@ -122,28 +124,27 @@ def _run_a3c(piece: Piece, budget: Budget, out_dir: Path) -> str:
     return "resumed from its checkpoint" if resume else ""
 
 
-def _with_stored_preset_name(path: Path, config: A3CConfig) -> A3CConfig:
-    """``config`` with the fine-tuning preset name of the unfinished run in ``path`` when only the name
-    differs: a ``pretrain+a3c`` run started before it recorded ``finetune="paper"`` (None then) has
-    the same settings and resumes as it was started."""
-    previous = (read_json(path / "config.json") or {}).get("a3c")
-    if not isinstance(previous, dict) or previous.get("finetune") == config.finetune:
+def _with_stored_preset_name(previous: dict, config: A3CConfig) -> A3CConfig:
+    """``config`` with the fine-tuning preset name of the unfinished run whose stored A3C settings are
+    ``previous`` when only the name differs: a ``pretrain+a3c`` run started before it recorded
+    ``finetune="paper"`` (None then) has the same settings and resumes as it was started."""
+    if previous.get("finetune") == config.finetune:
         return config
     same = all(previous.get(field, getattr(A3CConfig, field)) == getattr(config, field) for field in FINETUNE_FIELDS)
     return dataclasses.replace(config, finetune=previous.get("finetune")) if same else config
 
 
-def _point_at_the_dataset_now(path: Path, config: A3CConfig) -> None:
-    """Record in the unfinished run in ``path`` the place its reproduction's dataset is now.
+def _point_at_the_dataset_now(path: Path, stored: dict, config: A3CConfig) -> None:
+    """Record in the unfinished run in ``path`` (its ``config.json`` holds ``stored``) the place its
+    reproduction's dataset is now.
 
     A reproduction's run reads the reproduction's own dataset piece (``DIR/data``, by absolute path
     in its ``config.json``); a resumed run must keep its settings. When DIR has moved since the run
     started — a Ray task continuing on another node a run shipped back from the node that died, or
     a person who moved the directory — the same dataset piece is elsewhere, so the run's record is
     pointed at it there (atomically), and it resumes instead of being refused."""
-    stored = read_json(path / CONFIG) or {}
-    settings = stored.get("a3c")
-    if not isinstance(settings, dict) or config.expert_data is None:
+    settings = stored["a3c"]
+    if config.expert_data is None:
         return
     before = settings.get("expert_data")
     if isinstance(before, str) and before != config.expert_data and Path(before).name == Path(config.expert_data).name:
@@ -152,7 +153,7 @@ def _point_at_the_dataset_now(path: Path, config: A3CConfig) -> None:
 
 def _run_dagger(piece: Piece, budget: Budget, out_dir: Path) -> str:
     path = out_dir / piece.path
-    resume = (path / "config.json").is_file()
+    resume = (path / CONFIG).is_file()
     dagger(dagger_config_for(budget, piece.task, piece.seed), path, resume=resume, progress=False)
     return "resumed after its last finished iteration" if resume else ""
 
@@ -162,3 +163,6 @@ def _run_dagger(piece: Piece, budget: Budget, out_dir: Path) -> str:
 RUNNERS: dict[str, Callable[[Piece, Budget, Path], str]] = {
     "dataset": _run_dataset, "pretrain-policy": _run_pretrain, "pretrain-value": _run_pretrain,
     "a3c": _run_a3c, "dagger": _run_dagger}
+#: The piece kinds whose runner continues an unfinished run from its directory (its checkpoint,
+#: written atomically, is the commit point); the others start again.
+RESUMABLE_KINDS = ("a3c", "dagger")

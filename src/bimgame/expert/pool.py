@@ -42,7 +42,7 @@ EpisodeOutcome = tuple[int, dict[str, np.ndarray], float]
 
 
 def _episode_job(task: str, index: int, seed: int, config: MPCConfig, max_steps: int | None,
-                 randomize: Randomization | None = None) -> EpisodeOutcome:
+                 randomize: Randomization | None) -> EpisodeOutcome:
     start = time.perf_counter()
     episode = run_expert_episode(task, episode_seed(seed, index), config, max_steps=max_steps, randomize=randomize)
     return index, episode, time.perf_counter() - start

@@ -74,9 +74,9 @@ class NetworkSettings:
     :mod:`bimgame.learn.nets`). None: on for pixels (from scratch on STG1 they took training success
     from near random play after 1M steps to 80% after ≈ 550k), off for state observations (the
     state is the observation)."""
-    asymmetric_critic: bool | None = None
+    asymmetric_critic: bool = False
     """The value head also reads the simulator's state (training only; a departure from the paper,
-    whose critic sees what the actor sees). None: off. Measured on STG1 from pixels with auxiliary
+    whose critic sees what the actor sees). Off by default: measured on STG1 from pixels with auxiliary
     heads (600k steps, 3 seeds each), it did not help: without it 555k/555k/> 585k steps to 80%
     training success and 68% mean greedy success at the end, with it 585k × 3 and 40%."""
     precision: str | None = None
@@ -101,8 +101,6 @@ class NetworkSettings:
         pixels = self.obs == "pixels"
         if self.aux_heads is None:
             object.__setattr__(self, "aux_heads", pixels)
-        if self.asymmetric_critic is None:
-            object.__setattr__(self, "asymmetric_critic", False)
         if self.precision is None:
             object.__setattr__(self, "precision", "bf16" if pixels and native_bf16() else "fp32")
         for name in ("tilt_input", "keypoints", "subtract_background", "aux_heads", "asymmetric_critic"):
