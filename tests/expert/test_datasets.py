@@ -27,7 +27,8 @@ from bimgame.cli.expert import add_generate_arguments
 from bimgame.cli.main import main
 from bimgame.envs.env import NO_ACTION, BallInMazeEnv
 from bimgame.expert.datasets import DatasetError, dataset_summary, generate_dataset, iterate_sequences, load_dataset
-from bimgame.expert.mpc import MPCConfig, episode_seed
+from bimgame.expert.mpc import MPCConfig
+from bimgame.util.seeding import episode_seed
 
 CONFIG = MPCConfig(n_samples=4, horizon=8)
 ARGS = dict(task="STG1", episodes=3, seed=1, config=CONFIG, max_steps=40, progress=False)

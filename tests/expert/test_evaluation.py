@@ -17,7 +17,8 @@ import bimgame.expert.evaluation as evaluation
 import bimgame.util.images as images
 from bimgame.cli.main import main
 from bimgame.expert.evaluation import EpisodeResult, evaluate_expert, plot_length_histogram, summarise, write_results
-from bimgame.expert.mpc import MPCConfig, episode_seed, run_expert_episode
+from bimgame.expert.mpc import MPCConfig, run_expert_episode
+from bimgame.util.seeding import episode_seed
 
 #: A weak, cheap expert (K=4, H=8) and a short time limit: some episodes pass STG1's wall, some not.
 CHEAP = MPCConfig(n_samples=4, horizon=8)

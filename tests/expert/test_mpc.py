@@ -9,10 +9,11 @@ import pytest
 
 from bimgame.envs.env import DISCRETE_TILTS
 from bimgame.expert.evaluation import evaluate_expert, summarise
-from bimgame.expert.mpc import MPCConfig, RandomShootingMPC, episode_seed, run_expert_episode
+from bimgame.expert.mpc import MPCConfig, RandomShootingMPC, run_expert_episode
 from bimgame.expert.rollout import run_episodes
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.physics import MazeSim
+from bimgame.util.seeding import episode_seed
 
 SMALL = MPCConfig(n_samples=8, horizon=12)
 

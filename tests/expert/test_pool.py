@@ -13,8 +13,9 @@ import numpy as np
 import pytest
 from support import procfs
 
-from bimgame.expert.mpc import MPCConfig, episode_seed, run_expert_episode
+from bimgame.expert.mpc import MPCConfig, run_expert_episode
 from bimgame.expert.pool import episode_progress, expert_episodes
+from bimgame.util.seeding import episode_seed
 
 CONFIG = MPCConfig(n_samples=4, horizon=6)
 

@@ -8,7 +8,6 @@ from pathlib import Path
 import pytest
 
 from bimgame.envs.env import BallInMazeEnv
-from bimgame.expert.mpc import episode_seed
 from bimgame.learn.common import NetworkSettings
 from bimgame.learn.runs import (
     CHECKPOINT,
@@ -17,6 +16,7 @@ from bimgame.learn.runs import (
     save_checkpoint,
     torch_threads,
 )
+from bimgame.util.seeding import episode_seed
 
 
 def _policy_run(run: Path, settings: NetworkSettings, task: str) -> Path:

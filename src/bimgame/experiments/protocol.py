@@ -28,10 +28,11 @@ from bimgame.envs.observe import OBS_MODES
 from bimgame.experiments.policy_sources import EpisodePolicy, builtin_policy, load_policy
 from bimgame.experiments.statistics import mean_interval
 from bimgame.expert.evaluation import evaluate_expert, summarise
-from bimgame.expert.mpc import MPCConfig, episode_seed
+from bimgame.expert.mpc import MPCConfig
 from bimgame.expert.references import normalised_score, references_for
 from bimgame.sim.tasks import Task, task_setting
 from bimgame.util.progress import ProgressBar
+from bimgame.util.seeding import episode_seed
 from bimgame.util.settings import require_int
 
 __all__ = ["Protocol", "Score", "PROTOCOL_SEED", "PROTOCOL_EPISODES", "score", "run_protocol", "measure_references"]

@@ -58,12 +58,13 @@ from bimgame.expert.minari_build import (
     read_episode,
     run_build_process,
 )
-from bimgame.expert.mpc import MPCConfig, episode_seed
+from bimgame.expert.mpc import MPCConfig
 from bimgame.expert.pool import BACKENDS, MAIN_GUARD, episode_progress, expert_episodes, import_ray
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.physics import MazeSim
 from bimgame.sim.tasks import Task, parse_task
 from bimgame.util.files import atomic_write_bytes, exclusive_lock, file_sha256, reporting_full_disk
+from bimgame.util.seeding import episode_seed
 from bimgame.util.settings import is_integer
 
 __all__ = ["DatasetError", "generate_dataset", "load_dataset", "iterate_sequences", "dataset_summary",

@@ -33,9 +33,9 @@ class EpisodeResult:
 def evaluate_expert(task: str, episodes: int, config: MPCConfig | None = None, *, seed: int = 0,
                     workers: int | None = None, max_steps: int | None = None,
                     progress: bool = True) -> list[EpisodeResult]:
-    """Run ``episodes`` expert episodes (episode i from :func:`episode_seed`(seed, i)) on ``workers``
-    processes (default: all cores, see :func:`~bimgame.expert.pool.expert_episodes`); results sorted
-    by episode index, independent of ``workers``."""
+    """Run ``episodes`` expert episodes (episode i from :func:`~bimgame.util.seeding.episode_seed`(seed, i))
+    on ``workers`` processes (default: all cores, see :func:`~bimgame.expert.pool.expert_episodes`);
+    results sorted by episode index, independent of ``workers``."""
     parse_task(task)
     config = config if config is not None else MPCConfig()
     if not (isinstance(episodes, int) and episodes >= 1):

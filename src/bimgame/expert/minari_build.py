@@ -28,10 +28,10 @@ import minari
 import numpy as np
 from minari.data_collector import EpisodeBuffer
 
-from bimgame.expert.mpc import episode_seed
 from bimgame.expert.references import references_for
 from bimgame.util.files import disk_full_errno
 from bimgame.util.processes import exit_when_parent_dies
+from bimgame.util.seeding import episode_seed
 
 __all__ = ["DatasetError", "ALGORITHM_NAME", "EPISODES_DIR", "EPISODE_KEYS", "episode_path", "episode_bytes",
            "read_episode", "hash_arrays", "run_build_process", "episode_buffer", "write_minari", "write_expert_minari",
@@ -212,7 +212,7 @@ def _description(manifest: dict) -> str:
     limit = manifest["max_steps"] if manifest["max_steps"] is not None else "the task's registered limit"
     return (f"Expert trajectories of bimgame's random-shooting MPC expert ({ALGORITHM_NAME}, acting on "
             f"simulator states) on {manifest['env_id']}: {manifest['episodes']} episodes; episode i starts "
-            f"from reset(seed=bimgame.expert.mpc.episode_seed({manifest['seed']}, i)); time limit {limit} steps; "
+            f"from reset(seed=bimgame.util.seeding.episode_seed({manifest['seed']}, i)); time limit {limit} steps; "
             f"MPC config {json.dumps(manifest['mpc_config'])}; bimgame {manifest['bimgame_version']}. "
             "Observations are state observations; infos['sim_state'] (T+1, S) MuJoCo physics states and "
             "infos['channel'] (T+1, n) task channels re-render pixel observations exactly "

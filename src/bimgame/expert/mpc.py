@@ -32,8 +32,7 @@ from bimgame.sim.physics import MazeSim
 from bimgame.sim.tasks import Task, parse_task
 from bimgame.util.settings import is_integer
 
-__all__ = ["MPCConfig", "RandomShootingMPC", "SAMPLINGS", "PLANNING_REWARDS", "run_expert_episode",
-           "episode_seed"]
+__all__ = ["MPCConfig", "RandomShootingMPC", "SAMPLINGS", "PLANNING_REWARDS", "run_expert_episode"]
 
 SAMPLINGS = ("uniform", "hold")
 PLANNING_REWARDS = ("radial", "geodesic")
@@ -136,12 +135,6 @@ class RandomShootingMPC:
 
     def close(self) -> None:
         self.sim.close()
-
-
-def episode_seed(run_seed: int, index: int) -> int:
-    """Seed of episode ``index`` of a run: derived from the run seed alone, so a dataset does not
-    depend on how many workers generated it or in which order."""
-    return int(np.random.SeedSequence([int(run_seed), int(index)]).generate_state(1, dtype=np.uint32)[0])
 
 
 def run_expert_episode(task: str, seed: int, config: MPCConfig | None = None, *,

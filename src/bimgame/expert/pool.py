@@ -25,9 +25,10 @@ from typing import Callable
 import numpy as np
 
 from bimgame.envs.randomization import Randomization
-from bimgame.expert.mpc import MPCConfig, episode_seed, run_expert_episode
+from bimgame.expert.mpc import MPCConfig, run_expert_episode
 from bimgame.util.processes import exit_when_parent_dies
 from bimgame.util.progress import ProgressBar
+from bimgame.util.seeding import episode_seed
 from bimgame.util.settings import is_integer
 
 __all__ = ["BACKENDS", "MAIN_GUARD", "expert_episodes", "episode_progress", "environment", "import_ray"]

@@ -16,7 +16,6 @@ from pathlib import Path
 from typing import Any, ClassVar, Self
 
 from bimgame.envs.observe import OBS_MODES
-from bimgame.expert.mpc import episode_seed
 from bimgame.learn.actor import evaluate_network
 from bimgame.learn.nets import (
     PRECISIONS,
@@ -31,6 +30,7 @@ from bimgame.learn.nets import (
 from bimgame.learn.runs import CONFIG, KIND_A3C, KIND_VALUE, load_weights, read_run_config
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.tasks import Task, parse_task
+from bimgame.util.seeding import episode_seed
 from bimgame.util.settings import from_dict, require_int
 
 __all__ = ["NetworkSettings", "RunInfo", "read_run", "load_run_network", "load_value_network", "network_settings_of", "init_network_settings",

@@ -42,7 +42,7 @@ import torch
 
 from bimgame.envs.env import BallInMazeEnv
 from bimgame.expert.episode import Episode
-from bimgame.expert.mpc import MPCConfig, RandomShootingMPC, episode_seed
+from bimgame.expert.mpc import MPCConfig, RandomShootingMPC
 from bimgame.learn.actor import RecurrentActor, tilt_input
 from bimgame.learn.common import EVAL_COLUMNS, evaluate_greedy_and_sampled, evaluation_seed
 from bimgame.learn.nets import RecurrentActorCritic
@@ -67,6 +67,7 @@ from bimgame.sim.maze import MazeSpec
 from bimgame.util import files
 from bimgame.util.files import FileWriteError
 from bimgame.util.progress import ProgressBar
+from bimgame.util.seeding import episode_seed
 from bimgame.util.settings import from_dict, require_int
 from bimgame.util.signals import sigterm_as_interrupt
 

@@ -30,12 +30,12 @@ from typing import Any
 import numpy as np
 
 from bimgame.envs.env import BallInMazeEnv
-from bimgame.expert.mpc import episode_seed
 from bimgame.learn.common import read_run
 from bimgame.play.agent import AgentPlayer
 from bimgame.play.controls import KEY_NAMES, HeldKeys, action_name
 from bimgame.play.recording import EpisodeBuilder, HumanRecording
 from bimgame.sim.tasks import Task, parse_task
+from bimgame.util.seeding import episode_seed
 
 __all__ = ["PlaySession", "PHASES", "CONTROLLERS", "TICK_HZ"]
 
