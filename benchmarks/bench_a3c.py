@@ -35,6 +35,8 @@ import torch
 from bimgame.envs.vector import BallInMazeVectorEnv
 from bimgame.learn.a3c import A3CConfig, apply_update, make_optimizer, network_for, shared_optimizer_state, train
 from bimgame.learn.actor import RecurrentActor
+from bimgame.learn.nets import LSTMState
+from bimgame.learn.rollout import Segment
 from bimgame.util.files import atomic_write_bytes
 
 RESULTS = Path(__file__).parent / "results"
@@ -96,8 +98,10 @@ def _network_worker(config: A3CConfig, shared, optimizer_state, seconds: float, 
         seg["prev_action"].append(actor.prev_action)
         seg["prev_reward"].append(actor.prev_reward)
         seg["starts"].append(actor.starts)
-        segment = {k: torch.stack(v) for k, v in seg.items()}
-        segment.update(inputs, rewards=torch.zeros(n, batch), ends=torch.zeros(n, batch, dtype=torch.bool), h0=h0, c0=c0)
+        stacked = {k: torch.stack(v) for k, v in seg.items()}
+        segment = Segment(**stacked, obs=inputs["obs"], tilt=inputs["tilt"] if config.tilt_input else None,
+                          privileged=inputs.get("privileged"), rewards=torch.zeros(n, batch),
+                          ends=torch.zeros(n, batch, dtype=torch.bool), initial_state=LSTMState(h0, c0))
         apply_update(local, shared_params, optimizer, segment, config)
         samples += n * batch
         updates += 1

@@ -16,6 +16,8 @@ import torch
 
 from bimgame.learn.a3c import A3CConfig, TrainingError, a3c_segment_loss, network_for, train
 from bimgame.learn.actor import evaluate_network
+from bimgame.learn.nets import LSTMState
+from bimgame.learn.rollout import Segment
 from bimgame.learn.runs import load_checkpoint, load_weights
 
 # Small, fast settings for state observations.
@@ -23,16 +25,16 @@ FAST = dict(task="STG1", obs="state", workers=1, envs_per_worker=4, n_steps=10, 
             features=32, log_every=500)
 
 
-def _segment(config: A3CConfig, steps: int, batch: int, seed: int = 0) -> dict[str, torch.Tensor]:
+def _segment(config: A3CConfig, steps: int, batch: int, seed: int = 0) -> Segment:
     g = torch.Generator().manual_seed(seed)
-    return {"obs": torch.randn(steps + 1, batch, 7, generator=g) * 0.05,
+    return Segment(**{"obs": torch.randn(steps + 1, batch, 7, generator=g) * 0.05,
             "prev_action": torch.randint(-1, 5, (steps + 1, batch), generator=g),
             "prev_reward": torch.zeros(steps + 1, batch), "tilt": torch.zeros(steps + 1, batch, 2),
             "starts": torch.zeros(steps + 1, batch, dtype=torch.bool),
             "actions": torch.randint(0, 5, (steps, batch), generator=g),
             "rewards": (torch.rand(steps, batch, generator=g) < 0.2).float(),
             "ends": torch.rand(steps, batch, generator=g) < 0.15,
-            "h0": torch.zeros(batch, config.hidden), "c0": torch.zeros(batch, config.hidden)}
+            "initial_state": LSTMState(torch.zeros(batch, config.hidden), torch.zeros(batch, config.hidden))})
 
 
 @pytest.mark.parametrize("gae_lambda", [1.0, 0.9])
@@ -44,10 +46,10 @@ def test_segment_loss_matches_n_step_returns(gae_lambda):
     seg = _segment(config, 6, 3)
     loss, parts = a3c_segment_loss(net, seg, config)
     with torch.no_grad():
-        _, values, _ = net.unroll(seg["obs"], seg["prev_action"], seg["prev_reward"], seg["tilt"],
-                                  (seg["h0"], seg["c0"]), seg["starts"])
+        _, values, _ = net.unroll(seg.obs, seg.prev_action, seg.prev_reward, seg.tilt, seg.initial_state,
+                                  seg.starts)
     v = values.numpy().astype(np.float64)
-    r, ends = seg["rewards"].numpy(), seg["ends"].numpy()
+    r, ends = seg.rewards.numpy(), seg.ends.numpy()
     targets = np.zeros((6, 3))
     for b in range(3):
         adv = 0.0

@@ -11,7 +11,8 @@ import torch
 
 from bimgame.learn.a3c import A3CConfig, a3c_segment_loss, apply_update, make_optimizer, network_for, train
 from bimgame.learn.finetune import LossWeights
-from bimgame.learn.nets import state_obs_scale
+from bimgame.learn.nets import LSTMState, state_obs_scale
+from bimgame.learn.rollout import Segment
 from bimgame.learn.runs import load_checkpoint
 from bimgame.sim.maze import MazeSpec
 
@@ -19,10 +20,10 @@ PIXELS = dict(task="STG1", obs="pixels", workers=1, envs_per_worker=2, n_steps=5
               features=16, log_every=100)
 
 
-def _segment(config: A3CConfig, steps: int, batch: int, seed: int = 0) -> dict[str, torch.Tensor]:
+def _segment(config: A3CConfig, steps: int, batch: int, seed: int = 0) -> Segment:
     g = torch.Generator().manual_seed(seed)
     scale = torch.as_tensor(state_obs_scale(MazeSpec.merl()))
-    return {"obs": torch.randint(0, 256, (steps + 1, batch, 1, 84, 84), generator=g, dtype=torch.uint8),
+    return Segment(**{"obs": torch.randint(0, 256, (steps + 1, batch, 1, 84, 84), generator=g, dtype=torch.uint8),
             "prev_action": torch.randint(-1, 5, (steps + 1, batch), generator=g),
             "prev_reward": torch.zeros(steps + 1, batch), "tilt": torch.zeros(steps + 1, batch, 2),
             "starts": torch.zeros(steps + 1, batch, dtype=torch.bool),
@@ -30,7 +31,7 @@ def _segment(config: A3CConfig, steps: int, batch: int, seed: int = 0) -> dict[s
             "actions": torch.randint(0, 5, (steps, batch), generator=g),
             "rewards": (torch.rand(steps, batch, generator=g) < 0.2).float(),
             "ends": torch.rand(steps, batch, generator=g) < 0.15,
-            "h0": torch.zeros(batch, config.hidden), "c0": torch.zeros(batch, config.hidden)}
+            "initial_state": LSTMState(torch.zeros(batch, config.hidden), torch.zeros(batch, config.hidden))})
 
 
 def test_aux_loss_is_added_with_its_weight():
@@ -41,8 +42,7 @@ def test_aux_loss_is_added_with_its_weight():
     heavier, _ = a3c_segment_loss(net, seg, A3CConfig(**PIXELS, aux_heads=True, aux_coef=3.0))
     assert parts["aux_frame"] > 0 and parts["aux_memory"] > 0
     assert heavier.item() - loss.item() == pytest.approx(2.0 * (parts["aux_frame"] + parts["aux_memory"]), rel=1e-4)
-    without = dict(seg)
-    without.pop("privileged")
+    without = seg.replace(privileged=None)
     with pytest.raises(ValueError, match="privileged"):
         a3c_segment_loss(net, without, config)
 

@@ -26,23 +26,25 @@ from bimgame.learn.finetune import (
     kl_to_teacher,
     loss_weights,
 )
+from bimgame.learn.nets import LSTMState
+from bimgame.learn.rollout import Segment
 from bimgame.learn.runs import save_checkpoint
 
 SMALL = dict(obs="state", hidden=16, features=16)
 
 
-def _segment(config: A3CConfig, steps: int, batch: int, seed: int = 0) -> dict[str, torch.Tensor]:
+def _segment(config: A3CConfig, steps: int, batch: int, seed: int = 0) -> Segment:
     g = torch.Generator().manual_seed(seed)
     starts = torch.zeros(steps + 1, batch, dtype=torch.bool)
     starts[0] = True
     starts[steps // 2, 0] = True
-    return {"obs": torch.randn(steps + 1, batch, 7, generator=g) * 0.05,
+    return Segment(**{"obs": torch.randn(steps + 1, batch, 7, generator=g) * 0.05,
             "prev_action": torch.randint(0, 5, (steps + 1, batch), generator=g),
             "prev_reward": torch.zeros(steps + 1, batch), "tilt": torch.zeros(steps + 1, batch, 2),
             "starts": starts, "actions": torch.randint(0, 5, (steps, batch), generator=g),
             "rewards": (torch.rand(steps, batch, generator=g) < 0.2).float(),
             "ends": starts[1:].clone(),
-            "h0": torch.zeros(batch, config.hidden), "c0": torch.zeros(batch, config.hidden)}
+            "initial_state": LSTMState(torch.zeros(batch, config.hidden), torch.zeros(batch, config.hidden))})
 
 
 def test_schedules_warm_up_ramp_and_decay():
@@ -65,8 +67,8 @@ def test_kl_is_zero_for_the_teacher_itself_and_positive_otherwise():
     seg = _segment(config, 8, 3)
     teacher = Teacher(copy.deepcopy(student), 3)
     teacher_log_probs = teacher.follow(seg)
-    logits, _, _ = student.unroll(seg["obs"], seg["prev_action"], seg["prev_reward"], seg["tilt"],
-                                  (seg["h0"], seg["c0"]), seg["starts"])
+    logits, _, _ = student.unroll(seg.obs, seg.prev_action, seg.prev_reward, seg.tilt, seg.initial_state,
+                                  seg.starts)
     log_probs = torch.log_softmax(logits[:-1], dim=-1)
     kl = kl_to_teacher(teacher_log_probs, log_probs)
     assert kl.item() == pytest.approx(0.0, abs=1e-7)
@@ -74,8 +76,8 @@ def test_kl_is_zero_for_the_teacher_itself_and_positive_otherwise():
     assert max(float(p.grad.abs().max()) for p in student.parameters() if p.grad is not None) < 1e-6
     with torch.no_grad():
         student.policy.bias += torch.tensor([1.0, 0.0, 0.0, -1.0, 0.5])
-    logits, _, _ = student.unroll(seg["obs"], seg["prev_action"], seg["prev_reward"], seg["tilt"],
-                                  (seg["h0"], seg["c0"]), seg["starts"])
+    logits, _, _ = student.unroll(seg.obs, seg.prev_action, seg.prev_reward, seg.tilt, seg.initial_state,
+                                  seg.starts)
     assert kl_to_teacher(teacher_log_probs, torch.log_softmax(logits[:-1], dim=-1)).item() > 0.05
 
 
@@ -84,10 +86,9 @@ def test_teacher_carries_its_lstm_state_across_segments():
     config = A3CConfig(**SMALL)
     net = network_for(config)
     whole = _segment(config, 10, 2, seed=3)
-    first = {k: (v[:6] if k not in ("actions", "rewards", "ends", "h0", "c0") else v) for k, v in whole.items()}
-    first.update(actions=whole["actions"][:5])
-    second = {k: (v[5:] if k not in ("actions", "rewards", "ends", "h0", "c0") else v) for k, v in whole.items()}
-    second.update(actions=whole["actions"][5:])
+    inputs = ("obs", "prev_action", "prev_reward", "tilt", "starts")
+    first = whole.replace(**{k: getattr(whole, k)[:6] for k in inputs}, actions=whole.actions[:5])
+    second = whole.replace(**{k: getattr(whole, k)[5:] for k in inputs}, actions=whole.actions[5:])
     one = Teacher(copy.deepcopy(net), 2).follow(whole)
     split = Teacher(copy.deepcopy(net), 2)
     both = torch.cat([split.follow(first), split.follow(second)])
@@ -119,7 +120,7 @@ def test_advantage_scaling_makes_the_policy_gradient_independent_of_the_reward_s
     config = A3CConfig(**SMALL, value_coef=0.0, entropy_coef=0.0)
     net = network_for(config)
     seg = _segment(config, 8, 4)
-    big = {**seg, "rewards": seg["rewards"] * 1000}
+    big = seg.replace(rewards=seg.rewards * 1000)
     with torch.no_grad():
         net.value.weight.zero_()
         net.value.bias.zero_()

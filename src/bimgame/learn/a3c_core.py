@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Sequence
 from typing import Any, Callable, ClassVar
 
 import torch
@@ -15,8 +16,10 @@ from bimgame.envs.randomization import OBSERVATION_FIELDS, RANDOMIZATION_PRESETS
 from bimgame.envs.vector import BallInMazeVectorEnv
 from bimgame.learn.augment import MAX_SHIFT
 from bimgame.learn.common import NetworkSettings, check_seed, evaluate_greedy_and_sampled, evaluation_seed
-from bimgame.learn.finetune import FINETUNE_PRESETS, LossWeights, RunningScale, bc_loss, kl_to_teacher
+from bimgame.learn.finetune import FINETUNE_PRESETS, LossWeights, RunningScale
+from bimgame.learn.loss_terms import LossTerm
 from bimgame.learn.nets import RecurrentActorCritic
+from bimgame.learn.rollout import Segment, advantages_and_targets
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.tasks import Task, task_setting
 from bimgame.util.settings import require_int
@@ -270,80 +273,66 @@ def shared_optimizer_state(optimizer: torch.optim.Optimizer) -> list[dict[str, t
     return states
 
 
-def a3c_segment_loss(net: RecurrentActorCritic, segment: dict[str, torch.Tensor], config: A3CConfig,
-                     weights: LossWeights = LossWeights(), *, teacher_log_probs: torch.Tensor | None = None,
-                     advantage_scale: RunningScale | None = None, demo_windows: dict[str, torch.Tensor] | None = None,
-                     entropy_coef: float | None = None) -> tuple[torch.Tensor, dict[str, float]]:
-    """The actor-critic loss of one segment (T steps × B envs), recomputed with gradients.
+def a3c_segment_loss(net: RecurrentActorCritic, segment: Segment, config: A3CConfig,
+                     weights: LossWeights = LossWeights(), *, terms: Sequence[LossTerm] = (),
+                     advantage_scale: RunningScale | None = None, entropy_coef: float | None = None,
+                     ) -> tuple[torch.Tensor, dict[str, float]]:
+    """The actor-critic loss of one :class:`~bimgame.learn.rollout.Segment` (T steps × B envs),
+    recomputed with gradients from the LSTM state the segment started from.
 
-    ``segment`` holds ``obs``, ``prev_action``, ``prev_reward``, ``tilt``, ``starts`` and — for a
-    network with auxiliary heads or an asymmetric critic — ``privileged`` (the simulator's state
-    observations) for T+1 steps (the last is the bootstrap state), ``actions``, ``rewards`` (with γ·V(final observation)
-    already added at time-limit truncations) and ``ends`` (the episode ended after this step) for T
-    steps, and the LSTM state ``h0``/``c0`` at the segment start.
-
-    The fine-tuning terms (:mod:`bimgame.learn.finetune`): ``weights`` scales the actor's terms and
-    adds KL(π^s ‖ π) (with ``teacher_log_probs``, (T, B, A)) and the behaviour-cloning term (with
-    ``demo_windows``); during a critic warm-up the loss is the value loss alone. ``advantage_scale``
-    divides the advantages by their running RMS; ``entropy_coef`` replaces ``config.entropy_coef``
-    (an adapting coefficient, see :class:`~bimgame.learn.finetune.EntropyTarget`). A network with
-    auxiliary heads adds ``aux_coef`` times their loss (:meth:`~bimgame.learn.nets.RecurrentActorCritic.aux_loss`)."""
-    privileged = segment.get("privileged")
-    out = net.unroll_features(segment["obs"], segment["prev_action"], segment["prev_reward"], segment.get("tilt"),
-                              (segment["h0"], segment["c0"]), segment["starts"], privileged=privileged)
+    A network with auxiliary heads adds ``aux_coef`` times their loss
+    (:meth:`~bimgame.learn.nets.RecurrentActorCritic.aux_loss`), which needs the segment's
+    ``privileged`` states. ``terms`` are the run's optional loss terms (:mod:`bimgame.learn.loss_terms`),
+    already prepared with this segment; ``weights`` scales the actor's terms and theirs, and during a
+    critic warm-up the loss is the value loss alone. ``advantage_scale`` divides the advantages by
+    their running RMS; ``entropy_coef`` replaces ``config.entropy_coef`` (an adapting coefficient,
+    see :class:`~bimgame.learn.finetune.EntropyTarget`)."""
+    privileged = segment.privileged
+    out = net.unroll_features(segment.obs, segment.prev_action, segment.prev_reward, segment.tilt,
+                              segment.initial_state, segment.starts, privileged=privileged)
     logits, bootstrap, values = out.logits[:-1], out.values[-1].detach(), out.values[:-1]
-    rewards, ends = segment["rewards"], segment["ends"].float()
-    advantages = torch.zeros_like(rewards)
-    next_value, running = bootstrap, torch.zeros_like(bootstrap)
-    detached = values.detach()
-    for t in reversed(range(rewards.shape[0])):
-        not_end = 1.0 - ends[t]
-        delta = rewards[t] + config.gamma * next_value * not_end - detached[t]
-        running = delta + config.gamma * config.gae_lambda * not_end * running
-        advantages[t] = running
-        next_value = detached[t]
-    targets = advantages + detached
+    advantages, targets = advantages_and_targets(segment.rewards, segment.ends, values.detach(), bootstrap,
+                                                 config.gamma, config.gae_lambda)
     value_loss = 0.5 * (targets - values).pow(2).mean()
     log_probs = torch.log_softmax(logits, dim=-1)
     entropy = -(log_probs.exp() * log_probs).sum(-1).mean()
     if advantage_scale is not None:
         advantages = advantages / advantage_scale.update(advantages)
-    chosen = log_probs.gather(-1, segment["actions"].unsqueeze(-1)).squeeze(-1)
+    chosen = log_probs.gather(-1, segment.actions.unsqueeze(-1)).squeeze(-1)
     policy_loss = -(chosen * advantages).mean()
     parts = {"policy_loss": policy_loss.item(), "value_loss": value_loss.item(), "entropy": entropy.item()}
-    aux = None
+    added: list[torch.Tensor] = []
     if net.config.aux_heads:
         if privileged is None:
-            raise ValueError("a network with auxiliary heads needs the segment's privileged states (segment['privileged'])")
+            raise ValueError("a network with auxiliary heads needs the segment's privileged states (Segment.privileged)")
         aux, aux_parts = net.aux_loss(out.features, out.hidden, privileged)
         parts.update(aux_parts)
-    kl = None if teacher_log_probs is None else kl_to_teacher(teacher_log_probs, log_probs)
-    if kl is not None:
-        parts["kl"] = kl.item()
+        added.append(config.aux_coef * aux)
+    for term in terms:
+        contribution, term_parts = term.loss(net, log_probs, weights)
+        parts.update(term_parts)
+        if contribution is not None:
+            added.append(contribution)
     if weights.critic_only:
         return config.value_coef * value_loss, parts
     beta = config.entropy_coef if entropy_coef is None else entropy_coef
     loss = weights.actor * (policy_loss - beta * entropy) + config.value_coef * value_loss
-    if aux is not None:
-        loss = loss + config.aux_coef * aux
-    if kl is not None and weights.kl > 0:
-        loss = loss + weights.kl * kl
-    if demo_windows is not None and weights.bc > 0:
-        bc = bc_loss(net, demo_windows)
-        parts["bc"] = bc.item()
-        loss = loss + weights.bc * bc
+    for contribution in added:
+        loss = loss + contribution
     return loss, parts
 
 
 def apply_update(local: RecurrentActorCritic, shared_params: list[torch.Tensor], optimizer: torch.optim.Optimizer,
-                 segment: dict[str, torch.Tensor], config: A3CConfig, weights: LossWeights = LossWeights(),
-                 **finetuning: Any) -> dict[str, float]:
+                 segment: Segment, config: A3CConfig, weights: LossWeights = LossWeights(), *,
+                 terms: Sequence[LossTerm] = (), advantage_scale: RunningScale | None = None,
+                 entropy_coef: float | None = None) -> dict[str, float]:
     """One A3C update: the segment's loss, its gradient (norm clipped) on the local network, applied
     to the shared weights by the shared optimiser. A non-finite loss or gradient is not applied
-    (``applied`` is False in the returned losses). ``weights`` and ``finetuning`` (the keywords of
-    :func:`a3c_segment_loss`) add the fine-tuning terms; during a critic warm-up only the value head
+    (``applied`` is False in the returned losses). ``weights``, ``terms``, ``advantage_scale`` and
+    ``entropy_coef`` are those of :func:`a3c_segment_loss`; during a critic warm-up only the value head
     changes, and with a scheduled actor the policy head's learning rate is ``lr · weights.actor``."""
-    loss, parts = a3c_segment_loss(local, segment, config, weights, **finetuning)
+    loss, parts = a3c_segment_loss(local, segment, config, weights, terms=terms, advantage_scale=advantage_scale,
+                                   entropy_coef=entropy_coef)
     local.zero_grad(set_to_none=True)
     loss.backward()
     if weights.critic_only:

@@ -53,6 +53,7 @@ import torch
 from bimgame.expert.datasets import iterate_sequences
 from bimgame.expert.episode import Episode, relabel
 from bimgame.learn.nets import LSTMState, RecurrentActorCritic
+from bimgame.learn.rollout import Segment
 from bimgame.learn.supervised import padded_batch
 from bimgame.sim.maze import MazeSpec
 
@@ -122,16 +123,16 @@ class Teacher:
         self.state: LSTMState = net.initial_state(batch)
 
     @torch.no_grad()
-    def follow(self, segment: dict[str, torch.Tensor]) -> torch.Tensor:
+    def follow(self, segment: Segment) -> torch.Tensor:
         """Log-probabilities (T, B, A) of the teacher over a segment's T acting steps (the segment
         holds T+1 observations, the last being the bootstrap one), of its logits divided by the
         temperature (below 1: a sharper teacher, towards its greedy action); advances its state."""
-        steps = segment["actions"].shape[0]
-        tilt = segment.get("tilt")
-        logits, _, self.state = self.net.unroll(segment["obs"][:steps], segment["prev_action"][:steps],
-                                                segment["prev_reward"][:steps],
+        steps = segment.steps
+        tilt = segment.tilt
+        logits, _, self.state = self.net.unroll(segment.obs[:steps], segment.prev_action[:steps],
+                                                segment.prev_reward[:steps],
                                                 None if tilt is None else tilt[:steps], self.state,
-                                                segment["starts"][:steps])
+                                                segment.starts[:steps])
         return torch.log_softmax(logits / self.temperature, dim=-1)
 
 
