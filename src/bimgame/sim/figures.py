@@ -28,25 +28,51 @@ def draw_maze(spec: MazeSpec, path: str | Path, *, geodesic: bool = True, dpi: i
         gx, gy = np.meshgrid(xs, xs)
         dist = spec.geodesic_distance(gx, gy) * 1e3
         dist[np.hypot(gx, gy) > spec.rim_radius] = np.nan
-        image = ax.imshow(dist, extent=(-extent * 1e3, extent * 1e3, -extent * 1e3, extent * 1e3),
-                          origin="lower", cmap="viridis", alpha=0.85)
+        image = ax.imshow(
+            dist,
+            extent=(-extent * 1e3, extent * 1e3, -extent * 1e3, extent * 1e3),
+            origin="lower",
+            cmap="viridis",
+            alpha=0.85,
+        )
         fig.colorbar(image, ax=ax, shrink=0.75, label="geodesic distance to the centre (mm)")
     grey = "0.45"
-    for k, wall in enumerate(spec.walls):
+    for wall in spec.walls:
         for start, end in wall.solid_arcs():
-            ax.add_patch(Wedge((0, 0), wall.outer_radius * 1e3, math.degrees(start), math.degrees(end),
-                               width=wall.thickness * 1e3, color=grey))
+            ax.add_patch(
+                Wedge(
+                    (0, 0),
+                    wall.outer_radius * 1e3,
+                    math.degrees(start),
+                    math.degrees(end),
+                    width=wall.thickness * 1e3,
+                    color=grey,
+                )
+            )
         for gate in wall.gates:
             r = wall.outer_radius * 1e3 + 4
-            ax.annotate(f"{math.degrees(gate.angle) % 360:.0f}°\n{math.degrees(gate.width):.1f}°",
-                        (r * math.cos(gate.angle), r * math.sin(gate.angle)), fontsize=6,
-                        ha="center", va="center", color="white")
+            ax.annotate(
+                f"{math.degrees(gate.angle) % 360:.0f}°\n{math.degrees(gate.width):.1f}°",
+                (r * math.cos(gate.angle), r * math.sin(gate.angle)),
+                fontsize=6,
+                ha="center",
+                va="center",
+                color="white",
+            )
     ax.add_patch(Wedge((0, 0), extent * 1e3, 0, 360, width=spec.rim_thickness * 1e3, color=grey))
     for channel in range(spec.n_channels):
         radius = spec.channel_centre_radius(channel) * 1e3
         angle = math.radians(200)
-        ax.text(radius * math.cos(angle), radius * math.sin(angle), str(channel), fontsize=9,
-                ha="center", va="center", color="white", weight="bold")
+        ax.text(
+            radius * math.cos(angle),
+            radius * math.sin(angle),
+            str(channel),
+            fontsize=9,
+            ha="center",
+            va="center",
+            color="white",
+            weight="bold",
+        )
     start_radius = spec.channel_centre_radius(spec.outermost_channel) * 1e3
     ax.add_patch(Circle((start_radius, 0), spec.marble_radius * 1e3, color="#d0d4dc", ec="black", lw=0.5))
     ax.set_xlim(-extent * 1e3 - 2, extent * 1e3 + 2)
@@ -54,7 +80,9 @@ def draw_maze(spec: MazeSpec, path: str | Path, *, geodesic: bool = True, dpi: i
     ax.set_aspect("equal")
     ax.set_xlabel("board x (mm)")
     ax.set_ylabel("board y (mm)")
-    ax.set_title(f"{len(spec.walls)}-wall circular maze; marble Ø {2 * spec.marble_radius * 1e3:.2f} mm "
-                 "(white numbers: channels)", fontsize=9)
+    ax.set_title(
+        f"{len(spec.walls)}-wall circular maze; marble Ø {2 * spec.marble_radius * 1e3:.2f} mm "
+        "(white numbers: channels)",
+        fontsize=9,
+    )
     return save_png(fig, path, dpi=dpi, bbox_inches="tight")
-

@@ -73,8 +73,14 @@ class StateLayout:
             vx = v[2 + 6 * i] - (wy * pz - wz * py)
             vy = v[3 + 6 * i] - (wz * px - wx * pz)
             vz = v[4 + 6 * i] - (wx * py - wy * px)
-            out.append((cb * px - sb * (-sa * py + ca * pz), ca * py + sa * pz,
-                        cb * vx - sb * (-sa * vy + ca * vz), ca * vy + sa * vz))
+            out.append(
+                (
+                    cb * px - sb * (-sa * py + ca * pz),
+                    ca * py + sa * pz,
+                    cb * vx - sb * (-sa * vy + ca * vz),
+                    ca * vy + sa * vz,
+                )
+            )
         return out
 
 

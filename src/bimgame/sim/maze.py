@@ -23,6 +23,8 @@ import math
 
 import numpy as np
 
+from bimgame.sim.geodesic import annulus_path_length, geodesic_tables, wrap_angle
+
 __all__ = ["Gate", "Wall", "MazeSpec", "Friction", "MazeSpecError"]
 
 
@@ -38,11 +40,6 @@ def _require_positive(name: str, value: float) -> None:
 def _require_non_negative(name: str, value: float) -> None:
     if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
         raise MazeSpecError(f"{name} must be a non-negative finite number, got {value!r}")
-
-
-def _wrap_angle(angle: np.ndarray | float) -> np.ndarray | float:
-    """Wrap angles to [-pi, pi)."""
-    return (np.asarray(angle) + np.pi) % (2 * np.pi) - np.pi
 
 
 @dataclasses.dataclass(frozen=True)
@@ -79,23 +76,23 @@ class Wall:
         ``start`` in [-pi, pi) and ``end > start`` (it may exceed pi)."""
         if not self.gates:
             return [(-math.pi, math.pi)]
-        gates = sorted(self.gates, key=lambda g: float(_wrap_angle(g.angle)))
+        gates = sorted(self.gates, key=lambda g: float(wrap_angle(g.angle)))
         arcs = []
         for i, gate in enumerate(gates):
             nxt = gates[(i + 1) % len(gates)]
-            start = float(_wrap_angle(gate.angle + gate.width / 2))
-            end = float(_wrap_angle(nxt.angle - nxt.width / 2))
+            start = float(wrap_angle(gate.angle + gate.width / 2))
+            end = float(wrap_angle(nxt.angle - nxt.width / 2))
             while end <= start:
                 end += 2 * math.pi
             arcs.append((start, end))
         return arcs
 
-    def in_gate(self, angle: np.ndarray) -> np.ndarray:
+    def in_gate(self, angle: np.ndarray | float) -> np.ndarray:
         """Whether each angle (rad) lies inside one of the wall's gates."""
         angle = np.asarray(angle, dtype=float)
         inside = np.zeros(angle.shape, dtype=bool)
         for gate in self.gates:
-            inside |= np.abs(_wrap_angle(angle - gate.angle)) <= gate.width / 2
+            inside |= np.abs(wrap_angle(angle - gate.angle)) <= gate.width / 2
         return inside
 
 
@@ -118,6 +115,63 @@ class Friction:
     def validate(self) -> None:
         for field in dataclasses.fields(self):
             _require_non_negative(f"friction.{field.name}", getattr(self, field.name))
+
+
+def _validate_wall(k: int, wall: Wall, previous_outer: float, diameter: float) -> None:
+    """Check ``walls[k]``, whose inner neighbour ends at ``previous_outer`` (0 for the centre)."""
+    if not isinstance(wall, Wall):
+        raise MazeSpecError(f"walls[{k}] must be a Wall, got {type(wall).__name__}")
+    _require_positive(f"walls[{k}].inner_radius", wall.inner_radius)
+    _require_positive(f"walls[{k}].outer_radius", wall.outer_radius)
+    if wall.outer_radius <= wall.inner_radius:
+        raise MazeSpecError(
+            f"walls[{k}]: outer_radius ({wall.outer_radius!r} m) must exceed inner_radius ({wall.inner_radius!r} m)"
+        )
+    if wall.inner_radius < previous_outer:
+        raise MazeSpecError(
+            f"walls[{k}] (from {wall.inner_radius!r} m) overlaps walls[{k - 1}] "
+            f"(up to {previous_outer!r} m); walls must be listed from the centre out "
+            "without overlapping"
+        )
+    room = wall.inner_radius - previous_outer
+    what = "the centre region" if k == 0 else f"channel {k}"
+    if room <= diameter:
+        raise MazeSpecError(
+            f"{what} is {room * 1e3:.2f} mm wide, narrower than the marble "
+            f"({diameter * 1e3:.2f} mm): walls[{k}].inner_radius must exceed "
+            f"{(previous_outer + diameter) * 1e3:.2f} mm"
+        )
+    if not wall.gates:
+        raise MazeSpecError(f"walls[{k}] has no gate: the centre would be unreachable")
+    _validate_gates(k, wall, diameter)
+
+
+def _validate_gates(k: int, wall: Wall, diameter: float) -> None:
+    """Check the gates of ``walls[k]``: each wide enough for the marble, none overlapping another."""
+    for j, gate in enumerate(wall.gates):
+        if not isinstance(gate, Gate):
+            raise MazeSpecError(f"walls[{k}].gates[{j}] must be a Gate, got {gate!r}")
+        if not (math.isfinite(gate.angle) and math.isfinite(gate.width)):
+            raise MazeSpecError(f"walls[{k}].gates[{j}] has a non-finite angle or width: {gate!r}")
+        chord = 2 * wall.inner_radius * math.sin(min(gate.width, math.pi) / 2)
+        if gate.width >= 2 * math.pi or chord <= diameter:
+            min_width = 2 * math.degrees(math.asin(min(1.0, diameter / (2 * wall.inner_radius))))
+            raise MazeSpecError(
+                f"walls[{k}].gates[{j}] is {math.degrees(gate.width):.2f}° wide: its opening at "
+                f"the wall's inner face ({chord * 1e3:.2f} mm) must exceed the marble's "
+                f"diameter ({diameter * 1e3:.2f} mm), i.e. width > {min_width:.2f}° "
+                "(and below 360°)"
+            )
+    gates = sorted(wall.gates, key=lambda g: float(wrap_angle(g.angle)))
+    for a, b in zip(gates, gates[1:] + gates[:1], strict=True):
+        if len(gates) == 1:
+            break
+        gap = float(wrap_angle(b.angle - a.angle)) % (2 * math.pi)
+        if gap < (a.width + b.width) / 2:
+            raise MazeSpecError(
+                f"walls[{k}]: gates at {math.degrees(a.angle):.1f}° and "
+                f"{math.degrees(b.angle):.1f}° overlap; merge them into one wider gate"
+            )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -172,74 +226,43 @@ class MazeSpec:
     # ------------------------------------------------------------------ validation
     def validate(self) -> None:
         """Raise :class:`MazeSpecError` naming the first problem found."""
-        for name in ("rim_radius", "rim_thickness", "wall_height", "marble_radius",
-                     "marble_mass", "max_tilt", "tilt_step", "arc_tolerance"):
-            _require_positive(name, getattr(self, name))
-        if self.max_tilt > math.radians(30):
-            raise MazeSpecError(f"max_tilt must be at most 30° (0.5236 rad), got {self.max_tilt!r} rad")
-        if self.tilt_step > self.max_tilt:
-            raise MazeSpecError(
-                f"tilt_step ({self.tilt_step!r} rad) must not exceed max_tilt ({self.max_tilt!r} rad)")
-        if self.wall_height < 2 * self.marble_radius:
-            raise MazeSpecError(
-                f"wall_height ({self.wall_height!r} m) must be at least the marble's diameter "
-                f"({2 * self.marble_radius!r} m) or the marble could hop over walls")
-        if not isinstance(self.friction, Friction):
-            raise MazeSpecError(f"friction must be a Friction, got {type(self.friction).__name__}")
-        self.friction.validate()
+        self._validate_scalars()
         diameter = 2 * self.marble_radius
         previous_outer = 0.0
         for k, wall in enumerate(self.walls):
-            if not isinstance(wall, Wall):
-                raise MazeSpecError(f"walls[{k}] must be a Wall, got {type(wall).__name__}")
-            _require_positive(f"walls[{k}].inner_radius", wall.inner_radius)
-            _require_positive(f"walls[{k}].outer_radius", wall.outer_radius)
-            if wall.outer_radius <= wall.inner_radius:
-                raise MazeSpecError(
-                    f"walls[{k}]: outer_radius ({wall.outer_radius!r} m) must exceed inner_radius "
-                    f"({wall.inner_radius!r} m)")
-            if wall.inner_radius < previous_outer:
-                raise MazeSpecError(
-                    f"walls[{k}] (from {wall.inner_radius!r} m) overlaps walls[{k - 1}] "
-                    f"(up to {previous_outer!r} m); walls must be listed from the centre out "
-                    "without overlapping")
-            room = wall.inner_radius - previous_outer
-            what = "the centre region" if k == 0 else f"channel {k}"
-            if room <= diameter:
-                raise MazeSpecError(
-                    f"{what} is {room * 1e3:.2f} mm wide, narrower than the marble "
-                    f"({diameter * 1e3:.2f} mm): walls[{k}].inner_radius must exceed "
-                    f"{(previous_outer + diameter) * 1e3:.2f} mm")
-            if not wall.gates:
-                raise MazeSpecError(f"walls[{k}] has no gate: the centre would be unreachable")
-            for j, gate in enumerate(wall.gates):
-                if not isinstance(gate, Gate):
-                    raise MazeSpecError(f"walls[{k}].gates[{j}] must be a Gate, got {gate!r}")
-                if not (math.isfinite(gate.angle) and math.isfinite(gate.width)):
-                    raise MazeSpecError(f"walls[{k}].gates[{j}] has a non-finite angle or width: {gate!r}")
-                chord = 2 * wall.inner_radius * math.sin(min(gate.width, math.pi) / 2)
-                if gate.width >= 2 * math.pi or chord <= diameter:
-                    min_width = 2 * math.degrees(math.asin(min(1.0, diameter / (2 * wall.inner_radius))))
-                    raise MazeSpecError(
-                        f"walls[{k}].gates[{j}] is {math.degrees(gate.width):.2f}° wide: its opening at "
-                        f"the wall's inner face ({chord * 1e3:.2f} mm) must exceed the marble's "
-                        f"diameter ({diameter * 1e3:.2f} mm), i.e. width > {min_width:.2f}° "
-                        "(and below 360°)")
-            gates = sorted(wall.gates, key=lambda g: float(_wrap_angle(g.angle)))
-            for a, b in zip(gates, gates[1:] + gates[:1]):
-                if len(gates) == 1:
-                    break
-                gap = float(_wrap_angle(b.angle - a.angle)) % (2 * math.pi)
-                if gap < (a.width + b.width) / 2:
-                    raise MazeSpecError(
-                        f"walls[{k}]: gates at {math.degrees(a.angle):.1f}° and "
-                        f"{math.degrees(b.angle):.1f}° overlap; merge them into one wider gate")
+            _validate_wall(k, wall, previous_outer, diameter)
             previous_outer = wall.outer_radius
         room = self.rim_radius - previous_outer
         if room <= diameter:
             raise MazeSpecError(
                 f"the outermost channel is {room * 1e3:.2f} mm wide, narrower than the marble "
-                f"({diameter * 1e3:.2f} mm): rim_radius must exceed {(previous_outer + diameter) * 1e3:.2f} mm")
+                f"({diameter * 1e3:.2f} mm): rim_radius must exceed {(previous_outer + diameter) * 1e3:.2f} mm"
+            )
+
+    def _validate_scalars(self) -> None:
+        for name in (
+            "rim_radius",
+            "rim_thickness",
+            "wall_height",
+            "marble_radius",
+            "marble_mass",
+            "max_tilt",
+            "tilt_step",
+            "arc_tolerance",
+        ):
+            _require_positive(name, getattr(self, name))
+        if self.max_tilt > math.radians(30):
+            raise MazeSpecError(f"max_tilt must be at most 30° (0.5236 rad), got {self.max_tilt!r} rad")
+        if self.tilt_step > self.max_tilt:
+            raise MazeSpecError(f"tilt_step ({self.tilt_step!r} rad) must not exceed max_tilt ({self.max_tilt!r} rad)")
+        if self.wall_height < 2 * self.marble_radius:
+            raise MazeSpecError(
+                f"wall_height ({self.wall_height!r} m) must be at least the marble's diameter "
+                f"({2 * self.marble_radius!r} m) or the marble could hop over walls"
+            )
+        if not isinstance(self.friction, Friction):
+            raise MazeSpecError(f"friction must be a Friction, got {type(self.friction).__name__}")
+        self.friction.validate()
 
     # ------------------------------------------------------------------ derived quantities
     @property
@@ -308,8 +331,12 @@ class MazeSpec:
         hold_high = [w.outer_radius for w in self.walls] + [math.inf]
         mids = [w.mid_radius for w in self.walls]
         return {
-            "hold_low": np.array(hold_low), "hold_high": np.array(hold_high), "mids": np.array(mids),
-            "hold_low_list": hold_low, "hold_high_list": hold_high, "mids_list": mids,
+            "hold_low": np.array(hold_low),
+            "hold_high": np.array(hold_high),
+            "mids": np.array(mids),
+            "hold_low_list": hold_low,
+            "hold_high_list": hold_high,
+            "mids_list": mids,
             "geodesic": {},
         }
 
@@ -319,35 +346,10 @@ class MazeSpec:
         if to_channel in cache:
             return cache[to_channel]
         if not (isinstance(to_channel, (int, np.integer)) and 0 <= to_channel < max(self.outermost_channel, 1)):
-            raise MazeSpecError(f"to_channel must be an integer in 0..{max(self.outermost_channel - 1, 0)}, "
-                                f"got {to_channel!r}")
-        portals = self._gate_portals()
-        gate_distances = self._compute_gate_distances(portals, int(to_channel))
-        gate_lists = [(p["outer_radius"], [(float(a), float(d)) for a, d in zip(p["angles"], ds)])
-                      for p, ds in zip(portals, gate_distances)]
-        # A marble whose centre is within a wall's band (inside a gate) belongs, for the geodesic
-        # distance, to the inner channel: it moves radially to the gate's inner end first.
-        bounds = [p["outer_radius"] for p in portals]
-        channels = [(a, portals[k + 1]["inner_radius"] if k + 1 < len(portals) else math.inf, gates)
-                    for k, (a, gates) in enumerate(gate_lists)]
-        max_gates = max(len(w.gates) for w in self.walls) if self.walls else 1
-        gate_angle = np.zeros((len(self.walls) + 1, max_gates))
-        gate_dist = np.full((len(self.walls) + 1, max_gates), np.inf)
-        for k, (_, gates) in enumerate(gate_lists):
-            for j, (angle, dist) in enumerate(gates):
-                gate_angle[k + 1, j], gate_dist[k + 1, j] = angle, dist
-        # Points already past the target wall: 0, or the radial rest of the way through its gate.
-        target_end = 0.0 if to_channel == 0 else portals[to_channel]["inner_radius"]
-        tables = {
-            "to_channel": int(to_channel), "target_end": target_end,
-            "obstacle": np.array([1.0] + [c[0] for c in channels]),
-            "band_start": np.array([np.inf] + [c[1] for c in channels]),
-            "band_start_list": [math.inf] + [c[1] for c in channels],
-            "mids": np.array([w.mid_radius for w in self.walls] or [0.0]),
-            "gate_angle": gate_angle, "gate_dist": gate_dist, "channels": channels,
-            "bounds": np.array(bounds), "bounds_list": bounds,
-            "portals": portals, "gate_distances": gate_distances,
-        }
+            raise MazeSpecError(
+                f"to_channel must be an integer in 0..{max(self.outermost_channel - 1, 0)}, got {to_channel!r}"
+            )
+        tables = geodesic_tables(self._gate_portals(), [w.mid_radius for w in self.walls], int(to_channel))
         cache[to_channel] = tables
         return tables
 
@@ -391,8 +393,9 @@ class MazeSpec:
         obstacle = tables["obstacle"][channel]
         band_start = tables["band_start"][channel]
         r_eff = np.minimum(r, band_start)
-        lengths = annulus_path_length(r_eff[..., None], theta[..., None], obstacle[..., None],
-                                      tables["gate_angle"][channel], obstacle[..., None])
+        lengths = annulus_path_length(
+            r_eff[..., None], theta[..., None], obstacle[..., None], tables["gate_angle"][channel], obstacle[..., None]
+        )
         best = np.min(lengths + tables["gate_dist"][channel], axis=-1) + (r - r_eff)
         arrived = r if to_channel == 0 else np.maximum(r - tables["target_end"], 0.0)
         return np.where(channel <= to_channel, arrived, best)
@@ -443,55 +446,11 @@ class MazeSpec:
         from outside (``outer_radius``) and leaves it inside (``inner_radius``)."""
         portals = []
         for wall in self.walls:
-            portals.append({
-                "angles": [g.angle for g in wall.gates],
-                "outer_radius": wall.outer_radius + self.marble_radius,
-                "inner_radius": max(wall.inner_radius - self.marble_radius, 0.0),
-            })
+            portals.append(
+                {
+                    "angles": [g.angle for g in wall.gates],
+                    "outer_radius": wall.outer_radius + self.marble_radius,
+                    "inner_radius": max(wall.inner_radius - self.marble_radius, 0.0),
+                }
+            )
         return portals
-
-    def _compute_gate_distances(self, portals: list[dict], to_channel: int) -> list[np.ndarray]:
-        """Dynamic programming from the target wall outwards: a gate of the target wall costs its
-        radial crossing (plus, for the centre, the way to the centre point); a gate of an outer
-        wall costs its crossing plus the best path to a gate of the next wall in."""
-        distances: list[np.ndarray] = []
-        for k, portal in enumerate(portals):
-            through = portal["outer_radius"] - portal["inner_radius"]
-            if k < to_channel:
-                distances.append(np.full(len(portal["angles"]), np.inf))
-                continue
-            if k == to_channel:
-                rest = portal["inner_radius"] if k == 0 else 0.0
-                distances.append(np.full(len(portal["angles"]), through + rest))
-                continue
-            inner = portals[k - 1]
-            per_gate = []
-            for angle in portal["angles"]:
-                best = min(
-                    float(annulus_path_length(portal["inner_radius"], angle, inner["outer_radius"],
-                                              inner_angle, inner["outer_radius"])) + d
-                    for inner_angle, d in zip(inner["angles"], distances[k - 1]))
-                per_gate.append(through + best)
-            distances.append(np.array(per_gate))
-        return distances
-
-
-def annulus_path_length(r1: np.ndarray | float, theta1: np.ndarray | float, r2: np.ndarray | float,
-                        theta2: np.ndarray | float, obstacle_radius: np.ndarray | float) -> np.ndarray:
-    """Shortest path length between points (polar ``(r1, theta1)`` and ``(r2, theta2)``) that must
-    stay outside the disc of radius ``obstacle_radius`` centred at the origin.
-
-    Points inside the disc are treated as lying on its boundary. If the straight segment clears the
-    disc the answer is its length; otherwise the path runs along the two tangents and the arc
-    between them. All arguments broadcast against each other.
-    """
-    a = np.asarray(obstacle_radius, dtype=float)
-    r1 = np.maximum(np.asarray(r1, dtype=float), a)
-    r2 = np.maximum(np.asarray(r2, dtype=float), a)
-    dtheta = np.abs(_wrap_angle(np.asarray(theta1, dtype=float) - theta2))
-    alpha1 = np.arccos(np.minimum(a / r1, 1.0))
-    alpha2 = np.arccos(np.minimum(a / r2, 1.0))
-    straight = np.sqrt(np.maximum(r1 ** 2 + r2 ** 2 - 2 * r1 * r2 * np.cos(dtheta), 0.0))
-    wrapped = (np.sqrt(np.maximum(r1 ** 2 - a ** 2, 0.0)) + np.sqrt(np.maximum(r2 ** 2 - a ** 2, 0.0))
-               + a * (dtheta - alpha1 - alpha2))
-    return np.where(dtheta <= alpha1 + alpha2, straight, wrapped)

@@ -1,5 +1,5 @@
-"""MuJoCo physics of a :class:`~bimgame.sim.maze.MazeSpec`: model generation, stepping, state capture
-and batched rollouts.
+"""MuJoCo physics of a :class:`~bimgame.sim.maze.MazeSpec`: model generation (in :mod:`bimgame.sim.mjcf`),
+stepping, state capture and batched rollouts.
 
 Model. The board hangs on two nested hinges (``tilt_x`` about the world x axis, then ``tilt_y``
 about the board's y axis), pivoting at the floor's surface. Each hinge is driven by a position servo
@@ -14,7 +14,7 @@ pair in MuJoCo), and the number of pieces is the fewest that keep every flat fac
 ``MazeSpec.arc_tolerance`` of the true circle. Walls collide only with marbles (``contype=0``), so
 the board's many geoms cost nothing among themselves. Marbles are spheres on free joints with
 sliding friction, rolling and torsional friction where MuJoCo can represent them (see
-:func:`contact_condim`) and static friction (``frictionloss``), and
+:func:`~bimgame.sim.mjcf.contact_condim`) and static friction (``frictionloss``), and
 collide with each other. All contacts are explicit ``<pair>`` elements (every geom has
 ``contype=conaffinity=0``): MuJoCo then skips its sweep-and-prune broad phase over the ~190 board
 geoms, which measured 1.6x faster per physics step than filtering by ``contype``.
@@ -42,189 +42,13 @@ from mujoco import rollout as mj_rollout
 
 from bimgame.sim.layout import STATE_SPEC, StateLayout
 from bimgame.sim.maze import Friction, MazeSpec
+from bimgame.sim.mjcf import PHYSICS_HZ, build_mjcf, contact_condim
 from bimgame.sim.placement import finite_array
 
 __all__ = ["MazeSim", "StateLayout", "PHYSICS_HZ", "CONTROL_HZ"]
 
-PHYSICS_HZ = 150.0
 CONTROL_HZ = 30.0
 CONTROL_SPEC = int(mujoco.mjtState.mjSTATE_CTRL)
-
-# Board and servo constants: the board is stiffly position-controlled, so its own inertia only
-# sets how tightly it tracks the commanded tilt (natural frequency SERVO_OMEGA, critically damped).
-BOARD_MASS = 1.0
-BOARD_INERTIA = (1e-2, 1e-2, 2e-2)
-GIMBAL_INERTIA = 1e-6
-SERVO_OMEGA = 100.0
-FLOOR_THICKNESS = 4e-3
-# Contact softness: time constant at MuJoCo's stable minimum of two physics steps, critically
-# damped, with high impedance so a resting marble sinks only ~0.1 mm into the floor.
-CONTACT_SOLREF = "0.0134 1"
-CONTACT_SOLIMP = "0.95 0.99 0.001"
-# Static friction (frictionloss) with MuJoCo's default softness lets a marble below its breakaway
-# tilt creep at ~0.5 mm/s; a high impedance makes it hold (0.06 mm in 1 s at half the breakaway).
-STATIC_FRICTION_SOLIMP = "0.99 0.999 0.001"
-
-
-def _arc_boxes(inner: float, outer: float, start: float, end: float, tolerance: float,
-               ) -> list[tuple[float, float, float, float, float]]:
-    """Boxes ``(cx, cy, half_length, half_depth, yaw)`` covering the annular sector
-    ``[inner, outer] x [start, end]``.
-
-    Interior pieces span angle ``delta`` with faces placed so the circle deviates at most
-    ``inner * (1/cos(delta/2) - 1) / 2`` from them; the end pieces are narrow enough that their
-    flat end face stays within ``tolerance`` of the sector's radial edge (the gate edge), which is
-    what decides whether the marble fits through a gate.
-    """
-    depth = outer - inner
-    # Largest interior span keeping both faces within tolerance (circle vs. symmetric chord).
-    delta_max = 2 * math.acos(1.0 / (1.0 + 2 * tolerance / outer))
-    # End pieces: flat end face vs. radial edge differ by depth/2 * tan(delta/2).
-    delta_end = min(delta_max, 2 * math.atan(2 * tolerance / depth))
-    span = end - start
-    pieces: list[tuple[float, float]] = []
-    if span <= 2 * delta_end:
-        pieces.append((start, end))
-    else:
-        middle = span - 2 * delta_end
-        n_mid = max(1, math.ceil(middle / delta_max))
-        edges = [start, start + delta_end]
-        edges += [start + delta_end + middle * (i + 1) / n_mid for i in range(n_mid)]
-        edges += [end]
-        pieces = list(zip(edges[:-1], edges[1:]))
-    boxes = []
-    for a0, a1 in pieces:
-        half = 0.5 * (a1 - a0)
-        c = math.cos(half)
-        # Faces at distances placing the circle symmetrically about each flat face.
-        d_in = 2 * inner / (1 + 1 / c)
-        d_out = 2 * outer / (1 + 1 / c)
-        # Half length reaches the radial edge line at the face's mid-depth (outer face for
-        # interior pieces so neighbours overlap without gaps).
-        half_len = d_out * math.tan(half)
-        mid = 0.5 * (a0 + a1)
-        rc = 0.5 * (d_in + d_out)
-        boxes.append((rc * math.cos(mid), rc * math.sin(mid), half_len, 0.5 * (d_out - d_in), mid))
-    # End pieces: pull their outer ends back so the end face passes through the radial edge at
-    # mid-depth instead of overhanging into the gate.
-    return [_trim_end_box(b, inner, outer, a0, a1, start, end) for b, (a0, a1) in zip(boxes, pieces)]
-
-
-def _trim_end_box(box, inner, outer, a0, a1, start, end):
-    cx, cy, half_len, half_depth, yaw = box
-    if a0 != start and a1 != end:
-        return box
-    half = 0.5 * (a1 - a0)
-    rm = 0.5 * (inner + outer)
-    # Tangential coordinate (along the box) of the radial edge at mid-depth, relative to the box
-    # centre: the edge point at radius rm sits at angle +-half from the bisector.
-    t_edge = rm * math.sin(half)
-    lo = -t_edge if a0 == start else -half_len
-    hi = t_edge if a1 == end else half_len
-    new_half = 0.5 * (hi - lo)
-    shift = 0.5 * (hi + lo)
-    tx, ty = -math.sin(yaw), math.cos(yaw)
-    return (cx + shift * tx, cy + shift * ty, new_half, half_depth, yaw)
-
-
-MUJOCO_MIN_FRICTION = 1e-5  # mjMINMU: MuJoCo raises smaller friction coefficients to this
-
-
-def contact_condim(friction: Friction) -> int:
-    """Contact dimensionality for a friction setting.
-
-    MuJoCo raises any friction coefficient below ``mjMINMU`` (1e-5) to 1e-5, so MERL's rolling
-    friction of 1e-6 m would silently become ten times larger: on a 5° tilt that alone slows the
-    marble by 2%. Friction terms below that floor are therefore left out: ``condim=3`` (sliding
-    friction only, which still makes the marble roll without slipping), 4 (plus torsional) when
-    only the spin coefficient reaches the floor, 6 (plus rolling) when the rolling one does.
-    """
-    if friction.roll >= MUJOCO_MIN_FRICTION:
-        return 6
-    if friction.spin >= MUJOCO_MIN_FRICTION:
-        return 4
-    return 3
-
-
-def build_mjcf(spec: MazeSpec, n_marbles: int = 1, physics_hz: float = PHYSICS_HZ) -> str:
-    """MJCF text of the maze with ``n_marbles`` marbles (placed at the origin; see
-    :meth:`MazeSim.reset`)."""
-    if not (isinstance(n_marbles, int) and n_marbles >= 1):
-        raise ValueError(f"n_marbles must be an integer >= 1, got {n_marbles!r}")
-    h = spec.wall_height
-    f = spec.friction
-    kp_x = (BOARD_INERTIA[0] + GIMBAL_INERTIA) * SERVO_OMEGA ** 2
-    kp_y = BOARD_INERTIA[1] * SERVO_OMEGA ** 2
-    kv_x = 2 * (BOARD_INERTIA[0] + GIMBAL_INERTIA) * SERVO_OMEGA
-    kv_y = 2 * BOARD_INERTIA[1] * SERVO_OMEGA
-    walls = []
-    arcs = [(w.inner_radius, w.outer_radius, w.solid_arcs(), f"wall{k}") for k, w in enumerate(spec.walls)]
-    arcs.append((spec.rim_radius, spec.rim_radius + spec.rim_thickness, [(-math.pi, math.pi)], "rim"))
-    for inner, outer, solid, name in arcs:
-        for j, (a0, a1) in enumerate(solid):
-            for i, (cx, cy, hl, hd, yaw) in enumerate(_arc_boxes(inner, outer, a0, a1, spec.arc_tolerance)):
-                # Box x axis is radial (depth), y axis tangential (length).
-                walls.append(
-                    f'<geom name="{name}_{j}_{i}" class="wall" pos="{cx:.9g} {cy:.9g} {h / 2:.9g}" '
-                    f'size="{hd:.9g} {hl:.9g} {h / 2:.9g}" euler="0 0 {yaw:.12g}"/>')
-    half = spec.rim_radius + spec.rim_thickness
-    board_geoms = ["floor"] + [w.split('"')[1] for w in walls]
-    pair_attrs = (f'condim="{contact_condim(spec.friction)}" friction="{f.slide:.9g} {f.slide:.9g} {f.spin:.9g} {f.roll:.9g} {f.roll:.9g}" '
-                  f'solref="{CONTACT_SOLREF}" solimp="{CONTACT_SOLIMP}"')
-    pairs = [f'<pair geom1="marble{i}" geom2="{g}" {pair_attrs}/>'
-             for i in range(n_marbles) for g in board_geoms]
-    pairs += [f'<pair geom1="marble{i}" geom2="marble{j}" {pair_attrs}/>'
-              for i in range(n_marbles) for j in range(i + 1, n_marbles)]
-    marbles = []
-    for i in range(n_marbles):
-        marbles.append(
-            f'<body name="marble{i}" pos="0 0 {spec.marble_radius:.9g}">'
-            f'<joint name="marble{i}" type="free" frictionloss="{f.static:.9g}" '
-            f'solimpfriction="{STATIC_FRICTION_SOLIMP}"/>'
-            f'<geom name="marble{i}" class="marble"/></body>')
-    return f"""<mujoco model="bimgame">
-  <compiler angle="radian" autolimits="true"/>
-  <option timestep="{1.0 / physics_hz:.12g}" integrator="implicitfast" cone="elliptic"/>
-  <visual><global offwidth="640" offheight="640"/></visual>
-  <default>
-    <default class="wall">
-      <geom type="box" contype="0" conaffinity="0" rgba="0.55 0.55 0.6 1"/>
-    </default>
-    <default class="marble">
-      <geom type="sphere" size="{spec.marble_radius:.9g}" mass="{spec.marble_mass:.9g}" contype="0"
-            conaffinity="0" rgba="0.85 0.85 0.9 1"/>
-    </default>
-  </default>
-  <worldbody>
-    <light pos="0 0 0.6" dir="0 0 -1" directional="true"/>
-    <body name="gimbal">
-      <joint name="tilt_x" type="hinge" axis="1 0 0"/>
-      <inertial pos="0 0 0" mass="0.001" diaginertia="{GIMBAL_INERTIA} {GIMBAL_INERTIA} {GIMBAL_INERTIA}"/>
-      <body name="board">
-        <joint name="tilt_y" type="hinge" axis="0 1 0"/>
-        <inertial pos="0 0 0" mass="{BOARD_MASS}" diaginertia="{BOARD_INERTIA[0]} {BOARD_INERTIA[1]} {BOARD_INERTIA[2]}"/>
-        <geom name="floor" type="box" size="{half:.9g} {half:.9g} {FLOOR_THICKNESS / 2:.9g}"
-              pos="0 0 {-FLOOR_THICKNESS / 2:.9g}" contype="0" conaffinity="0" rgba="0.2 0.3 0.25 1"/>
-        {chr(10).join('        ' + w for w in walls)}
-      </body>
-    </body>
-    {''.join(marbles)}
-  </worldbody>
-  <contact>
-    {chr(10).join('    ' + p for p in pairs)}
-  </contact>
-  <actuator>
-    <general name="servo_x" joint="tilt_x" dyntype="integrator" gaintype="fixed" gainprm="{kp_x:.9g}"
-             biastype="affine" biasprm="0 {-kp_x:.9g} 0" actlimited="true"
-             actrange="{-spec.max_tilt:.12g} {spec.max_tilt:.12g}"/>
-    <velocity name="rate_x" joint="tilt_x" kv="{kv_x:.9g}"/>
-    <general name="servo_y" joint="tilt_y" dyntype="integrator" gaintype="fixed" gainprm="{kp_y:.9g}"
-             biastype="affine" biasprm="0 {-kp_y:.9g} 0" actlimited="true"
-             actrange="{-spec.max_tilt:.12g} {spec.max_tilt:.12g}"/>
-    <velocity name="rate_y" joint="tilt_y" kv="{kv_y:.9g}"/>
-  </actuator>
-</mujoco>
-"""
 
 
 class MazeSim:
@@ -237,8 +61,9 @@ class MazeSim:
         substeps: physics steps per action step (5: actions at 30 Hz).
     """
 
-    def __init__(self, spec: MazeSpec | None = None, *, n_marbles: int = 1,
-                 physics_hz: float = PHYSICS_HZ, substeps: int = 5):
+    def __init__(
+        self, spec: MazeSpec | None = None, *, n_marbles: int = 1, physics_hz: float = PHYSICS_HZ, substeps: int = 5
+    ):
         if not (isinstance(substeps, int) and substeps >= 1):
             raise ValueError(f"substeps must be an integer >= 1, got {substeps!r}")
         if not (isinstance(physics_hz, (int, float)) and math.isfinite(physics_hz) and physics_hz > 0):
@@ -274,7 +99,8 @@ class MazeSim:
         if state.shape != (self.layout.size,) or not np.all(np.isfinite(state)):
             raise ValueError(
                 f"state must be a finite float vector of length {self.layout.size} "
-                f"(from MazeSim.get_state), got shape {state.shape}")
+                f"(from MazeSim.get_state), got shape {state.shape}"
+            )
         mujoco.mj_setState(self.model, self.data, state, STATE_SPEC)
         mujoco.mj_forward(self.model, self.data)
 
@@ -296,9 +122,15 @@ class MazeSim:
         self.data.qacc_warmstart[:] = 0
         self.set_state(state)
 
-    def set_parameters(self, model: mujoco.MjModel | None = None, *, friction: Friction | None = None,
-                       marble_mass: float | None = None, marble_radius: float | None = None,
-                       max_tilt: float | None = None) -> None:
+    def set_parameters(
+        self,
+        model: mujoco.MjModel | None = None,
+        *,
+        friction: Friction | None = None,
+        marble_mass: float | None = None,
+        marble_radius: float | None = None,
+        max_tilt: float | None = None,
+    ) -> None:
         """Set physical parameters (SI; None: the spec's value) on ``model`` — this sim's own by
         default, or a copy of it (``copy.copy(sim.model)``, e.g. one per env of a batch, stepped by
         :meth:`rollout`'s ``models``) — as building from ``spec.replace(...)`` would (a test compares
@@ -331,8 +163,9 @@ class MazeSim:
             self.max_tilt, self.marble_radius = limit, radius
 
     # ------------------------------------------------------------------ stepping
-    def rates_for(self, target_tilt: np.ndarray, tilt_delta: np.ndarray,
-                  max_tilt: np.ndarray | float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def rates_for(
+        self, target_tilt: np.ndarray, tilt_delta: np.ndarray, max_tilt: np.ndarray | float | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """New targets, clamped to ``±max_tilt`` (default :attr:`max_tilt`; per row: (B, 1)), and the
         tilt rates (rad/s) that ramp to them in one action step (batched; :meth:`step` per float)."""
         limit = self.max_tilt if max_tilt is None else max_tilt
@@ -372,8 +205,15 @@ class MazeSim:
         return self.data.act[:2].copy()
 
     # ------------------------------------------------------------------ batched rollouts
-    def rollout(self, states: np.ndarray, tilt_deltas: np.ndarray, *, nthread: int = 1,
-                models: Sequence[mujoco.MjModel] | None = None, max_tilt: np.ndarray | None = None) -> np.ndarray:
+    def rollout(
+        self,
+        states: np.ndarray,
+        tilt_deltas: np.ndarray,
+        *,
+        nthread: int = 1,
+        models: Sequence[mujoco.MjModel] | None = None,
+        max_tilt: np.ndarray | None = None,
+    ) -> np.ndarray:
         """Roll out open-loop tilt sequences from many states with ``mujoco.rollout``.
 
         Args:
@@ -399,14 +239,13 @@ class MazeSim:
             raise ValueError("states and tilt_deltas must be finite (MazeSim.get_state; rad)")
         batch = max(states.shape[0], tilt_deltas.shape[0])
         if states.shape[0] not in (1, batch) or tilt_deltas.shape[0] not in (1, batch):
-            raise ValueError(f"batch sizes of states {states.shape} and tilt_deltas "
-                             f"{tilt_deltas.shape} do not match")
+            raise ValueError(f"batch sizes of states {states.shape} and tilt_deltas {tilt_deltas.shape} do not match")
         states = np.broadcast_to(states, (batch, states.shape[1]))
         tilt_deltas = np.broadcast_to(tilt_deltas, (batch,) + tilt_deltas.shape[1:])
         out = np.empty((batch, tilt_deltas.shape[1], self.layout.size))
         models = [self.model] * batch if models is None else list(models)
         # One servo limit for all rows stays a float: the clamp in the per-step loop then needs no array.
-        limits = self.max_tilt if max_tilt is None else np.reshape(max_tilt, (batch, 1))
+        limits: np.ndarray | float = self.max_tilt if max_tilt is None else np.reshape(max_tilt, (batch, 1))
         nthread = max(1, min(int(nthread), batch))
         if nthread == 1:
             self._rollout_chunk(states, tilt_deltas, out, 0, models, limits)
@@ -417,15 +256,32 @@ class MazeSim:
         # dispatched H times per call, measured 1.40x the engine's floor per MPC decision).
         pool = self._thread_pool(nthread)
         bounds = np.linspace(0, batch, nthread + 1).astype(int)
-        chunks = list(zip(bounds[:-1], bounds[1:]))
-        futures = [pool.submit(self._rollout_chunk, states[lo:hi], tilt_deltas[lo:hi], out[lo:hi], i, models[lo:hi],
-                               limits if np.isscalar(limits) else limits[lo:hi]) for i, (lo, hi) in enumerate(chunks)]
+        chunks = list(zip(bounds[:-1], bounds[1:], strict=True))
+        futures = [
+            pool.submit(
+                self._rollout_chunk,
+                states[lo:hi],
+                tilt_deltas[lo:hi],
+                out[lo:hi],
+                i,
+                models[lo:hi],
+                limits[lo:hi] if isinstance(limits, np.ndarray) else limits,
+            )
+            for i, (lo, hi) in enumerate(chunks)
+        ]
         for future in futures:
             future.result()
         return out
 
-    def _rollout_chunk(self, states: np.ndarray, tilt_deltas: np.ndarray, out: np.ndarray, slot: int,
-                       models: list[mujoco.MjModel], limits: np.ndarray | float) -> None:
+    def _rollout_chunk(
+        self,
+        states: np.ndarray,
+        tilt_deltas: np.ndarray,
+        out: np.ndarray,
+        slot: int,
+        models: list[mujoco.MjModel],
+        limits: np.ndarray | float,
+    ) -> None:
         """Roll out one chunk on runner number ``slot``, writing (b, H, state_size) into ``out``."""
         runner, data = self._rollout_runner_for(slot)
         batch = states.shape[0]
@@ -441,9 +297,17 @@ class MazeSim:
             _, rate = self.rates_for(current[:, self.layout.target_tilt], tilt_deltas[:, t], limits)
             control[:, :, 0] = control[:, :, 1] = rate[:, None, 0]
             control[:, :, 2] = control[:, :, 3] = rate[:, None, 1]
-            runner.rollout(models, [data], current, control, control_spec=CONTROL_SPEC,
-                           skip_checks=True, nstep=self.substeps, initial_warmstart=warmstart,
-                           state=states_out)
+            runner.rollout(
+                models,
+                [data],
+                current,
+                control,
+                control_spec=CONTROL_SPEC,
+                skip_checks=True,
+                nstep=self.substeps,
+                initial_warmstart=warmstart,
+                state=states_out,
+            )
             current = states_out[:, -1].copy()
             out[:, t] = current
 
@@ -473,5 +337,5 @@ class MazeSim:
     def __del__(self):  # pragma: no cover - best effort cleanup
         try:
             self.close()
-        except Exception:
+        except Exception:  # noqa: BLE001 - at interpreter exit, MuJoCo or the pool may be gone already
             pass

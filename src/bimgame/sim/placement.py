@@ -24,9 +24,19 @@ import numpy as np
 from bimgame.sim.maze import MazeSpec
 from bimgame.util.settings import is_integer
 
-__all__ = ["start_radius", "start_separation", "max_start_marbles", "check_n_marbles", "sample_start",
-           "finite_array", "check_marble_xy", "check_sim_state", "MAX_START_DRAWS", "STATE_OVERLAP",
-           "STATE_TILT_TOLERANCE"]
+__all__ = [
+    "start_radius",
+    "start_separation",
+    "max_start_marbles",
+    "check_n_marbles",
+    "sample_start",
+    "finite_array",
+    "check_marble_xy",
+    "check_sim_state",
+    "MAX_START_DRAWS",
+    "STATE_OVERLAP",
+    "STATE_TILT_TOLERANCE",
+]
 
 #: Random draws :func:`sample_start` makes one marble at a time before it places all marbles at once
 #: instead (see there). Far more than any start that does not jam needs (≤ 14 marbles on MERL's maze:
@@ -71,9 +81,11 @@ def check_n_marbles(spec: MazeSpec, n_marbles: Any) -> int:
     if not (is_integer(n_marbles) and n_marbles >= 1):
         raise ValueError(f"n_marbles must be an integer >= 1, got {n_marbles!r}")
     if not spec.walls:
-        raise ValueError("maze has no walls: random starts need a maze with at least one wall: they lie on "
-                         "the centre circle of the outermost channel, and without walls the whole board is "
-                         "the goal region (channel 0)")
+        raise ValueError(
+            "maze has no walls: random starts need a maze with at least one wall: they lie on "
+            "the centre circle of the outermost channel, and without walls the whole board is "
+            "the goal region (channel 0)"
+        )
     limit = max_start_marbles(spec)
     if n_marbles > limit:
         radius = start_radius(spec)
@@ -81,7 +93,8 @@ def check_n_marbles(spec: MazeSpec, n_marbles: Any) -> int:
             f"n_marbles={int(n_marbles)} is too many: at most {limit} marbles fit on the outermost channel, "
             f"where reset() places them at rest on its centre circle (radius {radius * 1e3:.2f} mm, "
             f"circumference {2 * math.pi * radius * 1e3:.1f} mm) at least two marble diameters "
-            f"({4 * spec.marble_radius * 1e3:.2f} mm) apart")
+            f"({4 * spec.marble_radius * 1e3:.2f} mm) apart"
+        )
     return int(n_marbles)
 
 
@@ -122,7 +135,7 @@ def _jammed(angles: list[float], min_separation: float) -> bool:
     """Whether no angle is more than ``min_separation`` from all of ``angles`` (no gap between
     neighbours exceeds twice the separation)."""
     ordered = sorted(angles)
-    gaps = [b - a for a, b in zip(ordered, ordered[1:])] + [ordered[0] + 2 * math.pi - ordered[-1]]
+    gaps = [b - a for a, b in zip(ordered, ordered[1:], strict=False)] + [ordered[0] + 2 * math.pi - ordered[-1]]
     return max(gaps) <= 2 * min_separation
 
 
@@ -152,8 +165,7 @@ def finite_array(name: str, value: Any, shape: tuple[int, ...], what: str = "") 
     return array
 
 
-def check_marble_xy(spec: MazeSpec, marble_xy: np.ndarray, name: str = "marble_xy", *,
-                    overlap: float = 0.0) -> None:
+def check_marble_xy(spec: MazeSpec, marble_xy: np.ndarray, name: str = "marble_xy", *, overlap: float = 0.0) -> None:
     """Raise ``ValueError`` unless every marble at board-frame positions ``marble_xy`` (n, 2) (m,
     finite) lies on the board clear of the walls' solid parts, the rim and the other marbles
     (touching is allowed; ``overlap`` (m) more is, for positions from the simulator's soft
@@ -168,12 +180,14 @@ def check_marble_xy(spec: MazeSpec, marble_xy: np.ndarray, name: str = "marble_x
         if r + rm > spec.rim_radius + slack:
             raise ValueError(
                 f"{where} overlaps the rim or lies off the board: a marble's centre must be within "
-                f"{(spec.rim_radius - rm) * 1e3:.2f} mm of the centre (rim_radius − marble_radius){allowed}")
+                f"{(spec.rim_radius - rm) * 1e3:.2f} mm of the centre (rim_radius − marble_radius){allowed}"
+            )
         for k, wall in enumerate(spec.walls):
             if r + rm <= wall.inner_radius or r - rm >= wall.outer_radius:
                 continue
-            clearance = min(_distance_to_sector(x, y, wall.inner_radius, wall.outer_radius, a0, a1)
-                            for a0, a1 in wall.solid_arcs())
+            clearance = min(
+                _distance_to_sector(x, y, wall.inner_radius, wall.outer_radius, a0, a1) for a0, a1 in wall.solid_arcs()
+            )
             if clearance < rm - slack:
                 raise ValueError(
                     f"{where} overlaps walls[{k}] (solid from {wall.inner_radius * 1e3:.2f} to "
@@ -181,7 +195,8 @@ def check_marble_xy(spec: MazeSpec, marble_xy: np.ndarray, name: str = "marble_x
                     f"{', '.join(f'{math.degrees(g.angle):.1f}°' for g in wall.gates)}): its centre is "
                     f"{max(clearance, 0.0) * 1e3:.2f} mm from the wall, less than the marble radius "
                     f"({rm * 1e3:.2f} mm){allowed}. Place marbles inside a channel or a gate, e.g. on a "
-                    "channel's centre circle (MazeSpec.channel_centre_radius)")
+                    "channel's centre circle (MazeSpec.channel_centre_radius)"
+                )
     xy = np.asarray(marble_xy, dtype=np.float64)
     for i in range(len(xy)):
         for j in range(i + 1, len(xy)):
@@ -189,11 +204,16 @@ def check_marble_xy(spec: MazeSpec, marble_xy: np.ndarray, name: str = "marble_x
             if distance < 2 * rm - slack:
                 raise ValueError(
                     f"marbles {i} and {j} overlap: {name}[{i}] and {name}[{j}] are {distance * 1e3:.2f} mm "
-                    f"apart, less than the marble diameter ({2 * rm * 1e3:.2f} mm){allowed}")
+                    f"apart, less than the marble diameter ({2 * rm * 1e3:.2f} mm){allowed}"
+                )
 
 
-def check_sim_state(spec: MazeSpec, layout: Any, state: Any, name: str = "sim_state",
-                    ) -> tuple[np.ndarray, np.ndarray]:
+def check_sim_state(
+    spec: MazeSpec,
+    layout: Any,
+    state: Any,
+    name: str = "sim_state",
+) -> tuple[np.ndarray, np.ndarray]:
     """Check a physics state an episode is to start from; return it as a float64 array (a copy) and
     the marbles' board-frame positions ``(n, 2)`` (m), from which the task's state is derived.
 
@@ -205,17 +225,21 @@ def check_sim_state(spec: MazeSpec, layout: Any, state: Any, name: str = "sim_st
     other marbles up to the contacts' :data:`STATE_OVERLAP`, and its centre sits between
     ``(1 − STATE_OVERLAP)`` radii above the floor and the walls' tops."""
     n = layout.n_marbles
-    array = finite_array(name, state, (layout.size,),
-                         f" (a MazeSim.get_state() vector of a maze with {n} marble(s))").copy()
+    array = finite_array(
+        name, state, (layout.size,), f" (a MazeSim.get_state() vector of a maze with {n} marble(s))"
+    ).copy()
     limit = spec.max_tilt
-    for what, index, slack in (("board tilt", layout.tilt, STATE_TILT_TOLERANCE * limit),
-                               ("target tilt", layout.target_tilt, TOUCH_TOLERANCE)):
+    for what, index, slack in (
+        ("board tilt", layout.tilt, STATE_TILT_TOLERANCE * limit),
+        ("target tilt", layout.target_tilt, TOUCH_TOLERANCE),
+    ):
         values = array[index]
         if np.any(np.abs(values) > limit + slack):
             raise ValueError(
                 f"{name}: the {what} ({', '.join(f'{math.degrees(v):.3f}°' for v in values)} about x, y) "
                 f"exceeds ±max_tilt = ±{math.degrees(limit):.3f}°"
-                + (f" (by more than the servo's overshoot, {math.degrees(slack):.3f}°)" if slack > 1e-6 else ""))
+                + (f" (by more than the servo's overshoot, {math.degrees(slack):.3f}°)" if slack > 1e-6 else "")
+            )
     positions, _ = layout.board_frame(array)
     rm = spec.marble_radius
     low, high = rm * (1.0 - STATE_OVERLAP), spec.wall_height
@@ -223,7 +247,8 @@ def check_sim_state(spec: MazeSpec, layout: Any, state: Any, name: str = "sim_st
         if not low <= z <= high:
             raise ValueError(
                 f"{name}: marble {i}'s centre is {z * 1e3:.2f} mm above the floor; allowed: "
-                f"{low * 1e3:.2f} to {high * 1e3:.2f} mm (resting: the marble radius, {rm * 1e3:.2f} mm)")
+                f"{low * 1e3:.2f} to {high * 1e3:.2f} mm (resting: the marble radius, {rm * 1e3:.2f} mm)"
+            )
     xy = np.ascontiguousarray(positions[:, :2])
     check_marble_xy(spec, xy, f"{name}: marble_xy", overlap=STATE_OVERLAP * rm)
     return array, xy

@@ -40,9 +40,20 @@ from bimgame.sim.maze import MazeSpec
 
 __all__ = [
     "MazeRenderer",
-    "FLOOR", "GOAL", "WALL", "MARBLE",
-    "FLOOR_RGB", "GOAL_RGB", "WALL_RGB", "MARBLE_RGB", "MARBLE_EDGE_RGB", "MARBLE_OUTLINE_RGB",
-    "TILT_GAUGE_RGB", "TILT_ARROW_RGB", "SUPERSAMPLE", "DEFAULT_RGB_SIZE",
+    "FLOOR",
+    "GOAL",
+    "WALL",
+    "MARBLE",
+    "FLOOR_RGB",
+    "GOAL_RGB",
+    "WALL_RGB",
+    "MARBLE_RGB",
+    "MARBLE_EDGE_RGB",
+    "MARBLE_OUTLINE_RGB",
+    "TILT_GAUGE_RGB",
+    "TILT_ARROW_RGB",
+    "SUPERSAMPLE",
+    "DEFAULT_RGB_SIZE",
 ]
 
 # Grayscale levels of the observation (uint8). Dark floor, a slightly lighter goal region so the
@@ -54,14 +65,14 @@ WALL: int = 150
 MARBLE: int = 255
 
 # Colours of video frames (RGB uint8).
-FLOOR_RGB: tuple[int, int, int] = (64, 84, 72)          # green-grey felt
-GOAL_RGB: tuple[int, int, int] = (178, 128, 52)         # amber goal region
-WALL_RGB: tuple[int, int, int] = (206, 206, 200)        # light grey walls, rim and frame
-MARBLE_RGB: tuple[int, int, int] = (238, 241, 246)      # steel: bright centre ...
+FLOOR_RGB: tuple[int, int, int] = (64, 84, 72)  # green-grey felt
+GOAL_RGB: tuple[int, int, int] = (178, 128, 52)  # amber goal region
+WALL_RGB: tuple[int, int, int] = (206, 206, 200)  # light grey walls, rim and frame
+MARBLE_RGB: tuple[int, int, int] = (238, 241, 246)  # steel: bright centre ...
 MARBLE_EDGE_RGB: tuple[int, int, int] = (128, 134, 146)  # ... shading to darker steel ...
 MARBLE_OUTLINE_RGB: tuple[int, int, int] = (34, 37, 44)  # ... with a dark outline
-TILT_GAUGE_RGB: tuple[int, int, int] = (70, 72, 78)     # tilt indicator ring and hub
-TILT_ARROW_RGB: tuple[int, int, int] = (200, 40, 40)    # tilt indicator: downhill direction
+TILT_GAUGE_RGB: tuple[int, int, int] = (70, 72, 78)  # tilt indicator ring and hub
+TILT_ARROW_RGB: tuple[int, int, int] = (200, 40, 40)  # tilt indicator: downhill direction
 
 SUPERSAMPLE: int = 4
 #: Sub-pixel steps per pixel of the marble coverage table used for grayscale observations.
@@ -94,16 +105,16 @@ class _Grid:
     """Pixel geometry of one image size and the marble window at that size."""
 
     size: int
-    extent: float                 # E: the image spans [-E, E]² metres
+    extent: float  # E: the image spans [-E, E]² metres
     metres_per_pixel: float
-    radius_px: float              # marble radius in pixels
-    half_window: int              # K: window offsets lie in [-K, K]²
-    dflat: np.ndarray             # (P,) flat offsets di * size + dj (int64)
-    di_int: np.ndarray            # (P,) row offsets (int64)
-    dj_int: np.ndarray            # (P,) column offsets (int64)
-    square_di: np.ndarray         # ((2K+1)²,) row offsets of the square window, row-major (float64)
-    square_dj: np.ndarray         # ((2K+1)²,) column offsets of the square window (float64)
-    disc_in_square: np.ndarray    # (P,) positions of the disc's pixels within the square window
+    radius_px: float  # marble radius in pixels
+    half_window: int  # K: window offsets lie in [-K, K]²
+    dflat: np.ndarray  # (P,) flat offsets di * size + dj (int64)
+    di_int: np.ndarray  # (P,) row offsets (int64)
+    dj_int: np.ndarray  # (P,) column offsets (int64)
+    square_di: np.ndarray  # ((2K+1)²,) row offsets of the square window, row-major (float64)
+    square_dj: np.ndarray  # ((2K+1)²,) column offsets of the square window (float64)
+    disc_in_square: np.ndarray  # (P,) positions of the disc's pixels within the square window
     _cache: dict = dataclasses.field(default_factory=dict)  # coverage_lut(), built on first use
 
     @classmethod
@@ -114,16 +125,24 @@ class _Grid:
         # pixel is touched only if its centre is within radius + 0.5 of the marble's centre; keep
         # just the offsets that can satisfy both (a disc, not the whole square).
         reach = radius_px + 0.5 + math.sqrt(0.5)
-        k = int(math.ceil(reach))
-        ii, jj = np.mgrid[-k:k + 1, -k:k + 1]
+        k = math.ceil(reach)
+        ii, jj = np.mgrid[-k : k + 1, -k : k + 1]
         keep = ii * ii + jj * jj < reach * reach
         di = ii[keep].astype(np.int64)
         dj = jj[keep].astype(np.int64)
-        return cls(size=size, extent=extent, metres_per_pixel=mpp, radius_px=radius_px,
-                   half_window=k,
-                   dflat=di * size + dj, di_int=di, dj_int=dj,
-                   square_di=ii.ravel().astype(np.float64), square_dj=jj.ravel().astype(np.float64),
-                   disc_in_square=np.flatnonzero(keep.ravel()))
+        return cls(
+            size=size,
+            extent=extent,
+            metres_per_pixel=mpp,
+            radius_px=radius_px,
+            half_window=k,
+            dflat=di * size + dj,
+            di_int=di,
+            dj_int=dj,
+            square_di=ii.ravel().astype(np.float64),
+            square_dj=jj.ravel().astype(np.float64),
+            disc_in_square=np.flatnonzero(keep.ravel()),
+        )
 
     def coverage_lut(self) -> np.ndarray:
         """``1 - coverage`` of the square window's pixels for the marble's centre at each of
@@ -154,8 +173,9 @@ class _Grid:
         i0 = round(row)
         half = LUT_STEPS // 2
         k = self.half_window
-        u = self.coverage_lut()[round((i0 - row) * LUT_STEPS) + half,
-                                round((j0 - col) * LUT_STEPS) + half].reshape(2 * k + 1, 2 * k + 1)
+        u = self.coverage_lut()[round((i0 - row) * LUT_STEPS) + half, round((j0 - col) * LUT_STEPS) + half].reshape(
+            2 * k + 1, 2 * k + 1
+        )
         return self._clipped(i0, j0, u)
 
     def _clipped(self, i0: int, j0: int, values: np.ndarray) -> tuple[slice, slice, np.ndarray] | None:
@@ -170,7 +190,7 @@ class _Grid:
         rr1, cc1 = min(r1, self.size), min(c1, self.size)
         if rr0 >= rr1 or cc0 >= cc1:
             return None
-        return slice(rr0, rr1), slice(cc0, cc1), values[rr0 - r0:rr1 - r0, cc0 - c0:cc1 - c0]
+        return slice(rr0, rr1), slice(cc0, cc1), values[rr0 - r0 : rr1 - r0, cc0 - c0 : cc1 - c0]
 
     def lut_disc(self, col: np.ndarray, row: np.ndarray, j0: np.ndarray, i0: np.ndarray) -> np.ndarray:
         """``1 - coverage`` of the disc window's pixels (M, P) for marbles at ``col``, ``row``
@@ -258,10 +278,10 @@ def _coverage(spec: MazeSpec, size: int, extent: float, supersample: int = SUPER
     xs = -extent + sub * mpp
     goal_radius = spec.walls[0].inner_radius if spec.walls else spec.rim_radius
     fractions = np.empty((3, size, size), dtype=np.float64)
-    rows_per_chunk = max(1, 2 ** 20 // (size * s * s))
+    rows_per_chunk = max(1, 2**20 // (size * s * s))
     for r0 in range(0, size, rows_per_chunk):
         r1 = min(size, r0 + rows_per_chunk)
-        ys = extent - sub[r0 * s:r1 * s] * mpp
+        ys = extent - sub[r0 * s : r1 * s] * mpp
         x, y = np.meshgrid(xs, ys)
         r = np.hypot(x, y)
         labels = np.full(r.shape, _FLOOR, dtype=np.int8)
@@ -375,8 +395,7 @@ class MazeRenderer:
         """
         xy = np.asarray(marble_xy)
         if xy.ndim not in (2, 3) or xy.shape[-1] != 2:
-            raise ValueError("marble_xy must have shape (n_marbles, 2) or (B, n_marbles, 2), "
-                             f"got {xy.shape}")
+            raise ValueError(f"marble_xy must have shape (n_marbles, 2) or (B, n_marbles, 2), got {xy.shape}")
         single = xy.ndim == 2
         if single:
             xy = xy[None]
@@ -385,10 +404,13 @@ class MazeRenderer:
         shape = (s, s) if single else (batch, s, s)
         if out is None:
             out = np.empty(shape, dtype=np.uint8)
-        elif (not isinstance(out, np.ndarray) or out.shape != shape or out.dtype != np.uint8
-              or not out.flags.c_contiguous):
-            raise ValueError(f"out must be a C-contiguous uint8 array of shape {shape}, got "
-                             f"{getattr(out, 'dtype', type(out).__name__)} {getattr(out, 'shape', '')}")
+        elif (
+            not isinstance(out, np.ndarray) or out.shape != shape or out.dtype != np.uint8 or not out.flags.c_contiguous
+        ):
+            raise ValueError(
+                f"out must be a C-contiguous uint8 array of shape {shape}, got "
+                f"{getattr(out, 'dtype', type(out).__name__)} {getattr(out, 'shape', '')}"
+            )
         np.copyto(out, self._background)
         if n_marbles == 0 or batch == 0:
             return out
@@ -439,8 +461,9 @@ class MazeRenderer:
             self._rgb_backgrounds[grid.size] = background
         return background
 
-    def rgb(self, marble_xy: np.ndarray, size: int | None = None,
-            tilt: Sequence[float] | np.ndarray | None = None) -> np.ndarray:
+    def rgb(
+        self, marble_xy: np.ndarray, size: int | None = None, tilt: Sequence[float] | np.ndarray | None = None
+    ) -> np.ndarray:
         """A colour frame (size, size, 3) uint8 with marbles at ``marble_xy`` (n_marbles, 2) (m).
 
         ``size`` defaults to :data:`DEFAULT_RGB_SIZE`; each size's background is rasterised once.
@@ -490,20 +513,20 @@ class MazeRenderer:
         if t.shape != (2,):
             raise ValueError(f"tilt must be (tilt_x, tilt_y) in radians, got shape {np.shape(tilt)}")
         size = img.shape[0]
-        rho = 0.065 * size                 # gauge radius (px); fits in the corner outside the rim
+        rho = 0.065 * size  # gauge radius (px); fits in the corner outside the rim
         centre = size - 1 - (rho + 0.02 * size)
         gx = math.cos(t[0]) * math.sin(t[1])
         gy = -math.sin(t[0])
-        slope = math.hypot(gx, gy)          # sin of the tilt angle from horizontal
+        slope = math.hypot(gx, gy)  # sin of the tilt angle from horizontal
         if not math.isfinite(slope):
-            slope = 0.0                     # unknown tilt: the gauge without an arrow
+            slope = 0.0  # unknown tilt: the gauge without an arrow
         length = rho * min(1.0, math.asin(min(1.0, slope)) / self.spec.max_tilt)
         if slope > 0:
             ex, ey = centre + length * gx / slope, centre - length * gy / slope
         else:
             ex, ey = centre, centre
-        lo = max(0, int(math.floor(centre - rho - 3)))
-        hi = min(size, int(math.ceil(centre + rho + 4)))
+        lo = max(0, math.floor(centre - rho - 3))
+        hi = min(size, math.ceil(centre + rho + 4))
         jj, ii = np.meshgrid(np.arange(lo, hi, dtype=np.float64), np.arange(lo, hi, dtype=np.float64))
         patch = img[lo:hi, lo:hi].astype(np.float64)
         width = max(1.0, 0.012 * size)
@@ -513,8 +536,8 @@ class MazeRenderer:
             patch[...] += (np.asarray(colour, dtype=np.float64) - patch) * coverage[..., None]
 
         r = np.hypot(jj - centre, ii - centre)
-        paint(width / 2 + 0.5 - np.abs(r - rho), TILT_GAUGE_RGB)        # ring
-        paint(1.5 * width + 0.5 - r, TILT_GAUGE_RGB)                     # hub
+        paint(width / 2 + 0.5 - np.abs(r - rho), TILT_GAUGE_RGB)  # ring
+        paint(1.5 * width + 0.5 - r, TILT_GAUGE_RGB)  # hub
         # Arrow: segment from the hub to (ex, ey) and a disc at its tip.
         vx, vy = ex - centre, ey - centre
         seg2 = vx * vx + vy * vy

@@ -22,8 +22,17 @@ import numpy as np
 
 from bimgame.sim.maze import MazeSpec
 
-__all__ = ["Task", "TaskState", "parse_task", "task_step", "task_step_one", "initial_task_state", "MAX_EPISODE_STEPS",
-           "rewards_from_channels", "task_setting"]
+__all__ = [
+    "Task",
+    "TaskState",
+    "parse_task",
+    "task_step",
+    "task_step_one",
+    "initial_task_state",
+    "MAX_EPISODE_STEPS",
+    "rewards_from_channels",
+    "task_setting",
+]
 
 
 class Task(str, enum.Enum):
@@ -72,8 +81,10 @@ def parse_task(task: str | Task, spec: MazeSpec | None = None) -> Task:
             allowed = ", ".join(t.value for t in Task)
             raise ValueError(f"unknown task {task!r}; allowed: {allowed}") from None
     if spec is not None and parsed.steps_to_go is not None and parsed.steps_to_go > len(spec.walls):
-        raise ValueError(f"task {parsed.value} needs a maze with at least {parsed.steps_to_go} walls; "
-                         f"this maze has {len(spec.walls)}")
+        raise ValueError(
+            f"task {parsed.value} needs a maze with at least {parsed.steps_to_go} walls; "
+            f"this maze has {len(spec.walls)}"
+        )
     return parsed
 
 
@@ -109,8 +120,12 @@ def initial_task_state(spec: MazeSpec, marble_xy: np.ndarray, task: Task | None 
     return TaskState(channel=channel, reached=channel <= task.goal_channel(spec))
 
 
-def task_step(task: Task, spec: MazeSpec, state: TaskState, marble_xy: np.ndarray,
-              ) -> tuple[TaskState, np.ndarray, np.ndarray, np.ndarray]:
+def task_step(
+    task: Task,
+    spec: MazeSpec,
+    state: TaskState,
+    marble_xy: np.ndarray,
+) -> tuple[TaskState, np.ndarray, np.ndarray, np.ndarray]:
     """Advance the task by one step of the marbles to ``marble_xy`` (B, n, 2).
 
     Returns ``(new_state, reward (B,), terminated (B,), crossings (B, n))`` where ``crossings``
@@ -132,8 +147,9 @@ def task_step(task: Task, spec: MazeSpec, state: TaskState, marble_xy: np.ndarra
     return TaskState(channel=channel, reached=reached), reward, terminated, crossings
 
 
-def task_step_one(task: Task, spec: MazeSpec, channels: list[int], reached: list[bool],
-                  radii: list[float]) -> tuple[float, bool, list[int]]:
+def task_step_one(
+    task: Task, spec: MazeSpec, channels: list[int], reached: list[bool], radii: list[float]
+) -> tuple[float, bool, list[int]]:
     """Scalar :func:`task_step` for one environment, updating ``channels`` and ``reached`` in
     place from the marbles' radii. Returns ``(reward, terminated, crossings)``.
 
@@ -167,4 +183,4 @@ def rewards_from_channels(task: Task, spec: MazeSpec, channels: np.ndarray) -> t
         return rewards, (after == 0).all(axis=-1)
     reached = np.logical_or.accumulate(after <= task.goal_channel(spec), axis=0)
     before = np.vstack([np.zeros_like(reached[:1]), reached[:-1]])
-    return (reached & ~before).sum(axis=-1).astype(np.float64), reached.all(axis=-1)
+    return (reached & ~before).sum(axis=-1).astype(np.float64), np.asarray(reached.all(axis=-1))

@@ -29,8 +29,17 @@ try:
 except ImportError:  # pragma: no cover - not POSIX: directories are not locked
     fcntl = None  # type: ignore[assignment]
 
-__all__ = ["atomic_write_bytes", "exclusive_lock", "write_json", "read_json", "file_sha256", "FileWriteError", "DiskFullError",
-           "disk_full_errno", "reporting_full_disk"]
+__all__ = [
+    "atomic_write_bytes",
+    "exclusive_lock",
+    "write_json",
+    "read_json",
+    "file_sha256",
+    "FileWriteError",
+    "DiskFullError",
+    "disk_full_errno",
+    "reporting_full_disk",
+]
 
 
 def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
@@ -133,13 +142,13 @@ class FileWriteError(OSError):
         return f"cannot write {os.fspath(path)}: {reason}" + (f". {advice}" if advice else "")
 
     @classmethod
-    def from_error(cls, path: str | os.PathLike, error: OSError) -> "FileWriteError":
+    def from_error(cls, path: str | os.PathLike, error: OSError) -> FileWriteError:
         """``error`` (met while writing ``path``) as a :class:`FileWriteError`; one already is is kept."""
         if isinstance(error, FileWriteError):
             return error
         return cls(path, error.strerror or str(error) or type(error).__name__, code=error.errno)
 
-    def with_advice(self, advice: str) -> "FileWriteError":
+    def with_advice(self, advice: str) -> FileWriteError:
         """The same error with ``advice`` (what the caller knows about going on) instead of its own."""
         return FileWriteError(self.path, self.reason, advice, self.errno)
 
@@ -153,13 +162,15 @@ class DiskFullError(FileWriteError):
 
     def __init__(self, path: str | os.PathLike, advice: str = "", code: int = errno.ENOSPC) -> None:
         reason = os.strerror(code)
-        OSError.__init__(self, f"{reason[:1].lower()}{reason[1:]} while writing {os.fspath(path)}"
-                               + (f"; {advice}" if advice else ""))
+        OSError.__init__(
+            self,
+            f"{reason[:1].lower()}{reason[1:]} while writing {os.fspath(path)}" + (f"; {advice}" if advice else ""),
+        )
         self.path, self.reason, self.advice = Path(path), reason, advice
         self.errno = code
 
-    def with_advice(self, advice: str) -> "DiskFullError":
-        return DiskFullError(self.path, advice, self.errno)
+    def with_advice(self, advice: str) -> DiskFullError:
+        return DiskFullError(self.path, advice, self.errno if self.errno is not None else errno.ENOSPC)
 
     def __reduce__(self):
         return DiskFullError, (self.path, self.advice, self.errno)
@@ -186,8 +197,12 @@ def disk_full_errno(error: BaseException | str) -> int | None:
 
 
 @contextlib.contextmanager
-def reporting_full_disk(path: str | os.PathLike | None, advice: str | Callable[[], str] = "", *,
-                        default_path: str | os.PathLike | None = None) -> Iterator[None]:
+def reporting_full_disk(
+    path: str | os.PathLike | None,
+    advice: str | Callable[[], str] = "",
+    *,
+    default_path: str | os.PathLike | None = None,
+) -> Iterator[None]:
     """Within the block, an error that says the disk is full becomes :class:`DiskFullError` naming
     ``path`` (None: the file the error names, else ``default_path``) with ``advice`` (a callable is
     asked when the error happens, e.g. to count what was saved). A :class:`DiskFullError` raised
@@ -199,4 +214,6 @@ def reporting_full_disk(path: str | os.PathLike | None, advice: str | Callable[[
         if code is None or (isinstance(error, DiskFullError) and (error.advice or not advice)):
             raise
         where = path or getattr(error, "path", None) or getattr(error, "filename", None) or default_path
+        if where is None:  # no file to name: the error says the disk is full itself
+            raise
         raise DiskFullError(where, advice() if callable(advice) else advice, code) from error

@@ -48,6 +48,7 @@ def write_gif(frames: list[np.ndarray], path: str | Path, fps: int = 30, max_fra
     stride = max(1, int(np.ceil(len(frames) / max_frames)))
     images = [Image.fromarray(frame) for frame in frames[::stride]]
     buffer = io.BytesIO()
-    images[0].save(buffer, format="GIF", save_all=True, append_images=images[1:],
-                   duration=int(round(1000 * stride / fps)), loop=0)
+    images[0].save(
+        buffer, format="GIF", save_all=True, append_images=images[1:], duration=round(1000 * stride / fps), loop=0
+    )
     return atomic_write_bytes(path, buffer.getvalue())

@@ -26,9 +26,19 @@ class ProgressBar:
     field says it). ``eta``: add an ETA column. ``transient``: remove the bar when done.
     """
 
-    def __init__(self, label: str, total: float, *, completed: float = 0, enabled: bool = True,
-                 count: str | None = "of", eta: bool = False, transient: bool = False, info: str = "",
-                 console: Console | None = None):
+    def __init__(
+        self,
+        label: str,
+        total: float,
+        *,
+        completed: float = 0,
+        enabled: bool = True,
+        count: str | None = "of",
+        eta: bool = False,
+        transient: bool = False,
+        info: str = "",
+        console: Console | None = None,
+    ):
         self.enabled = enabled
         self.console = console or Console(stderr=True)
         self._total = total
@@ -53,11 +63,22 @@ class ProgressBar:
             columns += [TextColumn("ETA"), TimeRemainingColumn()]
         self._bar = Progress(*columns, console=self.console, transient=self._transient)
         self._bar.__enter__()
-        self._task = self._bar.add_task(self._label, total=self._total, completed=self._completed, info=self._info)
+        self._task = self._bar.add_task(
+            self._label,
+            total=self._total,
+            completed=self._completed,  # type: ignore[arg-type]  # rich annotates int here, stores a float
+            info=self._info,
+        )
         return self
 
-    def update(self, *, completed: float | None = None, advance: float | None = None, info: str | None = None,
-               label: str | None = None) -> None:
+    def update(
+        self,
+        *,
+        completed: float | None = None,
+        advance: float | None = None,
+        info: str | None = None,
+        label: str | None = None,
+    ) -> None:
         """Move the bar to ``completed`` (or by ``advance``) and replace the info text or label."""
         if self._bar is None:
             return
@@ -73,8 +94,9 @@ class ProgressBar:
         bar is disabled."""
         (self._bar.console if self._bar is not None else self.console).print(text)
 
-    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
-                 traceback: TracebackType | None) -> None:
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, traceback: TracebackType | None
+    ) -> None:
         if self._bar is not None:
             self._bar.__exit__(exc_type, exc, traceback)
             self._bar = None

@@ -1,0 +1,203 @@
+"""The MuJoCo model of a :class:`~bimgame.sim.maze.MazeSpec` as MJCF text (:func:`build_mjcf`), which
+:class:`~bimgame.sim.physics.MazeSim` compiles; the module docstring of :mod:`bimgame.sim.physics`
+describes the model.
+"""
+
+from __future__ import annotations
+
+import math
+
+from bimgame.sim.maze import Friction, MazeSpec
+
+__all__ = ["build_mjcf", "contact_condim", "PHYSICS_HZ"]
+
+PHYSICS_HZ = 150.0
+
+# Board and servo constants: the board is stiffly position-controlled, so its own inertia only
+# sets how tightly it tracks the commanded tilt (natural frequency SERVO_OMEGA, critically damped).
+BOARD_MASS = 1.0
+BOARD_INERTIA = (1e-2, 1e-2, 2e-2)
+GIMBAL_INERTIA = 1e-6
+SERVO_OMEGA = 100.0
+FLOOR_THICKNESS = 4e-3
+# Contact softness: time constant at MuJoCo's stable minimum of two physics steps, critically
+# damped, with high impedance so a resting marble sinks only ~0.1 mm into the floor.
+CONTACT_SOLREF = "0.0134 1"
+CONTACT_SOLIMP = "0.95 0.99 0.001"
+# Static friction (frictionloss) with MuJoCo's default softness lets a marble below its breakaway
+# tilt creep at ~0.5 mm/s; a high impedance makes it hold (0.06 mm in 1 s at half the breakaway).
+STATIC_FRICTION_SOLIMP = "0.99 0.999 0.001"
+
+
+def _arc_boxes(
+    inner: float,
+    outer: float,
+    start: float,
+    end: float,
+    tolerance: float,
+) -> list[tuple[float, float, float, float, float]]:
+    """Boxes ``(cx, cy, half_length, half_depth, yaw)`` covering the annular sector
+    ``[inner, outer] x [start, end]``.
+
+    Interior pieces span angle ``delta`` with faces placed so the circle deviates at most
+    ``inner * (1/cos(delta/2) - 1) / 2`` from them; the end pieces are narrow enough that their
+    flat end face stays within ``tolerance`` of the sector's radial edge (the gate edge), which is
+    what decides whether the marble fits through a gate.
+    """
+    depth = outer - inner
+    # Largest interior span keeping both faces within tolerance (circle vs. symmetric chord).
+    delta_max = 2 * math.acos(1.0 / (1.0 + 2 * tolerance / outer))
+    # End pieces: flat end face vs. radial edge differ by depth/2 * tan(delta/2).
+    delta_end = min(delta_max, 2 * math.atan(2 * tolerance / depth))
+    span = end - start
+    pieces: list[tuple[float, float]] = []
+    if span <= 2 * delta_end:
+        pieces.append((start, end))
+    else:
+        middle = span - 2 * delta_end
+        n_mid = max(1, math.ceil(middle / delta_max))
+        edges = [start, start + delta_end]
+        edges += [start + delta_end + middle * (i + 1) / n_mid for i in range(n_mid)]
+        edges += [end]
+        pieces = list(zip(edges[:-1], edges[1:], strict=True))
+    boxes = []
+    for a0, a1 in pieces:
+        half = 0.5 * (a1 - a0)
+        c = math.cos(half)
+        # Faces at distances placing the circle symmetrically about each flat face.
+        d_in = 2 * inner / (1 + 1 / c)
+        d_out = 2 * outer / (1 + 1 / c)
+        # Half length reaches the radial edge line at the face's mid-depth (outer face for
+        # interior pieces so neighbours overlap without gaps).
+        half_len = d_out * math.tan(half)
+        mid = 0.5 * (a0 + a1)
+        rc = 0.5 * (d_in + d_out)
+        boxes.append((rc * math.cos(mid), rc * math.sin(mid), half_len, 0.5 * (d_out - d_in), mid))
+    # End pieces: pull their outer ends back so the end face passes through the radial edge at
+    # mid-depth instead of overhanging into the gate.
+    return [_trim_end_box(b, inner, outer, a0, a1, start, end) for b, (a0, a1) in zip(boxes, pieces, strict=True)]
+
+
+def _trim_end_box(box, inner, outer, a0, a1, start, end):
+    cx, cy, half_len, half_depth, yaw = box
+    if a0 != start and a1 != end:
+        return box
+    half = 0.5 * (a1 - a0)
+    rm = 0.5 * (inner + outer)
+    # Tangential coordinate (along the box) of the radial edge at mid-depth, relative to the box
+    # centre: the edge point at radius rm sits at angle +-half from the bisector.
+    t_edge = rm * math.sin(half)
+    lo = -t_edge if a0 == start else -half_len
+    hi = t_edge if a1 == end else half_len
+    new_half = 0.5 * (hi - lo)
+    shift = 0.5 * (hi + lo)
+    tx, ty = -math.sin(yaw), math.cos(yaw)
+    return (cx + shift * tx, cy + shift * ty, new_half, half_depth, yaw)
+
+
+MUJOCO_MIN_FRICTION = 1e-5  # mjMINMU: MuJoCo raises smaller friction coefficients to this
+
+
+def contact_condim(friction: Friction) -> int:
+    """Contact dimensionality for a friction setting.
+
+    MuJoCo raises any friction coefficient below ``mjMINMU`` (1e-5) to 1e-5, so MERL's rolling
+    friction of 1e-6 m would silently become ten times larger: on a 5° tilt that alone slows the
+    marble by 2%. Friction terms below that floor are therefore left out: ``condim=3`` (sliding
+    friction only, which still makes the marble roll without slipping), 4 (plus torsional) when
+    only the spin coefficient reaches the floor, 6 (plus rolling) when the rolling one does.
+    """
+    if friction.roll >= MUJOCO_MIN_FRICTION:
+        return 6
+    if friction.spin >= MUJOCO_MIN_FRICTION:
+        return 4
+    return 3
+
+
+def build_mjcf(spec: MazeSpec, n_marbles: int = 1, physics_hz: float = PHYSICS_HZ) -> str:
+    """MJCF text of the maze with ``n_marbles`` marbles (placed at the origin; see
+    :meth:`MazeSim.reset`)."""
+    if not (isinstance(n_marbles, int) and n_marbles >= 1):
+        raise ValueError(f"n_marbles must be an integer >= 1, got {n_marbles!r}")
+    h = spec.wall_height
+    f = spec.friction
+    kp_x = (BOARD_INERTIA[0] + GIMBAL_INERTIA) * SERVO_OMEGA**2
+    kp_y = BOARD_INERTIA[1] * SERVO_OMEGA**2
+    kv_x = 2 * (BOARD_INERTIA[0] + GIMBAL_INERTIA) * SERVO_OMEGA
+    kv_y = 2 * BOARD_INERTIA[1] * SERVO_OMEGA
+    walls = []
+    arcs = [(w.inner_radius, w.outer_radius, w.solid_arcs(), f"wall{k}") for k, w in enumerate(spec.walls)]
+    arcs.append((spec.rim_radius, spec.rim_radius + spec.rim_thickness, [(-math.pi, math.pi)], "rim"))
+    for inner, outer, solid, name in arcs:
+        for j, (a0, a1) in enumerate(solid):
+            for i, (cx, cy, hl, hd, yaw) in enumerate(_arc_boxes(inner, outer, a0, a1, spec.arc_tolerance)):
+                # Box x axis is radial (depth), y axis tangential (length).
+                walls.append(
+                    f'<geom name="{name}_{j}_{i}" class="wall" pos="{cx:.9g} {cy:.9g} {h / 2:.9g}" '
+                    f'size="{hd:.9g} {hl:.9g} {h / 2:.9g}" euler="0 0 {yaw:.12g}"/>'
+                )
+    half = spec.rim_radius + spec.rim_thickness
+    board_geoms = ["floor"] + [w.split('"')[1] for w in walls]
+    pair_attrs = (
+        f'condim="{contact_condim(spec.friction)}" '
+        f'friction="{f.slide:.9g} {f.slide:.9g} {f.spin:.9g} {f.roll:.9g} {f.roll:.9g}" '
+        f'solref="{CONTACT_SOLREF}" solimp="{CONTACT_SOLIMP}"'
+    )
+    pairs = [f'<pair geom1="marble{i}" geom2="{g}" {pair_attrs}/>' for i in range(n_marbles) for g in board_geoms]
+    pairs += [
+        f'<pair geom1="marble{i}" geom2="marble{j}" {pair_attrs}/>'
+        for i in range(n_marbles)
+        for j in range(i + 1, n_marbles)
+    ]
+    marbles = []
+    for i in range(n_marbles):
+        marbles.append(
+            f'<body name="marble{i}" pos="0 0 {spec.marble_radius:.9g}">'
+            f'<joint name="marble{i}" type="free" frictionloss="{f.static:.9g}" '
+            f'solimpfriction="{STATIC_FRICTION_SOLIMP}"/>'
+            f'<geom name="marble{i}" class="marble"/></body>'
+        )
+    board_inertia = f"{BOARD_INERTIA[0]} {BOARD_INERTIA[1]} {BOARD_INERTIA[2]}"
+    return f"""<mujoco model="bimgame">
+  <compiler angle="radian" autolimits="true"/>
+  <option timestep="{1.0 / physics_hz:.12g}" integrator="implicitfast" cone="elliptic"/>
+  <visual><global offwidth="640" offheight="640"/></visual>
+  <default>
+    <default class="wall">
+      <geom type="box" contype="0" conaffinity="0" rgba="0.55 0.55 0.6 1"/>
+    </default>
+    <default class="marble">
+      <geom type="sphere" size="{spec.marble_radius:.9g}" mass="{spec.marble_mass:.9g}" contype="0"
+            conaffinity="0" rgba="0.85 0.85 0.9 1"/>
+    </default>
+  </default>
+  <worldbody>
+    <light pos="0 0 0.6" dir="0 0 -1" directional="true"/>
+    <body name="gimbal">
+      <joint name="tilt_x" type="hinge" axis="1 0 0"/>
+      <inertial pos="0 0 0" mass="0.001" diaginertia="{GIMBAL_INERTIA} {GIMBAL_INERTIA} {GIMBAL_INERTIA}"/>
+      <body name="board">
+        <joint name="tilt_y" type="hinge" axis="0 1 0"/>
+        <inertial pos="0 0 0" mass="{BOARD_MASS}" diaginertia="{board_inertia}"/>
+        <geom name="floor" type="box" size="{half:.9g} {half:.9g} {FLOOR_THICKNESS / 2:.9g}"
+              pos="0 0 {-FLOOR_THICKNESS / 2:.9g}" contype="0" conaffinity="0" rgba="0.2 0.3 0.25 1"/>
+        {chr(10).join("        " + w for w in walls)}
+      </body>
+    </body>
+    {"".join(marbles)}
+  </worldbody>
+  <contact>
+    {chr(10).join("    " + p for p in pairs)}
+  </contact>
+  <actuator>
+    <general name="servo_x" joint="tilt_x" dyntype="integrator" gaintype="fixed" gainprm="{kp_x:.9g}"
+             biastype="affine" biasprm="0 {-kp_x:.9g} 0" actlimited="true"
+             actrange="{-spec.max_tilt:.12g} {spec.max_tilt:.12g}"/>
+    <velocity name="rate_x" joint="tilt_x" kv="{kv_x:.9g}"/>
+    <general name="servo_y" joint="tilt_y" dyntype="integrator" gaintype="fixed" gainprm="{kp_y:.9g}"
+             biastype="affine" biasprm="0 {-kp_y:.9g} 0" actlimited="true"
+             actrange="{-spec.max_tilt:.12g} {spec.max_tilt:.12g}"/>
+    <velocity name="rate_y" joint="tilt_y" kv="{kv_y:.9g}"/>
+  </actuator>
+</mujoco>
+"""
