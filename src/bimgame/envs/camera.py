@@ -49,27 +49,36 @@ class CameraView:
         # spreads that window by its radius (the window a marble changes in the end: ``half``).
         self.half_sampled = math.ceil(raster.marble_radius_px + 0.5 + math.sqrt(2)) + 1
         self.half = self.half_sampled + blur_radius
-        rows, cols = np.mgrid[-self.half:self.half + 1, -self.half:self.half + 1]
+        rows, cols = np.mgrid[-self.half : self.half + 1, -self.half : self.half + 1]
         self._window = rows.ravel().astype(np.float64), cols.ravel().astype(np.float64)
         h = self.half_sampled
-        rows, cols = np.mgrid[-h:h + 1, -h:h + 1]
+        rows, cols = np.mgrid[-h : h + 1, -h : h + 1]
         self._sampled = rows.ravel().astype(np.float64), cols.ravel().astype(np.float64)
         # Where each sampled pixel takes its value from, relative to the window's centre's source:
         # the offsets rotated by each env's camera (fixed for an episode).
         self._sampled_source = np.zeros((2, batch, rows.size))  # column, row
-        rows, cols = np.mgrid[0:self.size, 0:self.size].astype(np.float64)
+        rows, cols = np.mgrid[0 : self.size, 0 : self.size].astype(np.float64)
         self._frame_pixels = rows.reshape(1, -1), cols.reshape(1, -1)  # every pixel of a frame: row, col
         self._frame_offsets = (np.arange(batch) * (self.size * self.size))[:, None]  # each env's first pixel
         self._work: dict[tuple, np.ndarray] = {}
 
-    def set_row(self, row: int, shift_x: float, shift_y: float, rotation: float, blur: float,
-                contrast: float, brightness: float, noise_std: float) -> None:
+    def set_row(
+        self,
+        row: int,
+        shift_x: float,
+        shift_y: float,
+        rotation: float,
+        blur: float,
+        contrast: float,
+        brightness: float,
+        noise_std: float,
+    ) -> None:
         """Env ``row``'s camera: offset (px, right and down), rotation (degrees, counter-clockwise),
         blur sigma (px), contrast, brightness (gray levels), noise std (gray levels)."""
         self.cos[row], self.sin[row] = math.cos(math.radians(rotation)), math.sin(math.radians(rotation))
         self.shift[row] = shift_x, shift_y
         if self.radius:
-            self.taps[row] = _gaussian_kernel(blur, self.radius)[self.radius:]
+            self.taps[row] = _gaussian_kernel(blur, self.radius)[self.radius :]
         self.gain[row] = contrast
         self.noise_std[row] = noise_std
         dr, dc = self._sampled
@@ -80,7 +89,7 @@ class CameraView:
         index, weight = self._bilinear("base", src_col, src_row)
         view = (self.background[index] * weight).sum(axis=0)
         if self.radius:
-            view = self._blur("base", view.reshape(1, size, size), self.taps[row:row + 1], grow=False)
+            view = self._blur("base", view.reshape(1, size, size), self.taps[row : row + 1], grow=False)
         self.base[row] = view.reshape(-1) * np.float32(contrast) + np.float32(MID_GRAY * (1 - contrast) + brightness)
 
     def apply(self, frames: np.ndarray, marbles_px: np.ndarray, noise: np.ndarray | None) -> np.ndarray:
@@ -207,14 +216,14 @@ class CameraView:
             b, length, width = out.shape
             size = length + 2 * g
             padded = self.buffer(f"{name}pad{axis}", (b, size + 2 * r, width))
-            padded[:, g + r:g + r + length] = out
-            padded[:, :g + r] = 0.0 if grow else out[:, :1]
-            padded[:, g + r + length:] = 0.0 if grow else out[:, -1:]
+            padded[:, g + r : g + r + length] = out
+            padded[:, : g + r] = 0.0 if grow else out[:, :1]
+            padded[:, g + r + length :] = 0.0 if grow else out[:, -1:]
             result = self.buffer(f"{name}blur{axis}", (b, size, width))
             pair = self.buffer(f"{name}pair{axis}", (b, size, width))
-            np.multiply(padded[:, r:r + size], taps[:, 0, None, None], out=result)
+            np.multiply(padded[:, r : r + size], taps[:, 0, None, None], out=result)
             for j in range(1, r + 1):
-                np.add(padded[:, r - j:r - j + size], padded[:, r + j:r + j + size], out=pair)
+                np.add(padded[:, r - j : r - j + size], padded[:, r + j : r + j + size], out=pair)
                 pair *= taps[:, j, None, None]
                 result += pair
             out = result.transpose(0, 2, 1)

@@ -22,8 +22,7 @@ from bimgame.sim.placement import check_marble_xy, check_n_marbles, check_sim_st
 from bimgame.sim.tasks import Task, initial_task_state, parse_task, task_step_one
 from bimgame.util.settings import is_integer, is_real
 
-__all__ = ["BallInMazeEnv", "ACTION_TYPES", "DISCRETE_TILTS", "NO_ACTION", "sample_start",
-           "action_to_tilt_delta"]
+__all__ = ["BallInMazeEnv", "ACTION_TYPES", "DISCRETE_TILTS", "NO_ACTION", "sample_start", "action_to_tilt_delta"]
 
 ACTION_TYPES = ("discrete", "continuous")
 
@@ -56,8 +55,10 @@ def action_to_tilt_delta(action: Any, action_type: str, tilt_step: float) -> np.
         return DISCRETE_TILTS[index] * tilt_step
     array = np.asarray(action, dtype=np.float64)
     if array.shape != (2,) or not np.all(np.isfinite(array)) or np.any(np.abs(array) > 1.0):
-        raise ValueError(f"invalid action {action!r}: continuous actions are 2 finite numbers in "
-                         "[-1, 1] (tilt change about x and y, in units of the tilt step)")
+        raise ValueError(
+            f"invalid action {action!r}: continuous actions are 2 finite numbers in "
+            "[-1, 1] (tilt change about x and y, in units of the tilt step)"
+        )
     return array * tilt_step
 
 
@@ -153,14 +154,24 @@ class BallInMazeEnv(gym.Env):
     * v0: initial version.
     """
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
+    metadata: dict[str, Any] = {"render_modes": ["rgb_array"], "render_fps": 30}  # noqa: RUF012 - Gymnasium's API
 
-    def __init__(self, task: str | Task = "FULL", *, obs_mode: str = "pixels",
-                 action_type: str = "discrete", tilt_step_deg: float | None = None,
-                 max_tilt_deg: float | None = None, maze: MazeSpec | None = None,
-                 n_marbles: int = 1, obs_size: int = 84, render_mode: str | None = None,
-                 render_size: int = 480, renderer: str = "raster",
-                 randomize: Randomization | Mapping[str, Any] | None = None):
+    def __init__(
+        self,
+        task: str | Task = "FULL",
+        *,
+        obs_mode: str = "pixels",
+        action_type: str = "discrete",
+        tilt_step_deg: float | None = None,
+        max_tilt_deg: float | None = None,
+        maze: MazeSpec | None = None,
+        n_marbles: int = 1,
+        obs_size: int = 84,
+        render_mode: str | None = None,
+        render_size: int = 480,
+        renderer: str = "raster",
+        randomize: Randomization | Mapping[str, Any] | None = None,
+    ):
         spec = maze if maze is not None else MazeSpec.merl()
         if not isinstance(spec, MazeSpec):
             raise TypeError(f"maze must be a MazeSpec, got {type(spec).__name__}")
@@ -172,8 +183,9 @@ class BallInMazeEnv(gym.Env):
         try:
             self.maze = spec.replace(**changes) if changes else spec
         except MazeSpecError as error:  # it names the fields in radians: say where they came from
-            raise MazeSpecError(f"{error} (from tilt_step_deg={tilt_step_deg!r}, max_tilt_deg="
-                                f"{max_tilt_deg!r}, in degrees)") from None
+            raise MazeSpecError(
+                f"{error} (from tilt_step_deg={tilt_step_deg!r}, max_tilt_deg={max_tilt_deg!r}, in degrees)"
+            ) from None
         self.task = parse_task(task, self.maze)
         if obs_mode not in OBS_MODES:
             raise ValueError(f"unknown obs_mode {obs_mode!r}; allowed: {', '.join(OBS_MODES)}")
@@ -186,15 +198,24 @@ class BallInMazeEnv(gym.Env):
         n_marbles = check_n_marbles(self.maze, n_marbles)  # also refuses a maze without walls
         limit = MAX_RENDER_SIZE[renderer]
         if not (is_integer(render_size) and 16 <= render_size <= limit):
-            raise ValueError(f"render_size must be an integer in 16..{limit} (renderer={renderer!r}), "
-                             f"got {render_size!r}")
+            raise ValueError(
+                f"render_size must be an integer in 16..{limit} (renderer={renderer!r}), got {render_size!r}"
+            )
         self.randomize = Randomization.from_value(randomize)
         if self.randomize is not None:
             self.randomize.check(self.maze, obs_mode, obs_size)
-        self._init_kwargs = dict(task=self.task.value, obs_mode=obs_mode, action_type=action_type,
-                                 maze=self.maze, n_marbles=int(n_marbles), obs_size=obs_size,
-                                 render_mode=render_mode, render_size=render_size, renderer=renderer,
-                                 randomize=self.randomize)
+        self._init_kwargs = dict(
+            task=self.task.value,
+            obs_mode=obs_mode,
+            action_type=action_type,
+            maze=self.maze,
+            n_marbles=int(n_marbles),
+            obs_size=obs_size,
+            render_mode=render_mode,
+            render_size=render_size,
+            renderer=renderer,
+            randomize=self.randomize,
+        )
         self.obs_mode = obs_mode
         self.action_type = action_type
         self.n_marbles = int(n_marbles)
@@ -202,13 +223,16 @@ class BallInMazeEnv(gym.Env):
         self.render_size = int(render_size)
         self.renderer = renderer
         self.sim = MazeSim(self.maze, n_marbles=self.n_marbles)
-        self.observer = Observer(self.maze, self.n_marbles, obs_mode, obs_size=obs_size,
-                                 layout=self.sim.layout)
-        self.observation_space = observation_space(self.observer.space, self.randomize, self.maze,
-                                                   self.n_marbles, obs_mode)
+        self.observer = Observer(self.maze, self.n_marbles, obs_mode, obs_size=obs_size, layout=self.sim.layout)
+        self.observation_space = observation_space(
+            self.observer.space, self.randomize, self.maze, self.n_marbles, obs_mode
+        )
         #: The current episode's domain randomisation (None without ``randomize``).
-        self.randomizer = None if self.randomize is None else EpisodeRandomizer(
-            self.randomize, self.maze, 1, self.observer.raster if obs_mode == "pixels" else None)
+        self.randomizer = (
+            None
+            if self.randomize is None
+            else EpisodeRandomizer(self.randomize, self.maze, 1, self.observer.raster if obs_mode == "pixels" else None)
+        )
         self._steps = 0  # steps since reset, counted only with randomize (the per-step noise's counter)
         if action_type == "discrete":
             self.action_space = spaces.Discrete(5)
@@ -219,7 +243,7 @@ class BallInMazeEnv(gym.Env):
         self._has_reset = False
         self._episode_over = True  # until reset(): step() refuses to run (one bool check per step)
         self._discrete_deltas = [tuple(float(v) for v in row * self.maze.tilt_step) for row in DISCRETE_TILTS]
-        self._mujoco_renderer = None
+        self._mujoco_renderer: mujoco.Renderer | None = None
 
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -234,19 +258,25 @@ class BallInMazeEnv(gym.Env):
         if unknown:
             raise ValueError(f"unknown reset options {sorted(unknown)}; allowed: {RESET_OPTIONS} (one of them)")
         if "marble_xy" in options and "sim_state" in options:
-            raise ValueError("reset options 'marble_xy' and 'sim_state' exclude each other: give the marbles' "
-                             "positions (a start at rest) or a whole physics state, not both")
+            raise ValueError(
+                "reset options 'marble_xy' and 'sim_state' exclude each other: give the marbles' "
+                "positions (a start at rest) or a whole physics state, not both"
+            )
         state = None
         if "sim_state" in options:
             state, xy = check_sim_state(self.maze, self.sim.layout, options["sim_state"], "options['sim_state']")
         elif "marble_xy" in options:
-            xy = finite_array("options['marble_xy']", options["marble_xy"], (self.n_marbles, 2),
-                              f" (x, y in metres, board frame, for each of the {self.n_marbles} marble(s))")
+            xy = finite_array(
+                "options['marble_xy']",
+                options["marble_xy"],
+                (self.n_marbles, 2),
+                f" (x, y in metres, board frame, for each of the {self.n_marbles} marble(s))",
+            )
             check_marble_xy(self.maze, xy, "options['marble_xy']")
         else:
             xy = sample_start(self.maze, self.n_marbles, self.np_random)
         if self.randomizer is not None:  # drawn after the start: a seed's starts do not depend on it
-            self._start_randomized_episode()
+            self._start_randomized_episode(self.randomizer)
         if state is not None:
             self.sim.data.qacc_warmstart[:] = 0  # as MazeSim.reset; step() clears it anyway
             self.sim.set_state(state)
@@ -271,18 +301,18 @@ class BallInMazeEnv(gym.Env):
             delta = action_to_tilt_delta(action, self.action_type, self.maze.tilt_step)
         if self.randomizer is not None:
             if self.randomizer.acting:
-                delta = self.randomizer.tilt_deltas(np.array([delta], dtype=np.float64), np.zeros(1, dtype=np.intp),
-                                                    np.array([self._steps]))[0]
+                delta = self.randomizer.tilt_deltas(
+                    np.array([delta], dtype=np.float64), np.zeros(1, dtype=np.intp), np.array([self._steps])
+                )[0]
             self._steps += 1
         sim = self.sim
         sim.step(delta)
         kinematics = sim.layout.board_frame_one(sim.data.qpos, sim.data.qvel)
         reward, terminated, crossings = task_step_one(
-            self.task, self.maze, self._channels, self._reached,
-            [math.hypot(k[0], k[1]) for k in kinematics])
+            self.task, self.maze, self._channels, self._reached, [math.hypot(k[0], k[1]) for k in kinematics]
+        )
         self._episode_over = terminated
-        return (self._observe(kinematics), reward, terminated, False,
-                self._info(kinematics, crossings, terminated))
+        return (self._observe(kinematics), reward, terminated, False, self._info(kinematics, crossings, terminated))
 
     def render(self):
         if self.render_mode is None:
@@ -300,13 +330,13 @@ class BallInMazeEnv(gym.Env):
         self.sim.close()
 
     # ------------------------------------------------------------------ helpers
-    def _start_randomized_episode(self) -> None:
+    def _start_randomized_episode(self, randomizer: EpisodeRandomizer) -> None:
         """Draw the episode's randomisation from ``np_random`` and set its physics on the model."""
-        self.randomizer.reset_row(0, self.np_random)
-        self._draws = self.randomizer.row(0)  # the episode's draws, for every step's info
+        randomizer.reset_row(0, self.np_random)
+        self._draws = randomizer.row(0)  # the episode's draws, for every step's info
         self._steps = 0
-        if self.randomizer.physical:
-            self.sim.set_parameters(**self.randomizer.physics(0))
+        if randomizer.physical:
+            self.sim.set_parameters(**randomizer.physics(0))
 
     def _observe(self, kinematics: list[tuple[float, float, float, float]]) -> np.ndarray:
         if self.obs_mode == "pixels":
@@ -343,7 +373,8 @@ class BallInMazeEnv(gym.Env):
                     "MuJoCo's 3D renderer needs an OpenGL backend and none could be created "
                     f"({error}). On a headless machine set MUJOCO_GL=egl (with a GPU driver) or "
                     "MUJOCO_GL=osmesa (apt-get install libosmesa6), or use renderer='raster', "
-                    "which draws the same board without OpenGL.") from error
+                    "which draws the same board without OpenGL."
+                ) from error
         camera = _top_camera(self.maze)
         self._mujoco_renderer.update_scene(self.sim.data, camera=camera)
         return self._mujoco_renderer.render()
@@ -355,19 +386,22 @@ class BallInMazeEnv(gym.Env):
             "sim_state": self.sim.get_state(),
             "task": (list(self._channels), list(self._reached), self._has_reset, self._episode_over),
             "np_random": None if self._np_random is None else self._np_random.bit_generator.state,
-            "randomization": None if self.randomizer is None or not self._has_reset else
-            (self.randomizer.state(0), self.randomizer.history[0].copy(), self._steps),
+            "randomization": None
+            if self.randomizer is None or not self._has_reset
+            else (self.randomizer.state(0), self.randomizer.history[0].copy(), self._steps),
         }
 
     def __setstate__(self, state: dict) -> None:
-        self.__init__(**state["kwargs"])
+        type(self).__init__(self, **state["kwargs"])
         if state.get("randomization") is not None:
+            randomizer = self.randomizer
+            assert randomizer is not None, "pickled with a randomisation, so built with one from the same kwargs"
             values, history, self._steps = state["randomization"]
-            self.randomizer.set_row(0, values)
-            self._draws = self.randomizer.row(0)
-            self.randomizer.history[0] = history
-            if self.randomizer.physical:
-                self.sim.set_parameters(**self.randomizer.physics(0))
+            randomizer.set_row(0, values)
+            self._draws = randomizer.row(0)
+            randomizer.history[0] = history
+            if randomizer.physical:
+                self.sim.set_parameters(**randomizer.physics(0))
         self.sim.set_state(state["sim_state"])
         self._channels, self._reached, self._has_reset, *over = state["task"]
         self._episode_over = over[0] if over else not self._has_reset  # pickles from before the flag

@@ -23,8 +23,9 @@ class Observer:
     tilt about x and y (rad), then each marble's channel.
     """
 
-    def __init__(self, spec: MazeSpec, n_marbles: int, obs_mode: str, *, obs_size: int = 84,
-                 layout: StateLayout | None = None):
+    def __init__(
+        self, spec: MazeSpec, n_marbles: int, obs_mode: str, *, obs_size: int = 84, layout: StateLayout | None = None
+    ):
         if obs_mode not in OBS_MODES:
             raise ValueError(f"unknown obs_mode {obs_mode!r}; allowed: {', '.join(OBS_MODES)}")
         if not (isinstance(obs_size, (int, np.integer)) and 16 <= obs_size <= 1024):
@@ -35,16 +36,22 @@ class Observer:
         self.obs_size = int(obs_size)
         self.layout = layout
         self._raster: MazeRenderer | None = None
+        self.space: spaces.Box
         if obs_mode == "pixels":
             self.space = spaces.Box(0, 255, shape=(1, self.obs_size, self.obs_size), dtype=np.uint8)
         else:
             extent = spec.rim_radius + spec.rim_thickness
             n = n_marbles
-            low = np.concatenate([np.tile([-extent, -extent, -np.inf, -np.inf], n),
-                                  [-spec.max_tilt - 0.01] * 2, np.zeros(n)]).astype(np.float32)
-            high = np.concatenate([np.tile([extent, extent, np.inf, np.inf], n),
-                                   [spec.max_tilt + 0.01] * 2,
-                                   np.full(n, spec.outermost_channel)]).astype(np.float32)
+            low = np.concatenate(
+                [np.tile([-extent, -extent, -np.inf, -np.inf], n), [-spec.max_tilt - 0.01] * 2, np.zeros(n)]
+            ).astype(np.float32)
+            high = np.concatenate(
+                [
+                    np.tile([extent, extent, np.inf, np.inf], n),
+                    [spec.max_tilt + 0.01] * 2,
+                    np.full(n, spec.outermost_channel),
+                ]
+            ).astype(np.float32)
             self.space = spaces.Box(low, high, dtype=np.float32)
 
     @property
@@ -54,16 +61,21 @@ class Observer:
             self._raster = MazeRenderer(self.spec, self.obs_size)
         return self._raster
 
-    def __call__(self, states: np.ndarray, channels: np.ndarray, layout: StateLayout | None = None,
-                 ) -> np.ndarray:
+    def __call__(
+        self,
+        states: np.ndarray,
+        channels: np.ndarray,
+        layout: StateLayout | None = None,
+    ) -> np.ndarray:
         layout = layout or self.layout
         if layout is None:
             raise ValueError("Observer needs the model's StateLayout (pass layout=)")
         positions, velocities = layout.board_frame(states)
         return self.from_kinematics(positions, velocities, states[:, layout.tilt], channels)
 
-    def from_kinematics(self, positions: np.ndarray, velocities: np.ndarray, tilt: np.ndarray,
-                        channels: np.ndarray) -> np.ndarray:
+    def from_kinematics(
+        self, positions: np.ndarray, velocities: np.ndarray, tilt: np.ndarray, channels: np.ndarray
+    ) -> np.ndarray:
         """Observations from board-frame marble positions and velocities (B, n, 3), board tilt
         (B, 2) and channels (B, n), for callers that already decoded their states."""
         batch = positions.shape[0]
@@ -71,7 +83,7 @@ class Observer:
             return self.raster.gray(positions[..., :2])[:, None]
         per_marble = np.concatenate([positions[..., :2], velocities[..., :2]], axis=-1)
         out = np.empty((batch, 5 * self.n_marbles + 2), dtype=np.float32)
-        out[:, :4 * self.n_marbles] = per_marble.reshape(batch, -1)
-        out[:, 4 * self.n_marbles:4 * self.n_marbles + 2] = tilt
-        out[:, 4 * self.n_marbles + 2:] = channels
+        out[:, : 4 * self.n_marbles] = per_marble.reshape(batch, -1)
+        out[:, 4 * self.n_marbles : 4 * self.n_marbles + 2] = tilt
+        out[:, 4 * self.n_marbles + 2 :] = channels
         return out

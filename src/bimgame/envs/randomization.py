@@ -42,19 +42,35 @@ from bimgame.sim.maze import Friction, MazeSpec
 from bimgame.sim.render import MazeRenderer
 from bimgame.util.settings import from_dict, is_integer, is_real
 
-__all__ = ["Randomization", "EpisodeRandomizer", "RANDOMIZATION_PRESETS", "randomization_preset",
-           "max_marble_radius_scale", "max_camera_shift",
-           "PHYSICS_FIELDS", "ACTION_FIELDS", "OBSERVATION_FIELDS", "MAX_LATENCY", "MAX_BLUR",
-           "MAX_CAMERA_ROTATION"]
+__all__ = [
+    "Randomization",
+    "EpisodeRandomizer",
+    "RANDOMIZATION_PRESETS",
+    "randomization_preset",
+    "max_marble_radius_scale",
+    "max_camera_shift",
+    "PHYSICS_FIELDS",
+    "ACTION_FIELDS",
+    "OBSERVATION_FIELDS",
+    "MAX_LATENCY",
+    "MAX_BLUR",
+    "MAX_CAMERA_ROTATION",
+]
 
-MAX_LATENCY = 2           #: largest action latency (whole action steps)
-MAX_BLUR = 3.0            #: largest blur sigma (px): the marble is ~5.6 px wide at 84 px
+MAX_LATENCY = 2  #: largest action latency (whole action steps)
+MAX_BLUR = 3.0  #: largest blur sigma (px): the marble is ~5.6 px wide at 84 px
 MAX_CAMERA_ROTATION = 15.0  #: largest camera rotation (degrees): a sanity bound, rotation keeps the board in view
 NOISE_TABLE_SIZE = 1 << 20  #: standard normals (float32) the per-step noise is read from
-NOISE_TABLE_SEED = 0x5EED   #: fixed: the table is part of the code, the per-episode keys are drawn
+NOISE_TABLE_SEED = 0x5EED  #: fixed: the table is part of the code, the per-episode keys are drawn
 
-PHYSICS_FIELDS = ("sliding_friction", "torsional_friction", "rolling_friction", "marble_mass",
-                  "marble_radius", "max_tilt")
+PHYSICS_FIELDS = (
+    "sliding_friction",
+    "torsional_friction",
+    "rolling_friction",
+    "marble_mass",
+    "marble_radius",
+    "max_tilt",
+)
 ACTION_FIELDS = ("tilt_step", "tilt_error", "latency")
 OBSERVATION_FIELDS = ("brightness", "contrast", "pixel_noise", "blur", "camera_shift", "camera_rotation")
 
@@ -135,23 +151,31 @@ class Randomization:
         """The bounds that depend on the env: ``ValueError`` naming the field otherwise."""
         observed = self.active(OBSERVATION_FIELDS)
         if observed and obs_mode != "pixels":
-            raise ValueError(f"Randomization fields {list(observed)} randomise the camera and need "
-                             f"obs_mode='pixels'; with obs_mode={obs_mode!r} leave them at None (state "
-                             "observations are exact measurements)")
+            raise ValueError(
+                f"Randomization fields {list(observed)} randomise the camera and need "
+                f"obs_mode='pixels'; with obs_mode={obs_mode!r} leave them at None (state "
+                "observations are exact measurements)"
+            )
         limit = max_marble_radius_scale(maze)
         if self.marble_radius is not None and self.marble_radius[1] > limit[0]:
-            raise ValueError(f"Randomization.marble_radius = {self.marble_radius!r}: the high end must be at "
-                             f"most {limit[0]:.4f} (a {limit[0] * maze.marble_radius * 2e3:.2f} mm marble), or "
-                             f"the marble no longer passes the narrowest opening, {limit[1]}")
+            raise ValueError(
+                f"Randomization.marble_radius = {self.marble_radius!r}: the high end must be at "
+                f"most {limit[0]:.4f} (a {limit[0] * maze.marble_radius * 2e3:.2f} mm marble), or "
+                f"the marble no longer passes the narrowest opening, {limit[1]}"
+            )
         if self.max_tilt is not None and self.max_tilt[1] * maze.max_tilt > math.radians(30) + 1e-12:
-            raise ValueError(f"Randomization.max_tilt = {self.max_tilt!r}: the servo limit must stay at most 30°, "
-                             f"so the high end must be at most {math.radians(30) / maze.max_tilt:.4f} "
-                             f"(nominal {math.degrees(maze.max_tilt):.3g}°)")
+            raise ValueError(
+                f"Randomization.max_tilt = {self.max_tilt!r}: the servo limit must stay at most 30°, "
+                f"so the high end must be at most {math.radians(30) / maze.max_tilt:.4f} "
+                f"(nominal {math.degrees(maze.max_tilt):.3g}°)"
+            )
         shift = max_camera_shift(maze, obs_size)
         if self.camera_shift is not None and max(abs(v) for v in self.camera_shift) > shift:
-            raise ValueError(f"Randomization.camera_shift = {self.camera_shift!r}: allowed within "
-                             f"[-{shift:.3f}, {shift:.3f}] px (the rim's width at obs_size={obs_size}), so the "
-                             "marble stays wholly in view")
+            raise ValueError(
+                f"Randomization.camera_shift = {self.camera_shift!r}: allowed within "
+                f"[-{shift:.3f}, {shift:.3f}] px (the rim's width at obs_size={obs_size}), so the "
+                "marble stays wholly in view"
+            )
 
     def names(self) -> tuple[str, ...]:
         """The names of the drawn values :meth:`draw` returns (and ``info["randomization"]`` reports,
@@ -177,7 +201,7 @@ class Randomization:
             else:
                 values[field.name] = float(rng.uniform(*bounds))
         if self.tilt_error is not None or self.pixel_noise is not None:
-            values["noise_key"] = int(rng.integers(0, 2 ** 63))
+            values["noise_key"] = int(rng.integers(0, 2**63))
         return values
 
 
@@ -197,8 +221,12 @@ _ALLOWED: dict[str, tuple[float, float, bool, str]] = {
     "pixel_noise": (0.0, 255.0, False, "standard deviations in [0, 255] gray levels"),
     "blur": (0.0, MAX_BLUR, False, f"sigmas in [0, {MAX_BLUR:g}] px"),
     "camera_shift": (-math.inf, math.inf, False, "pixels (at most the rim's width in pixels either way)"),
-    "camera_rotation": (-MAX_CAMERA_ROTATION, MAX_CAMERA_ROTATION, False,
-                        f"degrees in [-{MAX_CAMERA_ROTATION:g}, {MAX_CAMERA_ROTATION:g}]"),
+    "camera_rotation": (
+        -MAX_CAMERA_ROTATION,
+        MAX_CAMERA_ROTATION,
+        False,
+        f"degrees in [-{MAX_CAMERA_ROTATION:g}, {MAX_CAMERA_ROTATION:g}]",
+    ),
 }
 
 
@@ -221,14 +249,18 @@ def randomization_preset(name: str) -> Randomization:
 def _check_range(name: str, value: Any, lowest: float, highest: float, open_low: bool, what: str) -> tuple:
     integer = name == "latency"
     kind = "integers" if integer else "finite numbers"
-    ok = (isinstance(value, (tuple, list)) and len(value) == 2
-          and all(is_integer(v) if integer else is_real(v) and math.isfinite(v) for v in value))
+    ok = (
+        isinstance(value, (tuple, list))
+        and len(value) == 2
+        and all(is_integer(v) if integer else is_real(v) and math.isfinite(v) for v in value)
+    )
     if ok:
         low, high = (int(v) if integer else float(v) for v in value)
         ok = low <= high and (low > lowest if open_low else low >= lowest) and high <= highest
     if not ok:
-        raise ValueError(f"Randomization.{name} must be None or a (low, high) pair of {kind} with "
-                         f"low <= high, {what}; got {value!r}")
+        raise ValueError(
+            f"Randomization.{name} must be None or a (low, high) pair of {kind} with low <= high, {what}; got {value!r}"
+        )
     return low, high
 
 
@@ -246,11 +278,15 @@ def max_marble_radius_scale(maze: MazeSpec) -> tuple[float, str]:
         openings.append((wall.inner_radius - previous, f"{what} ({(wall.inner_radius - previous) * 1e3:.2f} mm wide)"))
         for j, gate in enumerate(wall.gates):
             chord = 2 * wall.inner_radius * math.sin(min(gate.width, math.pi) / 2)
-            where = (f"walls[{k}].gates[{j}] ({math.degrees(gate.width):.1f}° wide, "
-                     f"{chord * 1e3:.2f} mm at the wall's inner face)")
+            where = (
+                f"walls[{k}].gates[{j}] ({math.degrees(gate.width):.1f}° wide, "
+                f"{chord * 1e3:.2f} mm at the wall's inner face)"
+            )
             openings.append((chord, where))
         previous = wall.outer_radius
-    openings.append((maze.rim_radius - previous, f"the outermost channel ({(maze.rim_radius - previous) * 1e3:.2f} mm)"))
+    openings.append(
+        (maze.rim_radius - previous, f"the outermost channel ({(maze.rim_radius - previous) * 1e3:.2f} mm)")
+    )
     width, name = min(openings)
     return (width - margin) / (2 * maze.marble_radius), name
 
@@ -263,8 +299,9 @@ def max_camera_shift(maze: MazeSpec, obs_size: int) -> float:
     return maze.rim_thickness / (2 * extent / obs_size)
 
 
-def observation_space(space: spaces.Box, randomize: Randomization | None, maze: MazeSpec, n_marbles: int,
-                      obs_mode: str) -> spaces.Box:
+def observation_space(
+    space: spaces.Box, randomize: Randomization | None, maze: MazeSpec, n_marbles: int, obs_mode: str
+) -> spaces.Box:
     """State observations' tilt bounds widened for a servo limit scaled above 1."""
     if randomize is None or randomize.max_tilt is None or randomize.max_tilt[1] <= 1 or obs_mode != "state":
         return space
@@ -310,12 +347,15 @@ class EpisodeRandomizer:
         self.physical = bool(randomize.active(PHYSICS_FIELDS))
         self.acting = bool(randomize.active(ACTION_FIELDS))
         self.observing = bool(randomize.active(OBSERVATION_FIELDS))
-        self.values = {key: np.zeros(batch, dtype=np.int64 if key == "latency" else np.float64)
-                       for key in randomize.names() if key != "noise_key"}
+        self.values = {
+            key: np.zeros(batch, dtype=np.int64 if key == "latency" else np.float64)
+            for key in randomize.names()
+            if key != "noise_key"
+        }
         self.noise_keys = np.zeros(batch, dtype=np.uint64)
         self.history = np.zeros((batch, MAX_LATENCY, 2))  # commanded tilt changes, oldest first
         self.raster = raster
-        self.camera = None
+        self.camera: CameraView | None = None
         if self.observing:
             if raster is None:
                 raise ValueError("camera randomisation needs the observations' raster (raster=)")
@@ -335,9 +375,16 @@ class EpisodeRandomizer:
         self.history[row] = 0.0
         if self.camera is not None:
             get = self.row(row).get  # an absent key: nominal
-            self.camera.set_row(row, get("camera_shift_x", 0.0), get("camera_shift_y", 0.0),
-                                get("camera_rotation", 0.0), get("blur", 0.0), get("contrast", 1.0),
-                                get("brightness", 0.0), get("pixel_noise", 0.0))
+            self.camera.set_row(
+                row,
+                get("camera_shift_x", 0.0),
+                get("camera_shift_y", 0.0),
+                get("camera_rotation", 0.0),
+                get("blur", 0.0),
+                get("contrast", 1.0),
+                get("brightness", 0.0),
+                get("pixel_noise", 0.0),
+            )
 
     def row(self, row: int) -> dict[str, float | int]:
         """Env ``row``'s draws as plain Python numbers (the single env's ``info["randomization"]``)."""
@@ -355,12 +402,17 @@ class EpisodeRandomizer:
     def physics(self, row: int) -> dict[str, Any]:
         """Keyword arguments of :meth:`~bimgame.sim.physics.MazeSim.set_parameters` for env ``row``."""
         get, maze, f = self.row(row).get, self.maze, self.maze.friction
-        return {"friction": Friction(slide=f.slide * get("sliding_friction", 1.0),
-                                     spin=f.spin * get("torsional_friction", 1.0),
-                                     roll=f.roll * get("rolling_friction", 1.0), static=f.static),
-                "marble_mass": maze.marble_mass * get("marble_mass", 1.0),
-                "marble_radius": maze.marble_radius * get("marble_radius", 1.0),
-                "max_tilt": maze.max_tilt * get("max_tilt", 1.0)}
+        return {
+            "friction": Friction(
+                slide=f.slide * get("sliding_friction", 1.0),
+                spin=f.spin * get("torsional_friction", 1.0),
+                roll=f.roll * get("rolling_friction", 1.0),
+                static=f.static,
+            ),
+            "marble_mass": maze.marble_mass * get("marble_mass", 1.0),
+            "marble_radius": maze.marble_radius * get("marble_radius", 1.0),
+            "max_tilt": maze.max_tilt * get("max_tilt", 1.0),
+        }
 
     # ------------------------------------------------------------------ per step
     def tilt_deltas(self, commanded: np.ndarray, rows: np.ndarray, steps: np.ndarray) -> np.ndarray:
@@ -382,7 +434,7 @@ class EpisodeRandomizer:
             table = _noise_table()
             offsets = _noise_offsets(self.noise_keys[rows], steps, 0, 2)
             noise = np.stack([table[offsets], table[offsets + 1]], axis=1).astype(np.float64)
-            noise *= self.values["tilt_error"][rows, None] * self.maze.tilt_step
+            np.multiply(noise, self.values["tilt_error"][rows, None] * self.maze.tilt_step, out=noise)
             applied = applied + np.where(applied != 0.0, noise, 0.0)
         return applied
 
@@ -391,20 +443,37 @@ class EpisodeRandomizer:
         order) with marbles at board positions ``marble_xy`` (batch, n, 2): camera offset and
         rotation (bilinear, edges repeated), blur, contrast and brightness, the pixel noise of frame
         ``frame_index`` (steps since reset), rounded to new uint8 frames."""
+        camera, raster = self.camera, self.raster
+        if camera is None or raster is None:
+            raise RuntimeError("pixels() needs camera randomisation (an observing EpisodeRandomizer)")
         noise = None
         if "pixel_noise" in self.values:
-            n = self.camera.size ** 2
-            noise = self.camera.buffer("noise", (self.batch, n))
+            n = camera.size**2
+            noise = camera.buffer("noise", (self.batch, n))
             table = _noise_table()
             for row, offset in enumerate(_noise_offsets(self.noise_keys, frame_index, 1, n).tolist()):
-                noise[row] = table[offset:offset + n]
-        return self.camera.apply(frames, self.raster.world_to_pixel(marble_xy), noise)
+                noise[row] = table[offset : offset + n]
+        return camera.apply(frames, raster.world_to_pixel(marble_xy), noise)
 
 
-_PHYSICS = dict(sliding_friction=(0.7, 1.3), torsional_friction=(0.7, 1.3), marble_mass=(0.8, 1.2),
-                marble_radius=(0.95, 1.03), max_tilt=(0.9, 1.1), tilt_step=(0.8, 1.2), tilt_error=(0.0, 0.1),
-                latency=(0, 2))
-_CAMERA = dict(brightness=(-20.0, 20.0), contrast=(0.8, 1.2), pixel_noise=(0.0, 6.0), blur=(0.0, 0.8),
-               camera_shift=(-2.0, 2.0), camera_rotation=(-3.0, 3.0))
-RANDOMIZATION_PRESETS.update(physics=Randomization(**_PHYSICS), camera=Randomization(**_CAMERA),
-                             all=Randomization(**_PHYSICS, **_CAMERA))
+_PHYSICS: dict[str, Any] = dict(
+    sliding_friction=(0.7, 1.3),
+    torsional_friction=(0.7, 1.3),
+    marble_mass=(0.8, 1.2),
+    marble_radius=(0.95, 1.03),
+    max_tilt=(0.9, 1.1),
+    tilt_step=(0.8, 1.2),
+    tilt_error=(0.0, 0.1),
+    latency=(0, 2),
+)
+_CAMERA: dict[str, Any] = dict(
+    brightness=(-20.0, 20.0),
+    contrast=(0.8, 1.2),
+    pixel_noise=(0.0, 6.0),
+    blur=(0.0, 0.8),
+    camera_shift=(-2.0, 2.0),
+    camera_rotation=(-3.0, 3.0),
+)
+RANDOMIZATION_PRESETS.update(
+    physics=Randomization(**_PHYSICS), camera=Randomization(**_CAMERA), all=Randomization(**_PHYSICS, **_CAMERA)
+)

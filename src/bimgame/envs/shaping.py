@@ -35,7 +35,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any, Callable, SupportsFloat
+from collections.abc import Callable
+from typing import Any, SupportsFloat
 
 import gymnasium as gym
 import numpy as np
@@ -43,8 +44,16 @@ from gymnasium.vector import AutoresetMode
 
 from bimgame.util.settings import is_real
 
-__all__ = ["Potential", "PotentialShapedVectorEnv", "GeodesicProgressVectorEnv", "GeodesicProgressReward",
-           "GeodesicReward", "Chain", "DEFAULT_GEODESIC_COEF", "unit_interval"]
+__all__ = [
+    "Potential",
+    "PotentialShapedVectorEnv",
+    "GeodesicProgressVectorEnv",
+    "GeodesicProgressReward",
+    "GeodesicReward",
+    "Chain",
+    "DEFAULT_GEODESIC_COEF",
+    "unit_interval",
+]
 
 #: Reward per metre of geodesic progress towards the centre. The trip from the outer channel to the
 #: centre is about 0.3–0.5 m, so it is worth a few units, like FULL's four gate crossings.
@@ -72,17 +81,18 @@ class PotentialShapedVectorEnv(gym.vector.VectorWrapper):
 
     def __init__(self, env: gym.vector.VectorEnv, potential: Potential, gamma: float):
         super().__init__(env)
-        _require_same_step(env, type(self).__name__,
-                           "Φ(s') at an episode's end is computed from infos['final_obs']")
+        _require_same_step(env, type(self).__name__, "Φ(s') at an episode's end is computed from infos['final_obs']")
         if not callable(potential):
-            raise TypeError(f"potential must be callable as potential(obs_batch, tilt_batch), "
-                            f"got {type(potential).__name__}")
+            raise TypeError(
+                f"potential must be callable as potential(obs_batch, tilt_batch), got {type(potential).__name__}"
+            )
         self.potential = potential
         self.gamma = unit_interval("gamma", gamma)
         self._phi: np.ndarray | None = None
 
     def reset(self, *, seed: int | list[int | None] | None = None, options: dict | None = None):
-        obs, infos = self.env.reset(seed=seed, options=options)
+        # VectorEnv.reset is annotated with one seed; Gymnasium's vector envs and ours take a list too.
+        obs, infos = self.env.reset(seed=seed, options=options)  # type: ignore[arg-type]
         self._phi = self._evaluate(obs, infos["tilt"], "the reset observations")
         return obs, infos
 
@@ -107,8 +117,9 @@ class PotentialShapedVectorEnv(gym.vector.VectorWrapper):
         count = self.num_envs if count is None else count
         values = np.asarray(self.potential(obs, np.asarray(tilt, dtype=np.float64)), dtype=np.float64)
         if values.shape != (count,):
-            raise ValueError(f"potential returned shape {values.shape} for {what}; expected ({count},), "
-                             "one value per observation")
+            raise ValueError(
+                f"potential returned shape {values.shape} for {what}; expected ({count},), one value per observation"
+            )
         if not np.all(np.isfinite(values)):
             raise ValueError(f"potential returned non-finite values for {what}: {values.tolist()}")
         return values
@@ -130,13 +141,13 @@ class GeodesicProgressVectorEnv(gym.vector.VectorWrapper):
 
     def __init__(self, env: gym.vector.VectorEnv, coef: float = DEFAULT_GEODESIC_COEF):
         super().__init__(env)
-        _require_same_step(env, type(self).__name__,
-                           "d(s') at an episode's end is read from infos['final_info']")
+        _require_same_step(env, type(self).__name__, "d(s') at an episode's end is read from infos['final_info']")
         self.coef = _positive_finite("coef", coef)
         self._distance: np.ndarray | None = None
 
     def reset(self, *, seed: int | list[int | None] | None = None, options: dict | None = None):
-        obs, infos = self.env.reset(seed=seed, options=options)
+        # VectorEnv.reset is annotated with one seed; Gymnasium's vector envs and ours take a list too.
+        obs, infos = self.env.reset(seed=seed, options=options)  # type: ignore[arg-type]
         self._distance = _total_distance(infos)
         return obs, infos
 
@@ -226,7 +237,8 @@ def _require_same_step(env: gym.vector.VectorEnv, wrapper: str, why: str) -> Non
         raise ValueError(
             f"{wrapper} needs a vector env with autoreset_mode SAME_STEP, got {shown}: {why}, which "
             "only SAME_STEP autoreset provides. Create the env with autoreset_mode='same_step' "
-            "(allowed: SAME_STEP only).")
+            "(allowed: SAME_STEP only)."
+        )
 
 
 def _ended(terminated: Any, truncated: Any, infos: dict[str, Any]) -> np.ndarray:
@@ -235,8 +247,10 @@ def _ended(terminated: Any, truncated: Any, infos: dict[str, Any]) -> np.ndarray
     if ended.size:
         mask = infos.get("_final_obs")
         if mask is None or "final_info" not in infos or not np.all(np.asarray(mask)[ended]):
-            raise RuntimeError(f"envs {ended.tolist()} ended but infos lack their final_obs/final_info; "
-                               "the wrapped env does not autoreset in SAME_STEP mode")
+            raise RuntimeError(
+                f"envs {ended.tolist()} ended but infos lack their final_obs/final_info; "
+                "the wrapped env does not autoreset in SAME_STEP mode"
+            )
     return ended
 
 
@@ -252,8 +266,9 @@ def _rows(values: Any, index: np.ndarray) -> np.ndarray:
 def _total_distance(infos: dict[str, Any], index: np.ndarray | None = None) -> np.ndarray:
     """Geodesic distance (m) summed over marbles, per env (only ``index``'s envs if given)."""
     if "geodesic_distance" not in infos:
-        raise KeyError("infos have no 'geodesic_distance' (B, n_marbles); the geodesic reward needs "
-                       "BallInMazeVectorEnv's infos")
+        raise KeyError(
+            "infos have no 'geodesic_distance' (B, n_marbles); the geodesic reward needs BallInMazeVectorEnv's infos"
+        )
     distance = infos["geodesic_distance"]
     distance = _rows(distance, index) if index is not None else np.asarray(distance)
     return np.asarray(distance, dtype=np.float64).reshape(len(distance), -1).sum(axis=1)

@@ -92,11 +92,24 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
             ``NEXT_STEP`` the tag stays until the following (resetting) step.
     """
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 30, "autoreset_mode": AutoresetMode.NEXT_STEP}
+    # Gymnasium's API: a class attribute, replaced per instance (with the instance's autoreset mode).
+    metadata: dict[str, Any] = {  # noqa: RUF012
+        "render_modes": ["rgb_array"],
+        "render_fps": 30,
+        "autoreset_mode": AutoresetMode.NEXT_STEP,
+    }
 
-    def __init__(self, num_envs: int, *, max_episode_steps: int | None = None, nthread: int | None = None,
-                 autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
-                 start_sampler: StartSampler | None = None, state_info: bool = False, **env_kwargs: Any):
+    def __init__(
+        self,
+        num_envs: int,
+        *,
+        max_episode_steps: int | None = None,
+        nthread: int | None = None,
+        autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
+        start_sampler: StartSampler | None = None,
+        state_info: bool = False,
+        **env_kwargs: Any,
+    ):
         if not (is_integer(num_envs) and num_envs >= 1):
             raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
         if max_episode_steps is not None and not (is_integer(max_episode_steps) and max_episode_steps >= 1):
@@ -113,8 +126,9 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
         if not (is_integer(nthread) and nthread >= 1):
             raise ValueError(f"nthread must be an integer >= 1, got {nthread!r}")
         if start_sampler is not None and not callable(start_sampler):
-            raise ValueError(f"start_sampler must be None or a callable (index, rng) -> (state or None, tag), "
-                             f"got {start_sampler!r}")
+            raise ValueError(
+                f"start_sampler must be None or a callable (index, rng) -> (state or None, tag), got {start_sampler!r}"
+            )
         self.start_sampler = start_sampler
         if not isinstance(state_info, bool):
             raise ValueError(f"state_info must be True or False, got {state_info!r}")
@@ -134,8 +148,9 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
         self.task = self.template.task
         n = self.template.n_marbles
         self._states = np.zeros((self.num_envs, self.sim.state_size))
-        self._task_state = TaskState(np.zeros((self.num_envs, n), dtype=np.int64),
-                                     np.zeros((self.num_envs, n), dtype=bool))
+        self._task_state = TaskState(
+            np.zeros((self.num_envs, n), dtype=np.int64), np.zeros((self.num_envs, n), dtype=bool)
+        )
         self._elapsed = np.zeros(self.num_envs, dtype=np.int64)
         self.start_tags = np.zeros(self.num_envs, dtype=np.int64)
         self._autoreset = np.zeros(self.num_envs, dtype=bool)
@@ -143,9 +158,16 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
         self._has_reset = False
         self._state_observer = Observer(self.maze, n, "state")
         randomize = self.template.randomize
-        self.randomizer = None if randomize is None else EpisodeRandomizer(
-            randomize, self.maze, self.num_envs,
-            self.template.observer.raster if self.template.obs_mode == "pixels" else None)
+        self.randomizer = (
+            None
+            if randomize is None
+            else EpisodeRandomizer(
+                randomize,
+                self.maze,
+                self.num_envs,
+                self.template.observer.raster if self.template.obs_mode == "pixels" else None,
+            )
+        )
         if self.randomizer is not None and self.randomizer.physical:
             # One model per env, each with its episode's physics, all stepped by one rollout call.
             self._models = [copy.copy(self.sim.model) for _ in range(self.num_envs)]
@@ -163,13 +185,16 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
                 raise ValueError(f"seed list must have {self.num_envs} entries, got {len(seeds)}")
         if options:
             shown = sorted(options) if isinstance(options, dict) else repr(options)
-            raise ValueError("BallInMazeVectorEnv.reset takes no options (starts are random, or chosen by "
-                             f"start_sampler), got {shown}")
+            raise ValueError(
+                "BallInMazeVectorEnv.reset takes no options (starts are random, or chosen by "
+                f"start_sampler), got {shown}"
+            )
         if not self._rngs:
             self._rngs = [seeding.np_random(s)[0] for s in seeds]
         else:
-            self._rngs = [seeding.np_random(s)[0] if s is not None else rng
-                          for s, rng in zip(seeds, self._rngs)]
+            self._rngs = [
+                seeding.np_random(s)[0] if s is not None else rng for s, rng in zip(seeds, self._rngs, strict=True)
+            ]
         self._reset_envs(np.ones(self.num_envs, dtype=bool))
         self._autoreset[:] = False
         self._has_reset = True
@@ -216,8 +241,9 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
             self._reset_envs(resetting)
             positions[resetting], velocities[resetting] = self.sim.layout.board_frame(self._states[resetting])
         self._autoreset = done
-        obs, infos = self._observe_and_info(positions, velocities, crossings,
-                                            terminated & ~resetting if final else terminated.copy())
+        obs, infos = self._observe_and_info(
+            positions, velocities, crossings, terminated & ~resetting if final else terminated.copy()
+        )
         if final is not None:
             infos["final_obs"], infos["final_info"] = final
             infos["_final_obs"] = infos["_final_info"] = resetting.copy()
@@ -229,9 +255,10 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
             return None
         positions, _ = self.sim.layout.board_frame(self._states)
         raster = self.template.observer.raster
-        return tuple(raster.rgb(positions[i, :, :2], size=self.template.render_size,
-                                tilt=self._states[i, self.sim.layout.tilt])
-                     for i in range(self.num_envs))
+        return tuple(
+            raster.rgb(positions[i, :, :2], size=self.template.render_size, tilt=self._states[i, self.sim.layout.tilt])
+            for i in range(self.num_envs)
+        )
 
     def close_extras(self, **kwargs: Any) -> None:
         self.template.close()
@@ -241,16 +268,21 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
         step = self.maze.tilt_step
         if self.template.action_type == "discrete":
             array = np.asarray(actions)
-            valid = (array.shape == (self.num_envs,) and np.issubdtype(array.dtype, np.integer)
-                     and np.all((array >= 0) & (array < 5)))
+            valid = (
+                array.shape == (self.num_envs,)
+                and np.issubdtype(array.dtype, np.integer)
+                and np.all((array >= 0) & (array < 5))
+            )
             if not valid:
                 raise ValueError(
-                    f"invalid actions {actions!r}: expected {self.num_envs} integers in 0..4 ({ACTIONS_HELP})")
+                    f"invalid actions {actions!r}: expected {self.num_envs} integers in 0..4 ({ACTIONS_HELP})"
+                )
             return DISCRETE_TILTS[array] * step
         array = np.asarray(actions, dtype=np.float64)
         if array.shape != (self.num_envs, 2) or not np.all(np.isfinite(array)) or np.any(np.abs(array) > 1):
-            raise ValueError(f"invalid actions: expected shape ({self.num_envs}, 2), finite, in [-1, 1]; "
-                             f"got {actions!r}")
+            raise ValueError(
+                f"invalid actions: expected shape ({self.num_envs}, 2), finite, in [-1, 1]; got {actions!r}"
+            )
         return array * step
 
     def _rollout(self, idx: np.ndarray, deltas: np.ndarray) -> None:
@@ -262,15 +294,16 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
                 deltas = randomizer.tilt_deltas(deltas, idx, self._elapsed[idx])
             if randomizer.physical:
                 models, max_tilt = [self._models[i] for i in idx], self._max_tilt[idx]
-        self._states[idx] = self.sim.rollout(self._states[idx], deltas[:, None], nthread=self.nthread,
-                                             models=models, max_tilt=max_tilt)[:, 0]
+        self._states[idx] = self.sim.rollout(
+            self._states[idx], deltas[:, None], nthread=self.nthread, models=models, max_tilt=max_tilt
+        )[:, 0]
 
     def _reset_envs(self, mask: np.ndarray) -> None:
         n = self.template.n_marbles
         for i in np.flatnonzero(mask):
             state = None
             if self.start_sampler is not None:
-                state, self.start_tags[i] = self._sampled_start(int(i))
+                state, self.start_tags[i] = self._sampled_start(int(i), self.start_sampler)
             if state is None:
                 xy = sample_start(self.maze, n, self._rngs[i])
                 self.sim.reset(xy)
@@ -292,25 +325,27 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
             self._task_state.reached[i] = start.reached[0]
             self._elapsed[i] = 0
 
-    def _sampled_start(self, index: int) -> tuple[tuple[np.ndarray, np.ndarray] | None, int]:
+    def _sampled_start(self, index: int, sampler: StartSampler) -> tuple[tuple[np.ndarray, np.ndarray] | None, int]:
         """The sampler's start for env ``index``: ``((state, marble_xy) or None, tag)``, checked."""
-        result = self.start_sampler(index, self._rngs[index])
+        result = sampler(index, self._rngs[index])
         if not (isinstance(result, tuple) and len(result) == 2 and is_integer(result[1])):
-            raise ValueError(f"start_sampler must return (state or None, integer tag); for env {index} it "
-                             f"returned {result!r}")
+            raise ValueError(
+                f"start_sampler must return (state or None, integer tag); for env {index} it returned {result!r}"
+            )
         state, tag = result
         if state is None:
             return None, int(tag)
         name = f"the start_sampler's state for env {index} (tag {int(tag)})"
         return check_sim_state(self.maze, self.sim.layout, state, name), int(tag)
 
-    def _observe_and_info(self, positions: np.ndarray, velocities: np.ndarray, crossings: np.ndarray,
-                          success: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
+    def _observe_and_info(
+        self, positions: np.ndarray, velocities: np.ndarray, crossings: np.ndarray, success: np.ndarray
+    ) -> tuple[np.ndarray, dict[str, Any]]:
         tilt = self._states[:, self.sim.layout.tilt]
         obs = self.template.observer.from_kinematics(positions, velocities, tilt, self._task_state.channel)
         if self.randomizer is not None and self.randomizer.observing:
             obs = self.randomizer.pixels(obs, self._elapsed, positions[..., :2])
-        values = {
+        values: dict[str, Any] = {
             "channel": self._task_state.channel.copy(),
             "gate_crossings": crossings.astype(np.int64),
             "geodesic_distance": self.maze.geodesic_distance(positions[..., 0], positions[..., 1]),
@@ -318,12 +353,16 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
             "tilt": tilt,
         }
         if self.state_info:
-            values["state"] = self._state_observer.from_kinematics(positions, velocities, tilt,
-                                                                   self._task_state.channel)
+            values["state"] = self._state_observer.from_kinematics(
+                positions, velocities, tilt, self._task_state.channel
+            )
         every_env = np.ones(self.num_envs, dtype=bool)  # Gymnasium's per-key "_key" masks
         if self.randomizer is not None:  # nested as Gymnasium nests a dict info, with its own masks
-            values["randomization"] = {name: v for key, value in self.randomizer.info().items()
-                                       for name, v in ((key, value), (f"_{key}", every_env))}
+            values["randomization"] = {
+                name: v
+                for key, value in self.randomizer.info().items()
+                for name, v in ((key, value), (f"_{key}", every_env))
+            }
         infos: dict[str, Any] = {}
         for key, value in values.items():
             infos[key] = value
