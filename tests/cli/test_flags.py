@@ -204,3 +204,124 @@ def test_train_flags_of_the_real_a3c_config(tmp_path):
     assert given_settings(args, A3CConfig) == {"steps": 2_000_000, "tilt_input": False, "obs": "state"}
     others = [f.name for f in dataclasses.fields(A3CConfig) if f.name not in {"steps", "tilt_input", "obs"}]
     assert others and all(getattr(args, name) is None for name in others)
+
+
+@dataclasses.dataclass(frozen=True)
+class Modal:
+    """Settings whose defaults depend on the observation mode, filled in like NetworkSettings'."""
+
+    obs: str = "pixels"
+    """Observation mode."""
+    size: int | None = None
+    """Layer size; None: 8 for pixels, 4 for state."""
+    width: int | None = None
+    """Layer width."""
+    lamp: bool | None = None
+    """Light the lamp. None: on for pixels, off for state."""
+    tilt: bool = True
+    """Feed the tilt to the network. False: no tilt input, the paper's exact input."""
+    fan: bool = False
+    """Run the fan. False: a silent board."""
+    mirror: bool = True
+    """Mirror the board."""
+
+    def __post_init__(self) -> None:
+        pixels = self.obs == "pixels"
+        for name, value in (("size", 8 if pixels else 4), ("width", 6 if pixels else 3), ("lamp", pixels)):
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, value)
+
+
+MODAL = [f.name for f in dataclasses.fields(Modal)]
+
+
+def _modal(**options) -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="modal")
+    add_settings_flags(parser, Modal, MODAL, **options)
+    return parser
+
+
+def test_a_default_filled_in_per_mode_is_shown_per_mode_when_the_class_decides():
+    parser = _modal(default_none=True)
+    assert _action(parser, "size").help == "Layer size. (default: 8 for pixels, 4 for state)"
+    assert _action(parser, "width").help == "Layer width. (default: 6 for pixels, 3 for state)"  # no None clause
+    assert parser.parse_args([]).size is None  # the class decides from --obs
+
+
+def test_a_filled_in_default_that_the_flag_fixes_is_shown_as_that_value():
+    """Without default_none the flag's default is the value for the default observations: the
+    docstring's None clause does not hold for it, so the help leaves it out."""
+    parser = _modal()
+    assert _action(parser, "size").help == "Layer size. (default 8)"
+    assert parser.parse_args(["--obs", "state"]).size == 8
+
+
+def test_a_switch_whose_default_depends_on_the_mode_is_two_way():
+    parser = _modal(default_none=True)
+    assert parser.parse_args([]).lamp is None
+    assert parser.parse_args(["--lamp"]).lamp is True
+    assert parser.parse_args(["--no-lamp"]).lamp is False
+    assert _action(parser, "lamp").help == "Light the lamp. (default: on for pixels, off for state)"
+    assert "--lamp, --no-lamp" in _help(parser)
+    assert _action(_modal(), "lamp").help == "Light the lamp. (default on)"
+
+
+def test_the_off_switch_says_what_it_does():
+    parser = _modal()
+    options = {s for a in parser._actions for s in a.option_strings}
+    assert {"--no-tilt", "--fan", "--no-mirror"} <= options and not {"--tilt", "--no-fan", "--mirror"} & options
+    assert _action(parser, "tilt").help == "No tilt input, the paper's exact input."
+    assert _action(parser, "fan").help == "Run the fan. Without it: a silent board."
+    # without a False clause the help still says that the switch turns the setting off
+    assert _action(parser, "mirror").help == "Turns off (on by default): Mirror the board."
+    assert parser.parse_args(["--no-tilt", "--fan", "--no-mirror"]) == argparse.Namespace(
+        obs="pixels", size=8, width=6, lamp=True, tilt=False, fan=True, mirror=False)
+
+
+def test_train_has_two_way_privileged_switches_and_says_what_no_tilt_input_does(tmp_path):
+    parser = build_parser()
+    base = ["train", "--run-dir", str(tmp_path / "r")]
+    for flag, name, value in (("--aux-heads", "aux_heads", True), ("--no-aux-heads", "aux_heads", False),
+                              ("--asymmetric-critic", "asymmetric_critic", True),
+                              ("--no-asymmetric-critic", "asymmetric_critic", False),
+                              ("--advantage-norm", "advantage_norm", True),
+                              ("--no-advantage-norm", "advantage_norm", False)):
+        assert getattr(parser.parse_args([*base, flag]), name) is value, flag
+    args = parser.parse_args(base)
+    assert args.aux_heads is None and args.asymmetric_critic is None and args.advantage_norm is None
+    train = _verb_parser("train")
+    assert not _action(train, "tilt_input").help.startswith("Feed")
+    hidden = _action(train, "hidden").help
+    assert "256 for pixels" in hidden and "128 for state" in hidden
+    assert "(default 256)" not in hidden
+
+
+def test_choices_in_help_are_the_settings_modules_own_tuples():
+    from bimgame.learn.a3c_core import OPTIMIZERS, START_CURRICULA
+
+    train = _verb_parser("train")
+    assert _action(train, "optimizer").choices is OPTIMIZERS
+    assert _action(train, "start_curriculum").choices is START_CURRICULA
+
+
+def test_train_pretrain_and_dagger_list_their_flags_in_groups():
+    from bimgame.cli.flags import OTHER_SETTINGS
+    from bimgame.cli.train import TRAIN_GROUPS
+
+    for verb in ("train", "pretrain", "dagger"):
+        parser = _verb_parser(verb)
+        titles = [group.title for group in parser._action_groups]
+        grouped = [a for group in parser._action_groups if group.title not in ("options", "optional arguments",
+                                                                              "positional arguments", OTHER_SETTINGS)
+                   for a in group._group_actions]
+        ungrouped = {a.dest for a in parser._actions if a.dest != "help"} - {a.dest for a in grouped}
+        assert not ungrouped, (verb, ungrouped)
+        assert OTHER_SETTINGS not in titles, verb
+    train_titles = [group.title for group in _verb_parser("train")._action_groups]
+    shown = [title for title in train_titles if title not in ("options", "positional arguments")]
+    assert [title for title, _ in TRAIN_GROUPS] == shown
+    assert {"environment", "network", "optimisation", "fine-tuning", "curriculum", "logging"} <= set(train_titles)
+
+
+def _verb_parser(verb: str) -> argparse.ArgumentParser:
+    return next(a for a in build_parser()._actions if a.dest == "verb").choices[verb]

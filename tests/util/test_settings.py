@@ -9,7 +9,7 @@ import pytest
 
 from bimgame.learn.a3c import A3CConfig
 from bimgame.learn.common import NetworkSettings
-from bimgame.util.settings import field_docs, from_dict, require_int
+from bimgame.util.settings import FieldDoc, field_docs, from_dict, require_int, split_field_doc
 
 
 @dataclasses.dataclass(frozen=True)
@@ -113,3 +113,32 @@ def test_from_dict_builds_and_names_unknown_keys():
 def test_from_dict_lets_the_class_validate():
     with pytest.raises(ValueError, match="NetworkSettings.hidden"):
         from_dict(NetworkSettings, {"hidden": 0}, "network settings")
+
+
+@pytest.mark.parametrize("doc, text, none, false", [
+    ("LSTM size; None: 256 for pixels (the paper's), 128 for state.", "LSTM size.",
+     "256 for pixels (the paper's), 128 for state", None),
+    ("Feed the tilt (see nets). False: the paper's exact input.", "Feed the tilt (see nets).", None,
+     "the paper's exact input"),
+    ("Preset (a: x; b: y); None: none (from scratch). See docs.", "Preset (a: x; b: y). See docs.",
+     "none (from scratch)", None),
+    ("Heads. None: on for pixels (1.5× faster; see x. y), off for state. False: no heads.", "Heads.",
+     "on for pixels (1.5× faster; see x. y), off for state", "no heads"),
+    ("Plain text, e.g. 5M. No clause here.", "Plain text, e.g. 5M. No clause here.", None, None),
+    ("Time limit; None uses the task's.", "Time limit; None uses the task's.", None, None),
+])
+def test_split_field_doc_separates_the_value_clauses(doc, text, none, false):
+    assert split_field_doc(doc) == FieldDoc(text=text, none=none, false=false)
+
+
+def test_the_network_settings_none_clauses_name_the_values_the_class_fills_in():
+    """``--help`` shows these clauses as the defaults of ``bimgame train``: they must agree with what
+    the class fills in per observation mode."""
+    docs = {name: split_field_doc(text) for name, text in field_docs(NetworkSettings).items()}
+    for name in ("hidden", "features"):
+        for obs in ("pixels", "state"):
+            value = getattr(NetworkSettings(obs=obs), name)
+            assert f"{value} for {obs}" in docs[name].none, (name, obs)
+    for obs in ("pixels", "state"):
+        on = "on" if NetworkSettings(obs=obs).aux_heads else "off"
+        assert f"{on} for {obs}" in docs["aux_heads"].none

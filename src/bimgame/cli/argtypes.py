@@ -12,9 +12,9 @@ from bimgame.learn.a3c_core import MAX_STEPS
 from bimgame.learn.common import MAX_SEED
 from bimgame.sim.tasks import Task
 
-__all__ = ["add_backend_arguments", "positive_int", "non_negative_int", "positive_float", "non_negative_float", "seed", "episode_count", "run_group",
-           "episode_count_or_zero", "MAX_EPISODES", "TASK_NAMES", "add_task_argument", "add_max_steps_argument", "check_output_file",
-           "step_count", "step_count_or_zero"]
+__all__ = ["add_backend_arguments", "positive_int", "non_negative_int", "positive_float", "non_negative_float", "seed",
+           "episode_count", "run_group", "episode_count_or_zero", "MAX_EPISODES", "TASK_NAMES", "add_task_argument",
+           "add_max_steps_argument", "check_output_file", "step_count", "step_count_or_zero"]
 
 #: The most episodes a verb runs side by side (each has its own simulator): more is a typo that would
 #: fail only when memory runs out.

@@ -9,13 +9,15 @@ import sys
 from pathlib import Path
 
 from bimgame.cli.argtypes import episode_count, episode_count_or_zero, seed
-from bimgame.cli.flags import add_settings_flags, given_settings
+from bimgame.cli.flags import add_flag_groups, add_grouped_settings_flags, given_settings
+from bimgame.learn.common import NetworkSettings
 from bimgame.learn.dagger import DAggerConfig, dagger, resolve_dagger_config
 from bimgame.learn.pretrain import pretrain
 from bimgame.learn.supervised import PretrainConfig
 from bimgame.util.files import FileWriteError
 
-__all__ = ["add_pretrain_arguments", "run_pretrain", "add_dagger_arguments", "run_dagger"]
+__all__ = ["add_pretrain_arguments", "run_pretrain", "add_dagger_arguments", "run_dagger", "PRETRAIN_GROUPS",
+           "PRETRAIN_PLACEMENT", "DAGGER_GROUPS", "DAGGER_PLACEMENT"]
 
 
 #: Pre-training settings with a flag of their own; ``target`` is ``--value-only``.
@@ -31,17 +33,45 @@ DAGGER_FLAGS = ("iterations", "episodes_per_iteration", "beta0", "beta_decay", "
                 "max_episode_steps", "eval_episodes")
 #: Parsers with an upper bound too (a seed numpy and torch both take; episodes run side by side).
 _TYPES = {"seed": seed, "eval_episodes": episode_count_or_zero}
+#: ``bimgame pretrain --help``'s groups: (title, description) in the order shown.
+PRETRAIN_GROUPS = (
+    ("data", "the expert dataset, the new run directory and what is trained"),
+    ("network", "the network's observations, sizes and inputs"),
+    ("optimisation", "the loss, batches, early stopping and seed"),
+    ("logging", "the evaluation after training and the progress bar"),
+)
+#: The group of each pre-training setting with a flag.
+PRETRAIN_PLACEMENT: dict[str, tuple[str, ...]] = {
+    "data": ("task",), "network": NetworkSettings.field_names(), "logging": ("eval_episodes",),
+    "optimisation": ("epochs", "patience", "lr", "l2", "value_coef", "gamma", "val_fraction", "bptt",
+                     "batch_episodes", "batch_frames", "max_grad_norm", "aux_coef", "seed"),
+}
+#: ``bimgame dagger --help``'s groups: (title, description) in the order shown.
+DAGGER_GROUPS = (
+    ("run", "the run directory, where the learner starts from and its task"),
+    ("network", "the learner's observations, sizes and inputs"),
+    ("DAgger", "iterations, rollouts, the expert's share β and the learner's training"),
+    ("logging", "evaluations and the progress bar"),
+)
+#: The group of each DAgger setting with a flag (its own and its learner's).
+DAGGER_PLACEMENT: dict[str, tuple[str, ...]] = {
+    "run": ("task",), "network": NetworkSettings.field_names(), "logging": ("eval_episodes",),
+    "DAgger": ("iterations", "episodes_per_iteration", "beta0", "beta_decay", "epochs_per_iteration",
+               "max_episode_steps", "lr", "seed"),
+}
 
 
 def add_pretrain_arguments(parser: argparse.ArgumentParser) -> None:
-    """``bimgame pretrain``: the dataset, the output and the pre-training settings."""
-    add = parser.add_argument
+    """``bimgame pretrain``: the dataset, the output and the pre-training settings, in the groups of
+    :data:`PRETRAIN_GROUPS`."""
+    groups = add_flag_groups(parser, PRETRAIN_GROUPS)
+    add = groups["data"].add_argument
     add("--data", type=Path, required=True, help="an expert dataset directory (bimgame generate)")
     add("--out", type=Path, required=True, help="new run directory for the weights and logs")
     add("--value-only", action="store_true",
         help="train the value-only network V̂ for --value-reward instead of the policy π^s")
-    add_settings_flags(parser, PretrainConfig, PRETRAIN_FLAGS, types=_TYPES)
-    add("--no-progress", action="store_true", help="no progress bar")
+    add_grouped_settings_flags(parser, groups, PretrainConfig, PRETRAIN_FLAGS, PRETRAIN_PLACEMENT, types=_TYPES)
+    groups["logging"].add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
 def pretrain_config_from(args: argparse.Namespace) -> PretrainConfig:
@@ -74,23 +104,28 @@ def run_pretrain(args: argparse.Namespace) -> int:
 
 def add_dagger_arguments(parser: argparse.ArgumentParser) -> None:
     """``bimgame dagger``: the run's options, the learner's settings and DAgger's own (defaults of
-    None for those a resumed run may change, so that what is not given keeps the run's value)."""
-    add = parser.add_argument
+    None for those a resumed run may change, so that what is not given keeps the run's value), in the
+    groups of :data:`DAGGER_GROUPS`."""
+    groups = add_flag_groups(parser, DAGGER_GROUPS)
+    add = groups["run"].add_argument
     add("--run-dir", type=Path, required=True, help="directory for the weights, aggregated data and logs")
     add("--resume", action="store_true", help="continue after the run's last finished iteration")
     add("--init", type=Path, default=None, help="start the learner from these weights (e.g. bimgame pretrain's)")
     defaults = DAggerConfig()
-    add_settings_flags(parser, PretrainConfig, DAGGER_LEARNER_FLAGS, defaults=defaults.learner, types=_TYPES)
+    add_grouped_settings_flags(parser, groups, PretrainConfig, DAGGER_LEARNER_FLAGS, DAGGER_PLACEMENT,
+                               defaults=defaults.learner, types=_TYPES)
     resumable = DAggerConfig.RESUMABLE_CHANGES
-    add_settings_flags(parser, DAggerConfig, [n for n in DAGGER_FLAGS if n not in resumable],
-                       types={"episodes_per_iteration": episode_count})
-    add_settings_flags(parser, DAggerConfig, resumable, default_none=True, types=_TYPES,
-                       helps={"iterations": "Iterations to run; with --resume, a larger number continues the run."})
-    add("--no-progress", action="store_true", help="no progress bar")
+    add_grouped_settings_flags(parser, groups, DAggerConfig, [n for n in DAGGER_FLAGS if n not in resumable],
+                               DAGGER_PLACEMENT, types={"episodes_per_iteration": episode_count})
+    add_grouped_settings_flags(parser, groups, DAggerConfig, resumable, DAGGER_PLACEMENT, default_none=True,
+                               types=_TYPES, helps={"iterations": "Iterations to run; with --resume, a larger "
+                                                                  "number continues the run."})
+    groups["logging"].add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
 def run_dagger(args: argparse.Namespace) -> int:
-    learner = dataclasses.replace(DAggerConfig().learner, **{name: getattr(args, name) for name in DAGGER_LEARNER_FLAGS})
+    learner = dataclasses.replace(DAggerConfig().learner,
+                                  **{name: getattr(args, name) for name in DAGGER_LEARNER_FLAGS})
     given = given_settings(args, DAggerConfig, DAGGER_FLAGS)
     config = resolve_dagger_config(learner, given, args.run_dir, resume=args.resume)
     print(f"DAgger on {config.learner.task} ({config.learner.obs}): {config.iterations} iterations x "

@@ -11,37 +11,70 @@ from rich.console import Console
 from rich.table import Table
 
 from bimgame.cli.argtypes import check_output_file, episode_count, positive_float, seed, step_count, step_count_or_zero
-from bimgame.cli.flags import add_settings_flags, given_settings
+from bimgame.cli.flags import add_flag_groups, add_grouped_settings_flags, given_settings, plain
 from bimgame.envs.shaping import DEFAULT_GEODESIC_COEF
 from bimgame.learn.a3c import A3CConfig, TrainingError, resolve_config, train
 from bimgame.learn.actor import evaluate_network
-from bimgame.learn.common import load_run_network
+from bimgame.learn.common import NetworkSettings, load_run_network
+from bimgame.learn.finetune import DEFAULT_FINETUNE
 from bimgame.learn.rewards import RewardSettings, env_wrapper_for, resolve_reward_settings
 from bimgame.sim.tasks import parse_task
 from bimgame.util.files import write_json
 from bimgame.util.images import write_gif
 from bimgame.util.settings import field_docs
 
-__all__ = ["add_train_arguments", "add_evaluate_arguments", "run_train", "run_evaluate"]
+__all__ = ["add_train_arguments", "add_evaluate_arguments", "run_train", "run_evaluate", "TRAIN_GROUPS",
+           "A3C_GROUPS"]
+
+
+#: ``bimgame train --help``'s groups: (title, description) in the order shown.
+TRAIN_GROUPS = (
+    ("run", "the run directory and where the run starts from"),
+    ("environment", "the task, its episodes and the reward"),
+    ("network", "the actor-critic's observations, sizes and inputs (with --init or --resume: the run's unless given)"),
+    ("optimisation", "A3C's workers, loss and optimiser"),
+    ("fine-tuning", (f"starting from a pre-trained π^s (--init), a setting not given takes the value of the "
+                     f"--finetune preset (default {DEFAULT_FINETUNE})")),
+    ("curriculum", "where training episodes start"),
+    ("logging", "checkpoints, evaluations and logs"),
+)
+#: The group of each A3C setting (the network settings are all in "network").
+A3C_GROUPS: dict[str, tuple[str, ...]] = {
+    "network": NetworkSettings.field_names(),
+    "environment": ("task", "max_episode_steps", "randomize"),
+    "optimisation": ("steps", "workers", "envs_per_worker", "n_steps", "gamma", "gae_lambda", "lr", "optimizer",
+                     "rmsprop_alpha", "optimizer_eps", "entropy_coef", "value_coef", "max_grad_norm",
+                     "entropy_target", "entropy_target_steps", "aux_coef", "augment_shift", "seed"),
+    "fine-tuning": ("finetune", "critic_warmup_steps", "actor_ramp_steps", "kl_coef", "kl_decay_steps",
+                    "kl_temperature", "advantage_norm", "bc_coef", "bc_decay_steps"),
+    "curriculum": ("start_curriculum", "curriculum_threshold", "expert_data"),
+    "logging": ("checkpoint_every", "eval_every", "eval_episodes", "log_every"),
+}
+#: Parsers of the A3C settings that need more than a number (step counts such as ``5M``, bounded ones).
+_A3C_TYPES = {"steps": step_count, "checkpoint_every": step_count, "eval_every": step_count_or_zero,
+              "log_every": step_count, "max_episode_steps": step_count, "seed": seed, "eval_episodes": episode_count}
+
 
 def add_train_arguments(parser: argparse.ArgumentParser) -> None:
     """``bimgame train``: every :class:`~bimgame.learn.a3c.A3CConfig` setting as a flag (defaults of None,
-    so that ``--resume`` keeps what is not given), the reward shaping and the run's options."""
-    add = parser.add_argument
-    add("--run-dir", type=Path, required=True, help="directory for config, checkpoints and logs")
-    add("--resume", action="store_true", help="continue the run in --run-dir from its last checkpoint "
+    so that ``--resume`` keeps what is not given), the reward shaping and the run's options, in the
+    groups of :data:`TRAIN_GROUPS`."""
+    groups = add_flag_groups(parser, TRAIN_GROUPS)
+    run = groups["run"].add_argument
+    run("--run-dir", type=Path, required=True, help="directory for config, checkpoints and logs")
+    run("--resume", action="store_true", help="continue the run in --run-dir from its last checkpoint "
                                               "(settings come from its config.json)")
-    add("--init", type=Path, default=None, help="start from these weights (checkpoint file or run directory)")
-    add("--no-progress", action="store_true", help="no progress bar")
-    add_settings_flags(parser, A3CConfig, [f.name for f in dataclasses.fields(A3CConfig)], default_none=True,
-                       types={"steps": step_count, "checkpoint_every": step_count, "eval_every": step_count_or_zero,
-                              "log_every": step_count, "max_episode_steps": step_count, "seed": seed,
-                              "eval_episodes": episode_count},
-                       helps={"steps": "environment steps to train for, all workers together, e.g. 5M"})
+    run("--init", type=Path, default=None, help="start from these weights (checkpoint file or run directory)")
+    add_grouped_settings_flags(parser, groups, A3CConfig, [f.name for f in dataclasses.fields(A3CConfig)], A3C_GROUPS,
+                               default_none=True, types=_A3C_TYPES,
+                               helps={"steps": "environment steps to train for, all workers together, e.g. 5M"})
     docs = field_docs(RewardSettings)
-    add("--value-reward", type=Path, default=None, metavar="RUN", help=docs["value_reward"])
-    add("--geodesic-reward", dest="geodesic_coef", type=positive_float, nargs="?", const=DEFAULT_GEODESIC_COEF,
-        default=None, metavar="COEF", help=f"{docs['geodesic_coef']} (COEF default {DEFAULT_GEODESIC_COEF:g})")
+    reward = groups["environment"].add_argument
+    reward("--value-reward", type=Path, default=None, metavar="RUN", help=plain(docs["value_reward"]))
+    reward("--geodesic-reward", dest="geodesic_coef", type=positive_float, nargs="?", const=DEFAULT_GEODESIC_COEF,
+           default=None, metavar="COEF",
+           help=f"{plain(docs['geodesic_coef'])} (COEF default {DEFAULT_GEODESIC_COEF:g})")
+    groups["logging"].add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
 def run_train(args: argparse.Namespace) -> int:
