@@ -47,6 +47,35 @@ _LARGEST = {**{name: (MAX_STEPS, "1e12 environment steps") for name in
 EnvWrapper = Callable[[BallInMazeVectorEnv], Any]
 
 
+#: Settings that are integers >= 1, >= 0, reals in [0, 1], finite reals > 0 and finite reals >= 0.
+_POSITIVE_INTS = ("steps", "workers", "envs_per_worker", "n_steps", "checkpoint_every", "eval_episodes", "log_every")
+_NON_NEGATIVE_INTS = ("critic_warmup_steps", "actor_ramp_steps", "kl_decay_steps", "bc_decay_steps",
+                      "entropy_target_steps")
+_UNIT_INTERVAL = ("gamma", "gae_lambda", "rmsprop_alpha")
+_POSITIVE_REALS = ("lr", "optimizer_eps", "max_grad_norm")
+_NON_NEGATIVE_REALS = ("entropy_coef", "value_coef", "kl_coef", "bc_coef", "aux_coef")
+
+
+def _check_choice(name: str, value: Any, allowed: tuple[str, ...], *, optional: bool = False) -> None:
+    """Raise unless ``value`` is one of ``allowed`` (or, if ``optional``, None)."""
+    if value not in allowed:
+        prefix = "None or " if optional else ""
+        raise ValueError(f"A3CConfig.{name} must be {prefix}one of {allowed}, got {value!r}")
+
+
+def _check_number(config: Any, name: str, value: Any, low: float, high: float, *, low_open: bool = False) -> None:
+    """Raise unless ``value`` is a real number in [low, high] (finite and above ``low`` if
+    ``low_open``; finite if ``high`` is infinite)."""
+    ok = isinstance(value, (int, float)) and (math.isfinite(value) or math.isfinite(high))
+    ok = ok and (value > low if low_open else value >= low) and value <= high
+    if ok:
+        return
+    if math.isfinite(high):
+        raise ValueError(f"A3CConfig.{name} must be in [{low}, {high}], got {value!r}")
+    relation = ">" if low_open else ">="
+    raise ValueError(f"A3CConfig.{name} must be a finite number {relation} {low:g}, got {value!r}")
+
+
 @dataclasses.dataclass(frozen=True)
 class A3CConfig(NetworkSettings):
     """Settings of an A3C run. Learning defaults follow the A3C paper and its widely used reference
@@ -150,11 +179,8 @@ class A3CConfig(NetworkSettings):
     def __post_init__(self) -> None:
         super().__post_init__()
         object.__setattr__(self, "task", task_setting("A3CConfig", self.task))
-        if self.optimizer not in OPTIMIZERS:
-            raise ValueError(f"A3CConfig.optimizer must be one of {OPTIMIZERS}, got {self.optimizer!r}")
-        positive_ints = ("steps", "workers", "envs_per_worker", "n_steps", "checkpoint_every", "eval_episodes",
-                         "log_every")
-        for name in positive_ints:
+        _check_choice("optimizer", self.optimizer, OPTIMIZERS)
+        for name in _POSITIVE_INTS:
             require_int("A3CConfig", name, getattr(self, name), 1)
         check_seed("A3CConfig", self.seed)  # numpy's seed sequences take no negative seeds, torch none of 2**64
         if not (isinstance(self.eval_every, int) and self.eval_every >= 0):
@@ -164,41 +190,36 @@ class A3CConfig(NetworkSettings):
             value = getattr(self, name)
             if value is not None and value > largest:
                 raise ValueError(f"A3CConfig.{name} must be at most {largest:,} ({unit}), got {value!r}")
-        ranges = {"gamma": (0.0, 1.0), "gae_lambda": (0.0, 1.0), "rmsprop_alpha": (0.0, 1.0)}
-        for name, (low, high) in ranges.items():
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and low <= value <= high):
-                raise ValueError(f"A3CConfig.{name} must be in [{low}, {high}], got {value!r}")
-        for name in ("lr", "optimizer_eps", "max_grad_norm"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ValueError(f"A3CConfig.{name} must be a finite number > 0, got {value!r}")
-        if self.finetune is not None and self.finetune not in FINETUNE_PRESETS:
-            raise ValueError(f"A3CConfig.finetune must be None or one of {tuple(FINETUNE_PRESETS)}, "
-                             f"got {self.finetune!r}")
-        if self.start_curriculum not in START_CURRICULA:
-            raise ValueError(f"A3CConfig.start_curriculum must be one of {START_CURRICULA}, "
-                             f"got {self.start_curriculum!r}")
+        for name in _UNIT_INTERVAL:
+            _check_number(self, name, getattr(self, name), 0.0, 1.0)
+        for name in _POSITIVE_REALS:
+            _check_number(self, name, getattr(self, name), 0.0, math.inf, low_open=True)
+        if self.finetune is not None:
+            _check_choice("finetune", self.finetune, tuple(FINETUNE_PRESETS), optional=True)
+        _check_choice("start_curriculum", self.start_curriculum, START_CURRICULA)
         if self.entropy_target is not None and not (isinstance(self.entropy_target, (int, float))
                                                     and 0 < self.entropy_target <= math.log(5)):
             raise ValueError(f"A3CConfig.entropy_target must be None or in (0, ln 5 = {math.log(5):.4f}] nats, "
                              f"got {self.entropy_target!r}")
-        for name in ("critic_warmup_steps", "actor_ramp_steps", "kl_decay_steps", "bc_decay_steps",
-                     "entropy_target_steps"):
+        for name in _NON_NEGATIVE_INTS:
             require_int("A3CConfig", name, getattr(self, name), 0)
+        self._check_expert_data()
+        if not (isinstance(self.curriculum_threshold, (int, float)) and 0 < self.curriculum_threshold <= 1):
+            raise ValueError(f"A3CConfig.curriculum_threshold must be in (0, 1], got {self.curriculum_threshold!r}")
+        _check_number(self, "kl_temperature", self.kl_temperature, 0.0, math.inf, low_open=True)
+        self._check_randomize_and_augment()
+        for name in _NON_NEGATIVE_REALS:
+            _check_number(self, name, getattr(self, name), 0.0, math.inf)
+
+    def _check_expert_data(self) -> None:
         needs_data = [name for name, on in (("bc_coef", self.bc_coef > 0), ("start_curriculum='demo'",
                                                                                self.start_curriculum == "demo")) if on]
         if needs_data and self.expert_data is None:
             raise ValueError(f"A3CConfig.{needs_data[0]} needs expert_data (an expert dataset directory)")
-        if not (isinstance(self.curriculum_threshold, (int, float)) and 0 < self.curriculum_threshold <= 1):
-            raise ValueError(f"A3CConfig.curriculum_threshold must be in (0, 1], got {self.curriculum_threshold!r}")
-        if not (isinstance(self.kl_temperature, (int, float)) and math.isfinite(self.kl_temperature)
-                and self.kl_temperature > 0):
-            raise ValueError(f"A3CConfig.kl_temperature must be a finite number > 0, got {self.kl_temperature!r}")
+
+    def _check_randomize_and_augment(self) -> None:
         if self.randomize is not None:
-            if self.randomize not in RANDOMIZATION_PRESETS:
-                raise ValueError(f"A3CConfig.randomize must be None or one of {tuple(RANDOMIZATION_PRESETS)}, "
-                                 f"got {self.randomize!r}")
+            _check_choice("randomize", self.randomize, tuple(RANDOMIZATION_PRESETS), optional=True)
             if self.obs != "pixels" and RANDOMIZATION_PRESETS[self.randomize].active(OBSERVATION_FIELDS):
                 raise ValueError(f"A3CConfig.randomize={self.randomize!r} randomises the camera, which needs "
                                  f"obs='pixels'; with state observations use 'physics'")
@@ -206,10 +227,6 @@ class A3CConfig(NetworkSettings):
         if self.augment_shift > MAX_SHIFT or (self.augment_shift and self.obs != "pixels"):
             raise ValueError(f"A3CConfig.augment_shift must be 0..{MAX_SHIFT} pixels, and 0 for state observations, "
                              f"got {self.augment_shift!r} with obs={self.obs!r}")
-        for name in ("entropy_coef", "value_coef", "kl_coef", "bc_coef", "aux_coef"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
-                raise ValueError(f"A3CConfig.{name} must be a finite number >= 0, got {value!r}")
 
     @property
     def time_limit(self) -> int:
