@@ -13,7 +13,8 @@ A generation run owns one directory, ``out_dir``::
 A full disk stops the run with :class:`~bimgame.util.files.DiskFullError` ("no space left on device
 while writing FILE; rerun the same command to resume"), losing no finished episode. The episode
 files and the Minari (HDF5) file, written by a child process so that a failed HDF5 write kills only
-that process, are :mod:`bimgame.expert.minari_build`'s.
+that process, are :mod:`bimgame.expert.minari_build`'s; :mod:`bimgame.expert.dataset_files` reads the
+manifest and checks the marker.
 
 Episode ``i`` is ``run_expert_episode(task, episode_seed(seed, i), config)``: it depends on the run
 seed and its index only, so the dataset is the same whatever the number of workers, the backend
@@ -31,14 +32,13 @@ is Minari's episode metadata ``seed``.
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 import multiprocessing
 import os
 import shutil
 import tempfile
 import warnings
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -48,13 +48,27 @@ from minari import MinariDataset
 
 import bimgame
 from bimgame.envs.observe import Observer
+from bimgame.expert.dataset_files import (
+    BUILD_PREFIX,
+    FORMAT_NAME,
+    FORMAT_VERSION,
+    LOCK_NAME,
+    MANIFEST_NAME,
+    MARKER_NAME,
+    MINARI_DIR,
+    data_path,
+    episode_totals,
+    is_own_temporary,
+    read_manifest,
+    remove_stale_temporaries,
+    verify_marker,
+)
 from bimgame.expert.episode import Episode
 from bimgame.expert.minari_build import (
     EPISODES_DIR,
     DatasetError,
     episode_bytes,
     episode_path,
-    hash_arrays,
     read_episode,
     run_build_process,
 )
@@ -67,18 +81,25 @@ from bimgame.util.files import atomic_write_bytes, exclusive_lock, file_sha256, 
 from bimgame.util.seeding import episode_seed
 from bimgame.util.settings import is_integer
 
-__all__ = ["DatasetError", "generate_dataset", "load_dataset", "iterate_sequences", "dataset_summary",
-           "dataset_id_for", "dataset_manifest", "episode_totals", "write_marker", "BACKENDS", "MINARI_DIR",
-           "FORMAT_NAME", "FORMAT_VERSION", "MANIFEST_NAME", "MARKER_NAME", "LOCK_NAME"]
+__all__ = [
+    "DatasetError",
+    "generate_dataset",
+    "load_dataset",
+    "iterate_sequences",
+    "dataset_summary",
+    "dataset_id_for",
+    "dataset_manifest",
+    "episode_totals",
+    "write_marker",
+    "BACKENDS",
+    "MINARI_DIR",
+    "FORMAT_NAME",
+    "FORMAT_VERSION",
+    "MANIFEST_NAME",
+    "MARKER_NAME",
+    "LOCK_NAME",
+]
 
-FORMAT_NAME = "bimgame-expert-dataset"
-FORMAT_VERSION = 1
-
-MANIFEST_NAME = "generation.json"
-MARKER_NAME = "COMPLETE"
-MINARI_DIR = "minari"
-LOCK_NAME = ".lock"
-BUILD_PREFIX = ".minari-build-"
 # Episodes handed to Minari per write (bounds memory for large datasets).
 _BUILD_CHUNK = 64
 
@@ -90,10 +111,19 @@ def dataset_id_for(task: str | Task, source: str = "expert") -> str:
     return f"bimgame/{parse_task(task).value.lower()}-{source}-v0"
 
 
-def generate_dataset(out_dir: str | Path, task: str = "FULL", episodes: int = 500, *, seed: int = 0,
-                     config: MPCConfig = MPCConfig(), workers: int | None = None,
-                     backend: str = "local", ray_address: str | None = None, progress: bool = True,
-                     max_steps: int | None = None) -> Path:
+def generate_dataset(
+    out_dir: str | Path,
+    task: str = "FULL",
+    episodes: int = 500,
+    *,
+    seed: int = 0,
+    config: MPCConfig = MPCConfig(),
+    workers: int | None = None,
+    backend: str = "local",
+    ray_address: str | None = None,
+    progress: bool = True,
+    max_steps: int | None = None,
+) -> Path:
     """Generate ``episodes`` expert episodes on ``task`` into ``out_dir`` and build the Minari
     dataset from them; returns ``out_dir``.
 
@@ -154,15 +184,22 @@ def generate_dataset(out_dir: str | Path, task: str = "FULL", episodes: int = 50
     return out_dir
 
 
-def _generate(out_dir: Path, manifest: dict, config: MPCConfig, progress: bool, workers: int, backend: str,
-              ray_address: str | None) -> None:
+def _generate(
+    out_dir: Path,
+    manifest: dict,
+    config: MPCConfig,
+    progress: bool,
+    workers: int,
+    backend: str,
+    ray_address: str | None,
+) -> None:
     task, episodes, seed, max_steps = manifest["task"], manifest["episodes"], manifest["seed"], manifest["max_steps"]
     _prepare_out_dir(out_dir, manifest)
     with _locked(out_dir):
         marker_path = out_dir / MARKER_NAME
         if marker_path.exists():
             try:
-                _verify(out_dir, manifest, hashes=True)
+                verify_marker(out_dir, manifest, hashes=True)
                 return
             except DatasetError as error:  # repair: regenerate what is damaged, rebuild
                 warnings.warn(f"{out_dir}: {error}; repairing", stacklevel=3)
@@ -184,11 +221,19 @@ def _generate(out_dir: Path, manifest: dict, config: MPCConfig, progress: bool, 
             todo.append(index)
 
         if todo:
-            with episode_progress(progress, f"expert on {task}", episodes,
-                                  len(done_success), sum(done_success)) as update:
-                for index, episode, _ in expert_episodes(task, todo, seed, config, max_steps=max_steps,
-                                                         workers=workers, backend=backend,
-                                                         ray_address=ray_address):
+            with episode_progress(
+                progress, f"expert on {task}", episodes, len(done_success), sum(done_success)
+            ) as update:
+                for index, episode, _ in expert_episodes(
+                    task,
+                    todo,
+                    seed,
+                    config,
+                    max_steps=max_steps,
+                    workers=workers,
+                    backend=backend,
+                    ray_address=ray_address,
+                ):
                     path = episode_path(out_dir, index)
                     with reporting_full_disk(path, lambda: _resume_advice(out_dir, episodes)):
                         atomic_write_bytes(path, episode_bytes(index, episode))
@@ -228,45 +273,28 @@ def _prepare_out_dir(out_dir: Path, manifest: dict) -> None:
         raise NotADirectoryError(f"out_dir {out_dir} exists and is not a directory")
     manifest_path = out_dir / MANIFEST_NAME
     if manifest_path.exists():
-        existing = _read_manifest(out_dir, error=FileExistsError)
-        differences = [f"{key}: {existing.get(key)!r} there, {manifest[key]!r} now"
-                       for key in _MANIFEST_KEYS if existing.get(key) != manifest[key]]
+        existing = read_manifest(out_dir, error=FileExistsError)
+        differences = [
+            f"{key}: {existing.get(key)!r} there, {manifest[key]!r} now"
+            for key in _MANIFEST_KEYS
+            if existing.get(key) != manifest[key]
+        ]
         if differences:
             raise ValueError(
                 f"{out_dir} holds a generation run with different arguments ({'; '.join(differences)}); "
-                "use another directory, or the same arguments to resume or finish that run")
+                "use another directory, or the same arguments to resume or finish that run"
+            )
         return
     if out_dir.exists():
-        found = sorted(p.name + ("/" if p.is_dir() else "") for p in out_dir.iterdir()
-                       if not _is_own_temporary(p.name))
+        found = sorted(p.name + ("/" if p.is_dir() else "") for p in out_dir.iterdir() if not is_own_temporary(p.name))
         if found:
             shown = ", ".join(repr(name) for name in found[:5]) + (", …" if len(found) > 5 else "")
             raise FileExistsError(
                 f"out_dir {out_dir} is not empty and is not a bimgame generation run (no {MANIFEST_NAME}; "
-                f"found {len(found)} entries: {shown}); nothing was changed. Use a new or empty directory.")
+                f"found {len(found)} entries: {shown}); nothing was changed. Use a new or empty directory."
+            )
     with reporting_full_disk(manifest_path):
         atomic_write_bytes(manifest_path, (json.dumps(manifest, indent=2) + "\n").encode())
-
-
-def _is_own_temporary(name: str) -> bool:
-    return name.startswith(f".{MANIFEST_NAME}.") and name.endswith(".tmp")
-
-
-def _read_manifest(out_dir: Path, error: type[Exception] = DatasetError) -> dict:
-    path = out_dir / MANIFEST_NAME
-    try:
-        manifest = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise error(f"{out_dir} is not a bimgame dataset directory (no {MANIFEST_NAME})") from None
-    except (OSError, ValueError) as exc:
-        raise error(f"{path} cannot be read as a generation manifest ({exc})") from None
-    if not isinstance(manifest, dict) or manifest.get("format") != FORMAT_NAME:
-        raise error(f"{path} is not a bimgame generation manifest (format is not {FORMAT_NAME!r}); "
-                    "nothing was changed")
-    if manifest.get("format_version") != FORMAT_VERSION:
-        raise error(f"{path} has format version {manifest.get('format_version')!r}; this bimgame "
-                    f"reads version {FORMAT_VERSION}")
-    return manifest
 
 
 def _locked(out_dir: Path):
@@ -274,27 +302,18 @@ def _locked(out_dir: Path):
     return exclusive_lock(out_dir / LOCK_NAME, f"another process is generating into {out_dir}; wait for it to finish")
 
 
-def remove_stale_temporaries(out_dir: Path, prefixes: tuple[str, ...] = (BUILD_PREFIX,)) -> None:
-    """Leftovers of a killed run inside our own directory: partial builds (directories starting
-    with one of ``prefixes``) and temporary episode files."""
-    for prefix in prefixes:
-        for path in out_dir.glob(f"{prefix}*"):
-            shutil.rmtree(path, ignore_errors=True)
-    for path in (out_dir / EPISODES_DIR).glob(".episode_*.tmp"):
-        path.unlink(missing_ok=True)
-
-
 # ------------------------------------------------------------------------------ Minari building
 def _build_minari(out_dir: Path, manifest: dict) -> None:
     """Build the Minari dataset from the episode files in a temporary datasets root (in a child
     process), move it into place, then write the COMPLETE marker (the last step)."""
     episodes, seed = manifest["episodes"], manifest["seed"]
-    totals = episode_totals(episodes, lambda index: read_episode(episode_path(out_dir, index), index,
-                                                                 episode_seed(seed, index)))
+    totals = episode_totals(
+        episodes, lambda index: read_episode(episode_path(out_dir, index), index, episode_seed(seed, index))
+    )
 
     build_root = Path(tempfile.mkdtemp(prefix=BUILD_PREFIX, dir=out_dir))
     try:
-        with reporting_full_disk(_data_path(out_dir, manifest["dataset_id"]) / "main_data.hdf5"):
+        with reporting_full_disk(data_path(out_dir, manifest["dataset_id"]) / "main_data.hdf5"):
             run_build_process(out_dir, manifest, build_root, _BUILD_CHUNK)
         final = out_dir / MINARI_DIR
         if final.exists():  # an earlier build of this run that never got its marker
@@ -307,78 +326,29 @@ def _build_minari(out_dir: Path, manifest: dict) -> None:
         write_marker(out_dir, manifest["dataset_id"], episodes, totals)
 
 
-def episode_totals(episodes: int, read: Callable[[int], dict[str, np.ndarray]]) -> dict[str, Any]:
-    """Steps, successes and the content hash of episode files 0 … ``episodes``−1 (``read(index)``
-    gives a file's checked arrays): what the COMPLETE marker records."""
-    content = hashlib.sha256()
-    totals = {"steps": 0, "successes": 0}
-    for index in range(episodes):
-        data = read(index)
-        hash_arrays(content, data)
-        totals["steps"] += len(data["actions"])
-        totals["successes"] += bool(data["success"])
-    return {**totals, "content_sha256": content.hexdigest()}
-
-
 def write_marker(out_dir: Path, dataset_id: str, episodes: int, totals: dict[str, Any]) -> None:
     """Write the COMPLETE marker — the last step of a build: the counts and content hash of
     :func:`episode_totals`, and every episode and Minari file's size and SHA-256."""
     files = {}
     for path in [episode_path(out_dir, i) for i in range(episodes)] + sorted(
-            p for p in (out_dir / MINARI_DIR).rglob("*") if p.is_file()):
+        p for p in (out_dir / MINARI_DIR).rglob("*") if p.is_file()
+    ):
         files[path.relative_to(out_dir).as_posix()] = {"size": path.stat().st_size, "sha256": file_sha256(path)}
-    marker = {"format": FORMAT_NAME, "format_version": FORMAT_VERSION, "dataset_id": dataset_id,
-              "episodes": episodes, "steps": totals["steps"], "successes": totals["successes"],
-              "content_sha256": totals["content_sha256"], "files": files}
+    marker = {
+        "format": FORMAT_NAME,
+        "format_version": FORMAT_VERSION,
+        "dataset_id": dataset_id,
+        "episodes": episodes,
+        "steps": totals["steps"],
+        "successes": totals["successes"],
+        "content_sha256": totals["content_sha256"],
+        "files": files,
+    }
     atomic_write_bytes(out_dir / MARKER_NAME, (json.dumps(marker, indent=1) + "\n").encode())
 
 
 # ------------------------------------------------------------------------------------- loading
-def _data_path(out_dir: Path, dataset_id: str) -> Path:
-    return out_dir / MINARI_DIR / dataset_id / "data"
-
-
-def _verify(out_dir: Path, manifest: dict, *, hashes: bool) -> dict:
-    """The COMPLETE marker, after checking it and every file it lists (else DatasetError)."""
-    marker_path = out_dir / MARKER_NAME
-    episodes = manifest["episodes"]
-    if not marker_path.exists():
-        present = sum(episode_path(out_dir, i).exists() for i in range(episodes))
-        raise DatasetError(
-            f"dataset in {out_dir} is incomplete ({present} of {episodes} episode files, no {MARKER_NAME} "
-            "marker): its generation was interrupted or is still running; run the generation again with "
-            "the same arguments to finish it")
-    try:
-        marker = json.loads(marker_path.read_text())
-        files = marker["files"]
-        if not isinstance(files, dict):
-            raise TypeError("files is not a mapping")
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise DatasetError(f"{marker_path} is damaged ({exc})") from None
-    if marker.get("episodes") != episodes or marker.get("dataset_id") != manifest["dataset_id"]:
-        raise DatasetError(f"{marker_path} describes {marker.get('episodes')!r} episodes of "
-                           f"{marker.get('dataset_id')!r}, the manifest {episodes} of {manifest['dataset_id']!r}")
-    expected = {episode_path(out_dir, i).relative_to(out_dir).as_posix() for i in range(episodes)}
-    expected |= {(Path(MINARI_DIR) / manifest["dataset_id"] / "data" / name).as_posix()
-                 for name in ("metadata.json", "main_data.hdf5")}
-    unlisted = sorted(expected - set(files))
-    if unlisted:
-        raise DatasetError(f"{marker_path} does not cover {', '.join(unlisted[:3])}")
-    for name, entry in files.items():
-        path = out_dir / name
-        if not path.is_file():
-            raise DatasetError(f"dataset in {out_dir} is missing {name}")
-        size = path.stat().st_size
-        if size != entry["size"]:
-            raise DatasetError(f"{path} has {size} bytes, {entry['size']} when the dataset was completed "
-                               "(truncated or modified)")
-        if hashes and file_sha256(path) != entry["sha256"]:
-            raise DatasetError(f"{path} differs from the file the dataset was completed with "
-                               "(SHA-256 mismatch: corrupted or modified)")
-    return marker
-
-
-def load_dataset(out_dir: str | Path, *, verify: bool = True):
+def load_dataset(out_dir: str | os.PathLike, *, verify: bool = True):
     """Open a finished dataset directory as a ``minari.MinariDataset``.
 
     Checks the COMPLETE marker, the episode count and every file's size, and with ``verify`` (the
@@ -388,23 +358,26 @@ def load_dataset(out_dir: str | Path, *, verify: bool = True):
     """
     out_dir = Path(out_dir).absolute()  # Minari joins relative dataset paths onto its root
     if not out_dir.is_dir():
-        raise DatasetError(f"dataset directory {out_dir} does not exist" if not out_dir.exists()
-                           else f"{out_dir} is not a directory")
-    manifest = _read_manifest(out_dir)
-    marker = _verify(out_dir, manifest, hashes=verify)
+        raise DatasetError(
+            f"dataset directory {out_dir} does not exist" if not out_dir.exists() else f"{out_dir} is not a directory"
+        )
+    manifest = read_manifest(out_dir)
+    marker = verify_marker(out_dir, manifest, hashes=verify)
     try:
-        dataset = MinariDataset(_data_path(out_dir, manifest["dataset_id"]))
-    except Exception as exc:
+        dataset = MinariDataset(data_path(out_dir, manifest["dataset_id"]))
+    except Exception as exc:  # noqa: BLE001 - Minari raises many kinds on a damaged dataset; the message names it
         raise DatasetError(f"Minari cannot open the dataset in {out_dir} ({type(exc).__name__}: {exc})") from None
     if dataset.total_episodes != marker["episodes"] or dataset.total_steps != marker["steps"]:
-        raise DatasetError(f"the Minari dataset in {out_dir} has {dataset.total_episodes} episodes and "
-                           f"{dataset.total_steps} steps, the marker {marker['episodes']} and {marker['steps']}")
+        raise DatasetError(
+            f"the Minari dataset in {out_dir} has {dataset.total_episodes} episodes and "
+            f"{dataset.total_steps} steps, the marker {marker['episodes']} and {marker['steps']}"
+        )
     return dataset
 
 
 def dataset_manifest(out_dir: str | Path) -> dict[str, Any]:
     """What a dataset directory holds (its ``generation.json``: task, episodes, seed, MPC settings)."""
-    return _read_manifest(Path(out_dir))
+    return read_manifest(Path(out_dir))
 
 
 def dataset_summary(out_dir: str | Path) -> dict[str, Any]:
@@ -412,8 +385,8 @@ def dataset_summary(out_dir: str | Path) -> dict[str, Any]:
     steps, success rate, mean length, bytes of the episode files and of the Minari dataset, and
     both per 1000 steps."""
     out_dir = Path(out_dir).absolute()  # Minari joins relative dataset paths onto its root
-    manifest = _read_manifest(out_dir)
-    marker = _verify(out_dir, manifest, hashes=False)
+    manifest = read_manifest(out_dir)
+    marker = verify_marker(out_dir, manifest, hashes=False)
     sizes = {"episodes": 0, "minari": 0}
     for name, entry in marker["files"].items():
         sizes["minari" if name.startswith(MINARI_DIR + "/") else "episodes"] += entry["size"]
@@ -433,8 +406,12 @@ def dataset_summary(out_dir: str | Path) -> dict[str, Any]:
 
 
 # ---------------------------------------------------------------------------- pre-training view
-def iterate_sequences(dataset_or_dir, *, obs: str = "state", gamma: float = 0.99,
-                      ) -> Iterator[Episode]:
+def iterate_sequences(
+    dataset_or_dir,
+    *,
+    obs: str = "state",
+    gamma: float = 0.99,
+) -> Iterator[Episode]:
     """Whole episodes for sequence models (an LSTM sees each episode from its start).
 
     ``dataset_or_dir``: a ``MinariDataset`` (e.g. from :func:`load_dataset`) or a dataset directory
@@ -462,23 +439,34 @@ def iterate_sequences(dataset_or_dir, *, obs: str = "state", gamma: float = 0.99
         infos = episode.infos or {}
         if obs == "pixels":
             if "sim_state" not in infos or "channel" not in infos:
-                raise ValueError(f"episode {episode.id} has no infos['sim_state'] / infos['channel'] "
-                                 "to render pixels from (not a bimgame expert dataset?)")
+                raise ValueError(
+                    f"episode {episode.id} has no infos['sim_state'] / infos['channel'] "
+                    "to render pixels from (not a bimgame expert dataset?)"
+                )
             if observer is None:
                 observer = _pixel_observer(infos["channel"].shape[1])
-            frames = observer(np.asarray(infos["sim_state"][:steps], dtype=np.float64),
-                              np.asarray(infos["channel"][:steps]))
+            frames = observer(
+                np.asarray(infos["sim_state"][:steps], dtype=np.float64), np.asarray(infos["channel"][:steps])
+            )
         else:
             frames = states
         n_marbles = (states.shape[1] - 2) // 5  # [x, y, vx, vy] * n, tilt_x, tilt_y, channel * n
         if "channel" in infos:
-            channels = np.asarray(infos["channel"][:steps + 1], dtype=np.int64)
+            channels = np.asarray(infos["channel"][: steps + 1], dtype=np.int64)
         else:
-            channels = np.rint(np.asarray(episode.observations[:steps + 1])[:, 4 * n_marbles + 2:]).astype(np.int64)
-        yield Episode.from_steps(obs=frames, actions=episode.actions, rewards=episode.rewards,
-                                 tilt=states[:, 4 * n_marbles:4 * n_marbles + 2], gamma=gamma, channels=channels,
-                                 terminated=bool(episode.terminations[-1]),
-                                 truncated=bool(episode.truncations[-1]), id=int(episode.id), state_obs=states)
+            channels = np.rint(np.asarray(episode.observations[: steps + 1])[:, 4 * n_marbles + 2 :]).astype(np.int64)
+        yield Episode.from_steps(
+            obs=frames,
+            actions=episode.actions,
+            rewards=episode.rewards,
+            tilt=states[:, 4 * n_marbles : 4 * n_marbles + 2],
+            gamma=gamma,
+            channels=channels,
+            terminated=bool(episode.terminations[-1]),
+            truncated=bool(episode.truncations[-1]),
+            id=int(episode.id),
+            state_obs=states,
+        )
 
 
 def _pixel_observer(n_marbles: int) -> Observer:
@@ -492,4 +480,3 @@ def _pixel_observer(n_marbles: int) -> Observer:
 def _check_int(name: str, value: Any, *, minimum: int) -> None:
     if not (is_integer(value) and value >= minimum):
         raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
-

@@ -84,23 +84,41 @@ class Episode:
     STEP_FIELDS = ("obs", "actions", "executed", "prev_actions", "prev_rewards", "tilt", "returns", "rewards")
 
     @classmethod
-    def from_steps(cls, *, obs: np.ndarray, actions: np.ndarray, rewards: np.ndarray, tilt: np.ndarray,
-                   gamma: float, executed: np.ndarray | None = None, channels: np.ndarray | None = None,
-                   terminated: bool = False, truncated: bool = False, id: int | None = None,
-                   state_obs: np.ndarray | None = None) -> Episode:
+    def from_steps(
+        cls,
+        *,
+        obs: np.ndarray,
+        actions: np.ndarray,
+        rewards: np.ndarray,
+        tilt: np.ndarray,
+        gamma: float,
+        executed: np.ndarray | None = None,
+        channels: np.ndarray | None = None,
+        terminated: bool = False,
+        truncated: bool = False,
+        id: int | None = None,
+        state_obs: np.ndarray | None = None,
+    ) -> Episode:
         """The record of an episode from what happened at each step; ``executed`` defaults to
         ``actions``."""
         actions = np.asarray(actions, dtype=np.int64)
         executed = actions if executed is None else np.asarray(executed, dtype=np.int64)
         rewards = np.asarray(rewards, dtype=np.float64)
-        return cls(obs=np.asarray(obs), actions=actions, rewards=rewards.astype(np.float32),
-                   prev_actions=previous_values(executed, NO_ACTION),
-                   prev_rewards=previous_values(rewards.astype(np.float32), 0.0),
-                   returns=discounted_returns(rewards, gamma).astype(np.float32),
-                   tilt=np.asarray(tilt, dtype=np.float32), executed=executed,
-                   channels=None if channels is None else np.asarray(channels, dtype=np.int64),
-                   terminated=bool(terminated), truncated=bool(truncated), id=id,
-                   state_obs=None if state_obs is None else np.asarray(state_obs, dtype=np.float32))
+        return cls(
+            obs=np.asarray(obs),
+            actions=actions,
+            rewards=rewards.astype(np.float32),
+            prev_actions=previous_values(executed, NO_ACTION),
+            prev_rewards=previous_values(rewards.astype(np.float32), 0.0),
+            returns=discounted_returns(rewards, gamma).astype(np.float32),
+            tilt=np.asarray(tilt, dtype=np.float32),
+            executed=executed,
+            channels=None if channels is None else np.asarray(channels, dtype=np.int64),
+            terminated=bool(terminated),
+            truncated=bool(truncated),
+            id=id,
+            state_obs=None if state_obs is None else np.asarray(state_obs, dtype=np.float32),
+        )
 
     def __len__(self) -> int:
         return len(self.actions)
@@ -108,8 +126,10 @@ class Episode:
     def window(self, start: int, stop: int) -> Episode:
         """Steps ``start`` to ``stop`` (exclusive) of the episode: its per-step arrays (and state
         observations, if recorded) sliced."""
-        return Episode(**{name: getattr(self, name)[start:stop] for name in self.STEP_FIELDS},
-                       state_obs=None if self.state_obs is None else self.state_obs[start:stop])
+        return Episode(
+            **{name: getattr(self, name)[start:stop] for name in self.STEP_FIELDS},
+            state_obs=None if self.state_obs is None else self.state_obs[start:stop],
+        )
 
     def step_arrays(self) -> dict[str, np.ndarray]:
         """The per-step arrays by name (:data:`STEP_FIELDS`)."""
@@ -126,8 +146,11 @@ class Episode:
     def split(arrays: dict[str, np.ndarray]) -> list[Episode]:
         """The episodes of :meth:`concatenate`'s arrays; a missing array raises ``KeyError``."""
         bounds = np.concatenate([[0], np.cumsum(arrays["lengths"])])
-        return [Episode(**{name: arrays[name][a:b] for name in Episode.STEP_FIELDS})
-                for a, b in zip(bounds[:-1], bounds[1:])]
+        episodes = []
+        for a, b in zip(bounds[:-1], bounds[1:], strict=True):
+            fields: dict[str, Any] = {name: arrays[name][a:b] for name in Episode.STEP_FIELDS}
+            episodes.append(Episode(**fields))
+        return episodes
 
 
 def relabel(episode: Episode, task: str | Task, gamma: float, spec: MazeSpec | None = None) -> Episode:
@@ -146,9 +169,18 @@ def relabel(episode: Episode, task: str | Task, gamma: float, spec: MazeSpec | N
     end = int(np.argmax(done)) + 1 if done.any() else steps
     terminated = bool(done.any())
     rewards = rewards[:end].astype(np.float32)
-    return Episode(obs=episode.obs[:end], actions=episode.actions[:end], rewards=rewards,
-                   prev_actions=episode.prev_actions[:end], prev_rewards=previous_values(rewards, 0.0),
-                   returns=discounted_returns(rewards, gamma).astype(np.float32), tilt=episode.tilt[:end],
-                   executed=episode.executed[:end], channels=channels[:end + 1], terminated=terminated,
-                   truncated=not terminated, id=episode.id,
-                   state_obs=None if episode.state_obs is None else episode.state_obs[:end])
+    return Episode(
+        obs=episode.obs[:end],
+        actions=episode.actions[:end],
+        rewards=rewards,
+        prev_actions=episode.prev_actions[:end],
+        prev_rewards=previous_values(rewards, 0.0),
+        returns=discounted_returns(rewards, gamma).astype(np.float32),
+        tilt=episode.tilt[:end],
+        executed=episode.executed[:end],
+        channels=channels[: end + 1],
+        terminated=terminated,
+        truncated=not terminated,
+        id=episode.id,
+        state_obs=None if episode.state_obs is None else episode.state_obs[:end],
+    )

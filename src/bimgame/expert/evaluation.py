@@ -30,9 +30,16 @@ class EpisodeResult:
     seconds: float
 
 
-def evaluate_expert(task: str, episodes: int, config: MPCConfig | None = None, *, seed: int = 0,
-                    workers: int | None = None, max_steps: int | None = None,
-                    progress: bool = True) -> list[EpisodeResult]:
+def evaluate_expert(
+    task: str,
+    episodes: int,
+    config: MPCConfig | None = None,
+    *,
+    seed: int = 0,
+    workers: int | None = None,
+    max_steps: int | None = None,
+    progress: bool = True,
+) -> list[EpisodeResult]:
     """Run ``episodes`` expert episodes (episode i from :func:`~bimgame.util.seeding.episode_seed`(seed, i))
     on ``workers`` processes (default: all cores, see :func:`~bimgame.expert.pool.expert_episodes`);
     results sorted by episode index, independent of ``workers``."""
@@ -43,10 +50,19 @@ def evaluate_expert(task: str, episodes: int, config: MPCConfig | None = None, *
     workers = workers if workers is not None else (os.cpu_count() or 1)
     results: list[EpisodeResult] = []
     with episode_progress(progress, f"expert on {task}", episodes, transient=True) as update:
-        for index, episode, seconds in expert_episodes(task, list(range(episodes)), seed, config,
-                                                       max_steps=max_steps, workers=workers):
-            results.append(EpisodeResult(index, int(episode["seed"]), bool(episode["success"]),
-                                         len(episode["actions"]), float(episode["rewards"].sum()), seconds))
+        for index, episode, seconds in expert_episodes(
+            task, list(range(episodes)), seed, config, max_steps=max_steps, workers=workers
+        ):
+            results.append(
+                EpisodeResult(
+                    index,
+                    int(episode["seed"]),
+                    bool(episode["success"]),
+                    len(episode["actions"]),
+                    float(episode["rewards"].sum()),
+                    seconds,
+                )
+            )
             update(results[-1].success)
     return sorted(results, key=lambda r: r.index)
 
@@ -76,8 +92,9 @@ def plot_length_histogram(results: list[EpisodeResult], path: str | Path, *, tit
     fig, ax = subplots(figsize=(6, 3.6))
     if solved:
         ax.hist(solved, bins=min(30, max(5, len(solved) // 3)), color="#4c72b0", edgecolor="white")
-        ax.axvline(float(np.median(solved)), color="black", ls="--", lw=1,
-                   label=f"median {np.median(solved):.0f} steps")
+        ax.axvline(
+            float(np.median(solved)), color="black", ls="--", lw=1, label=f"median {np.median(solved):.0f} steps"
+        )
         ax.legend()
     ax.set_xlabel("trajectory length (steps at 30 Hz)")
     ax.set_ylabel("episodes")
@@ -90,7 +107,11 @@ def plot_length_histogram(results: list[EpisodeResult], path: str | Path, *, tit
 def write_results(results: list[EpisodeResult], summary: dict, config: MPCConfig, task: str, path: str | Path) -> Path:
     """Per-episode results, summary and settings as JSON (atomically; a full disk raises
     :class:`~bimgame.util.files.DiskFullError` naming the file)."""
-    payload = {"task": task, "config": dataclasses.asdict(config), "summary": summary,
-               "episodes": [dataclasses.asdict(r) for r in results]}
+    payload = {
+        "task": task,
+        "config": dataclasses.asdict(config),
+        "summary": summary,
+        "episodes": [dataclasses.asdict(r) for r in results],
+    }
     with reporting_full_disk(path):
         return atomic_write_bytes(path, json.dumps(payload, indent=1).encode())

@@ -33,14 +33,35 @@ from bimgame.util.files import disk_full_errno
 from bimgame.util.processes import exit_when_parent_dies
 from bimgame.util.seeding import episode_seed
 
-__all__ = ["DatasetError", "ALGORITHM_NAME", "EPISODES_DIR", "EPISODE_KEYS", "episode_path", "episode_bytes",
-           "read_episode", "hash_arrays", "run_build_process", "episode_buffer", "write_minari", "write_expert_minari",
-           "EXPERT_WRITER"]
+__all__ = [
+    "DatasetError",
+    "ALGORITHM_NAME",
+    "EPISODES_DIR",
+    "EPISODE_KEYS",
+    "episode_path",
+    "episode_bytes",
+    "read_episode",
+    "hash_arrays",
+    "run_build_process",
+    "episode_buffer",
+    "write_minari",
+    "write_expert_minari",
+    "EXPERT_WRITER",
+]
 
 ALGORITHM_NAME = "RandomShootingMPC"
 EPISODES_DIR = "episodes"
-EPISODE_KEYS = ("actions", "rewards", "terminations", "truncations", "observations", "sim_states",
-                "channels", "seed", "success")
+EPISODE_KEYS = (
+    "actions",
+    "rewards",
+    "terminations",
+    "truncations",
+    "observations",
+    "sim_states",
+    "channels",
+    "seed",
+    "success",
+)
 
 
 class DatasetError(ValueError):
@@ -52,9 +73,10 @@ def episode_path(out_dir: Path, index: int) -> Path:
     return out_dir / EPISODES_DIR / f"episode_{index:06d}.npz"
 
 
-def episode_bytes(index: int, episode: dict[str, np.ndarray]) -> bytes:
+def episode_bytes(index: int, episode: dict[str, np.ndarray | np.generic]) -> bytes:
     buffer = io.BytesIO()
-    np.savez(buffer, index=np.int64(index), **{key: episode[key] for key in EPISODE_KEYS})
+    arrays: dict[str, Any] = {key: episode[key] for key in EPISODE_KEYS}  # not savez's allow_pickle
+    np.savez(buffer, index=np.int64(index), **arrays)
     return buffer.getvalue()
 
 
@@ -65,20 +87,27 @@ def read_episode(path: Path, index: int, expected_seed: int | None) -> dict[str,
     try:
         with open(path, "rb") as handle, np.load(handle, allow_pickle=False) as archive:
             data = {key: archive[key] for key in archive.files}
-    except Exception as exc:  # zipfile.BadZipFile, EOFError, ValueError, OSError …
+    except Exception as exc:  # noqa: BLE001 - zipfile.BadZipFile, EOFError, ValueError, OSError …
         raise DatasetError(f"episode file {path} is unreadable ({type(exc).__name__}: {exc})") from None
     missing = [key for key in (*EPISODE_KEYS, "index") if key not in data]
     if missing:
         raise DatasetError(f"episode file {path} lacks {', '.join(missing)}")
     if int(data["index"]) != index or (expected_seed is not None and int(data["seed"]) != expected_seed):
-        raise DatasetError(f"episode file {path} holds episode {int(data['index'])} with seed "
-                           f"{int(data['seed'])}, expected episode {index} with seed {expected_seed}")
+        raise DatasetError(
+            f"episode file {path} holds episode {int(data['index'])} with seed "
+            f"{int(data['seed'])}, expected episode {index} with seed {expected_seed}"
+        )
     steps = len(data["actions"])
     ends = data["terminations"] | data["truncations"]
-    if (steps < 1 or any(len(data[k]) != steps for k in ("rewards", "terminations", "truncations"))
-            or any(len(data[k]) != steps + 1 for k in ("observations", "sim_states", "channels"))
-            or not ends[-1] or ends[:-1].any()
-            or data["actions"].min() < 0 or data["actions"].max() > 4):
+    if (
+        steps < 1
+        or any(len(data[k]) != steps for k in ("rewards", "terminations", "truncations"))
+        or any(len(data[k]) != steps + 1 for k in ("observations", "sim_states", "channels"))
+        or not ends[-1]
+        or ends[:-1].any()
+        or data["actions"].min() < 0
+        or data["actions"].max() > 4
+    ):
         raise DatasetError(f"episode file {path} is inconsistent (lengths, episode end or actions)")
     return data
 
@@ -94,11 +123,13 @@ def hash_arrays(digest, data: dict[str, np.ndarray]) -> None:
 
 # ---------------------------------------------------------------------------- the build process
 #: What the build process runs: the job comes on stdin as JSON (with this process's sys.path).
-_BUILD_SCRIPT = ("import json, sys\n"
-                 "job = json.load(sys.stdin)\n"
-                 "sys.path[:] = job['sys_path']\n"
-                 "from bimgame.expert.minari_build import _build_process_main\n"
-                 "_build_process_main(job)\n")
+_BUILD_SCRIPT = (
+    "import json, sys\n"
+    "job = json.load(sys.stdin)\n"
+    "sys.path[:] = job['sys_path']\n"
+    "from bimgame.expert.minari_build import _build_process_main\n"
+    "_build_process_main(job)\n"
+)
 #: Lines of a failed build process's error output kept in the error raised here.
 _BUILD_ERROR_LINES = 30
 #: Exit statuses of the build process for a full disk and an exceeded quota: the errno itself.
@@ -107,8 +138,17 @@ _DISK_FULL_EXITS = (errno.ENOSPC, errno.EDQUOT)
 EXPERT_WRITER = "bimgame.expert.minari_build:write_expert_minari"
 
 
-def run_build_process(out_dir: Path, manifest: dict, build_root: Path, chunk: int, *, episodes: int | None = None,
-                      writer: str = EXPERT_WRITER, timeout: float | None = None, own_session: bool = False) -> None:
+def run_build_process(
+    out_dir: Path,
+    manifest: dict,
+    build_root: Path,
+    chunk: int,
+    *,
+    episodes: int | None = None,
+    writer: str = EXPERT_WRITER,
+    timeout: float | None = None,
+    own_session: bool = False,
+) -> None:
     """Write the Minari dataset of the episode files 0 … ``episodes``−1 (default
     ``manifest["episodes"]``) in ``out_dir`` into the datasets root ``build_root`` with a child
     process, handing Minari ``chunk`` episodes per write. ``writer`` names the function the child
@@ -120,11 +160,24 @@ def run_build_process(out_dir: Path, manifest: dict, build_root: Path, chunk: in
     an error and the interpreter then often dies of a segmentation fault. In a child, that kills
     only the child; its error output stays here (captured) and is read for the cause: a full disk
     raises ``OSError(ENOSPC)``, anything else a RuntimeError with the output's last lines."""
-    job = {"sys_path": sys.path, "parent_pid": os.getpid(), "out_dir": str(out_dir), "manifest": manifest,
-           "episodes": manifest["episodes"] if episodes is None else int(episodes), "chunk": chunk, "writer": writer}
-    result = subprocess.run([sys.executable, "-c", _BUILD_SCRIPT], input=json.dumps(job).encode(),
-                            capture_output=True, env={**os.environ, "MINARI_DATASETS_PATH": str(build_root)},
-                            start_new_session=own_session, timeout=timeout, check=False)
+    job = {
+        "sys_path": sys.path,
+        "parent_pid": os.getpid(),
+        "out_dir": str(out_dir),
+        "manifest": manifest,
+        "episodes": manifest["episodes"] if episodes is None else int(episodes),
+        "chunk": chunk,
+        "writer": writer,
+    }
+    result = subprocess.run(
+        [sys.executable, "-c", _BUILD_SCRIPT],
+        input=json.dumps(job).encode(),
+        capture_output=True,
+        env={**os.environ, "MINARI_DATASETS_PATH": str(build_root)},
+        start_new_session=own_session,
+        timeout=timeout,
+        check=False,
+    )
     output = result.stderr.decode(errors="replace")
     if result.returncode == 0:
         sys.stderr.write(output)  # warnings, if any
@@ -146,7 +199,7 @@ def _build_process_main(job: dict) -> None:
         module, name = job["writer"].split(":")
         write = getattr(importlib.import_module(module), name)
         write(Path(job["out_dir"]), job["manifest"], int(job["episodes"]), int(job["chunk"]))
-    except BaseException as error:
+    except BaseException as error:  # noqa: BLE001 - the process's last word: every failure is an exit code
         code = disk_full_errno(error)
         if code is None:
             traceback.print_exc()
@@ -158,13 +211,28 @@ def _build_process_main(job: dict) -> None:
 
 def episode_buffer(index: int, data: dict[str, np.ndarray]) -> EpisodeBuffer:
     """An episode file's arrays as Minari's buffer (the physics states and channels as infos)."""
-    return EpisodeBuffer(id=index, seed=int(data["seed"]), observations=data["observations"], actions=data["actions"],
-                         rewards=data["rewards"], terminations=data["terminations"], truncations=data["truncations"],
-                         infos={"sim_state": data["sim_states"], "channel": data["channels"]})
+    return EpisodeBuffer(
+        id=index,
+        seed=int(data["seed"]),
+        observations=data["observations"],
+        actions=data["actions"],
+        rewards=data["rewards"],
+        terminations=data["terminations"],
+        truncations=data["truncations"],
+        infos={"sim_state": data["sim_states"], "channel": data["channels"]},
+    )
 
 
-def write_minari(manifest: dict, episodes: int, chunk: int, read: Callable[[int], dict[str, np.ndarray]], *,
-                 algorithm_name: str, description: str, author: str | None = None) -> None:
+def write_minari(
+    manifest: dict,
+    episodes: int,
+    chunk: int,
+    read: Callable[[int], dict[str, np.ndarray]],
+    *,
+    algorithm_name: str,
+    description: str,
+    author: str | None = None,
+) -> None:
     """Write the Minari dataset of episodes 0 … ``episodes``−1 (``read(index)`` gives each file's
     arrays) into the datasets root ``MINARI_DATASETS_PATH``, ``chunk`` episodes per write; the
     environment, its time limit and the reference scores come from ``manifest``."""
@@ -172,6 +240,8 @@ def write_minari(manifest: dict, episodes: int, chunk: int, read: Callable[[int]
     if manifest["max_steps"] is not None:
         kwargs["max_episode_steps"] = manifest["max_steps"]
     env = gym.make(manifest["env_id"], **kwargs)
+    if env.spec is None:  # gym.make always sets it
+        raise RuntimeError(f"gym.make({manifest['env_id']!r}) made an env without a spec")
     env.spec.to_json()  # raises if the spec cannot be stored
 
     def buffers(indices: Iterable[int]) -> list[EpisodeBuffer]:
@@ -181,10 +251,17 @@ def write_minari(manifest: dict, episodes: int, chunk: int, read: Callable[[int]
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", message=r"`(code_permalink|author|author_email)` is set to None")
             dataset = minari.create_dataset_from_buffers(
-                dataset_id=manifest["dataset_id"], buffer=buffers(range(min(chunk, episodes))),
-                env=env, eval_env=env.spec, algorithm_name=algorithm_name, author=author,
-                description=description, data_format="hdf5", **_reference_scores(manifest),
-                requirements=[f"bimgame=={manifest['bimgame_version']}"])
+                dataset_id=manifest["dataset_id"],
+                buffer=buffers(range(min(chunk, episodes))),
+                env=env,
+                eval_env=env.spec,
+                algorithm_name=algorithm_name,
+                author=author,
+                description=description,
+                data_format="hdf5",
+                **_reference_scores(manifest),
+                requirements=[f"bimgame=={manifest['bimgame_version']}"],
+            )
             for start in range(chunk, episodes, chunk):
                 dataset.update_dataset_from_buffer(buffers(range(start, min(start + chunk, episodes))))
     finally:
@@ -195,9 +272,14 @@ def write_expert_minari(out_dir: Path, manifest: dict, episodes: int, chunk: int
     """The expert dataset's writer (the build process runs it): episode i's file holds the episode
     of seed ``episode_seed(manifest["seed"], i)``."""
     seed = manifest["seed"]
-    write_minari(manifest, episodes, chunk,
-                 lambda index: read_episode(episode_path(out_dir, index), index, episode_seed(seed, index)),
-                 algorithm_name=ALGORITHM_NAME, description=_description(manifest))
+    write_minari(
+        manifest,
+        episodes,
+        chunk,
+        lambda index: read_episode(episode_path(out_dir, index), index, episode_seed(seed, index)),
+        algorithm_name=ALGORITHM_NAME,
+        description=_description(manifest),
+    )
 
 
 def _reference_scores(manifest: dict) -> dict[str, float]:
@@ -210,10 +292,12 @@ def _reference_scores(manifest: dict) -> dict[str, float]:
 
 def _description(manifest: dict) -> str:
     limit = manifest["max_steps"] if manifest["max_steps"] is not None else "the task's registered limit"
-    return (f"Expert trajectories of bimgame's random-shooting MPC expert ({ALGORITHM_NAME}, acting on "
-            f"simulator states) on {manifest['env_id']}: {manifest['episodes']} episodes; episode i starts "
-            f"from reset(seed=bimgame.util.seeding.episode_seed({manifest['seed']}, i)); time limit {limit} steps; "
-            f"MPC config {json.dumps(manifest['mpc_config'])}; bimgame {manifest['bimgame_version']}. "
-            "Observations are state observations; infos['sim_state'] (T+1, S) MuJoCo physics states and "
-            "infos['channel'] (T+1, n) task channels re-render pixel observations exactly "
-            "(bimgame.expert.datasets.iterate_sequences(..., obs='pixels')).")
+    return (
+        f"Expert trajectories of bimgame's random-shooting MPC expert ({ALGORITHM_NAME}, acting on "
+        f"simulator states) on {manifest['env_id']}: {manifest['episodes']} episodes; episode i starts "
+        f"from reset(seed=bimgame.util.seeding.episode_seed({manifest['seed']}, i)); time limit {limit} steps; "
+        f"MPC config {json.dumps(manifest['mpc_config'])}; bimgame {manifest['bimgame_version']}. "
+        "Observations are state observations; infos['sim_state'] (T+1, S) MuJoCo physics states and "
+        "infos['channel'] (T+1, n) task channels re-render pixel observations exactly "
+        "(bimgame.expert.datasets.iterate_sequences(..., obs='pixels'))."
+    )

@@ -7,8 +7,9 @@ by its summed planning reward and applies the first action of the best.
 Planning rewards are progress towards the goal, summed over the horizon:
 ``Σ_t d(s_t) − d(s_{t+1})`` with ``d`` the marble's radial distance from the centre (``"radial"``,
 the paper's, written there with the opposite sign) or its geodesic distance through the gates
-(``"geodesic"``) to the task's goal: the centre for FULL, the far side of the k-th wall for STGk. The sum telescopes to ``d(s_0) − d(s_H)``, so only the final states of the
-rollouts are scored — exactly the same ranking as summing per step, at a fraction of the cost.
+(``"geodesic"``) to the task's goal: the centre for FULL, the far side of the k-th wall for STGk.
+The sum telescopes to ``d(s_0) − d(s_H)``, so only the final states of the rollouts are scored —
+exactly the same ranking as summing per step, at a fraction of the cost.
 
 Sampling: ``"uniform"`` draws each of the H actions independently; ``"hold"`` draws an action and
 holds it for a random 3–5 steps (the board needs several consecutive steps to reach a useful
@@ -83,8 +84,15 @@ class RandomShootingMPC:
         n_marbles: marbles in the model.
     """
 
-    def __init__(self, maze: MazeSpec | None = None, config: MPCConfig | None = None, *,
-                 rng: np.random.Generator, task: str | Task = "FULL", n_marbles: int = 1):
+    def __init__(
+        self,
+        maze: MazeSpec | None = None,
+        config: MPCConfig | None = None,
+        *,
+        rng: np.random.Generator,
+        task: str | Task = "FULL",
+        n_marbles: int = 1,
+    ):
         if not isinstance(rng, np.random.Generator):
             raise TypeError(f"rng must be a numpy Generator (np.random.default_rng(seed)), got {type(rng).__name__}")
         self.maze = maze if maze is not None else MazeSpec.merl()
@@ -104,8 +112,9 @@ class RandomShootingMPC:
         max_segments = -(-c.horizon // c.hold_min)
         lengths = self.rng.integers(c.hold_min, c.hold_max + 1, size=(c.n_samples, max_segments))
         actions = self.rng.integers(5, size=(c.n_samples, max_segments))
-        segment = np.minimum((np.cumsum(lengths, axis=1)[:, :, None] <= np.arange(c.horizon)).sum(axis=1),
-                             max_segments - 1)
+        segment = np.minimum(
+            (np.cumsum(lengths, axis=1)[:, :, None] <= np.arange(c.horizon)).sum(axis=1), max_segments - 1
+        )
         return np.take_along_axis(actions, segment, axis=1)
 
     def distance(self, states: np.ndarray) -> np.ndarray:
@@ -137,9 +146,15 @@ class RandomShootingMPC:
         self.sim.close()
 
 
-def run_expert_episode(task: str, seed: int, config: MPCConfig | None = None, *,
-                       maze: MazeSpec | None = None, max_steps: int | None = None,
-                       randomize: Any = None) -> dict[str, np.ndarray]:
+def run_expert_episode(
+    task: str,
+    seed: int,
+    config: MPCConfig | None = None,
+    *,
+    maze: MazeSpec | None = None,
+    max_steps: int | None = None,
+    randomize: Any = None,
+) -> dict[str, Any]:
     """One episode of the MPC expert on ``task`` from ``reset(seed=seed)``; ``randomize`` (a
     :class:`~bimgame.envs.randomization.Randomization`) plays it on a randomised board while the
     expert plans with the nominal model.

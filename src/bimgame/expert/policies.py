@@ -66,8 +66,12 @@ class GeodesicPolicy:
         x, y = positions[0, 0], positions[0, 1]
         e = self.eps
         geodesic = self.spec.geodesic_distance_one
-        gradient = np.array([geodesic(x + e, y, to_channel) - geodesic(x - e, y, to_channel),
-                             geodesic(x, y + e, to_channel) - geodesic(x, y - e, to_channel)]) / (2 * e)
+        gradient = np.array(
+            [
+                geodesic(x + e, y, to_channel) - geodesic(x - e, y, to_channel),
+                geodesic(x, y + e, to_channel) - geodesic(x, y - e, to_channel),
+            ]
+        ) / (2 * e)
         norm = float(np.hypot(*gradient))
         direction = -gradient / norm if norm > 0 else np.zeros(2)
         desired = direction - self.damping * velocities[0, :2]
@@ -92,13 +96,14 @@ class ExpertPolicy:
     def __init__(self, spec: MazeSpec, rng: np.random.Generator):
         self.spec = spec
         self.rng = rng
-        self._expert = None
+        self._expert: RandomShootingMPC | None = None
 
     def __call__(self, env) -> int:
         unwrapped = env.unwrapped
         if self._expert is None or self._expert.task is not unwrapped.task:
-            self._expert = RandomShootingMPC(self.spec, rng=self.rng, task=unwrapped.task,
-                                             n_marbles=unwrapped.n_marbles)
+            self._expert = RandomShootingMPC(
+                self.spec, rng=self.rng, task=unwrapped.task, n_marbles=unwrapped.n_marbles
+            )
         return self._expert.act(unwrapped.sim.get_state())
 
 
@@ -116,4 +121,3 @@ def make_policy(name: str, spec: MazeSpec, rng: np.random.Generator) -> Policy:
     if name == "expert":
         return ExpertPolicy(spec, rng)
     raise ValueError(f"unknown policy {name!r}; allowed: {', '.join(POLICIES)}")
-

@@ -17,12 +17,10 @@ import dataclasses
 import multiprocessing
 import os
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
-from typing import Callable
-
-import numpy as np
+from typing import Any
 
 from bimgame.envs.randomization import Randomization
 from bimgame.expert.mpc import MPCConfig, run_expert_episode
@@ -35,24 +33,35 @@ __all__ = ["BACKENDS", "MAIN_GUARD", "expert_episodes", "episode_progress", "env
 
 BACKENDS = ("local", "ray")
 _THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMEXPR_NUM_THREADS")
-MAIN_GUARD = ("workers are started with multiprocessing's 'spawn' method, which imports the main "
-              "script again: put the call under `if __name__ == \"__main__\":` (or use workers=1)")
+MAIN_GUARD = (
+    "workers are started with multiprocessing's 'spawn' method, which imports the main "
+    'script again: put the call under `if __name__ == "__main__":` (or use workers=1)'
+)
 
 #: What a worker returns: (episode index, the episode's arrays, seconds it took).
-EpisodeOutcome = tuple[int, dict[str, np.ndarray], float]
+EpisodeOutcome = tuple[int, dict[str, Any], float]
 
 
-def _episode_job(task: str, index: int, seed: int, config: MPCConfig, max_steps: int | None,
-                 randomize: Randomization | None) -> EpisodeOutcome:
+def _episode_job(
+    task: str, index: int, seed: int, config: MPCConfig, max_steps: int | None, randomize: Randomization | None
+) -> EpisodeOutcome:
     start = time.perf_counter()
     episode = run_expert_episode(task, episode_seed(seed, index), config, max_steps=max_steps, randomize=randomize)
     return index, episode, time.perf_counter() - start
 
 
-def expert_episodes(task: str, indices: list[int], seed: int, config: MPCConfig, *,
-                    max_steps: int | None = None, workers: int = 1, backend: str = "local",
-                    ray_address: str | None = None, randomize: Randomization | None = None,
-                    ) -> Iterator[EpisodeOutcome]:
+def expert_episodes(
+    task: str,
+    indices: list[int],
+    seed: int,
+    config: MPCConfig,
+    *,
+    max_steps: int | None = None,
+    workers: int = 1,
+    backend: str = "local",
+    ray_address: str | None = None,
+    randomize: Randomization | None = None,
+) -> Iterator[EpisodeOutcome]:
     """Expert episodes ``indices`` of the run ``seed``, yielded as they finish; with ``randomize``,
     played on a randomised board while the expert plans with the nominal model.
 
@@ -89,16 +98,22 @@ def environment(**values: str) -> Iterator[None]:
                 os.environ[key] = value
 
 
-def _local_episodes(task: str, todo: list[int], seed: int, config: MPCConfig, max_steps: int | None,
-                    workers: int, randomize: Randomization | None) -> Iterator[EpisodeOutcome]:
+def _local_episodes(
+    task: str,
+    todo: list[int],
+    seed: int,
+    config: MPCConfig,
+    max_steps: int | None,
+    workers: int,
+    randomize: Randomization | None,
+) -> Iterator[EpisodeOutcome]:
     if workers == 1 or len(todo) == 1:
         for index in todo:
             yield _episode_job(task, index, seed, config, max_steps, randomize)
         return
     context = multiprocessing.get_context("spawn")
     with environment(**{name: "1" for name in _THREAD_VARS}):
-        pool = ProcessPoolExecutor(max_workers=min(workers, len(todo)), mp_context=context,
-                                   initializer=_worker_started)
+        pool = ProcessPoolExecutor(max_workers=min(workers, len(todo)), mp_context=context, initializer=_worker_started)
         try:
             pending = {pool.submit(_episode_job, task, index, seed, config, max_steps, randomize) for index in todo}
             while pending:
@@ -107,8 +122,7 @@ def _local_episodes(task: str, todo: list[int], seed: int, config: MPCConfig, ma
                     yield future.result()
         except BrokenProcessPool as error:
             pool.shutdown(wait=False, cancel_futures=True)
-            raise RuntimeError(f"a worker process died ({error}). If this runs in a script, "
-                               f"{MAIN_GUARD}") from error
+            raise RuntimeError(f"a worker process died ({error}). If this runs in a script, {MAIN_GUARD}") from error
         except BaseException:
             pool.shutdown(wait=False, cancel_futures=True)
             raise
@@ -127,14 +141,22 @@ def import_ray():
     try:
         import ray  # optional (the "ray" extra) and slow to import: only when backend="ray" is asked for
     except ImportError:
-        raise ImportError('backend="ray" needs Ray, which is not installed: pip install "bimgame[ray]" '
-                          '(or pip install ray)') from None
+        raise ImportError(
+            'backend="ray" needs Ray, which is not installed: pip install "bimgame[ray]" (or pip install ray)'
+        ) from None
     return ray
 
 
-def _ray_episodes(task: str, todo: list[int], seed: int, config: MPCConfig, max_steps: int | None,
-                  workers: int, ray_address: str | None, randomize: Randomization | None,
-                  ) -> Iterator[EpisodeOutcome]:
+def _ray_episodes(
+    task: str,
+    todo: list[int],
+    seed: int,
+    config: MPCConfig,
+    max_steps: int | None,
+    workers: int,
+    ray_address: str | None,
+    randomize: Randomization | None,
+) -> Iterator[EpisodeOutcome]:
     ray = import_ray()
     started = False
     if not ray.is_initialized():
@@ -160,8 +182,9 @@ def _ray_episodes(task: str, todo: list[int], seed: int, config: MPCConfig, max_
 
 
 @contextlib.contextmanager
-def episode_progress(enabled: bool, description: str, total: int, done: int = 0,
-                     successes: int = 0, transient: bool = False) -> Iterator[Callable[[bool], None]]:
+def episode_progress(
+    enabled: bool, description: str, total: int, done: int = 0, successes: int = 0, transient: bool = False
+) -> Iterator[Callable[[bool], None]]:
     """A :class:`~bimgame.util.progress.ProgressBar` over episodes (episodes done, success so far,
     elapsed, ETA); yields ``update(success)`` to call once per finished episode. ``done``/``successes``
     count episodes finished before (a resumed run); ``transient`` removes the bar when done."""
@@ -170,10 +193,13 @@ def episode_progress(enabled: bool, description: str, total: int, done: int = 0,
     def info() -> str:
         return f"success {counts['success'] / counts['done']:.0%}" if counts["done"] else "success -"
 
-    with ProgressBar(description, total, completed=done, enabled=enabled, eta=True, transient=transient,
-                     info=info()) as bar:
+    with ProgressBar(
+        description, total, completed=done, enabled=enabled, eta=True, transient=transient, info=info()
+    ) as bar:
+
         def update(success: bool) -> None:
             counts["done"] += 1
             counts["success"] += success
             bar.update(advance=1, info=info())
+
         yield update

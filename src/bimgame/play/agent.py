@@ -29,8 +29,7 @@ class AgentPlayer:
     ``greedy``: take the most likely action (True) or sample from the policy (False); may be
     changed between steps. ``seed`` seeds the sampling."""
 
-    def __init__(self, source: str | Path, maze: MazeSpec, layout: StateLayout, *, greedy: bool = True,
-                 seed: int = 0):
+    def __init__(self, source: str | Path, maze: MazeSpec, layout: StateLayout, *, greedy: bool = True, seed: int = 0):
         net, run, _ = load_run_network(source)
         net.eval()
         self.run: RunInfo = run

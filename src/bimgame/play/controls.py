@@ -22,11 +22,11 @@ __all__ = ["KEY_ACTIONS", "KEY_NAMES", "NOOP", "HeldKeys", "action_name"]
 
 #: The key names the page sends and the discrete action each one repeats while held.
 KEY_ACTIONS = {
-    "noop": 0,   # space: hold the board as it is
-    "down": 1,   # tilt +x: the +y (top) edge rises, the marble rolls down on the screen
-    "up": 2,     # tilt -x: the top edge sinks, the marble rolls up
+    "noop": 0,  # space: hold the board as it is
+    "down": 1,  # tilt +x: the +y (top) edge rises, the marble rolls down on the screen
+    "up": 2,  # tilt -x: the top edge sinks, the marble rolls up
     "right": 3,  # tilt +y: the +x (right) edge sinks, the marble rolls right
-    "left": 4,   # tilt -y: the right edge rises, the marble rolls left
+    "left": 4,  # tilt -y: the right edge rises, the marble rolls left
 }
 KEY_NAMES = tuple(KEY_ACTIONS)
 NOOP = KEY_ACTIONS["noop"]

@@ -35,24 +35,39 @@ def run_build_process(out_dir: Path, manifest: dict, episodes: int, build_root: 
     (:func:`bimgame.expert.minari_build.run_build_process`), in a session of its own and with a
     timeout; raises ``OSError(ENOSPC)`` for a full disk, else a ``RuntimeError`` with the end of
     the child's error output."""
-    minari_build.run_build_process(out_dir, manifest, build_root, _CHUNK, episodes=episodes,
-                                   writer="bimgame.play.minari_human:write_human_minari", timeout=BUILD_TIMEOUT,
-                                   own_session=True)
+    minari_build.run_build_process(
+        out_dir,
+        manifest,
+        build_root,
+        _CHUNK,
+        episodes=episodes,
+        writer="bimgame.play.minari_human:write_human_minari",
+        timeout=BUILD_TIMEOUT,
+        own_session=True,
+    )
 
 
 def write_human_minari(out_dir: Path, manifest: dict, episodes: int, chunk: int) -> None:
     """The recording's writer (the build process runs it)."""
-    write_minari(manifest, episodes, chunk, lambda index: read_human_episode(out_dir, index),
-                 algorithm_name=ALGORITHM_NAME, description=_description(manifest, episodes),
-                 author="people playing bimgame play")
+    write_minari(
+        manifest,
+        episodes,
+        chunk,
+        lambda index: read_human_episode(out_dir, index),
+        algorithm_name=ALGORITHM_NAME,
+        description=_description(manifest, episodes),
+        author="people playing bimgame play",
+    )
 
 
 def _description(manifest: dict, episodes: int) -> str:
     limit = manifest["max_steps"] if manifest["max_steps"] is not None else "the task's registered limit"
-    return (f"Human play recorded with 'bimgame play --record' on {manifest['env_id']} (source: human): "
-            f"{episodes} episodes; time limit {limit} steps. Only steps a person controlled are recorded: an "
-            "episode the person took over from an agent starts at the physics state of the take-over "
-            "(infos['sim_state'][0]); one handed back to the agent, reset or stopped early ends truncated. "
-            "Observations are state observations; infos['sim_state'] (T+1, S) MuJoCo physics states and "
-            "infos['channel'] (T+1, n) task channels re-render pixel observations exactly "
-            "(bimgame.expert.datasets.iterate_sequences(..., obs='pixels')).")
+    return (
+        f"Human play recorded with 'bimgame play --record' on {manifest['env_id']} (source: human): "
+        f"{episodes} episodes; time limit {limit} steps. Only steps a person controlled are recorded: an "
+        "episode the person took over from an agent starts at the physics state of the take-over "
+        "(infos['sim_state'][0]); one handed back to the agent, reset or stopped early ends truncated. "
+        "Observations are state observations; infos['sim_state'] (T+1, S) MuJoCo physics states and "
+        "infos['channel'] (T+1, n) task channels re-render pixel observations exactly "
+        "(bimgame.expert.datasets.iterate_sequences(..., obs='pixels'))."
+    )

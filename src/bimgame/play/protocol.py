@@ -39,8 +39,9 @@ class ProtocolError(ValueError):
 def parse_message(text: Any) -> dict[str, Any]:
     """The checked message of a websocket text frame; raises :class:`ProtocolError` saying why not."""
     if not isinstance(text, str):
-        raise ProtocolError("binary messages are not understood; send JSON text such as "
-                            '{"type": "keys", "held": ["up"]}')
+        raise ProtocolError(
+            'binary messages are not understood; send JSON text such as {"type": "keys", "held": ["up"]}'
+        )
     if len(text) > MAX_MESSAGE_CHARS:
         raise ProtocolError(f"message too long ({len(text)} characters, at most {MAX_MESSAGE_CHARS})")
     try:
@@ -56,7 +57,8 @@ def parse_message(text: Any) -> dict[str, Any]:
     missing = _FIELDS[kind] - set(message)
     if extra or missing:
         parts = ([f"unknown fields {sorted(extra)}"] if extra else []) + (
-            [f"missing fields {sorted(missing)}"] if missing else [])
+            [f"missing fields {sorted(missing)}"] if missing else []
+        )
         raise ProtocolError(f"{kind!r} message: {'; '.join(parts)}")
     if kind == "keys":
         held = message["held"]
@@ -66,8 +68,7 @@ def parse_message(text: Any) -> dict[str, Any]:
         if wrong:
             raise ProtocolError(f"'keys' message: unknown keys {wrong}; allowed: {', '.join(KEY_NAMES)}")
     elif kind == "control" and message["who"] not in CONTROLLERS:
-        raise ProtocolError(f"'control' message: 'who' must be one of {', '.join(CONTROLLERS)}, "
-                            f"got {message['who']!r}")
+        raise ProtocolError(f"'control' message: 'who' must be one of {', '.join(CONTROLLERS)}, got {message['who']!r}")
     elif kind == "greedy" and not isinstance(message["value"], bool):
         raise ProtocolError(f"'greedy' message: 'value' must be true or false, got {message['value']!r}")
     return message

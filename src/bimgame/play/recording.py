@@ -30,6 +30,7 @@ servers from recording into one directory at once.
 
 from __future__ import annotations
 
+import contextlib
 import io
 import logging
 import os
@@ -37,6 +38,7 @@ import shutil
 import tempfile
 import threading
 from pathlib import Path
+from typing import Any
 
 import minari
 import numpy as np
@@ -90,7 +92,7 @@ class EpisodeBuilder:
         self.sim_states.append(sim_state)
         self.channels.append(channel)
 
-    def finish(self, *, terminated: bool, reason: str) -> dict[str, np.ndarray]:
+    def finish(self, *, terminated: bool, reason: str) -> dict[str, Any]:
         """The episode's arrays (those of :func:`bimgame.expert.mpc.run_expert_episode`, plus
         ``start_step`` and ``end_reason``): terminated at the goal, else truncated."""
         steps = self.steps
@@ -99,14 +101,19 @@ class EpisodeBuilder:
         terminations = np.zeros(steps, dtype=bool)
         truncations = np.zeros(steps, dtype=bool)
         (terminations if terminated else truncations)[-1] = True
-        return {"actions": np.array(self.actions, dtype=np.int64),
-                "rewards": np.array(self.rewards, dtype=np.float64),
-                "terminations": terminations, "truncations": truncations,
-                "observations": np.array(self.observations, dtype=np.float32),
-                "sim_states": np.array(self.sim_states, dtype=np.float64),
-                "channels": np.array(self.channels, dtype=np.int64),
-                "seed": np.int64(self.seed), "success": np.bool_(terminated),
-                "start_step": np.int64(self.start_step), "end_reason": np.str_(reason)}
+        return {
+            "actions": np.array(self.actions, dtype=np.int64),
+            "rewards": np.array(self.rewards, dtype=np.float64),
+            "terminations": terminations,
+            "truncations": truncations,
+            "observations": np.array(self.observations, dtype=np.float32),
+            "sim_states": np.array(self.sim_states, dtype=np.float64),
+            "channels": np.array(self.channels, dtype=np.int64),
+            "seed": np.int64(self.seed),
+            "success": np.bool_(terminated),
+            "start_step": np.int64(self.start_step),
+            "end_reason": np.str_(reason),
+        }
 
 
 class HumanRecording:
@@ -123,7 +130,7 @@ class HumanRecording:
         self.episodes = 0  # episode files saved
         self.built = 0  # episodes in the Minari dataset and the COMPLETE marker
         self.last_error: str | None = None
-        self._lock_context = None
+        self._lock_context: contextlib.AbstractContextManager[None] | None = None
         self._wake = threading.Condition()
         self._closing = False
         self._thread: threading.Thread | None = None
@@ -138,8 +145,10 @@ class HumanRecording:
         if manifest_path.exists():
             self._check_existing(read_json(manifest_path))
         elif out.exists() and any(not p.name.startswith(".") for p in out.iterdir()):
-            raise FileExistsError(f"--record {out} is not empty and is not a recording (no {MANIFEST_NAME}); "
-                                  "nothing was changed. Use a new or empty directory, or an earlier recording")
+            raise FileExistsError(
+                f"--record {out} is not empty and is not a recording (no {MANIFEST_NAME}); "
+                "nothing was changed. Use a new or empty directory, or an earlier recording"
+            )
         out.mkdir(parents=True, exist_ok=True)
         self._lock_context = exclusive_lock(out / LOCK_NAME, f"another process is recording into {out}")
         self._lock_context.__enter__()
@@ -159,12 +168,13 @@ class HumanRecording:
         self._thread = threading.Thread(target=self._build_loop, name="bimgame-play-recording", daemon=True)
         self._thread.start()
         if self.built != self.episodes:
-            log.info("recording %s: %d episode files, %d in the Minari dataset; rebuilding", out, self.episodes,
-                     self.built)
+            log.info(
+                "recording %s: %d episode files, %d in the Minari dataset; rebuilding", out, self.episodes, self.built
+            )
             self._kick()
         return self.episodes
 
-    def add(self, episode: dict[str, np.ndarray]) -> int:
+    def add(self, episode: dict[str, Any]) -> int:
         """Save an episode (atomically, at once) and queue the Minari rebuild; returns its index."""
         if self._thread is None:
             raise RuntimeError("open() the recording first")
@@ -214,10 +224,14 @@ class HumanRecording:
             try:
                 self._build(target)
                 self.last_error = None
-            except Exception as error:  # reported on the page and in the log; the episode files stay
+            except Exception as error:  # noqa: BLE001 - reported on the page and in the log; the episode files stay
                 self.last_error = f"{type(error).__name__}: {error}"
-                log.error("recording %s: building the Minari dataset failed (the episode files are kept; the "
-                          "next start rebuilds it): %s", self.out_dir, self.last_error)
+                log.error(
+                    "recording %s: building the Minari dataset failed (the episode files are kept; the "
+                    "next start rebuilds it): %s",
+                    self.out_dir,
+                    self.last_error,
+                )
                 with self._wake:
                     if self._closing:
                         return
@@ -275,16 +289,22 @@ class HumanRecording:
         if manifest is None or manifest.get("format") != FORMAT_NAME:
             raise DatasetError(f"{where}: {MANIFEST_NAME} is not a bimgame dataset manifest; nothing was changed")
         if manifest.get("source") != SOURCE:
-            raise ValueError(f"{where} holds an expert dataset (bimgame generate), not a human recording; "
-                             "record into another directory")
+            raise ValueError(
+                f"{where} holds an expert dataset (bimgame generate), not a human recording; "
+                "record into another directory"
+            )
         if manifest.get("format_version") != FORMAT_VERSION:
-            raise DatasetError(f"{where} has format version {manifest.get('format_version')!r}; this bimgame "
-                               f"writes version {FORMAT_VERSION}")
+            raise DatasetError(
+                f"{where} has format version {manifest.get('format_version')!r}; this bimgame "
+                f"writes version {FORMAT_VERSION}"
+            )
         if manifest.get("task") != self.task.value or manifest.get("max_steps") != self.max_steps:
-            raise ValueError(f"{where} holds {manifest.get('task')} episodes with time limit "
-                             f"{manifest.get('max_steps') or 'the task default'}; this session plays {self.task.value} "
-                             f"with {self.max_steps or 'the task default'}: give the same --task and --max-steps "
-                             "to add to it, or record into another directory")
+            raise ValueError(
+                f"{where} holds {manifest.get('task')} episodes with time limit "
+                f"{manifest.get('max_steps') or 'the task default'}; this session plays {self.task.value} "
+                f"with {self.max_steps or 'the task default'}: give the same --task and --max-steps "
+                "to add to it, or record into another directory"
+            )
 
     def _marker_matches(self, marker: dict | None) -> bool:
         """Whether the COMPLETE marker covers exactly the saved episodes, file sizes unchanged."""

@@ -106,8 +106,9 @@ class PlayServer:
         self.session, self.host, self.port, self.hz = session, host, port, hz
         self.clients: dict[int, _Client] = {}
         self._ids = itertools.count(1)
-        self._static = {name: importlib.resources.files("bimgame.play").joinpath("static", name).read_bytes()
-                        for name in STATIC}
+        self._static = {
+            name: importlib.resources.files("bimgame.play").joinpath("static", name).read_bytes() for name in STATIC
+        }
         self._runner: web.AppRunner | None = None
         self._loop_task: asyncio.Task | None = None
         self._frame_key: tuple | None = None
@@ -146,7 +147,7 @@ class PlayServer:
             try:
                 await asyncio.wait_for(client.ws.send_str(json.dumps({"type": "bye", "message": message})), 1.0)
                 await asyncio.wait_for(client.ws.close(code=1001, message=b"server stopping"), 2.0)
-            except (Exception, asyncio.TimeoutError):  # a client that is gone already
+            except (Exception, asyncio.TimeoutError):  # noqa: BLE001 - a client that is gone already
                 pass
         if self._runner is not None:
             await self._runner.cleanup()
@@ -192,15 +193,20 @@ class PlayServer:
 
     # ----------------------------------------------------------------- HTTP
     async def _index(self, request: web.Request) -> web.Response:
-        return web.Response(body=self._static["index.html"], content_type="text/html", charset="utf-8",
-                            headers={"Cache-Control": "no-store"})
+        return web.Response(
+            body=self._static["index.html"],
+            content_type="text/html",
+            charset="utf-8",
+            headers={"Cache-Control": "no-store"},
+        )
 
     async def _static_file(self, request: web.Request) -> web.Response:
         name = request.match_info["name"]
         if name not in STATIC:
             raise web.HTTPNotFound(text=f"no such file: {name}")
-        return web.Response(body=self._static[name], content_type=STATIC[name], charset="utf-8",
-                            headers={"Cache-Control": "no-store"})
+        return web.Response(
+            body=self._static[name], content_type=STATIC[name], charset="utf-8", headers={"Cache-Control": "no-store"}
+        )
 
     @web.middleware
     async def _check_host(self, request: web.Request, handler) -> web.StreamResponse:
@@ -232,8 +238,12 @@ class PlayServer:
                         client.errors += 1
                         if client.errors <= LOGGED_ERRORS:  # a flood of bad messages does not flood the log
                             last = client.errors == LOGGED_ERRORS
-                            log.warning("client %d: %s%s", client.ident, reply["message"],
-                                        " (further errors of this client are not logged)" if last else "")
+                            log.warning(
+                                "client %d: %s%s",
+                                client.ident,
+                                reply["message"],
+                                " (further errors of this client are not logged)" if last else "",
+                            )
                         client.push(reply)
                 elif msg.type == WSMsgType.ERROR:
                     log.warning("client %d: websocket error %s", client.ident, ws.exception())
@@ -243,22 +253,30 @@ class PlayServer:
             sender.cancel()
             try:
                 await sender
-            except (asyncio.CancelledError, Exception):  # the socket is gone: nothing to report
+            except (asyncio.CancelledError, Exception):  # noqa: BLE001 - the socket is gone: nothing to report
                 pass
             log.info("client %d left (%d connected)", client.ident, len(self.clients))
         return ws
 
     def _hello(self) -> dict[str, Any]:
         s = self.session
-        return {"type": "hello", "task": s.task.value, "max_steps": s.max_steps, "hz": self.hz,
-                "keys": KEY_ACTIONS, "agent": None if s.agent is None else s.agent.description,
-                "recording": None if s.recording is None else s.recording.status["dir"],
-                "clients": len(self.clients), "max_message_chars": MAX_MESSAGE_CHARS,
-                "tabs": "every tab shows the same game and any tab can control it"}
+        return {
+            "type": "hello",
+            "task": s.task.value,
+            "max_steps": s.max_steps,
+            "hz": self.hz,
+            "keys": KEY_ACTIONS,
+            "agent": None if s.agent is None else s.agent.description,
+            "recording": None if s.recording is None else s.recording.status["dir"],
+            "clients": len(self.clients),
+            "max_message_chars": MAX_MESSAGE_CHARS,
+            "tabs": "every tab shows the same game and any tab can control it",
+        }
 
 
-def serve(session: PlaySession, *, host: str = "127.0.0.1", port: int = 8765,
-          on_ready: Callable[[str], None] | None = None) -> None:
+def serve(
+    session: PlaySession, *, host: str = "127.0.0.1", port: int = 8765, on_ready: Callable[[str], None] | None = None
+) -> None:
     """Serve ``session`` until SIGINT or SIGTERM; ``on_ready(url)`` is called once the server
     listens. Must run in the main thread (signal handlers). Does not close the session."""
 

@@ -55,9 +55,22 @@ class PlaySession:
     an :class:`~bimgame.play.agent.AgentPlayer` from (it then starts in control); ``recording``: an
     open :class:`~bimgame.play.recording.HumanRecording` for the person's episodes."""
 
-    def __init__(self, task: str | Task | None = None, *, max_steps: int | None = None, seed: int = 0,
-                 agent: str | Path | None = None, greedy: bool = True, recording: HumanRecording | None = None,
-                 render_size: int = 480, over_ticks: int = 45):
+    phase: str
+    """"ready" (waiting for the first key), "running" or "over" (the end screen)."""
+    _over_left: int  # ticks the end screen stays
+
+    def __init__(
+        self,
+        task: str | Task | None = None,
+        *,
+        max_steps: int | None = None,
+        seed: int = 0,
+        agent: str | Path | None = None,
+        greedy: bool = True,
+        recording: HumanRecording | None = None,
+        render_size: int = 480,
+        over_ticks: int = 45,
+    ):
         if max_steps is not None and not (isinstance(max_steps, int) and max_steps >= 1):
             raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
         if task is None:
@@ -65,8 +78,11 @@ class PlaySession:
         self.task = parse_task(task)
         self.env = BallInMazeEnv(self.task, obs_mode="state", render_mode="rgb_array", render_size=render_size)
         try:
-            self.agent = (AgentPlayer(agent, self.env.maze, self.env.sim.layout, greedy=greedy, seed=seed)
-                          if agent is not None else None)
+            self.agent = (
+                AgentPlayer(agent, self.env.maze, self.env.sim.layout, greedy=greedy, seed=seed)
+                if agent is not None
+                else None
+            )
         except BaseException:
             self.env.close()
             raise
@@ -164,13 +180,22 @@ class PlaySession:
         if self.recording is not None:
             recording = {**self.recording.status, "session_error": self.recording_error}
         return {
-            "type": "state", "task": self.task.value, "phase": self.phase, "episode": self.episode,
-            "step": self.steps, "max_steps": self.max_steps, "score": self.score, "success": self.success,
-            "controller": self.controller, "action": action_name(self.last_action),
-            "key": self.keys.latest(), "marble": list(self.marble_xy),
+            "type": "state",
+            "task": self.task.value,
+            "phase": self.phase,
+            "episode": self.episode,
+            "step": self.steps,
+            "max_steps": self.max_steps,
+            "score": self.score,
+            "success": self.success,
+            "controller": self.controller,
+            "action": action_name(self.last_action),
+            "key": self.keys.latest(),
+            "marble": list(self.marble_xy),
             "tilt_deg": [float(v) for v in np.degrees(self.env.sim.tilt)],
             "agent": None if self.agent is None else {"name": self.agent.description, "greedy": self.agent.greedy},
-            "recording": recording, "recorded_steps": 0 if self._builder is None else self._builder.steps,
+            "recording": recording,
+            "recorded_steps": 0 if self._builder is None else self._builder.steps,
             "last": self.history[-1] if self.history else None,
         }
 
@@ -195,9 +220,15 @@ class PlaySession:
         if self.agent is not None:  # the agent follows every step, whoever plays
             agent_action = self.agent.act(self._obs, self._sim_state, self._channel, self.env.sim.tilt)
         action = self.keys.action() if human else agent_action
+        assert action is not None, "the agent has control only in a session that has one"
         if human and self.recording is not None and self._builder is None:
-            self._builder = EpisodeBuilder(seed=self.episode_seed, start_step=self.steps, obs=self._obs,
-                                           sim_state=self._sim_state, channel=self._channel)
+            self._builder = EpisodeBuilder(
+                seed=self.episode_seed,
+                start_step=self.steps,
+                obs=self._obs,
+                sim_state=self._sim_state,
+                channel=self._channel,
+            )
         obs, reward, terminated, _, info = self.env.step(action)
         self.steps += 1
         self.score += float(reward)
@@ -214,8 +245,19 @@ class PlaySession:
 
     def _end(self, reason: str, *, terminated: bool) -> None:
         recorded = self._save_builder(terminated=terminated, reason=reason)
-        self.history = (self.history + [{"episode": self.episode, "reason": reason, "success": terminated,
-                                         "steps": self.steps, "score": self.score, "recorded": recorded}])[-HISTORY:]
+        self.history = (
+            self.history
+            + [
+                {
+                    "episode": self.episode,
+                    "reason": reason,
+                    "success": terminated,
+                    "steps": self.steps,
+                    "score": self.score,
+                    "recorded": recorded,
+                }
+            ]
+        )[-HISTORY:]
         self.phase = "over"
         self._over_left = self.over_ticks
 
