@@ -56,7 +56,7 @@ def test_paper_network_sizes():
 
 def test_previous_action_one_hot_and_no_action():
     net = build_network(NetConfig(encoder="mlp", obs_shape=(7,), tilt_input=False))
-    aux = net.aux_inputs(torch.tensor([NO_ACTION, 0, 4]), torch.tensor([0.0, 1.0, -1.0]), None)
+    aux = net.side_inputs(torch.tensor([NO_ACTION, 0, 4]), torch.tensor([0.0, 1.0, -1.0]), None)
     expected = torch.tensor([[0, 0, 0, 0, 0, 0.0], [1, 0, 0, 0, 0, 1.0], [0, 0, 0, 0, 1, -1.0]])
     torch.testing.assert_close(aux, expected)
 

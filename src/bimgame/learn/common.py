@@ -71,14 +71,11 @@ class NetworkSettings:
     aux_heads: bool | None = None
     """Train auxiliary heads that predict the simulator's state (marble position, velocity, channel,
     tilt) from the network's features; the policy still acts from its observations alone (see
-    :mod:`bimgame.learn.nets`). None: on for pixels (from scratch on STG1 they took training success
-    from near random play after 1M steps to 80% after ≈ 550k), off for state observations (the
-    state is the observation)."""
+    :mod:`bimgame.learn.nets`). None: on for pixels (what makes pixels learn at all; measured in
+    ``docs/pixels/README.md``), off for state observations (the state is the observation)."""
     asymmetric_critic: bool = False
     """The value head also reads the simulator's state (training only; a departure from the paper,
-    whose critic sees what the actor sees). Off by default: measured on STG1 from pixels with auxiliary
-    heads (600k steps, 3 seeds each), it did not help: without it 555k/555k/> 585k steps to 80%
-    training success and 68% mean greedy success at the end, with it 585k × 3 and 40%."""
+    whose critic sees what the actor sees). Off by default: it did not help (``docs/pixels/README.md``)."""
     precision: str | None = None
     """Pixels: the encoder's compute, ``fp32`` or ``bf16`` (bfloat16 autocast). None: ``bf16`` for
     pixels on a CPU with native bfloat16 arithmetic (AVX512-BF16 or AMX; ≈ 1.5× faster there),

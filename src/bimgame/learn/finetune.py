@@ -13,7 +13,7 @@ address one cause each, as A3C settings (:class:`~bimgame.learn.a3c_core.A3CConf
 - **kickstarting** (Schmitt et al. 2018, ``kl_coef`` / ``kl_decay_steps``): an annealed
   KL(π^s ‖ π) on the learner's own rollouts; the frozen teacher follows the same episodes with its
   own LSTM state (:class:`Teacher`);
-- **behaviour cloning on the expert data** (DAPG, Rajeswaran et al. 2018, ``bc_data`` /
+- **behaviour cloning on the expert data** (DAPG, Rajeswaran et al. 2018, ``expert_data`` /
   ``bc_coef`` / ``bc_decay_steps``): a cross-entropy term on windows of the expert episodes
   (:class:`DemoWindows`), its weight decaying to zero;
 - **advantage scaling** (``advantage_norm``): advantages divided by a running RMS of the
@@ -27,18 +27,9 @@ Demonstration-start and reverse curricula change where episodes start, not the l
 :mod:`bimgame.learn.starts`.
 
 :data:`FINETUNE_PRESETS` names the combinations: ``paper`` (plain fine-tuning, which forgets) and
-``keep`` (the default of ``bimgame train --init``). How ``keep`` was chosen (STG3, one seed each,
-1M steps, evaluations of 50 episodes; ``docs/finetune/exploration_stg3.csv``): a KL weight that
-decays to zero protects π^s only while it lasts — decayed over 400k steps, sampled success rose
-from 58% to 96% and then collapsed to 18% within 150k steps of the KL reaching zero — so the KL
-weight stays constant; 0.2 kept π^s and let the learner surpass it (sampled 94% at 1M), 0.5 learned
-more slowly. An entropy target that sharpens the policy (to 0.5 nats) collapsed both greedy and
-sampled success, so it is not part of ``keep``. With the teacher at temperature 1, the greedy
-policy still collapsed (STG3, 3 seeds: from 80/50/90% to 0–15%): π^s is nearly uniform, and any
-learning flips its argmax. A teacher at temperature 0.3 — the KL pulls towards a sharpened π^s, so
-the learner's distribution concentrates on π^s's greedy action, which on STG2/STG3 solves more
-than sampling π^s does — kept greedy success near π^s's and lifted sampled success from 25/65% to
-85–100% within 500k steps (STG3, seeds 0 and 2).
+``keep`` (the default of ``bimgame train --init``: critic warm-up and actor ramp, a constant KL to a
+sharpened π^s, advantage scaling). How ``keep`` was chosen, and what did not help, is measured in
+``docs/finetune/README.md``.
 """
 
 from __future__ import annotations
@@ -169,7 +160,7 @@ class EntropyTarget:
     term sharpens the policy, below it β turns positive and keeps the policy from collapsing. Why:
     the cloned π^s is nearly uniform (entropy ≈ 1.45 of at most ln 5 ≈ 1.61 nats); a fixed bonus
     keeps it so, and a nearly uniform policy that succeeds when sampled has an arbitrary greedy
-    action — measured: sampled evaluation 95–100% on STG3 with greedy 10–75%."""
+    action (measured in ``docs/finetune/README.md``)."""
 
     def __init__(self, final: float, steps: int, initial_coef: float, *, rate: float = 1e-3, bound: float = 0.05):
         self.final, self.steps, self.rate, self.bound = final, steps, rate, bound

@@ -244,8 +244,8 @@ class RecurrentActorCritic(nn.Module):
         super().__init__()
         self.config = config
         self.encoder = ConvEncoder(config) if config.encoder == "conv" else MLPEncoder(config)
-        self.aux_size = config.n_actions + 1 + (2 if config.tilt_input else 0)
-        self.lstm = nn.LSTMCell(config.features + self.aux_size, config.hidden)
+        self.side_size = config.n_actions + 1 + (2 if config.tilt_input else 0)
+        self.lstm = nn.LSTMCell(config.features + self.side_size, config.hidden)
         self.policy = nn.Linear(config.hidden, config.n_actions)
         # Divisors that bring the privileged state to order 1 (set by build_network).
         self.register_buffer("privileged_scale", torch.ones(config.privileged_size), persistent=False)
@@ -277,10 +277,10 @@ class RecurrentActorCritic(nn.Module):
         zeros = torch.zeros(batch, self.config.hidden)
         return LSTMState(zeros, zeros.clone())
 
-    def aux_inputs(self, prev_action: torch.Tensor, prev_reward: torch.Tensor,
+    def side_inputs(self, prev_action: torch.Tensor, prev_reward: torch.Tensor,
                    tilt: torch.Tensor | None) -> torch.Tensor:
         """(…,) previous actions (NO_ACTION allowed), (…,) previous rewards, (…, 2) tilts in units of
-        the maximum tilt → (…, aux_size)."""
+        the maximum tilt → (…, side_size)."""
         valid = prev_action >= 0
         one_hot = nn.functional.one_hot(prev_action.long().clamp(min=0), self.config.n_actions)
         one_hot = one_hot * valid.unsqueeze(-1)
@@ -311,7 +311,7 @@ class RecurrentActorCritic(nn.Module):
              ) -> tuple[torch.Tensor, torch.Tensor, LSTMState]:
         """One time step for B environments → logits (B, A), values (B,), next state.
         ``privileged`` (B, P): the state observation an asymmetric critic reads."""
-        x = torch.cat([self.encoder(obs), self.aux_inputs(prev_action, prev_reward, tilt)], dim=-1)
+        x = torch.cat([self.encoder(obs), self.side_inputs(prev_action, prev_reward, tilt)], dim=-1)
         h, c = self.lstm(x, state)
         return self.policy(h), self.values_of(h, privileged), LSTMState(h, c)
 
@@ -332,7 +332,7 @@ class RecurrentActorCritic(nn.Module):
         """:meth:`unroll`, also returning the encoder's and the LSTM's features (for :meth:`aux_loss`)."""
         steps, batch = obs.shape[:2]
         features = self.encoder(obs.reshape(steps * batch, *obs.shape[2:])).reshape(steps, batch, -1)
-        x = torch.cat([features, self.aux_inputs(prev_action, prev_reward, tilt)], dim=-1)
+        x = torch.cat([features, self.side_inputs(prev_action, prev_reward, tilt)], dim=-1)
         keep = (~starts).float().unsqueeze(-1)
         h, c = state
         outputs = []
