@@ -81,7 +81,7 @@ def non_negative_float(text: str) -> float:
     return _number(text, strictly_positive=False)
 
 
-def add_task_argument(parser: argparse.ArgumentParser, default: str, help: str | None = None) -> None:
+def add_task_argument(parser: argparse.ArgumentParser, default: str | None, help: str | None = None) -> None:
     """``--task``: one of :data:`TASK_NAMES`, in any case."""
     parser.add_argument("--task", choices=TASK_NAMES, default=default, type=str.upper, help=help)
 
