@@ -12,9 +12,24 @@ from bimgame.learn.a3c_core import MAX_STEPS
 from bimgame.learn.common import MAX_SEED
 from bimgame.sim.tasks import Task
 
-__all__ = ["add_backend_arguments", "positive_int", "non_negative_int", "positive_float", "non_negative_float", "seed",
-           "episode_count", "run_group", "episode_count_or_zero", "MAX_EPISODES", "TASK_NAMES", "add_task_argument",
-           "add_max_steps_argument", "check_output_file", "step_count", "step_count_or_zero"]
+__all__ = [
+    "add_backend_arguments",
+    "positive_int",
+    "non_negative_int",
+    "positive_float",
+    "non_negative_float",
+    "seed",
+    "episode_count",
+    "run_group",
+    "episode_count_or_zero",
+    "MAX_EPISODES",
+    "TASK_NAMES",
+    "add_task_argument",
+    "add_max_steps_argument",
+    "check_output_file",
+    "step_count",
+    "step_count_or_zero",
+]
 
 #: The most episodes a verb runs side by side (each has its own simulator): more is a typo that would
 #: fail only when memory runs out.
@@ -88,18 +103,32 @@ def add_task_argument(parser: argparse.ArgumentParser, default: str | None, help
 
 def add_max_steps_argument(parser: argparse.ArgumentParser) -> None:
     """``--max-steps``: the time limit per episode, None for the task's registered limit."""
-    parser.add_argument("--max-steps", type=positive_int, default=None,
-                        help="time limit per episode (default: the task's registered limit)")
+    parser.add_argument(
+        "--max-steps",
+        type=positive_int,
+        default=None,
+        help="time limit per episode (default: the task's registered limit)",
+    )
 
 
 def add_backend_arguments(parser: argparse.ArgumentParser, what: str) -> None:
     """``--backend local|ray`` and ``--ray-address``/``--address`` (the Ray cluster to join) for a
     command whose ``what`` (e.g. "episodes") can run on a Ray cluster."""
-    parser.add_argument("--backend", choices=BACKENDS, default="local",
-                        help=f"local: this machine; ray: {what} as Ray tasks on a cluster (default local)")
-    parser.add_argument("--ray-address", "--address", dest="ray_address", default=None, metavar="ADDR",
-                        help="the Ray cluster to join with --backend ray ('auto', or HOST:PORT of the head "
-                             "started by 'ray start --head'); default: start Ray on this machine")
+    parser.add_argument(
+        "--backend",
+        choices=BACKENDS,
+        default="local",
+        help=f"local: this machine; ray: {what} as Ray tasks on a cluster (default local)",
+    )
+    parser.add_argument(
+        "--ray-address",
+        "--address",
+        dest="ray_address",
+        default=None,
+        metavar="ADDR",
+        help="the Ray cluster to join with --backend ray ('auto', or HOST:PORT of the head "
+        "started by 'ray start --head'); default: start Ray on this machine",
+    )
 
 
 def check_output_file(path: Path | None, flag: str, example: str) -> None:

@@ -27,8 +27,14 @@ from bimgame.util.files import DiskFullError
 #: The expert's settings with a flag (the hold lengths and threads keep their defaults).
 MPC_FLAGS = ("n_samples", "horizon", "sampling", "reward")
 
-__all__ = ["add_parsers", "add_mpc_arguments", "mpc_config_from", "add_generate_arguments", "run_generate",
-           "run_expert_eval"]
+__all__ = [
+    "add_parsers",
+    "add_mpc_arguments",
+    "mpc_config_from",
+    "add_generate_arguments",
+    "run_generate",
+    "run_expert_eval",
+]
 
 
 def add_parsers(verbs: argparse._SubParsersAction) -> None:
@@ -40,8 +46,9 @@ def add_parsers(verbs: argparse._SubParsersAction) -> None:
     evaluate.add_argument("--workers", type=positive_int, default=None, help="processes (default: all cores)")
     add_max_steps_argument(evaluate)
     add_mpc_arguments(evaluate)
-    evaluate.add_argument("--out", type=Path, default=None,
-                          help="directory for results.json and lengths.png (default: print only)")
+    evaluate.add_argument(
+        "--out", type=Path, default=None, help="directory for results.json and lengths.png (default: print only)"
+    )
     evaluate.set_defaults(run=run_expert_eval)
 
     generate = verbs.add_parser("generate", help="write expert trajectories as a Minari dataset")
@@ -51,9 +58,15 @@ def add_parsers(verbs: argparse._SubParsersAction) -> None:
 
 
 def add_mpc_arguments(parser: argparse.ArgumentParser) -> None:
-    """The MPC expert's flags (shared by expert-eval and generate)."""
-    add_settings_flags(parser, MPCConfig, MPC_FLAGS, flags={"reward": "--planning-reward"},
-                       aliases={"n_samples": ("-K",), "horizon": ("-H",)})
+    """The MPC expert's flags (shared by expert-eval and generate), in a group of their own."""
+    group = parser.add_argument_group("MPC expert", "the random-shooting planner's samples, horizon and reward")
+    add_settings_flags(
+        group,
+        MPCConfig,
+        MPC_FLAGS,
+        flags={"reward": "--planning-reward"},
+        aliases={"n_samples": ("-K",), "horizon": ("-H",)},
+    )
 
 
 def mpc_config_from(args: argparse.Namespace) -> MPCConfig:
@@ -66,11 +79,13 @@ def add_generate_arguments(parser: argparse.ArgumentParser) -> argparse.Argument
     are :func:`add_mpc_arguments`, shared with ``expert-eval``); returns it."""
     add_task_argument(parser, "FULL")
     parser.add_argument("--episodes", type=positive_int, default=500)
-    parser.add_argument("--out", type=Path, required=True,
-                        help="the run's directory (new, empty, or this run's to resume it)")
+    parser.add_argument(
+        "--out", type=Path, required=True, help="the run's directory (new, empty, or this run's to resume it)"
+    )
     parser.add_argument("--seed", type=non_negative_int, default=0, help="run seed (default 0)")
-    parser.add_argument("--workers", type=positive_int, default=None,
-                        help="parallel episodes (default: the number of CPUs)")
+    parser.add_argument(
+        "--workers", type=positive_int, default=None, help="parallel episodes (default: the number of CPUs)"
+    )
     add_backend_arguments(parser, "episodes")
     add_max_steps_argument(parser)
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -81,23 +96,38 @@ def run_generate(args: argparse.Namespace) -> int:
     """``bimgame generate``: generate (or resume, or verify) a dataset and print a summary."""
     start = time.perf_counter()
     try:
-        out = generate_dataset(args.out, args.task, args.episodes, seed=args.seed, config=mpc_config_from(args),
-                               workers=args.workers, backend=args.backend, ray_address=args.ray_address,
-                               progress=not args.no_progress, max_steps=args.max_steps)
+        out = generate_dataset(
+            args.out,
+            args.task,
+            args.episodes,
+            seed=args.seed,
+            config=mpc_config_from(args),
+            workers=args.workers,
+            backend=args.backend,
+            ray_address=args.ray_address,
+            progress=not args.no_progress,
+            max_steps=args.max_steps,
+        )
     except ImportError as error:
         print(f"bimgame generate: error: {error}", file=sys.stderr)
         return 2
     seconds = time.perf_counter() - start
     summary = dataset_summary(out)
-    print(f"{summary['dataset_id']} in {out}: {summary['episodes']} episodes, {summary['steps']} steps, "
-          f"success {summary['success_rate']:.0%}, mean length {summary['mean_length']:.1f}, "
-          f"{seconds:.1f} s")
-    print(f"disk: Minari (hdf5) {_megabytes(summary['bytes_minari'])} "
-          f"({summary['bytes_per_1000_steps_minari'] / 1e3:.0f} kB per 1000 steps), episode files "
-          f"{_megabytes(summary['bytes_episode_files'])} "
-          f"({summary['bytes_per_1000_steps_episode_files'] / 1e3:.0f} kB per 1000 steps)")
-    print(f"load with bimgame.expert.datasets.load_dataset({str(out)!r}), or minari.load_dataset("
-          f"{summary['dataset_id']!r}) with MINARI_DATASETS_PATH={out / MINARI_DIR}")
+    print(
+        f"{summary['dataset_id']} in {out}: {summary['episodes']} episodes, {summary['steps']} steps, "
+        f"success {summary['success_rate']:.0%}, mean length {summary['mean_length']:.1f}, "
+        f"{seconds:.1f} s"
+    )
+    print(
+        f"disk: Minari (hdf5) {_megabytes(summary['bytes_minari'])} "
+        f"({summary['bytes_per_1000_steps_minari'] / 1e3:.0f} kB per 1000 steps), episode files "
+        f"{_megabytes(summary['bytes_episode_files'])} "
+        f"({summary['bytes_per_1000_steps_episode_files'] / 1e3:.0f} kB per 1000 steps)"
+    )
+    print(
+        f"load with bimgame.expert.datasets.load_dataset({str(out)!r}), or minari.load_dataset("
+        f"{summary['dataset_id']!r}) with MINARI_DATASETS_PATH={out / MINARI_DIR}"
+    )
     return 0
 
 
@@ -108,28 +138,40 @@ def run_expert_eval(args: argparse.Namespace) -> int:
     if args.out is not None:
         args.out.mkdir(parents=True, exist_ok=True)  # an unusable --out fails now, not after the episodes
     start = time.perf_counter()
-    results = evaluate_expert(args.task, args.episodes, config, seed=args.seed, workers=args.workers,
-                              max_steps=args.max_steps)
+    results = evaluate_expert(
+        args.task, args.episodes, config, seed=args.seed, workers=args.workers, max_steps=args.max_steps
+    )
     summary = summarise(results)
     summary["wall_seconds"] = time.perf_counter() - start
-    table = Table(title=f"MPC expert on {args.task}: K={config.n_samples} H={config.horizon} "
-                        f"{config.sampling} sampling, {config.reward} reward, seed {args.seed}")
+    table = Table(
+        title=f"MPC expert on {args.task}: K={config.n_samples} H={config.horizon} "
+        f"{config.sampling} sampling, {config.reward} reward, seed {args.seed}"
+    )
     for column in ("episodes", "success", "median length (solved)", "90th pct", "max", "ms/decision", "wall s"):
         table.add_column(column, justify="right")
-    table.add_row(str(summary["episodes"]), f"{summary['success_rate']:.0%}",
-                  _steps(summary["median_length_solved"]), _steps(summary["p90_length_solved"]),
-                  _steps(summary["max_length_solved"]), f"{summary['ms_per_decision']:.1f}",
-                  f"{summary['wall_seconds']:.0f}")
+    table.add_row(
+        str(summary["episodes"]),
+        f"{summary['success_rate']:.0%}",
+        _steps(summary["median_length_solved"]),
+        _steps(summary["p90_length_solved"]),
+        _steps(summary["max_length_solved"]),
+        f"{summary['ms_per_decision']:.1f}",
+        f"{summary['wall_seconds']:.0f}",
+    )
     console = Console()
     console.print(table)
     if args.out is not None:
         try:
             write_results(results, summary, config, args.task, args.out / "results.json")
-            png = plot_length_histogram(results, args.out / "lengths.png",
-                                        title=f"MPC expert, {args.task}, K={config.n_samples}, H={config.horizon}")
+            png = plot_length_histogram(
+                results,
+                args.out / "lengths.png",
+                title=f"MPC expert, {args.task}, K={config.n_samples}, H={config.horizon}",
+            )
         except DiskFullError as error:
-            saved = "results.json was saved, the histogram not" if error.path.name == "lengths.png" else \
-                "nothing was saved"
+            saved = (
+                "results.json was saved, the histogram not" if error.path.name == "lengths.png" else "nothing was saved"
+            )
             raise error.with_advice(f"{saved}; free some space and rerun the same command") from error
         console.print(f"wrote {args.out / 'results.json'} and {png}")
     return 0

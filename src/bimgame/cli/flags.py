@@ -42,22 +42,40 @@ from bimgame.learn.nets import PRECISIONS
 from bimgame.learn.supervised import TARGETS
 from bimgame.util.settings import FieldDoc, field_docs, split_field_doc
 
-__all__ = ["add_settings_flags", "add_flag_groups", "add_grouped_settings_flags", "given_settings", "plain",
-           "FIELD_CHOICES", "TWO_WAY_SWITCHES", "OTHER_SETTINGS"]
+__all__ = [
+    "add_settings_flags",
+    "add_flag_groups",
+    "add_grouped_settings_flags",
+    "given_settings",
+    "plain",
+    "FIELD_CHOICES",
+    "TWO_WAY_SWITCHES",
+    "OTHER_SETTINGS",
+]
 
 #: The allowed values of the settings that name a choice, wherever they appear.
 FIELD_CHOICES: dict[str, tuple[str, ...]] = {
-    "task": TASK_NAMES, "tasks": TASK_NAMES, "obs": OBS_MODES, "optimizer": OPTIMIZERS, "target": TARGETS,
-    "sampling": SAMPLINGS, "reward": PLANNING_REWARDS, "algorithms": ALGORITHMS,
-    "finetune": tuple(FINETUNE_PRESETS), "start_curriculum": START_CURRICULA, "precision": PRECISIONS,
+    "task": TASK_NAMES,
+    "tasks": TASK_NAMES,
+    "obs": OBS_MODES,
+    "optimizer": OPTIMIZERS,
+    "target": TARGETS,
+    "sampling": SAMPLINGS,
+    "reward": PLANNING_REWARDS,
+    "algorithms": ALGORITHMS,
+    "finetune": tuple(FINETUNE_PRESETS),
+    "start_curriculum": START_CURRICULA,
+    "precision": PRECISIONS,
     "randomize": tuple(RANDOMIZATION_PRESETS),
 }
 #: Switches that get both ``--x`` and ``--no-x``: those a fine-tuning preset sets (``--init`` turns
 #: them on unless told otherwise) and those of privileged learning, ``aux_heads`` (on for pixels,
 #: off for state) and ``asymmetric_critic`` (which the experiments turn on and off). Any other
 #: switch whose class default is None (filled in from other settings) is two-way too.
-TWO_WAY_SWITCHES = frozenset({name for name, value in FINETUNE_PRESETS["keep"].items() if isinstance(value, bool)}
-                             | {"aux_heads", "asymmetric_critic"})
+TWO_WAY_SWITCHES = frozenset(
+    {name for name, value in FINETUNE_PRESETS["keep"].items() if isinstance(value, bool)}
+    | {"aux_heads", "asymmetric_critic"}
+)
 #: The ``--help`` group of the settings that :func:`add_grouped_settings_flags` was given no group for.
 OTHER_SETTINGS = "other settings"
 #: Fields whose values are parsed case-insensitively (``--task stg1``).
@@ -94,11 +112,19 @@ class _Switch(argparse.BooleanOptionalAction):
         self.help = help_text
 
 
-def add_settings_flags(parser: argparse.ArgumentParser | Any, cls: type, names: Iterable[str], *,
-                       defaults: Any = None, default_none: bool = False,
-                       types: dict[str, Callable[[str], Any]] | None = None,
-                       flags: dict[str, str] | None = None, helps: dict[str, str] | None = None,
-                       aliases: dict[str, tuple[str, ...]] | None = None, default_text: str | None = None) -> None:
+def add_settings_flags(
+    parser: argparse.ArgumentParser | Any,
+    cls: type,
+    names: Iterable[str],
+    *,
+    defaults: Any = None,
+    default_none: bool = False,
+    types: dict[str, Callable[[str], Any]] | None = None,
+    flags: dict[str, str] | None = None,
+    helps: dict[str, str] | None = None,
+    aliases: dict[str, tuple[str, ...]] | None = None,
+    default_text: str | None = None,
+) -> None:
     """Add a flag for each field of the settings dataclass ``cls`` in ``names`` to ``parser`` (a
     parser or one of its argument groups, :func:`add_flag_groups`).
 
@@ -121,18 +147,34 @@ def add_settings_flags(parser: argparse.ArgumentParser | Any, cls: type, names: 
             raise ValueError(f"{cls.__name__} has no setting {name!r}; it has {sorted(fields)}")
         default = getattr(defaults, name)
         filled_in = fields[name].default is None and default is not None
-        field = _Field(name=name, flag=flags.get(name, "--" + name.replace("_", "-")), kind=_base_type(hints[name]),
-                       default=default, text=helps.get(name, docs.get(name, "")), filled_in=filled_in,
-                       per_mode=_per_mode(cls, name) if filled_in else None)
+        field = _Field(
+            name=name,
+            flag=flags.get(name, "--" + name.replace("_", "-")),
+            kind=_base_type(hints[name]),
+            default=default,
+            text=helps.get(name, docs.get(name, "")),
+            filled_in=filled_in,
+            per_mode=_per_mode(cls, name) if filled_in else None,
+        )
         initial = None if default_none else default
         if field.kind is bool:
-            _add_switch(parser, field, initial, keeps_none=default_none,
-                        two_way=name in TWO_WAY_SWITCHES or fields[name].default is None)
+            _add_switch(
+                parser,
+                field,
+                initial,
+                keeps_none=default_none,
+                two_way=name in TWO_WAY_SWITCHES or fields[name].default is None,
+            )
             continue
         shown = " " + default_text if default_text is not None else _default_shown(field, keeps_none=default_none)
-        parser.add_argument(field.flag, *aliases.get(name, ()), dest=name, default=initial,
-                            help=f"{_value_text(field)} (default{shown})".strip(),
-                            **_value_options(cls, field, types))
+        parser.add_argument(
+            field.flag,
+            *aliases.get(name, ()),
+            dest=name,
+            default=initial,
+            help=f"{_value_text(field)} (default{shown})".strip(),
+            **_value_options(cls, field, types),
+        )
 
 
 def add_flag_groups(parser: argparse.ArgumentParser, groups: Sequence[tuple[str, str]]) -> dict[str, Any]:
@@ -141,8 +183,14 @@ def add_flag_groups(parser: argparse.ArgumentParser, groups: Sequence[tuple[str,
     return {title: parser.add_argument_group(title, description or None) for title, description in groups}
 
 
-def add_grouped_settings_flags(parser: argparse.ArgumentParser, groups: dict[str, Any], cls: type,
-                               names: Iterable[str], placement: Mapping[str, Iterable[str]], **options: Any) -> None:
+def add_grouped_settings_flags(
+    parser: argparse.ArgumentParser,
+    groups: dict[str, Any],
+    cls: type,
+    names: Iterable[str],
+    placement: Mapping[str, Iterable[str]],
+    **options: Any,
+) -> None:
     """:func:`add_settings_flags` for ``names``, each into its group of ``groups`` (from
     :func:`add_flag_groups`): ``placement`` lists the names of each group title; a name in none of
     them goes to an "other settings" group (so that a setting added to ``cls`` still gets its flag)."""
@@ -151,8 +199,7 @@ def add_grouped_settings_flags(parser: argparse.ArgumentParser, groups: dict[str
     for title in dict.fromkeys(placed.get(name, OTHER_SETTINGS) for name in names):
         if title not in groups:
             groups[title] = parser.add_argument_group(title)
-        add_settings_flags(groups[title], cls, [n for n in names if placed.get(n, OTHER_SETTINGS) == title],
-                           **options)
+        add_settings_flags(groups[title], cls, [n for n in names if placed.get(n, OTHER_SETTINGS) == title], **options)
 
 
 def _add_switch(parser: Any, field: _Field, initial: Any, *, two_way: bool, keeps_none: bool) -> None:
@@ -162,11 +209,22 @@ def _add_switch(parser: Any, field: _Field, initial: Any, *, two_way: bool, keep
     if two_way:
         off_flag = "--no-" + field.flag.removeprefix("--")
         off = f" {off_flag}: {plain(doc.false)}." if doc.false else ""
-        parser.add_argument(field.flag, dest=field.name, action=_Switch, default=initial,
-                            help=f"{plain(doc.text)}{off} (default{_switch_default(field, keeps_none)})".strip())
+        parser.add_argument(
+            field.flag,
+            dest=field.name,
+            action=_Switch,
+            default=initial,
+            help=f"{plain(doc.text)}{off} (default{_switch_default(field, keeps_none)})".strip(),
+        )
     elif not field.default:
-        parser.add_argument(field.flag, dest=field.name, action="store_const", const=True, default=initial,
-                            help=plain(doc.text) + (f" Without it: {plain(doc.false)}." if doc.false else ""))
+        parser.add_argument(
+            field.flag,
+            dest=field.name,
+            action="store_const",
+            const=True,
+            default=initial,
+            help=plain(doc.text) + (f" Without it: {plain(doc.false)}." if doc.false else ""),
+        )
     else:
         flag = field.flag if field.flag != "--" + field.name.replace("_", "-") else "--no-" + field.flag[2:]
         off = _capitalised(plain(doc.false)) + "." if doc.false else f"Turns off (on by default): {plain(doc.text)}"
@@ -214,7 +272,7 @@ def _switch_default(field: _Field, keeps_none: bool) -> str:
 
 
 def _per_mode(cls: type, name: str) -> str | None:
-    """"256 for pixels, 128 for state": the value ``cls`` fills in for each observation mode, or None
+    """ "256 for pixels, 128 for state": the value ``cls`` fills in for each observation mode, or None
     if it has no ``obs`` setting or the value does not depend on it."""
     if "obs" not in {f.name for f in dataclasses.fields(cls)}:
         return None
@@ -264,8 +322,9 @@ def _number_type(cls: type, name: str, kind: type) -> Callable[[str], Any]:
 def plain(text: str) -> str:
     """A docstring without its reStructuredText markup, for ``--help`` (``%`` doubled: argparse
     formats help texts with ``%``)."""
-    text = re.sub(r":[a-z]+:`~?([^`]+)`", lambda m: m.group(1).rsplit(".", 1)[-1] if "~" in m.group(0) else m.group(1),
-                  text)
+    text = re.sub(
+        r":[a-z]+:`~?([^`]+)`", lambda m: m.group(1).rsplit(".", 1)[-1] if "~" in m.group(0) else m.group(1), text
+    )
     return text.replace("``", "").replace("%", "%%")
 
 

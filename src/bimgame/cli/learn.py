@@ -16,21 +16,68 @@ from bimgame.learn.pretrain import pretrain
 from bimgame.learn.supervised import PretrainConfig
 from bimgame.util.files import FileWriteError
 
-__all__ = ["add_pretrain_arguments", "run_pretrain", "add_dagger_arguments", "run_dagger", "PRETRAIN_GROUPS",
-           "PRETRAIN_PLACEMENT", "DAGGER_GROUPS", "DAGGER_PLACEMENT"]
+__all__ = [
+    "add_pretrain_arguments",
+    "run_pretrain",
+    "add_dagger_arguments",
+    "run_dagger",
+    "PRETRAIN_GROUPS",
+    "PRETRAIN_PLACEMENT",
+    "DAGGER_GROUPS",
+    "DAGGER_PLACEMENT",
+]
 
 
 #: Pre-training settings with a flag of their own; ``target`` is ``--value-only``.
-PRETRAIN_FLAGS = ("task", "obs", "epochs", "patience", "lr", "l2", "value_coef", "gamma", "val_fraction", "bptt",
-                  "batch_episodes", "batch_frames", "max_grad_norm", "hidden", "features", "tilt_input", "keypoints",
-                  "subtract_background", "aux_heads", "asymmetric_critic", "precision", "aux_coef", "eval_episodes",
-                  "seed")
+PRETRAIN_FLAGS = (
+    "task",
+    "obs",
+    "epochs",
+    "patience",
+    "lr",
+    "l2",
+    "value_coef",
+    "gamma",
+    "val_fraction",
+    "bptt",
+    "batch_episodes",
+    "batch_frames",
+    "max_grad_norm",
+    "hidden",
+    "features",
+    "tilt_input",
+    "keypoints",
+    "subtract_background",
+    "aux_heads",
+    "asymmetric_critic",
+    "precision",
+    "aux_coef",
+    "eval_episodes",
+    "seed",
+)
 #: The learner settings of DAgger with a flag (the rest keep the defaults of DAgger's learner).
-DAGGER_LEARNER_FLAGS = ("task", "obs", "lr", "hidden", "features", "tilt_input", "keypoints", "subtract_background",
-                        "precision", "seed")
+DAGGER_LEARNER_FLAGS = (
+    "task",
+    "obs",
+    "lr",
+    "hidden",
+    "features",
+    "tilt_input",
+    "keypoints",
+    "subtract_background",
+    "precision",
+    "seed",
+)
 #: DAgger's own settings with a flag (``expert`` is the default MPC expert).
-DAGGER_FLAGS = ("iterations", "episodes_per_iteration", "beta0", "beta_decay", "epochs_per_iteration",
-                "max_episode_steps", "eval_episodes")
+DAGGER_FLAGS = (
+    "iterations",
+    "episodes_per_iteration",
+    "beta0",
+    "beta_decay",
+    "epochs_per_iteration",
+    "max_episode_steps",
+    "eval_episodes",
+)
 #: Parsers with an upper bound too (a seed numpy and torch both take; episodes run side by side).
 _TYPES = {"seed": seed, "eval_episodes": episode_count_or_zero}
 #: ``bimgame pretrain --help``'s groups: (title, description) in the order shown.
@@ -42,9 +89,24 @@ PRETRAIN_GROUPS = (
 )
 #: The group of each pre-training setting with a flag.
 PRETRAIN_PLACEMENT: dict[str, tuple[str, ...]] = {
-    "data": ("task",), "network": NetworkSettings.field_names(), "logging": ("eval_episodes",),
-    "optimisation": ("epochs", "patience", "lr", "l2", "value_coef", "gamma", "val_fraction", "bptt",
-                     "batch_episodes", "batch_frames", "max_grad_norm", "aux_coef", "seed"),
+    "data": ("task",),
+    "network": NetworkSettings.field_names(),
+    "logging": ("eval_episodes",),
+    "optimisation": (
+        "epochs",
+        "patience",
+        "lr",
+        "l2",
+        "value_coef",
+        "gamma",
+        "val_fraction",
+        "bptt",
+        "batch_episodes",
+        "batch_frames",
+        "max_grad_norm",
+        "aux_coef",
+        "seed",
+    ),
 }
 #: ``bimgame dagger --help``'s groups: (title, description) in the order shown.
 DAGGER_GROUPS = (
@@ -55,9 +117,19 @@ DAGGER_GROUPS = (
 )
 #: The group of each DAgger setting with a flag (its own and its learner's).
 DAGGER_PLACEMENT: dict[str, tuple[str, ...]] = {
-    "run": ("task",), "network": NetworkSettings.field_names(), "logging": ("eval_episodes",),
-    "DAgger": ("iterations", "episodes_per_iteration", "beta0", "beta_decay", "epochs_per_iteration",
-               "max_episode_steps", "lr", "seed"),
+    "run": ("task",),
+    "network": NetworkSettings.field_names(),
+    "logging": ("eval_episodes",),
+    "DAgger": (
+        "iterations",
+        "episodes_per_iteration",
+        "beta0",
+        "beta_decay",
+        "epochs_per_iteration",
+        "max_episode_steps",
+        "lr",
+        "seed",
+    ),
 }
 
 
@@ -68,8 +140,11 @@ def add_pretrain_arguments(parser: argparse.ArgumentParser) -> None:
     add = groups["data"].add_argument
     add("--data", type=Path, required=True, help="an expert dataset directory (bimgame generate)")
     add("--out", type=Path, required=True, help="new run directory for the weights and logs")
-    add("--value-only", action="store_true",
-        help="train the value-only network V̂ for --value-reward instead of the policy π^s")
+    add(
+        "--value-only",
+        action="store_true",
+        help="train the value-only network V̂ for --value-reward instead of the policy π^s",
+    )
     add_grouped_settings_flags(parser, groups, PretrainConfig, PRETRAIN_FLAGS, PRETRAIN_PLACEMENT, types=_TYPES)
     groups["logging"].add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -86,17 +161,24 @@ def run_pretrain(args: argparse.Namespace) -> int:
     try:
         result = pretrain(config, args.data, args.out, progress=not args.no_progress)
     except KeyboardInterrupt:
-        print(f"interrupted; pre-training cannot resume, so nothing was kept in {args.out}. Run the same command "
-              f"again to start over", file=sys.stderr)
+        print(
+            f"interrupted; pre-training cannot resume, so nothing was kept in {args.out}. Run the same command "
+            f"again to start over",
+            file=sys.stderr,
+        )
         return 130
     accuracy = "" if math.isnan(result.val_accuracy) else f"held-out accuracy {result.val_accuracy:.1%} (chance 20%), "
-    print(f"done in {result.seconds:.0f} s: best epoch {result.best_epoch} of {result.epochs_run}, {accuracy}"
-          f"value RMSE {result.val_value_rmse:.3f}")
+    print(
+        f"done in {result.seconds:.0f} s: best epoch {result.best_epoch} of {result.epochs_run}, {accuracy}"
+        f"value RMSE {result.val_value_rmse:.3f}"
+    )
     if result.policy_eval:
         e = result.policy_eval
-        print(f"π^s alone on {config.task}: greedy success {e['greedy_success_rate']:.0%} "
-              f"(mean length {e['greedy_mean_length']:.0f}), sampled success {e['sampled_success_rate']:.0%} "
-              f"over {e['episodes']} episodes")
+        print(
+            f"π^s alone on {config.task}: greedy success {e['greedy_success_rate']:.0%} "
+            f"(mean length {e['greedy_mean_length']:.0f}), sampled success {e['sampled_success_rate']:.0%} "
+            f"over {e['episodes']} episodes"
+        )
     use = "--value-reward" if config.target == "value" else "--init"
     print(f"use it with: bimgame train --task {config.task} --obs {config.obs} {use} {args.out} --run-dir RUN")
     return 0
@@ -112,41 +194,69 @@ def add_dagger_arguments(parser: argparse.ArgumentParser) -> None:
     add("--resume", action="store_true", help="continue after the run's last finished iteration")
     add("--init", type=Path, default=None, help="start the learner from these weights (e.g. bimgame pretrain's)")
     defaults = DAggerConfig()
-    add_grouped_settings_flags(parser, groups, PretrainConfig, DAGGER_LEARNER_FLAGS, DAGGER_PLACEMENT,
-                               defaults=defaults.learner, types=_TYPES)
+    add_grouped_settings_flags(
+        parser, groups, PretrainConfig, DAGGER_LEARNER_FLAGS, DAGGER_PLACEMENT, defaults=defaults.learner, types=_TYPES
+    )
     resumable = DAggerConfig.RESUMABLE_CHANGES
-    add_grouped_settings_flags(parser, groups, DAggerConfig, [n for n in DAGGER_FLAGS if n not in resumable],
-                               DAGGER_PLACEMENT, types={"episodes_per_iteration": episode_count})
-    add_grouped_settings_flags(parser, groups, DAggerConfig, resumable, DAGGER_PLACEMENT, default_none=True,
-                               types=_TYPES, helps={"iterations": "Iterations to run; with --resume, a larger "
-                                                                  "number continues the run."})
+    add_grouped_settings_flags(
+        parser,
+        groups,
+        DAggerConfig,
+        [n for n in DAGGER_FLAGS if n not in resumable],
+        DAGGER_PLACEMENT,
+        types={"episodes_per_iteration": episode_count},
+    )
+    add_grouped_settings_flags(
+        parser,
+        groups,
+        DAggerConfig,
+        resumable,
+        DAGGER_PLACEMENT,
+        default_none=True,
+        types=_TYPES,
+        helps={"iterations": "Iterations to run; with --resume, a larger number continues the run."},
+    )
     groups["logging"].add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
 def run_dagger(args: argparse.Namespace) -> int:
-    learner = dataclasses.replace(DAggerConfig().learner,
-                                  **{name: getattr(args, name) for name in DAGGER_LEARNER_FLAGS})
+    learner = dataclasses.replace(
+        DAggerConfig().learner, **{name: getattr(args, name) for name in DAGGER_LEARNER_FLAGS}
+    )
     given = given_settings(args, DAggerConfig, DAGGER_FLAGS)
     config = resolve_dagger_config(learner, given, args.run_dir, resume=args.resume)
-    print(f"DAgger on {config.learner.task} ({config.learner.obs}): {config.iterations} iterations x "
-          f"{config.episodes_per_iteration} episodes -> {args.run_dir}", file=sys.stderr)
+    print(
+        f"DAgger on {config.learner.task} ({config.learner.obs}): {config.iterations} iterations x "
+        f"{config.episodes_per_iteration} episodes -> {args.run_dir}",
+        file=sys.stderr,
+    )
     try:
         result = dagger(config, args.run_dir, resume=args.resume, init=args.init, progress=not args.no_progress)
     except KeyboardInterrupt:
-        print(f"interrupted; the finished iterations are saved. Continue with: bimgame dagger --run-dir "
-              f"{args.run_dir} --resume", file=sys.stderr)
+        print(
+            f"interrupted; the finished iterations are saved. Continue with: bimgame dagger --run-dir "
+            f"{args.run_dir} --resume",
+            file=sys.stderr,
+        )
         return 130
     except FileWriteError as error:
         print(f"bimgame dagger: stopped: {error}", file=sys.stderr)
         return 1
     if result.iterations_run == 0:
-        print(f"nothing to do: the run in {args.run_dir} has finished its {result.iterations} iterations "
-              f"(pass a larger --iterations with --resume to continue)")
+        print(
+            f"nothing to do: the run in {args.run_dir} has finished its {result.iterations} iterations "
+            f"(pass a larger --iterations with --resume to continue)"
+        )
         return 0
     final = result.final_eval
-    evaluation = ("no evaluation (--eval-episodes 0)" if final is None else
-                  f"final greedy success {final.get('greedy_success_rate', float('nan')):.0%}, "
-                  f"sampled {final.get('sampled_success_rate', float('nan')):.0%}")
-    print(f"done: {result.iterations} iterations in {result.seconds / 60:.1f} min; {result.env_steps:,} environment "
-          f"steps, {result.expert_sim_steps:,} simulator steps of expert planning; {evaluation}")
+    evaluation = (
+        "no evaluation (--eval-episodes 0)"
+        if final is None
+        else f"final greedy success {final.get('greedy_success_rate', float('nan')):.0%}, "
+        f"sampled {final.get('sampled_success_rate', float('nan')):.0%}"
+    )
+    print(
+        f"done: {result.iterations} iterations in {result.seconds / 60:.1f} min; {result.env_steps:,} environment "
+        f"steps, {result.expert_sim_steps:,} simulator steps of expert planning; {evaluation}"
+    )
     return 0

@@ -47,17 +47,32 @@ __all__ = ["main", "build_parser"]
 _LEARNING_VERBS = (
     ("train", "train an A3C agent", cli_train.add_train_arguments, cli_train.run_train),
     ("evaluate", "evaluate a trained run", cli_train.add_evaluate_arguments, cli_train.run_evaluate),
-    ("pretrain", "pre-train π^s (or V̂) on an expert dataset", cli_learn.add_pretrain_arguments,
-     cli_learn.run_pretrain),
+    ("pretrain", "pre-train π^s (or V̂) on an expert dataset", cli_learn.add_pretrain_arguments, cli_learn.run_pretrain),
     ("dagger", "DAgger with the MPC expert", cli_learn.add_dagger_arguments, cli_learn.run_dagger),
-    ("reproduce", "run the paper's experiments (resumable)", cli_reproduce.add_reproduce_arguments,
-     cli_reproduce.run_reproduce),
-    ("report", "rebuild a reproduction's figures, tables and report", cli_reproduce.add_report_arguments,
-     cli_reproduce.run_report),
-    ("score", "score any policy with the benchmark protocol (normalised: random 0, expert 100)",
-     cli_score.add_score_arguments, cli_score.run_score),
-    ("robustness", "policies and the MPC expert on the nominal board and domain-randomised ones",
-     cli_score.add_robustness_arguments, cli_score.run_robustness),
+    (
+        "reproduce",
+        "run the paper's experiments (resumable)",
+        cli_reproduce.add_reproduce_arguments,
+        cli_reproduce.run_reproduce,
+    ),
+    (
+        "report",
+        "rebuild a reproduction's figures, tables and report",
+        cli_reproduce.add_report_arguments,
+        cli_reproduce.run_report,
+    ),
+    (
+        "score",
+        "score any policy with the benchmark protocol (normalised: random 0, expert 100)",
+        cli_score.add_score_arguments,
+        cli_score.run_score,
+    ),
+    (
+        "robustness",
+        "policies and the MPC expert on the nominal board and domain-randomised ones",
+        cli_score.add_robustness_arguments,
+        cli_score.run_robustness,
+    ),
 )
 
 
@@ -78,12 +93,16 @@ def build_parser() -> argparse.ArgumentParser:
     curves.add_argument("--out", type=Path, default=None, help="PNG path (default RUN_DIR/curves.png)")
     curves.set_defaults(run=_curves)
     compare = verbs.add_parser("compare", help="learning curves of groups of runs in one figure")
-    compare.add_argument("groups", nargs="+", type=run_group, metavar="LABEL=RUN[,RUN...]",
-                         help="a label and the run directories averaged under it (e.g. seeds)")
+    compare.add_argument(
+        "groups",
+        nargs="+",
+        type=run_group,
+        metavar="LABEL=RUN[,RUN...]",
+        help="a label and the run directories averaged under it (e.g. seeds)",
+    )
     compare.add_argument("--out", type=Path, required=True, help="PNG path")
     compare.add_argument("--title", default="", help="figure title")
-    compare.add_argument("--max-step", type=step_count, default=None,
-                         help="cut runs at this many steps (e.g. 1.2M)")
+    compare.add_argument("--max-step", type=step_count, default=None, help="cut runs at this many steps (e.g. 1.2M)")
     compare.set_defaults(run=_compare)
     return parser
 

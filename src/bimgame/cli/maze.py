@@ -54,19 +54,28 @@ def run_maze(args: argparse.Namespace) -> int:
 
 def run_rollout(args: argparse.Namespace) -> int:
     """``bimgame rollout``: episodes of a scripted policy, a summary table, optionally a GIF."""
-    results, frames = run_episodes(args.task, args.policy, args.episodes, seed=args.seed,
-                                   max_steps=args.max_steps, n_marbles=args.n_marbles,
-                                   record_first=args.gif is not None)
+    results, frames = run_episodes(
+        args.task,
+        args.policy,
+        args.episodes,
+        seed=args.seed,
+        max_steps=args.max_steps,
+        n_marbles=args.n_marbles,
+        record_first=args.gif is not None,
+    )
     console = Console()
     table = Table(title=f"{args.policy} policy on {args.task} ({args.episodes} episodes, seed {args.seed})")
     for column in ("episodes", "success", "mean return", "mean length", "median length", "steps/s"):
         table.add_column(column, justify="right")
     lengths = np.array([r["length"] for r in results])
-    table.add_row(str(len(results)),
-                  f"{np.mean([r['success'] for r in results]):.0%}",
-                  f"{np.mean([r['return'] for r in results]):.2f}",
-                  f"{lengths.mean():.1f}", f"{np.median(lengths):.0f}",
-                  f"{lengths.sum() / max(sum(r['seconds'] for r in results), 1e-9):,.0f}")
+    table.add_row(
+        str(len(results)),
+        f"{np.mean([r['success'] for r in results]):.0%}",
+        f"{np.mean([r['return'] for r in results]):.2f}",
+        f"{lengths.mean():.1f}",
+        f"{np.median(lengths):.0f}",
+        f"{lengths.sum() / max(sum(r['seconds'] for r in results), 1e-9):,.0f}",
+    )
     console.print(table)
     if args.gif is not None:
         console.print(f"wrote {write_gif(frames, args.gif)} ({len(frames)} frames)")
@@ -79,6 +88,8 @@ def run_demo(args: argparse.Namespace) -> int:
     results, frames = run_episodes(args.task, args.policy, 1, seed=args.seed, record_first=True)
     result = results[0]
     gif = write_gif(frames, args.out / "episode.gif")
-    print(f"{args.policy} policy on {args.task}: {'solved' if result['success'] else 'not solved'} in "
-          f"{result['length']} steps, return {result['return']:.0f}; wrote {gif}")
+    print(
+        f"{args.policy} policy on {args.task}: {'solved' if result['success'] else 'not solved'} in "
+        f"{result['length']} steps, return {result['return']:.0f}; wrote {gif}"
+    )
     return 0

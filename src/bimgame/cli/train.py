@@ -23,8 +23,7 @@ from bimgame.util.files import write_json
 from bimgame.util.images import write_gif
 from bimgame.util.settings import field_docs
 
-__all__ = ["add_train_arguments", "add_evaluate_arguments", "run_train", "run_evaluate", "TRAIN_GROUPS",
-           "A3C_GROUPS"]
+__all__ = ["add_train_arguments", "add_evaluate_arguments", "run_train", "run_evaluate", "TRAIN_GROUPS", "A3C_GROUPS"]
 
 
 #: ``bimgame train --help``'s groups: (title, description) in the order shown.
@@ -33,8 +32,13 @@ TRAIN_GROUPS = (
     ("environment", "the task, its episodes and the reward"),
     ("network", "the actor-critic's observations, sizes and inputs (with --init or --resume: the run's unless given)"),
     ("optimisation", "A3C's workers, loss and optimiser"),
-    ("fine-tuning", (f"starting from a pre-trained π^s (--init), a setting not given takes the value of the "
-                     f"--finetune preset (default {DEFAULT_FINETUNE})")),
+    (
+        "fine-tuning",
+        (
+            f"starting from a pre-trained π^s (--init), a setting not given takes the value of the "
+            f"--finetune preset (default {DEFAULT_FINETUNE})"
+        ),
+    ),
     ("curriculum", "where training episodes start"),
     ("logging", "checkpoints, evaluations and logs"),
 )
@@ -42,17 +46,50 @@ TRAIN_GROUPS = (
 A3C_GROUPS: dict[str, tuple[str, ...]] = {
     "network": NetworkSettings.field_names(),
     "environment": ("task", "max_episode_steps", "randomize"),
-    "optimisation": ("steps", "workers", "envs_per_worker", "n_steps", "gamma", "gae_lambda", "lr", "optimizer",
-                     "rmsprop_alpha", "optimizer_eps", "entropy_coef", "value_coef", "max_grad_norm",
-                     "entropy_target", "entropy_target_steps", "aux_coef", "augment_shift", "seed"),
-    "fine-tuning": ("finetune", "critic_warmup_steps", "actor_ramp_steps", "kl_coef", "kl_decay_steps",
-                    "kl_temperature", "advantage_norm", "bc_coef", "bc_decay_steps"),
+    "optimisation": (
+        "steps",
+        "workers",
+        "envs_per_worker",
+        "n_steps",
+        "gamma",
+        "gae_lambda",
+        "lr",
+        "optimizer",
+        "rmsprop_alpha",
+        "optimizer_eps",
+        "entropy_coef",
+        "value_coef",
+        "max_grad_norm",
+        "entropy_target",
+        "entropy_target_steps",
+        "aux_coef",
+        "augment_shift",
+        "seed",
+    ),
+    "fine-tuning": (
+        "finetune",
+        "critic_warmup_steps",
+        "actor_ramp_steps",
+        "kl_coef",
+        "kl_decay_steps",
+        "kl_temperature",
+        "advantage_norm",
+        "bc_coef",
+        "bc_decay_steps",
+    ),
     "curriculum": ("start_curriculum", "curriculum_threshold", "expert_data"),
     "logging": ("checkpoint_every", "eval_every", "eval_episodes", "log_every"),
 }
 #: Parsers of the A3C settings that need more than a number (step counts such as ``5M``, bounded ones).
-_A3C_TYPES = {"steps": step_count, "checkpoint_every": step_count, "eval_every": step_count_or_zero,
-              "log_every": step_count, "max_episode_steps": step_count, "seed": seed, "eval_episodes": episode_count}
+_A3C_TYPES = {
+    "steps": step_count,
+    "checkpoint_every": step_count,
+    "eval_every": step_count_or_zero,
+    "log_every": step_count,
+    "max_episode_steps": step_count,
+    "seed": seed,
+    "eval_episodes": episode_count,
+}
 
 
 def add_train_arguments(parser: argparse.ArgumentParser) -> None:
@@ -62,52 +99,91 @@ def add_train_arguments(parser: argparse.ArgumentParser) -> None:
     groups = add_flag_groups(parser, TRAIN_GROUPS)
     run = groups["run"].add_argument
     run("--run-dir", type=Path, required=True, help="directory for config, checkpoints and logs")
-    run("--resume", action="store_true", help="continue the run in --run-dir from its last checkpoint "
-                                              "(settings come from its config.json)")
+    run(
+        "--resume",
+        action="store_true",
+        help="continue the run in --run-dir from its last checkpoint (settings come from its config.json)",
+    )
     run("--init", type=Path, default=None, help="start from these weights (checkpoint file or run directory)")
-    add_grouped_settings_flags(parser, groups, A3CConfig, [f.name for f in dataclasses.fields(A3CConfig)], A3C_GROUPS,
-                               default_none=True, types=_A3C_TYPES,
-                               helps={"steps": "environment steps to train for, all workers together, e.g. 5M"})
+    add_grouped_settings_flags(
+        parser,
+        groups,
+        A3CConfig,
+        [f.name for f in dataclasses.fields(A3CConfig)],
+        A3C_GROUPS,
+        default_none=True,
+        types=_A3C_TYPES,
+        helps={"steps": "environment steps to train for, all workers together, e.g. 5M"},
+    )
     docs = field_docs(RewardSettings)
     reward = groups["environment"].add_argument
     reward("--value-reward", type=Path, default=None, metavar="RUN", help=plain(docs["value_reward"]))
-    reward("--geodesic-reward", dest="geodesic_coef", type=positive_float, nargs="?", const=DEFAULT_GEODESIC_COEF,
-           default=None, metavar="COEF",
-           help=f"{plain(docs['geodesic_coef'])} (COEF default {DEFAULT_GEODESIC_COEF:g})")
+    reward(
+        "--geodesic-reward",
+        dest="geodesic_coef",
+        type=positive_float,
+        nargs="?",
+        const=DEFAULT_GEODESIC_COEF,
+        default=None,
+        metavar="COEF",
+        help=f"{plain(docs['geodesic_coef'])} (COEF default {DEFAULT_GEODESIC_COEF:g})",
+    )
     groups["logging"].add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
 def run_train(args: argparse.Namespace) -> int:
     if args.resume and args.init is not None:
-        raise ValueError(f"--init {args.init} with --resume: a resumed run continues from its own checkpoint "
-                         f"(and keeps the π^s it started from); give --init only to start a new run")
+        raise ValueError(
+            f"--init {args.init} with --resume: a resumed run continues from its own checkpoint "
+            f"(and keeps the π^s it started from); give --init only to start a new run"
+        )
     config = resolve_config(given_settings(args, A3CConfig), args.run_dir, resume=args.resume, init=args.init)
-    reward = resolve_reward_settings(RewardSettings(value_reward=args.value_reward, geodesic_coef=args.geodesic_coef),
-                                     args.run_dir, resume=args.resume)
+    reward = resolve_reward_settings(
+        RewardSettings(value_reward=args.value_reward, geodesic_coef=args.geodesic_coef),
+        args.run_dir,
+        resume=args.resume,
+    )
     wrapper = env_wrapper_for(reward, obs=config.obs, gamma=config.gamma)
     shaped = reward.describe()
-    print(f"A3C on {config.task} ({config.obs}): {config.steps:,} steps, {config.workers} workers x "
-          f"{config.envs_per_worker} envs{', reward shaped: ' + shaped if shaped else ''}"
-          f"{', from ' + str(args.init) if args.init else ''} -> {args.run_dir}", file=sys.stderr)
+    print(
+        f"A3C on {config.task} ({config.obs}): {config.steps:,} steps, {config.workers} workers x "
+        f"{config.envs_per_worker} envs{', reward shaped: ' + shaped if shaped else ''}"
+        f"{', from ' + str(args.init) if args.init else ''} -> {args.run_dir}",
+        file=sys.stderr,
+    )
     try:
-        result = train(config, args.run_dir, resume=args.resume, init=args.init, progress=not args.no_progress,
-                       env_wrapper=wrapper, extra_config={"reward": reward.to_dict()})
+        result = train(
+            config,
+            args.run_dir,
+            resume=args.resume,
+            init=args.init,
+            progress=not args.no_progress,
+            env_wrapper=wrapper,
+            extra_config={"reward": reward.to_dict()},
+        )
     except TrainingError as error:
         print(f"bimgame train: stopped: {error}", file=sys.stderr)
         return 1
     if result.stopped == "interrupted" and result.steps >= config.steps:
-        print(f"interrupted after all {result.steps:,} steps, before the final evaluation; checkpoint saved. "
-              f"Evaluate and write the summary with: bimgame train --run-dir {args.run_dir} --resume",
-              file=sys.stderr)
+        print(
+            f"interrupted after all {result.steps:,} steps, before the final evaluation; checkpoint saved. "
+            f"Evaluate and write the summary with: bimgame train --run-dir {args.run_dir} --resume",
+            file=sys.stderr,
+        )
         return 130
     if result.stopped == "interrupted":
-        print(f"interrupted at {result.steps:,} steps; checkpoint saved. Continue with: bimgame train "
-              f"--run-dir {args.run_dir} --resume", file=sys.stderr)
+        print(
+            f"interrupted at {result.steps:,} steps; checkpoint saved. Continue with: bimgame train "
+            f"--run-dir {args.run_dir} --resume",
+            file=sys.stderr,
+        )
         return 130
     final = result.final_eval or {}
-    print(f"done: {result.steps:,} steps in {result.seconds / 60:.1f} min; final evaluation: greedy success "
-          f"{final.get('greedy_success_rate', float('nan')):.0%}, sampled success "
-          f"{final.get('sampled_success_rate', float('nan')):.0%}")
+    print(
+        f"done: {result.steps:,} steps in {result.seconds / 60:.1f} min; final evaluation: greedy success "
+        f"{final.get('greedy_success_rate', float('nan')):.0%}, sampled success "
+        f"{final.get('sampled_success_rate', float('nan')):.0%}"
+    )
     return 0
 
 
@@ -131,23 +207,52 @@ def run_evaluate(args: argparse.Namespace) -> int:
     task = parse_task(args.task or run.task).value
     limit = run.time_limit if task == run.task else None
     obs_mode = run.network.obs
-    result = evaluate_network(net, task=task, obs_mode=obs_mode, episodes=args.episodes, seed=args.seed,
-                              greedy=not args.sample, max_episode_steps=limit)
+    result = evaluate_network(
+        net,
+        task=task,
+        obs_mode=obs_mode,
+        episodes=args.episodes,
+        seed=args.seed,
+        greedy=not args.sample,
+        max_episode_steps=limit,
+    )
     mode = "sampled" if args.sample else "greedy"
     table = Table(title=f"{run_dir} at {step:,} steps: {mode} policy on {task} (seed {args.seed})")
     for column in ("episodes", "success", "mean length", "mean return"):
         table.add_column(column, justify="right")
-    table.add_row(str(args.episodes), f"{result.success_rate:.0%}", f"{result.mean_length:.1f}",
-                  f"{result.mean_return:.2f}")
+    table.add_row(
+        str(args.episodes), f"{result.success_rate:.0%}", f"{result.mean_length:.1f}", f"{result.mean_return:.2f}"
+    )
     console = Console()
     console.print(table)
     if args.out is not None:
-        write_json(args.out, {"run_dir": str(run_dir), "step": step, "task": task, "mode": mode, "seed": args.seed,
-                              **result.summary(), "lengths": result.lengths, "successes": result.successes})
+        write_json(
+            args.out,
+            {
+                "run_dir": str(run_dir),
+                "step": step,
+                "task": task,
+                "mode": mode,
+                "seed": args.seed,
+                **result.summary(),
+                "lengths": result.lengths,
+                "successes": result.successes,
+            },
+        )
         console.print(f"wrote {args.out}")
     if args.gif is not None:
-        shown = evaluate_network(net, task=task, obs_mode=obs_mode, episodes=1, seed=args.seed,
-                                 greedy=not args.sample, max_episode_steps=limit, record=True)
-        console.print(f"wrote {write_gif(shown.frames, args.gif)} ({len(shown.frames)} frames, "
-                      f"{'solved' if shown.successes[0] else 'not solved'})")
+        shown = evaluate_network(
+            net,
+            task=task,
+            obs_mode=obs_mode,
+            episodes=1,
+            seed=args.seed,
+            greedy=not args.sample,
+            max_episode_steps=limit,
+            record=True,
+        )
+        console.print(
+            f"wrote {write_gif(shown.frames, args.gif)} ({len(shown.frames)} frames, "
+            f"{'solved' if shown.successes[0] else 'not solved'})"
+        )
     return 0

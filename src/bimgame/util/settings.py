@@ -23,8 +23,16 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-__all__ = ["from_dict", "require_int", "field_docs", "is_integer", "is_real", "FieldDoc", "split_field_doc",
-           "VALUE_LABELS"]
+__all__ = [
+    "from_dict",
+    "require_int",
+    "field_docs",
+    "is_integer",
+    "is_real",
+    "FieldDoc",
+    "split_field_doc",
+    "VALUE_LABELS",
+]
 
 T = TypeVar("T")
 
@@ -74,9 +82,13 @@ def field_docs(cls: type) -> dict[str, str]:
             continue
         body = tree.body[0].body if tree.body and isinstance(tree.body[0], ast.ClassDef) else []
         for statement, following in zip(body, body[1:], strict=False):
-            if (isinstance(statement, ast.AnnAssign) and isinstance(statement.target, ast.Name)
-                    and isinstance(following, ast.Expr) and isinstance(following.value, ast.Constant)
-                    and isinstance(following.value.value, str)):
+            if (
+                isinstance(statement, ast.AnnAssign)
+                and isinstance(statement.target, ast.Name)
+                and isinstance(following, ast.Expr)
+                and isinstance(following.value, ast.Constant)
+                and isinstance(following.value.value, str)
+            ):
                 docs[statement.target.id] = " ".join(following.value.value.split())
     return docs
 
@@ -127,8 +139,8 @@ def _sentence_parts(doc: str) -> list[str]:
     depth = start = 0
     for i, char in enumerate(doc):
         depth += {"(": 1, ")": -1}.get(char, 0)
-        if depth == 0 and char in ".;" and doc[i + 1:i + 2] in ("", " "):
-            parts.append(doc[start:i + 2])
+        if depth == 0 and char in ".;" and doc[i + 1 : i + 2] in ("", " "):
+            parts.append(doc[start : i + 2])
             start = i + 2
     if start < len(doc):
         parts.append(doc[start:])
