@@ -24,8 +24,19 @@ from bimgame.sim.maze import MazeSpec
 from bimgame.sim.tasks import Task, task_setting
 from bimgame.util.settings import require_int
 
-__all__ = ["A3CConfig", "OPTIMIZERS", "START_CURRICULA", "MAX_STEPS", "EnvWrapper", "network_for", "make_optimizer",
-           "shared_optimizer_state", "a3c_segment_loss", "apply_update", "evaluate"]
+__all__ = [
+    "A3CConfig",
+    "OPTIMIZERS",
+    "START_CURRICULA",
+    "MAX_STEPS",
+    "EnvWrapper",
+    "network_for",
+    "make_optimizer",
+    "shared_optimizer_state",
+    "a3c_segment_loss",
+    "apply_update",
+    "evaluate",
+]
 
 OPTIMIZERS = ("rmsprop", "adam")
 #: Where training episodes start: ``none`` (the task's own starts), ``demo`` (demonstration starts,
@@ -37,11 +48,16 @@ MAX_STEPS = 10**12
 #: The largest value of the settings that size what is allocated at once (processes, environments,
 #: segment memory, evaluation episodes run side by side), far above any sensible value: larger is a
 #: typo that would otherwise fail only when memory runs out.
-_LARGEST = {**{name: (MAX_STEPS, "1e12 environment steps") for name in
-               ("steps", "checkpoint_every", "eval_every", "log_every", "max_episode_steps")},
-            "workers": (256, "processes"), "envs_per_worker": (4096, "environments in one process"),
-            "n_steps": (10_000, "steps kept in memory per update"),
-            "eval_episodes": (10_000, "episodes run side by side")}
+_LARGEST = {
+    **{
+        name: (MAX_STEPS, "1e12 environment steps")
+        for name in ("steps", "checkpoint_every", "eval_every", "log_every", "max_episode_steps")
+    },
+    "workers": (256, "processes"),
+    "envs_per_worker": (4096, "environments in one process"),
+    "n_steps": (10_000, "steps kept in memory per update"),
+    "eval_episodes": (10_000, "episodes run side by side"),
+}
 #: A callable that wraps a worker's vector env (e.g. reward shaping). It is sent to spawned worker
 #: processes, so it must be picklable (a module-level function or an instance of a module-level class).
 EnvWrapper = Callable[[BallInMazeVectorEnv], Any]
@@ -49,8 +65,13 @@ EnvWrapper = Callable[[BallInMazeVectorEnv], Any]
 
 #: Settings that are integers >= 1, >= 0, reals in [0, 1], finite reals > 0 and finite reals >= 0.
 _POSITIVE_INTS = ("steps", "workers", "envs_per_worker", "n_steps", "checkpoint_every", "eval_episodes", "log_every")
-_NON_NEGATIVE_INTS = ("critic_warmup_steps", "actor_ramp_steps", "kl_decay_steps", "bc_decay_steps",
-                      "entropy_target_steps")
+_NON_NEGATIVE_INTS = (
+    "critic_warmup_steps",
+    "actor_ramp_steps",
+    "kl_decay_steps",
+    "bc_decay_steps",
+    "entropy_target_steps",
+)
 _UNIT_INTERVAL = ("gamma", "gae_lambda", "rmsprop_alpha")
 _POSITIVE_REALS = ("lr", "optimizer_eps", "max_grad_norm")
 _NON_NEGATIVE_REALS = ("entropy_coef", "value_coef", "kl_coef", "bc_coef", "aux_coef")
@@ -197,10 +218,13 @@ class A3CConfig(NetworkSettings):
         if self.finetune is not None:
             _check_choice("finetune", self.finetune, tuple(FINETUNE_PRESETS), optional=True)
         _check_choice("start_curriculum", self.start_curriculum, START_CURRICULA)
-        if self.entropy_target is not None and not (isinstance(self.entropy_target, (int, float))
-                                                    and 0 < self.entropy_target <= math.log(5)):
-            raise ValueError(f"A3CConfig.entropy_target must be None or in (0, ln 5 = {math.log(5):.4f}] nats, "
-                             f"got {self.entropy_target!r}")
+        if self.entropy_target is not None and not (
+            isinstance(self.entropy_target, (int, float)) and 0 < self.entropy_target <= math.log(5)
+        ):
+            raise ValueError(
+                f"A3CConfig.entropy_target must be None or in (0, ln 5 = {math.log(5):.4f}] nats, "
+                f"got {self.entropy_target!r}"
+            )
         for name in _NON_NEGATIVE_INTS:
             require_int("A3CConfig", name, getattr(self, name), 0)
         self._check_expert_data()
@@ -212,8 +236,14 @@ class A3CConfig(NetworkSettings):
             _check_number(self, name, getattr(self, name), 0.0, math.inf)
 
     def _check_expert_data(self) -> None:
-        needs_data = [name for name, on in (("bc_coef", self.bc_coef > 0), ("start_curriculum='demo'",
-                                                                               self.start_curriculum == "demo")) if on]
+        needs_data = [
+            name
+            for name, on in (
+                ("bc_coef", self.bc_coef > 0),
+                ("start_curriculum='demo'", self.start_curriculum == "demo"),
+            )
+            if on
+        ]
         if needs_data and self.expert_data is None:
             raise ValueError(f"A3CConfig.{needs_data[0]} needs expert_data (an expert dataset directory)")
 
@@ -221,12 +251,16 @@ class A3CConfig(NetworkSettings):
         if self.randomize is not None:
             _check_choice("randomize", self.randomize, tuple(RANDOMIZATION_PRESETS), optional=True)
             if self.obs != "pixels" and RANDOMIZATION_PRESETS[self.randomize].active(OBSERVATION_FIELDS):
-                raise ValueError(f"A3CConfig.randomize={self.randomize!r} randomises the camera, which needs "
-                                 f"obs='pixels'; with state observations use 'physics'")
+                raise ValueError(
+                    f"A3CConfig.randomize={self.randomize!r} randomises the camera, which needs "
+                    f"obs='pixels'; with state observations use 'physics'"
+                )
         require_int("A3CConfig", "augment_shift", self.augment_shift, 0)
         if self.augment_shift > MAX_SHIFT or (self.augment_shift and self.obs != "pixels"):
-            raise ValueError(f"A3CConfig.augment_shift must be 0..{MAX_SHIFT} pixels, and 0 for state observations, "
-                             f"got {self.augment_shift!r} with obs={self.obs!r}")
+            raise ValueError(
+                f"A3CConfig.augment_shift must be 0..{MAX_SHIFT} pixels, and 0 for state observations, "
+                f"got {self.augment_shift!r} with obs={self.obs!r}"
+            )
 
     @property
     def time_limit(self) -> int:
@@ -258,8 +292,10 @@ def make_optimizer(config: A3CConfig, net: RecurrentActorCritic) -> torch.optim.
     group 0 (its learning rate is set per update) and the rest group 1."""
     if config.schedules_actor:
         head = {id(p) for p in net.policy.parameters()}
-        params: Any = [{"params": list(net.policy.parameters())},
-                       {"params": [p for p in net.parameters() if id(p) not in head]}]
+        params: Any = [
+            {"params": list(net.policy.parameters())},
+            {"params": [p for p in net.parameters() if id(p) not in head]},
+        ]
     else:
         params = net.parameters()
     if config.optimizer == "rmsprop":
@@ -290,10 +326,16 @@ def shared_optimizer_state(optimizer: torch.optim.Optimizer) -> list[dict[str, t
     return states
 
 
-def a3c_segment_loss(net: RecurrentActorCritic, segment: Segment, config: A3CConfig,
-                     weights: LossWeights = LossWeights(), *, terms: Sequence[LossTerm] = (),
-                     advantage_scale: RunningScale | None = None, entropy_coef: float | None = None,
-                     ) -> tuple[torch.Tensor, dict[str, float]]:
+def a3c_segment_loss(
+    net: RecurrentActorCritic,
+    segment: Segment,
+    config: A3CConfig,
+    weights: LossWeights = LossWeights(),
+    *,
+    terms: Sequence[LossTerm] = (),
+    advantage_scale: RunningScale | None = None,
+    entropy_coef: float | None = None,
+) -> tuple[torch.Tensor, dict[str, float]]:
     """The actor-critic loss of one :class:`~bimgame.learn.rollout.Segment` (T steps × B envs),
     recomputed with gradients from the LSTM state the segment started from.
 
@@ -305,11 +347,19 @@ def a3c_segment_loss(net: RecurrentActorCritic, segment: Segment, config: A3CCon
     their running RMS; ``entropy_coef`` replaces ``config.entropy_coef`` (an adapting coefficient,
     see :class:`~bimgame.learn.finetune.EntropyTarget`)."""
     privileged = segment.privileged
-    out = net.unroll_features(segment.obs, segment.prev_action, segment.prev_reward, segment.tilt,
-                              segment.initial_state, segment.starts, privileged=privileged)
+    out = net.unroll_features(
+        segment.obs,
+        segment.prev_action,
+        segment.prev_reward,
+        segment.tilt,
+        segment.initial_state,
+        segment.starts,
+        privileged=privileged,
+    )
     logits, bootstrap, values = out.logits[:-1], out.values[-1].detach(), out.values[:-1]
-    advantages, targets = advantages_and_targets(segment.rewards, segment.ends, values.detach(), bootstrap,
-                                                 config.gamma, config.gae_lambda)
+    advantages, targets = advantages_and_targets(
+        segment.rewards, segment.ends, values.detach(), bootstrap, config.gamma, config.gae_lambda
+    )
     value_loss = 0.5 * (targets - values).pow(2).mean()
     log_probs = torch.log_softmax(logits, dim=-1)
     entropy = -(log_probs.exp() * log_probs).sum(-1).mean()
@@ -321,7 +371,9 @@ def a3c_segment_loss(net: RecurrentActorCritic, segment: Segment, config: A3CCon
     added: list[torch.Tensor] = []
     if net.config.aux_heads:
         if privileged is None:
-            raise ValueError("a network with auxiliary heads needs the segment's privileged states (Segment.privileged)")
+            raise ValueError(
+                "a network with auxiliary heads needs the segment's privileged states (Segment.privileged)"
+            )
         aux, aux_parts = net.aux_loss(out.features, out.hidden, privileged)
         parts.update(aux_parts)
         added.append(config.aux_coef * aux)
@@ -339,17 +391,26 @@ def a3c_segment_loss(net: RecurrentActorCritic, segment: Segment, config: A3CCon
     return loss, parts
 
 
-def apply_update(local: RecurrentActorCritic, shared_params: list[torch.Tensor], optimizer: torch.optim.Optimizer,
-                 segment: Segment, config: A3CConfig, weights: LossWeights = LossWeights(), *,
-                 terms: Sequence[LossTerm] = (), advantage_scale: RunningScale | None = None,
-                 entropy_coef: float | None = None) -> dict[str, float]:
+def apply_update(
+    local: RecurrentActorCritic,
+    shared_params: list[torch.Tensor],
+    optimizer: torch.optim.Optimizer,
+    segment: Segment,
+    config: A3CConfig,
+    weights: LossWeights = LossWeights(),
+    *,
+    terms: Sequence[LossTerm] = (),
+    advantage_scale: RunningScale | None = None,
+    entropy_coef: float | None = None,
+) -> dict[str, float]:
     """One A3C update: the segment's loss, its gradient (norm clipped) on the local network, applied
     to the shared weights by the shared optimiser. A non-finite loss or gradient is not applied
     (``applied`` is False in the returned losses). ``weights``, ``terms``, ``advantage_scale`` and
     ``entropy_coef`` are those of :func:`a3c_segment_loss`; during a critic warm-up only the value head
     changes, and with a scheduled actor the policy head's learning rate is ``lr · weights.actor``."""
-    loss, parts = a3c_segment_loss(local, segment, config, weights, terms=terms, advantage_scale=advantage_scale,
-                                   entropy_coef=entropy_coef)
+    loss, parts = a3c_segment_loss(
+        local, segment, config, weights, terms=terms, advantage_scale=advantage_scale, entropy_coef=entropy_coef
+    )
     local.zero_grad(set_to_none=True)
     loss.backward()
     if weights.critic_only:
@@ -370,5 +431,11 @@ def apply_update(local: RecurrentActorCritic, shared_params: list[torch.Tensor],
 
 def evaluate(net: RecurrentActorCritic, config: A3CConfig) -> dict[str, float]:
     """The run's periodic evaluation: greedy and sampled, on its evaluation episodes and seed."""
-    return evaluate_greedy_and_sampled(net, task=config.task, obs=config.obs, episodes=config.eval_episodes,
-                                       seed=evaluation_seed(config.seed), time_limit=config.time_limit)
+    return evaluate_greedy_and_sampled(
+        net,
+        task=config.task,
+        obs=config.obs,
+        episodes=config.eval_episodes,
+        seed=evaluation_seed(config.seed),
+        time_limit=config.time_limit,
+    )

@@ -40,8 +40,7 @@ def _start_sampler(config: A3CConfig):
     """The start curriculum of a worker's training episodes (None: the task's own starts), for the
     maze the workers' envs are built with (MERL's)."""
     if config.start_curriculum == "demo":
-        return DemoStartCurriculum.from_dataset(config.expert_data, config.task,
-                                                threshold=config.curriculum_threshold)
+        return DemoStartCurriculum.from_dataset(config.expert_data, config.task, threshold=config.curriculum_threshold)
     if config.start_curriculum == "reverse":
         # A pool of 32 starts (not the class's 100): each start is tried 3 times before the pool grows,
         # and a failed STG3 episode lasts 750 steps, so 100 starts held one pool for ≈ 230k steps.
@@ -51,9 +50,17 @@ def _start_sampler(config: A3CConfig):
 
 def _make_env(config: A3CConfig, num_envs: int, **kwargs: Any) -> BallInMazeVectorEnv:
     randomize = None if config.randomize is None else RANDOMIZATION_PRESETS[config.randomize]
-    return BallInMazeVectorEnv(num_envs, task=config.task, obs_mode=config.obs, nthread=1,
-                               max_episode_steps=config.time_limit, autoreset_mode="same_step",
-                               state_info=config.privileged, randomize=randomize, **kwargs)
+    return BallInMazeVectorEnv(
+        num_envs,
+        task=config.task,
+        obs_mode=config.obs,
+        nthread=1,
+        max_episode_steps=config.time_limit,
+        autoreset_mode="same_step",
+        state_info=config.privileged,
+        randomize=randomize,
+        **kwargs,
+    )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -101,8 +108,11 @@ def _worker_loop(rank: int, run: RunShared) -> None:
     shared_params = list(run.shared.parameters())
     terms = _loss_terms(config, rank, run, collector.base_env.maze)
     advantage_scale = RunningScale() if config.advantage_norm else None
-    entropy_target = None if config.entropy_target is None else \
-        EntropyTarget(config.entropy_target, config.entropy_target_steps, config.entropy_coef)
+    entropy_target = (
+        None
+        if config.entropy_target is None
+        else EntropyTarget(config.entropy_target, config.entropy_target_steps, config.entropy_coef)
+    )
     entropy_coef: float | None = None
     augment_generator = torch.Generator().manual_seed(_stream_seed(config, rank, run.start_step, 2))
     report = _UpdateReport(config.log_every)
@@ -112,8 +122,9 @@ def _worker_loop(rank: int, run: RunShared) -> None:
         try:
             segment = collector.collect(config.n_steps, step_at_start)
         except NonFiniteReward as error:
-            messages.put(("nan", rank, {"step": error.step, "what": "reward from the env",
-                                        "rewards": error.rewards.tolist()}))
+            messages.put(
+                ("nan", rank, {"step": error.step, "what": "reward from the env", "rewards": error.rewards.tolist()})
+            )
             return
         weights = loss_weights(config, step_at_start)
         for term in terms:
@@ -121,23 +132,41 @@ def _worker_loop(rank: int, run: RunShared) -> None:
         terms = [term for term in terms if not term.finished]
         if config.augment_shift:  # after the terms, which follow the frames as the learner acted on them
             segment = segment.replace(obs=random_shift(segment.obs, config.augment_shift, augment_generator))
-        parts = apply_update(local, shared_params, optimizer, segment, config, weights, terms=terms,
-                             advantage_scale=advantage_scale, entropy_coef=entropy_coef)
+        parts = apply_update(
+            local,
+            shared_params,
+            optimizer,
+            segment,
+            config,
+            weights,
+            terms=terms,
+            advantage_scale=advantage_scale,
+            entropy_coef=entropy_coef,
+        )
         parts.pop("loss")
         if entropy_target is not None and parts["applied"]:
             entropy_coef = entropy_target.update(parts["entropy"], step_at_start)
         if not parts.pop("applied"):
             grad_norm = parts.pop("grad_norm")
-            messages.put(("nan", rank, {"step": int(counter.value), "what": "loss", "grad_norm": grad_norm,
-                                        **parts}))
+            messages.put(("nan", rank, {"step": int(counter.value), "what": "loss", "grad_norm": grad_norm, **parts}))
             return
         with counter.get_lock():
             counter.value += config.steps_per_update
         report.add(parts, config.steps_per_update)
         if report.due:
             status = collector.curriculum.status() if collector.curriculum is not None else {}
-            messages.put(("update", rank, report.flush(int(counter.value), weights, status,
-                                                       config.entropy_coef if entropy_coef is None else entropy_coef)))
+            messages.put(
+                (
+                    "update",
+                    rank,
+                    report.flush(
+                        int(counter.value),
+                        weights,
+                        status,
+                        config.entropy_coef if entropy_coef is None else entropy_coef,
+                    ),
+                )
+            )
 
 
 def _stream_seed(config: A3CConfig, rank: int, start_step: int, stream: int) -> int:
@@ -158,9 +187,17 @@ def _collector(rank: int, run: RunShared, torch_seed: int) -> tuple[RolloutColle
     def book(episode: FinishedEpisode) -> None:
         run.messages.put(("episode", rank, episode.row()))
 
-    collector = RolloutCollector(env, base_env, actor, gamma=config.gamma, tilt_input=config.tilt_input,
-                                 privileged=config.privileged, curriculum=curriculum, on_episode=book,
-                                 global_step=lambda: run.counter.value)
+    collector = RolloutCollector(
+        env,
+        base_env,
+        actor,
+        gamma=config.gamma,
+        tilt_input=config.tilt_input,
+        privileged=config.privileged,
+        curriculum=curriculum,
+        on_episode=book,
+        global_step=lambda: run.counter.value,
+    )
     return collector, local
 
 
@@ -180,8 +217,9 @@ def _loss_terms(config: A3CConfig, rank: int, run: RunShared, maze: MazeSpec) ->
     if run.teacher_weights is not None:
         teacher_net = network_for(config, maze)
         teacher_net.load_state_dict(run.teacher_weights)
-        terms.append(TeacherKL(Teacher(teacher_net, config.envs_per_worker, config.kl_temperature),
-                               config.kl_decay_steps))
+        terms.append(
+            TeacherKL(Teacher(teacher_net, config.envs_per_worker, config.kl_temperature), config.kl_decay_steps)
+        )
     if config.bc_coef > 0:
         demos = DemoWindows.from_dataset(config.expert_data, config.task, config.obs, config.gamma, maze)
         rng = np.random.default_rng(np.random.SeedSequence([config.seed, rank, run.start_step, 1]))
@@ -217,18 +255,36 @@ class _UpdateReport:
     def due(self) -> bool:
         return self.since >= self.every
 
-    def flush(self, step: int, weights: LossWeights, status: dict[str, float], entropy_coef: float,
-              ) -> dict[str, Any]:
+    def flush(
+        self,
+        step: int,
+        weights: LossWeights,
+        status: dict[str, float],
+        entropy_coef: float,
+    ) -> dict[str, Any]:
         """The report's payload; starts the next average."""
-        payload = {"step": step, **{k: v / self.updates for k, v in self.sums.items()},
-                   "actor_weight": weights.actor, "kl_weight": weights.kl, "bc_weight": weights.bc,
-                   "entropy_coef": entropy_coef, **status}
+        payload = {
+            "step": step,
+            **{k: v / self.updates for k, v in self.sums.items()},
+            "actor_weight": weights.actor,
+            "kl_weight": weights.kl,
+            "bc_weight": weights.bc,
+            "entropy_coef": entropy_coef,
+            **status,
+        }
         self._reset()
         return payload
 
 
-def _evaluator(config: A3CConfig, shared: RecurrentActorCritic, counter, stop, messages, start_step: int,
-               initial_weights: dict[str, torch.Tensor]) -> None:
+def _evaluator(
+    config: A3CConfig,
+    shared: RecurrentActorCritic,
+    counter,
+    stop,
+    messages,
+    start_step: int,
+    initial_weights: dict[str, torch.Tensor],
+) -> None:
     """Evaluator process: greedy and sampled episodes (same start positions every time) of the weights
     the session starts from, at its first step — step 0 of a fresh run (the initial random or
     pre-trained policy), the checkpoint's step of a resumed one, whose earlier rows from that step on

@@ -33,8 +33,14 @@ class RecurrentActor:
     Call :meth:`act` with the current observations, step the env, then :meth:`observe` the result
     (rewards and which episodes ended) before the next :meth:`act`."""
 
-    def __init__(self, net: RecurrentActorCritic, num_envs: int, *, generator: torch.Generator | None = None,
-                 greedy: bool = False):
+    def __init__(
+        self,
+        net: RecurrentActorCritic,
+        num_envs: int,
+        *,
+        generator: torch.Generator | None = None,
+        greedy: bool = False,
+    ):
         self.net = net
         self.num_envs = num_envs
         self.generator = generator
@@ -49,8 +55,11 @@ class RecurrentActor:
         self.starts = torch.ones(self.num_envs, dtype=torch.bool)
 
     @torch.no_grad()
-    def act(self, obs: np.ndarray | torch.Tensor, tilt: torch.Tensor | None,
-            ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def act(
+        self,
+        obs: np.ndarray | torch.Tensor,
+        tilt: torch.Tensor | None,
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Actions (B,), logits (B, A) and values (B,) for the current observations; advances the
         LSTM state."""
         obs_t = torch.as_tensor(obs)
@@ -95,14 +104,29 @@ class EvalResult:
         return float(np.mean(self.returns)) if self.returns else float("nan")
 
     def summary(self) -> dict[str, float]:
-        return {"success_rate": self.success_rate, "mean_length": self.mean_length,
-                "mean_return": self.mean_return, "episodes": len(self.successes)}
+        return {
+            "success_rate": self.success_rate,
+            "mean_length": self.mean_length,
+            "mean_return": self.mean_return,
+            "episodes": len(self.successes),
+        }
 
 
 @torch.no_grad()
-def evaluate_network(net: RecurrentActorCritic, *, task: str, obs_mode: str, episodes: int, seed: int,
-                     greedy: bool = True, maze: MazeSpec | None = None, max_episode_steps: int | None = None,
-                     record: bool = False, render_size: int = 240, randomize: Any = None) -> EvalResult:
+def evaluate_network(
+    net: RecurrentActorCritic,
+    *,
+    task: str,
+    obs_mode: str,
+    episodes: int,
+    seed: int,
+    greedy: bool = True,
+    maze: MazeSpec | None = None,
+    max_episode_steps: int | None = None,
+    record: bool = False,
+    render_size: int = 240,
+    randomize: Any = None,
+) -> EvalResult:
     """Run one episode in each of ``episodes`` environments (batched) with the true task reward.
 
     Start positions come from ``seed`` (the same seed gives the same starts, so evaluations along a

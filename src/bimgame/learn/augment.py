@@ -42,6 +42,6 @@ def random_shift(frames: torch.Tensor, pad: int, generator: torch.Generator) -> 
     stacked = frames.permute(1, 0, 2, 3, 4).reshape(batch, steps * channels, height, width).float()
     padded = F.pad(stacked, (pad, pad, pad, pad), mode="replicate")
     offsets = torch.randint(0, 2 * pad + 1, (batch, 2), generator=generator)
-    out = torch.stack([padded[b, :, dy:dy + height, dx:dx + width] for b, (dy, dx) in enumerate(offsets.tolist())])
+    out = torch.stack([padded[b, :, dy : dy + height, dx : dx + width] for b, (dy, dx) in enumerate(offsets.tolist())])
     out = out.reshape(batch, steps, channels, height, width).permute(1, 0, 2, 3, 4)
     return out.to(frames.dtype).contiguous()

@@ -33,8 +33,21 @@ from bimgame.sim.tasks import Task, parse_task
 from bimgame.util.seeding import episode_seed
 from bimgame.util.settings import from_dict, require_int
 
-__all__ = ["NetworkSettings", "RunInfo", "read_run", "load_run_network", "load_value_network", "network_settings_of", "init_network_settings",
-           "evaluate_greedy_and_sampled", "evaluation_seed", "EVAL_COLUMNS", "MAX_SEED", "MAX_NETWORK_SIZE", "check_seed"]
+__all__ = [
+    "NetworkSettings",
+    "RunInfo",
+    "read_run",
+    "load_run_network",
+    "load_value_network",
+    "network_settings_of",
+    "init_network_settings",
+    "evaluate_greedy_and_sampled",
+    "evaluation_seed",
+    "EVAL_COLUMNS",
+    "MAX_SEED",
+    "MAX_NETWORK_SIZE",
+    "check_seed",
+]
 
 #: The largest seed a run takes: seeds go to numpy's and torch's generators (torch's takes 64 bits at
 #: most); 32 bits is numpy's classic seed range, plenty for distinct runs.
@@ -93,8 +106,9 @@ class NetworkSettings:
                 continue
             require_int(owner, name, value, 1)
             if value > MAX_NETWORK_SIZE:
-                raise ValueError(f"{owner}.{name} must be at most {MAX_NETWORK_SIZE} (the paper's networks use "
-                                 f"256), got {value!r}")
+                raise ValueError(
+                    f"{owner}.{name} must be at most {MAX_NETWORK_SIZE} (the paper's networks use 256), got {value!r}"
+                )
         pixels = self.obs == "pixels"
         if self.aux_heads is None:
             object.__setattr__(self, "aux_heads", pixels)
@@ -124,17 +138,33 @@ class NetworkSettings:
         keyword arguments of :func:`~bimgame.learn.nets.build_network`)."""
         maze = maze or MazeSpec.merl()
         scale = state_obs_scale(maze)
-        privileged = {"privileged_size": len(scale), "aux_heads": self.aux_heads,
-                      "asymmetric_critic": self.asymmetric_critic} if self.privileged else {}
+        privileged = (
+            {"privileged_size": len(scale), "aux_heads": self.aux_heads, "asymmetric_critic": self.asymmetric_critic}
+            if self.privileged
+            else {}
+        )
         inputs: dict[str, Any] = {"privileged_scale": scale} if self.privileged else {}
         if self.obs == "pixels":
-            net_config = NetConfig(encoder="conv", obs_shape=(1, 84, 84), features=self.features, hidden=self.hidden,
-                                   tilt_input=self.tilt_input, keypoints=self.keypoints,
-                                   subtract_background=self.subtract_background, precision=self.precision,
-                                   **privileged)
+            net_config = NetConfig(
+                encoder="conv",
+                obs_shape=(1, 84, 84),
+                features=self.features,
+                hidden=self.hidden,
+                tilt_input=self.tilt_input,
+                keypoints=self.keypoints,
+                subtract_background=self.subtract_background,
+                precision=self.precision,
+                **privileged,
+            )
             return net_config, {"background": maze_background(maze) if self.subtract_background else None, **inputs}
-        net_config = NetConfig(encoder="mlp", obs_shape=(len(scale),), features=self.features, hidden=self.hidden,
-                               tilt_input=self.tilt_input, **privileged)
+        net_config = NetConfig(
+            encoder="mlp",
+            obs_shape=(len(scale),),
+            features=self.features,
+            hidden=self.hidden,
+            tilt_input=self.tilt_input,
+            **privileged,
+        )
         return net_config, {"obs_scale": scale, **inputs}
 
     def build_policy(self, seed: int, maze: MazeSpec | None = None) -> RecurrentActorCritic:
@@ -216,8 +246,15 @@ def read_run(source: str | Path) -> RunInfo:
             raise ValueError(f"max_episode_steps must be an integer >= 1, got {limit!r}")
     except (ValueError, TypeError) as error:
         raise ValueError(f"{run_dir / CONFIG}: {error}") from None
-    return RunInfo(run_dir=run_dir, kind=kind, task=task, network=network, seed=int(seed),
-                   time_limit=int(limit or Task(task).time_limit), config=stored)
+    return RunInfo(
+        run_dir=run_dir,
+        kind=kind,
+        task=task,
+        network=network,
+        seed=int(seed),
+        time_limit=int(limit or Task(task).time_limit),
+        config=stored,
+    )
 
 
 def init_network_settings(source: str | Path) -> dict[str, Any]:
@@ -231,8 +268,10 @@ def init_network_settings(source: str | Path) -> dict[str, Any]:
         return {}
     run = read_run(run_dir)
     if run.kind == KIND_VALUE:
-        raise ValueError(f"--init: {source} holds a value function (V̂); pass it to --value-reward. --init takes "
-                         f"a pre-trained policy (bimgame pretrain) or an A3C run")
+        raise ValueError(
+            f"--init: {source} holds a value function (V̂); pass it to --value-reward. --init takes "
+            f"a pre-trained policy (bimgame pretrain) or an A3C run"
+        )
     return run.network.to_dict()
 
 
@@ -245,8 +284,11 @@ def load_run_network(source: str | Path) -> tuple[RecurrentActorCritic, RunInfo,
         raise ValueError(f"{source} does not exist; expected {expected}")
     run_dir = source.parent if source.is_file() else source
     if not (run_dir / CONFIG).is_file():
-        what = (f"{source} is a file outside a training run (no {CONFIG} next to it)" if source.is_file() else
-                f"{source} is not a training run (no {CONFIG})")
+        what = (
+            f"{source} is a file outside a training run (no {CONFIG} next to it)"
+            if source.is_file()
+            else f"{source} is not a training run (no {CONFIG})"
+        )
         raise ValueError(f"{what}; expected {expected}")
     run = read_run(run_dir)
     if run.kind == KIND_VALUE:
@@ -260,8 +302,10 @@ def load_value_network(source: str | Path) -> tuple[ValueNetwork, RunInfo]:
     """The frozen V̂ of a value pre-training run (``bimgame pretrain --value-only``)."""
     run = read_run(source)
     if run.kind != KIND_VALUE:
-        raise ValueError(f"{run.run_dir} holds a {run.kind} run, not a value function; train one with "
-                         f"'bimgame pretrain --value-only'")
+        raise ValueError(
+            f"{run.run_dir} holds a {run.kind} run, not a value function; train one with "
+            f"'bimgame pretrain --value-only'"
+        )
     net = run.network.build_value(run.seed)
     load_weights(net, Path(source) if Path(source).is_file() else run.run_dir)
     net.eval()
@@ -277,17 +321,20 @@ def evaluation_seed(seed: int) -> int:
 
 
 #: The keys of :func:`evaluate_greedy_and_sampled`, in the order the learners' logs list them.
-EVAL_COLUMNS = tuple(f"{mode}_{key}" for mode in ("greedy", "sampled")
-                     for key in ("success_rate", "mean_length", "mean_return"))
+EVAL_COLUMNS = tuple(
+    f"{mode}_{key}" for mode in ("greedy", "sampled") for key in ("success_rate", "mean_length", "mean_return")
+)
 
 
-def evaluate_greedy_and_sampled(net: RecurrentActorCritic, *, task: str, obs: str, episodes: int, seed: int,
-                                time_limit: int | None = None) -> dict[str, float]:
+def evaluate_greedy_and_sampled(
+    net: RecurrentActorCritic, *, task: str, obs: str, episodes: int, seed: int, time_limit: int | None = None
+) -> dict[str, float]:
     """Success rate, mean length and return of ``net`` on ``task``, acting greedily and sampling (keys
     ``greedy_…``, ``sampled_…``), over the same ``episodes`` start positions from ``seed``."""
     values: dict[str, float] = {}
     for mode, greedy in (("greedy", True), ("sampled", False)):
-        result = evaluate_network(net, task=task, obs_mode=obs, episodes=episodes, seed=seed, greedy=greedy,
-                                  max_episode_steps=time_limit)
+        result = evaluate_network(
+            net, task=task, obs_mode=obs, episodes=episodes, seed=seed, greedy=greedy, max_episode_steps=time_limit
+        )
         values.update({f"{mode}_{k}": v for k, v in result.summary().items() if k != "episodes"})
     return values

@@ -30,8 +30,18 @@ from bimgame.sim.tasks import parse_task
 from bimgame.util.files import read_json
 from bimgame.util.images import save_png, subplots
 
-__all__ = ["read_table", "episode_span", "complete_until", "finished_at", "run_config", "run_until", "binned_means",
-           "binned_by_start", "plot_run", "plot_comparison"]
+__all__ = [
+    "read_table",
+    "episode_span",
+    "complete_until",
+    "finished_at",
+    "run_config",
+    "run_until",
+    "binned_means",
+    "binned_by_start",
+    "plot_run",
+    "plot_comparison",
+]
 
 
 def read_table(path: str | Path) -> dict[str, np.ndarray]:
@@ -93,8 +103,9 @@ def finished_at(summary: dict[str, Any] | None) -> float | None:
     return float(summary["steps"])
 
 
-def binned_means(start_steps: np.ndarray, values: np.ndarray, edges: np.ndarray, *, min_count: int = 1,
-                 until: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
+def binned_means(
+    start_steps: np.ndarray, values: np.ndarray, edges: np.ndarray, *, min_count: int = 1, until: float = np.inf
+) -> tuple[np.ndarray, np.ndarray]:
     """Mean of ``values`` over the episodes that started in each bin of ``edges`` (episodes past
     the last edge fall in the last bin); NaN where a bin has fewer than ``min_count``, and for the
     bins that end after ``until`` (:func:`complete_until`: some of their episodes may still have been
@@ -115,8 +126,14 @@ def binned_means(start_steps: np.ndarray, values: np.ndarray, edges: np.ndarray,
     return means, counts
 
 
-def binned_by_start(episodes: dict[str, np.ndarray], key: str, bins: int = 40, *,
-                    edges: np.ndarray | None = None, until: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+def binned_by_start(
+    episodes: dict[str, np.ndarray],
+    key: str,
+    bins: int = 40,
+    *,
+    edges: np.ndarray | None = None,
+    until: float | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
     """Mean of ``key`` over episodes grouped by the step they *started* at, leaving out the bins
     that end after ``until``, whose episodes may not all have ended (see the module notes; by
     default :func:`complete_until` with the longest span in the log; :func:`run_until` also reads
@@ -143,8 +160,11 @@ def run_config(run_dir: str | Path) -> dict[str, Any]:
 def run_until(run_dir: str | Path, episodes: dict[str, np.ndarray]) -> float:
     """:func:`complete_until` of a run directory's training ``episodes`` (its whole log), with the
     span from its config.json and the last step from its summary.json."""
-    return complete_until(episodes, episode_span(episodes, run_config(run_dir)),
-                          finished_at=finished_at(read_json(Path(run_dir) / "summary.json")))
+    return complete_until(
+        episodes,
+        episode_span(episodes, run_config(run_dir)),
+        finished_at=finished_at(read_json(Path(run_dir) / "summary.json")),
+    )
 
 
 def plot_run(run_dir: str | Path, out: str | Path | None = None, title: str | None = None) -> Path:
@@ -166,7 +186,9 @@ def plot_run(run_dir: str | Path, out: str | Path | None = None, title: str | No
     ax_length.plot(steps, length, label=label)
     if evaluations:
         for mode, marker in (("greedy", "o"), ("sampled", "s")):
-            ax_success.plot(evaluations["step"], evaluations[f"{mode}_success_rate"], marker, label=f"evaluation, {mode}")
+            ax_success.plot(
+                evaluations["step"], evaluations[f"{mode}_success_rate"], marker, label=f"evaluation, {mode}"
+            )
             ax_length.plot(evaluations["step"], evaluations[f"{mode}_mean_length"], marker, label=f"evaluation, {mode}")
     ax_success.set(xlabel="environment steps", ylabel="success rate", ylim=(-0.02, 1.02))
     ax_length.set(xlabel="environment steps", ylabel="episode length (steps)")
@@ -178,28 +200,43 @@ def plot_run(run_dir: str | Path, out: str | Path | None = None, title: str | No
     return save_png(fig, Path(out) if out is not None else run_dir / "curves.png", dpi=110)
 
 
-def plot_comparison(groups: dict[str, list[str | Path]], out: str | Path, *, title: str = "",
-                    bins: int = 30, max_step: float | None = None) -> Path:
+def plot_comparison(
+    groups: dict[str, list[str | Path]],
+    out: str | Path,
+    *,
+    title: str = "",
+    bins: int = 30,
+    max_step: float | None = None,
+) -> Path:
     """One line per group of runs (e.g. ``{"A3C": [seed0, seed1], "pre-trained + A3C": [...]}``):
     the training episodes' success rate by start step, and the evaluator's greedy success, each
     averaged over the group's runs (thin lines: the single runs); ``max_step`` cuts longer runs
     to a common budget. Training episodes count up to where they may not all have ended (see the
     module notes). Writes a PNG to ``out``."""
-    tables = {label: [(read_table(Path(r) / "episodes.csv"), read_table(Path(r) / "eval.csv")) for r in runs]
-              for label, runs in groups.items()}
+    tables = {
+        label: [(read_table(Path(r) / "episodes.csv"), read_table(Path(r) / "eval.csv")) for r in runs]
+        for label, runs in groups.items()
+    }
     # Each run's complete part comes from its whole log (cutting it at max_step loses no episode
     # that started before max_step).
-    untils = {label: [run_until(r, e) if e else -np.inf for (e, _), r in zip(runs, groups[label])]
-              for label, runs in tables.items()}
+    untils = {
+        label: [run_until(r, e) if e else -np.inf for (e, _), r in zip(runs, groups[label])]
+        for label, runs in tables.items()
+    }
     if max_step is not None:
-        tables = {label: [(_up_to(e, "start_step", max_step), _up_to(ev, "step", max_step)) for e, ev in runs]
-                  for label, runs in tables.items()}
+        tables = {
+            label: [(_up_to(e, "start_step", max_step), _up_to(ev, "step", max_step)) for e, ev in runs]
+            for label, runs in tables.items()
+        }
     for label, runs in tables.items():
         for (episodes, _), run in zip(runs, groups[label]):
             if not episodes:
                 raise ValueError(f"{run} has no finished training episodes to plot (episodes.csv)")
-    last = max(min(float(e["start_step"].max()) + 1, until) for label, runs in tables.items()
-               for (e, _), until in zip(runs, untils[label]))
+    last = max(
+        min(float(e["start_step"].max()) + 1, until)
+        for label, runs in tables.items()
+        for (e, _), until in zip(runs, untils[label])
+    )
     edges = np.linspace(0, max(last, 1.0), bins + 1)
     centres = (edges[:-1] + edges[1:]) / 2
     fig, (ax_train, ax_eval) = subplots(1, 2, figsize=(11, 4))
@@ -221,8 +258,9 @@ def plot_comparison(groups: dict[str, list[str | Path]], out: str | Path, *, tit
             length = min(len(ev["step"]) for ev in evaluations)
             mean = np.mean([ev["greedy_success_rate"][:length] for ev in evaluations], axis=0)
             ax_eval.plot(evaluations[0]["step"][:length], mean, "o-", color=colour, label=label)
-    ax_train.set(xlabel="environment steps", ylabel="success rate", title="training episodes (by start step)",
-                 ylim=(-0.02, 1.02))
+    ax_train.set(
+        xlabel="environment steps", ylabel="success rate", title="training episodes (by start step)", ylim=(-0.02, 1.02)
+    )
     ax_eval.set(xlabel="environment steps", ylabel="success rate", title="evaluation, greedy", ylim=(-0.02, 1.02))
     for axis in (ax_train, ax_eval):
         axis.grid(alpha=0.3)

@@ -48,17 +48,44 @@ from bimgame.learn.rollout import Segment
 from bimgame.learn.supervised import padded_batch
 from bimgame.sim.maze import MazeSpec
 
-__all__ = ["FINETUNE_PRESETS", "DEFAULT_FINETUNE", "FINETUNE_FIELDS", "LossWeights", "loss_weights", "Teacher",
-           "kl_to_teacher", "RunningScale", "EntropyTarget", "DemoWindows", "bc_loss"]
+__all__ = [
+    "FINETUNE_PRESETS",
+    "DEFAULT_FINETUNE",
+    "FINETUNE_FIELDS",
+    "LossWeights",
+    "loss_weights",
+    "Teacher",
+    "kl_to_teacher",
+    "RunningScale",
+    "EntropyTarget",
+    "DemoWindows",
+    "bc_loss",
+]
 
 #: The A3C settings each fine-tuning preset sets (any of them can still be given explicitly).
 FINETUNE_PRESETS: dict[str, dict[str, Any]] = {
-    "paper": {"critic_warmup_steps": 0, "actor_ramp_steps": 0, "kl_coef": 0.0, "kl_decay_steps": 0,
-              "kl_temperature": 1.0, "bc_coef": 0.0, "bc_decay_steps": 0, "advantage_norm": False,
-              "start_curriculum": "none"},
-    "keep": {"critic_warmup_steps": 50_000, "actor_ramp_steps": 100_000, "kl_coef": 0.2,
-             "kl_decay_steps": 0, "kl_temperature": 0.3, "bc_coef": 0.0, "bc_decay_steps": 0,
-             "advantage_norm": True, "start_curriculum": "none"},
+    "paper": {
+        "critic_warmup_steps": 0,
+        "actor_ramp_steps": 0,
+        "kl_coef": 0.0,
+        "kl_decay_steps": 0,
+        "kl_temperature": 1.0,
+        "bc_coef": 0.0,
+        "bc_decay_steps": 0,
+        "advantage_norm": False,
+        "start_curriculum": "none",
+    },
+    "keep": {
+        "critic_warmup_steps": 50_000,
+        "actor_ramp_steps": 100_000,
+        "kl_coef": 0.2,
+        "kl_decay_steps": 0,
+        "kl_temperature": 0.3,
+        "bc_coef": 0.0,
+        "bc_decay_steps": 0,
+        "advantage_norm": True,
+        "start_curriculum": "none",
+    },
 }
 #: The preset ``bimgame train --init`` uses unless told otherwise (the one that measured best).
 DEFAULT_FINETUNE = "keep"
@@ -95,8 +122,12 @@ def loss_weights(config: Any, step: int) -> LossWeights:
         actor = min(1.0, (step - warmup) / ramp)
     else:
         actor = 1.0
-    return LossWeights(actor=actor, kl=_linear_decay(config.kl_coef, step, config.kl_decay_steps),
-                       bc=_linear_decay(config.bc_coef, step, config.bc_decay_steps), critic_only=step < warmup)
+    return LossWeights(
+        actor=actor,
+        kl=_linear_decay(config.kl_coef, step, config.kl_decay_steps),
+        bc=_linear_decay(config.bc_coef, step, config.bc_decay_steps),
+        critic_only=step < warmup,
+    )
 
 
 class Teacher:
@@ -120,10 +151,14 @@ class Teacher:
         temperature (below 1: a sharper teacher, towards its greedy action); advances its state."""
         steps = segment.steps
         tilt = segment.tilt
-        logits, _, self.state = self.net.unroll(segment.obs[:steps], segment.prev_action[:steps],
-                                                segment.prev_reward[:steps],
-                                                None if tilt is None else tilt[:steps], self.state,
-                                                segment.starts[:steps])
+        logits, _, self.state = self.net.unroll(
+            segment.obs[:steps],
+            segment.prev_action[:steps],
+            segment.prev_reward[:steps],
+            None if tilt is None else tilt[:steps],
+            self.state,
+            segment.starts[:steps],
+        )
         return torch.log_softmax(logits / self.temperature, dim=-1)
 
 
@@ -145,8 +180,9 @@ class RunningScale:
         """Fold in one update's advantages; returns the scale to divide them by."""
         value = float(advantages.detach().pow(2).mean())
         if math.isfinite(value):
-            self.mean_square = value if self.mean_square is None else \
-                self.decay * self.mean_square + (1.0 - self.decay) * value
+            self.mean_square = (
+                value if self.mean_square is None else self.decay * self.mean_square + (1.0 - self.decay) * value
+            )
         return math.sqrt(self.mean_square or 0.0) + self.eps
 
 
@@ -216,7 +252,7 @@ class DemoWindows:
         out = padded_batch(windows, self.max_tilt, steps=self.length)
         for b, start in enumerate(starts):
             if start > 0:  # the LSTM starts from zero mid-episode: no loss until its state has built up
-                out["mask"][:self.burn_in, b] = False
+                out["mask"][: self.burn_in, b] = False
         return out
 
 
@@ -225,9 +261,16 @@ def bc_loss(net: RecurrentActorCritic, windows: dict[str, torch.Tensor]) -> torc
     steps, batch = windows["actions"].shape
     starts = torch.zeros(steps, batch, dtype=torch.bool)
     starts[0] = True
-    logits, _, _ = net.unroll(windows["obs"], windows["prev_action"], windows["prev_reward"],
-                              windows["tilt"] if net.config.tilt_input else None, net.initial_state(batch), starts)
-    ce = torch.nn.functional.cross_entropy(logits.reshape(-1, logits.shape[-1]), windows["actions"].reshape(-1),
-                                           reduction="none").reshape(steps, batch)
+    logits, _, _ = net.unroll(
+        windows["obs"],
+        windows["prev_action"],
+        windows["prev_reward"],
+        windows["tilt"] if net.config.tilt_input else None,
+        net.initial_state(batch),
+        starts,
+    )
+    ce = torch.nn.functional.cross_entropy(
+        logits.reshape(-1, logits.shape[-1]), windows["actions"].reshape(-1), reduction="none"
+    ).reshape(steps, batch)
     mask = windows["mask"].float()
     return (ce * mask).sum() / mask.sum().clamp(min=1.0)

@@ -37,8 +37,12 @@ class LossTerm(Protocol):
     def prepare(self, segment: Segment, weights: LossWeights) -> None:
         """Take in a collected segment (before augmentation) with the update's loss weights."""
 
-    def loss(self, net: RecurrentActorCritic, log_probs: torch.Tensor, weights: LossWeights,
-             ) -> tuple[torch.Tensor | None, dict[str, float]]:
+    def loss(
+        self,
+        net: RecurrentActorCritic,
+        log_probs: torch.Tensor,
+        weights: LossWeights,
+    ) -> tuple[torch.Tensor | None, dict[str, float]]:
         """The weighted contribution to the loss (None: none this update) and the values to log;
         ``log_probs`` (T, B, A) are the learner's log-probabilities over the prepared segment."""
 
@@ -61,8 +65,12 @@ class TeacherKL:
         if weights.kl == 0 and self.decay_steps > 0 and segment.step_at_start >= self.decay_steps:
             self.finished, self.teacher_log_probs = True, None  # annealed away: stop paying for it
 
-    def loss(self, net: RecurrentActorCritic, log_probs: torch.Tensor, weights: LossWeights,
-             ) -> tuple[torch.Tensor | None, dict[str, float]]:
+    def loss(
+        self,
+        net: RecurrentActorCritic,
+        log_probs: torch.Tensor,
+        weights: LossWeights,
+    ) -> tuple[torch.Tensor | None, dict[str, float]]:
         if self.teacher_log_probs is None:
             return None, {}
         kl = kl_to_teacher(self.teacher_log_probs, log_probs)
@@ -83,8 +91,12 @@ class BehaviourCloning:
     def prepare(self, segment: Segment, weights: LossWeights) -> None:
         self.windows = self.demos.sample(self.batch, self.rng) if weights.bc > 0 else None
 
-    def loss(self, net: RecurrentActorCritic, log_probs: torch.Tensor, weights: LossWeights,
-             ) -> tuple[torch.Tensor | None, dict[str, float]]:
+    def loss(
+        self,
+        net: RecurrentActorCritic,
+        log_probs: torch.Tensor,
+        weights: LossWeights,
+    ) -> tuple[torch.Tensor | None, dict[str, float]]:
         if self.windows is None or weights.bc <= 0 or weights.critic_only:
             return None, {}
         bc = bc_loss(net, self.windows)

@@ -49,8 +49,22 @@ from bimgame.sim.maze import MazeSpec
 from bimgame.sim.render import MazeRenderer
 from bimgame.util.settings import from_dict
 
-__all__ = ["NetConfig", "PRECISIONS", "Unrolled", "frame_visible", "RecurrentActorCritic", "ValueNetwork", "build_value_network", "LSTMState", "build_network", "state_obs_scale", "maze_background",
-           "NO_ACTION", "N_ACTIONS", "ENCODERS"]
+__all__ = [
+    "NetConfig",
+    "PRECISIONS",
+    "Unrolled",
+    "frame_visible",
+    "RecurrentActorCritic",
+    "ValueNetwork",
+    "build_value_network",
+    "LSTMState",
+    "build_network",
+    "state_obs_scale",
+    "maze_background",
+    "NO_ACTION",
+    "N_ACTIONS",
+    "ENCODERS",
+]
 
 #: The discrete action set of the env (noop, ±x, ±y).
 N_ACTIONS = 5
@@ -62,6 +76,7 @@ PRECISIONS = ("fp32", "bf16")
 
 class LSTMState(NamedTuple):
     """Hidden and cell state, each (B, hidden)."""
+
     h: torch.Tensor
     c: torch.Tensor
 
@@ -109,8 +124,7 @@ class NetConfig:
         object.__setattr__(self, "obs_shape", shape)
         object.__setattr__(self, "conv_channels", tuple(int(c) for c in self.conv_channels))
         if self.encoder == "conv" and (len(shape) != 3 or min(shape[1:]) < 16):
-            raise ValueError(f"conv encoder needs obs_shape (channels, height, width) with sides >= 16, "
-                             f"got {shape}")
+            raise ValueError(f"conv encoder needs obs_shape (channels, height, width) with sides >= 16, got {shape}")
         if self.encoder == "mlp" and len(shape) != 1:
             raise ValueError(f"mlp encoder needs obs_shape (features,), got {shape}")
         for name in ("features", "hidden", "n_actions"):
@@ -119,8 +133,10 @@ class NetConfig:
         if self.precision not in PRECISIONS:
             raise ValueError(f"NetConfig.precision must be one of {PRECISIONS}, got {self.precision!r}")
         if self.privileged_size < 0 or (self.privileged_size and (self.privileged_size - 2) % 5):
-            raise ValueError(f"NetConfig.privileged_size must be 0 or a state observation's length 5·n + 2, "
-                             f"got {self.privileged_size}")
+            raise ValueError(
+                f"NetConfig.privileged_size must be 0 or a state observation's length 5·n + 2, "
+                f"got {self.privileged_size}"
+            )
         for name in ("aux_heads", "asymmetric_critic"):
             if getattr(self, name) and not self.privileged_size:
                 raise ValueError(f"NetConfig.{name} needs privileged_size > 0 (the state observation's length)")
@@ -138,8 +154,7 @@ def state_obs_scale(spec: MazeSpec, n_marbles: int = 1) -> np.ndarray:
     positions by the rim radius, velocities by 0.5 m/s (about the fastest reachable), tilts by the
     maximum tilt, channels by the outermost channel."""
     per_marble = [spec.rim_radius, spec.rim_radius, 0.5, 0.5] * n_marbles
-    return np.array(per_marble + [spec.max_tilt] * 2 + [max(1, spec.outermost_channel)] * n_marbles,
-                    dtype=np.float32)
+    return np.array(per_marble + [spec.max_tilt] * 2 + [max(1, spec.outermost_channel)] * n_marbles, dtype=np.float32)
 
 
 def frame_visible(privileged_size: int) -> list[int]:
@@ -151,6 +166,7 @@ def frame_visible(privileged_size: int) -> list[int]:
 
 class Unrolled(NamedTuple):
     """What :meth:`RecurrentActorCritic.unroll_features` returns for a segment of T steps × B envs."""
+
     logits: torch.Tensor
     """(T, B, A)"""
     values: torch.Tensor
@@ -230,8 +246,9 @@ class MLPEncoder(nn.Module):
         super().__init__()
         (dim,) = config.obs_shape
         self.register_buffer("scale", torch.ones(dim))
-        self.net = nn.Sequential(nn.Linear(dim, config.features), nn.Tanh(),
-                                 nn.Linear(config.features, config.features), nn.Tanh())
+        self.net = nn.Sequential(
+            nn.Linear(dim, config.features), nn.Tanh(), nn.Linear(config.features, config.features), nn.Tanh()
+        )
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
         return self.net(obs.float() / self.scale)
@@ -252,8 +269,9 @@ class RecurrentActorCritic(nn.Module):
         critic_inputs = config.hidden
         self.critic_state = None
         if config.asymmetric_critic:
-            self.critic_state = nn.Sequential(nn.Linear(config.privileged_size, 128), nn.Tanh(),
-                                              nn.Linear(128, 128), nn.Tanh())
+            self.critic_state = nn.Sequential(
+                nn.Linear(config.privileged_size, 128), nn.Tanh(), nn.Linear(128, 128), nn.Tanh()
+            )
             critic_inputs += 128
         self.value = nn.Linear(critic_inputs, 1)
         self.aux_frame = self.aux_memory = None
@@ -277,8 +295,9 @@ class RecurrentActorCritic(nn.Module):
         zeros = torch.zeros(batch, self.config.hidden)
         return LSTMState(zeros, zeros.clone())
 
-    def side_inputs(self, prev_action: torch.Tensor, prev_reward: torch.Tensor,
-                   tilt: torch.Tensor | None) -> torch.Tensor:
+    def side_inputs(
+        self, prev_action: torch.Tensor, prev_reward: torch.Tensor, tilt: torch.Tensor | None
+    ) -> torch.Tensor:
         """(…,) previous actions (NO_ACTION allowed), (…,) previous rewards, (…, 2) tilts in units of
         the maximum tilt → (…, side_size)."""
         valid = prev_action >= 0
@@ -306,18 +325,33 @@ class RecurrentActorCritic(nn.Module):
         state = self.critic_state(privileged.float() / self.privileged_scale)
         return self.value(torch.cat([hidden, state], dim=-1)).squeeze(-1)
 
-    def step(self, obs: torch.Tensor, prev_action: torch.Tensor, prev_reward: torch.Tensor,
-             tilt: torch.Tensor | None, state: LSTMState, *, privileged: torch.Tensor | None = None,
-             ) -> tuple[torch.Tensor, torch.Tensor, LSTMState]:
+    def step(
+        self,
+        obs: torch.Tensor,
+        prev_action: torch.Tensor,
+        prev_reward: torch.Tensor,
+        tilt: torch.Tensor | None,
+        state: LSTMState,
+        *,
+        privileged: torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor, LSTMState]:
         """One time step for B environments → logits (B, A), values (B,), next state.
         ``privileged`` (B, P): the state observation an asymmetric critic reads."""
         x = torch.cat([self.encoder(obs), self.side_inputs(prev_action, prev_reward, tilt)], dim=-1)
         h, c = self.lstm(x, state)
         return self.policy(h), self.values_of(h, privileged), LSTMState(h, c)
 
-    def unroll(self, obs: torch.Tensor, prev_action: torch.Tensor, prev_reward: torch.Tensor,
-               tilt: torch.Tensor | None, state: LSTMState, starts: torch.Tensor, *,
-               privileged: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor, LSTMState]:
+    def unroll(
+        self,
+        obs: torch.Tensor,
+        prev_action: torch.Tensor,
+        prev_reward: torch.Tensor,
+        tilt: torch.Tensor | None,
+        state: LSTMState,
+        starts: torch.Tensor,
+        *,
+        privileged: torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor, LSTMState]:
         """A segment of T steps for B environments → logits (T, B, A), values (T, B), final state.
 
         ``starts`` (T, B) marks the first step of an episode: the LSTM state is zeroed there (the
@@ -326,9 +360,17 @@ class RecurrentActorCritic(nn.Module):
         out = self.unroll_features(obs, prev_action, prev_reward, tilt, state, starts, privileged=privileged)
         return out.logits, out.values, out.state
 
-    def unroll_features(self, obs: torch.Tensor, prev_action: torch.Tensor, prev_reward: torch.Tensor,
-                        tilt: torch.Tensor | None, state: LSTMState, starts: torch.Tensor, *,
-                        privileged: torch.Tensor | None = None) -> Unrolled:
+    def unroll_features(
+        self,
+        obs: torch.Tensor,
+        prev_action: torch.Tensor,
+        prev_reward: torch.Tensor,
+        tilt: torch.Tensor | None,
+        state: LSTMState,
+        starts: torch.Tensor,
+        *,
+        privileged: torch.Tensor | None = None,
+    ) -> Unrolled:
         """:meth:`unroll`, also returning the encoder's and the LSTM's features (for :meth:`aux_loss`)."""
         steps, batch = obs.shape[:2]
         features = self.encoder(obs.reshape(steps * batch, *obs.shape[2:])).reshape(steps, batch, -1)
@@ -342,8 +384,9 @@ class RecurrentActorCritic(nn.Module):
         hidden = torch.stack(outputs)
         return Unrolled(self.policy(hidden), self.values_of(hidden, privileged), LSTMState(h, c), features, hidden)
 
-    def aux_loss(self, features: torch.Tensor, hidden: torch.Tensor, privileged: torch.Tensor,
-                 mask: torch.Tensor | None = None) -> tuple[torch.Tensor, dict[str, float]]:
+    def aux_loss(
+        self, features: torch.Tensor, hidden: torch.Tensor, privileged: torch.Tensor, mask: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, dict[str, float]]:
         """The auxiliary heads' regression loss: mean squared error, in the privileged state's
         order-1 units, of the frame head (position and channel, from the encoder's features) plus
         the memory head (the whole state, from the LSTM). ``features`` (…, F), ``hidden`` (…, H) and
@@ -376,8 +419,9 @@ class ValueNetwork(nn.Module):
         self.config = config
         self.encoder = ConvEncoder(config) if config.encoder == "conv" else MLPEncoder(config)
         extra = 2 if config.tilt_input else 0
-        self.head = nn.Sequential(nn.Linear(config.features + extra, config.hidden), nn.ReLU(),
-                                  nn.Linear(config.hidden, 1))
+        self.head = nn.Sequential(
+            nn.Linear(config.features + extra, config.hidden), nn.ReLU(), nn.Linear(config.hidden, 1)
+        )
 
     def forward(self, obs: torch.Tensor, tilt: torch.Tensor | None) -> torch.Tensor:
         """(N, …) observations and (N, 2) tilts in units of the maximum tilt → (N,) values."""
@@ -389,21 +433,30 @@ class ValueNetwork(nn.Module):
         return self.head(x).squeeze(-1)
 
 
-def _configure_inputs(net: nn.Module, config: NetConfig, obs_scale: np.ndarray | None,
-                      background: np.ndarray | None, privileged_scale: np.ndarray | None = None) -> None:
+def _configure_inputs(
+    net: nn.Module,
+    config: NetConfig,
+    obs_scale: np.ndarray | None,
+    background: np.ndarray | None,
+    privileged_scale: np.ndarray | None = None,
+) -> None:
     """Set the network's fixed inputs: the empty-maze background (conv), the state scale (mlp), the
     privileged state's scale (auxiliary heads, asymmetric critic)."""
     if config.privileged_size:
         if privileged_scale is None or np.shape(privileged_scale) != (config.privileged_size,):
-            raise ValueError(f"privileged_size {config.privileged_size} needs privileged_scale, that many divisors "
-                             f"(state_obs_scale(spec)), got {None if privileged_scale is None else np.shape(privileged_scale)}")
+            raise ValueError(
+                f"privileged_size {config.privileged_size} needs privileged_scale, that many divisors "
+                f"(state_obs_scale(spec)), got {None if privileged_scale is None else np.shape(privileged_scale)}"
+            )
         if hasattr(net, "privileged_scale"):
             net.privileged_scale.copy_(torch.as_tensor(np.asarray(privileged_scale, dtype=np.float32)))
     if config.subtract_background:
         if background is None or np.shape(background) != config.obs_shape:
-            raise ValueError(f"subtract_background needs the empty-maze frame of shape {config.obs_shape} "
-                             f"(background=maze_background(spec)), got "
-                             f"{None if background is None else np.shape(background)}")
+            raise ValueError(
+                f"subtract_background needs the empty-maze frame of shape {config.obs_shape} "
+                f"(background=maze_background(spec)), got "
+                f"{None if background is None else np.shape(background)}"
+            )
         net.encoder.background.copy_(torch.as_tensor(np.asarray(background, dtype=np.float32)))
     elif background is not None:
         raise ValueError("background is only used with NetConfig(subtract_background=True)")
@@ -412,22 +465,33 @@ def _configure_inputs(net: nn.Module, config: NetConfig, obs_scale: np.ndarray |
             raise ValueError("obs_scale applies to the mlp encoder only")
         scale = torch.as_tensor(np.asarray(obs_scale, dtype=np.float32))
         if scale.shape != net.encoder.scale.shape or not torch.all(scale > 0):
-            raise ValueError(f"obs_scale must be {tuple(net.encoder.scale.shape)} positive numbers, "
-                             f"got shape {tuple(scale.shape)}")
+            raise ValueError(
+                f"obs_scale must be {tuple(net.encoder.scale.shape)} positive numbers, got shape {tuple(scale.shape)}"
+            )
         net.encoder.scale.copy_(scale)
 
 
-def build_value_network(config: NetConfig, obs_scale: np.ndarray | None = None, *, seed: int = 0,
-                        background: np.ndarray | None = None,
-                        privileged_scale: np.ndarray | None = None) -> ValueNetwork:
+def build_value_network(
+    config: NetConfig,
+    obs_scale: np.ndarray | None = None,
+    *,
+    seed: int = 0,
+    background: np.ndarray | None = None,
+    privileged_scale: np.ndarray | None = None,
+) -> ValueNetwork:
     """A fresh :class:`ValueNetwork`; arguments as :func:`build_network` (V̂ has no auxiliary heads
     nor privileged critic: the privileged settings are ignored)."""
     return _build(ValueNetwork, config, obs_scale, seed, background, privileged_scale)
 
 
-def build_network(config: NetConfig, obs_scale: np.ndarray | None = None, *, seed: int = 0,
-                  background: np.ndarray | None = None,
-                  privileged_scale: np.ndarray | None = None) -> RecurrentActorCritic:
+def build_network(
+    config: NetConfig,
+    obs_scale: np.ndarray | None = None,
+    *,
+    seed: int = 0,
+    background: np.ndarray | None = None,
+    privileged_scale: np.ndarray | None = None,
+) -> RecurrentActorCritic:
     """A fresh network with initial weights drawn from ``seed`` (the global torch generator is
     left untouched); ``obs_scale`` sets the MLP encoder's input divisors (see
     :func:`state_obs_scale`); ``background`` is the empty-maze frame a ``subtract_background``
@@ -436,8 +500,14 @@ def build_network(config: NetConfig, obs_scale: np.ndarray | None = None, *, see
     return _build(RecurrentActorCritic, config, obs_scale, seed, background, privileged_scale)
 
 
-def _build(cls: type, config: NetConfig, obs_scale: np.ndarray | None, seed: int,
-           background: np.ndarray | None, privileged_scale: np.ndarray | None = None):
+def _build(
+    cls: type,
+    config: NetConfig,
+    obs_scale: np.ndarray | None,
+    seed: int,
+    background: np.ndarray | None,
+    privileged_scale: np.ndarray | None = None,
+):
     """``cls(config)`` with initial weights drawn from ``seed`` (the global torch generator is left
     untouched), then the fixed inputs set."""
     with torch.random.fork_rng(devices=[]):

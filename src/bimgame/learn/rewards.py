@@ -74,16 +74,18 @@ def _stored_reward_settings(run_dir: str | Path) -> RewardSettings:
     path = (path.parent if path.is_file() else path) / CONFIG
     block = read_run_config(path.parent).get("reward", {})
     allowed = [field.name for field in dataclasses.fields(RewardSettings)]
-    refusal = f"{path}: its \"reward\" settings must be a JSON object with the keys {', '.join(allowed)}"
+    refusal = f'{path}: its "reward" settings must be a JSON object with the keys {", ".join(allowed)}'
     if not isinstance(block, dict):
         raise ValueError(f"{refusal}; got {block!r}")
     unknown = sorted(set(block) - set(allowed), key=str)
     if unknown:
-        raise ValueError(f"{refusal}; got unknown key{'s' if len(unknown) > 1 else ''} "
-                         f"{', '.join(repr(key) for key in unknown)}")
+        raise ValueError(
+            f"{refusal}; got unknown key{'s' if len(unknown) > 1 else ''} {', '.join(repr(key) for key in unknown)}"
+        )
     if block.get("value_reward") is not None and not isinstance(block["value_reward"], str):
-        raise ValueError(f"{refusal}; value_reward must be a run directory (a string) or null, "
-                         f"got {block['value_reward']!r}")
+        raise ValueError(
+            f"{refusal}; value_reward must be a run directory (a string) or null, got {block['value_reward']!r}"
+        )
     try:
         return RewardSettings(**block)
     except (ValueError, TypeError) as error:
@@ -145,7 +147,9 @@ def env_wrapper_for(settings: RewardSettings, *, obs: str, gamma: float) -> Chai
     if settings.value_reward is not None:
         _, value_run = load_value_network(settings.value_reward)
         if value_run.network.obs != obs:
-            raise ValueError(f"--value-reward {settings.value_reward}: V̂ was trained on {value_run.network.obs} "
-                             f"observations, this run uses {obs}")
+            raise ValueError(
+                f"--value-reward {settings.value_reward}: V̂ was trained on {value_run.network.obs} "
+                f"observations, this run uses {obs}"
+            )
         wrappers.append(ValueReward(settings.value_reward, gamma=gamma))
     return Chain(tuple(wrappers)) if wrappers else None

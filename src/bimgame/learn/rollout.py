@@ -28,8 +28,14 @@ from bimgame.learn.actor import RecurrentActor, tilt_input
 from bimgame.learn.nets import LSTMState
 from bimgame.learn.starts import TRUE_START
 
-__all__ = ["Segment", "FinishedEpisode", "NonFiniteReward", "StartCurriculum", "RolloutCollector",
-           "advantages_and_targets"]
+__all__ = [
+    "Segment",
+    "FinishedEpisode",
+    "NonFiniteReward",
+    "StartCurriculum",
+    "RolloutCollector",
+    "advantages_and_targets",
+]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -82,8 +88,14 @@ class Segment:
         return dataclasses.replace(self, **changes)
 
 
-def advantages_and_targets(rewards: torch.Tensor, ends: torch.Tensor, values: torch.Tensor, bootstrap: torch.Tensor,
-                           gamma: float, gae_lambda: float) -> tuple[torch.Tensor, torch.Tensor]:
+def advantages_and_targets(
+    rewards: torch.Tensor,
+    ends: torch.Tensor,
+    values: torch.Tensor,
+    bootstrap: torch.Tensor,
+    gamma: float,
+    gae_lambda: float,
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Generalised advantage estimates (T, B) and value targets (advantage + V) of a segment.
 
     ``values`` (T, B) and ``bootstrap`` (B,) (V of the observation after the last step) must carry
@@ -120,8 +132,14 @@ class FinishedEpisode:
 
     def row(self) -> dict[str, Any]:
         """The episode as a row of the run's ``episodes`` log."""
-        return {"start_step": self.start_step, "end_step": self.end_step, "return": self.episode_return,
-                "length": self.length, "success": self.success, "true_start": self.true_start}
+        return {
+            "start_step": self.start_step,
+            "end_step": self.end_step,
+            "return": self.episode_return,
+            "length": self.length,
+            "success": self.success,
+            "true_start": self.true_start,
+        }
 
 
 class NonFiniteReward(ValueError):
@@ -150,10 +168,19 @@ class RolloutCollector:
     run's step count (shared by all workers) for the episodes' end steps. ``tilt_input`` and
     ``privileged`` say whether the segments keep the tilt and the simulator's state."""
 
-    def __init__(self, env: Any, base_env: Any, actor: RecurrentActor, *, gamma: float, tilt_input: bool = True,
-                 privileged: bool = False, curriculum: StartCurriculum | None = None,
-                 on_episode: Callable[[FinishedEpisode], None] = lambda episode: None,
-                 global_step: Callable[[], int] = lambda: 0):
+    def __init__(
+        self,
+        env: Any,
+        base_env: Any,
+        actor: RecurrentActor,
+        *,
+        gamma: float,
+        tilt_input: bool = True,
+        privileged: bool = False,
+        curriculum: StartCurriculum | None = None,
+        on_episode: Callable[[FinishedEpisode], None] = lambda episode: None,
+        global_step: Callable[[], int] = lambda: 0,
+    ):
         self.env, self.base_env, self.actor = env, base_env, actor
         self.gamma = gamma
         self.keeps_tilt, self.privileged = tilt_input, privileged
@@ -177,16 +204,27 @@ class RolloutCollector:
         (after booking the episodes that ended before it) when the env returns a non-finite reward."""
         actor = self.actor
         initial_state = actor.state
-        columns: dict[str, list[torch.Tensor]] = {name: [] for name in (
-            "obs", "prev_action", "prev_reward", "tilt", "starts", "privileged", "actions", "rewards", "log_probs",
-            "values")}
+        columns: dict[str, list[torch.Tensor]] = {
+            name: []
+            for name in (
+                "obs",
+                "prev_action",
+                "prev_reward",
+                "tilt",
+                "starts",
+                "privileged",
+                "actions",
+                "rewards",
+                "log_probs",
+                "values",
+            )
+        }
         tilt = tilt_input(self.info, self.max_tilt)
         for _ in range(n_steps):
             obs = torch.as_tensor(self.obs)
             self._record_inputs(columns, obs, tilt)
             actions, logits, values = actor.act(obs, tilt)
-            columns["log_probs"].append(torch.log_softmax(logits, dim=-1).gather(-1, actions.unsqueeze(-1))
-                                        .squeeze(-1))
+            columns["log_probs"].append(torch.log_softmax(logits, dim=-1).gather(-1, actions.unsqueeze(-1)).squeeze(-1))
             columns["values"].append(values)
             rewards = self._step(actions, step_at_start)
             columns["actions"].append(actions)
@@ -195,12 +233,22 @@ class RolloutCollector:
         self._record_inputs(columns, torch.as_tensor(self.obs), tilt)
         stacked = {name: torch.stack(values) for name, values in columns.items() if values}
         starts = stacked["starts"]
-        return Segment(obs=stacked["obs"], prev_action=stacked["prev_action"], prev_reward=stacked["prev_reward"],
-                       tilt=stacked["tilt"] if self.keeps_tilt else None, starts=starts,
-                       actions=stacked["actions"], rewards=stacked["rewards"],
-                       # Which episodes ended at each step: what the actor marks as starting the step after.
-                       ends=starts[1:], initial_state=initial_state, privileged=stacked.get("privileged"),
-                       log_probs=stacked["log_probs"], values=stacked["values"], step_at_start=step_at_start)
+        return Segment(
+            obs=stacked["obs"],
+            prev_action=stacked["prev_action"],
+            prev_reward=stacked["prev_reward"],
+            tilt=stacked["tilt"] if self.keeps_tilt else None,
+            starts=starts,
+            actions=stacked["actions"],
+            rewards=stacked["rewards"],
+            # Which episodes ended at each step: what the actor marks as starting the step after.
+            ends=starts[1:],
+            initial_state=initial_state,
+            privileged=stacked.get("privileged"),
+            log_probs=stacked["log_probs"],
+            values=stacked["values"],
+            step_at_start=step_at_start,
+        )
 
     def _record_inputs(self, columns: dict[str, list[torch.Tensor]], obs: torch.Tensor, tilt: torch.Tensor) -> None:
         """Append one step's network inputs (and, where the segment keeps it, the privileged state of
@@ -243,10 +291,16 @@ class RolloutCollector:
         if self.curriculum is not None and start_tags is not None:
             tag = int(start_tags[i])
             self.curriculum.record(tag, success)
-        self.on_episode(FinishedEpisode(
-            start_step=int(self.episode_start[i]), end_step=int(self.global_step()),
-            episode_return=float(self.episode_return[i]), length=int(self.episode_length[i]), success=success,
-            true_start=tag == TRUE_START))
+        self.on_episode(
+            FinishedEpisode(
+                start_step=int(self.episode_start[i]),
+                end_step=int(self.global_step()),
+                episode_return=float(self.episode_return[i]),
+                length=int(self.episode_length[i]),
+                success=success,
+                true_start=tag == TRUE_START,
+            )
+        )
 
     def _final_values(self, actions: torch.Tensor, reward: np.ndarray, cut: np.ndarray) -> torch.Tensor:
         """V of the last observation of time-limited episodes (0 elsewhere), from the state after the
@@ -255,8 +309,13 @@ class RolloutCollector:
         final_tilt = tilt_input(final_info, self.max_tilt)
         final_state = torch.as_tensor(final_info["state"]) if self.privileged else None
         with torch.no_grad():
-            _, values, _ = self.actor.net.step(torch.as_tensor(self.info["final_obs"]), actions,
-                                               torch.as_tensor(reward, dtype=torch.float32), final_tilt,
-                                               self.actor.state, privileged=final_state)
+            _, values, _ = self.actor.net.step(
+                torch.as_tensor(self.info["final_obs"]),
+                actions,
+                torch.as_tensor(reward, dtype=torch.float32),
+                final_tilt,
+                self.actor.state,
+                privileged=final_state,
+            )
         # Envs that were not cut hold NaN with an asymmetric critic's partial state; only cut ones count.
         return torch.where(torch.as_tensor(cut), values, torch.zeros_like(values))

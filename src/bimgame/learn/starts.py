@@ -53,10 +53,10 @@ def _check_int(owner: str, name: str, value: Any, minimum: int) -> int:
     return int(value)
 
 
-def _check_real(owner: str, name: str, value: Any, low: float, high: float, *, open_low: bool = False,
-                allowed: str = "") -> float:
-    inside = (is_real(value) and math.isfinite(value) and (value > low if open_low else value >= low)
-              and value <= high)
+def _check_real(
+    owner: str, name: str, value: Any, low: float, high: float, *, open_low: bool = False, allowed: str = ""
+) -> float:
+    inside = is_real(value) and math.isfinite(value) and (value > low if open_low else value >= low) and value <= high
     if not inside:
         bracket = "(" if open_low else "["
         shown = allowed or f"a number in {bracket}{low:g}, {high:g}]"
@@ -66,8 +66,9 @@ def _check_real(owner: str, name: str, value: Any, low: float, high: float, *, o
 
 def _check_tag(owner: str, tag: Any) -> int:
     if not is_integer(tag):
-        raise ValueError(f"{owner}.record: tag must be an integer (a start tag, {TRUE_START} for a true "
-                         f"start), got {tag!r}")
+        raise ValueError(
+            f"{owner}.record: tag must be an integer (a start tag, {TRUE_START} for a true start), got {tag!r}"
+        )
     return int(tag)
 
 
@@ -105,16 +106,24 @@ class DemoStartCurriculum:
         source: what the episodes are, for error messages.
     """
 
-    def __init__(self, episodes: Sequence[tuple[np.ndarray, np.ndarray]], task: str | Task = "FULL",
-                 maze: MazeSpec | None = None, *, first_back: int = 30, growth: float = 2.0,
-                 threshold: float = 0.8, window: int = 100, true_share: float = 0.1,
-                 source: str = "the given episodes"):
+    def __init__(
+        self,
+        episodes: Sequence[tuple[np.ndarray, np.ndarray]],
+        task: str | Task = "FULL",
+        maze: MazeSpec | None = None,
+        *,
+        first_back: int = 30,
+        growth: float = 2.0,
+        threshold: float = 0.8,
+        window: int = 100,
+        true_share: float = 0.1,
+        source: str = "the given episodes",
+    ):
         owner = "DemoStartCurriculum"
         self.maze = maze if maze is not None else MazeSpec.merl()
         self.task = parse_task(task, self.maze)
         self.first_back = _check_int(owner, "first_back", first_back, 1)
-        self.growth = _check_real(owner, "growth", growth, 1.0, math.inf, open_low=True,
-                                  allowed="a finite number > 1")
+        self.growth = _check_real(owner, "growth", growth, 1.0, math.inf, open_low=True, allowed="a finite number > 1")
         self.threshold = _check_real(owner, "threshold", threshold, 0.0, 1.0, open_low=True)
         self.window = _check_int(owner, "window", window, 1)
         self.true_share = _check_real(owner, "true_share", true_share, 0.0, 1.0)
@@ -124,30 +133,43 @@ class DemoStartCurriculum:
         for k, (states, channels) in enumerate(episodes):
             states = np.asarray(states, dtype=np.float64)
             channels = np.asarray(channels)
-            if (channels.ndim != 2 or states.ndim != 2 or len(states) != len(channels) or not len(states)
-                    or channels.shape[1] < 1):
-                raise ValueError(f"{source}: episode {k} must give sim_states (T+1, S) and channels (T+1, n) "
-                                 f"with the same number of rows, got shapes {states.shape} and {channels.shape}")
+            if (
+                channels.ndim != 2
+                or states.ndim != 2
+                or len(states) != len(channels)
+                or not len(states)
+                or channels.shape[1] < 1
+            ):
+                raise ValueError(
+                    f"{source}: episode {k} must give sim_states (T+1, S) and channels (T+1, n) "
+                    f"with the same number of rows, got shapes {states.shape} and {channels.shape}"
+                )
             if layout is None:
                 layout = _layout(self.maze, channels.shape[1])
             if channels.shape[1] != layout.n_marbles:
-                raise ValueError(f"{source}: episode {k} has {channels.shape[1]} marble(s), episode 0 "
-                                 f"{layout.n_marbles}: the demonstrations must have the same number")
+                raise ValueError(
+                    f"{source}: episode {k} has {channels.shape[1]} marble(s), episode 0 "
+                    f"{layout.n_marbles}: the demonstrations must have the same number"
+                )
             if states.shape[1] != layout.size or not np.isfinite(states).all():
-                raise ValueError(f"{source}: episode {k}'s sim_states must be finite MazeSim.get_state() vectors "
-                                 f"of length {layout.size} ({layout.n_marbles} marble(s)), got shape {states.shape}")
+                raise ValueError(
+                    f"{source}: episode {k}'s sim_states must be finite MazeSim.get_state() vectors "
+                    f"of length {layout.size} ({layout.n_marbles} marble(s)), got shape {states.shape}"
+                )
             positions, _ = layout.board_frame(states)
-            at_goal = ((channels <= goal).all(axis=1)
-                       | (self.maze.channel_of(positions[..., 0], positions[..., 1]) <= goal).all(axis=1))
+            at_goal = (channels <= goal).all(axis=1) | (
+                self.maze.channel_of(positions[..., 0], positions[..., 1]) <= goal
+            ).all(axis=1)
             reached = np.flatnonzero(at_goal)
             if len(reached) and reached[0] > 0:
-                self._demos.append(states[:reached[0]].copy())
+                self._demos.append(states[: reached[0]].copy())
         if not self._demos:
             raise ValueError(
                 f"none of the {len(episodes)} episodes of {source} reaches the goal of task {self.task.value} "
                 f"(every marble in channel <= {goal}) after its first state: no demonstration to start from; "
                 f"use episodes of a task that passes at least {self.task.walls_to_pass(self.maze)} wall(s) "
-                "(FULL passes them all)")
+                "(FULL passes them all)"
+            )
         self.n_marbles = layout.n_marbles
         longest = max(len(d) for d in self._demos)
         self.backs = [self.first_back]  # D_k of each demonstration stage
@@ -157,8 +179,9 @@ class DemoStartCurriculum:
         self._results: collections.deque[bool] = collections.deque(maxlen=self.window)
 
     @classmethod
-    def from_dataset(cls, path: str | Path, task: str | Task = "FULL", maze: MazeSpec | None = None,
-                     **settings: Any) -> DemoStartCurriculum:
+    def from_dataset(
+        cls, path: str | Path, task: str | Task = "FULL", maze: MazeSpec | None = None, **settings: Any
+    ) -> DemoStartCurriculum:
         """The curriculum of a bimgame expert dataset directory (``bimgame.expert.datasets``; read
         with :func:`~bimgame.expert.datasets.load_dataset`, which verifies it): its episodes'
         ``infos['sim_state']`` and ``infos['channel']``. ``settings``: the constructor's keywords."""
@@ -167,8 +190,10 @@ class DemoStartCurriculum:
         for episode in dataset.iterate_episodes():
             infos = episode.infos or {}
             if "sim_state" not in infos or "channel" not in infos:
-                raise ValueError(f"episode {episode.id} of the dataset in {path} has no infos['sim_state'] / "
-                                 "infos['channel'] (not a bimgame expert dataset?)")
+                raise ValueError(
+                    f"episode {episode.id} of the dataset in {path} has no infos['sim_state'] / "
+                    "infos['channel'] (not a bimgame expert dataset?)"
+                )
             episodes.append((np.asarray(infos["sim_state"], dtype=np.float64), np.asarray(infos["channel"])))
         return cls(episodes, task, maze, source=f"the dataset in {path}", **settings)
 
@@ -243,9 +268,19 @@ class ReverseCurriculum:
         walk_steps, pool_size, min_tries, low, high, true_share, replay_share: as above.
     """
 
-    def __init__(self, task: str | Task = "FULL", maze: MazeSpec | None = None, *, walk_steps: int = 30,
-                 pool_size: int = 100, min_tries: int = 3, low: float = 0.1, high: float = 0.9,
-                 true_share: float = 0.1, replay_share: float = 0.1):
+    def __init__(
+        self,
+        task: str | Task = "FULL",
+        maze: MazeSpec | None = None,
+        *,
+        walk_steps: int = 30,
+        pool_size: int = 100,
+        min_tries: int = 3,
+        low: float = 0.1,
+        high: float = 0.9,
+        true_share: float = 0.1,
+        replay_share: float = 0.1,
+    ):
         owner = "ReverseCurriculum"
         self.maze = maze if maze is not None else MazeSpec.merl()
         self.task = parse_task(task, self.maze)
@@ -259,8 +294,9 @@ class ReverseCurriculum:
         self.true_share = _check_real(owner, "true_share", true_share, 0.0, 1.0)
         self.replay_share = _check_real(owner, "replay_share", replay_share, 0.0, 1.0)
         if self.true_share + self.replay_share > 1.0:
-            raise ValueError(f"{owner}.true_share + replay_share must be at most 1, got {true_share!r} + "
-                             f"{replay_share!r}")
+            raise ValueError(
+                f"{owner}.true_share + replay_share must be at most 1, got {true_share!r} + {replay_share!r}"
+            )
         self.goal = self.task.goal_channel(self.maze)
         self._sim = MazeSim(self.maze, n_marbles=1)
         self._states: list[np.ndarray] = []
@@ -315,8 +351,10 @@ class ReverseCurriculum:
         if tag == TRUE_START:
             return
         if not 0 <= tag < len(self._states):
-            raise ValueError(f"ReverseCurriculum.record: unknown start tag {tag}; this curriculum's tags are "
-                             f"{TRUE_START} (a true start) and 0..{len(self._states) - 1}")
+            raise ValueError(
+                f"ReverseCurriculum.record: unknown start tag {tag}; this curriculum's tags are "
+                f"{TRUE_START} (a true start) and 0..{len(self._states) - 1}"
+            )
         self.tries[tag] += 1
         self.successes[tag] += bool(success)
 
@@ -347,18 +385,23 @@ class ReverseCurriculum:
         if len(good) > self.pool_size:
             good = sorted(int(i) for i in rng.choice(good, size=self.pool_size, replace=False))
         sources = good or newly_mastered or self.mastered or self.seeds
-        new = [self._add(state, xy) for state, xy in
-               self.expand([self._states[i] for i in sources], self.pool_size, rng)]
+        new = [
+            self._add(state, xy) for state, xy in self.expand([self._states[i] for i in sources], self.pool_size, rng)
+        ]
         if not new:  # every walk reached the goal at once: try the sources again, as new starts
-            new = [self._add(self._states[i].copy(), self._xy[i]) for i in sources[:self.pool_size]]
+            new = [self._add(self._states[i].copy(), self._xy[i]) for i in sources[: self.pool_size]]
         for i in good:
             self.tries[i] = self.successes[i] = self._issued[i] = 0
         self.active = good + new
         self._good_last = len(good)
         self.rebuilds += 1
 
-    def expand(self, sources: Sequence[np.ndarray], count: int, rng: np.random.Generator,
-               ) -> list[tuple[np.ndarray, np.ndarray]]:
+    def expand(
+        self,
+        sources: Sequence[np.ndarray],
+        count: int,
+        rng: np.random.Generator,
+    ) -> list[tuple[np.ndarray, np.ndarray]]:
         """Up to ``count`` new starts ``(state, marble_xy (1, 2))``, drawn uniformly without
         replacement from the states visited by ``count`` random walks of :attr:`walk_steps` steps,
         each from a uniformly chosen state of ``sources``. States at or after the goal — the walk

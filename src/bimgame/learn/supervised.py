@@ -30,8 +30,18 @@ from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.sim.tasks import Task, task_setting
 from bimgame.util.settings import require_int
 
-__all__ = ["PretrainConfig", "TARGETS", "split_episodes", "padded_batch", "l2_penalty", "policy_loss_terms",
-           "policy_epoch", "policy_batches", "summarise", "train_policy_epochs"]
+__all__ = [
+    "PretrainConfig",
+    "TARGETS",
+    "split_episodes",
+    "padded_batch",
+    "l2_penalty",
+    "policy_loss_terms",
+    "policy_epoch",
+    "policy_batches",
+    "summarise",
+    "train_policy_epochs",
+]
 
 TARGETS = ("policy", "value")
 
@@ -85,13 +95,22 @@ class PretrainConfig(NetworkSettings):
             require_int("PretrainConfig", name, getattr(self, name), 1)
         check_seed("PretrainConfig", self.seed)  # numpy's seed sequences take no negative seeds, torch none of 2**64
         require_int("PretrainConfig", "eval_episodes", self.eval_episodes, 0)
-        for name, low, high, open_low in (("lr", 0, math.inf, True), ("max_grad_norm", 0, math.inf, True),
-                                          ("l2", 0, math.inf, False), ("value_coef", 0, math.inf, False),
-                                          ("aux_coef", 0, math.inf, False),
-                                          ("gamma", 0, 1, False), ("val_fraction", 0, 1, True)):
+        for name, low, high, open_low in (
+            ("lr", 0, math.inf, True),
+            ("max_grad_norm", 0, math.inf, True),
+            ("l2", 0, math.inf, False),
+            ("value_coef", 0, math.inf, False),
+            ("aux_coef", 0, math.inf, False),
+            ("gamma", 0, 1, False),
+            ("val_fraction", 0, 1, True),
+        ):
             value = getattr(self, name)
-            ok = isinstance(value, (int, float)) and math.isfinite(value) and value <= high and (
-                value > low if open_low else value >= low)
+            ok = (
+                isinstance(value, (int, float))
+                and math.isfinite(value)
+                and value <= high
+                and (value > low if open_low else value >= low)
+            )
             if not ok or (name == "val_fraction" and value >= 1):
                 bound = "(0, 1)" if name == "val_fraction" else (f"({low}, {high}]" if open_low else f"[{low}, {high}]")
                 raise ValueError(f"PretrainConfig.{name} must be in {bound}, got {value!r}")
@@ -102,7 +121,6 @@ class PretrainConfig(NetworkSettings):
         return Task(self.task).time_limit
 
     SETTINGS_NAME: ClassVar[str] = "pre-training settings"
-
 
 
 # ------------------------------------------------------------------------------------- data
@@ -122,9 +140,14 @@ def padded_batch(sequences: list[Episode], max_tilt: float, steps: int | None = 
     batch = len(sequences)
     obs_shape = sequences[0].obs.shape[1:]
     obs = np.zeros((steps, batch, *obs_shape), dtype=sequences[0].obs.dtype)
-    out = {"actions": np.zeros((steps, batch), np.int64), "prev_action": np.full((steps, batch), NO_ACTION, np.int64),
-           "prev_reward": np.zeros((steps, batch), np.float32), "tilt": np.zeros((steps, batch, 2), np.float32),
-           "returns": np.zeros((steps, batch), np.float32), "mask": np.zeros((steps, batch), bool)}
+    out = {
+        "actions": np.zeros((steps, batch), np.int64),
+        "prev_action": np.full((steps, batch), NO_ACTION, np.int64),
+        "prev_reward": np.zeros((steps, batch), np.float32),
+        "tilt": np.zeros((steps, batch, 2), np.float32),
+        "returns": np.zeros((steps, batch), np.float32),
+        "mask": np.zeros((steps, batch), bool),
+    }
     for b, s in enumerate(sequences):
         n = len(s)
         obs[:n, b] = s.obs
@@ -137,7 +160,7 @@ def padded_batch(sequences: list[Episode], max_tilt: float, steps: int | None = 
     if all(s.state_obs is not None for s in sequences):
         out["privileged"] = np.zeros((steps, batch, sequences[0].state_obs.shape[1]), np.float32)
         for b, s in enumerate(sequences):
-            out["privileged"][:len(s), b] = s.state_obs
+            out["privileged"][: len(s), b] = s.state_obs
     tensors = {k: torch.as_tensor(v) for k, v in out.items()}
     tensors["obs"] = torch.as_tensor(obs)
     return tensors
@@ -149,8 +172,12 @@ def l2_penalty(net: torch.nn.Module) -> torch.Tensor:
     return sum((p.pow(2).sum() for p in net.parameters() if p.dim() > 1), torch.zeros(()))
 
 
-def policy_loss_terms(net: RecurrentActorCritic, batch: dict[str, torch.Tensor], config: PretrainConfig,
-                      optimizer: torch.optim.Optimizer | None = None) -> dict[str, float]:
+def policy_loss_terms(
+    net: RecurrentActorCritic,
+    batch: dict[str, torch.Tensor],
+    config: PretrainConfig,
+    optimizer: torch.optim.Optimizer | None = None,
+) -> dict[str, float]:
     """The pre-training loss over a padded batch of episodes, chunk by chunk (truncated BPTT);
     with ``optimizer``, one update per chunk. Returns sums over real steps: ``ce``, ``value_se``
     (squared value error), ``correct`` (argmax = expert), ``count``, and for a network with
@@ -161,8 +188,10 @@ def policy_loss_terms(net: RecurrentActorCritic, batch: dict[str, torch.Tensor],
     tilt_on = net.config.tilt_input
     privileged = batch.get("privileged")
     if (net.config.aux_heads or net.config.asymmetric_critic) and privileged is None:
-        raise ValueError("this network's auxiliary heads / asymmetric critic need the episodes' state observations "
-                         "(Episode.state_obs), which these episodes lack")
+        raise ValueError(
+            "this network's auxiliary heads / asymmetric critic need the episodes' state observations "
+            "(Episode.state_obs), which these episodes lack"
+        )
     for t0 in range(0, steps, config.bptt):
         sl = slice(t0, min(steps, t0 + config.bptt))
         mask = batch["mask"][sl]
@@ -171,15 +200,22 @@ def policy_loss_terms(net: RecurrentActorCritic, batch: dict[str, torch.Tensor],
         starts = torch.zeros_like(mask)
         if t0 == 0:
             starts[0] = True
-        out = net.unroll_features(batch["obs"][sl], batch["prev_action"][sl], batch["prev_reward"][sl],
-                                  batch["tilt"][sl] if tilt_on else None, state, starts,
-                                  privileged=None if privileged is None else privileged[sl])
+        out = net.unroll_features(
+            batch["obs"][sl],
+            batch["prev_action"][sl],
+            batch["prev_reward"][sl],
+            batch["tilt"][sl] if tilt_on else None,
+            state,
+            starts,
+            privileged=None if privileged is None else privileged[sl],
+        )
         logits, values = out.logits, out.values
         state = type(state)(out.state.h.detach(), out.state.c.detach())
         weights = mask.float()
         count = weights.sum()
-        ce = F.cross_entropy(logits.reshape(-1, logits.shape[-1]), batch["actions"][sl].reshape(-1),
-                             reduction="none").reshape(mask.shape)
+        ce = F.cross_entropy(
+            logits.reshape(-1, logits.shape[-1]), batch["actions"][sl].reshape(-1), reduction="none"
+        ).reshape(mask.shape)
         value_se = (values - batch["returns"][sl]).pow(2)
         data_loss = ((ce + config.value_coef * 0.5 * value_se) * weights).sum() / count
         if net.config.aux_heads:
@@ -206,19 +242,28 @@ def summarise(totals: dict[str, float], value_coef: float, policy: bool) -> dict
     value_mse = totals["value_se"] / count
     loss = (totals["ce"] / count if policy else 0.0) + value_coef * 0.5 * value_mse
     aux = totals["aux"] / count if totals.get("aux") else float("nan")
-    return {"loss": loss, "accuracy": totals["correct"] / count if policy else float("nan"),
-            "value_rmse": math.sqrt(value_mse), "aux": aux}
+    return {
+        "loss": loss,
+        "accuracy": totals["correct"] / count if policy else float("nan"),
+        "value_rmse": math.sqrt(value_mse),
+        "aux": aux,
+    }
 
 
-def policy_batches(sequences: list[Episode], order: np.ndarray, config: PretrainConfig,
-                   max_tilt: float) -> Iterator[dict[str, torch.Tensor]]:
+def policy_batches(
+    sequences: list[Episode], order: np.ndarray, config: PretrainConfig, max_tilt: float
+) -> Iterator[dict[str, torch.Tensor]]:
     """The padded batches of ``config.batch_episodes`` episodes each, in ``order``."""
     for start in range(0, len(order), config.batch_episodes):
-        yield padded_batch([sequences[i] for i in order[start:start + config.batch_episodes]], max_tilt)
+        yield padded_batch([sequences[i] for i in order[start : start + config.batch_episodes]], max_tilt)
 
 
-def policy_epoch(net: RecurrentActorCritic, batches: Iterable[dict[str, torch.Tensor]], config: PretrainConfig,
-                 optimizer: torch.optim.Optimizer | None) -> dict[str, float]:
+def policy_epoch(
+    net: RecurrentActorCritic,
+    batches: Iterable[dict[str, torch.Tensor]],
+    config: PretrainConfig,
+    optimizer: torch.optim.Optimizer | None,
+) -> dict[str, float]:
     """One pass of the loss over ``batches``: training with ``optimizer``, else measuring only."""
     totals = {"ce": 0.0, "value_se": 0.0, "correct": 0.0, "count": 0.0, "aux": 0.0}
     net.train(optimizer is not None)
@@ -229,8 +274,14 @@ def policy_epoch(net: RecurrentActorCritic, batches: Iterable[dict[str, torch.Te
     return summarise(totals, config.value_coef, policy=True)
 
 
-def train_policy_epochs(net: RecurrentActorCritic, sequences: list[Episode], config: PretrainConfig,
-                        epochs: int, rng: np.random.Generator, max_tilt: float) -> dict[str, float]:
+def train_policy_epochs(
+    net: RecurrentActorCritic,
+    sequences: list[Episode],
+    config: PretrainConfig,
+    epochs: int,
+    rng: np.random.Generator,
+    max_tilt: float,
+) -> dict[str, float]:
     """``epochs`` passes of the pre-training loss over all ``sequences`` (no hold-out; DAgger's
     retraining step). Returns the last epoch's training summary."""
     optimizer = torch.optim.Adam(net.parameters(), lr=config.lr)
