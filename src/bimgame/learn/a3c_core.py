@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Sequence
-from typing import Any, Callable, ClassVar
+from collections.abc import Callable, Sequence
+from typing import Any, ClassVar
 
 import torch
 
@@ -423,7 +423,7 @@ def apply_update(
     if applied:
         if config.schedules_actor:
             optimizer.param_groups[0]["lr"] = config.lr * weights.actor
-        for shared_param, param in zip(shared_params, local.parameters()):
+        for shared_param, param in zip(shared_params, local.parameters(), strict=True):
             shared_param.grad = param.grad
         optimizer.step()
     return {**parts, "loss": loss.item(), "grad_norm": grad_norm, "applied": applied}

@@ -6,10 +6,10 @@ the parent through its message queue. The entry points are module-level function
 
 from __future__ import annotations
 
+import dataclasses
 import signal
 import time
 import traceback
-import dataclasses
 from typing import Any
 
 import numpy as np
@@ -91,7 +91,7 @@ def _worker(rank: int, run: RunShared) -> None:
     torch.set_num_threads(1)
     try:
         _worker_loop(rank, run)
-    except Exception:
+    except Exception:  # noqa: BLE001 - any failure goes to the parent as a traceback, which stops the run
         run.messages.put(("error", rank, traceback.format_exc()))
     finally:
         run.messages.put(("exit", rank, None))
@@ -205,7 +205,9 @@ def _shared_optimizer(config: A3CConfig, run: RunShared) -> torch.optim.Optimize
     """An optimiser of the shared weights whose statistics are the run's shared ones."""
     optimizer = make_optimizer(config, run.shared)
     # The shared statistics are listed in the optimiser's parameter order (see shared_optimizer_state).
-    for param, state in zip([p for group in optimizer.param_groups for p in group["params"]], run.optimizer_state):
+    for param, state in zip(
+        [p for group in optimizer.param_groups for p in group["params"]], run.optimizer_state, strict=True
+    ):
         optimizer.state[param] = state
     return optimizer
 
@@ -308,7 +310,7 @@ def _evaluator(
             local.load_state_dict(shared.state_dict())
             messages.put(("eval", -1, {"step": int(step), **evaluate(local, config)}))
             next_eval = (step // config.eval_every + 1) * config.eval_every
-    except Exception:
+    except Exception:  # noqa: BLE001 - any failure goes to the parent as a traceback, which stops the run
         messages.put(("error", -1, traceback.format_exc()))
     finally:
         messages.put(("exit", -1, None))

@@ -220,7 +220,7 @@ def plot_comparison(
     # Each run's complete part comes from its whole log (cutting it at max_step loses no episode
     # that started before max_step).
     untils = {
-        label: [run_until(r, e) if e else -np.inf for (e, _), r in zip(runs, groups[label])]
+        label: [run_until(r, e) if e else -np.inf for (e, _), r in zip(runs, groups[label], strict=True)]
         for label, runs in tables.items()
     }
     if max_step is not None:
@@ -229,13 +229,13 @@ def plot_comparison(
             for label, runs in tables.items()
         }
     for label, runs in tables.items():
-        for (episodes, _), run in zip(runs, groups[label]):
+        for (episodes, _), run in zip(runs, groups[label], strict=True):
             if not episodes:
                 raise ValueError(f"{run} has no finished training episodes to plot (episodes.csv)")
     last = max(
         min(float(e["start_step"].max()) + 1, until)
         for label, runs in tables.items()
-        for (e, _), until in zip(runs, untils[label])
+        for (e, _), until in zip(runs, untils[label], strict=True)
     )
     edges = np.linspace(0, max(last, 1.0), bins + 1)
     centres = (edges[:-1] + edges[1:]) / 2
@@ -243,7 +243,7 @@ def plot_comparison(
     for index, (label, runs) in enumerate(tables.items()):
         colour = f"C{index}"
         curves = []
-        for (episodes, _), until in zip(runs, untils[label]):
+        for (episodes, _), until in zip(runs, untils[label], strict=True):
             curve, _ = binned_means(episodes["start_step"], episodes["success"], edges, until=until)
             curves.append(curve)
             ax_train.plot(centres, curve, color=colour, alpha=0.25, linewidth=0.8)

@@ -19,7 +19,8 @@ the collector's business; :func:`advantages_and_targets` is the advantage estima
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable, Protocol
+from collections.abc import Callable
+from typing import Any, Protocol
 
 import numpy as np
 import torch

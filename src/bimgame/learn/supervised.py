@@ -53,7 +53,8 @@ class PretrainConfig(NetworkSettings):
     :class:`~bimgame.learn.common.NetworkSettings`."""
 
     task: str = "FULL"
-    """Task whose rewards give the value targets (episodes are relabelled, see :func:`bimgame.expert.episode.relabel`)."""
+    """Task whose rewards give the value targets (episodes are relabelled, see
+    :func:`bimgame.expert.episode.relabel`)."""
     target: str = "policy"
     """``policy``: the actor-critic π^s; ``value``: the value-only network V̂."""
     epochs: int = 30
@@ -129,7 +130,7 @@ def split_episodes(count: int, val_fraction: float, rng: np.random.Generator) ->
     if count < 2:
         raise ValueError(f"pre-training needs at least 2 episodes (one held out), got {count}")
     order = rng.permutation(count)
-    held = min(count - 1, max(1, int(round(val_fraction * count))))
+    held = min(count - 1, max(1, round(val_fraction * count)))
     return np.sort(order[held:]), np.sort(order[:held])
 
 
