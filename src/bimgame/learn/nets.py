@@ -33,18 +33,21 @@ Two entry points, one set of weights:
 - :meth:`RecurrentActorCritic.unroll` — a whole segment (T, B): the encoder runs once on all T·B
   observations (one large convolution instead of T small ones), then the LSTM cell runs over time,
   zeroing its state wherever an episode starts. This is what the learners backpropagate through.
+
+The observation encoders themselves are in :mod:`bimgame.learn.encoders`.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from typing import NamedTuple
+from typing import NamedTuple, TypeVar
 
 import numpy as np
 import torch
 from torch import nn
 
 from bimgame.envs.env import NO_ACTION
+from bimgame.learn.encoders import ConvEncoder, MLPEncoder
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.render import MazeRenderer
 from bimgame.util.settings import from_dict
@@ -179,88 +182,32 @@ class Unrolled(NamedTuple):
     """(T, B, H) the LSTM's output."""
 
 
-class SpatialSoftArgmax(nn.Module):
-    """(N, C, H, W) activations → (N, 2C) expected (x, y) per channel in [-1, 1], with a learned
-    temperature per channel."""
-
-    def __init__(self, channels: int, height: int, width: int):
-        super().__init__()
-        self.log_temperature = nn.Parameter(torch.zeros(channels))
-        ys, xs = torch.meshgrid(torch.linspace(-1, 1, height), torch.linspace(-1, 1, width), indexing="ij")
-        self.register_buffer("grid", torch.stack([xs.reshape(-1), ys.reshape(-1)], dim=-1), persistent=False)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        n, c = x.shape[:2]
-        weights = torch.softmax(x.reshape(n, c, -1) * self.log_temperature.exp().unsqueeze(-1), dim=-1)
-        return (weights @ self.grid).reshape(n, 2 * c)
-
-
-class ConvEncoder(nn.Module):
-    """uint8 frames (N, C, H, W) → features (N, F): Conv-ReLU-Conv-ReLU-FC-ReLU, optionally with
-    the convolutions' spatial soft-argmax keypoints as more FC inputs."""
-
-    def __init__(self, config: NetConfig):
-        super().__init__()
-        c, h, w = config.obs_shape
-        c1, c2 = config.conv_channels
-        self.conv1 = nn.Conv2d(c, c1, 8, stride=4)
-        self.conv2 = nn.Conv2d(c1, c2, 4, stride=2)
-        with torch.no_grad():
-            a1 = self.conv1(torch.zeros(1, c, h, w))
-            a2 = self.conv2(a1)
-        flat = a2[0].numel()
-        self.keypoints = None
-        if config.keypoints:
-            self.keypoints = nn.ModuleList([SpatialSoftArgmax(c1, *a1.shape[2:]), SpatialSoftArgmax(c2, *a2.shape[2:])])
-            flat += 2 * (c1 + c2)
-        # LayerNorm before the last ReLU: a frame is mostly static maze, so without it the features
-        # vary across states by ~1% of their size and the LSTM hears the marble as a whisper next to
-        # its previous-action and tilt inputs (measured: per-unit std across states 0.0016 against
-        # a mean of 0.015 with PyTorch's default init).
-        self.fc = nn.Sequential(nn.Linear(flat, config.features), nn.LayerNorm(config.features), nn.ReLU())
-        self.register_buffer("background", torch.zeros(config.obs_shape))
-        self.bf16 = config.precision == "bf16"
-        for layer in (self.conv1, self.conv2, self.fc[0]):
-            nn.init.orthogonal_(layer.weight, gain=nn.init.calculate_gain("relu"))
-            nn.init.zeros_(layer.bias)
-
-    def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        if not self.bf16:
-            return self._features(obs)
-        with torch.autocast("cpu", dtype=torch.bfloat16):
-            return self._features(obs).float()
-
-    def _features(self, obs: torch.Tensor) -> torch.Tensor:
-        a1 = self.conv1((obs.float() - self.background) * (1.0 / 255.0))
-        a2 = self.conv2(torch.relu(a1))
-        parts = [torch.relu(a2).flatten(1)]
-        if self.keypoints is not None:
-            parts += [self.keypoints[0](a1), self.keypoints[1](a2)]
-        return self.fc(torch.cat(parts, dim=-1) if len(parts) > 1 else parts[0])
-
-
-class MLPEncoder(nn.Module):
-    """State vectors (N, D) → features (N, F): scale to order 1, then two tanh layers."""
-
-    def __init__(self, config: NetConfig):
-        super().__init__()
-        (dim,) = config.obs_shape
-        self.register_buffer("scale", torch.ones(dim))
-        self.net = nn.Sequential(
-            nn.Linear(dim, config.features), nn.Tanh(), nn.Linear(config.features, config.features), nn.Tanh()
+def make_encoder(config: NetConfig) -> ConvEncoder | MLPEncoder:
+    """The observation encoder ``config`` describes (see :mod:`bimgame.learn.encoders`)."""
+    if config.encoder == "conv":
+        return ConvEncoder(
+            config.obs_shape,
+            config.conv_channels,
+            config.features,
+            keypoints=config.keypoints,
+            bf16=config.precision == "bf16",
         )
-
-    def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        return self.net(obs.float() / self.scale)
+    (dim,) = config.obs_shape
+    return MLPEncoder(dim, config.features)
 
 
 class RecurrentActorCritic(nn.Module):
     """Encoder → LSTM cell (with previous action, previous reward, tilt) → policy and value heads."""
 
+    privileged_scale: torch.Tensor
+    """(P,) divisors that bring the privileged state to order 1."""
+    frame_index: torch.Tensor
+    """With auxiliary heads: the indices of the privileged state one frame shows (:func:`frame_visible`)."""
+
     def __init__(self, config: NetConfig):
         super().__init__()
         self.config = config
-        self.encoder = ConvEncoder(config) if config.encoder == "conv" else MLPEncoder(config)
+        self.encoder = make_encoder(config)
         self.side_size = config.n_actions + 1 + (2 if config.tilt_input else 0)
         self.lstm = nn.LSTMCell(config.features + self.side_size, config.hidden)
         self.policy = nn.Linear(config.hidden, config.n_actions)
@@ -417,7 +364,7 @@ class ValueNetwork(nn.Module):
     def __init__(self, config: NetConfig):
         super().__init__()
         self.config = config
-        self.encoder = ConvEncoder(config) if config.encoder == "conv" else MLPEncoder(config)
+        self.encoder = make_encoder(config)
         extra = 2 if config.tilt_input else 0
         self.head = nn.Sequential(
             nn.Linear(config.features + extra, config.hidden), nn.ReLU(), nn.Linear(config.hidden, 1)
@@ -433,8 +380,12 @@ class ValueNetwork(nn.Module):
         return self.head(x).squeeze(-1)
 
 
+#: The networks :func:`_build` makes.
+_Network = TypeVar("_Network", RecurrentActorCritic, ValueNetwork)
+
+
 def _configure_inputs(
-    net: nn.Module,
+    net: RecurrentActorCritic | ValueNetwork,
     config: NetConfig,
     obs_scale: np.ndarray | None,
     background: np.ndarray | None,
@@ -448,9 +399,11 @@ def _configure_inputs(
                 f"privileged_size {config.privileged_size} needs privileged_scale, that many divisors "
                 f"(state_obs_scale(spec)), got {None if privileged_scale is None else np.shape(privileged_scale)}"
             )
-        if hasattr(net, "privileged_scale"):
+        if isinstance(net, RecurrentActorCritic):  # V̂ reads no privileged state
             net.privileged_scale.copy_(torch.as_tensor(np.asarray(privileged_scale, dtype=np.float32)))
     if config.subtract_background:
+        if not isinstance(net.encoder, ConvEncoder):
+            raise ValueError("subtract_background applies to the conv encoder only")
         if background is None or np.shape(background) != config.obs_shape:
             raise ValueError(
                 f"subtract_background needs the empty-maze frame of shape {config.obs_shape} "
@@ -461,7 +414,7 @@ def _configure_inputs(
     elif background is not None:
         raise ValueError("background is only used with NetConfig(subtract_background=True)")
     if obs_scale is not None:
-        if config.encoder != "mlp":
+        if not isinstance(net.encoder, MLPEncoder):
             raise ValueError("obs_scale applies to the mlp encoder only")
         scale = torch.as_tensor(np.asarray(obs_scale, dtype=np.float32))
         if scale.shape != net.encoder.scale.shape or not torch.all(scale > 0):
@@ -501,13 +454,13 @@ def build_network(
 
 
 def _build(
-    cls: type,
+    cls: type[_Network],
     config: NetConfig,
     obs_scale: np.ndarray | None,
     seed: int,
     background: np.ndarray | None,
     privileged_scale: np.ndarray | None = None,
-):
+) -> _Network:
     """``cls(config)`` with initial weights drawn from ``seed`` (the global torch generator is left
     untouched), then the fixed inputs set."""
     with torch.random.fork_rng(devices=[]):
