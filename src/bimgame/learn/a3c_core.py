@@ -393,7 +393,7 @@ def a3c_segment_loss(
 
 def apply_update(
     local: RecurrentActorCritic,
-    shared_params: list[torch.Tensor],
+    shared_params: Sequence[torch.Tensor],
     optimizer: torch.optim.Optimizer,
     segment: Segment,
     config: A3CConfig,

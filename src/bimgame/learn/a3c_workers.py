@@ -36,10 +36,11 @@ def _worker_seeds(config: A3CConfig, rank: int, start_step: int) -> tuple[int, i
     return int(env_seed), int(torch_seed)
 
 
-def _start_sampler(config: A3CConfig):
+def _start_sampler(config: A3CConfig) -> DemoStartCurriculum | ReverseCurriculum | None:
     """The start curriculum of a worker's training episodes (None: the task's own starts), for the
     maze the workers' envs are built with (MERL's)."""
     if config.start_curriculum == "demo":
+        assert config.expert_data is not None  # A3CConfig refuses a demo curriculum without one
         return DemoStartCurriculum.from_dataset(config.expert_data, config.task, threshold=config.curriculum_threshold)
     if config.start_curriculum == "reverse":
         # A pool of 32 starts (not the class's 100): each start is tried 3 times before the pool grows,
@@ -223,6 +224,7 @@ def _loss_terms(config: A3CConfig, rank: int, run: RunShared, maze: MazeSpec) ->
             TeacherKL(Teacher(teacher_net, config.envs_per_worker, config.kl_temperature), config.kl_decay_steps)
         )
     if config.bc_coef > 0:
+        assert config.expert_data is not None  # A3CConfig refuses behaviour cloning without one
         demos = DemoWindows.from_dataset(config.expert_data, config.task, config.obs, config.gamma, maze)
         rng = np.random.default_rng(np.random.SeedSequence([config.seed, rank, run.start_step, 1]))
         terms.append(BehaviourCloning(demos, config.envs_per_worker, rng))

@@ -151,7 +151,9 @@ def evaluate_network(
     try:
         while not finished.all():
             if record and not finished[0]:
-                result.frames.append(env.render()[0])
+                frames = env.render()
+                assert frames is not None  # render_mode="rgb_array" renders every environment
+                result.frames.append(frames[0])
             actions, _, _ = actor.act(obs, tilt_input(info, max_tilt))
             obs, reward, terminated, truncated, info = env.step(actions.numpy())
             returns += reward

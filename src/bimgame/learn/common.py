@@ -137,8 +137,11 @@ class NetworkSettings:
         """The network sizes and the fixed inputs to build it with (``obs_scale`` or ``background``,
         keyword arguments of :func:`~bimgame.learn.nets.build_network`)."""
         maze = maze or MazeSpec.merl()
+        features, hidden, precision = self.features, self.hidden, self.precision
+        # __post_init__ replaced None by the defaults.
+        assert features is not None and hidden is not None and precision is not None
         scale = state_obs_scale(maze)
-        privileged = (
+        privileged: dict[str, Any] = (
             {"privileged_size": len(scale), "aux_heads": self.aux_heads, "asymmetric_critic": self.asymmetric_critic}
             if self.privileged
             else {}
@@ -148,20 +151,20 @@ class NetworkSettings:
             net_config = NetConfig(
                 encoder="conv",
                 obs_shape=(1, 84, 84),
-                features=self.features,
-                hidden=self.hidden,
+                features=features,
+                hidden=hidden,
                 tilt_input=self.tilt_input,
                 keypoints=self.keypoints,
                 subtract_background=self.subtract_background,
-                precision=self.precision,
+                precision=precision,
                 **privileged,
             )
             return net_config, {"background": maze_background(maze) if self.subtract_background else None, **inputs}
         net_config = NetConfig(
             encoder="mlp",
             obs_shape=(len(scale),),
-            features=self.features,
-            hidden=self.hidden,
+            features=features,
+            hidden=hidden,
             tilt_input=self.tilt_input,
             **privileged,
         )
@@ -230,16 +233,18 @@ def read_run(source: str | Path) -> RunInfo:
     stored = read_run_config(run_dir)
     kind = stored.get("kind", KIND_A3C)
     block = stored.get("a3c")
+    stored_task: Any  # as config.json has it; parse_task checks it
     try:
         if isinstance(block, dict):  # A3C runs, and pre-training/DAgger runs of the earlier layout
-            task, network, seed = block.get("task"), network_settings_of(block), block.get("seed", 0)
+            stored_task, network, seed = block.get("task"), network_settings_of(block), block.get("seed", 0)
             limit = block.get("max_episode_steps")
         elif isinstance(stored.get("network"), dict) and "task" in stored:
-            task, network, seed = stored["task"], NetworkSettings.from_dict(stored["network"]), stored.get("seed", 0)
+            stored_task, network = stored["task"], NetworkSettings.from_dict(stored["network"])
+            seed = stored.get("seed", 0)
             limit = stored.get("max_episode_steps")
         else:
             raise ValueError("it names no task and network ('a3c', or 'task' and 'network')")
-        task = parse_task(task).value
+        task = parse_task(stored_task).value
         if not (isinstance(seed, int) and not isinstance(seed, bool) and 0 <= seed <= MAX_SEED):
             raise ValueError(f"seed must be an integer from 0 to {MAX_SEED}, got {seed!r}")
         if limit is not None and not (isinstance(limit, int) and not isinstance(limit, bool) and limit >= 1):

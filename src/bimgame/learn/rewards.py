@@ -98,18 +98,27 @@ class ValueFunctionPotential:
     Loaded lazily on first use, so that only the run's path travels to a spawned worker."""
 
     def __init__(self, run_dir: str):
+        self._unloaded(run_dir)
+
+    def _unloaded(self, run_dir: str) -> None:
+        """Point at the run in ``run_dir``, nothing loaded yet."""
         self.run_dir = str(run_dir)
         self._net: ValueNetwork | None = None
         self._max_tilt = 1.0
 
     def load(self) -> ValueFunctionPotential:
+        self._network()
+        return self
+
+    def _network(self) -> ValueNetwork:
+        """V̂, loaded on the first call."""
         if self._net is None:
             self._net, _ = load_value_network(self.run_dir)
             self._max_tilt = MazeSpec.merl().max_tilt
-        return self
+        return self._net
 
     def __call__(self, obs: np.ndarray, tilt: np.ndarray) -> np.ndarray:
-        net = self.load()._net
+        net = self._network()
         with torch.no_grad():
             tilt_t = tilt_input({"tilt": tilt}, self._max_tilt) if net.config.tilt_input else None
             return net(torch.as_tensor(np.asarray(obs)), tilt_t).numpy()
@@ -118,7 +127,7 @@ class ValueFunctionPotential:
         return {"run_dir": self.run_dir}
 
     def __setstate__(self, state: dict) -> None:
-        self.__init__(state["run_dir"])
+        self._unloaded(state["run_dir"])
 
 
 @dataclasses.dataclass(frozen=True)

@@ -280,7 +280,7 @@ class RolloutCollector:
         self.episode_return += np.asarray(self.info.get("task_reward", reward), dtype=np.float64)
         self.episode_length += 1
         for i in np.flatnonzero(done):
-            self._book(i, bool(terminated[i]), start_tags)
+            self._book(int(i), bool(terminated[i]), start_tags)
         self.episode_return[done] = 0.0
         self.episode_length[done] = 0
         self.episode_start[done] = step_at_start

@@ -163,7 +163,7 @@ class DemoStartCurriculum:
             reached = np.flatnonzero(at_goal)
             if len(reached) and reached[0] > 0:
                 self._demos.append(states[: reached[0]].copy())
-        if not self._demos:
+        if layout is None or not self._demos:  # no episode at all, or none reaching the goal
             raise ValueError(
                 f"none of the {len(episodes)} episodes of {source} reaches the goal of task {self.task.value} "
                 f"(every marble in channel <= {goal}) after its first state: no demonstration to start from; "

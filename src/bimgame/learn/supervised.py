@@ -141,7 +141,7 @@ def padded_batch(sequences: list[Episode], max_tilt: float, steps: int | None = 
     batch = len(sequences)
     obs_shape = sequences[0].obs.shape[1:]
     obs = np.zeros((steps, batch, *obs_shape), dtype=sequences[0].obs.dtype)
-    out = {
+    out: dict[str, np.ndarray] = {
         "actions": np.zeros((steps, batch), np.int64),
         "prev_action": np.full((steps, batch), NO_ACTION, np.int64),
         "prev_reward": np.zeros((steps, batch), np.float32),
@@ -158,10 +158,11 @@ def padded_batch(sequences: list[Episode], max_tilt: float, steps: int | None = 
         out["tilt"][:n, b] = s.tilt / max_tilt
         out["returns"][:n, b] = s.returns
         out["mask"][:n, b] = True
-    if all(s.state_obs is not None for s in sequences):
-        out["privileged"] = np.zeros((steps, batch, sequences[0].state_obs.shape[1]), np.float32)
-        for b, s in enumerate(sequences):
-            out["privileged"][: len(s), b] = s.state_obs
+    state_obs = [s.state_obs for s in sequences if s.state_obs is not None]
+    if len(state_obs) == len(sequences):
+        out["privileged"] = np.zeros((steps, batch, state_obs[0].shape[1]), np.float32)
+        for b, (s, states) in enumerate(zip(sequences, state_obs, strict=True)):
+            out["privileged"][: len(s), b] = states
     tensors = {k: torch.as_tensor(v) for k, v in out.items()}
     tensors["obs"] = torch.as_tensor(obs)
     return tensors
@@ -220,6 +221,7 @@ def policy_loss_terms(
         value_se = (values - batch["returns"][sl]).pow(2)
         data_loss = ((ce + config.value_coef * 0.5 * value_se) * weights).sum() / count
         if net.config.aux_heads:
+            assert privileged is not None  # refused above
             aux, _ = net.aux_loss(out.features, out.hidden, privileged[sl], mask)
             data_loss = data_loss + config.aux_coef * aux
             totals["aux"] += float(aux.detach()) * float(count)
