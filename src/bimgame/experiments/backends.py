@@ -20,11 +20,10 @@ from typing import Protocol
 
 from bimgame.experiments.budgets import Budget
 from bimgame.experiments.grid import Piece
-from bimgame.experiments.runners import RUNNERS
+from bimgame.experiments.kinds import kind_of
 from bimgame.learn.runs import torch_threads
 
 __all__ = ["Backend", "PieceOutcome", "LocalBackend", "run_piece", "error_text"]
-
 
 
 @dataclasses.dataclass
@@ -71,7 +70,7 @@ def run_piece(piece: Piece, budget: Budget, root: Path) -> str:
     """Compute (or continue) ``piece`` in ``root`` with the budget's torch threads; returns the
     runner's note. A piece that stopped before it finished raises ``KeyboardInterrupt``."""
     with torch_threads(budget.torch_threads):
-        return RUNNERS[piece.kind](piece, budget, root)
+        return kind_of(piece).run(piece, budget, root)
 
 
 def error_text(error: BaseException) -> str:

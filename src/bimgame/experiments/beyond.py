@@ -22,9 +22,10 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from bimgame.experiments.budgets import PAPER_ALGORITHMS, Budget, uses_policy
-from bimgame.experiments.methods import uses_start_curriculum
-from bimgame.experiments.results import RunResults
+from bimgame.experiments.algorithms import algorithm_named
+from bimgame.experiments.budgets import Budget
+from bimgame.experiments.kinds import run_kind
+from bimgame.experiments.run_logs import RunResults
 from bimgame.experiments.statistics import DEFAULT_RESAMPLES, first_crossing, mean_interval
 
 __all__ = ["EVAL_TARGET", "BEYOND_TASKS", "MODES", "SUMMARISED", "shows_beyond", "eval_curve", "run_metrics", "mean_ci",
@@ -38,15 +39,12 @@ BEYOND_TASKS = ("STG3", "STG4")
 MODES = ("greedy", "sampled")
 
 
-#: Algorithms beyond the paper's five that are not fine-tuning methods: they have no section of their own.
-NOT_FINETUNING = ("a3c+papernet",)
-
-
 def shows_beyond(budget: Budget) -> bool:
     """Whether the report has the section: evaluations during the runs (it measures dips between
-    them) and a fine-tuning method beyond the paper's five, or STG3/STG4, in the grid."""
-    beyond = [a for a in budget.algorithms if a not in PAPER_ALGORITHMS and a not in NOT_FINETUNING]
-    return budget.eval_every > 0 and (bool(beyond) or any(t in BEYOND_TASKS for t in budget.tasks))
+    them) and a fine-tuning method beyond the paper's (its record's ``finetuning``), or STG3/STG4, in
+    the grid."""
+    finetuning = any(algorithm_named(a).finetuning for a in budget.algorithms)
+    return budget.eval_every > 0 and (finetuning or any(t in BEYOND_TASKS for t in budget.tasks))
 
 
 def eval_curve(table: dict[str, np.ndarray]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
@@ -129,19 +127,20 @@ def beyond_numbers(runs: dict[str, dict[str, list[RunResults]]], planned: dict[t
     """The section's numbers: per task (``runs``: task → algorithm → finished runs) and A3C algorithm,
     each seed's :func:`run_metrics` and their summaries over seeds (:data:`SUMMARISED` as
     :func:`mean_ci`, ``steps_to_target``); ``planned`` counts the runs planned per (task, algorithm).
-    DAgger has no periodic evaluations of this kind and is left out."""
+    Runs without periodic evaluations of their own (DAgger's) are left out."""
     tasks: dict[str, Any] = {}
     for task, by_algorithm in runs.items():
         algorithms: dict[str, Any] = {}
         for algorithm, group in by_algorithm.items():
-            if algorithm == "dagger":
+            record = algorithm_named(algorithm)
+            if not run_kind(record).training_episodes:
                 continue
             rows = [{"seed": r.seed, "dir": str(r.path.relative_to(out_dir)), **run_metrics(r.table, target=target)}
                     for r in group]
             entry: dict[str, Any] = {"runs": rows, "seeds_finished": len(rows),
                                      "seeds_planned": planned.get((task, algorithm), 0),
-                                     "starts_from_policy": uses_policy(algorithm),
-                                     "start_curriculum": uses_start_curriculum(algorithm)}
+                                     "starts_from_policy": record.starts_from_policy,
+                                     "start_curriculum": record.start_curriculum}
             for name in SUMMARISED:
                 entry[name] = mean_ci([r[name] for r in rows], resamples=resamples, rng=rng)
             entry["steps_to_target"] = _steps_summary(rows, resamples=resamples, rng=rng)

@@ -1,37 +1,15 @@
-"""What a reproduction computes: the compared algorithms and the :class:`Budget` — the grid (tasks ×
-algorithms × seeds) and every piece's settings — with its presets: ``quick`` and ``paper`` for the
-paper's comparison, ``beyond`` and ``ablation`` for fine-tuning beyond it.
+"""What a reproduction computes: the :class:`Budget` — the grid (tasks × algorithms × seeds) and
+every piece's settings — with its presets: ``quick`` and ``paper`` for the paper's comparison,
+``pixels`` for the paper's grid from pixels, ``beyond`` and ``ablation`` for fine-tuning beyond it.
 
 The budget is the one input of a reproduction: it is stored in ``plan.json``
 (:mod:`bimgame.experiments.plan`) and decides every piece (:mod:`bimgame.experiments.grid`) and
 every piece's settings (:mod:`bimgame.experiments.runners`). It is validated here, when it is
 made, so that a bad value fails before anything runs, naming the field and what is allowed.
 
-The compared algorithms, in the order of the paper's figures:
-
-- ``a3c``: A3C from random weights;
-- ``pretrain+a3c``: A3C starting from π^s, pre-trained on the expert's dataset;
-- ``a3c+value``: A3C from random weights on r + γV̂(s') − V̂(s), V̂ pre-trained on the dataset;
-- ``pretrain+a3c+value``: both;
-- ``dagger``: DAgger with the MPC expert, from random weights.
-
-With the budget's privileged pixel levers on (``aux_heads``, ``asymmetric_critic``), every network
-of the grid uses them; ``a3c+papernet`` is then A3C with the paper's exact network (no auxiliary
-heads, no privileged critic, no augmentation), so that the report shows it beside the improved one.
-
-Beyond the paper, the methods that fine-tune π^s without forgetting it (their A3C settings are
-:func:`bimgame.experiments.methods.finetune_overrides`; ``pretrain+a3c`` is plain fine-tuning, the
-``paper`` preset of :mod:`bimgame.learn.finetune`):
-
-- ``pretrain+a3c+warmup``: critic warm-up, then the actor's learning rate ramped up;
-- ``pretrain+a3c+kl``: kickstarting, an annealed KL(π^s ‖ π);
-- ``pretrain+a3c+norm``: advantages divided by their running RMS;
-- ``pretrain+a3c+bc``: a behaviour-cloning term on the expert's dataset, decaying over the run (DAPG);
-- ``pretrain+a3c+demo``: episodes start from the expert's states, moving back from the goal;
-- ``pretrain+a3c+keep``: the ``keep`` preset (the combination ``bimgame train --init`` uses);
-- ``pretrain+a3c+keepfade``: the ``keep`` preset with the KL weight fading to zero over the first
-  third of the run (for π^s that are weak on the task, as from pixels);
-- ``a3c+reverse``: from random weights, a reverse start curriculum (no expert, no π^s).
+The compared algorithms are the records of :mod:`bimgame.experiments.algorithms` (each says what it
+is); a budget names them. Why the presets have the sizes they have, and what they measured, is in
+``docs/budgets.md``.
 """
 
 from __future__ import annotations
@@ -40,6 +18,7 @@ import dataclasses
 from typing import Any, Mapping
 
 from bimgame.envs.observe import OBS_MODES
+from bimgame.experiments.algorithms import LABELS, algorithm_named, algorithm_names, registered
 from bimgame.learn.augment import MAX_SHIFT
 from bimgame.learn.nets import PRECISIONS
 from bimgame.sim.maze import MazeSpec
@@ -50,21 +29,12 @@ __all__ = ["PAPER_ALGORITHMS", "ALGORITHMS", "ALGORITHM_LABELS", "PAPER_TASKS", 
            "budget_named"]
 
 #: The paper's compared methods, in the order of its figures (the presets' default grid).
-PAPER_ALGORITHMS = ("a3c", "pretrain+a3c", "a3c+value", "pretrain+a3c+value", "dagger")
-#: Every method a reproduction can run: the paper's, then the fine-tuning methods beyond it.
-ALGORITHMS = (*PAPER_ALGORITHMS, "pretrain+a3c+warmup", "pretrain+a3c+kl", "pretrain+a3c+norm", "pretrain+a3c+bc",
-              "pretrain+a3c+demo", "pretrain+a3c+keep", "pretrain+a3c+keepfade", "a3c+reverse", "a3c+papernet")
-#: The algorithms' names in figures and tables.
-ALGORITHM_LABELS = {"a3c": "A3C", "pretrain+a3c": "pre-train + A3C", "a3c+value": "A3C + value reward",
-                    "pretrain+a3c+value": "pre-train + A3C + value reward", "dagger": "DAgger",
-                    "a3c+papernet": "A3C, the paper's network",
-                    "pretrain+a3c+warmup": "pre-train + A3C + critic warm-up",
-                    "pretrain+a3c+kl": "pre-train + A3C + KL", "pretrain+a3c+norm": "pre-train + A3C + advantage norm.",
-                    "pretrain+a3c+bc": "pre-train + A3C + BC (DAPG)",
-                    "pretrain+a3c+demo": "pre-train + A3C + demo starts",
-                    "pretrain+a3c+keep": "pre-train + A3C, keep preset",
-                    "pretrain+a3c+keepfade": "pre-train + A3C, keep, fading KL",
-                    "a3c+reverse": "A3C + reverse curriculum"}
+PAPER_ALGORITHMS = tuple(a.name for a in registered() if a.paper)
+#: The built-in algorithms: the paper's, then the fine-tuning methods beyond it (algorithms
+#: registered later are in :func:`~bimgame.experiments.algorithms.algorithm_names`).
+ALGORITHMS = algorithm_names()
+#: The algorithms' names in figures and tables (of every registered algorithm).
+ALGORITHM_LABELS = LABELS
 #: The tasks of the paper's learning curves (STG3/STG4 can be added: the paper reports them unlearned).
 PAPER_TASKS = ("FULL", "STG1", "STG2")
 #: Budget fields that only change which pieces exist (not what any piece computes): a reproduction
@@ -149,42 +119,17 @@ class Budget:
     use one each)."""
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "tasks", tuple(self.tasks))
-        object.__setattr__(self, "algorithms", tuple(self.algorithms))
-        allowed_tasks = ", ".join(t.value for t in Task)
-        if not self.tasks:
-            raise ValueError(f"Budget.tasks must name at least one task; allowed: {allowed_tasks}")
-        tasks = []
-        for task in self.tasks:
-            try:
-                tasks.append(parse_task(task).value)
-            except ValueError:
-                raise ValueError(f"Budget.tasks: unknown task {task!r}; allowed: {allowed_tasks}") from None
-        if len(set(tasks)) != len(tasks):
-            raise ValueError(f"Budget.tasks lists a task twice: {tasks}")
-        object.__setattr__(self, "tasks", tuple(tasks))
-        if not self.algorithms:
-            raise ValueError(f"Budget.algorithms must name at least one; allowed: {', '.join(ALGORITHMS)}")
-        unknown = [a for a in self.algorithms if a not in ALGORITHMS]
-        if unknown:
-            raise ValueError(f"Budget.algorithms: unknown {unknown}; allowed: {', '.join(ALGORITHMS)}")
-        if len(set(self.algorithms)) != len(self.algorithms):
-            raise ValueError(f"Budget.algorithms lists an algorithm twice: {list(self.algorithms)}")
-        # Keep the canonical order, whatever order they were given in.
-        object.__setattr__(self, "algorithms", tuple(a for a in ALGORITHMS if a in self.algorithms))
+        object.__setattr__(self, "tasks", _checked_tasks(self.tasks))
+        object.__setattr__(self, "algorithms", _checked_algorithms(self.algorithms))
         if self.obs not in OBS_MODES:
             raise ValueError(f"Budget.obs must be one of {', '.join(OBS_MODES)}, got {self.obs!r}")
-        steps = dict(self.a3c_steps)
-        for key, value in steps.items():
-            try:
-                parse_task(key)
-            except ValueError:
-                raise ValueError(f"Budget.a3c_steps: unknown task {key!r}; allowed: {allowed_tasks}") from None
-            require_int("Budget", f"a3c_steps[{key!r}]", value, 1)
-        missing = [t for t in self.tasks if t not in steps]
-        if missing and any(a != "dagger" for a in self.algorithms):
-            raise ValueError(f"Budget.a3c_steps has no entry for {missing}; give steps for every task of the grid")
-        object.__setattr__(self, "a3c_steps", {parse_task(k).value: int(v) for k, v in steps.items()})
+        object.__setattr__(self, "a3c_steps", _checked_steps(self.a3c_steps, self.tasks, self.algorithms))
+        self._check_numbers()
+        self._check_network()
+        object.__setattr__(self, "dataset_task", _checked_dataset_task(self.dataset_task, self.tasks))
+
+    def _check_numbers(self) -> None:
+        """The counts: at least 1 (or 0 where 0 means none), None where None means a default."""
         for name in ("seeds", "workers", "envs_per_worker", "eval_episodes", "checkpoint_every", "dataset_episodes",
                      "dataset_workers", "pretrain_epochs", "pretrain_patience", "value_epochs", "value_patience",
                      "value_batch_frames", "dagger_iterations", "dagger_episodes", "dagger_epochs", "torch_threads"):
@@ -194,6 +139,12 @@ class Budget:
         for name in ("hidden", "features", "dataset_max_steps"):
             if getattr(self, name) is not None:
                 require_int("Budget", name, getattr(self, name), 1)
+        if not (isinstance(self.threshold_fraction, (int, float)) and not isinstance(self.threshold_fraction, bool)
+                and 0.0 < self.threshold_fraction <= 1.0):
+            raise ValueError(f"Budget.threshold_fraction must be in (0, 1], got {self.threshold_fraction!r}")
+
+    def _check_network(self) -> None:
+        """The networks' switches, precision and augmentation."""
         for name in ("subtract_background", "aux_heads", "asymmetric_critic"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"Budget.{name} must be True or False, got {getattr(self, name)!r}")
@@ -203,20 +154,6 @@ class Budget:
         if self.augment_shift > MAX_SHIFT or (self.augment_shift and self.obs != "pixels"):
             raise ValueError(f"Budget.augment_shift must be 0..{MAX_SHIFT} pixels, and 0 for state observations, "
                              f"got {self.augment_shift!r}")
-        if not (isinstance(self.threshold_fraction, (int, float)) and not isinstance(self.threshold_fraction, bool)
-                and 0.0 < self.threshold_fraction <= 1.0):
-            raise ValueError(f"Budget.threshold_fraction must be in (0, 1], got {self.threshold_fraction!r}")
-        try:
-            data_task = parse_task(self.dataset_task)
-        except ValueError:
-            raise ValueError(f"Budget.dataset_task: unknown task {self.dataset_task!r}; allowed: "
-                             f"{allowed_tasks}") from None
-        object.__setattr__(self, "dataset_task", data_task.value)
-        spec = MazeSpec.merl()
-        too_deep = [t for t in self.tasks if Task(t).walls_to_pass(spec) > data_task.walls_to_pass(spec)]
-        if too_deep:
-            raise ValueError(f"Budget.dataset_task {data_task.value} cannot label {too_deep}: its episodes end "
-                             f"before theirs would; use dataset_task='FULL' (it labels every task)")
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-ready values (what ``plan.json`` stores)."""
@@ -259,14 +196,75 @@ class Budget:
         return self.subtract_background and self.obs == "pixels"
 
 
+def _allowed_tasks() -> str:
+    return ", ".join(t.value for t in Task)
+
+
+def _task_named(field: str, task: str) -> Task:
+    """``task`` parsed, or a ValueError naming ``field`` and the tasks allowed."""
+    try:
+        return parse_task(task)
+    except ValueError:
+        raise ValueError(f"Budget.{field}: unknown task {task!r}; allowed: {_allowed_tasks()}") from None
+
+
+def _checked_tasks(given: Any) -> tuple[str, ...]:
+    """The grid's tasks by their canonical names, each once."""
+    tasks = tuple(_task_named("tasks", t).value for t in tuple(given))
+    if not tasks:
+        raise ValueError(f"Budget.tasks must name at least one task; allowed: {_allowed_tasks()}")
+    if len(set(tasks)) != len(tasks):
+        raise ValueError(f"Budget.tasks lists a task twice: {list(tasks)}")
+    return tasks
+
+
+def _checked_algorithms(given: Any) -> tuple[str, ...]:
+    """The grid's algorithms, each registered and once, in the registry's order whatever order they
+    were given in."""
+    algorithms = tuple(given)
+    allowed = ", ".join(algorithm_names())
+    if not algorithms:
+        raise ValueError(f"Budget.algorithms must name at least one; allowed: {allowed}")
+    unknown = [a for a in algorithms if a not in algorithm_names()]
+    if unknown:
+        raise ValueError(f"Budget.algorithms: unknown {unknown}; allowed: {allowed}")
+    if len(set(algorithms)) != len(algorithms):
+        raise ValueError(f"Budget.algorithms lists an algorithm twice: {list(algorithms)}")
+    return tuple(a for a in algorithm_names() if a in algorithms)
+
+
+def _checked_steps(given: Mapping[str, Any], tasks: tuple[str, ...], algorithms: tuple[str, ...]) -> dict[str, int]:
+    """A3C's steps per task, by canonical task names; every task of the grid needs an entry when an
+    algorithm of the grid trains by steps."""
+    steps = dict(given)
+    for key, value in steps.items():
+        _task_named("a3c_steps", key)
+        require_int("Budget", f"a3c_steps[{key!r}]", value, 1)
+    missing = [t for t in tasks if t not in steps]
+    if missing and any(algorithm_named(a).trains_by_steps for a in algorithms):
+        raise ValueError(f"Budget.a3c_steps has no entry for {missing}; give steps for every task of the grid")
+    return {parse_task(k).value: int(v) for k, v in steps.items()}
+
+
+def _checked_dataset_task(given: str, tasks: tuple[str, ...]) -> str:
+    """The dataset's task, which must label every task of the grid."""
+    data_task = _task_named("dataset_task", given)
+    spec = MazeSpec.merl()
+    too_deep = [t for t in tasks if Task(t).walls_to_pass(spec) > data_task.walls_to_pass(spec)]
+    if too_deep:
+        raise ValueError(f"Budget.dataset_task {data_task.value} cannot label {too_deep}: its episodes end "
+                         f"before theirs would; use dataset_task='FULL' (it labels every task)")
+    return data_task.value
+
+
 def uses_policy(algorithm: str) -> bool:
-    """Whether ``algorithm`` starts from the pre-trained π^s (``pretrain+…``)."""
-    return algorithm.startswith("pretrain")
+    """Whether ``algorithm``'s runs start from the pre-trained π^s (its record says)."""
+    return algorithm_named(algorithm).starts_from_policy
 
 
 def uses_value(algorithm: str) -> bool:
-    """Whether ``algorithm`` is rewarded with the pre-trained V̂ (``…+value``; not e.g. ``…+keep``)."""
-    return "value" in algorithm.split("+")
+    """Whether ``algorithm``'s runs are rewarded with the pre-trained V̂ (its record says)."""
+    return algorithm_named(algorithm).value_reward
 
 
 #: The settings of the ``beyond`` and ``ablation`` presets. Everything but the grid is the same, so

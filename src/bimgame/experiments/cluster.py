@@ -13,7 +13,7 @@ the node that computed it.
 
 **Faults.** A task whose node dies, or whose worker process is killed, is retried by Ray on another
 node (``max_retries``). Pieces that can continue from a checkpoint (A3C and DAgger runs,
-:data:`~bimgame.experiments.runners.RESUMABLE_KINDS`) ship their directory to the driver's node each
+:attr:`~bimgame.experiments.kinds.PieceKind.resumable`) ship their directory to the driver's node each
 time they write a new checkpoint (:class:`SnapshotStore`, an actor pinned to the driver's node,
 keeps the latest one per piece in the reproduction's :data:`SNAPSHOTS` directory), so the retried
 task continues from the last checkpoint, as a local run continues after an interruption; the other
@@ -47,7 +47,7 @@ from bimgame.experiments.backends import PieceOutcome, error_text, run_piece
 from bimgame.experiments.budgets import Budget
 from bimgame.experiments.costs import piece_cpus
 from bimgame.experiments.grid import Piece
-from bimgame.experiments.runners import RESUMABLE_KINDS
+from bimgame.experiments.kinds import kind_of
 from bimgame.expert.pool import import_ray
 from bimgame.learn.runs import CHECKPOINT
 from bimgame.util.archives import pack_directory, unpack_directory
@@ -170,7 +170,7 @@ def compute_on_node(piece: Piece, budget: Budget, input_paths: list[str], store:
         write_json(work / PIECE_MARKER, {"piece": piece.id, "node_id": node_id, "pid": os.getpid()})
         for path, archive in zip(input_paths, archives, strict=True):
             unpack_directory(archive, work / path)
-        resumable = piece.kind in RESUMABLE_KINDS
+        resumable = kind_of(piece).resumable
         snapshot = ray.get(store.latest.remote(piece.id)) if resumable else None
         if snapshot is not None:  # an earlier attempt's node died: continue from its last checkpoint
             unpack_directory(snapshot, work / piece.path)

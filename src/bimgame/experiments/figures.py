@@ -18,8 +18,10 @@ from typing import Any
 
 import numpy as np
 
+from bimgame.experiments.algorithms import algorithm_named, algorithm_names
 from bimgame.experiments.beyond import MODES, eval_curve
-from bimgame.experiments.budgets import ALGORITHM_LABELS, ALGORITHMS, Budget
+from bimgame.experiments.budgets import Budget
+from bimgame.experiments.kinds import run_kind
 from bimgame.experiments.results import RunResults
 from bimgame.experiments.statistics import CONFIDENCE, bootstrap_mean_band
 from bimgame.expert.episode import Episode
@@ -27,12 +29,21 @@ from bimgame.expert.evaluation import EpisodeResult, plot_length_histogram
 from bimgame.learn.curves import binned_means
 from bimgame.util.images import save_png, subplots
 
-__all__ = ["ALGORITHM_COLOURS", "plot_curves", "plot_eval_curves", "plot_expert_lengths"]
+__all__ = ["algorithm_colour", "plot_curves", "plot_eval_curves", "plot_expert_lengths"]
 
-#: One colour per algorithm, the same in every figure: matplotlib's ten cycle colours in
-#: :data:`ALGORITHMS`' order (the paper's five keep C0–C4), then a few more.
+#: The algorithms' colours, the same in every figure: matplotlib's ten cycle colours in the
+#: registry's order (the paper's five keep C0–C4), then a few more, then round again.
 _PALETTE = [f"C{i}" for i in range(10)] + ["navy", "magenta", "darkgoldenrod", "teal"]
-ALGORITHM_COLOURS = {algorithm: _PALETTE[i % len(_PALETTE)] for i, algorithm in enumerate(ALGORITHMS)}
+
+
+def algorithm_colour(algorithm: str) -> str:
+    """The colour of ``algorithm`` (a registered one) in every figure."""
+    return _PALETTE[algorithm_names().index(algorithm) % len(_PALETTE)]
+
+
+def _legend(algorithm: str, group: list[RunResults]) -> str:
+    """An algorithm's legend entry: its label and how many seeds its line is over."""
+    return f"{algorithm_named(algorithm).label} ({len(group)} seed{'s' if len(group) != 1 else ''})"
 
 
 def plot_curves(task: str, runs: dict[str, list[RunResults]], edges: np.ndarray, threshold: float | None,
@@ -42,13 +53,12 @@ def plot_curves(task: str, runs: dict[str, list[RunResults]], edges: np.ndarray,
     dashed line. Written to ``path``."""
     centres = (edges[:-1] + edges[1:]) / 2
     fig, (ax_return, ax_success) = subplots(1, 2, figsize=(12, 4.4))
-    for algorithm in ALGORITHMS:
+    for algorithm in algorithm_names():
         group = runs.get(algorithm) or []
         if not group:
             continue
-        colour = ALGORITHM_COLOURS[algorithm]
-        label = f"{ALGORITHM_LABELS[algorithm]} ({len(group)} seed{'s' if len(group) != 1 else ''})"
-        if algorithm == "dagger":
+        colour, label = algorithm_colour(algorithm), _legend(algorithm, group)
+        if not run_kind(algorithm_named(algorithm)).training_episodes:
             _plot_dagger(ax_return, ax_success, task, group, colour, label, resamples=resamples, rng=rng)
             continue
         for axis, key in ((ax_return, "return"), (ax_success, "success")):
@@ -74,7 +84,8 @@ def plot_curves(task: str, runs: dict[str, list[RunResults]], edges: np.ndarray,
 
 def _plot_dagger(ax_return: Any, ax_success: Any, task: str, group: list[RunResults], colour: str, label: str, *,
                  resamples: int, rng: np.random.Generator) -> None:
-    """DAgger's greedy evaluations, aligned by iteration across seeds (x: mean environment steps)."""
+    """The greedy evaluations of runs without training episodes of their own (DAgger's, per
+    iteration), aligned by iteration across seeds (x: mean environment steps)."""
     tables = [r.table for r in group if r.table and len(r.table.get("step", ())) > 0]
     if not tables:
         return
@@ -111,14 +122,13 @@ def plot_eval_curves(task: str, runs: dict[str, list[RunResults]], path: Path, *
     thick line for the mean over seeds (each seed interpolated between its evaluations; the mean
     only where every seed was evaluated); ``target`` as a dashed line. Written to ``path``."""
     fig, axes = subplots(1, len(MODES), figsize=(12, 4.4), sharey=True)
-    for algorithm in ALGORITHMS:
+    for algorithm in algorithm_names():
         group = [r for r in runs.get(algorithm) or [] if len(r.table.get("step", ())) > 0]
-        if algorithm == "dagger" or not group:
+        if not group or not run_kind(algorithm_named(algorithm)).training_episodes:
             continue
-        colour = ALGORITHM_COLOURS[algorithm]
+        colour, label = algorithm_colour(algorithm), _legend(algorithm, group)
         curves = [eval_curve(r.table) for r in group]
         grid = np.unique(np.concatenate([steps for steps, _ in curves]))
-        label = f"{ALGORITHM_LABELS[algorithm]} ({len(group)} seed{'s' if len(group) != 1 else ''})"
         for axis, mode in zip(axes, MODES):
             aligned = []
             for steps, success in curves:

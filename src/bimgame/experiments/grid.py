@@ -21,12 +21,17 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from bimgame.experiments.budgets import Budget, uses_policy, uses_value
-from bimgame.experiments.methods import needs_expert_data
+from bimgame.experiments.algorithms import Learner, algorithm_named
+from bimgame.experiments.budgets import Budget
 
-__all__ = ["PIECE_KINDS", "Piece", "algorithm_slug", "policy_path", "value_path", "run_path", "plan_pieces"]
+__all__ = ["DATASET", "PRETRAIN_POLICY", "PRETRAIN_VALUE", "PIECE_KINDS", "Piece", "algorithm_slug", "policy_path",
+           "value_path", "run_path", "plan_pieces"]
 
-PIECE_KINDS = ("dataset", "pretrain-policy", "pretrain-value", "a3c", "dagger")
+#: The kinds of the pieces that are not runs of an algorithm (as ``plan.json`` names them).
+DATASET, PRETRAIN_POLICY, PRETRAIN_VALUE = "dataset", "pretrain-policy", "pretrain-value"
+#: Every piece kind: the dataset, the pre-trainings, then one per learner (an algorithm's runs are
+#: pieces of its learner's kind). How each kind is computed is :mod:`bimgame.experiments.kinds`.
+PIECE_KINDS = (DATASET, PRETRAIN_POLICY, PRETRAIN_VALUE, *(learner.value for learner in Learner))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -50,7 +55,7 @@ class Piece:
 
 def algorithm_slug(algorithm: str) -> str:
     """The directory name of an algorithm (``pretrain+a3c+value`` → ``pretrain-a3c-value``)."""
-    return algorithm.replace("+", "-")
+    return algorithm_named(algorithm).slug
 
 
 def policy_path(task: str, seed: int) -> str:
@@ -71,26 +76,24 @@ def run_path(task: str, algorithm: str, seed: int) -> str:
 def plan_pieces(budget: Budget) -> list[Piece]:
     """Every piece of the grid in the order they run: the dataset, then per task and seed the
     pre-trainings that seed needs and its runs (seed 0 of every algorithm before seed 1, so a
-    partial reproduction already holds whole comparisons). A run needs the dataset piece when its
-    algorithm reads the expert's data (:func:`~bimgame.experiments.methods.needs_expert_data`)."""
-    pieces = [Piece(id="data", kind="dataset", path="data", task=budget.dataset_task)]
+    partial reproduction already holds whole comparisons). A run needs what its algorithm's record
+    says it reads: the dataset, π^s, V̂ (:class:`~bimgame.experiments.algorithms.Algorithm`)."""
+    pieces = [Piece(id="data", kind=DATASET, path="data", task=budget.dataset_task)]
     for task in budget.tasks:
         for seed in range(budget.seeds):
             policy, value = policy_path(task, seed), value_path(task, seed)
             if budget.needs_policy:
-                pieces.append(Piece(id=policy, kind="pretrain-policy", path=policy, task=task, seed=seed,
+                pieces.append(Piece(id=policy, kind=PRETRAIN_POLICY, path=policy, task=task, seed=seed,
                                     needs=("data",)))
             if budget.needs_value:
-                pieces.append(Piece(id=value, kind="pretrain-value", path=value, task=task, seed=seed,
+                pieces.append(Piece(id=value, kind=PRETRAIN_VALUE, path=value, task=task, seed=seed,
                                     needs=("data",)))
-            for algorithm in budget.algorithms:
-                path = run_path(task, algorithm, seed)
-                if algorithm == "dagger":
-                    pieces.append(Piece(id=path, kind="dagger", path=path, task=task, algorithm=algorithm, seed=seed))
-                    continue
-                needs = tuple(p for p, used in (("data", needs_expert_data(algorithm)),
-                                                (policy, uses_policy(algorithm)), (value, uses_value(algorithm)))
-                              if used)
-                pieces.append(Piece(id=path, kind="a3c", path=path, task=task, algorithm=algorithm, seed=seed,
-                                    needs=needs))
+            for name in budget.algorithms:
+                algorithm = algorithm_named(name)
+                path = run_path(task, name, seed)
+                needs = tuple(p for p, used in (("data", algorithm.needs_expert_data),
+                                                (policy, algorithm.starts_from_policy),
+                                                (value, algorithm.value_reward)) if used)
+                pieces.append(Piece(id=path, kind=algorithm.learner.value, path=path, task=task, algorithm=name,
+                                    seed=seed, needs=needs))
     return pieces

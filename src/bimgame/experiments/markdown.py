@@ -10,7 +10,8 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from bimgame.experiments.budgets import ALGORITHM_LABELS, Budget
+from bimgame.experiments.algorithms import BASELINE, DAGGER, LABELS, PRETRAIN_A3C, Learner, registered
+from bimgame.experiments.budgets import Budget
 from bimgame.experiments.costs import format_duration
 from bimgame.experiments.grid import Piece
 from bimgame.experiments.plan import STATUS, timestamp
@@ -20,6 +21,13 @@ __all__ = ["PAPER_ACCURACY", "tables_markdown", "beyond_markdown", "report_markd
 
 #: The paper's held-out action accuracy of pre-training.
 PAPER_ACCURACY = 0.275
+#: Where an algorithm's speed-up over the baseline is in its numbers.
+_VS_BASELINE = f"speedup_vs_{BASELINE.name}"
+
+
+def _value_pairs() -> list[tuple[str, str]]:
+    """(algorithm without the value reward, the same with it), for every value-reward algorithm."""
+    return [(a.without_value_reward, a.name) for a in registered() if a.without_value_reward is not None]
 
 
 def _steps_text(value: float | None) -> str:
@@ -59,7 +67,7 @@ def _speedup_text(result: dict[str, Any] | None) -> str:
 def tables_markdown(numbers: dict[str, Any], budget: Budget) -> str:
     """``table_speedup.md``: per task, steps to threshold and speed-ups per algorithm; then pre-training."""
     lines = ["# Steps to threshold and speed-up over A3C", ""]
-    if "a3c" not in budget.algorithms:
+    if BASELINE.name not in budget.algorithms:
         lines += ["A3C from random weights is not in this grid: there is no baseline, so no speed-up over it is "
                   "given (add it with `--algorithms`).", ""]
     for task, entry in numbers["tasks"].items():
@@ -94,24 +102,25 @@ def tables_markdown(numbers: dict[str, Any], budget: Budget) -> str:
                 mean_text = "not reached"
             else:
                 mean_text = ("≥ " if reached < len(a["runs"]) else "") + _steps_text(mean)
-            speed = "1 (baseline)" if algorithm == "a3c" and a["runs"] else _speedup_text(a.get("speedup_vs_a3c"))
+            speed = ("1 (baseline)" if algorithm == BASELINE.name and a["runs"]
+                     else _speedup_text(a.get(_VS_BASELINE)))
             training = a["final_success_training"]
-            lines.append(f"| {ALGORITHM_LABELS[algorithm]} | {a['seeds_finished']}/{a['seeds_planned']} | "
+            lines.append(f"| {LABELS[algorithm]} | {a['seeds_finished']}/{a['seeds_planned']} | "
                          f"{reached if entry['threshold'] is not None else '–'}/{len(a['runs'])} | {per_seed} | "
                          f"{mean_text} | {speed} | {'–' if training is None else _pct(training)} | "
                          f"{_pct(a['final_greedy_success'])} | {_pct(a['final_sampled_success'])} |")
         lines.append("")
         curricula = [a for a, v in entry["algorithms"].items() if v.get("start_curriculum")]
         if curricula:
-            lines += [f"{', '.join(ALGORITHM_LABELS[a] for a in curricula)}: no steps to threshold or training "
+            lines += [f"{', '.join(LABELS[a] for a in curricula)}: no steps to threshold or training "
                       f"success — with a start curriculum the training episodes start nearer the goal than the "
                       f"task's; see the evaluations beyond the paper.", ""]
-        extra = [(o, b, entry["algorithms"][o].get(f"speedup_vs_{b}")) for b, o in
-                 (("a3c", "a3c+value"), ("pretrain+a3c", "pretrain+a3c+value")) if o in entry["algorithms"]]
+        extra = [(o, b, entry["algorithms"][o].get(f"speedup_vs_{b}")) for b, o in _value_pairs()
+                 if o in entry["algorithms"]]
         extra = [(o, b, s) for o, b, s in extra if s is not None]
         if extra:
             lines.append("Value reward against the same start without it: " + "; ".join(
-                f"{ALGORITHM_LABELS[o]} vs {ALGORITHM_LABELS[b]}: {_speedup_text(s)}" for o, b, s in extra) + ".")
+                f"{LABELS[o]} vs {LABELS[b]}: {_speedup_text(s)}" for o, b, s in extra) + ".")
             lines.append("")
     lines += ["# Pre-training", ""]
     if not numbers["pretraining"]:
@@ -155,7 +164,7 @@ def _claims(numbers: dict[str, Any]) -> list[tuple[str, str]]:
 
     measured = []
     for task, entry in tasks.items():
-        result = entry["algorithms"].get("pretrain+a3c", {}).get("speedup_vs_a3c")
+        result = entry["algorithms"].get(PRETRAIN_A3C.name, {}).get(_VS_BASELINE)
         if result is not None:
             inside = ""
             if result["ci"] is not None and result["bound"] == "exact":
@@ -176,20 +185,20 @@ def _claims(numbers: dict[str, Any]) -> list[tuple[str, str]]:
                                                                    a["final_sampled_success"])
 
     measured = []
+    paper_a3c = [a.name for a in registered() if a.paper and a.learner is Learner.A3C]
     for task in ("STG2", "FULL", "STG1"):
         entry = tasks.get(task)
-        if entry is None or "dagger" not in entry["algorithms"] or not entry["algorithms"]["dagger"]["runs"]:
+        if entry is None or DAGGER.name not in entry["algorithms"] or not entry["algorithms"][DAGGER.name]["runs"]:
             continue
-        dagger = entry["algorithms"]["dagger"]
+        dagger = entry["algorithms"][DAGGER.name]
         steps = nanmean([r["env_steps"] for r in dagger["runs"]])
-        others = {a: final(entry, a) for a in ("a3c", "pretrain+a3c", "a3c+value", "pretrain+a3c+value")
-                  if not math.isnan(final(entry, a))}
+        others = {a: final(entry, a) for a in paper_a3c if not math.isnan(final(entry, a))}
         best = max(others, key=others.get) if others else None
         text = (f"{task}: DAgger final success {_pct(dagger['final_greedy_success'])} greedy, "
                 f"{_pct(dagger['final_sampled_success'])} sampled, after {_steps_text(steps)} env steps")
         if best is not None:
             b = entry["algorithms"][best]
-            text += (f"; best A3C variant ({ALGORITHM_LABELS[best]}) {_pct(b['final_greedy_success'])} greedy, "
+            text += (f"; best A3C variant ({LABELS[best]}) {_pct(b['final_greedy_success'])} greedy, "
                      f"{_pct(b['final_sampled_success'])} sampled, after {_steps_text(entry['a3c_steps'])}")
         measured.append(text + (" (context: the claim is about STG2 and FULL)" if task == "STG1" else ""))
     if not any(t in tasks for t in ("STG2", "FULL")):
@@ -198,10 +207,10 @@ def _claims(numbers: dict[str, Any]) -> list[tuple[str, str]]:
 
     measured = []
     for task, entry in tasks.items():
-        for base, other in (("a3c", "a3c+value"), ("pretrain+a3c", "pretrain+a3c+value")):
+        for base, other in _value_pairs():
             result = entry["algorithms"].get(other, {}).get(f"speedup_vs_{base}")
             if result is not None:
-                measured.append(f"{task}, {ALGORITHM_LABELS[other]} vs {ALGORITHM_LABELS[base]}: {_speedup_text(result)} — "
+                measured.append(f"{task}, {LABELS[other]} vs {LABELS[base]}: {_speedup_text(result)} — "
                                 f"{_verdict(result)}")
     claims.append(("The value function as a reward does not help much",
                    "; ".join(measured) or "not measured in this budget"))
@@ -215,9 +224,9 @@ def _claims(numbers: dict[str, Any]) -> list[tuple[str, str]]:
         if finals:
             best = max(finals, key=finals.get)
             reached = [a for a, v in entry["algorithms"].items() if v["reached"]]
-            verdict = (f"reached the threshold ({_pct(entry['threshold'])}): {', '.join(ALGORITHM_LABELS[a] for a in reached)}"
+            verdict = (f"reached the threshold ({_pct(entry['threshold'])}): {', '.join(LABELS[a] for a in reached)}"
                        if reached else f"no run reached the threshold ({_pct(entry['threshold'])})")
-            measured.append(f"{task}: best final success {_pct(finals[best])} ({ALGORITHM_LABELS[best]}, the better of greedy "
+            measured.append(f"{task}: best final success {_pct(finals[best])} ({LABELS[best]}, the better of greedy "
                             f"and sampled evaluation); {verdict}")
     claims.append(("STG3 and STG4 are not learned by any method",
                    "; ".join(measured) or "not measured in this budget"))
@@ -230,7 +239,7 @@ def report_markdown(numbers: dict[str, Any], tables: str, budget: Budget, pieces
     :func:`tables_markdown`), settings, wall times and the methods."""
     lines = ["# Reproduction: Trajectory-based Learning for Ball-in-Maze Games", "",
              f"Budget **{budget.name}**: tasks {', '.join(budget.tasks)}; algorithms "
-             f"{', '.join(ALGORITHM_LABELS[a] for a in budget.algorithms)}; {budget.seeds} seeds; {budget.obs} observations. "
+             f"{', '.join(LABELS[a] for a in budget.algorithms)}; {budget.seeds} seeds; {budget.obs} observations. "
              f"{len(finished)} of {len(pieces)} pieces finished. Report built "
              f"{timestamp()} by `bimgame report`.", ""]
     if len(finished) < len(pieces):
@@ -355,13 +364,13 @@ def beyond_markdown(beyond: dict[str, Any], budget: Budget) -> str:
         lines += [f"| algorithm | seeds | step 0, greedy | step 0, sampled | final greedy | final sampled | "
                   f"steps to {target:.0%} greedy |", "|---|---:|---|---|---|---|---|"]
         for algorithm, a in groups.items():
-            lines.append(f"| {ALGORITHM_LABELS[algorithm]} | {a['seeds_finished']}/{a['seeds_planned']} | "
+            lines.append(f"| {LABELS[algorithm]} | {a['seeds_finished']}/{a['seeds_planned']} | "
                          f"{_cell(a, 'start_greedy', _pct)} | {_cell(a, 'start_sampled', _pct)} | "
                          f"{_cell(a, 'final_greedy', _pct)} | {_cell(a, 'final_sampled', _pct)} | {_target_cell(a)} |")
         lines += ["", "| algorithm | dip: lowest greedy after step 0 | greedy drop below step 0 | "
                       "dip: lowest sampled after step 0 | sampled drop below step 0 |", "|---|---|---|---|---|"]
         for algorithm, a in groups.items():
-            lines.append(f"| {ALGORITHM_LABELS[algorithm]} | {_cell(a, 'lowest_greedy', _pct, 'lowest_greedy_step')} | "
+            lines.append(f"| {LABELS[algorithm]} | {_cell(a, 'lowest_greedy', _pct, 'lowest_greedy_step')} | "
                          f"{_cell(a, 'drop_greedy', _points)} | "
                          f"{_cell(a, 'lowest_sampled', _pct, 'lowest_sampled_step')} | "
                          f"{_cell(a, 'drop_sampled', _points)} |")
@@ -380,10 +389,10 @@ def _beyond_summary(groups: dict[str, dict[str, Any]]) -> str:
     parts = []
     final = best("final_greedy")
     if final is not None:
-        parts.append(f"highest mean final greedy success: {ALGORITHM_LABELS[final[0]]} ({_pct(final[1])})")
+        parts.append(f"highest mean final greedy success: {LABELS[final[0]]} ({_pct(final[1])})")
     drop = best("drop_greedy")
     if drop is not None:
-        parts.append(f"largest mean greedy drop below step 0: {ALGORITHM_LABELS[drop[0]]} ({_points(drop[1])})"
+        parts.append(f"largest mean greedy drop below step 0: {LABELS[drop[0]]} ({_points(drop[1])})"
                      if drop[1] > 0 else "no run's greedy success fell below its step 0")
     return ("In short: " + "; ".join(parts) + ".") if parts else ""
 

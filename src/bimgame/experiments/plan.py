@@ -2,10 +2,8 @@
 estimate), ``status.json`` (each piece's state, wall time and how often it was computed), and
 whether a piece is finished.
 
-**Resuming.** Whether a piece is finished is decided from its own outputs (:func:`piece_done`),
-never from ``status.json`` alone: a dataset with its ``COMPLETE`` marker, a pre-training with its
-``summary.json``, an A3C run with a ``summary.json`` that says it finished its steps, a DAgger run
-whose ``dagger_state.json`` counts all its iterations. Finished pieces are skipped; an unfinished
+**Resuming.** Whether a piece is finished is decided from its own outputs (:func:`piece_done`, by
+its kind: :mod:`bimgame.experiments.kinds`), never from ``status.json`` alone. Finished pieces are skipped; an unfinished
 A3C or DAgger run is resumed from its last checkpoint (an A3C run stopped in its final evaluation,
 whose checkpoint holds all its steps, then only evaluates and writes its summary), an unfinished
 dataset from its saved
@@ -25,8 +23,8 @@ from typing import Any
 from bimgame import __version__
 from bimgame.experiments.budgets import GRID_FIELDS, Budget
 from bimgame.experiments.costs import COSTS, CostModel, estimate_seconds
-from bimgame.experiments.grid import PIECE_KINDS, Piece, plan_pieces
-from bimgame.expert.datasets import DatasetError, dataset_summary
+from bimgame.experiments.grid import Piece, plan_pieces
+from bimgame.experiments.kinds import kind_of
 from bimgame.util.files import read_json, write_json
 
 __all__ = ["PLAN", "STATUS", "timestamp", "write_plan", "load_plan", "load_status", "check_compatible",
@@ -104,23 +102,6 @@ def check_compatible(out_dir: str | Path, budget: Budget) -> None:
 
 
 def piece_done(piece: Piece, out_dir: str | Path, budget: Budget) -> bool:
-    """Whether ``piece``'s outputs in ``out_dir`` show it finished (see the module notes)."""
-    path = Path(out_dir) / piece.path
-    if piece.kind == "dataset":
-        try:
-            dataset_summary(path)
-        except (DatasetError, OSError):
-            return False
-        return True
-    if piece.kind in ("pretrain-policy", "pretrain-value"):
-        return (path / "summary.json").is_file() and (path / "checkpoint.pt").is_file()
-    if piece.kind == "a3c":
-        # Not the checkpoint: one holding all the steps, without a summary, is a run stopped during its
-        # final evaluation, which a resume finishes (it only evaluates and writes summary.json).
-        summary = read_json(path / "summary.json")
-        return summary is not None and summary.get("stopped") == "finished" and \
-            int(summary.get("steps", 0)) >= budget.steps_for(piece.task)
-    if piece.kind == "dagger":
-        state = read_json(path / "dagger_state.json")
-        return state is not None and int(state.get("iteration", 0)) >= budget.dagger_iterations
-    raise ValueError(f"unknown piece kind {piece.kind!r}; allowed: {', '.join(PIECE_KINDS)}")
+    """Whether ``piece``'s outputs in ``out_dir`` show it finished (its kind decides, see
+    :mod:`bimgame.experiments.kinds`)."""
+    return kind_of(piece).done(piece, Path(out_dir), budget)

@@ -36,12 +36,13 @@ from typing import Any
 
 import numpy as np
 
+from bimgame.experiments.algorithms import BASELINE, algorithm_named, registered
 from bimgame.experiments.beyond import EVAL_TARGET, beyond_numbers, shows_beyond
 from bimgame.experiments.budgets import Budget
 from bimgame.experiments.figures import plot_curves, plot_eval_curves, plot_expert_lengths
 from bimgame.experiments.grid import Piece
+from bimgame.experiments.kinds import PretrainPolicyKind, PretrainValueKind, kind_of, run_kind
 from bimgame.experiments.markdown import report_markdown, tables_markdown
-from bimgame.experiments.methods import uses_start_curriculum
 from bimgame.experiments.plan import load_plan, load_status
 from bimgame.experiments.results import (
     RunResults,
@@ -49,7 +50,6 @@ from bimgame.experiments.results import (
     dataset_sequences,
     expert_success_by_task,
     final_eval,
-    final_training_success,
     finished_pieces,
 )
 from bimgame.experiments.statistics import (
@@ -58,9 +58,7 @@ from bimgame.experiments.statistics import (
     DEFAULT_RESAMPLES,
     MIN_EPISODES,
     Crossing,
-    dagger_crossing,
     nanmean,
-    run_crossing,
     speedup,
 )
 from bimgame.expert.datasets import dataset_summary
@@ -97,101 +95,140 @@ def build_report(out_dir: str | Path, *, threshold_fraction: float | None = None
         raise ValueError(f"resamples must be an integer >= 1, got {resamples!r}")
     rng = np.random.default_rng(seed)
     finished = finished_pieces(pieces, out_dir, budget)
-    status = load_status(out_dir)
     figures: list[Path] = []
-
-    dataset: dict[str, Any] | None = None
-    expert: dict[str, float] = {}
-    if "data" in finished:
-        sequences = dataset_sequences(out_dir / "data")
-        expert = expert_success_by_task(sequences, budget.tasks)
-        dataset = dataset_summary(out_dir / "data")
-        figures.append(plot_expert_lengths(sequences, budget.dataset_task, out_dir / "fig_expert_lengths.png"))
+    dataset, expert = _expert(finished, out_dir, budget, figures)
 
     tasks: dict[str, Any] = {}
     all_runs: dict[str, dict[str, list[RunResults]]] = {}
     planned_runs = collections.Counter((p.task, p.algorithm) for p in pieces if p.algorithm is not None)
+    context = _Context(out_dir, budget, threshold_fraction, resamples, rng)
     for task in budget.tasks:
-        steps = budget.steps_for(task) if task in budget.a3c_steps else 0
-        edges = np.linspace(0.0, float(steps), CURVE_BINS + 1) if steps else np.array([0.0, 1.0])
-        # No threshold without an expert that succeeds: 0 × anything would be "reached" at once.
-        threshold = threshold_fraction * expert[task] if expert.get(task, 0.0) > 0 else None
-        runs = {a: collect_runs(finished, out_dir, task, a) for a in budget.algorithms}
-        all_runs[task] = runs
-        crossings: dict[str, list[Crossing]] = {}
-        entry: dict[str, Any] = {"expert_success": expert.get(task), "threshold": threshold,
-                                 "a3c_steps": steps, "curve_bin_steps": float(edges[1] - edges[0]),
-                                 "min_episodes_per_bin": MIN_EPISODES, "algorithms": {}}
-        for algorithm, group in runs.items():
-            planned = planned_runs[task, algorithm]
-            rows = []
-            curriculum = uses_start_curriculum(algorithm)
-            for run in group:
-                if threshold is None or curriculum:
-                    crossing = None
-                elif algorithm == "dagger":
-                    crossing = dagger_crossing(run.table, threshold)
-                else:
-                    crossing = run_crossing(run.episodes, edges, threshold, until=run.until)
-                if crossing is not None:
-                    crossings.setdefault(algorithm, []).append(crossing)
-                rows.append({"seed": run.seed, "dir": str(run.path.relative_to(out_dir)),
-                             "steps_to_threshold": crossing.steps if crossing and crossing.reached else None,
-                             "censored_at": crossing.steps if crossing and not crossing.reached else None,
-                             "final_success_training": None if algorithm == "dagger" or curriculum else
-                             final_training_success(run, steps),
-                             "final_greedy_success": final_eval(run, algorithm, "greedy"),
-                             "final_sampled_success": final_eval(run, algorithm, "sampled"),
-                             "env_steps": float(run.table["step"][-1]) if algorithm == "dagger" and run.table
-                             else (run.summary or {}).get("steps")})
-            group_crossings = crossings.get(algorithm, [])
-            entry["algorithms"][algorithm] = {
-                "runs": rows, "seeds_finished": len(group), "seeds_planned": planned,
-                "reached": sum(c.reached for c in group_crossings),
-                "mean_steps_censored_at_last": float(np.mean([c.steps for c in group_crossings]))
-                if group_crossings else None,
-                "final_success_training": nanmean([r["final_success_training"] for r in rows])
-                if algorithm != "dagger" and not curriculum else None,
-                "start_curriculum": curriculum,
-                "final_greedy_success": nanmean([r["final_greedy_success"] for r in rows]),
-                "final_sampled_success": nanmean([r["final_sampled_success"] for r in rows])}
-        for algorithm, group_crossings in crossings.items():
-            if algorithm != "a3c" and crossings.get("a3c"):
-                entry["algorithms"][algorithm]["speedup_vs_a3c"] = speedup(
-                    crossings["a3c"], group_crossings, resamples=resamples, rng=rng)
-        for base, other in (("a3c", "a3c+value"), ("pretrain+a3c", "pretrain+a3c+value")):
-            if crossings.get(base) and crossings.get(other):
-                entry["algorithms"][other][f"speedup_vs_{base}"] = speedup(
-                    crossings[base], crossings[other], resamples=resamples, rng=rng)
-        curves = {a: group for a, group in runs.items() if not uses_start_curriculum(a)}
-        if any(curves.values()):
-            figures.append(plot_curves(task, curves, edges, threshold, threshold_fraction,
-                                       out_dir / f"fig_curves_{task}.png", resamples=resamples, rng=rng,
-                                       budget=budget))
-            entry["figure"] = f"fig_curves_{task}.png"
-        tasks[task] = entry
+        all_runs[task] = {a: collect_runs(finished, out_dir, task, a) for a in budget.algorithms}
+        tasks[task] = _task_numbers(task, all_runs[task], context, expert, planned_runs, figures)
 
-    pretraining = _pretraining(finished, out_dir, budget)
     beyond = None
     if shows_beyond(budget):
         # Its own generator: the paper's numbers stay what they were without this section.
-        beyond = beyond_numbers(all_runs, planned_runs, out_dir=out_dir, resamples=resamples,
-                                rng=np.random.default_rng([seed, 1]))
-        for task, entry in beyond["tasks"].items():
-            if any(r["evaluations"] for a in entry["algorithms"].values() for r in a["runs"]):
-                figures.append(plot_eval_curves(task, all_runs[task], out_dir / f"fig_eval_{task}.png", budget=budget,
-                                                target=EVAL_TARGET))
-                entry["figure"] = f"fig_eval_{task}.png"
+        beyond = _beyond(all_runs, planned_runs, out_dir, budget, figures, resamples=resamples,
+                         rng=np.random.default_rng([seed, 1]))
     numbers = {"threshold_fraction": threshold_fraction, "bootstrap": {"resamples": resamples, "seed": seed,
                                                                        "confidence": CONFIDENCE},
-               "expert": {"dataset": dataset, "success_by_task": expert}, "tasks": tasks, "pretraining": pretraining,
-               "beyond": beyond}
+               "expert": {"dataset": dataset, "success_by_task": expert}, "tasks": tasks,
+               "pretraining": _pretraining(finished, out_dir, budget), "beyond": beyond}
     table_json = write_json(out_dir / "table_speedup.json", _without_nan(numbers))
     table_text = tables_markdown(numbers, budget)
     table_md = atomic_write_bytes(out_dir / "table_speedup.md", table_text.encode())
-    report = atomic_write_bytes(out_dir / "report.md",
-                                report_markdown(numbers, table_text, budget, pieces, finished, status).encode())
+    report = atomic_write_bytes(out_dir / "report.md", report_markdown(numbers, table_text, budget, pieces, finished,
+                                                                       load_status(out_dir)).encode())
     return ReportPaths(report, table_md, table_json, figures)
+
+
+@dataclasses.dataclass(frozen=True)
+class _Context:
+    """What every task's numbers are computed with."""
+
+    out_dir: Path
+    budget: Budget
+    threshold_fraction: float
+    resamples: int
+    rng: np.random.Generator
+
+
+def _expert(finished: dict[str, Piece], out_dir: Path, budget: Budget,
+            figures: list[Path]) -> tuple[dict[str, Any] | None, dict[str, float]]:
+    """The dataset's summary and the expert's success rate per task (None and {} without a finished
+    dataset); draws the expert's episode lengths into ``figures``."""
+    if "data" not in finished:
+        return None, {}
+    sequences = dataset_sequences(out_dir / "data")
+    expert = expert_success_by_task(sequences, budget.tasks)
+    figures.append(plot_expert_lengths(sequences, budget.dataset_task, out_dir / "fig_expert_lengths.png"))
+    return dataset_summary(out_dir / "data"), expert
+
+
+def _task_numbers(task: str, runs: dict[str, list[RunResults]], context: _Context, expert: dict[str, float],
+                  planned_runs: collections.Counter, figures: list[Path]) -> dict[str, Any]:
+    """One task's entry of ``table_speedup.json``: its threshold, per algorithm the runs' numbers,
+    the speed-ups; its learning curves are drawn into ``figures``."""
+    budget, rng = context.budget, context.rng
+    steps = budget.steps_for(task) if task in budget.a3c_steps else 0
+    edges = np.linspace(0.0, float(steps), CURVE_BINS + 1) if steps else np.array([0.0, 1.0])
+    # No threshold without an expert that succeeds: 0 × anything would be "reached" at once.
+    threshold = context.threshold_fraction * expert[task] if expert.get(task, 0.0) > 0 else None
+    entry: dict[str, Any] = {"expert_success": expert.get(task), "threshold": threshold,
+                             "a3c_steps": steps, "curve_bin_steps": float(edges[1] - edges[0]),
+                             "min_episodes_per_bin": MIN_EPISODES, "algorithms": {}}
+    crossings: dict[str, list[Crossing]] = {}
+    for algorithm, group in runs.items():
+        entry["algorithms"][algorithm], found = _algorithm_numbers(algorithm, group, planned_runs[task, algorithm],
+                                                                   edges, threshold, steps, context.out_dir)
+        if found:
+            crossings[algorithm] = found
+    _speedups(entry["algorithms"], crossings, context.resamples, rng)
+    curves = {a: group for a, group in runs.items() if not algorithm_named(a).start_curriculum}
+    if any(curves.values()):
+        figures.append(plot_curves(task, curves, edges, threshold, context.threshold_fraction,
+                                   context.out_dir / f"fig_curves_{task}.png", resamples=context.resamples, rng=rng,
+                                   budget=budget))
+        entry["figure"] = f"fig_curves_{task}.png"
+    return entry
+
+
+def _algorithm_numbers(name: str, group: list[RunResults], planned: int, edges: np.ndarray, threshold: float | None,
+                       steps: int, out_dir: Path) -> tuple[dict[str, Any], list[Crossing]]:
+    """One algorithm's runs on one task: each run's numbers and their means, and the runs' crossings
+    of the threshold (none with a start curriculum, whose training episodes are not the task's)."""
+    algorithm = algorithm_named(name)
+    kind = run_kind(algorithm)
+    curriculum = algorithm.start_curriculum
+    rows, crossings = [], []
+    for run in group:
+        crossing = None if threshold is None or curriculum else kind.crossing(run, edges, threshold)
+        if crossing is not None:
+            crossings.append(crossing)
+        rows.append({"seed": run.seed, "dir": str(run.path.relative_to(out_dir)),
+                     "steps_to_threshold": crossing.steps if crossing and crossing.reached else None,
+                     "censored_at": crossing.steps if crossing and not crossing.reached else None,
+                     "final_success_training": None if curriculum else kind.final_training_success(run, steps),
+                     "final_greedy_success": final_eval(run, name, "greedy"),
+                     "final_sampled_success": final_eval(run, name, "sampled"),
+                     "env_steps": kind.env_steps(run)})
+    training = kind.training_episodes and not curriculum
+    return {"runs": rows, "seeds_finished": len(group), "seeds_planned": planned,
+            "reached": sum(c.reached for c in crossings),
+            "mean_steps_censored_at_last": float(np.mean([c.steps for c in crossings])) if crossings else None,
+            "final_success_training": nanmean([r["final_success_training"] for r in rows]) if training else None,
+            "start_curriculum": curriculum,
+            "final_greedy_success": nanmean([r["final_greedy_success"] for r in rows]),
+            "final_sampled_success": nanmean([r["final_sampled_success"] for r in rows])}, crossings
+
+
+def _speedups(algorithms: dict[str, Any], crossings: dict[str, list[Crossing]], resamples: int,
+              rng: np.random.Generator) -> None:
+    """Into each algorithm's entry: its speed-up over :data:`~bimgame.experiments.algorithms.BASELINE`
+    (``speedup_vs_<baseline>``) and, for a value-reward algorithm, over the same start without the
+    value reward (``speedup_vs_<that algorithm>``)."""
+    base = crossings.get(BASELINE.name)
+    for name, group in crossings.items():
+        if name != BASELINE.name and base:
+            algorithms[name][f"speedup_vs_{BASELINE.name}"] = speedup(base, group, resamples=resamples, rng=rng)
+    for algorithm in registered():
+        without = algorithm.without_value_reward
+        if without is not None and crossings.get(without) and crossings.get(algorithm.name):
+            algorithms[algorithm.name][f"speedup_vs_{without}"] = speedup(
+                crossings[without], crossings[algorithm.name], resamples=resamples, rng=rng)
+
+
+def _beyond(all_runs: dict[str, dict[str, list[RunResults]]], planned_runs: collections.Counter, out_dir: Path,
+            budget: Budget, figures: list[Path], *, resamples: int, rng: np.random.Generator) -> dict[str, Any]:
+    """The numbers of the section beyond the paper, with a figure of the evaluations per task that has any."""
+    beyond = beyond_numbers(all_runs, planned_runs, out_dir=out_dir, resamples=resamples, rng=rng)
+    for task, entry in beyond["tasks"].items():
+        if any(r["evaluations"] for a in entry["algorithms"].values() for r in a["runs"]):
+            figures.append(plot_eval_curves(task, all_runs[task], out_dir / f"fig_eval_{task}.png", budget=budget,
+                                            target=EVAL_TARGET))
+            entry["figure"] = f"fig_eval_{task}.png"
+    return beyond
 
 
 def _without_nan(value: Any) -> Any:
@@ -210,9 +247,9 @@ def _pretraining(finished: dict[str, Piece], out_dir: Path, budget: Budget) -> d
     out: dict[str, Any] = {}
     for task in budget.tasks:
         policy = [(p.seed, read_json(out_dir / p.path / "summary.json")) for p in finished.values()
-                  if p.kind == "pretrain-policy" and p.task == task]
+                  if isinstance(kind_of(p), PretrainPolicyKind) and p.task == task]
         value = [(p.seed, read_json(out_dir / p.path / "summary.json")) for p in finished.values()
-                 if p.kind == "pretrain-value" and p.task == task]
+                 if isinstance(kind_of(p), PretrainValueKind) and p.task == task]
         if not policy and not value:
             continue
         policy = sorted((s, v) for s, v in policy if v)

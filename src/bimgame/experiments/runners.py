@@ -1,17 +1,18 @@
 """Running one piece of a reproduction: the settings each piece passes to the library
 (:func:`pretrain_config_for`, :func:`a3c_config_for`, :func:`dagger_config_for`, all derived from
-the budget) and :data:`RUNNERS`, one function per piece kind that computes — or continues — the
-piece in its directory and returns a note for ``status.json`` ("resumed from its checkpoint", …).
+the budget and the algorithm's record) and one function per kind of work (:func:`run_dataset`,
+:func:`run_pretrain`, :func:`run_a3c`, :func:`run_dagger`) that computes — or continues — a piece
+in its directory and returns a note for ``status.json`` ("resumed from its checkpoint", …). Which
+piece runs which function is :mod:`bimgame.experiments.kinds`.
 
 A runner raises ``KeyboardInterrupt`` when the piece stopped before it finished (Ctrl-C, SIGTERM),
 so that :func:`bimgame.experiments.reproduce.reproduce` marks it interrupted; any other error marks
 it failed.
 
-**Threads.** Pre-training and DAgger run in this process with up to two torch threads. On a
-two-core machine that is also running something else, two intra-op threads made a small state
-network's pre-training ten times slower than one (54 s against 5 s, measured with another training
-run on the machine). The budget's ``torch_threads`` (default 1) sets the count for these library
-calls (:func:`bimgame.learn.runs.torch_threads`); A3C workers always use one thread each.
+**Threads.** Pre-training and DAgger run in this process; the budget's ``torch_threads`` (default
+1: more intra-op threads slowed small networks down on a busy machine, see ``docs/budgets.md``)
+sets their torch threads (:func:`bimgame.learn.runs.torch_threads`); A3C workers always use one
+thread each.
 """
 
 from __future__ import annotations
@@ -19,9 +20,9 @@ from __future__ import annotations
 import dataclasses
 import shutil
 from pathlib import Path
-from typing import Callable
 
-from bimgame.experiments.budgets import Budget, uses_policy, uses_value
+from bimgame.experiments.algorithms import A3C, algorithm_named
+from bimgame.experiments.budgets import Budget
 from bimgame.experiments.grid import Piece, policy_path, value_path
 from bimgame.experiments.methods import finetune_overrides
 from bimgame.expert.datasets import generate_dataset
@@ -34,7 +35,8 @@ from bimgame.learn.runs import CONFIG, KIND_POLICY, KIND_VALUE, write_run_json
 from bimgame.learn.supervised import PretrainConfig
 from bimgame.util.files import read_json
 
-__all__ = ["pretrain_config_for", "a3c_config_for", "dagger_config_for", "RUNNERS", "RESUMABLE_KINDS"]
+__all__ = ["pretrain_config_for", "a3c_config_for", "dagger_config_for", "run_dataset", "run_pretrain", "run_a3c",
+           "run_dagger"]
 
 
 def pretrain_config_for(budget: Budget, task: str, seed: int, target: str) -> PretrainConfig:
@@ -51,7 +53,7 @@ def pretrain_config_for(budget: Budget, task: str, seed: int, target: str) -> Pr
     raise ValueError(f"unknown pre-training target {target!r}; allowed: policy, value")
 
 
-def a3c_config_for(budget: Budget, task: str, seed: int, algorithm: str = "a3c",
+def a3c_config_for(budget: Budget, task: str, seed: int, algorithm: str = A3C.name,
                    data_dir: str | Path | None = None) -> A3CConfig:
     """The A3C settings of ``algorithm``'s run for a task and seed: the budget's, with the
     algorithm's fine-tuning settings (:func:`~bimgame.experiments.methods.finetune_overrides`;
@@ -78,15 +80,16 @@ def dagger_config_for(budget: Budget, task: str, seed: int) -> DAggerConfig:
                         eval_episodes=budget.dagger_eval_episodes)
 
 
-def _run_dataset(piece: Piece, budget: Budget, out_dir: Path) -> str:
+def run_dataset(piece: Piece, budget: Budget, out_dir: Path) -> str:
+    """Generate (or complete) the expert dataset."""
     generate_dataset(out_dir / piece.path, task=budget.dataset_task, episodes=budget.dataset_episodes,
                      seed=budget.dataset_seed, workers=budget.dataset_workers, progress=False,
                      max_steps=budget.dataset_max_steps)
     return ""
 
 
-def _run_pretrain(piece: Piece, budget: Budget, out_dir: Path) -> str:
-    target = "policy" if piece.kind == "pretrain-policy" else "value"
+def run_pretrain(piece: Piece, budget: Budget, out_dir: Path, target: str) -> str:
+    """Pre-train π^s (``target="policy"``) or V̂ (``"value"``); an unfinished one starts again."""
     path = out_dir / piece.path
     note = ""
     stored = read_json(path / CONFIG)
@@ -103,11 +106,14 @@ def _run_pretrain(piece: Piece, budget: Budget, out_dir: Path) -> str:
     return note
 
 
-def _run_a3c(piece: Piece, budget: Budget, out_dir: Path) -> str:
+def run_a3c(piece: Piece, budget: Budget, out_dir: Path) -> str:
+    """Train (or continue) an A3C run of the piece's algorithm, from π^s and on V̂'s reward when its
+    record says so."""
     path = out_dir / piece.path
+    algorithm = algorithm_named(piece.algorithm)
     config = a3c_config_for(budget, piece.task, piece.seed, piece.algorithm, (out_dir / "data").resolve())
-    init = (out_dir / policy_path(piece.task, piece.seed)).resolve() if uses_policy(piece.algorithm) else None
-    value = (out_dir / value_path(piece.task, piece.seed)).resolve() if uses_value(piece.algorithm) else None
+    init = (out_dir / policy_path(piece.task, piece.seed)).resolve() if algorithm.starts_from_policy else None
+    value = (out_dir / value_path(piece.task, piece.seed)).resolve() if algorithm.value_reward else None
     reward = RewardSettings(value_reward=None if value is None else str(value))
     wrapper = env_wrapper_for(reward, obs=config.obs, gamma=config.gamma)
     resume = (path / CONFIG).is_file()
@@ -151,18 +157,9 @@ def _point_at_the_dataset_now(path: Path, stored: dict, config: A3CConfig) -> No
         write_run_json(path / CONFIG, {**stored, "a3c": {**settings, "expert_data": config.expert_data}})
 
 
-def _run_dagger(piece: Piece, budget: Budget, out_dir: Path) -> str:
+def run_dagger(piece: Piece, budget: Budget, out_dir: Path) -> str:
+    """Run (or continue after its last finished iteration) a DAgger run."""
     path = out_dir / piece.path
     resume = (path / CONFIG).is_file()
     dagger(dagger_config_for(budget, piece.task, piece.seed), path, resume=resume, progress=False)
     return "resumed after its last finished iteration" if resume else ""
-
-
-#: The runner of each piece kind: ``RUNNERS[piece.kind](piece, budget, out_dir)`` computes the piece
-#: and returns a note for ``status.json`` ("" when there is nothing to say).
-RUNNERS: dict[str, Callable[[Piece, Budget, Path], str]] = {
-    "dataset": _run_dataset, "pretrain-policy": _run_pretrain, "pretrain-value": _run_pretrain,
-    "a3c": _run_a3c, "dagger": _run_dagger}
-#: The piece kinds whose runner continues an unfinished run from its directory (its checkpoint,
-#: written atomically, is the commit point); the others start again.
-RESUMABLE_KINDS = ("a3c", "dagger")
