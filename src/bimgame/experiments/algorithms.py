@@ -31,9 +31,9 @@ from typing import Any, Callable, Iterator, Mapping
 
 from bimgame.learn.finetune import FINETUNE_PRESETS
 
-__all__ = ["Learner", "Algorithm", "reads_expert_data", "register", "unregister", "algorithm_named", "registered", "algorithm_names",
-           "LABELS", "BC_COEF", "KEEPFADE_FRACTION", "BASELINE", "A3C", "PRETRAIN_A3C", "A3C_VALUE", "PRETRAIN_A3C_VALUE",
-           "DAGGER"]
+__all__ = ["Learner", "Algorithm", "reads_expert_data", "register", "unregister", "algorithm_named", "registered",
+           "algorithm_names", "LABELS", "BC_COEF", "KEEPFADE_FRACTION", "BASELINE", "A3C", "PRETRAIN_A3C", "A3C_VALUE",
+           "PRETRAIN_A3C_VALUE", "DAGGER"]
 
 
 class Learner(enum.Enum):

@@ -1,0 +1,89 @@
+"""The algorithm registry: one record per algorithm is all a reproduction needs of it. A test registers
+an algorithm of its own — A3C without the entropy bonus — and runs a tiny grid and its report with
+it, through the real pieces; unknown names fail listing the registered ones."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from collections.abc import Iterator
+
+import pytest
+
+from bimgame.experiments.algorithms import (
+    Algorithm,
+    Learner,
+    algorithm_named,
+    algorithm_names,
+    register,
+    unregister,
+)
+from bimgame.experiments.budgets import ALGORITHM_LABELS, ALGORITHMS, Budget
+from bimgame.experiments.grid import plan_pieces
+from bimgame.experiments.methods import finetune_overrides, needs_expert_data
+from bimgame.experiments.plan import load_plan
+from bimgame.experiments.report import build_report
+from bimgame.experiments.reproduce import reproduce
+
+NAME, LABEL = "a3c+beta0", "A3C (β=0)"
+
+
+@pytest.fixture
+def beta0() -> Iterator[Algorithm]:
+    """A3C from random weights with no entropy bonus, registered for the test only."""
+    record = register(Algorithm(NAME, LABEL, settings=lambda steps: {"entropy_coef": 0.0}))
+    try:
+        yield record
+    finally:
+        unregister(NAME)
+
+
+def test_the_built_in_records_are_what_the_budget_and_the_labels_show():
+    assert algorithm_names() == ALGORITHMS
+    assert dict(ALGORITHM_LABELS) == {name: algorithm_named(name).label for name in ALGORITHMS}
+    assert algorithm_named("dagger").learner is Learner.DAGGER
+    assert algorithm_named("pretrain+a3c+value").starts_from_policy and algorithm_named("a3c+value").value_reward
+    assert not algorithm_named("a3c").starts_from_policy and not algorithm_named("a3c").value_reward
+
+
+def test_an_unknown_algorithm_is_an_error_listing_the_registered_ones():
+    with pytest.raises(ValueError, match=r"unknown algorithm 'a3c\+nope'; registered: a3c, pretrain\+a3c, "):
+        algorithm_named("a3c+nope")
+    with pytest.raises(ValueError, match=r"Budget\.algorithms: unknown \['a3c\+nope'\]; allowed: a3c, "):
+        Budget(algorithms=("a3c", "a3c+nope"))
+    with pytest.raises(ValueError, match="registered already"):
+        register(Algorithm("a3c", "another A3C"))
+    with pytest.raises(ValueError, match="settings, starts_from_policy and value_reward are A3C's"):
+        Algorithm("dagger+init", "DAgger from π^s", learner=Learner.DAGGER, starts_from_policy=True)
+
+
+def test_a_registered_algorithm_is_in_the_labels_budgets_and_grid_until_it_is_removed(beta0):
+    assert ALGORITHM_LABELS[NAME] == LABEL and algorithm_names()[-1] == NAME
+    assert finetune_overrides(NAME, 1_000, None) == {"entropy_coef": 0.0} and not needs_expert_data(NAME)
+    budget = Budget(tasks=("STG1",), algorithms=(NAME, "a3c"), seeds=1)
+    assert budget.algorithms == ("a3c", NAME)  # the registry's order
+    assert [p.path for p in plan_pieces(budget) if p.algorithm == NAME] == ["runs/STG1/a3c-beta0/seed0"]
+    unregister(NAME)
+    try:
+        assert NAME not in ALGORITHM_LABELS
+        with pytest.raises(ValueError, match="unknown"):
+            Budget(algorithms=(NAME,))
+    finally:
+        register(beta0)
+
+
+def test_a_tiny_grid_with_a_registered_algorithm_runs_and_reports_it(tmp_path, tiny_budget, beta0):
+    budget = dataclasses.replace(tiny_budget, algorithms=("a3c", NAME), seeds=1)
+    result = reproduce(tmp_path, budget, progress=False)
+    assert result.complete and result.computed == ["data", "runs/STG1/a3c/seed0", "runs/STG1/a3c-beta0/seed0"]
+    assert load_plan(tmp_path)[0].algorithms == ("a3c", NAME)
+    stored = json.loads((tmp_path / "runs/STG1/a3c-beta0/seed0/config.json").read_text())
+    assert stored["a3c"]["entropy_coef"] == 0.0 and stored["init"] is None
+    plain = json.loads((tmp_path / "runs/STG1/a3c/seed0/config.json").read_text())
+    assert plain["a3c"]["entropy_coef"] == 0.01
+
+    paths = build_report(tmp_path, resamples=100)
+    numbers = json.loads(paths.table_json.read_text())["tasks"]["STG1"]["algorithms"]
+    assert numbers[NAME]["seeds_finished"] == 1 and numbers[NAME]["runs"][0]["dir"] == "runs/STG1/a3c-beta0/seed0"
+    assert LABEL in paths.table_md.read_text() and LABEL in paths.report.read_text()
+    assert (tmp_path / "fig_curves_STG1.png").is_file()
