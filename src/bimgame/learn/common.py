@@ -76,7 +76,8 @@ class NetworkSettings:
     features: int | None = None
     """Encoder output size; None: 256 for pixels (the paper's FC 256), 128 for state observations."""
     tilt_input: bool = True
-    """Feed the board tilt to the LSTM (see :mod:`bimgame.learn.nets`); False is the paper's exact input."""
+    """Feed the board tilt to the LSTM (see :mod:`bimgame.learn.nets`). False: no tilt input to the LSTM,
+    the paper's exact input."""
     keypoints: bool = False
     """Pixels: add spatial soft-argmax keypoints to the conv encoder (see :mod:`bimgame.learn.nets`)."""
     subtract_background: bool = False

@@ -402,14 +402,14 @@ def _configure_inputs(
         if isinstance(net, RecurrentActorCritic):  # V̂ reads no privileged state
             net.privileged_scale.copy_(torch.as_tensor(np.asarray(privileged_scale, dtype=np.float32)))
     if config.subtract_background:
-        if not isinstance(net.encoder, ConvEncoder):
-            raise ValueError("subtract_background applies to the conv encoder only")
         if background is None or np.shape(background) != config.obs_shape:
             raise ValueError(
                 f"subtract_background needs the empty-maze frame of shape {config.obs_shape} "
                 f"(background=maze_background(spec)), got "
                 f"{None if background is None else np.shape(background)}"
             )
+        if not isinstance(net.encoder, ConvEncoder):
+            raise ValueError("subtract_background applies to the conv encoder only")
         net.encoder.background.copy_(torch.as_tensor(np.asarray(background, dtype=np.float32)))
     elif background is not None:
         raise ValueError("background is only used with NetConfig(subtract_background=True)")
