@@ -16,14 +16,17 @@ from bimgame.experiments.algorithms import (
     algorithm_named,
     algorithm_names,
     register,
+    registered,
     unregister,
 )
-from bimgame.experiments.budgets import ALGORITHM_LABELS, ALGORITHMS, Budget
+from bimgame.experiments.budgets import ALGORITHM_LABELS, ALGORITHMS, PAPER_ALGORITHMS, Budget
 from bimgame.experiments.grid import plan_pieces
+from bimgame.experiments.kinds import KINDS, kind_of, run_kind
 from bimgame.experiments.methods import finetune_overrides, needs_expert_data
 from bimgame.experiments.plan import load_plan
 from bimgame.experiments.report import build_report
 from bimgame.experiments.reproduce import reproduce
+from bimgame.experiments.runners import a3c_config_for
 
 NAME, LABEL = "a3c+beta0", "A3C (β=0)"
 
@@ -73,17 +76,41 @@ def test_a_registered_algorithm_is_in_the_labels_budgets_and_grid_until_it_is_re
 
 
 def test_a_tiny_grid_with_a_registered_algorithm_runs_and_reports_it(tmp_path, tiny_budget, beta0):
-    budget = dataclasses.replace(tiny_budget, algorithms=("a3c", NAME), seeds=1)
+    # One short run of the new algorithm (the grid's other pieces are the kinds the other tests run).
+    budget = dataclasses.replace(tiny_budget, algorithms=(NAME,), seeds=1, a3c_steps={"STG1": 800})
     result = reproduce(tmp_path, budget, progress=False)
-    assert result.complete and result.computed == ["data", "runs/STG1/a3c/seed0", "runs/STG1/a3c-beta0/seed0"]
-    assert load_plan(tmp_path)[0].algorithms == ("a3c", NAME)
+    assert result.complete and result.computed == ["data", "runs/STG1/a3c-beta0/seed0"]
+    assert load_plan(tmp_path)[0].algorithms == (NAME,)
     stored = json.loads((tmp_path / "runs/STG1/a3c-beta0/seed0/config.json").read_text())
     assert stored["a3c"]["entropy_coef"] == 0.0 and stored["init"] is None
-    plain = json.loads((tmp_path / "runs/STG1/a3c/seed0/config.json").read_text())
-    assert plain["a3c"]["entropy_coef"] == 0.01
+    assert a3c_config_for(budget, "STG1", 0, "a3c").entropy_coef == 0.01  # A3C's own is unchanged
 
     paths = build_report(tmp_path, resamples=100)
     numbers = json.loads(paths.table_json.read_text())["tasks"]["STG1"]["algorithms"]
     assert numbers[NAME]["seeds_finished"] == 1 and numbers[NAME]["runs"][0]["dir"] == "runs/STG1/a3c-beta0/seed0"
     assert LABEL in paths.table_md.read_text() and LABEL in paths.report.read_text()
+    assert f"| {LABEL} | 1/1 |" in paths.report.read_text()  # its row of the speed-up table
     assert (tmp_path / "fig_curves_STG1.png").is_file()
+
+
+def test_the_records_say_what_the_names_used_to():
+    policy = [a.name for a in registered() if a.starts_from_policy]
+    assert policy == [a for a in ALGORITHMS if a.startswith("pretrain")]
+    assert [a.name for a in registered() if a.value_reward] == ["a3c+value", "pretrain+a3c+value"]
+    assert [a.name for a in registered() if a.learner is Learner.DAGGER] == ["dagger"]
+    assert {a.name: a.without_value_reward for a in registered() if a.without_value_reward} == {
+        "a3c+value": "a3c", "pretrain+a3c+value": "pretrain+a3c"}
+    assert [a.name for a in registered() if a.paper] == list(PAPER_ALGORITHMS)
+    assert algorithm_named("pretrain+a3c+value").slug == "pretrain-a3c-value"
+    for algorithm in registered():
+        assert run_kind(algorithm).name == algorithm.learner.value
+    assert set(KINDS) == {"dataset", "pretrain-policy", "pretrain-value", "a3c", "dagger"}
+
+
+def test_bad_records_and_kinds_are_refused_naming_what_is_allowed():
+    with pytest.raises(ValueError, match=r"without_value_reward 'a3c\+nothing' is not registered"):
+        register(Algorithm("a3c+nothing+value", "?", value_reward=True, without_value_reward="a3c+nothing"))
+    with pytest.raises(ValueError, match=r"Algorithm.learner must be one of"):
+        Algorithm("ppo", "PPO", learner="ppo")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match=r"unknown piece kind 'ppo'; allowed: dataset, pretrain-policy"):
+        kind_of(dataclasses.replace(plan_pieces(Budget(algorithms=("a3c",)))[0], kind="ppo"))
