@@ -26,7 +26,7 @@ from typing import Any
 
 from rich.console import Console
 
-from bimgame.experiments.backends import Backend, LocalBackend
+from bimgame.experiments.backends import Backend, LocalBackend, PieceOutcome
 from bimgame.experiments.budgets import Budget
 from bimgame.experiments.cluster import RayBackend
 from bimgame.experiments.costs import COSTS, CostModel, cluster_seconds, estimate_seconds, format_duration
@@ -92,14 +92,7 @@ def reproduce(out_dir: str | Path, budget: Budget, *, progress: bool = True, sto
     Returns:
         What was computed, reused, failed or left; the report is built by :mod:`bimgame.experiments.report`.
     """
-    if stop_after is not None and not (isinstance(stop_after, int) and stop_after >= 1):
-        raise ValueError(f"stop_after must be None or an integer >= 1, got {stop_after!r}")
-    if not isinstance(budget, Budget):
-        raise TypeError(f"budget must be a Budget, got {type(budget).__name__}")
-    if backend not in BACKENDS:
-        raise ValueError(f"unknown backend {backend!r}; allowed: {', '.join(BACKENDS)}")
-    if ray_address is not None and backend != "ray":
-        raise ValueError("ray_address is only used with backend='ray'")
+    _check_arguments(budget, stop_after, backend, ray_address)
     # Absolute, so the paths the runs record in their config.json (init, value reward) hold from anywhere.
     out_dir = Path(out_dir).resolve()
     if out_dir.exists() and not out_dir.is_dir():
@@ -108,118 +101,177 @@ def reproduce(out_dir: str | Path, budget: Budget, *, progress: bool = True, sto
     with _exclusive(out_dir), sigterm_as_interrupt():
         check_compatible(out_dir, budget)
         pieces = write_plan(out_dir, budget, costs)
-        status = load_status(out_dir)
-        entries: dict[str, dict[str, Any]] = status.setdefault("pieces", {})
+        book = _Bookkeeping(out_dir, load_status(out_dir), ReproductionResult(out_dir, [], [], {}, [], [], 0.0))
         invocation = {"started": timestamp(), "budget": budget.name, "backend": backend}
-        status.setdefault("invocations", []).append(invocation)
-        result = ReproductionResult(out_dir, [], [], {}, [], [], 0.0)
+        book.status.setdefault("invocations", []).append(invocation)
         started = time.monotonic()
-
-        def save() -> None:
-            status["updated"] = timestamp()
-            write_json(out_dir / STATUS, status)
-
         done = {p.id for p in pieces if piece_done(p, out_dir, budget)}
+        book.mark_planned(pieces, done)
+        todo = [p for p in pieces if p.id not in done]
+        runner = _backend(backend, out_dir, budget, pieces, todo, invocation, console, costs, ray_address=ray_address,
+                          max_retries=max_retries)
+        shown = todo if stop_after is None else todo[:stop_after]
+        driver = _Driver(book, runner, set(done), list(todo), stop_after)
+        try:
+            with _Display(progress, console, shown, budget, costs, driver.started_state) as display:
+                driver.run(display)
+        except KeyboardInterrupt:
+            driver.interrupted()
+            raise
+        finally:
+            runner.close()
+        result = book.result
+        result.remaining = [p.id for p in driver.pending]
+        result.seconds = time.monotonic() - started
+        invocation.update(finished=timestamp(), seconds=round(result.seconds, 1), computed=len(result.computed),
+                          reused=len(result.reused), failed=len(result.failed))
+        book.save()
+    return result
+
+
+def _check_arguments(budget: Budget, stop_after: int | None, backend: str, ray_address: str | None) -> None:
+    """Refuse bad arguments of :func:`reproduce` before anything is written."""
+    if stop_after is not None and not (isinstance(stop_after, int) and stop_after >= 1):
+        raise ValueError(f"stop_after must be None or an integer >= 1, got {stop_after!r}")
+    if not isinstance(budget, Budget):
+        raise TypeError(f"budget must be a Budget, got {type(budget).__name__}")
+    if backend not in BACKENDS:
+        raise ValueError(f"unknown backend {backend!r}; allowed: {', '.join(BACKENDS)}")
+    if ray_address is not None and backend != "ray":
+        raise ValueError("ray_address is only used with backend='ray'")
+
+
+def _backend(backend: str, out_dir: Path, budget: Budget, pieces: list[Piece], todo: list[Piece],
+             invocation: dict[str, Any], console: Any, costs: CostModel, *, ray_address: str | None,
+             max_retries: int) -> Backend:
+    """The backend that computes the pieces; a Ray cluster is checked to fit them and announced with
+    its expected wall time."""
+    if backend != "ray":
+        return LocalBackend(out_dir, budget)
+    cluster = RayBackend(out_dir, budget, pieces, address=ray_address, max_retries=max_retries)
+    cluster.check_fits(todo)
+    invocation["cluster_cpus"] = cluster.cpus
+    _print(console, f"Ray cluster: {cluster.cpus:g} CPUs on {cluster.nodes} nodes; expected ≈ "
+                    f"{format_duration(cluster_seconds(todo, budget, cluster.cpus, costs))} for the "
+                    f"{len(todo)} pieces not finished yet (their estimates spread over the CPUs, at "
+                    f"least the longest chain of pieces that wait for one another)")
+    return cluster
+
+
+@dataclasses.dataclass
+class _Bookkeeping:
+    """``status.json`` (rewritten after every change) and what this call did."""
+
+    out_dir: Path
+    status: dict[str, Any]
+    result: ReproductionResult
+
+    @property
+    def entries(self) -> dict[str, dict[str, Any]]:
+        return self.status.setdefault("pieces", {})
+
+    def save(self) -> None:
+        self.status["updated"] = timestamp()
+        write_json(self.out_dir / STATUS, self.status)
+
+    def mark_planned(self, pieces: list[Piece], done: set[str]) -> None:
+        """Every piece's entry: done (reused) or pending (a piece whose outputs are gone starts over)."""
         for piece in pieces:
-            entry = entries.setdefault(piece.id, {"computed": 0})
+            entry = self.entries.setdefault(piece.id, {"computed": 0})
             entry.update(kind=piece.kind, path=piece.path)
             if piece.id in done:
                 entry["state"] = "done"
-                result.reused.append(piece.id)
+                self.result.reused.append(piece.id)
             else:
                 if entry.get("state") == "done":  # its outputs are gone: it starts over
                     entry["seconds"] = 0.0
                 entry["state"] = "pending"
-        save()
-        todo = [p for p in pieces if p.id not in done]
-        runner: Backend
-        if backend == "ray":
-            cluster = RayBackend(out_dir, budget, pieces, address=ray_address, max_retries=max_retries)
-            cluster.check_fits(todo)
-            invocation["cluster_cpus"] = cluster.cpus
-            _print(console, f"Ray cluster: {cluster.cpus:g} CPUs on {cluster.nodes} nodes; expected ≈ "
-                            f"{format_duration(cluster_seconds(todo, budget, cluster.cpus, costs))} for the "
-                            f"{len(todo)} pieces not finished yet (their estimates spread over the CPUs, at "
-                            f"least the longest chain of pieces that wait for one another)")
-            runner = cluster
-        else:
-            runner = LocalBackend(out_dir, budget)
-        started_state = "submitted" if runner.queues else "running"
-        shown = todo if stop_after is None else todo[:stop_after]
-        finished = set(done)
-        in_flight: dict[str, float] = {}
-        pending = list(todo)
-        submitted = 0
-        try:
-            with _Display(progress, console, shown, budget, costs, started_state) as display:
-                while True:
-                    for piece in list(pending):
-                        entry = entries[piece.id]
-                        blocked = [n for n in piece.needs if n in result.failed or n in result.skipped]
-                        if blocked:
-                            entry.update(state="skipped", error=f"needs {', '.join(blocked)}, which did not finish")
-                            result.skipped.append(piece.id)
-                            pending.remove(piece)
-                            save()
-                            continue
-                        if (not all(n in finished for n in piece.needs)
-                                or (runner.capacity is not None and len(in_flight) >= runner.capacity)
-                                or (stop_after is not None and submitted >= stop_after)):
-                            continue
-                        entry.update(state=started_state, started=timestamp())
-                        for stale in ("error", "traceback", "node"):
-                            entry.pop(stale, None)
-                        save()
-                        runner.submit(piece)
-                        pending.remove(piece)
-                        in_flight[piece.id] = time.monotonic()
-                        submitted += 1
-                        display.start(piece)
-                    if not in_flight:
-                        break
-                    outcome = runner.next_outcome()
-                    piece = outcome.piece
-                    del in_flight[piece.id]
-                    entry = entries[piece.id]
-                    # Wall time includes earlier interrupted or failed attempts of the same piece.
-                    entry["seconds"] = entry.get("seconds", 0.0) + outcome.seconds
-                    entry["finished"] = timestamp()
-                    if outcome.node is not None:
-                        entry["node"] = outcome.node
-                    if outcome.failed:
-                        entry.update(state="failed", error=outcome.error, traceback=outcome.traceback)
-                        result.failed[piece.id] = outcome.error
-                        save()
-                        display.finish(piece, f"[red]failed[/red]: {escape(outcome.error)}")
-                        continue
-                    entry.update(state="done", computed=entry.get("computed", 0) + 1)
-                    entry.pop("traceback", None)
-                    entry.pop("note", None)
-                    if outcome.note:
-                        entry["note"] = outcome.note
-                    finished.add(piece.id)
-                    result.computed.append(piece.id)
-                    save()
-                    where = f" on {outcome.node}" if outcome.node else ""
-                    display.finish(piece, f"done in {format_duration(outcome.seconds)}{escape(where)}"
-                                   + (f" ({escape(outcome.note)})" if outcome.note else ""))
-        except KeyboardInterrupt:
-            now = time.monotonic()
-            for piece_id, submitted_at in in_flight.items():
-                entry = entries[piece_id]
-                # Locally the piece ran since it was submitted; in a queue it may not have started.
-                spent = 0.0 if runner.queues else now - submitted_at
-                entry.update(state="interrupted", seconds=entry.get("seconds", 0.0) + spent)
-            save()
-            raise
-        finally:
-            runner.close()
-        result.remaining = [p.id for p in pending]
-        result.seconds = time.monotonic() - started
-        invocation.update(finished=timestamp(), seconds=round(result.seconds, 1), computed=len(result.computed),
-                          reused=len(result.reused), failed=len(result.failed))
-        save()
-    return result
+        self.save()
+
+
+class _Driver:
+    """Submits each pending piece once all it needs is finished (skipping those whose needs failed),
+    records each outcome, until nothing is in flight."""
+
+    def __init__(self, book: _Bookkeeping, runner: Backend, finished: set[str], pending: list[Piece],
+                 stop_after: int | None):
+        self.book, self.runner, self.stop_after = book, runner, stop_after
+        self.finished, self.pending = finished, pending
+        self.in_flight: dict[str, float] = {}
+        self.submitted = 0
+        self.started_state = "submitted" if runner.queues else "running"
+
+    def run(self, display: _Display) -> None:
+        while True:
+            self._submit_ready(display)
+            if not self.in_flight:
+                return
+            self._record(self.runner.next_outcome(), display)
+
+    def _may_start(self, piece: Piece) -> bool:
+        return (all(n in self.finished for n in piece.needs)
+                and (self.runner.capacity is None or len(self.in_flight) < self.runner.capacity)
+                and (self.stop_after is None or self.submitted < self.stop_after))
+
+    def _submit_ready(self, display: _Display) -> None:
+        result = self.book.result
+        for piece in list(self.pending):
+            entry = self.book.entries[piece.id]
+            blocked = [n for n in piece.needs if n in result.failed or n in result.skipped]
+            if blocked:
+                entry.update(state="skipped", error=f"needs {', '.join(blocked)}, which did not finish")
+                result.skipped.append(piece.id)
+                self.pending.remove(piece)
+                self.book.save()
+                continue
+            if not self._may_start(piece):
+                continue
+            entry.update(state=self.started_state, started=timestamp())
+            for stale in ("error", "traceback", "node"):
+                entry.pop(stale, None)
+            self.book.save()
+            self.runner.submit(piece)
+            self.pending.remove(piece)
+            self.in_flight[piece.id] = time.monotonic()
+            self.submitted += 1
+            display.start(piece)
+
+    def _record(self, outcome: PieceOutcome, display: _Display) -> None:
+        piece = outcome.piece
+        del self.in_flight[piece.id]
+        entry = self.book.entries[piece.id]
+        # Wall time includes earlier interrupted or failed attempts of the same piece.
+        entry["seconds"] = entry.get("seconds", 0.0) + outcome.seconds
+        entry["finished"] = timestamp()
+        if outcome.node is not None:
+            entry["node"] = outcome.node
+        if outcome.failed:
+            entry.update(state="failed", error=outcome.error, traceback=outcome.traceback)
+            self.book.result.failed[piece.id] = outcome.error
+            self.book.save()
+            display.finish(piece, f"[red]failed[/red]: {escape(outcome.error)}")
+            return
+        entry.update(state="done", computed=entry.get("computed", 0) + 1)
+        entry.pop("traceback", None)
+        entry.pop("note", None)
+        if outcome.note:
+            entry["note"] = outcome.note
+        self.finished.add(piece.id)
+        self.book.result.computed.append(piece.id)
+        self.book.save()
+        where = f" on {outcome.node}" if outcome.node else ""
+        display.finish(piece, f"done in {format_duration(outcome.seconds)}{escape(where)}"
+                       + (f" ({escape(outcome.note)})" if outcome.note else ""))
+
+    def interrupted(self) -> None:
+        """Mark the pieces in flight interrupted (they resume next time), with the time they ran."""
+        now = time.monotonic()
+        for piece_id, submitted_at in self.in_flight.items():
+            entry = self.book.entries[piece_id]
+            # Locally the piece ran since it was submitted; in a queue it may not have started.
+            spent = 0.0 if self.runner.queues else now - submitted_at
+            entry.update(state="interrupted", seconds=entry.get("seconds", 0.0) + spent)
+        self.book.save()
 
 
 def _print(console: Any, text: str) -> None:
