@@ -269,41 +269,20 @@ def uses_value(algorithm: str) -> bool:
 
 #: The settings of the ``beyond`` and ``ablation`` presets. Everything but the grid is the same, so
 #: either can continue the other's reproduction directory, reusing its dataset, π^s and shared runs.
-#: Steps: STG2 400k, STG3/STG4/FULL 500k (2.5–4× fewer than ``quick`` sets for these tasks), chosen
-#: so that ``beyond`` (36 A3C runs) stays within two hours on two cores: the cost model
-#: (:mod:`bimgame.experiments.costs`, ``bimgame reproduce --budget beyond --dry-run``) expects 43
-#: minutes on idle cores, ``ablation`` (24 runs) 28 minutes. The model counts 9,000 A3C steps/s,
-#: measured for plain A3C, and leaves out the periodic evaluations (up to ≈ 1 minute per run here);
-#: a ``keep`` run on STG3 (KL teacher, these evaluations) measured ≈ 3,400 steps/s while a
-#: pre-training kept one core busy, no slower than plain A3C under load (2,000–3,000). Evaluations
-#: every 50k steps with 20 episodes show the dip when fine-tuning forgets π^s; 80 FULL expert
-#: episodes as in ``quick``.
+#: Fewer steps than ``quick`` sets for these tasks, so that ``beyond`` fits in two hours on two
+#: cores; evaluations every 50k steps show the dip when fine-tuning forgets π^s (``docs/budgets.md``).
 _BEYOND_SETTINGS: dict[str, Any] = dict(
     seeds=3, obs="state", subtract_background=True,
     a3c_steps={"STG1": 300_000, "STG2": 400_000, "STG3": 500_000, "STG4": 500_000, "FULL": 500_000},
     eval_every=50_000, eval_episodes=20, checkpoint_every=50_000,
     dataset_task="FULL", dataset_episodes=80, dataset_workers=2, pretrain_eval_episodes=50)
 
-#: The presets. ``quick`` shows the comparison on STG1 within half an hour on two cores: state
-#: observations, where A3C from scratch reached 80% success after 210k–255k steps in six runs, so
-#: 300k steps per run; 80 FULL expert episodes (40 gave a π^s that solved STG1 0–34% of the time
-#: alone, 80 gave 42–88%); two seeds. Measured: 8.4 minutes on the idle two-core machine (pre-training
-#: sped A3C up 2.3×); with a 40-episode dataset it took 23 minutes while other training jobs kept
-#: both cores busy. ``paper`` is the paper's grid: pixels, FULL/STG1/STG2, five seeds, 5M steps per
-#: A3C run, a 300-episode FULL dataset, with the pixel levers that measured best (auxiliary heads
-#: and bf16; the asymmetric critic ``pixels`` ran with did not help, see
-#: :class:`~bimgame.learn.common.NetworkSettings`) — about a day on two
-#: cores (``bimgame reproduce --dry-run`` prints the estimate per piece; 57 h with the paper's
-#: network in float32 at the speed measured under load). ``beyond`` and ``ablation`` go beyond the
-#: paper: fine-tuning π^s without forgetting it on STG2/STG3/STG4/FULL, and each fine-tuning method
-#: on its own on STG3 (see :data:`_BEYOND_SETTINGS`). ``pixels`` is the paper's grid from pixels
-#: within two hours on two cores: FULL/STG1/STG2 × the paper's five algorithms and ``a3c+papernet``
-#: × 3 seeds, with the pixel levers of its time (auxiliary heads — from scratch, 80% training
-#: success on STG1 after ≈ 550k steps where the paper's network stayed near random play after 1M —
-#: an asymmetric critic, which later measured no better, and bf16, ≈ 4,500 steps/s; the preset
-#: keeps the critic so that it stays the grid its committed report came from); STG1 600k steps (so
-#: that A3C from scratch can reach the threshold), STG2/FULL 300k; evaluations only at the end; 80 FULL expert episodes;
-#: DAgger 3 iterations × 6 episodes × 5 epochs. The cost model expects ≈ 1.8 h.
+#: The presets: ``quick``, the comparison on STG1 from state within half an hour on two cores;
+#: ``paper``, the paper's grid (pixels, FULL/STG1/STG2, five seeds, 5M steps per A3C run), about a
+#: day; ``pixels``, the paper's grid from pixels within two hours, with ``a3c+papernet`` beside the
+#: improved network; ``beyond`` and ``ablation``, fine-tuning π^s without forgetting it on
+#: STG2–FULL, and each fine-tuning method on its own on STG3 (:data:`_BEYOND_SETTINGS`). Why each has
+#: the sizes it has, and what it measured: ``docs/budgets.md``.
 BUDGETS: dict[str, Budget] = {
     "quick": Budget(
         name="quick", tasks=("STG1",), seeds=2, obs="state", subtract_background=True,
