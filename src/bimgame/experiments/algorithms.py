@@ -27,13 +27,30 @@ from __future__ import annotations
 
 import dataclasses
 import enum
-from typing import Any, Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
+from typing import Any
 
 from bimgame.learn.finetune import FINETUNE_PRESETS
 
-__all__ = ["Learner", "Algorithm", "reads_expert_data", "register", "unregister", "algorithm_named", "registered",
-           "algorithm_names", "LABELS", "BC_COEF", "KEEPFADE_FRACTION", "BASELINE", "A3C", "PRETRAIN_A3C", "A3C_VALUE",
-           "PRETRAIN_A3C_VALUE", "DAGGER"]
+__all__ = [
+    "Learner",
+    "Algorithm",
+    "reads_expert_data",
+    "register",
+    "unregister",
+    "algorithm_named",
+    "registered",
+    "algorithm_names",
+    "LABELS",
+    "BC_COEF",
+    "KEEPFADE_FRACTION",
+    "BASELINE",
+    "A3C",
+    "PRETRAIN_A3C",
+    "A3C_VALUE",
+    "PRETRAIN_A3C_VALUE",
+    "DAGGER",
+]
 
 
 class Learner(enum.Enum):
@@ -85,12 +102,16 @@ class Algorithm:
         if not (isinstance(self.name, str) and self.name and self.name.strip() == self.name):
             raise ValueError(f"Algorithm.name must be a non-empty name without surrounding spaces, got {self.name!r}")
         if not isinstance(self.learner, Learner):
-            raise ValueError(f"Algorithm.learner must be one of {', '.join(str(m) for m in Learner)}, "
-                             f"got {self.learner!r}")
-        if self.learner is not Learner.A3C and (self.settings is not _none or self.starts_from_policy
-                                                or self.value_reward):
-            raise ValueError(f"{self.name}: settings, starts_from_policy and value_reward are A3C's; "
-                             f"{self.learner.value} runs have none of them")
+            raise ValueError(
+                f"Algorithm.learner must be one of {', '.join(str(m) for m in Learner)}, got {self.learner!r}"
+            )
+        if self.learner is not Learner.A3C and (
+            self.settings is not _none or self.starts_from_policy or self.value_reward
+        ):
+            raise ValueError(
+                f"{self.name}: settings, starts_from_policy and value_reward are A3C's; "
+                f"{self.learner.value} runs have none of them"
+            )
 
     @property
     def slug(self) -> str:
@@ -135,11 +156,14 @@ def register(algorithm: Algorithm) -> Algorithm:
     if not isinstance(algorithm, Algorithm):
         raise TypeError(f"register takes an Algorithm, got {type(algorithm).__name__}")
     if algorithm.name in _REGISTRY:
-        raise ValueError(f"an algorithm named {algorithm.name!r} is registered already; registered: "
-                         f"{', '.join(_REGISTRY)}")
+        raise ValueError(
+            f"an algorithm named {algorithm.name!r} is registered already; registered: {', '.join(_REGISTRY)}"
+        )
     if algorithm.without_value_reward is not None and algorithm.without_value_reward not in _REGISTRY:
-        raise ValueError(f"{algorithm.name}: without_value_reward {algorithm.without_value_reward!r} is not "
-                         f"registered; registered: {', '.join(_REGISTRY)}")
+        raise ValueError(
+            f"{algorithm.name}: without_value_reward {algorithm.without_value_reward!r} is not "
+            f"registered; registered: {', '.join(_REGISTRY)}"
+        )
     _REGISTRY[algorithm.name] = algorithm
     return algorithm
 
@@ -212,44 +236,114 @@ A3C = register(Algorithm("a3c", "A3C", paper=True))
 """A3C from random weights."""
 BASELINE = A3C
 """The algorithm the report's speed-ups are over (``speedup_vs_<name>``)."""
-PRETRAIN_A3C = register(Algorithm("pretrain+a3c", "pre-train + A3C", starts_from_policy=True, paper=True,
-                                  settings=lambda steps: _preset("paper")))
+PRETRAIN_A3C = register(
+    Algorithm(
+        "pretrain+a3c", "pre-train + A3C", starts_from_policy=True, paper=True, settings=lambda steps: _preset("paper")
+    )
+)
 """A3C starting from π^s, pre-trained on the expert's dataset (plain fine-tuning)."""
-A3C_VALUE = register(Algorithm("a3c+value", "A3C + value reward", value_reward=True, paper=True,
-                               without_value_reward=A3C.name))
+A3C_VALUE = register(
+    Algorithm("a3c+value", "A3C + value reward", value_reward=True, paper=True, without_value_reward=A3C.name)
+)
 """A3C from random weights on r + γV̂(s') − V̂(s)."""
-PRETRAIN_A3C_VALUE = register(Algorithm("pretrain+a3c+value", "pre-train + A3C + value reward",
-                                        starts_from_policy=True, value_reward=True, paper=True,
-                                        without_value_reward=PRETRAIN_A3C.name))
+PRETRAIN_A3C_VALUE = register(
+    Algorithm(
+        "pretrain+a3c+value",
+        "pre-train + A3C + value reward",
+        starts_from_policy=True,
+        value_reward=True,
+        paper=True,
+        without_value_reward=PRETRAIN_A3C.name,
+    )
+)
 """Both: A3C from π^s on the value reward."""
 DAGGER = register(Algorithm("dagger", "DAgger", learner=Learner.DAGGER, paper=True))
 """DAgger with the MPC expert, from random weights."""
-register(Algorithm("pretrain+a3c+warmup", "pre-train + A3C + critic warm-up", starts_from_policy=True,
-                   finetuning=True, settings=lambda steps: _paper_with_keep("critic_warmup_steps", "actor_ramp_steps")))
+register(
+    Algorithm(
+        "pretrain+a3c+warmup",
+        "pre-train + A3C + critic warm-up",
+        starts_from_policy=True,
+        finetuning=True,
+        settings=lambda steps: _paper_with_keep("critic_warmup_steps", "actor_ramp_steps"),
+    )
+)
 """Critic warm-up, then the actor's learning rate ramped up."""
-register(Algorithm("pretrain+a3c+kl", "pre-train + A3C + KL", starts_from_policy=True, finetuning=True,
-                   settings=lambda steps: _paper_with_keep("kl_coef", "kl_decay_steps", "kl_temperature")))
+register(
+    Algorithm(
+        "pretrain+a3c+kl",
+        "pre-train + A3C + KL",
+        starts_from_policy=True,
+        finetuning=True,
+        settings=lambda steps: _paper_with_keep("kl_coef", "kl_decay_steps", "kl_temperature"),
+    )
+)
 """Kickstarting: an annealed KL(π^s ‖ π)."""
-register(Algorithm("pretrain+a3c+norm", "pre-train + A3C + advantage norm.", starts_from_policy=True, finetuning=True,
-                   settings=lambda steps: _preset("paper", advantage_norm=True)))
+register(
+    Algorithm(
+        "pretrain+a3c+norm",
+        "pre-train + A3C + advantage norm.",
+        starts_from_policy=True,
+        finetuning=True,
+        settings=lambda steps: _preset("paper", advantage_norm=True),
+    )
+)
 """Advantages divided by their running RMS."""
-register(Algorithm("pretrain+a3c+bc", "pre-train + A3C + BC (DAPG)", starts_from_policy=True, finetuning=True,
-                   settings=lambda steps: _preset("paper", bc_coef=BC_COEF, bc_decay_steps=steps)))
+register(
+    Algorithm(
+        "pretrain+a3c+bc",
+        "pre-train + A3C + BC (DAPG)",
+        starts_from_policy=True,
+        finetuning=True,
+        settings=lambda steps: _preset("paper", bc_coef=BC_COEF, bc_decay_steps=steps),
+    )
+)
 """A behaviour-cloning term on the expert's dataset, decaying over the run (DAPG)."""
-register(Algorithm("pretrain+a3c+demo", "pre-train + A3C + demo starts", starts_from_policy=True, finetuning=True,
-                   settings=lambda steps: _preset("paper", start_curriculum="demo")))
+register(
+    Algorithm(
+        "pretrain+a3c+demo",
+        "pre-train + A3C + demo starts",
+        starts_from_policy=True,
+        finetuning=True,
+        settings=lambda steps: _preset("paper", start_curriculum="demo"),
+    )
+)
 """Episodes start from the expert's states, moving back from the goal."""
-register(Algorithm("pretrain+a3c+keep", "pre-train + A3C, keep preset", starts_from_policy=True, finetuning=True,
-                   settings=lambda steps: _preset("keep")))
+register(
+    Algorithm(
+        "pretrain+a3c+keep",
+        "pre-train + A3C, keep preset",
+        starts_from_policy=True,
+        finetuning=True,
+        settings=lambda steps: _preset("keep"),
+    )
+)
 """The ``keep`` preset (the combination ``bimgame train --init`` uses)."""
-register(Algorithm("pretrain+a3c+keepfade", "pre-train + A3C, keep, fading KL", starts_from_policy=True,
-                   finetuning=True,
-                   settings=lambda steps: _preset("keep", kl_decay_steps=max(1, steps // KEEPFADE_FRACTION))))
+register(
+    Algorithm(
+        "pretrain+a3c+keepfade",
+        "pre-train + A3C, keep, fading KL",
+        starts_from_policy=True,
+        finetuning=True,
+        settings=lambda steps: _preset("keep", kl_decay_steps=max(1, steps // KEEPFADE_FRACTION)),
+    )
+)
 """The ``keep`` preset with the KL weight fading to zero over the first third of the run."""
-register(Algorithm("a3c+reverse", "A3C + reverse curriculum", finetuning=True,
-                   settings=lambda steps: {"start_curriculum": "reverse"}))
+register(
+    Algorithm(
+        "a3c+reverse",
+        "A3C + reverse curriculum",
+        finetuning=True,
+        settings=lambda steps: {"start_curriculum": "reverse"},
+    )
+)
 """From random weights, a reverse start curriculum (no expert, no π^s)."""
-register(Algorithm("a3c+papernet", "A3C, the paper's network",
-                   settings=lambda steps: {"aux_heads": False, "asymmetric_critic": False, "augment_shift": 0}))
+register(
+    Algorithm(
+        "a3c+papernet",
+        "A3C, the paper's network",
+        settings=lambda steps: {"aux_heads": False, "asymmetric_critic": False, "augment_shift": 0},
+    )
+)
 """A3C with the paper's exact network whatever the budget's levers (no auxiliary heads or privileged
 critic, no augmentation), shown beside the improved one when the levers are on."""

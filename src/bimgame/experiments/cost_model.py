@@ -7,7 +7,7 @@ machine slows every piece down.
 from __future__ import annotations
 
 import dataclasses
-from typing import Mapping
+from collections.abc import Mapping
 
 from bimgame.experiments.budgets import Budget
 from bimgame.sim.tasks import Task
@@ -21,8 +21,9 @@ class CostModel:
     of the README); a concurrent job slows every piece down. Each field says where its number comes
     from; the totals were checked against whole runs of the ``quick`` budget."""
 
-    a3c_sps: Mapping[str, float] = dataclasses.field(default_factory=lambda: {
-        "state": 9_000.0, "pixels": 3_900.0, "pixels-bf16": 4_500.0})
+    a3c_sps: Mapping[str, float] = dataclasses.field(
+        default_factory=lambda: {"state": 9_000.0, "pixels": 3_900.0, "pixels-bf16": 4_500.0}
+    )
     """A3C environment steps/s with 2 workers × 16 envs, scaled by workers/2 (state: 9,900 measured
     in the quick budget's runs on the idle machine, 2,000–3,000 while other training jobs ran;
     pixels: 3,942 for the paper's network in float32 in benchmarks/bench_a3c.py on the idle machine
@@ -30,24 +31,28 @@ class CostModel:
     there, 3,200–4,300 in 1M-step STG1 runs with other work on the machine)."""
     a3c_overhead_s: float = 6.0
     """Per A3C run: starting the worker processes, the final evaluation, the curves figure."""
-    expert_episode_s: Mapping[str, float] = dataclasses.field(default_factory=lambda: {
-        "FULL": 2.3, "STG1": 0.6, "STG2": 1.0, "STG3": 1.5, "STG4": 2.0})
+    expert_episode_s: Mapping[str, float] = dataclasses.field(
+        default_factory=lambda: {"FULL": 2.3, "STG1": 0.6, "STG2": 1.0, "STG3": 1.5, "STG4": 2.0}
+    )
     """One MPC expert episode on one core (FULL: 80 episodes took 90 s on two idle cores; STG1:
     ≈ 40 decisions of ≈ 16 ms; STG2–4 interpolated)."""
     expert_label_s: float = 0.016
     """One MPC decision (DAgger's label for one visited state)."""
-    expert_steps: Mapping[str, float] = dataclasses.field(default_factory=lambda: {
-        "FULL": 200.0, "STG1": 40.0, "STG2": 90.0, "STG3": 130.0, "STG4": 200.0})
+    expert_steps: Mapping[str, float] = dataclasses.field(
+        default_factory=lambda: {"FULL": 200.0, "STG1": 40.0, "STG2": 90.0, "STG3": 130.0, "STG4": 200.0}
+    )
     """Mean length of an expert episode (the dataset's size in steps)."""
-    train_frame_s: Mapping[str, float] = dataclasses.field(default_factory=lambda: {
-        "state": 1.5e-4, "pixels": 8e-4, "pixels-bf16": 5.5e-4})
+    train_frame_s: Mapping[str, float] = dataclasses.field(
+        default_factory=lambda: {"state": 1.5e-4, "pixels": 8e-4, "pixels-bf16": 5.5e-4}
+    )
     """Pre-training and DAgger: one frame through forward and backward, one thread (pixels: the
     README's ≈ 750 µs per sample at batch 16; pixels-bf16: the 0.6–0.7× that bf16 autocast measured
     for a segment's forward and backward; state: rough, from the quick budget's pre-trainings)."""
     pretrain_epochs_expected: float = 15.0
     """Epochs until early stopping typically ends a pre-training."""
-    eval_step_s: Mapping[str, float] = dataclasses.field(default_factory=lambda: {
-        "state": 4e-3, "pixels": 1.2e-2, "pixels-bf16": 1.0e-2})
+    eval_step_s: Mapping[str, float] = dataclasses.field(
+        default_factory=lambda: {"state": 4e-3, "pixels": 1.2e-2, "pixels-bf16": 1.0e-2}
+    )
     """One batched evaluation step (all episodes of an evaluation side by side; rough)."""
     piece_overhead_s: float = 2.0
     """Per pre-training or DAgger piece: loading the dataset, building the network."""

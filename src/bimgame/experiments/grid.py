@@ -24,8 +24,18 @@ from typing import Any
 from bimgame.experiments.algorithms import Learner, algorithm_named
 from bimgame.experiments.budgets import Budget
 
-__all__ = ["DATASET", "PRETRAIN_POLICY", "PRETRAIN_VALUE", "PIECE_KINDS", "Piece", "algorithm_slug", "policy_path",
-           "value_path", "run_path", "plan_pieces"]
+__all__ = [
+    "DATASET",
+    "PRETRAIN_POLICY",
+    "PRETRAIN_VALUE",
+    "PIECE_KINDS",
+    "Piece",
+    "algorithm_slug",
+    "policy_path",
+    "value_path",
+    "run_path",
+    "plan_pieces",
+]
 
 #: The kinds of the pieces that are not runs of an algorithm (as ``plan.json`` names them).
 DATASET, PRETRAIN_POLICY, PRETRAIN_VALUE = "dataset", "pretrain-policy", "pretrain-value"
@@ -83,17 +93,32 @@ def plan_pieces(budget: Budget) -> list[Piece]:
         for seed in range(budget.seeds):
             policy, value = policy_path(task, seed), value_path(task, seed)
             if budget.needs_policy:
-                pieces.append(Piece(id=policy, kind=PRETRAIN_POLICY, path=policy, task=task, seed=seed,
-                                    needs=("data",)))
+                pieces.append(
+                    Piece(id=policy, kind=PRETRAIN_POLICY, path=policy, task=task, seed=seed, needs=("data",))
+                )
             if budget.needs_value:
-                pieces.append(Piece(id=value, kind=PRETRAIN_VALUE, path=value, task=task, seed=seed,
-                                    needs=("data",)))
+                pieces.append(Piece(id=value, kind=PRETRAIN_VALUE, path=value, task=task, seed=seed, needs=("data",)))
             for name in budget.algorithms:
                 algorithm = algorithm_named(name)
                 path = run_path(task, name, seed)
-                needs = tuple(p for p, used in (("data", algorithm.needs_expert_data),
-                                                (policy, algorithm.starts_from_policy),
-                                                (value, algorithm.value_reward)) if used)
-                pieces.append(Piece(id=path, kind=algorithm.learner.value, path=path, task=task, algorithm=name,
-                                    seed=seed, needs=needs))
+                needs = tuple(
+                    p
+                    for p, used in (
+                        ("data", algorithm.needs_expert_data),
+                        (policy, algorithm.starts_from_policy),
+                        (value, algorithm.value_reward),
+                    )
+                    if used
+                )
+                pieces.append(
+                    Piece(
+                        id=path,
+                        kind=algorithm.learner.value,
+                        path=path,
+                        task=task,
+                        algorithm=name,
+                        seed=seed,
+                        needs=needs,
+                    )
+                )
     return pieces

@@ -35,8 +35,18 @@ from bimgame.learn.curves import read_table, run_config
 from bimgame.sim.tasks import Task
 from bimgame.util.files import read_json
 
-__all__ = ["PieceKind", "RunKind", "DatasetKind", "PretrainPolicyKind", "PretrainValueKind", "A3CRunKind",
-           "DAggerRunKind", "KINDS", "kind_of", "run_kind"]
+__all__ = [
+    "PieceKind",
+    "RunKind",
+    "DatasetKind",
+    "PretrainPolicyKind",
+    "PretrainValueKind",
+    "A3CRunKind",
+    "DAggerRunKind",
+    "KINDS",
+    "kind_of",
+    "run_kind",
+]
 
 
 class PieceKind(abc.ABC):
@@ -119,8 +129,11 @@ class PretrainPolicyKind(_PretrainKind):
     def seconds(self, piece: Piece, budget: Budget, costs: CostModel) -> float:
         task, rates = piece.task or budget.dataset_task, compute_rates(budget)
         epochs = min(budget.pretrain_epochs, costs.pretrain_epochs_expected)
-        return (costs.piece_overhead_s + epochs * _training_frames(budget, task, costs) * costs.train_frame_s[rates]
-                + eval_seconds(task, rates, budget.pretrain_eval_episodes, costs))
+        return (
+            costs.piece_overhead_s
+            + epochs * _training_frames(budget, task, costs) * costs.train_frame_s[rates]
+            + eval_seconds(task, rates, budget.pretrain_eval_episodes, costs)
+        )
 
 
 class PretrainValueKind(_PretrainKind):
@@ -133,6 +146,20 @@ class PretrainValueKind(_PretrainKind):
         epochs = min(budget.value_epochs, 2 * costs.pretrain_epochs_expected)
         frames = _training_frames(budget, task, costs)
         return costs.piece_overhead_s + epochs * frames * costs.train_frame_s[rates] / 3  # feed-forward
+
+
+def _run_task(piece: Piece) -> str:
+    """The task of run piece ``piece`` (every run piece of a plan has one)."""
+    if piece.task is None:
+        raise ValueError(f"run piece {piece.id!r} has no task")
+    return piece.task
+
+
+def _run_seed(piece: Piece) -> int:
+    """The seed of run piece ``piece`` (every run piece of a plan has one)."""
+    if piece.seed is None:
+        raise ValueError(f"run piece {piece.id!r} has no seed")
+    return piece.seed
 
 
 class RunKind(PieceKind):
@@ -177,8 +204,11 @@ class A3CRunKind(RunKind):
 
     def done(self, piece: Piece, out_dir: Path, budget: Budget) -> bool:
         summary = read_json(out_dir / piece.path / "summary.json")
-        return summary is not None and summary.get("stopped") == "finished" and \
-            int(summary.get("steps", 0)) >= budget.steps_for(piece.task)
+        return (
+            summary is not None
+            and summary.get("stopped") == "finished"
+            and int(summary.get("steps", 0)) >= budget.steps_for(_run_task(piece))
+        )
 
     def seconds(self, piece: Piece, budget: Budget, costs: CostModel) -> float:
         sps = costs.a3c_sps[compute_rates(budget)] * min(budget.workers, 2) / 2
@@ -190,8 +220,14 @@ class A3CRunKind(RunKind):
 
     def results(self, piece: Piece, out_dir: Path) -> RunResults:
         path = out_dir / piece.path
-        return RunResults(piece.seed, path, read_table(path / "episodes.csv"), read_table(path / "eval.csv"),
-                          read_json(path / "summary.json"), run_config(path))
+        return RunResults(
+            _run_seed(piece),
+            path,
+            read_table(path / "episodes.csv"),
+            read_table(path / "eval.csv"),
+            read_json(path / "summary.json"),
+            run_config(path),
+        )
 
     def crossing(self, run: RunResults, edges: np.ndarray, threshold: float) -> Crossing:
         return run_crossing(run.episodes, edges, threshold, until=run.until)
@@ -224,13 +260,18 @@ class DAggerRunKind(RunKind):
             length = costs.expert_steps[task] if iteration == 0 else costs.dagger_length_share * Task(task).time_limit
             labels = budget.dagger_episodes * length
             aggregated += labels
-            seconds += (labels * costs.expert_label_s + budget.dagger_epochs * aggregated * costs.train_frame_s[rates]
-                        + eval_seconds(task, rates, budget.dagger_eval_episodes, costs))
+            seconds += (
+                labels * costs.expert_label_s
+                + budget.dagger_epochs * aggregated * costs.train_frame_s[rates]
+                + eval_seconds(task, rates, budget.dagger_eval_episodes, costs)
+            )
         return seconds
 
     def results(self, piece: Piece, out_dir: Path) -> RunResults:
         path = out_dir / piece.path
-        return RunResults(piece.seed, path, {}, read_table(path / "dagger.csv"), read_json(path / "dagger_state.json"))
+        return RunResults(
+            _run_seed(piece), path, {}, read_table(path / "dagger.csv"), read_json(path / "dagger_state.json")
+        )
 
     def crossing(self, run: RunResults, edges: np.ndarray, threshold: float) -> Crossing:
         return dagger_crossing(run.table, threshold)
@@ -243,8 +284,10 @@ class DAggerRunKind(RunKind):
 
 
 #: Every piece kind by name: the dataset, the pre-trainings, one run kind per learner.
-KINDS: dict[str, PieceKind] = {kind.name: kind for kind in (DatasetKind(), PretrainPolicyKind(), PretrainValueKind(),
-                                                             A3CRunKind(), DAggerRunKind())}
+KINDS: dict[str, PieceKind] = {
+    kind.name: kind
+    for kind in (DatasetKind(), PretrainPolicyKind(), PretrainValueKind(), A3CRunKind(), DAggerRunKind())
+}
 
 
 def kind_of(piece: Piece) -> PieceKind:

@@ -23,8 +23,15 @@ from bimgame.experiments.algorithms import (
     registered,
 )
 
-__all__ = ["BC_COEF", "KEEPFADE_FRACTION", "A3C_ALGORITHMS", "a3c_algorithms", "finetune_overrides",
-           "needs_expert_data", "uses_start_curriculum"]
+__all__ = [
+    "BC_COEF",
+    "KEEPFADE_FRACTION",
+    "A3C_ALGORITHMS",
+    "a3c_algorithms",
+    "finetune_overrides",
+    "needs_expert_data",
+    "uses_start_curriculum",
+]
 
 
 def a3c_algorithms() -> tuple[str, ...]:
@@ -41,8 +48,10 @@ def _a3c_record(algorithm: str) -> Algorithm:
     records = {a.name: a for a in registered() if a.learner is Learner.A3C}
     if algorithm not in records:
         other = algorithm_named(algorithm) if algorithm in algorithm_names() else None
-        raise ValueError(f"unknown A3C algorithm {algorithm!r}; allowed: {', '.join(records)}"
-                         + (f" ({other.label} is not an A3C run)" if other is not None else ""))
+        raise ValueError(
+            f"unknown A3C algorithm {algorithm!r}; allowed: {', '.join(records)}"
+            + (f" ({other.label} is not an A3C run)" if other is not None else "")
+        )
     return records[algorithm]
 
 
@@ -55,12 +64,16 @@ def finetune_overrides(algorithm: str, steps: int, data_dir: str | None) -> dict
         raise ValueError(f"steps must be an integer >= 1, got {steps!r}")
     settings = record.a3c_settings(steps)
     if settings.get("kl_coef", 0.0) > 0 and not record.starts_from_policy:
-        raise ValueError(f"{algorithm}: kl_coef > 0 needs the run to start from π^s; allowed only for algorithms "
-                         f"that start from it (starts_from_policy)")
+        raise ValueError(
+            f"{algorithm}: kl_coef > 0 needs the run to start from π^s; allowed only for algorithms "
+            f"that start from it (starts_from_policy)"
+        )
     if reads_expert_data(settings):
         if data_dir is None:
-            raise ValueError(f"{algorithm} reads the expert dataset (bc_coef > 0 or start_curriculum='demo'): "
-                             f"give data_dir, the reproduction's DIR/data")
+            raise ValueError(
+                f"{algorithm} reads the expert dataset (bc_coef > 0 or start_curriculum='demo'): "
+                f"give data_dir, the reproduction's DIR/data"
+            )
         settings["expert_data"] = str(data_dir)
     return settings
 
