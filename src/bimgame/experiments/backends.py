@@ -99,9 +99,10 @@ class LocalBackend:
             note = run_piece(piece, self.budget, self.out_dir)
         except KeyboardInterrupt:
             raise
-        except Exception as error:  # recorded; independent pieces still run
-            return PieceOutcome(piece, time.monotonic() - started, error=error_text(error),
-                                traceback=traceback.format_exc())
+        except Exception as error:  # noqa: BLE001 - recorded with its traceback; independent pieces still run
+            return PieceOutcome(
+                piece, time.monotonic() - started, error=error_text(error), traceback=traceback.format_exc()
+            )
         return PieceOutcome(piece, time.monotonic() - started, note=note)
 
     def close(self) -> None:

@@ -17,8 +17,9 @@ with a seeded percentile-bootstrap interval over seeds (:mod:`bimgame.experiment
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -28,8 +29,17 @@ from bimgame.experiments.kinds import run_kind
 from bimgame.experiments.run_logs import RunResults
 from bimgame.experiments.statistics import DEFAULT_RESAMPLES, first_crossing, mean_interval
 
-__all__ = ["EVAL_TARGET", "BEYOND_TASKS", "MODES", "SUMMARISED", "shows_beyond", "eval_curve", "run_metrics", "mean_ci",
-           "beyond_numbers"]
+__all__ = [
+    "EVAL_TARGET",
+    "BEYOND_TASKS",
+    "MODES",
+    "SUMMARISED",
+    "shows_beyond",
+    "eval_curve",
+    "run_metrics",
+    "mean_ci",
+    "beyond_numbers",
+]
 
 #: Greedy evaluation success whose first reaching is "steps to 80%".
 EVAL_TARGET = 0.8
@@ -51,8 +61,10 @@ def eval_curve(table: dict[str, np.ndarray]) -> tuple[np.ndarray, dict[str, np.n
     """A run's evaluations in step order: (steps, {mode: success rates}); empty when it has none."""
     steps = np.asarray(table.get("step", ()), dtype=np.float64)
     order = np.argsort(steps, kind="stable")
-    return steps[order], {mode: np.asarray(table.get(f"{mode}_success_rate", np.full(len(steps), np.nan)),
-                                           dtype=np.float64)[order] for mode in MODES}
+    return steps[order], {
+        mode: np.asarray(table.get(f"{mode}_success_rate", np.full(len(steps), np.nan)), dtype=np.float64)[order]
+        for mode in MODES
+    }
 
 
 def _nan_min(values: np.ndarray) -> tuple[float, int | None]:
@@ -74,7 +86,7 @@ def run_metrics(table: dict[str, np.ndarray], *, target: float = EVAL_TARGET) ->
     steps, success = eval_curve(table)
     has_start = len(steps) > 0 and steps[0] == 0
     after = steps > 0
-    out: dict[str, Any] = {"evaluations": int(len(steps))}
+    out: dict[str, Any] = {"evaluations": len(steps)}
     for mode, values in success.items():
         start = float(values[0]) if has_start else float("nan")
         lowest, index = _nan_min(values[after])
@@ -82,22 +94,24 @@ def run_metrics(table: dict[str, np.ndarray], *, target: float = EVAL_TARGET) ->
         out[f"final_{mode}"] = float(values[-1]) if len(values) else float("nan")
         out[f"lowest_{mode}"] = lowest
         out[f"lowest_{mode}_step"] = float(steps[after][index]) if index is not None else None
-        out[f"drop_{mode}"] = max(0.0, start - lowest) if not (math.isnan(start) or math.isnan(lowest)) \
-            else float("nan")
+        out[f"drop_{mode}"] = (
+            max(0.0, start - lowest) if not (math.isnan(start) or math.isnan(lowest)) else float("nan")
+        )
     out["steps_to_target"] = first_crossing(steps, success["greedy"], target)
     out["censored_at"] = None if out["steps_to_target"] is not None or not len(steps) else float(steps[-1])
     return out
 
 
-def mean_ci(values: Sequence[float | None], *, resamples: int = DEFAULT_RESAMPLES,
-            rng: np.random.Generator) -> dict[str, Any]:
+def mean_ci(
+    values: Sequence[float | None], *, resamples: int = DEFAULT_RESAMPLES, rng: np.random.Generator
+) -> dict[str, Any]:
     """Mean of the values that are neither None nor NaN, with a percentile-bootstrap 95% interval
     over them (``ci`` None with fewer than two); ``n`` counts them."""
     kept = np.array([v for v in values if v is not None and not math.isnan(v)], dtype=np.float64)
     if len(kept) == 0:
         return {"mean": float("nan"), "ci": None, "n": 0}
     ci = list(mean_interval(kept, resamples=resamples, rng=rng)) if len(kept) >= 2 else None
-    return {"mean": float(kept.mean()), "ci": ci, "n": int(len(kept))}
+    return {"mean": float(kept.mean()), "ci": ci, "n": len(kept)}
 
 
 def _steps_summary(rows: list[dict[str, Any]], *, resamples: int, rng: np.random.Generator) -> dict[str, Any]:
@@ -113,17 +127,27 @@ def _steps_summary(rows: list[dict[str, Any]], *, resamples: int, rng: np.random
         return {"reached": 0, "mean": None, "ci": None, "bound": "not reached"}
     summary = mean_ci(values, resamples=resamples, rng=rng)
     exact = reached == len(rows)
-    return {"reached": reached, "mean": summary["mean"], "ci": summary["ci"] if exact else None,
-            "bound": "exact" if exact else "lower"}
+    return {
+        "reached": reached,
+        "mean": summary["mean"],
+        "ci": summary["ci"] if exact else None,
+        "bound": "exact" if exact else "lower",
+    }
 
 
 #: The per-run numbers summarised over seeds (mean and interval).
 SUMMARISED = tuple(f"{kind}_{mode}" for kind in ("start", "final", "lowest", "drop") for mode in MODES)
 
 
-def beyond_numbers(runs: dict[str, dict[str, list[RunResults]]], planned: dict[tuple[str, str], int], *,
-                   out_dir: Path, target: float = EVAL_TARGET, resamples: int = DEFAULT_RESAMPLES,
-                   rng: np.random.Generator) -> dict[str, Any]:
+def beyond_numbers(
+    runs: dict[str, dict[str, list[RunResults]]],
+    planned: dict[tuple[str, str], int],
+    *,
+    out_dir: Path,
+    target: float = EVAL_TARGET,
+    resamples: int = DEFAULT_RESAMPLES,
+    rng: np.random.Generator,
+) -> dict[str, Any]:
     """The section's numbers: per task (``runs``: task → algorithm → finished runs) and A3C algorithm,
     each seed's :func:`run_metrics` and their summaries over seeds (:data:`SUMMARISED` as
     :func:`mean_ci`, ``steps_to_target``); ``planned`` counts the runs planned per (task, algorithm).
@@ -135,12 +159,17 @@ def beyond_numbers(runs: dict[str, dict[str, list[RunResults]]], planned: dict[t
             record = algorithm_named(algorithm)
             if not run_kind(record).training_episodes:
                 continue
-            rows = [{"seed": r.seed, "dir": str(r.path.relative_to(out_dir)), **run_metrics(r.table, target=target)}
-                    for r in group]
-            entry: dict[str, Any] = {"runs": rows, "seeds_finished": len(rows),
-                                     "seeds_planned": planned.get((task, algorithm), 0),
-                                     "starts_from_policy": record.starts_from_policy,
-                                     "start_curriculum": record.start_curriculum}
+            rows = [
+                {"seed": r.seed, "dir": str(r.path.relative_to(out_dir)), **run_metrics(r.table, target=target)}
+                for r in group
+            ]
+            entry: dict[str, Any] = {
+                "runs": rows,
+                "seeds_finished": len(rows),
+                "seeds_planned": planned.get((task, algorithm), 0),
+                "starts_from_policy": record.starts_from_policy,
+                "start_curriculum": record.start_curriculum,
+            }
             for name in SUMMARISED:
                 entry[name] = mean_ci([r[name] for r in rows], resamples=resamples, rng=rng)
             entry["steps_to_target"] = _steps_summary(rows, resamples=resamples, rng=rng)

@@ -46,8 +46,18 @@ def _legend(algorithm: str, group: list[RunResults]) -> str:
     return f"{algorithm_named(algorithm).label} ({len(group)} seed{'s' if len(group) != 1 else ''})"
 
 
-def plot_curves(task: str, runs: dict[str, list[RunResults]], edges: np.ndarray, threshold: float | None,
-                fraction: float, path: Path, *, resamples: int, rng: np.random.Generator, budget: Budget) -> Path:
+def plot_curves(
+    task: str,
+    runs: dict[str, list[RunResults]],
+    edges: np.ndarray,
+    threshold: float | None,
+    fraction: float,
+    path: Path,
+    *,
+    resamples: int,
+    rng: np.random.Generator,
+    budget: Budget,
+) -> Path:
     """The paper's Fig. 2 for ``task``: return and success rate of the training episodes against
     environment steps, one line per algorithm with a bootstrap band over seeds; the threshold as a
     dashed line. Written to ``path``."""
@@ -62,28 +72,48 @@ def plot_curves(task: str, runs: dict[str, list[RunResults]], edges: np.ndarray,
             _plot_dagger(ax_return, ax_success, task, group, colour, label, resamples=resamples, rng=rng)
             continue
         for axis, key in ((ax_return, "return"), (ax_success, "success")):
-            curves = np.array([binned_means(r.episodes["start_step"], r.episodes[key], edges, until=r.until)[0]
-                               if r.episodes else np.full(len(centres), np.nan) for r in group])
+            curves = np.array(
+                [
+                    binned_means(r.episodes["start_step"], r.episodes[key], edges, until=r.until)[0]
+                    if r.episodes
+                    else np.full(len(centres), np.nan)
+                    for r in group
+                ]
+            )
             mean, low, high = bootstrap_mean_band(curves, resamples=resamples, rng=rng)
             axis.plot(centres, mean, color=colour, label=label)
             axis.fill_between(centres, low, high, color=colour, alpha=0.18, linewidth=0)
     if threshold is not None:
-        ax_success.axhline(threshold, color="black", ls="--", lw=0.8,
-                           label=f"threshold {threshold:.2f} ({fraction:.0%} of the expert)")
-    ax_return.set(xlabel="environment steps", ylabel="mean episode return (task reward)",
-                  title="cumulative reward per episode")
+        ax_success.axhline(
+            threshold, color="black", ls="--", lw=0.8, label=f"threshold {threshold:.2f} ({fraction:.0%} of the expert)"
+        )
+    ax_return.set(
+        xlabel="environment steps", ylabel="mean episode return (task reward)", title="cumulative reward per episode"
+    )
     ax_success.set(xlabel="environment steps", ylabel="success rate", title="success rate", ylim=(-0.02, 1.02))
     for axis in (ax_return, ax_success):
         axis.grid(alpha=0.3)
         axis.legend(fontsize=7)
-    fig.suptitle(f"{task}, {budget.obs} observations: training episodes by start step, mean over seeds with "
-                 f"bootstrap {CONFIDENCE:.0%} band; DAgger: greedy evaluation per iteration", fontsize=9)
+    fig.suptitle(
+        f"{task}, {budget.obs} observations: training episodes by start step, mean over seeds with "
+        f"bootstrap {CONFIDENCE:.0%} band; DAgger: greedy evaluation per iteration",
+        fontsize=9,
+    )
     fig.tight_layout()
     return save_png(fig, path, dpi=120)
 
 
-def _plot_dagger(ax_return: Any, ax_success: Any, task: str, group: list[RunResults], colour: str, label: str, *,
-                 resamples: int, rng: np.random.Generator) -> None:
+def _plot_dagger(
+    ax_return: Any,
+    ax_success: Any,
+    task: str,
+    group: list[RunResults],
+    colour: str,
+    label: str,
+    *,
+    resamples: int,
+    rng: np.random.Generator,
+) -> None:
     """The greedy evaluations of runs without training episodes of their own (DAgger's, per
     iteration), aligned by iteration across seeds (x: mean environment steps)."""
     tables = [r.table for r in group if r.table and len(r.table.get("step", ())) > 0]
@@ -94,7 +124,7 @@ def _plot_dagger(ax_return: Any, ax_success: Any, task: str, group: list[RunResu
     def column(key: str) -> np.ndarray:
         out = np.full((len(tables), count), np.nan)
         for row, table in enumerate(tables):
-            out[row, :len(table[key])] = table[key]
+            out[row, : len(table[key])] = table[key]
         return out
 
     with warnings.catch_warnings():
@@ -115,8 +145,9 @@ def _plot_dagger(ax_return: Any, ax_success: Any, task: str, group: list[RunResu
         axis.fill_between(steps, low, high, color=colour, alpha=0.18, linewidth=0)
 
 
-def plot_eval_curves(task: str, runs: dict[str, list[RunResults]], path: Path, *, budget: Budget,
-                     target: float | None = None) -> Path:
+def plot_eval_curves(
+    task: str, runs: dict[str, list[RunResults]], path: Path, *, budget: Budget, target: float | None = None
+) -> Path:
     """Beyond the paper, for ``task``: greedy and sampled evaluation success (``eval.csv``, the task's
     own starts) against environment steps, one colour per A3C algorithm, a thin line per seed and a
     thick line for the mean over seeds (each seed interpolated between its evaluations; the mean
@@ -129,7 +160,7 @@ def plot_eval_curves(task: str, runs: dict[str, list[RunResults]], path: Path, *
         colour, label = algorithm_colour(algorithm), _legend(algorithm, group)
         curves = [eval_curve(r.table) for r in group]
         grid = np.unique(np.concatenate([steps for steps, _ in curves]))
-        for axis, mode in zip(axes, MODES):
+        for axis, mode in zip(axes, MODES, strict=True):
             aligned = []
             for steps, success in curves:
                 axis.plot(steps, success[mode], color=colour, lw=0.7, alpha=0.35)
@@ -138,21 +169,27 @@ def plot_eval_curves(task: str, runs: dict[str, list[RunResults]], path: Path, *
             mean = np.mean(aligned, axis=0)  # NaN where a seed has no evaluation around the step
             axis.plot(grid, mean, color=colour, lw=2.2, label=label)
     axes[0].set_ylabel("success rate")
-    for axis, mode in zip(axes, MODES):
+    for axis, mode in zip(axes, MODES, strict=True):
         if target is not None:
             axis.axhline(target, color="black", ls="--", lw=0.8, label=f"{target:.0%}")
         axis.set(xlabel="environment steps", title=f"{mode} evaluation", ylim=(-0.02, 1.02))
         axis.grid(alpha=0.3)
         axis.legend(fontsize=7)
-    fig.suptitle(f"{task}, {budget.obs} observations: evaluation episodes from the task's own starts "
-                 f"({budget.eval_episodes} per evaluation); thin: one seed, thick: mean over seeds; step 0 is "
-                 f"the starting policy (π^s for pre-trained starts)", fontsize=9)
+    fig.suptitle(
+        f"{task}, {budget.obs} observations: evaluation episodes from the task's own starts "
+        f"({budget.eval_episodes} per evaluation); thin: one seed, thick: mean over seeds; step 0 is "
+        f"the starting policy (π^s for pre-trained starts)",
+        fontsize=9,
+    )
     fig.tight_layout()
     return save_png(fig, path, dpi=120)
 
 
 def plot_expert_lengths(sequences: list[Episode], task: str, path: Path) -> Path:
     """The paper's Fig. 1b: lengths of the expert's dataset episodes."""
-    results = [EpisodeResult(int(s.id), int(s.id), bool(s.terminated), len(s), float(np.sum(s.rewards)), 0.0)
-               for s in sequences]
+    ids = [i if s.id is None else int(s.id) for i, s in enumerate(sequences)]  # a dataset's episodes have ids
+    results = [
+        EpisodeResult(n, n, bool(s.terminated), len(s), float(np.sum(s.rewards)), 0.0)
+        for n, s in zip(ids, sequences, strict=True)
+    ]
     return plot_length_histogram(results, path, title=f"MPC expert dataset, {task}")

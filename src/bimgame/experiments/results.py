@@ -8,8 +8,8 @@ What a run's directory holds is its kind's to read (:meth:`bimgame.experiments.k
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
@@ -24,8 +24,16 @@ from bimgame.expert.episode import Episode, relabel
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.tasks import parse_task
 
-__all__ = ["FINAL_SHARE", "RunResults", "finished_pieces", "collect_runs", "final_training_success", "final_eval",
-           "dataset_sequences", "expert_success_by_task"]
+__all__ = [
+    "FINAL_SHARE",
+    "RunResults",
+    "finished_pieces",
+    "collect_runs",
+    "final_training_success",
+    "final_eval",
+    "dataset_sequences",
+    "expert_success_by_task",
+]
 
 
 def finished_pieces(pieces: list[Piece], out_dir: Path, budget: Budget) -> dict[str, Piece]:
@@ -68,7 +76,8 @@ def expert_success_by_task(sequences: list[Episode], tasks: Sequence[str]) -> di
     rates = {}
     for task in tasks:
         limit = parse_task(task).time_limit
-        wins = [s.terminated and len(s) <= limit
-                for s in (relabel(sequence, task, 0.99, spec) for sequence in sequences)]
+        wins = [
+            s.terminated and len(s) <= limit for s in (relabel(sequence, task, 0.99, spec) for sequence in sequences)
+        ]
         rates[task] = float(np.mean(wins)) if wins else float("nan")
     return rates
