@@ -54,10 +54,9 @@ class Budget:
     tasks: tuple[str, ...] = ("STG1",)
     """Tasks of the grid (FULL, STG1 … STG4)."""
     algorithms: tuple[str, ...] = PAPER_ALGORITHMS
-    """Methods of the grid: the paper's a3c, pretrain+a3c, a3c+value, pretrain+a3c+value, dagger (the
-    default) and the fine-tuning methods beyond it: pretrain+a3c+warmup, pretrain+a3c+kl,
-    pretrain+a3c+norm, pretrain+a3c+bc, pretrain+a3c+demo, pretrain+a3c+keep, pretrain+a3c+keepfade,
-    a3c+reverse, a3c+papernet."""
+    """Methods of the grid, by the names of their records in :mod:`bimgame.experiments.algorithms`:
+    the paper's a3c, pretrain+a3c, a3c+value, pretrain+a3c+value, dagger (the default) and the
+    fine-tuning methods beyond it; kept in the registry's order."""
     seeds: int = 2
     """Runs per task and algorithm (seeds 0 … seeds−1)."""
     obs: str = "state"
