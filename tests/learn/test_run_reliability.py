@@ -22,7 +22,7 @@ from support.files import snapshot
 
 from bimgame.cli.main import main
 from bimgame.learn.a3c import A3CConfig, network_for, resolve_config, train
-from bimgame.learn.runs import CheckpointError, load_checkpoint, save_checkpoint
+from bimgame.learn.runs import KIND_A3C, CheckpointError, load_checkpoint, run_kind, save_checkpoint
 
 #: A run of a few seconds (one worker, tiny network, no evaluator).
 TINY = dict(task="STG1", obs="state", steps=400, workers=1, envs_per_worker=2, n_steps=10, hidden=16, features=16,
@@ -269,6 +269,101 @@ def test_disk_full_before_anything_was_trained_leaves_nothing(tmp_path, monkeypa
     assert main(["train", "--run-dir", str(tmp_path / "run"), "--steps", "400", *TINY_FLAGS]) == 2
     assert f"cannot write {tmp_path / 'run' / 'checkpoint.pt'}: No space left on device" in capsys.readouterr().err
     assert not (tmp_path / "run").exists()
+
+
+# --------------------------------------------------------------------------- old run directories
+#: The config.json of an A3C run stored before A3C recorded its kind, byte for byte as ``train`` wrote
+#: it then for TINY's settings: it has no "kind".
+OLD_A3C_CONFIG = """{
+  "a3c": {
+    "actor_ramp_steps": 0,
+    "advantage_norm": false,
+    "asymmetric_critic": false,
+    "augment_shift": 0,
+    "aux_coef": 1.0,
+    "aux_heads": false,
+    "bc_coef": 0.0,
+    "bc_decay_steps": 0,
+    "checkpoint_every": 100000,
+    "critic_warmup_steps": 0,
+    "curriculum_threshold": 0.8,
+    "entropy_coef": 0.01,
+    "entropy_target": null,
+    "entropy_target_steps": 0,
+    "envs_per_worker": 2,
+    "eval_episodes": 10,
+    "eval_every": 0,
+    "expert_data": null,
+    "features": 16,
+    "finetune": null,
+    "gae_lambda": 1.0,
+    "gamma": 0.99,
+    "hidden": 16,
+    "keypoints": false,
+    "kl_coef": 0.0,
+    "kl_decay_steps": 0,
+    "kl_temperature": 1.0,
+    "log_every": 2000,
+    "lr": 0.0007,
+    "max_episode_steps": null,
+    "max_grad_norm": 0.5,
+    "n_steps": 10,
+    "obs": "state",
+    "optimizer": "rmsprop",
+    "optimizer_eps": 1e-05,
+    "precision": "fp32",
+    "randomize": null,
+    "rmsprop_alpha": 0.99,
+    "seed": 0,
+    "start_curriculum": "none",
+    "steps": 400,
+    "subtract_background": false,
+    "task": "STG1",
+    "tilt_input": true,
+    "value_coef": 0.5,
+    "workers": 1
+  },
+  "init": null,
+  "net": {
+    "asymmetric_critic": false,
+    "aux_heads": false,
+    "conv_channels": [
+      16,
+      32
+    ],
+    "encoder": "mlp",
+    "features": 16,
+    "hidden": 16,
+    "keypoints": false,
+    "n_actions": 5,
+    "obs_shape": [
+      7
+    ],
+    "precision": "fp32",
+    "privileged_size": 0,
+    "subtract_background": false,
+    "tilt_input": true
+  }
+}
+"""
+
+
+def test_an_a3c_run_stored_before_its_kind_was_recorded_still_resumes_and_evaluates(tmp_path, capsys):
+    run_dir = tmp_path / "old"
+    run_dir.mkdir()
+    (run_dir / "config.json").write_text(OLD_A3C_CONFIG)
+    stored = json.loads(OLD_A3C_CONFIG)
+    config = A3CConfig.from_dict(stored["a3c"])
+    assert "kind" not in stored and config == A3CConfig(**TINY)
+    save_checkpoint(run_dir / "checkpoint.pt", model=network_for(config).state_dict(), step=0, seconds=0.0,
+                    config=json.dumps(config.to_dict()))
+    assert run_kind(run_dir) == KIND_A3C
+    assert resolve_config({}, run_dir, resume=True) == config
+    result = train(config, run_dir, resume=True, progress=False)
+    assert (result.steps, result.stopped) == (400, "finished")
+    assert (run_dir / "config.json").read_text() == OLD_A3C_CONFIG  # a resume keeps the record as it is
+    assert main(["evaluate", str(run_dir), "--episodes", "1"]) == 0
+    assert "error" not in capsys.readouterr().err
 
 
 # ------------------------------------------------------------------------------ bad input

@@ -58,23 +58,19 @@ from bimgame.learn.common import EVAL_COLUMNS, init_network_settings
 from bimgame.learn.curves import plot_run
 from bimgame.learn.finetune import DEFAULT_FINETUNE, FINETUNE_PRESETS
 from bimgame.learn.nets import RecurrentActorCritic
+from bimgame.learn.run_dir import TEACHER, RunDirectory, stored_run_config
 from bimgame.learn.runs import (
     CHECKPOINT,
-    CONFIG,
     KIND_A3C,
     SUMMARY,
     CheckpointError,
     MetricLog,
     apply_weights,
-    check_resumable,
-    discard_new_run,
     load_checkpoint,
     load_weights,
-    prepare_new_run,
     read_run_settings,
     save_checkpoint,
     torch_threads,
-    write_run_json,
 )
 from bimgame.util.files import FileWriteError, read_json
 from bimgame.util.progress import ProgressBar
@@ -110,11 +106,6 @@ _TABLES = {
 }
 
 
-#: The frozen π^s of a run with the KL term (kickstarting): the weights it started from.
-TEACHER = "teacher.pt"
-#: Every file and folder a run writes in its directory (removed again if a new run fails at once).
-_RUN_FILES = (CONFIG, CHECKPOINT, SUMMARY, TEACHER, "curves.png", "tb", *(f"{name}.csv" for name in _TABLES))
-
 
 def resolve_config(given: dict[str, Any], run_dir: str | Path, *, resume: bool = False,
                    init: str | Path | None = None) -> A3CConfig:
@@ -124,7 +115,7 @@ def resolve_config(given: dict[str, Any], run_dir: str | Path, *, resume: bool =
     shape) and the fine-tuning preset's settings (``finetune``, default ``keep``) unless given. The
     command line and the reproduction both build their A3C settings here."""
     if resume:
-        check_resumable(run_dir, kind=KIND_A3C, what="A3C")
+        stored_run_config(run_dir, KIND_A3C)
         return read_run_settings(run_dir, "a3c", lambda stored: A3CConfig.from_dict({**stored, **given}))
     if init is not None:
         given = {**init_network_settings(init), **finetune_settings(given.get("finetune")), **given}
@@ -141,7 +132,8 @@ def finetune_settings(preset: str | None) -> dict[str, Any]:
 
 
 def _check_resume(run_dir: Path, config: A3CConfig) -> None:
-    check_resumable(run_dir, kind=KIND_A3C, what="A3C", needs=(CHECKPOINT,))
+    """Refuse to resume the run in ``run_dir`` (checked to be an A3C run with its checkpoint) with
+    settings other than its own, except :attr:`A3CConfig.RESUMABLE_CHANGES`."""
     previous = read_run_settings(run_dir, "a3c", A3CConfig.from_dict)
     changed = [f.name for f in dataclasses.fields(A3CConfig)
                if getattr(previous, f.name) != getattr(config, f.name) and f.name not in A3CConfig.RESUMABLE_CHANGES]
@@ -167,7 +159,9 @@ def train(config: A3CConfig, run_dir: str | Path, *, resume: bool = False, init:
     first, and if it fails before its first later checkpoint it removes its files again, so the same
     call can be repeated. A resumed run continues from its checkpoint (its logs keep the rows from
     before it); one whose steps are all done but whose final evaluation is missing (stopped during
-    it) only does that evaluation and writes the summary.
+    it) only does that evaluation and writes the summary. The run holds its directory's lock while it
+    runs (:class:`~bimgame.learn.run_dir.RunDirectory`): another process writing the same directory is
+    refused, naming this one; the worker processes write nothing there.
 
     Args:
         resume: continue the run in ``run_dir`` from its checkpoint.
@@ -188,13 +182,12 @@ def train(config: A3CConfig, run_dir: str | Path, *, resume: bool = False, init:
 @dataclasses.dataclass
 class _Start:
     """Where a session starts: the checkpoint's step, the seconds the run had trained before, the
-    optimiser statistics; ``fresh`` for a new run (``created``: its directory did not exist)."""
+    optimiser statistics; ``fresh`` for a new run."""
 
     step: int = 0
     seconds: float = 0.0
     optimizer: dict | None = None
     fresh: bool = True
-    created: bool = False
     teacher: dict[str, torch.Tensor] | None = None
     """π^s for the KL term (kickstarting), or None."""
     checkpoint_step: int = 0
@@ -204,50 +197,62 @@ class _Start:
 def _train(config: A3CConfig, run_dir: Path, *, resume: bool, init: str | Path | None,
            env_wrapper: EnvWrapper | None, progress: bool, extra_config: dict | None) -> TrainResult:
     shared = network_for(config)
-    if resume:
-        _check_resume(run_dir, config)
-        payload = load_checkpoint(run_dir / CHECKPOINT)
-        apply_weights(shared, payload, run_dir / CHECKPOINT)
-        start = _Start(step=payload["step"], seconds=float(payload.get("seconds", 0.0)),
-                       optimizer=payload.get("optimizer"), fresh=False, checkpoint_step=payload["step"])
-        if config.kl_coef > 0:
-            start.teacher = load_checkpoint(run_dir / TEACHER)["model"]
-        if start.step >= config.steps and _summarised(run_dir, start.step):
-            raise ValueError(f"the run in {run_dir} already has {start.step} steps >= steps={config.steps}; "
-                             f"pass a larger --steps to continue")
-    else:
-        if config.kl_coef > 0 and init is None:
-            raise ValueError("A3CConfig.kl_coef > 0 (kickstarting) needs a pre-trained policy to stay close to: "
-                             "pass --init (or set kl_coef to 0)")
-        start = _Start(created=prepare_new_run(run_dir, what="A3C", flag="--run-dir", kind=KIND_A3C))
-        if init is not None:
-            try:
-                load_weights(shared, init)
-            except CheckpointError as error:
-                raise CheckpointError(f"--init: {error}") from None
-        if config.kl_coef > 0:
-            start.teacher = {k: v.detach().clone() for k, v in shared.state_dict().items()}
-    try:
-        if start.fresh:
-            write_run_json(run_dir / CONFIG, {"a3c": config.to_dict(), "net": shared.config.to_dict(),
-                                              "init": str(init) if init is not None else None, **(extra_config or {})})
-            if start.teacher is not None:
-                save_checkpoint(run_dir / TEACHER, model=start.teacher, step=0, source=str(init))
-            save_checkpoint(run_dir / CHECKPOINT, model=shared.state_dict(), step=0, seconds=0.0,
-                            config=json.dumps(config.to_dict()))
-        return _session(config, run_dir, shared, start, env_wrapper=env_wrapper, progress=progress)
-    except Exception:
-        if start.fresh and start.checkpoint_step == 0:
-            discard_new_run(run_dir, start.created, _RUN_FILES)  # nothing trained: a rerun starts afresh
-        raise
+    if not resume and config.kl_coef > 0 and init is None:
+        raise ValueError("A3CConfig.kl_coef > 0 (kickstarting) needs a pre-trained policy to stay close to: "
+                         "pass --init (or set kl_coef to 0)")
+    with RunDirectory(run_dir, KIND_A3C, resume=resume) as run:
+        start = _resumed(config, run, shared) if resume else _started(config, run, shared, init, extra_config)
+        try:
+            return _session(config, run, shared, start, env_wrapper=env_wrapper, progress=progress)
+        finally:
+            if start.checkpoint_step > 0:
+                run.keep()  # trained and saved: a failure from now on leaves the run for --resume
 
 
-def _session(config: A3CConfig, run_dir: Path, shared: RecurrentActorCritic, start: _Start, *,
+def _resumed(config: A3CConfig, run: RunDirectory, shared: RecurrentActorCritic) -> _Start:
+    """The start of a resumed run: its checkpoint's weights (put into ``shared``), step, seconds and
+    optimiser statistics, and its teacher; refuses other settings and a run that is done."""
+    _check_resume(run.path, config)
+    payload = load_checkpoint(run / CHECKPOINT)
+    apply_weights(shared, payload, run / CHECKPOINT)
+    start = _Start(step=payload["step"], seconds=float(payload.get("seconds", 0.0)),
+                   optimizer=payload.get("optimizer"), fresh=False, checkpoint_step=payload["step"])
+    if config.kl_coef > 0:
+        start.teacher = load_checkpoint(run / TEACHER)["model"]
+    if start.step >= config.steps and _summarised(run.path, start.step):
+        raise ValueError(f"the run in {run.path} already has {start.step} steps >= steps={config.steps}; "
+                         f"pass a larger --steps to continue")
+    return start
+
+
+def _started(config: A3CConfig, run: RunDirectory, shared: RecurrentActorCritic, init: str | Path | None,
+             extra_config: dict | None) -> _Start:
+    """The start of a new run: ``shared`` from ``init`` (if given), its teacher, and its settings, teacher
+    and step-0 checkpoint written before anything else, so the directory always holds both."""
+    start = _Start()
+    if init is not None:
+        try:
+            load_weights(shared, init)
+        except CheckpointError as error:
+            raise CheckpointError(f"--init: {error}") from None
+    if config.kl_coef > 0:
+        start.teacher = {k: v.detach().clone() for k, v in shared.state_dict().items()}
+    run.write_config({"a3c": config.to_dict(), "net": shared.config.to_dict(),
+                      "init": str(init) if init is not None else None, **(extra_config or {})})
+    if start.teacher is not None:
+        save_checkpoint(run / TEACHER, model=start.teacher, step=0, source=str(init))
+    save_checkpoint(run / CHECKPOINT, model=shared.state_dict(), step=0, seconds=0.0,
+                    config=json.dumps(config.to_dict()))
+    return start
+
+
+def _session(config: A3CConfig, run: RunDirectory, shared: RecurrentActorCritic, start: _Start, *,
              env_wrapper: EnvWrapper | None, progress: bool) -> TrainResult:
     """Train from ``start`` to ``config.steps`` (nothing if the steps are all done), then evaluate
     and write the summary."""
-    log = MetricLog(run_dir, _TABLES, resume_step=None if start.fresh else start.step,
-                    keep_at_resume_step=("updates",))  # an update's row is logged before its step's checkpoint
+    run_dir = run.path
+    log = run.metric_log(_TABLES, resume_step=None if start.fresh else start.step,
+                         keep_at_resume_step=("updates",))  # an update's row is logged before its step's checkpoint
     monitor = _Monitor(start.step)
     monitor.restore(log.kept["episodes"])
     started = time.monotonic() - start.seconds  # seconds count the whole run, across resumes
@@ -271,8 +276,8 @@ def _session(config: A3CConfig, run_dir: Path, shared: RecurrentActorCritic, sta
             log.write("eval", step, final_eval, scalars=tuple(_TABLES["eval"]))
         log.close()
         seconds = time.monotonic() - started
-        write_run_json(run_dir / SUMMARY, {"steps": step, "stopped": stopped, "seconds": seconds,
-                                           "final_eval": final_eval, **monitor.recent()})
+        run.write_summary({"steps": step, "stopped": stopped, "seconds": seconds, "final_eval": final_eval,
+                           **monitor.recent()})
     except FileWriteError as error:
         log.close()
         raise TrainingError(f"{error}. The checkpoint {run_dir / CHECKPOINT} (step {step:,}) is saved: free some "

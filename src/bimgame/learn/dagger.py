@@ -24,7 +24,8 @@ The run directory is resumable: the aggregated episodes of every finished iterat
 after it with the counts (``dagger_state.json`` is a readable copy of them); a restarted run
 continues after the last committed iteration, and refuses to start over when the checkpoint or a
 finished iteration's data is missing. A new run goes into a new or empty directory only, and one
-that fails before its first iteration finished removes its files again. ``bimgame evaluate`` and
+that fails before its first iteration finished removes its files again; a run holds its directory's
+lock while it works (:class:`~bimgame.learn.run_dir.RunDirectory`). ``bimgame evaluate`` and
 ``bimgame train --init`` accept the run.
 """
 
@@ -46,17 +47,14 @@ from bimgame.expert.mpc import MPCConfig, RandomShootingMPC
 from bimgame.learn.actor import RecurrentActor, tilt_input
 from bimgame.learn.common import EVAL_COLUMNS, evaluate_greedy_and_sampled, evaluation_seed
 from bimgame.learn.nets import RecurrentActorCritic
+from bimgame.learn.run_dir import DAGGER_STATE, RunDirectory, stored_run_config
 from bimgame.learn.runs import (
     CHECKPOINT,
-    CONFIG,
+    KIND_DAGGER,
     CheckpointError,
-    MetricLog,
     apply_weights,
-    check_resumable,
-    discard_new_run,
     load_checkpoint,
     load_weights,
-    prepare_new_run,
     read_run_settings,
     save_checkpoint,
     torch_threads,
@@ -73,12 +71,9 @@ from bimgame.util.signals import sigterm_as_interrupt
 
 __all__ = ["resolve_dagger_config", "DAggerConfig", "DAggerResult", "dagger", "collect_episodes", "KIND_DAGGER"]
 
-KIND_DAGGER = "dagger-policy"
-STATE = "dagger_state.json"
+STATE = DAGGER_STATE
 #: The counters of ``dagger_state.json``.
 _STATE_KEYS = ("iteration", "env_steps", "expert_sim_steps", "labels")
-#: Every file and folder a run writes in its directory (removed again if a new run fails at once).
-_RUN_FILES = (CONFIG, CHECKPOINT, STATE, "dagger.csv", "tb", "data")
 #: Typo guards on what runs side by side (each rollout has its own simulator and expert).
 _LARGEST = {"episodes_per_iteration": (10_000, "rollouts run side by side"),
             "eval_episodes": (10_000, "episodes run side by side"),
@@ -165,7 +160,7 @@ def resolve_dagger_config(learner: PretrainConfig, given: dict[str, Any], run_di
 
 
 def _stored_config(run_dir: str | Path) -> DAggerConfig:
-    check_resumable(run_dir, kind=KIND_DAGGER, what="DAgger")
+    stored_run_config(run_dir, KIND_DAGGER)
     return read_run_settings(run_dir, "dagger", DAggerConfig.from_dict)
 
 
@@ -282,43 +277,41 @@ def dagger(config: DAggerConfig, run_dir: str | Path, *, resume: bool = False, i
 
 def _dagger(config: DAggerConfig, run_dir: Path | str, *, resume: bool, init: str | Path | None,
             progress: bool) -> DAggerResult:
-    run_dir = Path(run_dir)
     net = config.learner.build_policy(config.learner.seed)
-    if resume:
-        state = _resume_state(run_dir, config, net)
-        created = False
-    else:
-        created = prepare_new_run(run_dir, what="DAgger", flag="--run-dir", kind=KIND_DAGGER)
-        if init is not None:
-            try:
-                load_weights(net, init)
-            except CheckpointError as error:
-                raise CheckpointError(f"--init: {error}") from None
-        state = {"iteration": 0, "env_steps": 0, "expert_sim_steps": 0, "labels": 0, "seconds": 0.0}
-    try:
-        if not resume:
-            # The settings, the starting weights and the state, before any work: a run directory
-            # always holds all three, so --resume never has to guess.
-            write_run_json(run_dir / CONFIG, {"kind": KIND_DAGGER, "task": config.learner.task,
-                                              "seed": config.learner.seed,
-                                              "network": config.learner.network_settings().to_dict(),
-                                              "net": net.config.to_dict(), "dagger": config.to_dict(),
-                                              "init": None if init is None else str(init)})
-            save_checkpoint(run_dir / CHECKPOINT, model=net.state_dict(), step=0, **state)
-            write_run_json(run_dir / STATE, state)
-        with sigterm_as_interrupt():
-            return _iterations(config, run_dir, net, state, resume=resume, progress=progress)
-    except FileWriteError as error:
-        if not resume and state["iteration"] == 0:
-            discard_new_run(run_dir, created, _RUN_FILES)
-            raise error.with_advice(f"No iteration had finished, so the new run's files are removed from {run_dir}: "
-                               f"free some space and run the same command again") from error
-        raise error.with_advice(f"The iterations finished before ({state['iteration']}) are saved in {run_dir}: free "
-                           f"some space and continue with --resume") from error
-    except Exception:
-        if not resume and state["iteration"] == 0:
-            discard_new_run(run_dir, created, _RUN_FILES)  # nothing done: a rerun starts afresh
-        raise
+    with RunDirectory(run_dir, KIND_DAGGER, resume=resume) as run:
+        state = _resume_state(run.path, config, net) if resume else _new_state(net, init)
+        try:
+            if not resume:
+                _start(config, run, net, init, state)
+            with sigterm_as_interrupt():
+                return _iterations(config, run, net, state, resume=resume, progress=progress)
+        except FileWriteError as error:
+            if run.discards(error):
+                raise error.with_advice(f"No iteration had finished, so the new run's files are removed from "
+                                        f"{run.path}: free some space and run the same command again") from error
+            raise error.with_advice(f"The iterations finished before ({state['iteration']}) are saved in {run.path}: "
+                                    f"free some space and continue with --resume") from error
+
+
+def _new_state(net: RecurrentActorCritic, init: str | Path | None) -> dict[str, Any]:
+    """The state of a new run, its learner ``net`` started from ``init``'s weights if given."""
+    if init is not None:
+        try:
+            load_weights(net, init)
+        except CheckpointError as error:
+            raise CheckpointError(f"--init: {error}") from None
+    return {"iteration": 0, "env_steps": 0, "expert_sim_steps": 0, "labels": 0, "seconds": 0.0}
+
+
+def _start(config: DAggerConfig, run: RunDirectory, net: RecurrentActorCritic, init: str | Path | None,
+           state: dict[str, Any]) -> None:
+    """Write a new run's settings, starting weights and state, before any work: a run directory always
+    holds all three, so --resume never has to guess."""
+    run.write_config({"task": config.learner.task, "seed": config.learner.seed,
+                      "network": config.learner.network_settings().to_dict(), "net": net.config.to_dict(),
+                      "dagger": config.to_dict(), "init": None if init is None else str(init)})
+    save_checkpoint(run / CHECKPOINT, model=net.state_dict(), step=0, **state)
+    write_run_json(run / STATE, state)
 
 
 def _resume_state(run_dir: Path, config: DAggerConfig, net: RecurrentActorCritic) -> dict[str, Any]:
@@ -326,9 +319,9 @@ def _resume_state(run_dir: Path, config: DAggerConfig, net: RecurrentActorCritic
     ``net`` and return its state; refuses, naming what is missing, rather than starting over.
 
     The checkpoint is the commit point: it holds the weights and the counts of the last finished
-    iteration (``dagger_state.json`` is a copy for readers, rewritten here if a kill left it behind)."""
-    check_resumable(run_dir, kind=KIND_DAGGER, what="DAgger", needs=(CHECKPOINT,))
-    stored = _stored_config(run_dir)
+    iteration (``dagger_state.json`` is a copy for readers, rewritten here if a kill left it behind).
+    ``run_dir`` is checked to hold a DAgger run with its checkpoint."""
+    stored = read_run_settings(run_dir, "dagger", DAggerConfig.from_dict)
     changed = [name for name in ("learner", "episodes_per_iteration", "beta0", "beta_decay",
                                  "epochs_per_iteration", "expert", "max_episode_steps")
                if getattr(stored, name) != getattr(config, name)]
@@ -366,16 +359,18 @@ def _count(value: Any) -> bool:
     return isinstance(value, int) and not isinstance(value, bool) and value >= 0
 
 
-def _iterations(config: DAggerConfig, run_dir: Path, net: RecurrentActorCritic, state: dict[str, Any], *,
+def _iterations(config: DAggerConfig, run: RunDirectory, net: RecurrentActorCritic, state: dict[str, Any], *,
                 resume: bool, progress: bool) -> DAggerResult:
-    """The iterations after the last finished one (``state``, updated in place)."""
+    """The iterations after the last finished one (``state``, updated in place); each one's checkpoint
+    commits it, and the first keeps a new run's files whatever happens later."""
+    run_dir = run.path
     first_iteration = state["iteration"]
     dataset: list[Episode] = []
     for i in range(state["iteration"]):
         dataset += _load_episodes(_data_path(run_dir, i))
     # The row at the checkpoint's step is the last finished iteration's (written before it): kept.
-    log = MetricLog(run_dir, {"dagger": _TABLE}, resume_step=state["env_steps"] if resume else None,
-                    keep_at_resume_step=("dagger",))
+    log = run.metric_log({"dagger": _TABLE}, resume_step=state["env_steps"] if resume else None,
+                         keep_at_resume_step=("dagger",))
     started = time.monotonic() - state.get("seconds", 0.0)
     final_eval = None
     learner = config.learner
@@ -414,6 +409,7 @@ def _iterations(config: DAggerConfig, run_dir: Path, net: RecurrentActorCritic, 
                                    "sampled_success_rate", "dataset_steps", "expert_sim_steps"))
                 save_checkpoint(run_dir / CHECKPOINT, model=net.state_dict(), step=done["env_steps"], **done)
                 state.update(done)
+                run.keep()
                 write_run_json(run_dir / STATE, done)  # a copy of the counts for readers
                 success = row.get("greedy_success_rate")
                 bar.update(completed=iteration + 1,

@@ -31,19 +31,14 @@ from bimgame.expert.datasets import dataset_manifest, iterate_sequences, load_da
 from bimgame.expert.episode import Episode, relabel
 from bimgame.learn.common import evaluate_greedy_and_sampled
 from bimgame.learn.nets import RecurrentActorCritic, ValueNetwork
+from bimgame.learn.run_dir import RunDirectory
 from bimgame.learn.runs import (
     CHECKPOINT,
-    CONFIG,
     KIND_POLICY,
     KIND_VALUE,
-    SUMMARY,
-    MetricLog,
-    discard_new_run,
     load_weights,
-    prepare_new_run,
     save_checkpoint,
     torch_threads,
-    write_run_json,
 )
 from bimgame.learn.supervised import PretrainConfig, l2_penalty, policy_batches, policy_epoch, split_episodes, summarise
 from bimgame.sim.maze import MazeSpec
@@ -56,8 +51,6 @@ __all__ = ["PretrainResult", "pretrain", "load_sequences", "build_model", "evalu
 _TABLE = ["train_loss", "train_accuracy", "train_value_rmse", "train_aux", "val_loss", "val_accuracy",
           "val_value_rmse", "val_aux",
           "seconds"]
-#: Every file and folder pre-training writes in its directory (removed again if it stops early).
-_RUN_FILES = (CONFIG, CHECKPOINT, SUMMARY, "pretrain.csv", "tb")
 
 
 # ------------------------------------------------------------------------------------- data
@@ -140,36 +133,33 @@ def pretrain(config: PretrainConfig, data_dir: str | Path, out_dir: str | Path, 
     scalars per epoch, ``summary.json``. ``sequences`` (already loaded with
     :func:`load_sequences`) skips reading the dataset.
 
-    ``out_dir`` must be new or empty. Pre-training cannot resume: if it stops before its summary is
-    written (an error, Ctrl-C, SIGTERM, a full disk), it removes what it wrote, so the same call can
-    be repeated."""
-    out_dir = Path(out_dir)
-    created = prepare_new_run(out_dir, what="pre-training", flag="--out")
-    with torch_threads():
+    ``out_dir`` must be new or empty; it is locked while pre-training writes it
+    (:class:`~bimgame.learn.run_dir.RunDirectory`). Pre-training cannot resume: if it stops before
+    its summary is written (an error, Ctrl-C, SIGTERM, a full disk), it removes what it wrote, so the
+    same call can be repeated."""
+    kind = KIND_POLICY if config.target == "policy" else KIND_VALUE
+    with RunDirectory(out_dir, kind) as run, torch_threads():
         try:
             with sigterm_as_interrupt():
-                return _pretrain(config, data_dir, out_dir, progress=progress, sequences=sequences)
-        except BaseException as error:
-            discard_new_run(out_dir, created, _RUN_FILES)
-            if isinstance(error, FileWriteError):
-                raise error.with_advice(f"Pre-training cannot resume, so its files are removed from {out_dir}: free "
-                                   f"some space and run the same command again") from error
-            raise
+                return _pretrain(config, data_dir, run, progress=progress, sequences=sequences)
+        except FileWriteError as error:
+            raise error.with_advice(f"Pre-training cannot resume, so its files are removed from {run.path}: free "
+                                    f"some space and run the same command again") from error
 
 
-def _pretrain(config: PretrainConfig, data_dir: str | Path, out_dir: Path, *, progress: bool,
+def _pretrain(config: PretrainConfig, data_dir: str | Path, run: RunDirectory, *, progress: bool,
               sequences: list[Episode] | None) -> PretrainResult:
+    out_dir = run.path
     maze = MazeSpec.merl()
     if sequences is None:
         sequences = load_sequences(data_dir, config.task, config.obs, config.gamma, maze, progress=progress)
     rng = np.random.default_rng(config.seed)
     train_idx, val_idx = split_episodes(len(sequences), config.val_fraction, rng)
     net = build_model(config, maze)
-    kind = KIND_POLICY if config.target == "policy" else KIND_VALUE
-    write_run_json(out_dir / CONFIG, {"kind": kind, "task": config.task, "seed": config.seed,
-                                      "network": config.network_settings().to_dict(), "net": net.config.to_dict(),
-                                      "pretrain": config.to_dict(), "data": str(data_dir),
-                                      "episodes": {"train": len(train_idx), "held_out": len(val_idx)}})
+    kind = run.layout.kind
+    run.write_config({"task": config.task, "seed": config.seed, "network": config.network_settings().to_dict(),
+                      "net": net.config.to_dict(), "pretrain": config.to_dict(), "data": str(data_dir),
+                      "episodes": {"train": len(train_idx), "held_out": len(val_idx)}})
     optimizer = torch.optim.Adam(net.parameters(), lr=config.lr)
     max_tilt = maze.max_tilt
     if config.target == "value":
@@ -187,7 +177,7 @@ def _pretrain(config: PretrainConfig, data_dir: str | Path, out_dir: Path, *, pr
                 return policy_epoch(net, policy_batches(sequences, order, config, max_tilt), config, optimizer)
             return policy_epoch(net, held_out, config, None)
 
-    log = MetricLog(out_dir, {"pretrain": _TABLE})
+    log = run.metric_log({"pretrain": _TABLE})
     started = time.monotonic()
     best: dict[str, Any] = {"loss": math.inf, "epoch": 0, "accuracy": float("nan"), "value_rmse": float("nan")}
     initial = run_epoch(False)
@@ -214,8 +204,7 @@ def _pretrain(config: PretrainConfig, data_dir: str | Path, out_dir: Path, *, pr
                 if val["loss"] < best["loss"]:
                     best = {"loss": val["loss"], "epoch": epoch, "accuracy": val["accuracy"],
                             "value_rmse": val["value_rmse"]}
-                    save_checkpoint(out_dir / CHECKPOINT, model=net.state_dict(), step=0, epoch=epoch,
-                                    kind=kind)
+                    save_checkpoint(run / CHECKPOINT, model=net.state_dict(), step=0, epoch=epoch, kind=kind)
                 accuracy = "" if math.isnan(val["accuracy"]) else f"held-out accuracy {val['accuracy']:.1%}  "
                 bar.update(completed=epoch, info=f"{accuracy}value RMSE {val['value_rmse']:.3f}  "
                                                  f"best epoch {best['epoch']}")
@@ -224,19 +213,17 @@ def _pretrain(config: PretrainConfig, data_dir: str | Path, out_dir: Path, *, pr
     finally:
         log.close()
     if best["epoch"] == 0:
-        save_checkpoint(out_dir / CHECKPOINT, model=net.state_dict(), step=0, epoch=0, kind=kind)
-    load_weights(net, out_dir / CHECKPOINT)
+        save_checkpoint(run / CHECKPOINT, model=net.state_dict(), step=0, epoch=0, kind=kind)
+    load_weights(net, run / CHECKPOINT)
     policy_eval = None
     if config.target == "policy" and config.eval_episodes > 0:
         policy_eval = evaluate_policy(net, config)
     result = PretrainResult(out_dir, best["epoch"], epochs_run, best["accuracy"], best["value_rmse"],
                             time.monotonic() - started, policy_eval, data_source(data_dir))
-    write_run_json(out_dir / SUMMARY, {"kind": kind, "data_source": result.data_source,
-                                          "best_epoch": result.best_epoch, "epochs_run": epochs_run,
-                                          "val_accuracy": result.val_accuracy,
-                                          "val_value_rmse": result.val_value_rmse, "chance_accuracy": 0.2,
-                                          "seconds": result.seconds, "policy_eval": policy_eval,
-                                          "episodes": {"train": len(train_idx), "held_out": len(val_idx)}})
+    run.write_summary({"kind": kind, "data_source": result.data_source, "best_epoch": result.best_epoch,
+                       "epochs_run": epochs_run, "val_accuracy": result.val_accuracy,
+                       "val_value_rmse": result.val_value_rmse, "chance_accuracy": 0.2, "seconds": result.seconds,
+                       "policy_eval": policy_eval, "episodes": {"train": len(train_idx), "held_out": len(val_idx)}})
     return result
 
 

@@ -2,19 +2,24 @@
 
 Layout of ``RUN_DIR``::
 
-    config.json          the run's settings (written once; a resumed run must match them; a
-                         reproduction updates its dataset's path when the reproduction moved)
+    config.json          the run's settings and its "kind" (written once; a resumed run must match
+                         them; a reproduction updates its dataset's path when the reproduction moved)
     checkpoint.pt        latest checkpoint: weights, optimiser statistics, environment steps, seconds
     episodes.csv         one row per finished training episode
     updates.csv          losses, entropy, gradient norm and SPS against environment steps
     eval.csv             periodic evaluation (greedy and sampled episodes)
+    summary.json         how the run ended
     tb/                  TensorBoard event files of the same numbers
+    .lock                held while a process writes the run (:mod:`bimgame.learn.run_lock`)
 
 A new run goes into a new or empty directory only (:func:`prepare_new_run`), never over someone's
 files, and writes its ``config.json`` and a first checkpoint before anything else, so a run
 directory always has both; ``--resume`` continues a run of its own kind only
 (:func:`check_resumable`). A new run that fails before it has trained anything removes what it wrote
-(:func:`discard_new_run`), so the same command can be run again.
+(:func:`discard_new_run`), so the same command can be run again. The learners go through these steps
+in one order, holding the lock, with :class:`bimgame.learn.run_dir.RunDirectory`.
+
+JSON files (:func:`write_run_json`) are strict JSON: a NaN or infinite number is written as ``null``.
 
 Checkpoints are written atomically and read with ``torch.load(weights_only=True)``: a checkpoint is a
 dict of tensors, numbers and strings only, so a file someone sent cannot run code when loaded.
@@ -30,40 +35,61 @@ import csv
 import io
 import json
 import math
+import numbers
 import os
 import re
 import shutil
 import warnings
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
-from typing import Any, Callable, Iterable, Iterator, Sequence, TypeVar
+from typing import Any, TypeVar
 
 import torch
 
+from bimgame.learn.run_lock import LOCK
 from bimgame.util import files
 from bimgame.util.files import FileWriteError
 
-__all__ = ["torch_threads", "run_kind", "KIND_A3C", "KIND_POLICY", "KIND_VALUE", "CheckpointError", "save_checkpoint",
-           "load_checkpoint", "load_weights", "apply_weights", "CsvLog", "MetricLog", "read_run_config", "read_run_settings",
-           "CHECKPOINT", "CONFIG", "SUMMARY", "write_run_json", "prepare_new_run", "check_resumable",
-           "discard_new_run", "directory_entries", "resumed_rows"]
+__all__ = ["torch_threads", "run_kind", "KIND_A3C", "KIND_POLICY", "KIND_VALUE", "KIND_DAGGER", "CheckpointError",
+           "save_checkpoint", "load_checkpoint", "load_weights", "apply_weights", "CsvLog", "MetricLog",
+           "read_run_config", "read_run_settings", "CHECKPOINT", "CONFIG", "SUMMARY", "write_run_json", "finite_json",
+           "prepare_new_run", "check_resumable", "discard_new_run", "directory_entries", "resumed_rows"]
 
 CHECKPOINT = "checkpoint.pt"
 CONFIG = "config.json"
 SUMMARY = "summary.json"
-#: What a run directory holds (config.json's "kind"; A3C runs have none).
+#: What a run directory holds (config.json's "kind"; A3C runs stored before it was recorded have none).
 KIND_A3C = "a3c"
 KIND_POLICY = "pretrained-policy"
 KIND_VALUE = "value-function"
+KIND_DAGGER = "dagger-policy"
 _REQUIRED = {"model": dict, "step": int}
 T = TypeVar("T")
 
 
 def write_run_json(path: str | Path, values: dict[str, Any]) -> Path:
-    """:func:`~bimgame.util.files.write_json` raising :class:`~bimgame.util.files.FileWriteError` (naming the file) when it fails."""
+    """``values`` as indented JSON with sorted keys (as :func:`~bimgame.util.files.write_json` writes
+    it), written atomically; a NaN or infinite number becomes ``null`` (:func:`finite_json`), so every
+    JSON reader opens the file — Python's ``json`` would write ``NaN``, which is not JSON. Raises
+    :class:`~bimgame.util.files.FileWriteError` (naming the file) when it fails."""
+    text = json.dumps(finite_json(values), indent=2, sort_keys=True, allow_nan=False) + "\n"
     try:
-        return files.write_json(path, values)
+        return files.atomic_write_bytes(path, text.encode())
     except OSError as error:
         raise FileWriteError.from_error(path, error) from error
+
+
+def finite_json(value: Any) -> Any:
+    """``value`` with every non-finite real number (NaN, ±inf; Python's or NumPy's) replaced by None,
+    in nested dicts, lists and tuples (tuples become lists, as JSON has them); finite NumPy reals
+    become Python floats. Other values are returned as they are."""
+    if isinstance(value, dict):
+        return {key: finite_json(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [finite_json(item) for item in value]
+    if isinstance(value, numbers.Real) and not isinstance(value, numbers.Integral):
+        return float(value) if math.isfinite(value) else None
+    return value
 
 
 @contextlib.contextmanager
@@ -130,8 +156,9 @@ def read_run_settings(run_dir: str | Path, key: str, parse: Callable[[dict[str, 
 
 
 def run_kind(run_dir: str | Path) -> str:
-    """What a run directory (or a checkpoint file in one) holds: :data:`KIND_A3C`,
-    :data:`KIND_POLICY`, :data:`KIND_VALUE` or another tool's kind (e.g. DAgger's)."""
+    """What a run directory (or a checkpoint file in one) holds: :data:`KIND_A3C`, :data:`KIND_POLICY`,
+    :data:`KIND_VALUE`, :data:`KIND_DAGGER` or another tool's kind. A ``config.json`` without a kind
+    is an A3C run's from before A3C recorded it."""
     return read_run_config(run_dir).get("kind", KIND_A3C)
 
 
@@ -143,8 +170,10 @@ def _is_temporary(name: str) -> bool:
 
 def directory_entries(directory: Path) -> list[str]:
     """The names in ``directory`` (folders with a trailing ``/``), sorted, without the temporaries
-    of atomic writes."""
-    return sorted(p.name + ("/" if p.is_dir() else "") for p in directory.iterdir() if not _is_temporary(p.name))
+    of atomic writes and without the run's lock file (:data:`~bimgame.learn.run_lock.LOCK`: held
+    while a process writes the run, left behind by one that was killed; it is nobody's content)."""
+    return sorted(p.name + ("/" if p.is_dir() else "") for p in directory.iterdir()
+                  if not _is_temporary(p.name) and p.name != LOCK)
 
 
 def _shown(entries: Sequence[str]) -> str:
@@ -198,7 +227,7 @@ def check_resumable(run_dir: str | Path, *, kind: str, what: str, flag: str = "-
         raise ValueError(f"--resume: {run_dir} has no {CONFIG}: {there}; start a new run without --resume "
                          f"(in a new or empty {flag})")
     stored = read_run_config(run_dir)
-    actual = stored.get("kind", KIND_A3C)
+    actual = stored.get("kind", KIND_A3C)  # the kind is missing in A3C runs stored before it was recorded
     if actual != kind:
         raise ValueError(f"--resume: {run_dir} holds a {actual} run, not {_article(what)} {what} run ({kind}); "
                          f"nothing was changed")
@@ -364,7 +393,7 @@ def resumed_rows(path: str | Path, fields: Sequence[str], before: int, *, keep_e
         if len(values) != len(header):
             raise ValueError(f"cannot resume: {path} line {number} has {len(values)} fields, its header "
                              f"{len(header)}; nothing was changed")
-        row = dict(zip(header, values))
+        row = dict(zip(header, values, strict=True))
         try:
             step = float(row[step_field])
         except ValueError:
