@@ -40,22 +40,42 @@ def _fraction(text: str) -> float:
 
 def add_reproduce_arguments(parser: argparse.ArgumentParser) -> None:
     add = parser.add_argument
-    add("--out", type=Path, required=True,
-        help="directory of the reproduction (created; run the same command again to continue it)")
-    add("--budget", choices=list(BUDGETS), default=None,
+    add(
+        "--out",
+        type=Path,
+        required=True,
+        help="directory of the reproduction (created; run the same command again to continue it)",
+    )
+    add(
+        "--budget",
+        choices=list(BUDGETS),
+        default=None,
         help="preset: quick (STG1, state observations, 2 seeds, < 30 min on 2 cores), paper (FULL/STG1/STG2, "
-             "pixels, 5 seeds, about a day), pixels (FULL/STG1/STG2 from pixels, 3 seeds, < 2 h), beyond (fine-tuning π^s without forgetting it: "
-             "STG2/STG3/STG4/FULL, A3C, pre-train + A3C and the keep preset, 3 seeds, < 2 h) or ablation (each "
-             "fine-tuning method on STG3, 3 seeds, < 1 h). Default: the budget stored in --out, else quick")
+        "pixels, 5 seeds, about a day), pixels (FULL/STG1/STG2 from pixels, 3 seeds, < 2 h), "
+        "beyond (fine-tuning π^s without forgetting it: "
+        "STG2/STG3/STG4/FULL, A3C, pre-train + A3C and the keep preset, 3 seeds, < 2 h) or ablation (each "
+        "fine-tuning method on STG3, 3 seeds, < 1 h). Default: the budget stored in --out, else quick",
+    )
     # The grid: Budget settings that change what is computed; not given: the budget's (as --budget).
-    add_settings_flags(parser, Budget, GRID_FLAGS, default_none=True, defaults=BUDGETS["quick"],
-                       default_text="the budget's")
+    add_settings_flags(
+        parser, Budget, GRID_FLAGS, default_none=True, defaults=BUDGETS["quick"], default_text="the budget's"
+    )
     add_backend_arguments(parser, "pieces (dataset, pre-trainings, runs)")
-    add("--max-retries", type=non_negative_int, default=3, metavar="N",
+    add(
+        "--max-retries",
+        type=non_negative_int,
+        default=3,
+        metavar="N",
         help="with --backend ray: how often a piece whose node or worker died is started again (default 3); "
-             "A3C and DAgger runs continue from the last checkpoint they shipped back")
-    add("--stop-after", type=positive_int, default=None, metavar="N",
-        help="compute at most N pieces, then stop (run again to continue)")
+        "A3C and DAgger runs continue from the last checkpoint they shipped back",
+    )
+    add(
+        "--stop-after",
+        type=positive_int,
+        default=None,
+        metavar="N",
+        help="compute at most N pieces, then stop (run again to continue)",
+    )
     add("--dry-run", action="store_true", help="print the plan and its expected duration; run nothing")
     add("--no-progress", action="store_true", help="no progress bar (one line per finished piece)")
 
@@ -63,10 +83,19 @@ def add_reproduce_arguments(parser: argparse.ArgumentParser) -> None:
 def add_report_arguments(parser: argparse.ArgumentParser) -> None:
     add = parser.add_argument
     add("out", type=Path, metavar="DIR", help="a reproduction directory (bimgame reproduce --out DIR)")
-    add("--threshold", type=_fraction, default=None, metavar="F",
-        help="steps-to-threshold target as a fraction of the expert's success rate (default: the budget's, 0.8)")
-    add("--resamples", type=positive_int, default=DEFAULT_RESAMPLES,
-        help=f"bootstrap resamples (default {DEFAULT_RESAMPLES})")
+    add(
+        "--threshold",
+        type=_fraction,
+        default=None,
+        metavar="F",
+        help="steps-to-threshold target as a fraction of the expert's success rate (default: the budget's, 0.8)",
+    )
+    add(
+        "--resamples",
+        type=positive_int,
+        default=DEFAULT_RESAMPLES,
+        help=f"bootstrap resamples (default {DEFAULT_RESAMPLES})",
+    )
     add("--seed", type=int, default=0, help="seed of the bootstrap's generator (default 0)")
 
 
@@ -94,26 +123,43 @@ def run_reproduce(args: argparse.Namespace) -> int:
     pieces = plan_pieces(budget)
     total = _total(budget)
     left = [p for p in pieces if not piece_done(p, args.out, budget)] if args.out.is_dir() else pieces
-    presets = "; ".join(f"{name}: {len(plan_pieces(b))} pieces, ≈ {format_duration(_total(b))}"
-                        for name, b in BUDGETS.items())
-    console.print(f"budget {budget.name}: tasks {', '.join(budget.tasks)}; {', '.join(budget.algorithms)}; "
-                  f"{budget.seeds} seeds; {budget.obs} observations")
-    console.print(f"expected on an idle 2-core machine: ≈ {format_duration(total)} for all {len(pieces)} pieces, "
-                  f"≈ {format_duration(sum(estimate_seconds(p, budget) for p in left))} for the {len(left)} not "
-                  f"finished yet (presets — {presets}). A concurrent job on the machine makes it slower.")
+    presets = "; ".join(
+        f"{name}: {len(plan_pieces(b))} pieces, ≈ {format_duration(_total(b))}" for name, b in BUDGETS.items()
+    )
+    console.print(
+        f"budget {budget.name}: tasks {', '.join(budget.tasks)}; {', '.join(budget.algorithms)}; "
+        f"{budget.seeds} seeds; {budget.obs} observations"
+    )
+    console.print(
+        f"expected on an idle 2-core machine: ≈ {format_duration(total)} for all {len(pieces)} pieces, "
+        f"≈ {format_duration(sum(estimate_seconds(p, budget) for p in left))} for the {len(left)} not "
+        f"finished yet (presets — {presets}). A concurrent job on the machine makes it slower."
+    )
     if args.dry_run:
         for piece in pieces:
             state = "to do" if piece in left else "done"
             console.print(f"  {piece.id:<40} {state:<6} ≈ {format_duration(estimate_seconds(piece, budget))}")
         kinds = dict.fromkeys(p.kind for p in pieces)
-        console.print("by kind: " + "; ".join(
-            f"{kind} ×{sum(p.kind == kind for p in pieces)} ≈ "
-            f"{format_duration(sum(estimate_seconds(p, budget) for p in pieces if p.kind == kind))}" for kind in kinds))
+        console.print(
+            "by kind: "
+            + "; ".join(
+                f"{kind} ×{sum(p.kind == kind for p in pieces)} ≈ "
+                f"{format_duration(sum(estimate_seconds(p, budget) for p in pieces if p.kind == kind))}"
+                for kind in kinds
+            )
+        )
         return 0
     try:
-        result = reproduce(args.out, budget, progress=not args.no_progress, stop_after=args.stop_after,
-                           console=console, backend=args.backend, ray_address=args.ray_address,
-                           max_retries=args.max_retries)
+        result = reproduce(
+            args.out,
+            budget,
+            progress=not args.no_progress,
+            stop_after=args.stop_after,
+            console=console,
+            backend=args.backend,
+            ray_address=args.ray_address,
+            max_retries=args.max_retries,
+        )
     except ImportError as error:
         console.print(f"bimgame reproduce: error: {escape(str(error))}")
         return 2
@@ -121,14 +167,18 @@ def run_reproduce(args: argparse.Namespace) -> int:
         console.print(f"interrupted; finished pieces are kept. Continue with: bimgame reproduce --out {args.out}")
         return 130
     paths = build_report(args.out)
-    console.print(f"{len(result.computed)} pieces computed, {len(result.reused)} reused, in "
-                  f"{format_duration(result.seconds)}; wrote {paths.report}")
+    console.print(
+        f"{len(result.computed)} pieces computed, {len(result.reused)} reused, in "
+        f"{format_duration(result.seconds)}; wrote {paths.report}"
+    )
     if result.remaining:
-        console.print(f"stopped after {len(result.computed)} pieces as asked; {len(result.remaining)} left. "
-                      f"Continue with: bimgame reproduce --out {args.out}")
+        console.print(
+            f"stopped after {len(result.computed)} pieces as asked; {len(result.remaining)} left. "
+            f"Continue with: bimgame reproduce --out {args.out}"
+        )
     if result.failed or result.skipped:
-        for piece, error in result.failed.items():
-            console.print(f"[red]failed[/red] {escape(piece)}: {escape(error)}")
+        for failed, message in result.failed.items():
+            console.print(f"[red]failed[/red] {escape(failed)}: {escape(message)}")
         if result.skipped:
             console.print(f"not run because a piece they need failed: {', '.join(result.skipped)}")
         console.print(f"details in {args.out / 'status.json'}; rerun the same command to retry")

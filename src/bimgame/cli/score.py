@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 
 from rich.console import Console
@@ -23,24 +24,35 @@ __all__ = ["add_score_arguments", "run_score", "add_robustness_arguments", "run_
 
 def add_score_arguments(parser: argparse.ArgumentParser) -> None:
     add = parser.add_argument
-    add("policy", nargs="?", metavar="POLICY",
+    add(
+        "policy",
+        nargs="?",
+        metavar="POLICY",
         help="random | noop | geodesic | expert | a bimgame run directory or checkpoint | an SB3 model .zip | "
-             "module:callable (observation -> action)")
+        "module:callable (observation -> action)",
+    )
     add_task_argument(parser, "STG1", help="(default STG1)")
     add("--obs", choices=OBS_MODES, default="state", help="observations the policy gets (default state)")
-    add("--episodes", type=positive_int, default=PROTOCOL_EPISODES,
-        help=f"episodes of the protocol (default {PROTOCOL_EPISODES}; scores are comparable only at the default)")
+    add(
+        "--episodes",
+        type=positive_int,
+        default=PROTOCOL_EPISODES,
+        help=f"episodes of the protocol (default {PROTOCOL_EPISODES}; scores are comparable only at the default)",
+    )
     add("--sampled", action="store_true", help="a network samples its actions instead of acting greedily")
     add("--out", type=Path, default=None, help="write the result as JSON here")
     add("--no-progress", action="store_true", help="no progress bar")
-    add("--measure-references", action="store_true",
-        help="measure the random and expert reference returns of every task (writes --out; takes minutes)")
+    add(
+        "--measure-references",
+        action="store_true",
+        help="measure the random and expert reference returns of every task (writes --out; takes minutes)",
+    )
 
 
 def _pair(value: float | None, interval: list[float] | None, percent: bool = False) -> str:
     if value is None:
         return "–"
-    shown = (lambda v: f"{100 * v:.0f}%") if percent else (lambda v: f"{v:.2f}")  # noqa: E731
+    shown = (lambda v: f"{100 * v:.0f}%") if percent else (lambda v: f"{v:.2f}")
     return f"{shown(value)} [{shown(interval[0])}, {shown(interval[1])}]" if interval else shown(value)
 
 
@@ -55,15 +67,25 @@ def run_score(args: argparse.Namespace) -> int:
     if args.policy is None:
         raise ValueError("POLICY is required (or --measure-references)")
     check_output_file(args.out, "--out", "score.json")
-    summary = score(args.policy, args.task, obs=args.obs, episodes=args.episodes, sampled=args.sampled,
-                    progress=not args.no_progress)
-    table = Table(title=f"{args.policy} on {summary['task']} ({summary['obs']}), {summary['episodes']} protocol episodes")
+    summary = score(
+        args.policy,
+        args.task,
+        obs=args.obs,
+        episodes=args.episodes,
+        sampled=args.sampled,
+        progress=not args.no_progress,
+    )
+    table = Table(
+        title=f"{args.policy} on {summary['task']} ({summary['obs']}), {summary['episodes']} protocol episodes"
+    )
     for column in ("success [95% CI]", "mean return", "mean length (solved)", "normalised score"):
         table.add_column(column, justify="right")
-    table.add_row(_pair(summary["success_rate"], summary["success_rate_ci"], percent=True),
-                  _pair(summary["mean_return"], summary["mean_return_ci"]),
-                  _pair(summary["mean_length_solved"], summary["mean_length_solved_ci"]),
-                  _pair(summary["normalised_score"], summary["normalised_score_ci"]))
+    table.add_row(
+        _pair(summary["success_rate"], summary["success_rate_ci"], percent=True),
+        _pair(summary["mean_return"], summary["mean_return_ci"]),
+        _pair(summary["mean_length_solved"], summary["mean_length_solved_ci"]),
+        _pair(summary["normalised_score"], summary["normalised_score_ci"]),
+    )
     console.print(table)
     if args.out is not None:
         console.print(f"wrote {write_json(args.out, {'policy': args.policy, **summary})}")
@@ -77,18 +99,32 @@ if __name__ == "__main__":  # pragma: no cover
 def add_robustness_arguments(parser: argparse.ArgumentParser) -> None:
     """``bimgame robustness``: policies and the expert on the nominal board and randomised ones."""
     add = parser.add_argument
-    add("groups", nargs="*", type=run_group, metavar="LABEL=RUN[,RUN...]",
-        help="a label and its run directories (e.g. one per seed)")
+    add(
+        "groups",
+        nargs="*",
+        type=run_group,
+        metavar="LABEL=RUN[,RUN...]",
+        help="a label and its run directories (e.g. one per seed)",
+    )
     add_task_argument(parser, "STG1", help="(default STG1)")
-    add("--randomize", nargs="+", choices=tuple(RANDOMIZATION_PRESETS), default=["physics"],
-        help="randomised conditions besides the nominal board (default physics)")
+    add(
+        "--randomize",
+        nargs="+",
+        choices=tuple(RANDOMIZATION_PRESETS),
+        default=["physics"],
+        help="randomised conditions besides the nominal board (default physics)",
+    )
     add("--episodes", type=positive_int, default=50, help="episodes per source and condition (default 50)")
     add("--expert-seeds", type=int, default=3, help="MPC expert: sources (seeds) to measure, 0: none (default 3)")
     add("--expert-episodes", type=positive_int, default=None, help="episodes per expert seed (default --episodes)")
     add("--sampled", action="store_true", help="networks sample their actions instead of acting greedily")
     add("--seed", type=int, default=0, help="seed of the evaluation episodes (default 0)")
-    add("--workers", type=positive_int, default=1,
-        help="processes for the expert's episodes (they do not depend on it; default 1)")
+    add(
+        "--workers",
+        type=positive_int,
+        default=1,
+        help="processes for the expert's episodes (they do not depend on it; default 1)",
+    )
     add("--out", type=Path, required=True, help="directory for robustness.csv and robustness.md")
     add("--no-progress", action="store_true", help="no progress bar")
 
@@ -99,13 +135,27 @@ def run_robustness(args: argparse.Namespace) -> int:
     if not args.groups and args.expert_seeds == 0:
         raise ValueError("nothing to measure: give LABEL=RUN groups or --expert-seeds > 0")
     conditions = {"nominal": None, **{name: randomization_preset(name) for name in args.randomize}}
-    groups = {label: [str(p) for p in runs] for label, runs in args.groups}
-    rows = robustness_rows(groups, args.task, conditions, episodes=args.episodes, seed=args.seed,
-                           sampled=args.sampled, progress=not args.no_progress)
+    groups: dict[str, Sequence[str]] = {str(label): [str(p) for p in runs] for label, runs in args.groups}
+    rows = robustness_rows(
+        groups,
+        args.task,
+        conditions,
+        episodes=args.episodes,
+        seed=args.seed,
+        sampled=args.sampled,
+        progress=not args.no_progress,
+    )
     if args.expert_seeds:
-        rows += robustness_rows({}, args.task, conditions, episodes=args.expert_episodes or args.episodes,
-                                seed=args.seed, expert_seeds=args.expert_seeds, progress=not args.no_progress,
-                                workers=args.workers)
+        rows += robustness_rows(
+            {},
+            args.task,
+            conditions,
+            episodes=args.expert_episodes or args.episodes,
+            seed=args.seed,
+            expert_seeds=args.expert_seeds,
+            progress=not args.no_progress,
+            workers=args.workers,
+        )
     csv_path, md_path = write_robustness(rows, args.out)
     print(md_path.read_text())
     print(f"wrote {csv_path} and {md_path}", file=sys.stderr)

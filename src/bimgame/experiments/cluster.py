@@ -40,8 +40,9 @@ import tempfile
 import threading
 import time
 import traceback
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 from bimgame.experiments.backends import PieceOutcome, error_text, run_piece
 from bimgame.experiments.budgets import Budget
@@ -53,8 +54,17 @@ from bimgame.learn.runs import CHECKPOINT
 from bimgame.util.archives import pack_directory, unpack_directory
 from bimgame.util.files import atomic_write_bytes, read_json, write_json
 
-__all__ = ["RayBackend", "SnapshotStore", "CheckpointShipper", "compute_on_node", "local_cluster", "WORK_ROOT_ENV",
-           "PIECE_MARKER", "SNAPSHOTS", "SHIP_POLL_SECONDS"]
+__all__ = [
+    "RayBackend",
+    "SnapshotStore",
+    "CheckpointShipper",
+    "compute_on_node",
+    "local_cluster",
+    "WORK_ROOT_ENV",
+    "PIECE_MARKER",
+    "SNAPSHOTS",
+    "SHIP_POLL_SECONDS",
+]
 
 #: Environment variable naming the directory under which a node's tasks work (default: the node's
 #: temporary directory).
@@ -150,8 +160,14 @@ class CheckpointShipper:
         return True
 
 
-def compute_on_node(piece: Piece, budget: Budget, input_paths: list[str], store: Any, *archives: bytes,
-                    poll_seconds: float = SHIP_POLL_SECONDS) -> dict[str, Any]:
+def compute_on_node(
+    piece: Piece,
+    budget: Budget,
+    input_paths: list[str],
+    store: Any,
+    *archives: bytes,
+    poll_seconds: float = SHIP_POLL_SECONDS,
+) -> dict[str, Any]:
     """The body of a piece's Ray task: unpack the pieces it reads (``archives``, one per path of
     ``input_paths``) into a fresh working directory, and the piece's latest snapshot in ``store``
     (a :class:`SnapshotStore` actor) if an earlier attempt shipped one; compute the piece there —
@@ -175,8 +191,11 @@ def compute_on_node(piece: Piece, budget: Budget, input_paths: list[str], store:
         if snapshot is not None:  # an earlier attempt's node died: continue from its last checkpoint
             unpack_directory(snapshot, work / piece.path)
         started = time.monotonic()
-        shipping = (CheckpointShipper(store, piece.id, work / piece.path, work / PIECE_MARKER, poll_seconds)
-                    if resumable else contextlib.nullcontext())
+        shipping = (
+            CheckpointShipper(store, piece.id, work / piece.path, work / PIECE_MARKER, poll_seconds)
+            if resumable
+            else contextlib.nullcontext()
+        )
         try:
             with shipping:
                 note = run_piece(piece, budget, work)
@@ -184,8 +203,12 @@ def compute_on_node(piece: Piece, budget: Budget, input_paths: list[str], store:
             raise RuntimeError(f"{piece.id} stopped before it finished on {node}") from None
         if snapshot is not None:
             note = f"{note}, shipped back by an earlier attempt"
-        return {"archive": pack_directory(work / piece.path), "note": note, "node": node,
-                "seconds": time.monotonic() - started}
+        return {
+            "archive": pack_directory(work / piece.path),
+            "note": note,
+            "node": node,
+            "seconds": time.monotonic() - started,
+        }
     finally:
         shutil.rmtree(work, ignore_errors=True)
 
@@ -204,8 +227,9 @@ class RayBackend:
     capacity = None
     queues = True
 
-    def __init__(self, out_dir: Path, budget: Budget, pieces: list[Piece], *, address: str | None = None,
-                 max_retries: int = 3):
+    def __init__(
+        self, out_dir: Path, budget: Budget, pieces: list[Piece], *, address: str | None = None, max_retries: int = 3
+    ):
         if not (isinstance(max_retries, int) and max_retries >= 0):
             raise ValueError(f"max_retries must be an integer >= 0, got {max_retries!r}")
         self.ray = import_ray()
@@ -227,21 +251,31 @@ class RayBackend:
         from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy  # part of Ray, which is optional
 
         driver_node = NodeAffinitySchedulingStrategy(node_id=self.ray.get_runtime_context().get_node_id(), soft=False)
-        self._store = self.ray.remote(SnapshotStore).options(num_cpus=0, scheduling_strategy=driver_node).remote(
-            (out_dir / SNAPSHOTS).resolve())
+        self._store = (
+            self.ray.remote(SnapshotStore)
+            .options(num_cpus=0, scheduling_strategy=driver_node)
+            .remote((out_dir / SNAPSHOTS).resolve())
+        )
         self._inputs: dict[str, Any] = {}
         self._in_flight: dict[Any, tuple[Piece, float]] = {}
 
     def check_fits(self, pieces: list[Piece]) -> None:
         """Refuse (ValueError) pieces that need more CPUs than the cluster's largest node has: Ray
         would queue them forever."""
-        too_big = sorted({(piece_cpus(p, self.budget), p.kind) for p in pieces
-                          if piece_cpus(p, self.budget) > self.largest_node_cpus})
+        too_big = sorted(
+            {
+                (piece_cpus(p, self.budget), p.kind)
+                for p in pieces
+                if piece_cpus(p, self.budget) > self.largest_node_cpus
+            }
+        )
         if too_big:
             wants = ", ".join(f"{kind} pieces need {cpus}" for cpus, kind in too_big)
-            raise ValueError(f"the cluster's largest node has {self.largest_node_cpus:g} CPUs, but {wants} "
-                             f"(an A3C run: its workers plus its evaluator). Add bigger nodes, or use a budget "
-                             f"with fewer workers per run")
+            raise ValueError(
+                f"the cluster's largest node has {self.largest_node_cpus:g} CPUs, but {wants} "
+                f"(an A3C run: its workers plus its evaluator). Add bigger nodes, or use a budget "
+                f"with fewer workers per run"
+            )
 
     def _input(self, piece_id: str) -> Any:
         """The object-store reference of a finished piece's archive (put once, by the driver)."""
@@ -252,10 +286,15 @@ class RayBackend:
 
     def submit(self, piece: Piece) -> None:
         paths = [self.pieces[n].path for n in piece.needs]
-        options = dict(num_cpus=piece_cpus(piece, self.budget), max_retries=self.max_retries,
-                       retry_exceptions=False, name=f"bimgame:{piece.id}")
-        ref = self._task.options(**options).remote(piece, self.budget, paths, self._store,
-                                                   *(self._input(n) for n in piece.needs))
+        options = dict(
+            num_cpus=piece_cpus(piece, self.budget),
+            max_retries=self.max_retries,
+            retry_exceptions=False,
+            name=f"bimgame:{piece.id}",
+        )
+        ref = self._task.options(**options).remote(
+            piece, self.budget, paths, self._store, *(self._input(n) for n in piece.needs)
+        )
         self._in_flight[ref] = (piece, time.monotonic())
 
     def next_outcome(self) -> PieceOutcome:
@@ -269,13 +308,15 @@ class RayBackend:
             cause = error.cause if getattr(error, "cause", None) is not None else error
             return PieceOutcome(piece, time.monotonic() - submitted, error=error_text(cause), traceback=str(error))
         except self.ray.exceptions.RayError as error:  # the node or worker died more often than max_retries
-            return PieceOutcome(piece, time.monotonic() - submitted, error=error_text(error),
-                                traceback=traceback.format_exc())
+            return PieceOutcome(
+                piece, time.monotonic() - submitted, error=error_text(error), traceback=traceback.format_exc()
+            )
         try:
             unpack_directory(result["archive"], self.out_dir / piece.path)
         except (OSError, tarfile.TarError) as error:
-            return PieceOutcome(piece, result["seconds"], error=error_text(error), traceback=traceback.format_exc(),
-                                node=result["node"])
+            return PieceOutcome(
+                piece, result["seconds"], error=error_text(error), traceback=traceback.format_exc(), node=result["node"]
+            )
         self.ray.get(self._store.drop.remote(piece.id))  # its outputs are in place: no attempt continues it
         if piece.id in self._read:
             self._inputs[piece.id] = self.ray.put(result["archive"])

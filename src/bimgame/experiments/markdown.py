@@ -68,8 +68,8 @@ def tables_markdown(numbers: dict[str, Any], budget: Budget) -> str:
     """``table_speedup.md``: per task, steps to threshold and speed-ups per algorithm; then pre-training."""
     lines = ["# Steps to threshold and speed-up over A3C", ""]
     if BASELINE.name not in budget.algorithms:
-        lines += ["A3C from random weights is not in this grid: there is no baseline, so no speed-up over it is "
-                  "given (add it with `--algorithms`).", ""]
+        lines += [("A3C from random weights is not in this grid: there is no baseline, so no speed-up over it is "
+                  "given (add it with `--algorithms`)."), ""]
     for task, entry in numbers["tasks"].items():
         lines.append(f"## {task}")
         lines.append("")
@@ -84,9 +84,9 @@ def tables_markdown(numbers: dict[str, Any], budget: Budget) -> str:
             lines.append("")
         seeds = [a["seeds_finished"] for a in entry["algorithms"].values() if a["seeds_finished"]]
         if seeds and min(seeds) < 5:
-            lines += [f"With {min(seeds)} seed(s) per algorithm the bootstrap intervals are rough: resampling "
+            lines += [(f"With {min(seeds)} seed(s) per algorithm the bootstrap intervals are rough: resampling "
                       f"{min(seeds)} values can only give a handful of distinct means, so the intervals understate "
-                      f"the uncertainty. Use more seeds (`--seeds`) for firm conclusions.", ""]
+                      f"the uncertainty. Use more seeds (`--seeds`) for firm conclusions."), ""]
         lines.append("| algorithm | seeds | reached | steps to threshold, per seed | mean | speed-up vs A3C [95% CI] "
                      "| final success: training episodes | greedy evaluation | sampled evaluation |")
         lines.append("|---|---:|---:|---|---:|---|---:|---:|---:|")
@@ -112,9 +112,9 @@ def tables_markdown(numbers: dict[str, Any], budget: Budget) -> str:
         lines.append("")
         curricula = [a for a, v in entry["algorithms"].items() if v.get("start_curriculum")]
         if curricula:
-            lines += [f"{', '.join(LABELS[a] for a in curricula)}: no steps to threshold or training "
+            lines += [(f"{', '.join(LABELS[a] for a in curricula)}: no steps to threshold or training "
                       f"success — with a start curriculum the training episodes start nearer the goal than the "
-                      f"task's; see the evaluations beyond the paper.", ""]
+                      f"task's; see the evaluations beyond the paper."), ""]
         extra = [(o, b, entry["algorithms"][o].get(f"speedup_vs_{b}")) for b, o in _value_pairs()
                  if o in entry["algorithms"]]
         extra = [(o, b, s) for o, b, s in extra if s is not None]
@@ -130,8 +130,8 @@ def tables_markdown(numbers: dict[str, Any], budget: Budget) -> str:
                      f"π^s alone, greedy success | π^s alone, sampled success | V̂ held-out RMSE |")
         lines.append("|---|---:|---|---|---|---|")
         for task, p in numbers["pretraining"].items():
-            seeds = ", ".join(_pct1(v) for v in p["val_accuracy"]) or "–"
-            lines.append(f"| {task} | {_pct1(p['val_accuracy_mean'])} | {seeds} | "
+            per_seed = ", ".join(_pct1(v) for v in p["val_accuracy"]) or "–"
+            lines.append(f"| {task} | {_pct1(p['val_accuracy_mean'])} | {per_seed} | "
                          f"{', '.join(_pct(v) for v in p['policy_greedy_success']) or '–'} | "
                          f"{', '.join(_pct(v) for v in p['policy_sampled_success']) or '–'} | "
                          f"{', '.join(f'{v:.3f}' for v in p['value_rmse'] if v is not None) or '–'} |")
@@ -193,7 +193,7 @@ def _claims(numbers: dict[str, Any]) -> list[tuple[str, str]]:
         dagger = entry["algorithms"][DAGGER.name]
         steps = nanmean([r["env_steps"] for r in dagger["runs"]])
         others = {a: final(entry, a) for a in paper_a3c if not math.isnan(final(entry, a))}
-        best = max(others, key=others.get) if others else None
+        best = max(others, key=others.__getitem__) if others else None
         text = (f"{task}: DAgger final success {_pct(dagger['final_greedy_success'])} greedy, "
                 f"{_pct(dagger['final_sampled_success'])} sampled, after {_steps_text(steps)} env steps")
         if best is not None:
@@ -222,7 +222,7 @@ def _claims(numbers: dict[str, Any]) -> list[tuple[str, str]]:
             continue
         finals = {a: final(entry, a) for a in entry["algorithms"] if not math.isnan(final(entry, a))}
         if finals:
-            best = max(finals, key=finals.get)
+            best = max(finals, key=finals.__getitem__)
             reached = [a for a, v in entry["algorithms"].items() if v["reached"]]
             verdict = (f"reached the threshold ({_pct(entry['threshold'])}): {', '.join(LABELS[a] for a in reached)}"
                        if reached else f"no run reached the threshold ({_pct(entry['threshold'])})")
@@ -238,13 +238,13 @@ def report_markdown(numbers: dict[str, Any], tables: str, budget: Budget, pieces
     """``report.md``: the paper's claims against this run, figures, ``tables`` (from
     :func:`tables_markdown`), settings, wall times and the methods."""
     lines = ["# Reproduction: Trajectory-based Learning for Ball-in-Maze Games", "",
-             f"Budget **{budget.name}**: tasks {', '.join(budget.tasks)}; algorithms "
+             (f"Budget **{budget.name}**: tasks {', '.join(budget.tasks)}; algorithms "
              f"{', '.join(LABELS[a] for a in budget.algorithms)}; {budget.seeds} seeds; {budget.obs} observations. "
              f"{len(finished)} of {len(pieces)} pieces finished. Report built "
-             f"{timestamp()} by `bimgame report`.", ""]
+             f"{timestamp()} by `bimgame report`."), ""]
     if len(finished) < len(pieces):
-        lines += [f"**Incomplete:** {len(pieces) - len(finished)} pieces are not finished; the numbers below use the "
-                  f"finished ones. Continue with `bimgame reproduce --out DIR`.", ""]
+        lines += [(f"**Incomplete:** {len(pieces) - len(finished)} pieces are not finished; the numbers below use the "
+                  f"finished ones. Continue with `bimgame reproduce --out DIR`."), ""]
     lines += ["## The paper's claims and this run", "", "| paper | this run |", "|---|---|"]
     for claim, measured in _claims(numbers):
         lines.append(f"| {claim} | {measured} |")
@@ -290,9 +290,9 @@ def report_markdown(numbers: dict[str, Any], tables: str, budget: Budget, pieces
     invocations = status.get("invocations", [])
     elapsed = sum(i.get("seconds", 0.0) for i in invocations)
     lines += [f"| **total** | | **{format_duration(total)}** |", "",
-              f"Wall times are from `{STATUS}` (all attempts of a piece, on this machine, with whatever else ran "
+              (f"Wall times are from `{STATUS}` (all attempts of a piece, on this machine, with whatever else ran "
               f"on it). The reproduction ran in {len(invocations)} invocation(s) of `bimgame reproduce` taking "
-              f"{format_duration(elapsed)} in all.", ""]
+              f"{format_duration(elapsed)} in all."), ""]
     lines += ["## How the numbers are computed", "", _METHODS, ""]
     if numbers.get("beyond") is not None:
         lines += [_METHODS_BEYOND, ""]
@@ -343,14 +343,14 @@ def beyond_markdown(beyond: dict[str, Any], budget: Budget) -> str:
     target = beyond["target"]
     every = f"every {_steps_text(budget.eval_every)} steps" if budget.eval_every else "at the end only"
     lines = ["## Beyond the paper: fine-tuning that keeps π^s", "",
-             f"From each A3C run's evaluations ({budget.eval_episodes} greedy and {budget.eval_episodes} sampled "
+             (f"From each A3C run's evaluations ({budget.eval_episodes} greedy and {budget.eval_episodes} sampled "
              f"episodes from the task's own starts, {every}; step 0 is the policy the run started from — π^s for "
              f"the pre-trained starts — and the last evaluation the final one). Each cell: every seed's value, then "
              f"the mean over seeds with its 95% percentile-bootstrap interval over seeds (never the best seed). "
              f"Dip: the lowest success after step 0 (@ the step it was at) and how far it fell below step 0's. "
              f"Steps to {target:.0%}: the first evaluation with greedy success ≥ {target:.0%} (0: the starting "
              f"policy already was; \"> N\": not reached by the last evaluation, at N, and the mean is then a "
-             f"lower bound). DAgger has no such evaluations and is left out.", ""]
+             f"lower bound). DAgger has no such evaluations and is left out."), ""]
     if budget.seeds < 5:
         lines += [f"With {budget.seeds} seed(s) the intervals are rough (a handful of distinct resampled means).", ""]
     for task, entry in beyond["tasks"].items():
@@ -361,14 +361,14 @@ def beyond_markdown(beyond: dict[str, Any], budget: Budget) -> str:
             continue
         if "figure" in entry:
             lines += [f"![{task} evaluations]({entry['figure']})", ""]
-        lines += [f"| algorithm | seeds | step 0, greedy | step 0, sampled | final greedy | final sampled | "
-                  f"steps to {target:.0%} greedy |", "|---|---:|---|---|---|---|---|"]
+        lines += [(f"| algorithm | seeds | step 0, greedy | step 0, sampled | final greedy | final sampled | "
+                  f"steps to {target:.0%} greedy |"), "|---|---:|---|---|---|---|---|"]
         for algorithm, a in groups.items():
             lines.append(f"| {LABELS[algorithm]} | {a['seeds_finished']}/{a['seeds_planned']} | "
                          f"{_cell(a, 'start_greedy', _pct)} | {_cell(a, 'start_sampled', _pct)} | "
                          f"{_cell(a, 'final_greedy', _pct)} | {_cell(a, 'final_sampled', _pct)} | {_target_cell(a)} |")
-        lines += ["", "| algorithm | dip: lowest greedy after step 0 | greedy drop below step 0 | "
-                      "dip: lowest sampled after step 0 | sampled drop below step 0 |", "|---|---|---|---|---|"]
+        lines += ["", ("| algorithm | dip: lowest greedy after step 0 | greedy drop below step 0 | "
+                      "dip: lowest sampled after step 0 | sampled drop below step 0 |"), "|---|---|---|---|---|"]
         for algorithm, a in groups.items():
             lines.append(f"| {LABELS[algorithm]} | {_cell(a, 'lowest_greedy', _pct, 'lowest_greedy_step')} | "
                          f"{_cell(a, 'drop_greedy', _points)} | "
@@ -405,7 +405,8 @@ _METHODS = (
     "iteration against the environment steps used so far (expert planning is counted separately in its dagger.csv). "
     "Threshold: a fraction of the expert's success rate on the task (its dataset episodes relabelled for the task). "
     "Steps to threshold: the right edge of the first bin whose training episodes reach the threshold (DAgger: the "
-    "first evaluation that does). Runs that never reach it are censored at their last complete bin; speed-ups with censored "
+    "first evaluation that does). Runs that never reach it are censored at their last complete bin; "
+    "speed-ups with censored "
     "runs are bounds (≥ when A3C was censored, ≤ when the compared algorithm was). Speed-up: ratio of mean steps, "
     "95% interval from a stratified bootstrap over seeds (each algorithm's seeds resampled on their own). Final "
     "success: training episodes that started in the last 10% of a run's steps before that cut; greedy: the run's final "

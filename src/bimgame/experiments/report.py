@@ -80,8 +80,9 @@ class ReportPaths:
         return [*self.figures, self.table_md, self.table_json, self.report]
 
 
-def build_report(out_dir: str | Path, *, threshold_fraction: float | None = None,
-                 resamples: int = DEFAULT_RESAMPLES, seed: int = 0) -> ReportPaths:
+def build_report(
+    out_dir: str | Path, *, threshold_fraction: float | None = None, resamples: int = DEFAULT_RESAMPLES, seed: int = 0
+) -> ReportPaths:
     """Rebuild every figure, table and ``report.md`` of the reproduction in ``out_dir`` from its
     saved results (finished pieces only; nothing is trained). ``threshold_fraction`` overrides the
     budget's; ``seed`` seeds the bootstrap's generator, so the same results give the same report."""
@@ -109,17 +110,24 @@ def build_report(out_dir: str | Path, *, threshold_fraction: float | None = None
     beyond = None
     if shows_beyond(budget):
         # Its own generator: the paper's numbers stay what they were without this section.
-        beyond = _beyond(all_runs, planned_runs, out_dir, budget, figures, resamples=resamples,
-                         rng=np.random.default_rng([seed, 1]))
-    numbers = {"threshold_fraction": threshold_fraction, "bootstrap": {"resamples": resamples, "seed": seed,
-                                                                       "confidence": CONFIDENCE},
-               "expert": {"dataset": dataset, "success_by_task": expert}, "tasks": tasks,
-               "pretraining": _pretraining(finished, out_dir, budget), "beyond": beyond}
+        beyond = _beyond(
+            all_runs, planned_runs, out_dir, budget, figures, resamples=resamples, rng=np.random.default_rng([seed, 1])
+        )
+    numbers = {
+        "threshold_fraction": threshold_fraction,
+        "bootstrap": {"resamples": resamples, "seed": seed, "confidence": CONFIDENCE},
+        "expert": {"dataset": dataset, "success_by_task": expert},
+        "tasks": tasks,
+        "pretraining": _pretraining(finished, out_dir, budget),
+        "beyond": beyond,
+    }
     table_json = write_json(out_dir / "table_speedup.json", _without_nan(numbers))
     table_text = tables_markdown(numbers, budget)
     table_md = atomic_write_bytes(out_dir / "table_speedup.md", table_text.encode())
-    report = atomic_write_bytes(out_dir / "report.md", report_markdown(numbers, table_text, budget, pieces, finished,
-                                                                       load_status(out_dir)).encode())
+    report = atomic_write_bytes(
+        out_dir / "report.md",
+        report_markdown(numbers, table_text, budget, pieces, finished, load_status(out_dir)).encode(),
+    )
     return ReportPaths(report, table_md, table_json, figures)
 
 
@@ -134,8 +142,9 @@ class _Context:
     rng: np.random.Generator
 
 
-def _expert(finished: dict[str, Piece], out_dir: Path, budget: Budget,
-            figures: list[Path]) -> tuple[dict[str, Any] | None, dict[str, float]]:
+def _expert(
+    finished: dict[str, Piece], out_dir: Path, budget: Budget, figures: list[Path]
+) -> tuple[dict[str, Any] | None, dict[str, float]]:
     """The dataset's summary and the expert's success rate per task (None and {} without a finished
     dataset); draws the expert's episode lengths into ``figures``."""
     if "data" not in finished:
@@ -146,8 +155,14 @@ def _expert(finished: dict[str, Piece], out_dir: Path, budget: Budget,
     return dataset_summary(out_dir / "data"), expert
 
 
-def _task_numbers(task: str, runs: dict[str, list[RunResults]], context: _Context, expert: dict[str, float],
-                  planned_runs: collections.Counter, figures: list[Path]) -> dict[str, Any]:
+def _task_numbers(
+    task: str,
+    runs: dict[str, list[RunResults]],
+    context: _Context,
+    expert: dict[str, float],
+    planned_runs: collections.Counter,
+    figures: list[Path],
+) -> dict[str, Any]:
     """One task's entry of ``table_speedup.json``: its threshold, per algorithm the runs' numbers,
     the speed-ups; its learning curves are drawn into ``figures``."""
     budget, rng = context.budget, context.rng
@@ -155,56 +170,90 @@ def _task_numbers(task: str, runs: dict[str, list[RunResults]], context: _Contex
     edges = np.linspace(0.0, float(steps), CURVE_BINS + 1) if steps else np.array([0.0, 1.0])
     # No threshold without an expert that succeeds: 0 × anything would be "reached" at once.
     threshold = context.threshold_fraction * expert[task] if expert.get(task, 0.0) > 0 else None
-    entry: dict[str, Any] = {"expert_success": expert.get(task), "threshold": threshold,
-                             "a3c_steps": steps, "curve_bin_steps": float(edges[1] - edges[0]),
-                             "min_episodes_per_bin": MIN_EPISODES, "algorithms": {}}
+    entry: dict[str, Any] = {
+        "expert_success": expert.get(task),
+        "threshold": threshold,
+        "a3c_steps": steps,
+        "curve_bin_steps": float(edges[1] - edges[0]),
+        "min_episodes_per_bin": MIN_EPISODES,
+        "algorithms": {},
+    }
     crossings: dict[str, list[Crossing]] = {}
     for algorithm, group in runs.items():
-        entry["algorithms"][algorithm], found = _algorithm_numbers(algorithm, group, planned_runs[task, algorithm],
-                                                                   edges, threshold, steps, context.out_dir)
+        entry["algorithms"][algorithm], found = _algorithm_numbers(
+            algorithm, group, planned_runs[task, algorithm], edges, threshold, steps, context.out_dir
+        )
         if found:
             crossings[algorithm] = found
     _speedups(entry["algorithms"], crossings, context.resamples, rng)
     curves = {a: group for a, group in runs.items() if not algorithm_named(a).start_curriculum}
     if any(curves.values()):
-        figures.append(plot_curves(task, curves, edges, threshold, context.threshold_fraction,
-                                   context.out_dir / f"fig_curves_{task}.png", resamples=context.resamples, rng=rng,
-                                   budget=budget))
+        figures.append(
+            plot_curves(
+                task,
+                curves,
+                edges,
+                threshold,
+                context.threshold_fraction,
+                context.out_dir / f"fig_curves_{task}.png",
+                resamples=context.resamples,
+                rng=rng,
+                budget=budget,
+            )
+        )
         entry["figure"] = f"fig_curves_{task}.png"
     return entry
 
 
-def _algorithm_numbers(name: str, group: list[RunResults], planned: int, edges: np.ndarray, threshold: float | None,
-                       steps: int, out_dir: Path) -> tuple[dict[str, Any], list[Crossing]]:
+def _algorithm_numbers(
+    name: str,
+    group: list[RunResults],
+    planned: int,
+    edges: np.ndarray,
+    threshold: float | None,
+    steps: int,
+    out_dir: Path,
+) -> tuple[dict[str, Any], list[Crossing]]:
     """One algorithm's runs on one task: each run's numbers and their means, and the runs' crossings
     of the threshold (none with a start curriculum, whose training episodes are not the task's)."""
     algorithm = algorithm_named(name)
     kind = run_kind(algorithm)
     curriculum = algorithm.start_curriculum
-    rows, crossings = [], []
+    rows: list[dict[str, Any]] = []
+    crossings: list[Crossing] = []
     for run in group:
         crossing = None if threshold is None or curriculum else kind.crossing(run, edges, threshold)
         if crossing is not None:
             crossings.append(crossing)
-        rows.append({"seed": run.seed, "dir": str(run.path.relative_to(out_dir)),
-                     "steps_to_threshold": crossing.steps if crossing and crossing.reached else None,
-                     "censored_at": crossing.steps if crossing and not crossing.reached else None,
-                     "final_success_training": None if curriculum else kind.final_training_success(run, steps),
-                     "final_greedy_success": final_eval(run, name, "greedy"),
-                     "final_sampled_success": final_eval(run, name, "sampled"),
-                     "env_steps": kind.env_steps(run)})
+        rows.append(
+            {
+                "seed": run.seed,
+                "dir": str(run.path.relative_to(out_dir)),
+                "steps_to_threshold": crossing.steps if crossing and crossing.reached else None,
+                "censored_at": crossing.steps if crossing and not crossing.reached else None,
+                "final_success_training": None if curriculum else kind.final_training_success(run, steps),
+                "final_greedy_success": final_eval(run, name, "greedy"),
+                "final_sampled_success": final_eval(run, name, "sampled"),
+                "env_steps": kind.env_steps(run),
+            }
+        )
     training = kind.training_episodes and not curriculum
-    return {"runs": rows, "seeds_finished": len(group), "seeds_planned": planned,
-            "reached": sum(c.reached for c in crossings),
-            "mean_steps_censored_at_last": float(np.mean([c.steps for c in crossings])) if crossings else None,
-            "final_success_training": nanmean([r["final_success_training"] for r in rows]) if training else None,
-            "start_curriculum": curriculum,
-            "final_greedy_success": nanmean([r["final_greedy_success"] for r in rows]),
-            "final_sampled_success": nanmean([r["final_sampled_success"] for r in rows])}, crossings
+    return {
+        "runs": rows,
+        "seeds_finished": len(group),
+        "seeds_planned": planned,
+        "reached": sum(c.reached for c in crossings),
+        "mean_steps_censored_at_last": float(np.mean([c.steps for c in crossings])) if crossings else None,
+        "final_success_training": nanmean([r["final_success_training"] for r in rows]) if training else None,
+        "start_curriculum": curriculum,
+        "final_greedy_success": nanmean([r["final_greedy_success"] for r in rows]),
+        "final_sampled_success": nanmean([r["final_sampled_success"] for r in rows]),
+    }, crossings
 
 
-def _speedups(algorithms: dict[str, Any], crossings: dict[str, list[Crossing]], resamples: int,
-              rng: np.random.Generator) -> None:
+def _speedups(
+    algorithms: dict[str, Any], crossings: dict[str, list[Crossing]], resamples: int, rng: np.random.Generator
+) -> None:
     """Into each algorithm's entry: its speed-up over :data:`~bimgame.experiments.algorithms.BASELINE`
     (``speedup_vs_<baseline>``) and, for a value-reward algorithm, over the same start without the
     value reward (``speedup_vs_<that algorithm>``)."""
@@ -216,17 +265,29 @@ def _speedups(algorithms: dict[str, Any], crossings: dict[str, list[Crossing]], 
         without = algorithm.without_value_reward
         if without is not None and crossings.get(without) and crossings.get(algorithm.name):
             algorithms[algorithm.name][f"speedup_vs_{without}"] = speedup(
-                crossings[without], crossings[algorithm.name], resamples=resamples, rng=rng)
+                crossings[without], crossings[algorithm.name], resamples=resamples, rng=rng
+            )
 
 
-def _beyond(all_runs: dict[str, dict[str, list[RunResults]]], planned_runs: collections.Counter, out_dir: Path,
-            budget: Budget, figures: list[Path], *, resamples: int, rng: np.random.Generator) -> dict[str, Any]:
+def _beyond(
+    all_runs: dict[str, dict[str, list[RunResults]]],
+    planned_runs: collections.Counter,
+    out_dir: Path,
+    budget: Budget,
+    figures: list[Path],
+    *,
+    resamples: int,
+    rng: np.random.Generator,
+) -> dict[str, Any]:
     """The numbers of the section beyond the paper, with a figure of the evaluations per task that has any."""
     beyond = beyond_numbers(all_runs, planned_runs, out_dir=out_dir, resamples=resamples, rng=rng)
     for task, entry in beyond["tasks"].items():
         if any(r["evaluations"] for a in entry["algorithms"].values() for r in a["runs"]):
-            figures.append(plot_eval_curves(task, all_runs[task], out_dir / f"fig_eval_{task}.png", budget=budget,
-                                            target=EVAL_TARGET))
+            figures.append(
+                plot_eval_curves(
+                    task, all_runs[task], out_dir / f"fig_eval_{task}.png", budget=budget, target=EVAL_TARGET
+                )
+            )
             entry["figure"] = f"fig_eval_{task}.png"
     return beyond
 
@@ -246,14 +307,21 @@ def _pretraining(finished: dict[str, Piece], out_dir: Path, budget: Budget) -> d
     """Per task: the held-out accuracy of each seed's π^s, its success alone, and V̂'s held-out RMSE."""
     out: dict[str, Any] = {}
     for task in budget.tasks:
-        policy = [(p.seed, read_json(out_dir / p.path / "summary.json")) for p in finished.values()
-                  if isinstance(kind_of(p), PretrainPolicyKind) and p.task == task]
-        value = [(p.seed, read_json(out_dir / p.path / "summary.json")) for p in finished.values()
-                 if isinstance(kind_of(p), PretrainValueKind) and p.task == task]
-        if not policy and not value:
+        policy_pieces = [
+            (p.seed, read_json(out_dir / p.path / "summary.json"))
+            for p in finished.values()
+            if isinstance(kind_of(p), PretrainPolicyKind) and p.task == task
+        ]
+        value_pieces = [
+            (p.seed, read_json(out_dir / p.path / "summary.json"))
+            for p in finished.values()
+            if isinstance(kind_of(p), PretrainValueKind) and p.task == task
+        ]
+        if not policy_pieces and not value_pieces:
             continue
-        policy = sorted((s, v) for s, v in policy if v)
-        value = sorted((s, v) for s, v in value if v)
+        # The seeds whose summary has something in it, in seed order.
+        policy = sorted(((s, v) for s, v in policy_pieces if v), key=lambda pair: pair[0] or 0)
+        value = sorted(((s, v) for s, v in value_pieces if v), key=lambda pair: pair[0] or 0)
         evals = [v.get("policy_eval") or {} for _, v in policy]
         out[task] = {
             "seeds": [s for s, _ in policy],
