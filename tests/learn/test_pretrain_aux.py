@@ -33,8 +33,13 @@ def test_episode_states_line_up_with_their_frames(stg1_dataset):
         assert not batch["privileged"][len(episode):, b].any()
 
 
-def test_pretraining_with_aux_heads_learns_where_the_marble_is(stg1_dataset, tmp_path):
-    config = PretrainConfig(task="STG1", obs="pixels", hidden=32, features=32, aux_heads=True, asymmetric_critic=False,
+def test_pretraining_with_aux_heads_learns_where_the_marble_is(stg1_dataset, tmp_path, one_torch_thread):
+    # One torch thread: pre-training takes the caller's thread count (at most 2), and the bf16 encoder's
+    # results differ with it, so without it the outcome depended on the machine's cores and on what
+    # earlier tests in the same worker process left set. Width 64: at width 32 the last epoch's held-out
+    # error ended within 3% of the bound (0.38 against 0.39), where any change of the numbers could
+    # cross it; the epoch-to-epoch error of a network this small on a dataset this small moves by ±0.05.
+    config = PretrainConfig(task="STG1", obs="pixels", hidden=64, features=64, aux_heads=True, asymmetric_critic=False,
                             precision="bf16",
                             epochs=6, patience=6, eval_episodes=0, seed=0, batch_episodes=4, bptt=10)
     pretrain(config, stg1_dataset, tmp_path / "pi", progress=False)
@@ -42,7 +47,7 @@ def test_pretraining_with_aux_heads_learns_where_the_marble_is(stg1_dataset, tmp
     aux = [float(r["val_aux"]) for r in rows if r["val_aux"] not in ("", "nan")]
     assert len(aux) == 7 and all(math.isfinite(a) for a in aux)  # epoch 0 (the fresh network), then 6
     # The held-out error falls clearly below what always predicting the mean state would give (measured:
-    # 0.33 against 0.49 after 6 epochs of this small network on this small dataset).
+    # 0.06 against 0.49 after 6 epochs of this small network on this small dataset, on one thread).
     baseline = _mean_predictor_error(stg1_dataset)
     assert aux[-1] < 0.8 * baseline < baseline < aux[0], (aux, baseline)
 
