@@ -53,7 +53,7 @@ from bimgame.learn.a3c_core import (
     network_for,
     shared_optimizer_state,
 )
-from bimgame.learn.a3c_workers import _evaluator, _worker
+from bimgame.learn.a3c_workers import RunShared, _evaluator, _worker
 from bimgame.learn.common import EVAL_COLUMNS, init_network_settings
 from bimgame.learn.curves import plot_run
 from bimgame.learn.finetune import DEFAULT_FINETUNE, FINETUNE_PRESETS
@@ -306,9 +306,8 @@ def _run_processes(config: A3CConfig, run_dir: Path, shared: RecurrentActorCriti
     counter = context.Value("q", start.step)
     stop = context.Event()
     messages = context.Queue()
-    processes = [context.Process(target=_worker, name=f"a3c-worker-{rank}",
-                                 args=(rank, config, shared, optimizer_state, counter, stop, messages,
-                                       env_wrapper, start.step, start.teacher), daemon=True)
+    run = RunShared(config, shared, optimizer_state, counter, stop, messages, env_wrapper, start.step, start.teacher)
+    processes = [context.Process(target=_worker, name=f"a3c-worker-{rank}", args=(rank, run), daemon=True)
                  for rank in range(config.workers)]
     if config.eval_every > 0:
         processes.append(context.Process(target=_evaluator, name="a3c-evaluator",
