@@ -238,7 +238,7 @@ class RolloutCollector:
             obs=stacked["obs"],
             prev_action=stacked["prev_action"],
             prev_reward=stacked["prev_reward"],
-            tilt=stacked["tilt"] if self.keeps_tilt else None,
+            tilt=stacked.get("tilt"),
             starts=starts,
             actions=stacked["actions"],
             rewards=stacked["rewards"],
@@ -258,7 +258,8 @@ class RolloutCollector:
         columns["obs"].append(obs)
         columns["prev_action"].append(actor.prev_action)
         columns["prev_reward"].append(actor.prev_reward)
-        columns["tilt"].append(tilt)
+        if self.keeps_tilt:
+            columns["tilt"].append(tilt)
         columns["starts"].append(actor.starts)
         if self.privileged:
             columns["privileged"].append(torch.as_tensor(self.info["state"]))
@@ -289,7 +290,7 @@ class RolloutCollector:
 
     def _book(self, i: int, success: bool, start_tags: np.ndarray | None) -> None:
         tag = TRUE_START
-        if self.curriculum is not None and start_tags is not None:
+        if self.curriculum is not None and start_tags is not None:  # (tags are read only with a curriculum)
             tag = int(start_tags[i])
             self.curriculum.record(tag, success)
         self.on_episode(

@@ -24,10 +24,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-try:
-    import fcntl
-except ImportError:  # pragma: no cover - not POSIX: directories are not locked
-    fcntl = None  # type: ignore[assignment]
+from bimgame.util.locks import FileLock, LockHeld
 
 __all__ = [
     "atomic_write_bytes",
@@ -79,21 +76,18 @@ def _naming(error: OSError, path: Path) -> OSError:
 
 @contextlib.contextmanager
 def exclusive_lock(lock_path: str | Path, busy_message: str) -> Iterator[None]:
-    """Hold an exclusive lock on ``lock_path`` (created if missing) for the block; another process
-    holding it raises ``BlockingIOError(busy_message)`` at once. The OS releases the lock even if
-    the process is killed, so a crash never leaves a stale lock behind."""
-    if fcntl is None:  # pragma: no cover
+    """Hold an exclusive lock on ``lock_path`` (created if missing, and left in place) for the block;
+    another process holding it raises ``BlockingIOError(busy_message)`` at once. The OS releases the
+    lock even if the process is killed, so a crash never leaves a stale lock behind
+    (:class:`~bimgame.util.locks.FileLock`)."""
+    try:
+        lock = FileLock.acquire(lock_path)
+    except LockHeld:
+        raise BlockingIOError(busy_message) from None
+    try:
         yield
-        return
-    with open(lock_path, "a") as handle:
-        try:
-            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            raise BlockingIOError(busy_message) from None
-        try:
-            yield
-        finally:
-            fcntl.flock(handle, fcntl.LOCK_UN)
+    finally:
+        lock.release()
 
 
 def write_json(path: str | Path, values: dict[str, Any]) -> Path:
