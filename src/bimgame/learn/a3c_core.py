@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, ClassVar
 
 import torch
@@ -261,6 +261,13 @@ class A3CConfig(NetworkSettings):
                 f"A3CConfig.augment_shift must be 0..{MAX_SHIFT} pixels, and 0 for state observations, "
                 f"got {self.augment_shift!r} with obs={self.obs!r}"
             )
+
+    @classmethod
+    def from_flat(cls, values: Mapping[str, Any]) -> A3CConfig:
+        """The settings from flat names (``{"lr": 1e-3, "obs": "state", …}``: the command line's flags,
+        a reproduction's overrides, config.json files of every version); unknown names are an error
+        naming them."""
+        return cls.from_dict(dict(values))
 
     @property
     def time_limit(self) -> int:
