@@ -8,7 +8,7 @@ import torch
 
 from bimgame.experiments.grid import plan_pieces
 from bimgame.experiments.plan import piece_done
-from bimgame.learn.runs import save_checkpoint
+from bimgame.learn.checkpoints import save_checkpoint
 
 
 def test_an_a3c_run_stopped_in_its_final_evaluation_is_resumed_not_taken_as_finished(tmp_path, tiny_budget):

@@ -11,8 +11,9 @@ from bimgame.experiments.policy_sources import builtin_policy, load_policy
 from bimgame.experiments.protocol import PROTOCOL_SEED, Protocol, measure_references, run_protocol, score
 from bimgame.expert import references
 from bimgame.expert.evaluation import evaluate_expert
+from bimgame.learn.checkpoints import save_checkpoint
 from bimgame.learn.common import NetworkSettings
-from bimgame.learn.runs import CHECKPOINT, save_checkpoint
+from bimgame.learn.runs import CHECKPOINT
 from bimgame.util.seeding import episode_seed
 
 

@@ -16,9 +16,9 @@ import torch
 
 from bimgame.learn.a3c import A3CConfig, TrainingError, a3c_segment_loss, network_for, train
 from bimgame.learn.actor import evaluate_network
+from bimgame.learn.checkpoints import load_checkpoint, load_weights
 from bimgame.learn.nets import LSTMState
 from bimgame.learn.rollout import Segment
-from bimgame.learn.runs import load_checkpoint, load_weights
 
 # Small, fast settings for state observations.
 FAST = dict(task="STG1", obs="state", workers=1, envs_per_worker=4, n_steps=10, eval_every=0, hidden=32,

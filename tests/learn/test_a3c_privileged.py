@@ -10,10 +10,10 @@ import pytest
 import torch
 
 from bimgame.learn.a3c import A3CConfig, a3c_segment_loss, apply_update, make_optimizer, network_for, train
+from bimgame.learn.checkpoints import load_checkpoint
 from bimgame.learn.finetune import LossWeights
 from bimgame.learn.nets import LSTMState, state_obs_scale
 from bimgame.learn.rollout import Segment
-from bimgame.learn.runs import load_checkpoint
 from bimgame.sim.maze import MazeSpec
 
 PIXELS = dict(task="STG1", obs="pixels", workers=1, envs_per_worker=2, n_steps=5, eval_every=0, hidden=16,

@@ -9,6 +9,7 @@ import pytest
 import torch
 
 from bimgame.learn.a3c import A3CConfig
+from bimgame.learn.checkpoints import save_checkpoint
 from bimgame.learn.common import (
     NetworkSettings,
     evaluation_seed,
@@ -17,7 +18,7 @@ from bimgame.learn.common import (
     network_settings_of,
     read_run,
 )
-from bimgame.learn.runs import CHECKPOINT, KIND_A3C, KIND_POLICY, KIND_VALUE, save_checkpoint
+from bimgame.learn.runs import CHECKPOINT, KIND_A3C, KIND_POLICY, KIND_VALUE
 from bimgame.learn.supervised import PretrainConfig
 
 SMALL = NetworkSettings(obs="state", hidden=8, features=8)

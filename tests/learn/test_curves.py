@@ -10,7 +10,7 @@ from bimgame.cli.main import main
 from bimgame.learn import curves
 from bimgame.learn.a3c import A3CConfig, train
 from bimgame.learn.curves import binned_by_start, plot_run, read_table
-from bimgame.learn.runs import CsvLog
+from bimgame.learn.metric_logs import CsvLog
 
 
 def test_binned_by_start_groups_by_the_start_step():

@@ -20,7 +20,7 @@ from bimgame.cli.main import main
 from bimgame.envs.env import NO_ACTION
 from bimgame.expert.episode import Episode
 from bimgame.expert.mpc import MPCConfig
-from bimgame.learn import runs
+from bimgame.learn import checkpoints, runs
 from bimgame.learn.actor import evaluate_network
 from bimgame.learn.common import evaluate_greedy_and_sampled, evaluation_seed, load_run_network
 from bimgame.learn.dagger import KIND_DAGGER, DAggerConfig, collect_episodes, dagger, resolve_dagger_config
@@ -61,7 +61,7 @@ def _episodes_of(arrays: dict[str, np.ndarray]) -> list[SimpleNamespace]:
 
 
 def _weights(run_dir) -> dict[str, torch.Tensor]:
-    return runs.load_checkpoint(run_dir / "checkpoint.pt")["model"]
+    return checkpoints.load_checkpoint(run_dir / "checkpoint.pt")["model"]
 
 
 def _without_seconds(rows: list[dict]) -> list[dict]:

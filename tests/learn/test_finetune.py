@@ -15,6 +15,7 @@ from bimgame.expert.datasets import generate_dataset
 from bimgame.expert.episode import Episode
 from bimgame.learn.a3c import A3CConfig, apply_update, make_optimizer, network_for, resolve_config, train
 from bimgame.learn.a3c_core import a3c_segment_loss
+from bimgame.learn.checkpoints import save_checkpoint
 from bimgame.learn.finetune import (
     FINETUNE_PRESETS,
     DemoWindows,
@@ -28,7 +29,6 @@ from bimgame.learn.finetune import (
 )
 from bimgame.learn.nets import LSTMState
 from bimgame.learn.rollout import Segment
-from bimgame.learn.runs import save_checkpoint
 
 SMALL = dict(obs="state", hidden=16, features=16)
 

@@ -15,10 +15,11 @@ from bimgame.envs.vector import BallInMazeVectorEnv
 from bimgame.expert.datasets import iterate_sequences
 from bimgame.learn.a3c import A3CConfig, evaluate, network_for
 from bimgame.learn.actor import RecurrentActor, evaluate_network
+from bimgame.learn.checkpoints import load_weights
 from bimgame.learn.common import load_run_network, load_value_network
 from bimgame.learn.pretrain import load_sequences, pretrain
 from bimgame.learn.rewards import RewardSettings, env_wrapper_for
-from bimgame.learn.runs import KIND_POLICY, KIND_VALUE, load_weights
+from bimgame.learn.runs import KIND_POLICY, KIND_VALUE
 from bimgame.learn.supervised import PretrainConfig, split_episodes
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.tasks import MAX_EPISODE_STEPS, Task

@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 from support.files import snapshot
 
+from bimgame.learn.checkpoints import save_checkpoint
 from bimgame.learn.run_dir import LAYOUTS, RunDirectory
 from bimgame.learn.run_lock import LOCK, RunDirectoryInUse, RunLock
 from bimgame.learn.runs import (
@@ -27,7 +28,6 @@ from bimgame.learn.runs import (
     KIND_POLICY,
     directory_entries,
     prepare_new_run,
-    save_checkpoint,
     write_run_json,
 )
 from bimgame.util.archives import pack_directory

@@ -22,7 +22,8 @@ from support.files import snapshot
 
 from bimgame.cli.main import main
 from bimgame.learn.a3c import A3CConfig, network_for, resolve_config, train
-from bimgame.learn.runs import KIND_A3C, CheckpointError, load_checkpoint, run_kind, save_checkpoint
+from bimgame.learn.checkpoints import CheckpointError, load_checkpoint, save_checkpoint
+from bimgame.learn.runs import KIND_A3C, run_kind
 
 #: A run of a few seconds (one worker, tiny network, no evaluator).
 TINY = dict(task="STG1", obs="state", steps=400, workers=1, envs_per_worker=2, n_steps=10, hidden=16, features=16,

@@ -10,17 +10,9 @@ import pytest
 import torch
 
 import bimgame.learn.runs as runs
-from bimgame.learn.runs import (
-    CheckpointError,
-    CsvLog,
-    MetricLog,
-    discard_new_run,
-    load_checkpoint,
-    load_weights,
-    prepare_new_run,
-    resumed_rows,
-    save_checkpoint,
-)
+from bimgame.learn.checkpoints import CheckpointError, load_checkpoint, load_weights, save_checkpoint
+from bimgame.learn.metric_logs import CsvLog, MetricLog, resumed_rows
+from bimgame.learn.runs import discard_new_run, prepare_new_run
 from bimgame.util import files
 from bimgame.util.files import FileWriteError
 

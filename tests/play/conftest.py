@@ -8,12 +8,12 @@ from pathlib import Path
 import pytest
 
 from bimgame.envs.env import BallInMazeEnv
+from bimgame.learn.checkpoints import save_checkpoint
 from bimgame.learn.common import NetworkSettings
 from bimgame.learn.runs import (
     CHECKPOINT,
     CONFIG,
     KIND_POLICY,
-    save_checkpoint,
     torch_threads,
 )
 from bimgame.util.seeding import episode_seed

@@ -59,19 +59,9 @@ from bimgame.learn.curves import plot_run
 from bimgame.learn.finetune import DEFAULT_FINETUNE, FINETUNE_PRESETS
 from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.learn.run_dir import TEACHER, RunDirectory, stored_run_config
-from bimgame.learn.runs import (
-    CHECKPOINT,
-    KIND_A3C,
-    SUMMARY,
-    CheckpointError,
-    MetricLog,
-    apply_weights,
-    load_checkpoint,
-    load_weights,
-    read_run_settings,
-    save_checkpoint,
-    torch_threads,
-)
+from bimgame.learn.checkpoints import CheckpointError, apply_weights, load_checkpoint, load_weights, save_checkpoint
+from bimgame.learn.metric_logs import MetricLog
+from bimgame.learn.runs import CHECKPOINT, KIND_A3C, SUMMARY, read_run_settings, torch_threads
 from bimgame.util.files import FileWriteError, read_json
 from bimgame.util.progress import ProgressBar
 from bimgame.util.signals import sigterm_as_interrupt

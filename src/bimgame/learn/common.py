@@ -17,6 +17,7 @@ from typing import Any, ClassVar, Self
 
 from bimgame.envs.observe import OBS_MODES
 from bimgame.learn.actor import evaluate_network
+from bimgame.learn.checkpoints import load_weights
 from bimgame.learn.nets import (
     PRECISIONS,
     NetConfig,
@@ -27,7 +28,7 @@ from bimgame.learn.nets import (
     maze_background,
     state_obs_scale,
 )
-from bimgame.learn.runs import CONFIG, KIND_A3C, KIND_VALUE, load_weights, read_run_config
+from bimgame.learn.runs import CONFIG, KIND_A3C, KIND_VALUE, read_run_config
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.tasks import Task, parse_task
 from bimgame.util.seeding import episode_seed

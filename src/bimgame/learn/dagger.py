@@ -45,21 +45,11 @@ from bimgame.envs.env import BallInMazeEnv
 from bimgame.expert.episode import Episode
 from bimgame.expert.mpc import MPCConfig, RandomShootingMPC
 from bimgame.learn.actor import RecurrentActor, tilt_input
+from bimgame.learn.checkpoints import CheckpointError, apply_weights, load_checkpoint, load_weights, save_checkpoint
 from bimgame.learn.common import EVAL_COLUMNS, evaluate_greedy_and_sampled, evaluation_seed
 from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.learn.run_dir import DAGGER_STATE, RunDirectory, stored_run_config
-from bimgame.learn.runs import (
-    CHECKPOINT,
-    KIND_DAGGER,
-    CheckpointError,
-    apply_weights,
-    load_checkpoint,
-    load_weights,
-    read_run_settings,
-    save_checkpoint,
-    torch_threads,
-    write_run_json,
-)
+from bimgame.learn.runs import CHECKPOINT, KIND_DAGGER, read_run_settings, torch_threads, write_run_json
 from bimgame.learn.supervised import PretrainConfig, train_policy_epochs
 from bimgame.sim.maze import MazeSpec
 from bimgame.util import files

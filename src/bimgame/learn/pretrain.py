@@ -29,17 +29,11 @@ import torch
 
 from bimgame.expert.datasets import dataset_manifest, iterate_sequences, load_dataset
 from bimgame.expert.episode import Episode, relabel
+from bimgame.learn.checkpoints import load_weights, save_checkpoint
 from bimgame.learn.common import evaluate_greedy_and_sampled
 from bimgame.learn.nets import RecurrentActorCritic, ValueNetwork
 from bimgame.learn.run_dir import RunDirectory
-from bimgame.learn.runs import (
-    CHECKPOINT,
-    KIND_POLICY,
-    KIND_VALUE,
-    load_weights,
-    save_checkpoint,
-    torch_threads,
-)
+from bimgame.learn.runs import CHECKPOINT, KIND_POLICY, KIND_VALUE, torch_threads
 from bimgame.learn.supervised import PretrainConfig, l2_penalty, policy_batches, policy_epoch, split_episodes, summarise
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.tasks import Task, parse_task

@@ -28,6 +28,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any
 
+from bimgame.learn.metric_logs import MetricLog
 from bimgame.learn.run_lock import RunLock
 from bimgame.learn.runs import (
     CHECKPOINT,
@@ -37,7 +38,6 @@ from bimgame.learn.runs import (
     KIND_POLICY,
     KIND_VALUE,
     SUMMARY,
-    MetricLog,
     check_resumable,
     discard_new_run,
     prepare_new_run,
@@ -206,7 +206,7 @@ class RunDirectory:
         return write_run_json(self / SUMMARY, values)
 
     def metric_log(self, tables: dict[str, list[str]], **options: Any) -> MetricLog:
-        """The run's :class:`~bimgame.learn.runs.MetricLog` of ``tables`` (declared in the layout)."""
+        """The run's :class:`~bimgame.learn.metric_logs.MetricLog` of ``tables`` (declared in the layout)."""
         undeclared = sorted(set(tables) - set(self.layout.tables))
         if undeclared:
             raise ValueError(f"logs {undeclared} are not declared for {self.layout.kind} runs; declared: "

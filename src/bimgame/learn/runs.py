@@ -1,4 +1,4 @@
-"""A training run's directory: settings, checkpoints and metric logs.
+"""A training run's directory: its layout, its kind and settings, and whether a run may go into it.
 
 Layout of ``RUN_DIR``::
 
@@ -19,27 +19,20 @@ directory always has both; ``--resume`` continues a run of its own kind only
 (:func:`discard_new_run`), so the same command can be run again. The learners go through these steps
 in one order, holding the lock, with :class:`bimgame.learn.run_dir.RunDirectory`.
 
-JSON files (:func:`write_run_json`) are strict JSON: a NaN or infinite number is written as ``null``.
-
-Checkpoints are written atomically and read with ``torch.load(weights_only=True)``: a checkpoint is a
-dict of tensors, numbers and strings only, so a file someone sent cannot run code when loaded.
-CSV logs are appended line by line and flushed; a resumed run first keeps the rows logged before its
-checkpoint (:func:`resumed_rows`), so no step is counted twice, and refuses a log it did not write.
-A file that cannot be written (a full disk) raises :class:`~bimgame.util.files.FileWriteError`, which names it.
+JSON files (:func:`write_run_json`) are strict JSON: a NaN or infinite number is written as ``null``;
+a file that cannot be written (a full disk) raises :class:`~bimgame.util.files.FileWriteError`, which
+names it. The checkpoint is written and read by :mod:`bimgame.learn.checkpoints`, the CSV logs and
+``tb/`` by :mod:`bimgame.learn.metric_logs`.
 """
 
 from __future__ import annotations
 
 import contextlib
-import csv
-import io
 import json
 import math
 import numbers
 import os
-import re
 import shutil
-import warnings
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
@@ -50,10 +43,25 @@ from bimgame.learn.run_lock import LOCK
 from bimgame.util import files
 from bimgame.util.files import FileWriteError
 
-__all__ = ["torch_threads", "run_kind", "KIND_A3C", "KIND_POLICY", "KIND_VALUE", "KIND_DAGGER", "CheckpointError",
-           "save_checkpoint", "load_checkpoint", "load_weights", "apply_weights", "CsvLog", "MetricLog",
-           "read_run_config", "read_run_settings", "CHECKPOINT", "CONFIG", "SUMMARY", "write_run_json", "finite_json",
-           "prepare_new_run", "check_resumable", "discard_new_run", "directory_entries", "resumed_rows"]
+__all__ = [
+    "torch_threads",
+    "run_kind",
+    "KIND_A3C",
+    "KIND_POLICY",
+    "KIND_VALUE",
+    "KIND_DAGGER",
+    "read_run_config",
+    "read_run_settings",
+    "CHECKPOINT",
+    "CONFIG",
+    "SUMMARY",
+    "write_run_json",
+    "finite_json",
+    "prepare_new_run",
+    "check_resumable",
+    "discard_new_run",
+    "directory_entries",
+]
 
 CHECKPOINT = "checkpoint.pt"
 CONFIG = "config.json"
@@ -63,7 +71,6 @@ KIND_A3C = "a3c"
 KIND_POLICY = "pretrained-policy"
 KIND_VALUE = "value-function"
 KIND_DAGGER = "dagger-policy"
-_REQUIRED = {"model": dict, "step": int}
 T = TypeVar("T")
 
 
@@ -172,13 +179,20 @@ def directory_entries(directory: Path) -> list[str]:
     """The names in ``directory`` (folders with a trailing ``/``), sorted, without the temporaries
     of atomic writes and without the run's lock file (:data:`~bimgame.learn.run_lock.LOCK`: held
     while a process writes the run, left behind by one that was killed; it is nobody's content)."""
-    return sorted(p.name + ("/" if p.is_dir() else "") for p in directory.iterdir()
-                  if not _is_temporary(p.name) and p.name != LOCK)
+    return sorted(
+        p.name + ("/" if p.is_dir() else "")
+        for p in directory.iterdir()
+        if not _is_temporary(p.name) and p.name != LOCK
+    )
 
 
 def _shown(entries: Sequence[str]) -> str:
-    return (f"found {len(entries)} entr{'y' if len(entries) == 1 else 'ies'}: "
-            + ", ".join(repr(name) for name in entries[:5]) + (", …" if len(entries) > 5 else ""))
+    """How many ``entries`` a directory holds, naming the first five."""
+    return (
+        f"found {len(entries)} entr{'y' if len(entries) == 1 else 'ies'}: "
+        + ", ".join(repr(name) for name in entries[:5])
+        + (", …" if len(entries) > 5 else "")
+    )
 
 
 def prepare_new_run(run_dir: str | Path, *, what: str, flag: str, kind: str | None = None) -> bool:
@@ -196,47 +210,69 @@ def prepare_new_run(run_dir: str | Path, *, what: str, flag: str, kind: str | No
     if not found:
         return False
     if (run_dir / CONFIG).is_file():
-        try:
-            actual = run_kind(run_dir)
-        except ValueError:
-            actual = None
-        if kind is not None and actual == kind:
-            hint = f"pass --resume to continue it or choose a new {flag}"
-        else:
-            hint = f"choose a new {flag}" + (f" (it is a {actual} run, not {_article(what)} {what} run)"
-                                             if actual is not None and kind is not None and actual != kind else "")
+        hint = _existing_run_hint(run_dir, what=what, flag=flag, kind=kind)
         raise ValueError(f"{run_dir} already holds a run; {hint}. Nothing was changed.")
-    raise ValueError(f"{run_dir} is not empty and is not {_article(what)} {what} run (no {CONFIG}; {_shown(found)}); "
-                     f"nothing was changed. Use a new or empty {flag}.")
+    raise ValueError(
+        f"{run_dir} is not empty and is not {_article(what)} {what} run (no {CONFIG}; {_shown(found)}); "
+        f"nothing was changed. Use a new or empty {flag}."
+    )
+
+
+def _existing_run_hint(run_dir: Path, *, what: str, flag: str, kind: str | None) -> str:
+    """What to do instead of starting a new run of ``what`` in ``run_dir``, which holds a run: resume
+    it if it is of ``kind``, else choose another directory (naming the kind it holds, if readable)."""
+    try:
+        actual: str | None = run_kind(run_dir)
+    except ValueError:
+        actual = None
+    if kind is not None and actual == kind:
+        return f"pass --resume to continue it or choose a new {flag}"
+    if actual is not None and kind is not None:
+        return f"choose a new {flag} (it is a {actual} run, not {_article(what)} {what} run)"
+    return f"choose a new {flag}"
 
 
 def _article(word: str) -> str:
+    """The indefinite article before ``word`` ("an A3C run", "a DAgger run")."""
     return "an" if word[:1].upper() in "AEIOU" else "a"
 
 
-def check_resumable(run_dir: str | Path, *, kind: str, what: str, flag: str = "--run-dir",
-                    needs: Iterable[str] = ()) -> dict[str, Any]:
+def check_resumable(
+    run_dir: str | Path, *, kind: str, what: str, flag: str = "--run-dir", needs: Iterable[str] = ()
+) -> dict[str, Any]:
     """Check that ``run_dir`` holds a run of ``kind`` that ``--resume`` can continue — its
     ``config.json`` and the files in ``needs`` (e.g. its checkpoint) — and return its config. Refuses,
     naming what is missing or what the directory holds instead."""
     run_dir = Path(run_dir)
     if not (run_dir / CONFIG).is_file():
-        found = directory_entries(run_dir) if run_dir.is_dir() else []
-        there = f"{run_dir} is not {_article(what)} {what} run ({_shown(found)})" if found else \
-            f"{run_dir} does not exist" if not run_dir.exists() else f"{run_dir} is empty"
-        raise ValueError(f"--resume: {run_dir} has no {CONFIG}: {there}; start a new run without --resume "
-                         f"(in a new or empty {flag})")
+        there = _what_is_there(run_dir, what)
+        raise ValueError(
+            f"--resume: {run_dir} has no {CONFIG}: {there}; start a new run without --resume (in a new or empty {flag})"
+        )
     stored = read_run_config(run_dir)
     actual = stored.get("kind", KIND_A3C)  # the kind is missing in A3C runs stored before it was recorded
     if actual != kind:
-        raise ValueError(f"--resume: {run_dir} holds a {actual} run, not {_article(what)} {what} run ({kind}); "
-                         f"nothing was changed")
+        raise ValueError(
+            f"--resume: {run_dir} holds a {actual} run, not {_article(what)} {what} run ({kind}); nothing was changed"
+        )
     missing = [name for name in needs if not (run_dir / name).is_file()]
     if missing:
-        raise ValueError(f"--resume: {run_dir} has no {' or '.join(missing)}, so the {what} run in it cannot be "
-                         f"continued (its logs were kept unchanged). Start anew without --resume in a new "
-                         f"{flag}, or remove {run_dir} first")
+        raise ValueError(
+            f"--resume: {run_dir} has no {' or '.join(missing)}, so the {what} run in it cannot be "
+            f"continued (its logs were kept unchanged). Start anew without --resume in a new "
+            f"{flag}, or remove {run_dir} first"
+        )
     return stored
+
+
+def _what_is_there(run_dir: Path, what: str) -> str:
+    """What ``run_dir``, which holds no run, is instead: missing, empty, or other files (named)."""
+    found = directory_entries(run_dir) if run_dir.is_dir() else []
+    if found:
+        return f"{run_dir} is not {_article(what)} {what} run ({_shown(found)})"
+    if not run_dir.exists():
+        return f"{run_dir} does not exist"
+    return f"{run_dir} is empty"
 
 
 def discard_new_run(run_dir: str | Path, created: bool, names: Iterable[str]) -> None:
@@ -258,239 +294,3 @@ def discard_new_run(run_dir: str | Path, created: bool, names: Iterable[str]) ->
     if created:
         with contextlib.suppress(OSError):
             run_dir.rmdir()  # only if empty
-
-
-# ------------------------------------------------------------------------------ checkpoints
-class CheckpointError(ValueError):
-    """A checkpoint that cannot be used: missing, unreadable, unsafe, or not from a bimgame run."""
-
-
-def save_checkpoint(path: str | Path, *, model: dict[str, torch.Tensor], step: int,
-                    optimizer: dict | None = None, **extra: Any) -> Path:
-    """Write a checkpoint atomically (:class:`~bimgame.util.files.FileWriteError` naming it if that fails). ``extra``
-    values must be tensors, numbers, strings or containers of them (what ``weights_only`` loading
-    accepts)."""
-    payload = {"format": "bimgame-checkpoint-1", "model": {k: v.detach().clone() for k, v in model.items()},
-               "step": int(step), **extra}
-    if optimizer is not None:
-        payload["optimizer"] = optimizer
-    buffer = io.BytesIO()
-    torch.save(payload, buffer)
-    try:
-        return files.atomic_write_bytes(path, buffer.getvalue())
-    except OSError as error:
-        raise FileWriteError.from_error(path, error) from error
-
-
-def _load_failure(path: Path, error: BaseException) -> CheckpointError:
-    """Why ``torch.load(weights_only=True)`` refused ``path``, in our words: torch's own message
-    advises loading with ``weights_only=False``, which would run whatever code the file holds, so none
-    of its advice is passed on."""
-    text = str(error)
-    # torch words it two ways: "Unsupported global: GLOBAL x.y" and "unsupported GLOBAL x.y whose module ...".
-    unsafe = re.search(r"[Uu]nsupported (?:global: )?GLOBAL ([\w.]+)", text)
-    if unsafe:
-        return CheckpointError(f"refused to load {path}: it holds objects other than tensors and plain data "
-                               f"({unsafe.group(1)}); loading such a file could run code, so bimgame never does")
-    if isinstance(error, EOFError) or "failed finding central directory" in text:
-        return CheckpointError(f"cannot read checkpoint {path}: it is truncated (an unfinished copy or download?)")
-    reason = re.search(r"WeightsUnpickler error:\s*(.+?)\s*(?:\n\n|$)", text, re.S)
-    detail = reason.group(1) if reason else text.split(". ")[0]
-    detail = " ".join(detail.split())
-    if "weights_only" in detail or not detail:
-        detail = type(error).__name__
-    return CheckpointError(f"cannot read checkpoint {path}: it is not a PyTorch checkpoint, or it is damaged "
-                           f"({detail})")
-
-
-def load_checkpoint(path: str | Path) -> dict[str, Any]:
-    """Read a checkpoint safely; raises :class:`CheckpointError` naming what is wrong."""
-    path = Path(path)
-    if path.is_dir():
-        path = path / CHECKPOINT
-    if not path.is_file():
-        raise CheckpointError(f"no checkpoint at {path}")
-    try:
-        size = path.stat().st_size
-    except OSError as error:
-        raise CheckpointError(f"cannot read checkpoint {path}: {error.strerror or error}") from None
-    if size == 0:
-        raise CheckpointError(f"cannot read checkpoint {path}: the file is empty (0 bytes; truncated, or never "
-                              f"written to the end)")
-    try:
-        with warnings.catch_warnings():
-            # A damaged file can claim any pickle protocol; torch's warning about it says nothing useful here.
-            warnings.filterwarnings("ignore", message="Detected pickle protocol", category=UserWarning)
-            payload = torch.load(path, map_location="cpu", weights_only=True)
-    except OSError as error:
-        raise CheckpointError(f"cannot read checkpoint {path}: {error.strerror or error}") from None
-    except Exception as error:  # noqa: BLE001 - damaged bytes make the unpickler raise IndexError, KeyError, struct.error…
-        raise _load_failure(path, error) from None
-    if not isinstance(payload, dict) or payload.get("format") != "bimgame-checkpoint-1":
-        raise CheckpointError(f"{path} is not a bimgame checkpoint (no 'format': 'bimgame-checkpoint-1')")
-    for key, kind in _REQUIRED.items():
-        if not isinstance(payload.get(key), kind):
-            raise CheckpointError(f"checkpoint {path} lacks {key!r} ({kind.__name__})")
-    bad = [k for k, v in payload["model"].items() if not torch.is_tensor(v)]
-    if bad:
-        raise CheckpointError(f"checkpoint {path}: model entries {bad} are not tensors")
-    nonfinite = [k for k, v in payload["model"].items() if v.is_floating_point() and not torch.isfinite(v).all()]
-    if nonfinite:
-        raise CheckpointError(f"checkpoint {path}: weights {nonfinite} are not finite")
-    return payload
-
-
-def load_weights(module: torch.nn.Module, source: str | Path) -> int:
-    """Load a checkpoint's (or run directory's) weights into ``module``; returns the checkpoint's
-    step. Shapes must match exactly."""
-    return apply_weights(module, load_checkpoint(source), source)
-
-
-def apply_weights(module: torch.nn.Module, payload: dict[str, Any], source: str | Path) -> int:
-    """Put the weights of a checkpoint already read (:func:`load_checkpoint`) from ``source`` into
-    ``module``; returns its step. Shapes must match exactly."""
-    expected = module.state_dict()
-    missing = sorted(set(expected) - set(payload["model"]))
-    unexpected = sorted(set(payload["model"]) - set(expected))
-    mismatched = [k for k in expected if k in payload["model"] and payload["model"][k].shape != expected[k].shape]
-    if missing or unexpected or mismatched:
-        raise CheckpointError(
-            f"weights in {source} do not fit this network: missing {missing}, unexpected {unexpected}, "
-            f"shape mismatch {[(k, tuple(payload['model'][k].shape), tuple(expected[k].shape)) for k in mismatched]}")
-    module.load_state_dict(payload["model"])
-    return payload["step"]
-
-
-# ------------------------------------------------------------------------------------- logs
-def resumed_rows(path: str | Path, fields: Sequence[str], before: int, *, keep_equal: bool = False,
-                 step_field: str = "step") -> list[dict[str, str]]:
-    """The rows of the CSV log ``path`` that a run resumed from a checkpoint at step ``before`` keeps:
-    those logged strictly before it (also those at exactly ``before`` with ``keep_equal``, for a table
-    whose rows at a checkpoint's step were logged before the checkpoint was written). A last line cut
-    off by a kill or a full disk is dropped. A log this run did not write — another header, a row
-    that does not parse — is refused (``ValueError`` naming the file), before anything is changed:
-    its rows are never dropped silently. A missing file has no rows."""
-    path = Path(path)
-    if not path.is_file():
-        return []
-    try:
-        with path.open(encoding="utf-8", newline="") as handle:
-            text = handle.read()
-    except (OSError, UnicodeDecodeError) as error:
-        raise ValueError(f"cannot read the log {path} to resume: {error}") from None
-    lines = text.splitlines(keepends=True)
-    if lines and not lines[-1].endswith("\n"):
-        lines.pop()  # a row cut off mid-write: it was never complete
-    reader = csv.reader(lines)
-    header = next(reader, None)
-    if header != list(fields):
-        raise ValueError(f"cannot resume: {path} has the header {','.join(header) if header else '(none: empty)'} "
-                         f"but this run writes {','.join(fields)}; it was not written by this run (or by another "
-                         f"version of bimgame). Nothing was changed: move the file away to resume without its "
-                         f"rows, or start a new run")
-    kept = []
-    for number, values in enumerate(reader, start=2):
-        if len(values) != len(header):
-            raise ValueError(f"cannot resume: {path} line {number} has {len(values)} fields, its header "
-                             f"{len(header)}; nothing was changed")
-        row = dict(zip(header, values, strict=True))
-        try:
-            step = float(row[step_field])
-        except ValueError:
-            raise ValueError(f"cannot resume: {path} line {number}: {step_field} {row[step_field]!r} is not a "
-                             f"number; nothing was changed") from None
-        if step < before or (keep_equal and step == before):
-            kept.append(row)
-    return kept
-
-
-class CsvLog:
-    """An append-only CSV file with a fixed header, flushed after every row; write failures raise
-    :class:`~bimgame.util.files.FileWriteError` naming the file."""
-
-    def __init__(self, path: str | Path, fields: Iterable[str], *, rows: Iterable[dict[str, Any]] = ()):
-        """Start the file (atomically) with its header and ``rows`` (e.g. a resumed run's
-        :func:`resumed_rows`)."""
-        self.path = Path(path)
-        self.fields = list(fields)
-        text = io.StringIO()
-        writer = csv.DictWriter(text, self.fields)
-        writer.writeheader()
-        writer.writerows(rows)
-        try:
-            files.atomic_write_bytes(self.path, text.getvalue().encode())
-            self._handle = self.path.open("a", newline="", encoding="utf-8")
-        except OSError as error:
-            raise FileWriteError.from_error(self.path, error) from error
-        self._writer = csv.DictWriter(self._handle, self.fields)
-
-    def write(self, row: dict[str, Any]) -> None:
-        try:
-            self._writer.writerow({k: _format(row.get(k)) for k in self.fields})
-            self._handle.flush()
-        except OSError as error:
-            raise FileWriteError.from_error(self.path, error) from error
-
-    def close(self) -> None:
-        """Close the file. Every row was flushed when written, so after a failed write (which was
-        reported) closing cannot lose more: a second failure is not raised."""
-        with contextlib.suppress(OSError):
-            self._handle.close()
-
-
-def _format(value: Any) -> Any:
-    if isinstance(value, float):
-        return f"{value:.6g}"
-    return "" if value is None else value
-
-
-class MetricLog:
-    """CSV files plus TensorBoard scalars, keyed by environment steps.
-
-    ``resume_step``: the step of the checkpoint a resumed run continues from; each table keeps its
-    rows logged before it (:func:`resumed_rows`; ``keep_at_resume_step`` names the tables whose rows at
-    exactly that step are kept too). Every table is read and checked before any is rewritten, so a
-    refusal changes nothing. ``kept`` holds the kept rows by table."""
-
-    def __init__(self, run_dir: str | Path, tables: dict[str, list[str]], *, resume_step: int | None = None,
-                 keep_at_resume_step: Iterable[str] = (), tensorboard: bool = True):
-        self.run_dir = Path(run_dir)
-        keep_equal = set(keep_at_resume_step)
-        fields = {name: ["step", *columns] for name, columns in tables.items()}
-        self.kept: dict[str, list[dict[str, str]]] = {name: [] for name in tables}
-        if resume_step is not None:
-            self.kept = {name: resumed_rows(self._path(name), fields[name], resume_step, keep_equal=name in keep_equal)
-                         for name in tables}
-        self.tables: dict[str, CsvLog] = {}
-        try:
-            for name in tables:
-                self.tables[name] = CsvLog(self._path(name), fields[name], rows=self.kept[name])
-        except BaseException:
-            self.close()
-            raise
-        self.writer = None
-        if tensorboard:
-            # Lazy: importing TensorBoard's writer costs about a second, paid only by runs that log.
-            from torch.utils.tensorboard import SummaryWriter
-
-            # Events at or after purge_step are hidden: those of the steps the CSV files dropped.
-            purge = None if resume_step is None else resume_step + (1 if keep_equal >= set(tables) else 0)
-            self.writer = SummaryWriter(str(self.run_dir / "tb"), purge_step=purge)
-
-    def _path(self, table: str) -> Path:
-        return self.run_dir / f"{table}.csv"
-
-    def write(self, table: str, step: int, values: dict[str, Any], *, scalars: Iterable[str] = ()) -> None:
-        self.tables[table].write({"step": step, **values})
-        if self.writer is not None:
-            for key in scalars:
-                value = values.get(key)
-                if value is not None and math.isfinite(float(value)):
-                    self.writer.add_scalar(f"{table}/{key}", float(value), step)
-
-    def close(self) -> None:
-        for table in self.tables.values():
-            table.close()
-        if getattr(self, "writer", None) is not None:
-            with contextlib.suppress(OSError):
-                self.writer.close()

@@ -1,0 +1,173 @@
+"""Checkpoints of a training run: its weights, optimiser statistics and counters in one file.
+
+A checkpoint (``checkpoint.pt`` in a run directory, :data:`~bimgame.learn.runs.CHECKPOINT`) is
+written atomically (:func:`save_checkpoint`), so a killed run leaves the previous one whole, and is
+read with ``torch.load(weights_only=True)`` (:func:`load_checkpoint`): a checkpoint is a dict of
+tensors, numbers and strings only, so a file someone sent cannot run code when loaded. Whatever is
+wrong with a file — missing, empty, truncated, unsafe, damaged, not from bimgame, non-finite
+weights — is a :class:`CheckpointError` naming it; a file that cannot be written (a full disk)
+raises :class:`~bimgame.util.files.FileWriteError`, which names it.
+"""
+
+from __future__ import annotations
+
+import io
+import re
+import warnings
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from bimgame.learn.runs import CHECKPOINT
+from bimgame.util import files
+from bimgame.util.files import FileWriteError
+
+__all__ = ["CheckpointError", "save_checkpoint", "load_checkpoint", "load_weights", "apply_weights"]
+
+#: The format tag every bimgame checkpoint carries.
+_FORMAT = "bimgame-checkpoint-1"
+#: The entries every checkpoint holds, with their types.
+_REQUIRED = {"model": dict, "step": int}
+
+
+class CheckpointError(ValueError):
+    """A checkpoint that cannot be used: missing, unreadable, unsafe, or not from a bimgame run."""
+
+
+def save_checkpoint(
+    path: str | Path,
+    *,
+    model: dict[str, torch.Tensor],
+    step: int,
+    optimizer: dict[str, Any] | None = None,
+    **extra: Any,
+) -> Path:
+    """Write a checkpoint atomically (:class:`~bimgame.util.files.FileWriteError` naming it if that fails). ``extra``
+    values must be tensors, numbers, strings or containers of them (what ``weights_only`` loading
+    accepts)."""
+    payload = {
+        "format": _FORMAT,
+        "model": {k: v.detach().clone() for k, v in model.items()},
+        "step": int(step),
+        **extra,
+    }
+    if optimizer is not None:
+        payload["optimizer"] = optimizer
+    buffer = io.BytesIO()
+    torch.save(payload, buffer)
+    try:
+        return files.atomic_write_bytes(path, buffer.getvalue())
+    except OSError as error:
+        raise FileWriteError.from_error(path, error) from error
+
+
+def _load_failure(path: Path, error: BaseException) -> CheckpointError:
+    """Why ``torch.load(weights_only=True)`` refused ``path``, in our words: torch's own message
+    advises loading with ``weights_only=False``, which would run whatever code the file holds, so none
+    of its advice is passed on."""
+    text = str(error)
+    # torch words it two ways: "Unsupported global: GLOBAL x.y" and "unsupported GLOBAL x.y whose module ...".
+    unsafe = re.search(r"[Uu]nsupported (?:global: )?GLOBAL ([\w.]+)", text)
+    if unsafe:
+        return CheckpointError(
+            f"refused to load {path}: it holds objects other than tensors and plain data "
+            f"({unsafe.group(1)}); loading such a file could run code, so bimgame never does"
+        )
+    if isinstance(error, EOFError) or "failed finding central directory" in text:
+        return CheckpointError(f"cannot read checkpoint {path}: it is truncated (an unfinished copy or download?)")
+    return CheckpointError(
+        f"cannot read checkpoint {path}: it is not a PyTorch checkpoint, or it is damaged "
+        f"({_unpickler_reason(error, text)})"
+    )
+
+
+def _unpickler_reason(error: BaseException, text: str) -> str:
+    """The gist of the unpickler's message ``text`` about ``error``, on one line; the error's type
+    when the message is empty or would advise ``weights_only=False``."""
+    reason = re.search(r"WeightsUnpickler error:\s*(.+?)\s*(?:\n\n|$)", text, re.S)
+    detail = reason.group(1) if reason else text.split(". ")[0]
+    detail = " ".join(detail.split())
+    if "weights_only" in detail or not detail:
+        detail = type(error).__name__
+    return detail
+
+
+def load_checkpoint(path: str | Path) -> dict[str, Any]:
+    """Read a checkpoint safely; raises :class:`CheckpointError` naming what is wrong."""
+    path = Path(path)
+    if path.is_dir():
+        path = path / CHECKPOINT
+    _require_nonempty_file(path)
+    payload = _read_weights_only(path)
+    _check_payload(path, payload)
+    return payload
+
+
+def _require_nonempty_file(path: Path) -> None:
+    """Refuse a checkpoint path that is not a file, cannot be examined, or is empty."""
+    if not path.is_file():
+        raise CheckpointError(f"no checkpoint at {path}")
+    try:
+        size = path.stat().st_size
+    except OSError as error:
+        raise CheckpointError(f"cannot read checkpoint {path}: {error.strerror or error}") from None
+    if size == 0:
+        raise CheckpointError(
+            f"cannot read checkpoint {path}: the file is empty (0 bytes; truncated, or never written to the end)"
+        )
+
+
+def _read_weights_only(path: Path) -> Any:
+    """What ``torch.load(weights_only=True)`` reads from ``path``: tensors and plain data only; any
+    refusal or damage becomes a :class:`CheckpointError`."""
+    try:
+        with warnings.catch_warnings():
+            # A damaged file can claim any pickle protocol; torch's warning about it says nothing useful here.
+            warnings.filterwarnings("ignore", message="Detected pickle protocol", category=UserWarning)
+            return torch.load(path, map_location="cpu", weights_only=True)
+    except OSError as error:
+        raise CheckpointError(f"cannot read checkpoint {path}: {error.strerror or error}") from None
+    except Exception as error:  # noqa: BLE001 - damaged bytes make the unpickler raise IndexError, KeyError, struct.error…
+        raise _load_failure(path, error) from None
+
+
+def _check_payload(path: Path, payload: Any) -> None:
+    """Refuse what was read from ``path`` unless it is a bimgame checkpoint: the format tag, the
+    :data:`_REQUIRED` entries, and finite tensors as weights."""
+    if not isinstance(payload, dict) or payload.get("format") != _FORMAT:
+        raise CheckpointError(f"{path} is not a bimgame checkpoint (no 'format': '{_FORMAT}')")
+    for key, kind in _REQUIRED.items():
+        if not isinstance(payload.get(key), kind):
+            raise CheckpointError(f"checkpoint {path} lacks {key!r} ({kind.__name__})")
+    bad = [k for k, v in payload["model"].items() if not torch.is_tensor(v)]
+    if bad:
+        raise CheckpointError(f"checkpoint {path}: model entries {bad} are not tensors")
+    nonfinite = [k for k, v in payload["model"].items() if v.is_floating_point() and not torch.isfinite(v).all()]
+    if nonfinite:
+        raise CheckpointError(f"checkpoint {path}: weights {nonfinite} are not finite")
+
+
+def load_weights(module: torch.nn.Module, source: str | Path) -> int:
+    """Load a checkpoint's (or run directory's) weights into ``module``; returns the checkpoint's
+    step. Shapes must match exactly."""
+    return apply_weights(module, load_checkpoint(source), source)
+
+
+def apply_weights(module: torch.nn.Module, payload: dict[str, Any], source: str | Path) -> int:
+    """Put the weights of a checkpoint already read (:func:`load_checkpoint`) from ``source`` into
+    ``module``; returns its step. Shapes must match exactly."""
+    weights: dict[str, torch.Tensor] = payload["model"]
+    expected = module.state_dict()
+    missing = sorted(set(expected) - set(weights))
+    unexpected = sorted(set(weights) - set(expected))
+    mismatched = [k for k in expected if k in weights and weights[k].shape != expected[k].shape]
+    if missing or unexpected or mismatched:
+        shapes = [(k, tuple(weights[k].shape), tuple(expected[k].shape)) for k in mismatched]
+        raise CheckpointError(
+            f"weights in {source} do not fit this network: missing {missing}, unexpected {unexpected}, "
+            f"shape mismatch {shapes}"
+        )
+    module.load_state_dict(weights)
+    step: int = payload["step"]
+    return step
