@@ -18,7 +18,7 @@ from bimgame.experiments.methods import (
 )
 from bimgame.experiments.runners import _with_stored_preset_name, a3c_config_for
 from bimgame.learn.a3c import A3CConfig
-from bimgame.learn.finetune import FINETUNE_FIELDS, FINETUNE_PRESETS
+from bimgame.learn.learner_settings import FINETUNE_FIELDS, FINETUNE_PRESETS
 
 STEPS = 500_000
 DATA = "/repro/data"

@@ -37,7 +37,7 @@ from bimgame.envs.randomization import RANDOMIZATION_PRESETS
 from bimgame.experiments.budgets import ALGORITHMS
 from bimgame.expert.mpc import PLANNING_REWARDS, SAMPLINGS
 from bimgame.learn.a3c import OPTIMIZERS, START_CURRICULA
-from bimgame.learn.finetune import FINETUNE_PRESETS
+from bimgame.learn.learner_settings import FINETUNE_PRESETS
 from bimgame.learn.nets import PRECISIONS
 from bimgame.learn.supervised import TARGETS
 from bimgame.util.settings import FieldDoc, field_docs, split_field_doc

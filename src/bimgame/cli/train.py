@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 from rich.console import Console
 from rich.table import Table
@@ -16,7 +16,7 @@ from bimgame.envs.shaping import DEFAULT_GEODESIC_COEF
 from bimgame.learn.a3c import A3CConfig, TrainingError, resolve_config, train
 from bimgame.learn.actor import evaluate_network
 from bimgame.learn.common import NetworkSettings, load_run_network
-from bimgame.learn.finetune import DEFAULT_FINETUNE
+from bimgame.learn.learner_settings import DEFAULT_FINETUNE
 from bimgame.learn.rewards import RewardSettings, env_wrapper_for, resolve_reward_settings
 from bimgame.sim.tasks import parse_task
 from bimgame.util.files import write_json
@@ -105,16 +105,19 @@ def add_train_arguments(parser: argparse.ArgumentParser) -> None:
         help="continue the run in --run-dir from its last checkpoint (settings come from its config.json)",
     )
     run("--init", type=Path, default=None, help="start from these weights (checkpoint file or run directory)")
-    add_grouped_settings_flags(
-        parser,
-        groups,
-        A3CConfig,
-        [f.name for f in dataclasses.fields(A3CConfig)],
-        A3C_GROUPS,
-        default_none=True,
-        types=_A3C_TYPES,
-        helps={"steps": "environment steps to train for, all workers together, e.g. 5M"},
-    )
+    flat_defaults = SimpleNamespace(**A3CConfig().to_dict())  # an absent part's flat values included
+    for cls, names in A3CConfig.name_groups():
+        add_grouped_settings_flags(
+            parser,
+            groups,
+            cls,
+            names,
+            A3C_GROUPS,
+            defaults=flat_defaults,
+            default_none=True,
+            types=_A3C_TYPES,
+            helps={"steps": "environment steps to train for, all workers together, e.g. 5M"},
+        )
     docs = field_docs(RewardSettings)
     reward = groups["environment"].add_argument
     reward("--value-reward", type=Path, default=None, metavar="RUN", help=plain(docs["value_reward"]))
@@ -137,17 +140,18 @@ def run_train(args: argparse.Namespace) -> int:
             f"--init {args.init} with --resume: a resumed run continues from its own checkpoint "
             f"(and keeps the π^s it started from); give --init only to start a new run"
         )
-    config = resolve_config(given_settings(args, A3CConfig), args.run_dir, resume=args.resume, init=args.init)
+    config = resolve_config(given_settings(args, A3CConfig, A3CConfig.flat_names()), args.run_dir, resume=args.resume, init=args.init)
     reward = resolve_reward_settings(
         RewardSettings(value_reward=args.value_reward, geodesic_coef=args.geodesic_coef),
         args.run_dir,
         resume=args.resume,
     )
-    wrapper = env_wrapper_for(reward, obs=config.obs, gamma=config.gamma)
+    wrapper = env_wrapper_for(reward, obs=config.network.obs, gamma=config.optimization.gamma)
+    schedule = config.schedule
     shaped = reward.describe()
     print(
-        f"A3C on {config.task} ({config.obs}): {config.steps:,} steps, {config.workers} workers x "
-        f"{config.envs_per_worker} envs{', reward shaped: ' + shaped if shaped else ''}"
+        f"A3C on {config.task} ({config.network.obs}): {schedule.steps:,} steps, {schedule.workers} workers x "
+        f"{schedule.envs_per_worker} envs{', reward shaped: ' + shaped if shaped else ''}"
         f"{', from ' + str(args.init) if args.init else ''} -> {args.run_dir}",
         file=sys.stderr,
     )
@@ -164,7 +168,7 @@ def run_train(args: argparse.Namespace) -> int:
     except TrainingError as error:
         print(f"bimgame train: stopped: {error}", file=sys.stderr)
         return 1
-    if result.stopped == "interrupted" and result.steps >= config.steps:
+    if result.stopped == "interrupted" and result.steps >= schedule.steps:
         print(
             f"interrupted after all {result.steps:,} steps, before the final evaluation; checkpoint saved. "
             f"Evaluate and write the summary with: bimgame train --run-dir {args.run_dir} --resume",

@@ -30,7 +30,7 @@ import enum
 from collections.abc import Callable, Iterator, Mapping
 from typing import Any
 
-from bimgame.learn.finetune import FINETUNE_PRESETS
+from bimgame.learn.learner_settings import FINETUNE_PRESETS
 
 __all__ = [
     "Learner",

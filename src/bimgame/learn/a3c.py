@@ -56,7 +56,7 @@ from bimgame.learn.a3c_core import (
 from bimgame.learn.a3c_workers import RunShared, _evaluator, _worker
 from bimgame.learn.common import EVAL_COLUMNS, init_network_settings
 from bimgame.learn.curves import plot_run
-from bimgame.learn.finetune import DEFAULT_FINETUNE, FINETUNE_PRESETS
+from bimgame.learn.learner_settings import DEFAULT_FINETUNE, FINETUNE_PRESETS
 from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.learn.run_dir import TEACHER, RunDirectory, stored_run_config
 from bimgame.learn.checkpoints import CheckpointError, apply_weights, load_checkpoint, load_weights, save_checkpoint
@@ -124,12 +124,12 @@ def finetune_settings(preset: str | None) -> dict[str, Any]:
 def _check_resume(run_dir: Path, config: A3CConfig) -> None:
     """Refuse to resume the run in ``run_dir`` (checked to be an A3C run with its checkpoint) with
     settings other than its own, except :attr:`A3CConfig.RESUMABLE_CHANGES`."""
-    previous = read_run_settings(run_dir, "a3c", A3CConfig.from_dict)
-    changed = [f.name for f in dataclasses.fields(A3CConfig)
-               if getattr(previous, f.name) != getattr(config, f.name) and f.name not in A3CConfig.RESUMABLE_CHANGES]
+    previous = read_run_settings(run_dir, "a3c", A3CConfig.from_dict).to_dict()
+    current = config.to_dict()
+    changed = [name for name in current if previous[name] != current[name] and name not in A3CConfig.RESUMABLE_CHANGES]
     if changed:
         raise ValueError("--resume must keep the run's settings; changed: "
-                         + ", ".join(f"{k} ({getattr(previous, k)!r} -> {getattr(config, k)!r})" for k in changed)
+                         + ", ".join(f"{k} ({previous[k]!r} -> {current[k]!r})" for k in changed)
                          + f". Allowed to change: {', '.join(A3CConfig.RESUMABLE_CHANGES)}")
 
 
@@ -187,7 +187,7 @@ class _Start:
 def _train(config: A3CConfig, run_dir: Path, *, resume: bool, init: str | Path | None,
            env_wrapper: EnvWrapper | None, progress: bool, extra_config: dict | None) -> TrainResult:
     shared = network_for(config)
-    if not resume and config.kl_coef > 0 and init is None:
+    if not resume and config.has_teacher and init is None:
         raise ValueError("A3CConfig.kl_coef > 0 (kickstarting) needs a pre-trained policy to stay close to: "
                          "pass --init (or set kl_coef to 0)")
     with RunDirectory(run_dir, KIND_A3C, resume=resume) as run:
@@ -207,10 +207,10 @@ def _resumed(config: A3CConfig, run: RunDirectory, shared: RecurrentActorCritic)
     apply_weights(shared, payload, run / CHECKPOINT)
     start = _Start(step=payload["step"], seconds=float(payload.get("seconds", 0.0)),
                    optimizer=payload.get("optimizer"), fresh=False, checkpoint_step=payload["step"])
-    if config.kl_coef > 0:
+    if config.has_teacher:
         start.teacher = load_checkpoint(run / TEACHER)["model"]
-    if start.step >= config.steps and _summarised(run.path, start.step):
-        raise ValueError(f"the run in {run.path} already has {start.step} steps >= steps={config.steps}; "
+    if start.step >= config.schedule.steps and _summarised(run.path, start.step):
+        raise ValueError(f"the run in {run.path} already has {start.step} steps >= steps={config.schedule.steps}; "
                          f"pass a larger --steps to continue")
     return start
 
@@ -225,7 +225,7 @@ def _started(config: A3CConfig, run: RunDirectory, shared: RecurrentActorCritic,
             load_weights(shared, init)
         except CheckpointError as error:
             raise CheckpointError(f"--init: {error}") from None
-    if config.kl_coef > 0:
+    if config.has_teacher:
         start.teacher = {k: v.detach().clone() for k, v in shared.state_dict().items()}
     run.write_config({"a3c": config.to_dict(), "net": shared.config.to_dict(),
                       "init": str(init) if init is not None else None, **(extra_config or {})})
@@ -238,7 +238,7 @@ def _started(config: A3CConfig, run: RunDirectory, shared: RecurrentActorCritic,
 
 def _session(config: A3CConfig, run: RunDirectory, shared: RecurrentActorCritic, start: _Start, *,
              env_wrapper: EnvWrapper | None, progress: bool) -> TrainResult:
-    """Train from ``start`` to ``config.steps`` (nothing if the steps are all done), then evaluate
+    """Train from ``start`` to ``config.schedule.steps`` (nothing if the steps are all done), then evaluate
     and write the summary."""
     run_dir = run.path
     log = run.metric_log(_TABLES, resume_step=None if start.fresh else start.step,
@@ -247,7 +247,7 @@ def _session(config: A3CConfig, run: RunDirectory, shared: RecurrentActorCritic,
     monitor.restore(log.kept["episodes"])
     started = time.monotonic() - start.seconds  # seconds count the whole run, across resumes
     step, stopped = start.step, "finished"
-    if step < config.steps:
+    if step < config.schedule.steps:
         try:
             step, stopped = _run_processes(config, run_dir, shared, start, log, monitor, started,
                                            env_wrapper=env_wrapper, progress=progress)
@@ -274,7 +274,7 @@ def _session(config: A3CConfig, run: RunDirectory, shared: RecurrentActorCritic,
                             f"space and continue with --resume (a run whose steps are all done then only evaluates "
                             f"and writes its summary)") from error
     try:
-        plot_run(run_dir, title=f"A3C on {config.task} ({config.obs})")
+        plot_run(run_dir, title=f"A3C on {config.task} ({config.network.obs})")
     except (ValueError, OSError):
         pass  # no finished episode yet (nothing to plot), or no room for the figure: the logs hold it all
     return TrainResult(run_dir, step, stopped, final_eval, seconds)
@@ -298,8 +298,8 @@ def _run_processes(config: A3CConfig, run_dir: Path, shared: RecurrentActorCriti
     messages = context.Queue()
     run = RunShared(config, shared, optimizer_state, counter, stop, messages, env_wrapper, start.step, start.teacher)
     processes = [context.Process(target=_worker, name=f"a3c-worker-{rank}", args=(rank, run), daemon=True)
-                 for rank in range(config.workers)]
-    if config.eval_every > 0:
+                 for rank in range(config.schedule.workers)]
+    if config.schedule.eval_every > 0:
         processes.append(context.Process(target=_evaluator, name="a3c-evaluator",
                                          args=(config, shared, counter, stop, messages, start.step,
                                                initial_weights), daemon=True))
@@ -315,7 +315,7 @@ def _run_processes(config: A3CConfig, run_dir: Path, shared: RecurrentActorCriti
 
     shown_at = 0.0
     try:
-        with sigterm_as_interrupt(), ProgressBar(f"A3C {config.task} {config.obs}", config.steps,
+        with sigterm_as_interrupt(), ProgressBar(f"A3C {config.task} {config.network.obs}", config.schedule.steps,
                                                  completed=start.step, enabled=progress, eta=True,
                                                  count="{done:,.0f}/{total:,.0f} steps") as bar:
             for process in processes:
@@ -358,7 +358,7 @@ def _run_processes(config: A3CConfig, run_dir: Path, shared: RecurrentActorCriti
                     success = monitor.recent()["recent_success"]
                     bar.update(completed=step, info=f"{monitor.sps(step):,.0f} SPS  success "
                                                     + ("-" if math.isnan(success) else f"{success:.0%}"))
-                if failure is None and step - start.checkpoint_step >= config.checkpoint_every:
+                if failure is None and step - start.checkpoint_step >= config.schedule.checkpoint_every:
                     checkpoint()
     except KeyboardInterrupt:
         stopped = "interrupted"
@@ -368,11 +368,11 @@ def _run_processes(config: A3CConfig, run_dir: Path, shared: RecurrentActorCriti
         stop.set()
         _stop_processes(processes, messages)
     step = int(counter.value)
-    if stopped == "finished" and failure is None and write_failure is None and step < config.steps:
+    if stopped == "finished" and failure is None and write_failure is None and step < config.schedule.steps:
         # Every process exited without reporting an error (e.g. killed, or failed while starting,
         # before its own error handling ran): not a finished run.
         codes = ", ".join(f"{p.name} {p.exitcode}" for p in processes)
-        failure = (f"the worker processes exited at step {step:,} of {config.steps:,} without reporting an error "
+        failure = (f"the worker processes exited at step {step:,} of {config.schedule.steps:,} without reporting an error "
                    f"(exit codes: {codes}). If training was started from a script, the script needs an "
                    f"`if __name__ == '__main__':` guard: workers are spawned and import it again.")
     saved = False

@@ -23,7 +23,7 @@ from bimgame.learn.augment import random_shift
 from bimgame.learn.finetune import DemoWindows, EntropyTarget, LossWeights, RunningScale, Teacher, loss_weights
 from bimgame.learn.loss_terms import BehaviourCloning, LossTerm, TeacherKL
 from bimgame.learn.nets import RecurrentActorCritic
-from bimgame.learn.rollout import FinishedEpisode, NonFiniteReward, RolloutCollector
+from bimgame.learn.rollout import FinishedEpisode, NonFiniteReward, RolloutCollector, Segment
 from bimgame.learn.starts import DemoStartCurriculum, ReverseCurriculum
 from bimgame.sim.maze import MazeSpec
 from bimgame.util.processes import exit_when_parent_dies
@@ -39,14 +39,17 @@ def _worker_seeds(config: A3CConfig, rank: int, start_step: int) -> tuple[int, i
 def _start_sampler(config: A3CConfig) -> DemoStartCurriculum | ReverseCurriculum | None:
     """The start curriculum of a worker's training episodes (None: the task's own starts), for the
     maze the workers' envs are built with (MERL's)."""
-    if config.start_curriculum == "demo":
+    curriculum = config.curriculum
+    if curriculum is None:
+        return None
+    if curriculum.start_curriculum == "demo":
         assert config.expert_data is not None  # A3CConfig refuses a demo curriculum without one
-        return DemoStartCurriculum.from_dataset(config.expert_data, config.task, threshold=config.curriculum_threshold)
-    if config.start_curriculum == "reverse":
-        # A pool of 32 starts (not the class's 100): each start is tried 3 times before the pool grows,
-        # and a failed STG3 episode lasts 750 steps, so 100 starts held one pool for ≈ 230k steps.
-        return ReverseCurriculum(config.task, high=config.curriculum_threshold, pool_size=32)
-    return None
+        return DemoStartCurriculum.from_dataset(
+            config.expert_data, config.task, threshold=curriculum.curriculum_threshold
+        )
+    # A pool of 32 starts (not the class's 100): each start is tried 3 times before the pool grows,
+    # and a failed STG3 episode lasts 750 steps, so 100 starts held one pool for ≈ 230k steps.
+    return ReverseCurriculum(config.task, high=curriculum.curriculum_threshold, pool_size=32)
 
 
 def _make_env(config: A3CConfig, num_envs: int, **kwargs: Any) -> BallInMazeVectorEnv:
@@ -54,11 +57,11 @@ def _make_env(config: A3CConfig, num_envs: int, **kwargs: Any) -> BallInMazeVect
     return BallInMazeVectorEnv(
         num_envs,
         task=config.task,
-        obs_mode=config.obs,
+        obs_mode=config.network.obs,
         nthread=1,
         max_episode_steps=config.time_limit,
         autoreset_mode="same_step",
-        state_info=config.privileged,
+        state_info=config.network.privileged,
         randomize=randomize,
         **kwargs,
     )
@@ -105,48 +108,18 @@ def _worker_loop(rank: int, run: RunShared) -> None:
     env_seed, torch_seed = _worker_seeds(config, rank, run.start_step)
     collector, local = _collector(rank, run, torch_seed)
     collector.reset(env_seed, counter.value)
-    optimizer = _shared_optimizer(config, run)
-    shared_params = list(run.shared.parameters())
-    terms = _loss_terms(config, rank, run, collector.base_env.maze)
-    advantage_scale = RunningScale() if config.advantage_norm else None
-    entropy_target = (
-        None
-        if config.entropy_target is None
-        else EntropyTarget(config.entropy_target, config.entropy_target_steps, config.entropy_coef)
-    )
-    entropy_coef: float | None = None
-    augment_generator = torch.Generator().manual_seed(_stream_seed(config, rank, run.start_step, 2))
-    report = _UpdateReport(config.log_every)
-    while not run.stop.is_set() and counter.value < config.steps:
+    learner = _WorkerUpdate(config, rank, run, local, collector.base_env.maze)
+    report = _UpdateReport(config.schedule.log_every)
+    while not run.stop.is_set() and counter.value < config.schedule.steps:
         local.load_state_dict(run.shared.state_dict())
         step_at_start = counter.value
         try:
-            segment = collector.collect(config.n_steps, step_at_start)
+            segment = collector.collect(config.optimization.n_steps, step_at_start)
         except NonFiniteReward as error:
-            messages.put(
-                ("nan", rank, {"step": error.step, "what": "reward from the env", "rewards": error.rewards.tolist()})
-            )
+            nan = {"step": error.step, "what": "reward from the env", "rewards": error.rewards.tolist()}
+            messages.put(("nan", rank, nan))
             return
-        weights = loss_weights(config, step_at_start)
-        for term in terms:
-            term.prepare(segment, weights)
-        terms = [term for term in terms if not term.finished]
-        if config.augment_shift:  # after the terms, which follow the frames as the learner acted on them
-            segment = segment.replace(obs=random_shift(segment.obs, config.augment_shift, augment_generator))
-        parts = apply_update(
-            local,
-            shared_params,
-            optimizer,
-            segment,
-            config,
-            weights,
-            terms=terms,
-            advantage_scale=advantage_scale,
-            entropy_coef=entropy_coef,
-        )
-        parts.pop("loss")
-        if entropy_target is not None and parts["applied"]:
-            entropy_coef = entropy_target.update(parts["entropy"], step_at_start)
+        parts = learner.update(segment, step_at_start)
         if not parts.pop("applied"):
             grad_norm = parts.pop("grad_norm")
             messages.put(("nan", rank, {"step": int(counter.value), "what": "loss", "grad_norm": grad_norm, **parts}))
@@ -156,18 +129,62 @@ def _worker_loop(rank: int, run: RunShared) -> None:
         report.add(parts, config.steps_per_update)
         if report.due:
             status = collector.curriculum.status() if collector.curriculum is not None else {}
-            messages.put(
-                (
-                    "update",
-                    rank,
-                    report.flush(
-                        int(counter.value),
-                        weights,
-                        status,
-                        config.entropy_coef if entropy_coef is None else entropy_coef,
-                    ),
-                )
-            )
+            payload = report.flush(int(counter.value), learner.weights, status, learner.entropy_coef)
+            messages.put(("update", rank, payload))
+
+
+class _WorkerUpdate:
+    """A worker's update of the shared weights from one segment, with the run's optional parts chosen
+    once at the start: its loss terms (KL to π^s, behaviour cloning), advantage scaling, adapting
+    entropy coefficient and frame augmentation."""
+
+    def __init__(self, config: A3CConfig, rank: int, run: RunShared, local: RecurrentActorCritic, maze: MazeSpec):
+        settings, finetuning = config.optimization, config.finetuning
+        self.config, self.local = config, local
+        self.optimizer = _shared_optimizer(config, run)
+        self.shared_params = list(run.shared.parameters())
+        self.terms = _loss_terms(config, rank, run, maze)
+        self.advantage_scale = RunningScale() if finetuning is not None and finetuning.advantage_norm else None
+        self.entropy_target = (
+            None
+            if settings.entropy_target is None
+            else EntropyTarget(settings.entropy_target, settings.entropy_target_steps, settings.entropy_coef)
+        )
+        self.adapted_entropy_coef: float | None = None
+        self.augment_generator = torch.Generator().manual_seed(_stream_seed(config, rank, run.start_step, 2))
+        self.weights = LossWeights()
+
+    @property
+    def entropy_coef(self) -> float:
+        """The entropy coefficient of the latest update."""
+        fixed = self.config.optimization.entropy_coef
+        return fixed if self.adapted_entropy_coef is None else self.adapted_entropy_coef
+
+    def update(self, segment: Segment, step: int) -> dict[str, Any]:
+        """Apply one segment's gradient (see :func:`~bimgame.learn.a3c_core.apply_update`); its losses,
+        with ``applied`` False when the loss or gradient was not finite."""
+        self.weights = weights = loss_weights(self.config.finetuning, step)
+        for term in self.terms:
+            term.prepare(segment, weights)
+        self.terms = [term for term in self.terms if not term.finished]
+        shift = self.config.optimization.augment_shift
+        if shift:  # after the terms, which follow the frames as the learner acted on them
+            segment = segment.replace(obs=random_shift(segment.obs, shift, self.augment_generator))
+        parts = apply_update(
+            self.local,
+            self.shared_params,
+            self.optimizer,
+            segment,
+            self.config,
+            weights,
+            terms=self.terms,
+            advantage_scale=self.advantage_scale,
+            entropy_coef=self.adapted_entropy_coef,
+        )
+        parts.pop("loss")
+        if self.entropy_target is not None and parts["applied"]:
+            self.adapted_entropy_coef = self.entropy_target.update(parts["entropy"], step)
+        return parts
 
 
 def _stream_seed(config: A3CConfig, rank: int, start_step: int, stream: int) -> int:
@@ -180,10 +197,10 @@ def _collector(rank: int, run: RunShared, torch_seed: int) -> tuple[RolloutColle
     network it acts with, which each update loads the shared weights into."""
     config = run.config
     curriculum = _start_sampler(config)
-    base_env = _make_env(config, config.envs_per_worker, start_sampler=curriculum)
+    base_env = _make_env(config, config.schedule.envs_per_worker, start_sampler=curriculum)
     env = run.env_wrapper(base_env) if run.env_wrapper is not None else base_env
     local = network_for(config, base_env.maze)
-    actor = RecurrentActor(local, config.envs_per_worker, generator=torch.Generator().manual_seed(torch_seed))
+    actor = RecurrentActor(local, config.schedule.envs_per_worker, generator=torch.Generator().manual_seed(torch_seed))
 
     def book(episode: FinishedEpisode) -> None:
         run.messages.put(("episode", rank, episode.row()))
@@ -192,9 +209,9 @@ def _collector(rank: int, run: RunShared, torch_seed: int) -> tuple[RolloutColle
         env,
         base_env,
         actor,
-        gamma=config.gamma,
-        tilt_input=config.tilt_input,
-        privileged=config.privileged,
+        gamma=config.optimization.gamma,
+        tilt_input=config.network.tilt_input,
+        privileged=config.network.privileged,
         curriculum=curriculum,
         on_episode=book,
         global_step=lambda: run.counter.value,
@@ -217,17 +234,19 @@ def _loss_terms(config: A3CConfig, rank: int, run: RunShared, maze: MazeSpec) ->
     """The run's optional loss terms, in the order they are added to the loss: the KL to π^s when the
     run has a teacher, behaviour cloning when ``bc_coef`` > 0."""
     terms: list[LossTerm] = []
+    finetuning, envs = config.finetuning, config.schedule.envs_per_worker
     if run.teacher_weights is not None:
+        assert finetuning is not None  # a run has a teacher only for a KL term (kl_coef > 0)
         teacher_net = network_for(config, maze)
         teacher_net.load_state_dict(run.teacher_weights)
-        terms.append(
-            TeacherKL(Teacher(teacher_net, config.envs_per_worker, config.kl_temperature), config.kl_decay_steps)
-        )
-    if config.bc_coef > 0:
+        teacher = Teacher(teacher_net, envs, finetuning.kl_temperature)
+        terms.append(TeacherKL(teacher, finetuning.kl_decay_steps))
+    if finetuning is not None and finetuning.bc_coef > 0:
         assert config.expert_data is not None  # A3CConfig refuses behaviour cloning without one
-        demos = DemoWindows.from_dataset(config.expert_data, config.task, config.obs, config.gamma, maze)
+        gamma = config.optimization.gamma
+        demos = DemoWindows.from_dataset(config.expert_data, config.task, config.network.obs, gamma, maze)
         rng = np.random.default_rng(np.random.SeedSequence([config.seed, rank, run.start_step, 1]))
-        terms.append(BehaviourCloning(demos, config.envs_per_worker, rng))
+        terms.append(BehaviourCloning(demos, envs, rng))
     return terms
 
 
@@ -301,17 +320,17 @@ def _evaluator(
         # A copy of the weights taken before any worker started.
         local.load_state_dict(initial_weights)
         messages.put(("eval", -1, {"step": start_step, **evaluate(local, config)}))
-        next_eval = (start_step // config.eval_every + 1) * config.eval_every
+        next_eval = (start_step // config.schedule.eval_every + 1) * config.schedule.eval_every
         while not stop.is_set():
             step = counter.value
-            if step >= config.steps:
+            if step >= config.schedule.steps:
                 break
             if step < next_eval:
                 time.sleep(0.1)
                 continue
             local.load_state_dict(shared.state_dict())
             messages.put(("eval", -1, {"step": int(step), **evaluate(local, config)}))
-            next_eval = (step // config.eval_every + 1) * config.eval_every
+            next_eval = (step // config.schedule.eval_every + 1) * config.schedule.eval_every
     except Exception:  # noqa: BLE001 - any failure goes to the parent as a traceback, which stops the run
         messages.put(("error", -1, traceback.format_exc()))
     finally:

@@ -26,7 +26,7 @@ address one cause each, as A3C settings (:class:`~bimgame.learn.a3c_core.A3CConf
 Demonstration-start and reverse curricula change where episodes start, not the loss: see
 :mod:`bimgame.learn.starts`.
 
-:data:`FINETUNE_PRESETS` names the combinations: ``paper`` (plain fine-tuning, which forgets) and
+:data:`~bimgame.learn.learner_settings.FINETUNE_PRESETS` names the combinations: ``paper`` (plain fine-tuning, which forgets) and
 ``keep`` (the default of ``bimgame train --init``: critic warm-up and actor ramp, a constant KL to a
 sharpened π^s, advantage scaling). How ``keep`` was chosen, and what did not help, is measured in
 ``docs/finetune/README.md``.
@@ -43,15 +43,13 @@ import torch
 
 from bimgame.expert.datasets import iterate_sequences
 from bimgame.expert.episode import Episode, relabel
+from bimgame.learn.learner_settings import FinetuneSettings
 from bimgame.learn.nets import LSTMState, RecurrentActorCritic
 from bimgame.learn.rollout import Segment
 from bimgame.learn.supervised import padded_batch
 from bimgame.sim.maze import MazeSpec
 
 __all__ = [
-    "FINETUNE_PRESETS",
-    "DEFAULT_FINETUNE",
-    "FINETUNE_FIELDS",
     "LossWeights",
     "loss_weights",
     "Teacher",
@@ -61,37 +59,6 @@ __all__ = [
     "DemoWindows",
     "bc_loss",
 ]
-
-#: The A3C settings each fine-tuning preset sets (any of them can still be given explicitly).
-FINETUNE_PRESETS: dict[str, dict[str, Any]] = {
-    "paper": {
-        "critic_warmup_steps": 0,
-        "actor_ramp_steps": 0,
-        "kl_coef": 0.0,
-        "kl_decay_steps": 0,
-        "kl_temperature": 1.0,
-        "bc_coef": 0.0,
-        "bc_decay_steps": 0,
-        "advantage_norm": False,
-        "start_curriculum": "none",
-    },
-    "keep": {
-        "critic_warmup_steps": 50_000,
-        "actor_ramp_steps": 100_000,
-        "kl_coef": 0.2,
-        "kl_decay_steps": 0,
-        "kl_temperature": 0.3,
-        "bc_coef": 0.0,
-        "bc_decay_steps": 0,
-        "advantage_norm": True,
-        "start_curriculum": "none",
-    },
-}
-#: The preset ``bimgame train --init`` uses unless told otherwise (the one that measured best).
-DEFAULT_FINETUNE = "keep"
-#: The settings the presets decide.
-FINETUNE_FIELDS = tuple(FINETUNE_PRESETS["paper"])
-
 
 @dataclasses.dataclass(frozen=True)
 class LossWeights:
@@ -113,9 +80,12 @@ def _linear_decay(initial: float, step: int, over: int) -> float:
     return initial * max(0.0, 1.0 - step / over)
 
 
-def loss_weights(config: Any, step: int) -> LossWeights:
-    """The loss weights at environment step ``step`` of a run with A3C settings ``config``."""
-    warmup, ramp = config.critic_warmup_steps, config.actor_ramp_steps
+def loss_weights(settings: FinetuneSettings | None, step: int) -> LossWeights:
+    """The loss weights at environment step ``step`` of a run with fine-tuning ``settings`` (None: a run
+    from scratch, whose weights never change)."""
+    if settings is None:
+        return LossWeights()
+    warmup, ramp = settings.critic_warmup_steps, settings.actor_ramp_steps
     if step < warmup:
         actor = 0.0
     elif ramp > 0:
@@ -124,8 +94,8 @@ def loss_weights(config: Any, step: int) -> LossWeights:
         actor = 1.0
     return LossWeights(
         actor=actor,
-        kl=_linear_decay(config.kl_coef, step, config.kl_decay_steps),
-        bc=_linear_decay(config.bc_coef, step, config.bc_decay_steps),
+        kl=_linear_decay(settings.kl_coef, step, settings.kl_decay_steps),
+        bc=_linear_decay(settings.bc_coef, step, settings.bc_decay_steps),
         critic_only=step < warmup,
     )
 

@@ -1,0 +1,305 @@
+"""The parts an on-policy learner's settings are composed of, beside the network
+(:class:`~bimgame.learn.common.NetworkSettings`) and the learner's own optimisation settings:
+
+- :class:`ScheduleSettings`: how long a run goes, on how many processes and environments, and how
+  often it checkpoints, evaluates and logs;
+- :class:`FinetuneSettings` (optional): the terms that keep a pre-trained π^s while fine-tuning it
+  (:mod:`bimgame.learn.finetune`);
+- :class:`CurriculumSettings` (optional): where training episodes start (:mod:`bimgame.learn.starts`).
+
+Each part validates its own fields, so a learner that composes it (A3C, and every later one) gets the
+same checks and messages. :class:`FlatSettings` is what a composed settings class shares: every
+setting has one *flat name* across its parts (``lr``, ``hidden``, ``kl_coef``), the name of its
+command-line flag (``--kl-coef``) and of its key in a run's ``config.json``; the settings are built
+from flat names and written as flat names, so that every ``config.json`` any version wrote still loads.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Iterator, Mapping
+from typing import Any, ClassVar, Literal, Self, get_args
+
+from bimgame.util.settings import require_int
+
+__all__ = [
+    "MAX_STEPS",
+    "FINETUNE_PRESETS",
+    "DEFAULT_FINETUNE",
+    "FINETUNE_FIELDS",
+    "StartCurriculum",
+    "START_CURRICULA",
+    "check_choice",
+    "check_number",
+    "check_at_most",
+    "ScheduleSettings",
+    "FinetuneSettings",
+    "CurriculumSettings",
+    "FlatSettings",
+]
+
+#: The most environment steps a run (or a checkpoint or evaluation interval) may count: 10¹², about
+#: 30 years at this machine's 1,000 steps/s. More is a typo (``--steps 1e30``), found before any work.
+MAX_STEPS = 10**12
+
+#: The A3C settings each fine-tuning preset sets (any of them can still be given explicitly).
+FINETUNE_PRESETS: dict[str, dict[str, Any]] = {
+    "paper": {
+        "critic_warmup_steps": 0,
+        "actor_ramp_steps": 0,
+        "kl_coef": 0.0,
+        "kl_decay_steps": 0,
+        "kl_temperature": 1.0,
+        "bc_coef": 0.0,
+        "bc_decay_steps": 0,
+        "advantage_norm": False,
+        "start_curriculum": "none",
+    },
+    "keep": {
+        "critic_warmup_steps": 50_000,
+        "actor_ramp_steps": 100_000,
+        "kl_coef": 0.2,
+        "kl_decay_steps": 0,
+        "kl_temperature": 0.3,
+        "bc_coef": 0.0,
+        "bc_decay_steps": 0,
+        "advantage_norm": True,
+        "start_curriculum": "none",
+    },
+}
+#: The preset ``bimgame train --init`` uses unless told otherwise (the one that measured best).
+DEFAULT_FINETUNE = "keep"
+#: The settings the presets decide.
+FINETUNE_FIELDS = tuple(FINETUNE_PRESETS["paper"])
+
+
+StartCurriculum = Literal["demo", "reverse"]
+#: Where training episodes start: ``none`` (the task's own starts: no curriculum part), ``demo``
+#: (demonstration starts, from ``expert_data``) or ``reverse`` (reverse curriculum, no expert).
+START_CURRICULA: tuple[str, ...] = ("none", *get_args(StartCurriculum))
+
+
+def check_choice(owner: str, name: str, value: Any, allowed: tuple[str, ...], *, optional: bool = False) -> None:
+    """Raise unless ``value`` is one of ``allowed`` (or, if ``optional``, None)."""
+    if value not in allowed and not (optional and value is None):
+        prefix = "None or " if optional else ""
+        raise ValueError(f"{owner}.{name} must be {prefix}one of {allowed}, got {value!r}")
+
+
+def check_number(owner: str, name: str, value: Any, low: float, high: float, *, low_open: bool = False) -> None:
+    """Raise unless ``value`` is a real number in [low, high] (finite and above ``low`` if
+    ``low_open``; finite if ``high`` is infinite)."""
+    ok = isinstance(value, (int, float)) and (math.isfinite(value) or math.isfinite(high))
+    ok = ok and (value > low if low_open else value >= low) and value <= high
+    if ok:
+        return
+    if math.isfinite(high):
+        raise ValueError(f"{owner}.{name} must be in [{low}, {high}], got {value!r}")
+    relation = ">" if low_open else ">="
+    raise ValueError(f"{owner}.{name} must be a finite number {relation} {low:g}, got {value!r}")
+
+
+def check_at_most(owner: str, name: str, value: Any, largest: int, unit: str) -> None:
+    """Raise if ``value`` (an already checked integer or None) exceeds ``largest``: settings that size
+    what is allocated at once, where a far larger value is a typo that would otherwise fail only when
+    memory runs out."""
+    if value is not None and value > largest:
+        raise ValueError(f"{owner}.{name} must be at most {largest:,} ({unit}), got {value!r}")
+
+
+@dataclasses.dataclass(frozen=True)
+class ScheduleSettings:
+    """How long a run goes and on how many processes and environments, and how often it checkpoints,
+    evaluates and logs."""
+
+    steps: int = 5_000_000
+    """Environment steps to train for (all workers together)."""
+    workers: int = 2
+    """Worker processes (one thread each)."""
+    envs_per_worker: int = 16
+    """Environments per worker, stepped as one batch (one forward pass acts for all); 1 is exactly
+    the paper's A3C. Batching is what makes the network affordable on a CPU: one LSTM step costs
+    about the same for 1 environment as for 16."""
+    checkpoint_every: int = 100_000
+    """Environment steps between checkpoints (``--resume`` loses at most this many)."""
+    eval_every: int = 100_000
+    """Environment steps between evaluations; 0 disables the evaluator process."""
+    eval_episodes: int = 10
+    """Episodes per evaluation, each greedy and sampled."""
+    log_every: int = 2_000
+    """Environment steps (per worker) between loss reports."""
+
+    def __post_init__(self) -> None:
+        owner = type(self).__name__
+        for name in ("steps", "workers", "envs_per_worker", "checkpoint_every", "eval_episodes", "log_every"):
+            require_int(owner, name, getattr(self, name), 1)
+        if not (isinstance(self.eval_every, int) and self.eval_every >= 0):
+            raise ValueError(f"{owner}.eval_every must be an integer >= 0 (0: no evaluator), got {self.eval_every!r}")
+        for name in ("steps", "checkpoint_every", "eval_every", "log_every"):
+            check_at_most(owner, name, getattr(self, name), MAX_STEPS, "1e12 environment steps")
+        check_at_most(owner, "workers", self.workers, 256, "processes")
+        check_at_most(owner, "envs_per_worker", self.envs_per_worker, 4096, "environments in one process")
+        check_at_most(owner, "eval_episodes", self.eval_episodes, 10_000, "episodes run side by side")
+
+
+@dataclasses.dataclass(frozen=True)
+class FinetuneSettings:
+    """Fine-tuning a pre-trained π^s without forgetting it: each term addresses one cause of the
+    forgetting measured in ``docs/finetune/README.md`` (see :mod:`bimgame.learn.finetune`)."""
+
+    finetune: str | None = None
+    """Fine-tuning preset these settings started from (``paper``: plain fine-tuning, which forgets;
+    ``keep``: the default with ``--init``); None: none (a run from scratch). See
+    :mod:`bimgame.learn.finetune`."""
+    critic_warmup_steps: int = 0
+    """Fine-tuning: environment steps at the start during which only the value head learns."""
+    actor_ramp_steps: int = 0
+    """Fine-tuning: steps after the warm-up over which the actor's learning rate and loss terms ramp
+    up linearly from zero."""
+    kl_coef: float = 0.0
+    """Fine-tuning (kickstarting): initial weight of KL(π^s ‖ π) on the learner's rollouts; π^s is
+    the network the run started from (``--init``)."""
+    kl_decay_steps: int = 0
+    """Steps over which the KL weight decays linearly to zero (0: it stays constant)."""
+    kl_temperature: float = 1.0
+    """Temperature of the teacher's distribution in the KL term: 1 is π^s itself, below 1 a sharper
+    π^s (towards its greedy action)."""
+    advantage_norm: bool = False
+    """Divide advantages by their running RMS, so the policy gradient (against the entropy and KL
+    terms) has the same scale on every task."""
+    bc_coef: float = 0.0
+    """Fine-tuning (DAPG): initial weight of the cross-entropy to the expert's actions on windows of
+    ``expert_data``."""
+    bc_decay_steps: int = 0
+    """Steps over which the behaviour-cloning weight decays linearly to zero (0: constant)."""
+
+
+    def __post_init__(self) -> None:
+        owner = type(self).__name__
+        check_choice(owner, "finetune", self.finetune, tuple(FINETUNE_PRESETS), optional=True)
+        for name in ("critic_warmup_steps", "actor_ramp_steps", "kl_decay_steps", "bc_decay_steps"):
+            require_int(owner, name, getattr(self, name), 0)
+        check_number(owner, "kl_temperature", self.kl_temperature, 0.0, math.inf, low_open=True)
+        for name in ("kl_coef", "bc_coef"):
+            check_number(owner, name, getattr(self, name), 0.0, math.inf)
+        if not isinstance(self.advantage_norm, bool):
+            raise ValueError(f"{owner}.advantage_norm must be True or False, got {self.advantage_norm!r}")
+
+    @property
+    def changes_nothing(self) -> bool:
+        """Whether these settings are a run from scratch's (no preset, every term off): such a run has
+        no fine-tuning part."""
+        return self == FinetuneSettings()
+
+    @property
+    def schedules_actor(self) -> bool:
+        """Whether the actor's learning rate follows a schedule (critic warm-up or actor ramp): the
+        policy head then has its own optimiser parameter group."""
+        return self.critic_warmup_steps > 0 or self.actor_ramp_steps > 0
+
+
+@dataclasses.dataclass(frozen=True)
+class CurriculumSettings:
+    """A start curriculum: training episodes start closer to the goal, moving back as success grows.
+    Evaluations always use the task's own starts."""
+
+    start_curriculum: StartCurriculum = "demo"
+    """Where training episodes start: ``none`` (the task's own starts), ``demo`` (states of the
+    expert's episodes, moving back from the goal as success grows) or ``reverse`` (grown backwards
+    from the goal by random exploration, no expert). Evaluations always use the task's own starts."""
+    curriculum_threshold: float = 0.8
+    """Start curricula: success on the current starts that moves them further from the goal."""
+
+    def __post_init__(self) -> None:
+        owner = type(self).__name__
+        check_choice(owner, "start_curriculum", self.start_curriculum, get_args(StartCurriculum))
+        threshold = self.curriculum_threshold
+        if not (isinstance(threshold, (int, float)) and not isinstance(threshold, bool) and 0 < threshold <= 1):
+            raise ValueError(f"{owner}.curriculum_threshold must be in (0, 1], got {threshold!r}")
+
+
+class FlatSettings:
+    """What a settings class composed of parts shares: its flat names, and building it from them and
+    writing it as them. A subclass is a frozen dataclass whose fields are its own settings and its
+    parts; :attr:`PARTS` names each part's field and class, :attr:`OPTIONAL_PARTS` those that may be
+    None, with the flat value that stands for None (``start_curriculum="none"``) in
+    :attr:`NONE_VALUES`. Flat names are unique across the parts."""
+
+    PARTS: ClassVar[dict[str, type]] = {}
+    OPTIONAL_PARTS: ClassVar[frozenset[str]] = frozenset()
+    NONE_VALUES: ClassVar[dict[str, Any]] = {}
+    #: What a settings dict of this class is called in errors ("unknown A3C settings [...]").
+    SETTINGS_NAME: ClassVar[str] = "settings"
+
+    @classmethod
+    def own_names(cls) -> tuple[str, ...]:
+        """The flat names of the settings the class holds itself (not in a part)."""
+        return tuple(f.name for f in dataclasses.fields(cls) if f.name not in cls.PARTS)  # type: ignore[arg-type]
+
+    @classmethod
+    def name_groups(cls) -> Iterator[tuple[type, tuple[str, ...]]]:
+        """(class, flat names) of the class's own settings, then of each part, in field order."""
+        yield cls, cls.own_names()
+        for part in cls.PARTS.values():
+            yield part, tuple(f.name for f in dataclasses.fields(part))
+
+    @classmethod
+    def flat_names(cls) -> tuple[str, ...]:
+        """Every flat name, the class's own first, then each part's."""
+        return tuple(name for _, names in cls.name_groups() for name in names)
+
+    @classmethod
+    def from_flat(cls, values: Mapping[str, Any] | None = None, /, **more: Any) -> Self:
+        """The settings from flat names (``{"lr": 1e-3, "obs": "state", …}``: the command line's flags,
+        a reproduction's overrides, the ``config.json`` of every version); unknown names are an error
+        naming them and the allowed ones. An optional part whose settings are all at their "none"
+        values is None."""
+        given = {**(values or {}), **more}
+        unknown = sorted(set(given) - set(cls.flat_names()))
+        if unknown:
+            raise ValueError(f"unknown {cls.SETTINGS_NAME} {unknown}; allowed: {sorted(cls.flat_names())}")
+        arguments: dict[str, Any] = {name: given[name] for name in cls.own_names() if name in given}
+        for field, part in cls.PARTS.items():
+            names = [f.name for f in dataclasses.fields(part)]
+            part_values = {name: given[name] for name in names if name in given}
+            if field in cls.OPTIONAL_PARTS and cls._means_none(part, part_values):
+                arguments[field] = None
+            else:
+                arguments[field] = part(**part_values)
+        return cls(**arguments)
+
+    @classmethod
+    def _means_none(cls, part: type, values: Mapping[str, Any]) -> bool:
+        """Whether an optional part's flat values stand for no part. A part with a "none" value (a
+        curriculum: ``start_curriculum="none"``) is absent unless another value is given for that
+        setting (its other settings then mean nothing and are dropped); a part without one (fine-tuning)
+        is absent when every value is at its default."""
+        markers = [name for name in cls.NONE_VALUES if name in {f.name for f in dataclasses.fields(part)}]
+        if markers:
+            return all(values.get(name, cls.NONE_VALUES[name]) == cls.NONE_VALUES[name] for name in markers)
+        defaults = part()
+        return all(getattr(defaults, name) == value for name, value in values.items())
+
+    def to_dict(self) -> dict[str, Any]:
+        """Every setting by its flat name (what ``config.json`` stores); an absent optional part is
+        written as its defaults, with its "none" values."""
+        flat = {name: getattr(self, name) for name in self.own_names()}
+        for field, part in self.PARTS.items():
+            value = getattr(self, field)
+            if value is not None:
+                flat.update(dataclasses.asdict(value))
+                continue
+            for f in dataclasses.fields(part):
+                flat[f.name] = self.NONE_VALUES.get(f.name, f.default)
+        return flat
+
+    @classmethod
+    def from_dict(cls, values: Mapping[str, Any]) -> Self:
+        """The settings of :meth:`to_dict`'s values (see :meth:`from_flat`)."""
+        return cls.from_flat(values)
+
+    def with_flat(self, **changes: Any) -> Self:
+        """These settings with the given flat settings changed."""
+        return self.from_flat({**self.to_dict(), **changes})
+
