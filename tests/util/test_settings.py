@@ -47,15 +47,24 @@ def test_field_docs_include_the_bases_and_the_subclass_overrides_them():
                     "depth": "How deep."}
 
 
-def test_field_docs_of_a3c_config_include_the_inherited_network_settings():
-    docs = field_docs(A3CConfig)
+def a3c_flat_docs() -> dict[str, str]:
+    """The docstrings of every A3C setting by its flat name, each read from the part that holds it."""
+    docs: dict[str, str] = {}
+    for cls, names in A3CConfig.name_groups():
+        part_docs = field_docs(cls)
+        docs.update({name: part_docs[name] for name in names if name in part_docs})
+    return docs
+
+
+def test_field_docs_of_a3c_config_include_its_network_settings():
+    docs = a3c_flat_docs()
     assert docs["obs"] == field_docs(NetworkSettings)["obs"]
     assert docs["obs"].startswith("Observation: ``pixels``")
     assert {"obs", "hidden", "features", "tilt_input", "keypoints", "subtract_background"} <= set(docs)
     assert docs["steps"] == "Environment steps to train for (all workers together)."
     assert all("\n" not in text and "  " not in text for text in docs.values())
-    # every documented name is a field
-    assert set(docs) <= {f.name for f in dataclasses.fields(A3CConfig)}
+    # every documented name is a setting (a flat name)
+    assert set(docs) <= set(A3CConfig.flat_names())
     # a multi-line docstring is folded
     assert docs["envs_per_worker"].startswith("Environments per worker, stepped as one batch")
     assert "16." in docs["envs_per_worker"]
