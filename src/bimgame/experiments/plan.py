@@ -4,13 +4,12 @@ whether a piece is finished.
 
 **Resuming.** Whether a piece is finished is decided from its own outputs (:func:`piece_done`, by
 its kind: :mod:`bimgame.experiments.kinds`), never from ``status.json`` alone. Finished pieces are
-skipped; an unfinished A3C or DAgger run is resumed from its last checkpoint (an A3C run stopped in its final evaluation,
-whose checkpoint holds all its steps, then only evaluates and writes its summary), an unfinished
-dataset from its saved
-episodes; an unfinished pre-training (not resumable, and cheap) is started again. So an
-interrupted reproduction — Ctrl-C, a crash, ``stop_after`` — continues where it stopped when the
-same command is run again. ``status.json`` records what happened, for the report's wall times and
-for people reading it.
+skipped; an unfinished A3C or DAgger run is resumed from its last checkpoint (an A3C run stopped
+in its final evaluation, whose checkpoint holds all its steps, then only evaluates and writes its
+summary), an unfinished dataset from its saved episodes; an unfinished pre-training (not
+resumable, and cheap) is started again. So an interrupted reproduction — Ctrl-C, a crash,
+``stop_after`` — continues where it stopped when the same command is run again. ``status.json``
+records what happened, for the report's wall times and for people reading it.
 """
 
 from __future__ import annotations
@@ -27,8 +26,7 @@ from bimgame.experiments.grid import Piece, plan_pieces
 from bimgame.experiments.kinds import kind_of
 from bimgame.util.files import read_json, write_json
 
-__all__ = ["PLAN", "STATUS", "timestamp", "write_plan", "load_plan", "load_status", "check_compatible",
-           "piece_done"]
+__all__ = ["PLAN", "STATUS", "timestamp", "write_plan", "load_plan", "load_status", "check_compatible", "piece_done"]
 
 PLAN = "plan.json"
 STATUS = "status.json"
@@ -47,11 +45,19 @@ def write_plan(out_dir: str | Path, budget: Budget, costs: CostModel = COSTS) ->
     pieces = plan_pieces(budget)
 
     estimates = [estimate_seconds(p, budget, costs) for p in pieces]
-    write_json(out_dir / PLAN, {
-        "format": _PLAN_FORMAT, "bimgame_version": __version__, "written": timestamp(),
-        "budget": budget.to_dict(),
-        "pieces": [{**p.to_dict(), "estimate_seconds": round(e, 1)} for p, e in zip(pieces, estimates)],
-        "estimate_seconds": round(sum(estimates), 1)})
+    write_json(
+        out_dir / PLAN,
+        {
+            "format": _PLAN_FORMAT,
+            "bimgame_version": __version__,
+            "written": timestamp(),
+            "budget": budget.to_dict(),
+            "pieces": [
+                {**p.to_dict(), "estimate_seconds": round(e, 1)} for p, e in zip(pieces, estimates, strict=True)
+            ],
+            "estimate_seconds": round(sum(estimates), 1),
+        },
+    )
     return pieces
 
 
@@ -60,19 +66,26 @@ def load_plan(out_dir: str | Path) -> tuple[Budget, list[Piece]]:
     path = Path(out_dir) / PLAN
     stored = read_json(path)
     if stored is None:
-        raise ValueError(f"{out_dir} is not a reproduction directory (no readable {PLAN}); "
-                         f"start one with: bimgame reproduce --out {out_dir}")
+        raise ValueError(
+            f"{out_dir} is not a reproduction directory (no readable {PLAN}); "
+            f"start one with: bimgame reproduce --out {out_dir}"
+        )
     if stored.get("format") != _PLAN_FORMAT:
-        raise ValueError(f"{path} is not a bimgame reproduction plan (format {stored.get('format')!r}, "
-                         f"expected {_PLAN_FORMAT!r})")
+        raise ValueError(
+            f"{path} is not a bimgame reproduction plan (format {stored.get('format')!r}, expected {_PLAN_FORMAT!r})"
+        )
     try:
         budget = Budget.from_dict(stored["budget"])
         fields = {f.name for f in dataclasses.fields(Piece)}
-        pieces = [Piece(**{**{k: v for k, v in p.items() if k in fields}, "needs": tuple(p["needs"])})
-                  for p in stored["pieces"]]
+        pieces = [
+            Piece(**{**{k: v for k, v in p.items() if k in fields}, "needs": tuple(p["needs"])})
+            for p in stored["pieces"]
+        ]
     except (KeyError, TypeError, AttributeError) as error:
-        raise ValueError(f"{path} is damaged ({type(error).__name__}: {error}); move it away and rerun "
-                         f"'bimgame reproduce --out {out_dir}' to plan the reproduction anew") from None
+        raise ValueError(
+            f"{path} is damaged ({type(error).__name__}: {error}); move it away and rerun "
+            f"'bimgame reproduce --out {out_dir}' to plan the reproduction anew"
+        ) from None
     return budget, pieces
 
 
@@ -96,9 +109,11 @@ def check_compatible(out_dir: str | Path, budget: Budget) -> None:
     changed = [k for k in new if k not in GRID_FIELDS and k != "name" and old.get(k) != new[k]]
     if changed:
         details = "; ".join(f"{k}: {old.get(k)!r} there, {new[k]!r} now" for k in changed)
-        raise ValueError(f"{out_dir} holds a reproduction with other settings ({details}). Continue it with its "
-                         f"own budget ('{stored.name}', or no --budget), change only {', '.join(GRID_FIELDS)}, "
-                         f"or use another --out")
+        raise ValueError(
+            f"{out_dir} holds a reproduction with other settings ({details}). Continue it with its "
+            f"own budget ('{stored.name}', or no --budget), change only {', '.join(GRID_FIELDS)}, "
+            f"or use another --out"
+        )
 
 
 def piece_done(piece: Piece, out_dir: str | Path, budget: Budget) -> bool:

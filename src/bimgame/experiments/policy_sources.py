@@ -13,23 +13,32 @@ from __future__ import annotations
 
 import importlib
 import zipfile
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, TypeVar
 from typing import Protocol as TypingProtocol
 
 import numpy as np
 import torch
 
-from bimgame.expert.policies import POLICIES, make_policy
+from bimgame.expert.policies import POLICIES, Policy, make_policy
 from bimgame.learn.actor import RecurrentActor, tilt_input
 from bimgame.learn.common import load_run_network
+from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.sim.maze import MazeSpec
 
 __all__ = ["EpisodePolicy", "load_policy", "builtin_policy", "NetworkPolicy", "CallablePolicy", "SB3Policy"]
 
+#: What a policy builds for each episode in ``reset(seed)``.
+_T = TypeVar("_T")
+
 #: The algorithms tried, in order, to load a Stable-Baselines3 model (discrete actions).
-_SB3_ALGORITHMS = (("stable_baselines3", "PPO"), ("stable_baselines3", "A2C"), ("stable_baselines3", "DQN"),
-                   ("sb3_contrib", "RecurrentPPO"))
+_SB3_ALGORITHMS = (
+    ("stable_baselines3", "PPO"),
+    ("stable_baselines3", "A2C"),
+    ("stable_baselines3", "DQN"),
+    ("sb3_contrib", "RecurrentPPO"),
+)
 
 
 class EpisodePolicy(TypingProtocol):
@@ -43,18 +52,25 @@ class EpisodePolicy(TypingProtocol):
     def observe(self, reward: float) -> None: ...
 
 
+def _started(per_episode: _T | None) -> _T:
+    """What a policy builds in ``reset(seed)`` for the episode; acting before it is a usage error."""
+    if per_episode is None:
+        raise RuntimeError("reset(seed) must be called before the policy acts")
+    return per_episode
+
+
 class _Scripted:
     """A built-in policy of :mod:`bimgame.expert.policies`, rebuilt per episode from its seed."""
 
     def __init__(self, name: str):
         self.name = name
-        self._policy: Callable | None = None
+        self._policy: Policy | None = None
 
     def reset(self, seed: int) -> None:
         self._policy = make_policy(self.name, MazeSpec.merl(), np.random.default_rng(seed))
 
     def act(self, env: Any, obs: np.ndarray, info: dict[str, Any]) -> int:
-        return int(self._policy(env))
+        return int(_started(self._policy)(env))
 
     def observe(self, reward: float) -> None:
         pass
@@ -70,24 +86,29 @@ def builtin_policy(name: str) -> EpisodePolicy:
 class NetworkPolicy:
     """A bimgame actor-critic acting on its own observations, previous action and reward."""
 
-    def __init__(self, net: torch.nn.Module, *, greedy: bool = True):
+    def __init__(self, net: RecurrentActorCritic, *, greedy: bool = True):
         self.net = net.eval()
         self.greedy = greedy
         self.max_tilt = MazeSpec.merl().max_tilt
         self._actor: RecurrentActor | None = None
 
     def reset(self, seed: int) -> None:
-        self._actor = RecurrentActor(self.net, 1, generator=torch.Generator().manual_seed(int(seed)),
-                                     greedy=self.greedy)
+        self._actor = RecurrentActor(
+            self.net, 1, generator=torch.Generator().manual_seed(int(seed)), greedy=self.greedy
+        )
         self._action = torch.zeros(1, dtype=torch.long)
 
     def act(self, env: Any, obs: np.ndarray, info: dict[str, Any]) -> int:
-        tilt = tilt_input({"tilt": np.asarray(info["tilt"])[None]}, self.max_tilt) if self.net.config.tilt_input else None
-        self._action, _, _ = self._actor.act(np.asarray(obs)[None], tilt)
+        tilt = self._tilt(info) if self.net.config.tilt_input else None
+        self._action, _, _ = _started(self._actor).act(np.asarray(obs)[None], tilt)
         return int(self._action[0])
 
+    def _tilt(self, info: dict[str, Any]) -> torch.Tensor:
+        """The network's tilt input: the maze's current tilt from the step's ``info``."""
+        return tilt_input({"tilt": np.asarray(info["tilt"])[None]}, self.max_tilt)
+
     def observe(self, reward: float) -> None:
-        self._actor.observe(self._action, np.array([reward]), np.array([False]))
+        _started(self._actor).observe(self._action, np.array([reward]), np.array([False]))
 
 
 class CallablePolicy:
@@ -118,8 +139,7 @@ class SB3Policy:
         self._start = np.ones((1,), dtype=bool)
 
     def act(self, env: Any, obs: np.ndarray, info: dict[str, Any]) -> int:
-        action, self._state = self.model.predict(obs, state=self._state, episode_start=self._start,
-                                                 deterministic=True)
+        action, self._state = self.model.predict(obs, state=self._state, episode_start=self._start, deterministic=True)
         self._start = np.zeros((1,), dtype=bool)
         return int(np.asarray(action).item())
 
@@ -133,8 +153,10 @@ def _load_sb3(path: Path) -> SB3Policy:
     try:
         importlib.import_module("stable_baselines3")
     except ImportError:
-        raise ValueError(f"{path} looks like a Stable-Baselines3 model, but stable-baselines3 is not installed; "
-                         f"install it with: pip install stable-baselines3") from None
+        raise ValueError(
+            f"{path} looks like a Stable-Baselines3 model, but stable-baselines3 is not installed; "
+            f"install it with: pip install stable-baselines3"
+        ) from None
     errors = []
     for module_name, class_name in _SB3_ALGORITHMS:
         try:
@@ -175,10 +197,14 @@ def load_policy(spec: str, *, obs: str, sampled: bool = False) -> EpisodePolicy:
             return _load_sb3(path)
         net, run, _ = load_run_network(path)
         if run.network.obs != obs:
-            raise ValueError(f"{spec}: the network was trained on {run.network.obs} observations; score it "
-                             f"with --obs {run.network.obs}")
+            raise ValueError(
+                f"{spec}: the network was trained on {run.network.obs} observations; score it "
+                f"with --obs {run.network.obs}"
+            )
         return NetworkPolicy(net, greedy=not sampled)
     if ":" in spec and not spec.startswith(("/", ".")):
         return _load_callable(spec)
-    raise ValueError(f"POLICY {spec!r} is none of: a built-in policy ({', '.join(POLICIES)}), a bimgame run "
-                     f"directory or checkpoint, a Stable-Baselines3 model (.zip), or module:callable")
+    raise ValueError(
+        f"POLICY {spec!r} is none of: a built-in policy ({', '.join(POLICIES)}), a bimgame run "
+        f"directory or checkpoint, a Stable-Baselines3 model (.zip), or module:callable"
+    )

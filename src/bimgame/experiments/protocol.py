@@ -83,12 +83,15 @@ class Score:
         """The protocol's numbers with 95% bootstrap intervals, and the normalised score."""
         returns = np.asarray(self.returns, dtype=np.float64)
         successes = np.asarray(self.successes, dtype=np.float64)
-        solved = np.asarray([n for n, s in zip(self.lengths, self.successes) if s], dtype=np.float64)
+        solved = np.asarray([n for n, s in zip(self.lengths, self.successes, strict=True) if s], dtype=np.float64)
         rng = np.random.default_rng(_BOOTSTRAP_SEED)
-        out: dict[str, Any] = {"task": self.protocol.task, "obs": self.protocol.obs,
-                               "episodes": len(returns), "seconds": self.seconds}
-        for name, values in (("success_rate", successes), ("mean_return", returns),
-                             ("mean_length_solved", solved)):
+        out: dict[str, Any] = {
+            "task": self.protocol.task,
+            "obs": self.protocol.obs,
+            "episodes": len(returns),
+            "seconds": self.seconds,
+        }
+        for name, values in (("success_rate", successes), ("mean_return", returns), ("mean_length_solved", solved)):
             out[name] = float(values.mean()) if len(values) else None
             out[f"{name}_ci"] = list(mean_interval(values, rng=rng)) if len(values) else None
         out["normalised_score"] = None
@@ -99,8 +102,15 @@ class Score:
         return out
 
 
-def score(policy: str, task: str = "STG1", *, obs: str = "state", episodes: int = PROTOCOL_EPISODES,
-          sampled: bool = False, progress: bool = False) -> dict[str, Any]:
+def score(
+    policy: str,
+    task: str = "STG1",
+    *,
+    obs: str = "state",
+    episodes: int = PROTOCOL_EPISODES,
+    sampled: bool = False,
+    progress: bool = False,
+) -> dict[str, Any]:
     """The protocol's numbers for the policy named by ``policy`` (see
     :func:`~bimgame.experiments.policy_sources.load_policy`): what ``bimgame score`` prints."""
     protocol = Protocol(task=task, obs=obs, episodes=episodes)
@@ -111,22 +121,16 @@ def run_protocol(policy: EpisodePolicy, protocol: Protocol, *, progress: bool = 
     """Score ``policy`` with ``protocol``: one episode per start seed, in order, on a fresh
     single env with the protocol's observations and the task's time limit."""
     env = BallInMazeEnv(protocol.task, obs_mode=protocol.obs)
-    returns, lengths, successes = [], [], []
+    returns: list[float] = []
+    lengths: list[int] = []
+    successes: list[bool] = []
     started = time.perf_counter()
     try:
-        with ProgressBar(f"score {protocol.task} {protocol.obs}", protocol.episodes, enabled=progress,
-                         transient=True) as bar:
+        with ProgressBar(
+            f"score {protocol.task} {protocol.obs}", protocol.episodes, enabled=progress, transient=True
+        ) as bar:
             for seed in protocol.start_seeds():
-                obs, info = env.reset(seed=seed)
-                policy.reset(seed)
-                total, length, success = 0.0, 0, False
-                for length in range(1, protocol.time_limit + 1):
-                    obs, reward, terminated, _, info = env.step(policy.act(env, obs, info))
-                    policy.observe(reward)
-                    total += float(reward)
-                    if terminated:
-                        success = bool(info["is_success"])
-                        break
+                total, length, success = _play_episode(env, policy, seed, protocol.time_limit)
                 returns.append(total)
                 lengths.append(length)
                 successes.append(success)
@@ -136,18 +140,41 @@ def run_protocol(policy: EpisodePolicy, protocol: Protocol, *, progress: bool = 
     return Score(protocol, returns, lengths, successes, time.perf_counter() - started)
 
 
-def measure_references(tasks: list[str], *, episodes: int = PROTOCOL_EPISODES, workers: int | None = None,
-                       progress: bool = True) -> dict[str, Any]:
+def _play_episode(env: BallInMazeEnv, policy: EpisodePolicy, seed: int, time_limit: int) -> tuple[float, int, bool]:
+    """One episode of ``policy`` from start seed ``seed``, cut at ``time_limit`` steps: its return,
+    its length in steps and whether it succeeded."""
+    obs, info = env.reset(seed=seed)
+    policy.reset(seed)
+    total = 0.0
+    for step in range(1, time_limit + 1):
+        obs, reward, terminated, _, info = env.step(policy.act(env, obs, info))
+        policy.observe(reward)
+        total += float(reward)
+        if terminated:
+            return total, step, bool(info["is_success"])
+    return total, time_limit, False
+
+
+def measure_references(
+    tasks: list[str], *, episodes: int = PROTOCOL_EPISODES, workers: int | None = None, progress: bool = True
+) -> dict[str, Any]:
     """The reference returns measured with the protocol: a uniformly random policy (in process) and
     the default MPC expert (on worker processes, same start seeds), per task."""
-    out: dict[str, Any] = {"protocol_seed": PROTOCOL_SEED, "episodes": episodes, "expert": MPCConfig().__dict__,
-                           "tasks": {}}
+    out: dict[str, Any] = {
+        "protocol_seed": PROTOCOL_SEED,
+        "episodes": episodes,
+        "expert": MPCConfig().__dict__,
+        "tasks": {},
+    }
     for task in tasks:
         protocol = Protocol(task=task, obs="state", episodes=episodes)
         random = run_protocol(builtin_policy("random"), protocol, progress=progress).summary()
         expert = evaluate_expert(task, episodes, seed=PROTOCOL_SEED, workers=workers, progress=progress)
         expert_summary = summarise(expert)
         out["tasks"][protocol.task] = {
-            "random": random["mean_return"], "expert": expert_summary["mean_return"],
-            "random_success_rate": random["success_rate"], "expert_success_rate": expert_summary["success_rate"]}
+            "random": random["mean_return"],
+            "expert": expert_summary["mean_return"],
+            "random_success_rate": random["success_rate"],
+            "expert_success_rate": expert_summary["success_rate"],
+        }
     return out

@@ -22,11 +22,11 @@ from __future__ import annotations
 import dataclasses
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeAlias
 
 from rich.console import Console
 
-from bimgame.experiments.backends import Backend, LocalBackend, PieceOutcome
+from bimgame.experiments.backends import LocalBackend, PieceOutcome
 from bimgame.experiments.budgets import Budget
 from bimgame.experiments.cluster import RayBackend
 from bimgame.experiments.costs import COSTS, CostModel, cluster_seconds, estimate_seconds, format_duration
@@ -40,6 +40,10 @@ from bimgame.util.signals import sigterm_as_interrupt
 __all__ = ["ReproductionResult", "reproduce"]
 
 _LOCK = ".reproduce.lock"
+
+#: The backends a reproduction runs on; both provide what :class:`~bimgame.experiments.backends.Backend`
+#: describes.
+_Runner: TypeAlias = LocalBackend | RayBackend
 
 
 def _exclusive(out_dir: Path):
@@ -69,9 +73,18 @@ class ReproductionResult:
         return not (self.failed or self.skipped or self.remaining)
 
 
-def reproduce(out_dir: str | Path, budget: Budget, *, progress: bool = True, stop_after: int | None = None,
-              console: Any = None, costs: CostModel = COSTS, backend: str = "local", ray_address: str | None = None,
-              max_retries: int = 3) -> ReproductionResult:
+def reproduce(
+    out_dir: str | Path,
+    budget: Budget,
+    *,
+    progress: bool = True,
+    stop_after: int | None = None,
+    console: Any = None,
+    costs: CostModel = COSTS,
+    backend: str = "local",
+    ray_address: str | None = None,
+    max_retries: int = 3,
+) -> ReproductionResult:
     """Run (or continue) the reproduction of ``budget`` in ``out_dir``.
 
     Writes ``plan.json``, then computes every unfinished piece once all it needs is finished,
@@ -102,14 +115,24 @@ def reproduce(out_dir: str | Path, budget: Budget, *, progress: bool = True, sto
         check_compatible(out_dir, budget)
         pieces = write_plan(out_dir, budget, costs)
         book = _Bookkeeping(out_dir, load_status(out_dir), ReproductionResult(out_dir, [], [], {}, [], [], 0.0))
-        invocation = {"started": timestamp(), "budget": budget.name, "backend": backend}
+        invocation: dict[str, Any] = {"started": timestamp(), "budget": budget.name, "backend": backend}
         book.status.setdefault("invocations", []).append(invocation)
         started = time.monotonic()
         done = {p.id for p in pieces if piece_done(p, out_dir, budget)}
         book.mark_planned(pieces, done)
         todo = [p for p in pieces if p.id not in done]
-        runner = _backend(backend, out_dir, budget, pieces, todo, invocation, console, costs, ray_address=ray_address,
-                          max_retries=max_retries)
+        runner = _backend(
+            backend,
+            out_dir,
+            budget,
+            pieces,
+            todo,
+            invocation,
+            console,
+            costs,
+            ray_address=ray_address,
+            max_retries=max_retries,
+        )
         shown = todo if stop_after is None else todo[:stop_after]
         driver = _Driver(book, runner, set(done), list(todo), stop_after)
         try:
@@ -123,8 +146,13 @@ def reproduce(out_dir: str | Path, budget: Budget, *, progress: bool = True, sto
         result = book.result
         result.remaining = [p.id for p in driver.pending]
         result.seconds = time.monotonic() - started
-        invocation.update(finished=timestamp(), seconds=round(result.seconds, 1), computed=len(result.computed),
-                          reused=len(result.reused), failed=len(result.failed))
+        invocation.update(
+            finished=timestamp(),
+            seconds=round(result.seconds, 1),
+            computed=len(result.computed),
+            reused=len(result.reused),
+            failed=len(result.failed),
+        )
         book.save()
     return result
 
@@ -141,9 +169,19 @@ def _check_arguments(budget: Budget, stop_after: int | None, backend: str, ray_a
         raise ValueError("ray_address is only used with backend='ray'")
 
 
-def _backend(backend: str, out_dir: Path, budget: Budget, pieces: list[Piece], todo: list[Piece],
-             invocation: dict[str, Any], console: Any, costs: CostModel, *, ray_address: str | None,
-             max_retries: int) -> Backend:
+def _backend(
+    backend: str,
+    out_dir: Path,
+    budget: Budget,
+    pieces: list[Piece],
+    todo: list[Piece],
+    invocation: dict[str, Any],
+    console: Any,
+    costs: CostModel,
+    *,
+    ray_address: str | None,
+    max_retries: int,
+) -> _Runner:
     """The backend that computes the pieces; a Ray cluster is checked to fit them and announced with
     its expected wall time."""
     if backend != "ray":
@@ -151,10 +189,13 @@ def _backend(backend: str, out_dir: Path, budget: Budget, pieces: list[Piece], t
     cluster = RayBackend(out_dir, budget, pieces, address=ray_address, max_retries=max_retries)
     cluster.check_fits(todo)
     invocation["cluster_cpus"] = cluster.cpus
-    _print(console, f"Ray cluster: {cluster.cpus:g} CPUs on {cluster.nodes} nodes; expected ≈ "
-                    f"{format_duration(cluster_seconds(todo, budget, cluster.cpus, costs))} for the "
-                    f"{len(todo)} pieces not finished yet (their estimates spread over the CPUs, at "
-                    f"least the longest chain of pieces that wait for one another)")
+    _print(
+        console,
+        f"Ray cluster: {cluster.cpus:g} CPUs on {cluster.nodes} nodes; expected ≈ "
+        f"{format_duration(cluster_seconds(todo, budget, cluster.cpus, costs))} for the "
+        f"{len(todo)} pieces not finished yet (their estimates spread over the CPUs, at "
+        f"least the longest chain of pieces that wait for one another)",
+    )
     return cluster
 
 
@@ -193,8 +234,9 @@ class _Driver:
     """Submits each pending piece once all it needs is finished (skipping those whose needs failed),
     records each outcome, until nothing is in flight."""
 
-    def __init__(self, book: _Bookkeeping, runner: Backend, finished: set[str], pending: list[Piece],
-                 stop_after: int | None):
+    def __init__(
+        self, book: _Bookkeeping, runner: _Runner, finished: set[str], pending: list[Piece], stop_after: int | None
+    ):
         self.book, self.runner, self.stop_after = book, runner, stop_after
         self.finished, self.pending = finished, pending
         self.in_flight: dict[str, float] = {}
@@ -209,9 +251,11 @@ class _Driver:
             self._record(self.runner.next_outcome(), display)
 
     def _may_start(self, piece: Piece) -> bool:
-        return (all(n in self.finished for n in piece.needs)
-                and (self.runner.capacity is None or len(self.in_flight) < self.runner.capacity)
-                and (self.stop_after is None or self.submitted < self.stop_after))
+        return (
+            all(n in self.finished for n in piece.needs)
+            and (self.runner.capacity is None or len(self.in_flight) < self.runner.capacity)
+            and (self.stop_after is None or self.submitted < self.stop_after)
+        )
 
     def _submit_ready(self, display: _Display) -> None:
         result = self.book.result
@@ -237,6 +281,7 @@ class _Driver:
             display.start(piece)
 
     def _record(self, outcome: PieceOutcome, display: _Display) -> None:
+        """A piece's attempt ended: its wall time, node and outcome go to ``status.json`` and the display."""
         piece = outcome.piece
         del self.in_flight[piece.id]
         entry = self.book.entries[piece.id]
@@ -245,12 +290,22 @@ class _Driver:
         entry["finished"] = timestamp()
         if outcome.node is not None:
             entry["node"] = outcome.node
-        if outcome.failed:
-            entry.update(state="failed", error=outcome.error, traceback=outcome.traceback)
-            self.book.result.failed[piece.id] = outcome.error
-            self.book.save()
-            display.finish(piece, f"[red]failed[/red]: {escape(outcome.error)}")
-            return
+        if outcome.error is not None:
+            self._record_failure(outcome, outcome.error, entry, display)
+        else:
+            self._record_success(outcome, entry, display)
+
+    def _record_failure(self, outcome: PieceOutcome, error: str, entry: dict[str, Any], display: _Display) -> None:
+        """The piece failed with ``error``: the pieces that need it will be skipped."""
+        piece = outcome.piece
+        entry.update(state="failed", error=error, traceback=outcome.traceback)
+        self.book.result.failed[piece.id] = error
+        self.book.save()
+        display.finish(piece, f"[red]failed[/red]: {escape(error)}")
+
+    def _record_success(self, outcome: PieceOutcome, entry: dict[str, Any], display: _Display) -> None:
+        """The piece finished: the pieces that need it may start."""
+        piece = outcome.piece
         entry.update(state="done", computed=entry.get("computed", 0) + 1)
         entry.pop("traceback", None)
         entry.pop("note", None)
@@ -260,8 +315,11 @@ class _Driver:
         self.book.result.computed.append(piece.id)
         self.book.save()
         where = f" on {outcome.node}" if outcome.node else ""
-        display.finish(piece, f"done in {format_duration(outcome.seconds)}{escape(where)}"
-                       + (f" ({escape(outcome.note)})" if outcome.note else ""))
+        display.finish(
+            piece,
+            f"done in {format_duration(outcome.seconds)}{escape(where)}"
+            + (f" ({escape(outcome.note)})" if outcome.note else ""),
+        )
 
     def interrupted(self) -> None:
         """Mark the pieces in flight interrupted (they resume next time), with the time they ran."""
@@ -284,14 +342,20 @@ class _Display:
     elapsed and remaining time and the piece running, with a line per finished piece; plain lines
     when the bar is off."""
 
-    def __init__(self, enabled: bool, console: Any, todo: list[Piece], budget: Budget, costs: CostModel,
-                 verb: str):
+    def __init__(self, enabled: bool, console: Any, todo: list[Piece], budget: Budget, costs: CostModel, verb: str):
         self.budget, self.costs, self.verb = budget, costs, verb
         self.estimates = {p.id: estimate_seconds(p, budget, costs) for p in todo}
         self.count = len(todo)
         self.finished = 0
-        self.bar = ProgressBar("reproduce", max(sum(self.estimates.values()), 1.0), enabled=enabled, count=None,
-                               eta=True, info=self._pieces(), console=console)
+        self.bar = ProgressBar(
+            "reproduce",
+            max(sum(self.estimates.values()), 1.0),
+            enabled=enabled,
+            count=None,
+            eta=True,
+            info=self._pieces(),
+            console=console,
+        )
 
     def _pieces(self) -> str:
         return f"{self.finished}/{self.count} pieces"

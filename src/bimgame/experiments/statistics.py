@@ -19,7 +19,8 @@ it was observed at — the right edge of its last complete bin, about one time l
 environments' steps) before its end — a lower bound on its true steps-to-threshold, and shown as
 "> N". Speed-ups computed with censored runs are therefore bounds: censored baseline (A3C) runs make
 the speed-up a lower bound ("≥"), censored runs of the compared algorithm make it an upper bound
-("≤"); with both, no direction is known and no number is given. An algorithm no seed of which reached the threshold is "not reached".
+("≤"); with both, no direction is known and no number is given. An algorithm no seed of which
+reached the threshold is "not reached".
 
 **Bootstrap.** Speed-up = mean steps-to-threshold of A3C's seeds / mean of the algorithm's seeds.
 Its 95% interval is a stratified percentile bootstrap: each algorithm's seeds are resampled with
@@ -35,15 +36,28 @@ from __future__ import annotations
 import dataclasses
 import math
 import warnings
-from typing import Any, Callable, Sequence
+from collections.abc import Callable, Sequence
+from typing import Any, TypeAlias
 
 import numpy as np
 
 from bimgame.learn.curves import binned_means, complete_until, episode_span
 
-__all__ = ["DEFAULT_RESAMPLES", "CURVE_BINS", "MIN_EPISODES", "CONFIDENCE", "Crossing", "stratified_bootstrap",
-           "percentile_interval", "bootstrap_mean_band", "first_crossing", "run_crossing", "dagger_crossing",
-           "speedup", "nanmean"]
+__all__ = [
+    "DEFAULT_RESAMPLES",
+    "CURVE_BINS",
+    "MIN_EPISODES",
+    "CONFIDENCE",
+    "Crossing",
+    "stratified_bootstrap",
+    "percentile_interval",
+    "bootstrap_mean_band",
+    "first_crossing",
+    "run_crossing",
+    "dagger_crossing",
+    "speedup",
+    "nanmean",
+]
 
 DEFAULT_RESAMPLES = 2000
 #: Bins over a run's planned steps for curves and steps-to-threshold.
@@ -52,9 +66,17 @@ CURVE_BINS = 40
 MIN_EPISODES = 10
 CONFIDENCE = 0.95
 
+#: An interval's bound: a number for 1-D bootstrap values, an array over the remaining axes otherwise.
+Bound: TypeAlias = float | np.ndarray
 
-def stratified_bootstrap(samples: Sequence[np.ndarray], statistic: Callable[[list[np.ndarray]], np.ndarray], *,
-                         resamples: int = DEFAULT_RESAMPLES, rng: np.random.Generator) -> np.ndarray:
+
+def stratified_bootstrap(
+    samples: Sequence[np.ndarray],
+    statistic: Callable[[list[np.ndarray]], np.ndarray],
+    *,
+    resamples: int = DEFAULT_RESAMPLES,
+    rng: np.random.Generator,
+) -> np.ndarray:
     """The statistic over ``resamples`` stratified bootstrap resamples.
 
     Each stratum (array in ``samples``, its first axis the units, e.g. seeds) is resampled with
@@ -71,8 +93,9 @@ def stratified_bootstrap(samples: Sequence[np.ndarray], statistic: Callable[[lis
     return np.asarray(statistic(drawn))
 
 
-def percentile_interval(values: np.ndarray, confidence: float = CONFIDENCE) -> tuple[float, float]:
-    """The central ``confidence`` interval of bootstrap values (along the first axis, NaNs ignored)."""
+def percentile_interval(values: np.ndarray, confidence: float = CONFIDENCE) -> tuple[Bound, Bound]:
+    """The central ``confidence`` interval of bootstrap values (along the first axis, NaNs ignored):
+    numbers for 1-D ``values``, arrays over the remaining axes for more."""
     if not 0.0 < confidence < 1.0:
         raise ValueError(f"confidence must be in (0, 1), got {confidence!r}")
     tail = (1.0 - confidence) / 2
@@ -82,16 +105,19 @@ def percentile_interval(values: np.ndarray, confidence: float = CONFIDENCE) -> t
     return low, high
 
 
-def mean_interval(values: np.ndarray, *, resamples: int = DEFAULT_RESAMPLES, rng: np.random.Generator,
-                  confidence: float = CONFIDENCE) -> tuple[float, float]:
+def mean_interval(
+    values: np.ndarray, *, resamples: int = DEFAULT_RESAMPLES, rng: np.random.Generator, confidence: float = CONFIDENCE
+) -> tuple[float, float]:
     """Percentile-bootstrap interval of the mean of ``values`` (its units resampled with replacement)."""
-    low, high = percentile_interval(stratified_bootstrap([values], lambda drawn: drawn[0].mean(axis=1),
-                                                         resamples=resamples, rng=rng), confidence)
+    low, high = percentile_interval(
+        stratified_bootstrap([values], lambda drawn: drawn[0].mean(axis=1), resamples=resamples, rng=rng), confidence
+    )
     return float(low), float(high)
 
 
-def bootstrap_mean_band(curves: np.ndarray, *, resamples: int = DEFAULT_RESAMPLES, rng: np.random.Generator,
-                        confidence: float = CONFIDENCE) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def bootstrap_mean_band(
+    curves: np.ndarray, *, resamples: int = DEFAULT_RESAMPLES, rng: np.random.Generator, confidence: float = CONFIDENCE
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Mean over seeds of curves (seeds, points) with a bootstrap band: seeds are resampled with
     replacement; at each point the seeds without a value (NaN) are left out. Returns (mean, low,
     high); with a single seed the band is that seed's curve."""
@@ -101,7 +127,7 @@ def bootstrap_mean_band(curves: np.ndarray, *, resamples: int = DEFAULT_RESAMPLE
         mean = np.nanmean(curves, axis=0)
         means = stratified_bootstrap([curves], lambda d: np.nanmean(d[0], axis=1), resamples=resamples, rng=rng)
     low, high = percentile_interval(means, confidence)
-    return mean, low, high
+    return mean, np.asarray(low), np.asarray(high)
 
 
 def first_crossing(steps: np.ndarray, values: np.ndarray, threshold: float) -> float | None:
@@ -121,8 +147,14 @@ class Crossing:
     reached: bool
 
 
-def run_crossing(episodes: dict[str, np.ndarray], edges: np.ndarray, threshold: float, *,
-                 min_episodes: int = MIN_EPISODES, until: float | None = None) -> Crossing:
+def run_crossing(
+    episodes: dict[str, np.ndarray],
+    edges: np.ndarray,
+    threshold: float,
+    *,
+    min_episodes: int = MIN_EPISODES,
+    until: float | None = None,
+) -> Crossing:
     """Steps to threshold of an A3C run from its ``episodes.csv`` columns (see the module notes),
     counting the bins that end by ``until`` (:func:`bimgame.learn.curves.complete_until`; by default
     from the longest episode in the log, :attr:`bimgame.experiments.results.RunResults.until` also
@@ -147,8 +179,14 @@ def dagger_crossing(table: dict[str, np.ndarray], threshold: float) -> Crossing:
     return Crossing(crossing, True) if crossing is not None else Crossing(float(np.nanmax(table["step"])), False)
 
 
-def speedup(base: Sequence[Crossing], other: Sequence[Crossing], *, resamples: int = DEFAULT_RESAMPLES,
-            rng: np.random.Generator, confidence: float = CONFIDENCE) -> dict[str, Any]:
+def speedup(
+    base: Sequence[Crossing],
+    other: Sequence[Crossing],
+    *,
+    resamples: int = DEFAULT_RESAMPLES,
+    rng: np.random.Generator,
+    confidence: float = CONFIDENCE,
+) -> dict[str, Any]:
     """Speed-up of ``other`` over ``base`` = mean steps of base / mean steps of other, with a
     stratified bootstrap interval and the censoring bound (see the module notes). Returns
     ``estimate`` (None when not defined), ``ci`` ([low, high] or None), ``bound`` (``exact``,
@@ -167,8 +205,9 @@ def speedup(base: Sequence[Crossing], other: Sequence[Crossing], *, resamples: i
     estimate = float(a.mean() / b.mean())
     ci = None
     if len(a) >= 2 and len(b) >= 2:
-        ratios = stratified_bootstrap([a, b], lambda d: d[0].mean(axis=1) / d[1].mean(axis=1),
-                                      resamples=resamples, rng=rng)
+        ratios = stratified_bootstrap(
+            [a, b], lambda d: d[0].mean(axis=1) / d[1].mean(axis=1), resamples=resamples, rng=rng
+        )
         low, high = percentile_interval(ratios, confidence)
         ci = [float(low), float(high)]
     return {"estimate": estimate, "ci": ci, "bound": bound}
@@ -176,5 +215,5 @@ def speedup(base: Sequence[Crossing], other: Sequence[Crossing], *, resamples: i
 
 def nanmean(values: Sequence[float | None]) -> float:
     """The mean of the values that are neither None nor NaN (NaN when there are none)."""
-    values = [v for v in values if v is not None and not math.isnan(v)]
-    return float(np.mean(values)) if values else float("nan")
+    present = [v for v in values if v is not None and not math.isnan(v)]
+    return float(np.mean(present)) if present else float("nan")
