@@ -13,7 +13,8 @@ Outputs in DIR:
 - ``table_speedup.md`` / ``table_speedup.json`` — steps to a success threshold, speed-up over A3C,
   final success, pre-training accuracy and π^s alone.
 - ``report.md`` — each claim of the paper next to what this run measured, the figures, the tables
-  and the settings with wall times (:mod:`bimgame.experiments.markdown`).
+  and the settings with wall times (:mod:`bimgame.experiments.report_text`, its tables
+  :mod:`bimgame.experiments.report_tables`).
 
 This module assembles the numbers — ``table_speedup.json`` holds all of them — from the finished
 pieces' logs (:mod:`bimgame.experiments.results`) with the statistics of
@@ -42,8 +43,9 @@ from bimgame.experiments.budgets import Budget
 from bimgame.experiments.figures import plot_curves, plot_eval_curves, plot_expert_lengths
 from bimgame.experiments.grid import Piece
 from bimgame.experiments.kinds import PretrainPolicyKind, PretrainValueKind, kind_of, run_kind
-from bimgame.experiments.markdown import report_markdown, tables_markdown
 from bimgame.experiments.plan import load_plan, load_status
+from bimgame.experiments.report_tables import tables_markdown
+from bimgame.experiments.report_text import report_markdown
 from bimgame.experiments.results import (
     RunResults,
     collect_runs,
