@@ -13,7 +13,8 @@ from bimgame.learn.a3c import A3CConfig, resolve_config, train
 
 def a3c_config_from(args: argparse.Namespace) -> A3CConfig:
     """What ``bimgame train`` makes of its flags."""
-    return resolve_config(given_settings(args, A3CConfig), args.run_dir, resume=args.resume, init=args.init)
+    given = given_settings(args, A3CConfig, A3CConfig.flat_names())
+    return resolve_config(given, args.run_dir, resume=args.resume, init=args.init)
 
 
 @pytest.mark.parametrize("text, value", [("300000", 300_000), ("200k", 200_000), ("5M", 5_000_000),
@@ -40,9 +41,10 @@ def test_train_flags_become_the_config(tmp_path):
     args = build_parser().parse_args(["train", "--run-dir", str(tmp_path / "r"), "--task", "stg2", "--obs", "state",
                                       "--steps", "1M", "--lr", "3e-4", "--no-tilt-input", "--envs-per-worker", "8"])
     config = a3c_config_from(args)
-    assert (config.task, config.obs, config.steps, config.lr, config.tilt_input, config.envs_per_worker) == (
-        "STG2", "state", 1_000_000, 3e-4, False, 8)
-    assert config.hidden == 128  # the state network's size unless given
+    network, schedule = config.network, config.schedule
+    assert (config.task, network.obs, schedule.steps, config.optimization.lr, network.tilt_input,
+            schedule.envs_per_worker) == ("STG2", "state", 1_000_000, 3e-4, False, 8)
+    assert network.hidden == 128  # the state network's size unless given
 
 
 def test_bad_flags_name_the_allowed_values(capsys):
@@ -59,12 +61,12 @@ def test_bad_flags_name_the_allowed_values(capsys):
 
 def test_resume_takes_the_stored_settings_and_evaluate_reports(tmp_path, capsys):
     run_dir = tmp_path / "run"
-    config = A3CConfig(task="STG1", obs="state", steps=400, workers=1, envs_per_worker=2, n_steps=10,
-                       hidden=16, features=16, eval_every=0, lr=1e-3)
+    config = A3CConfig.from_flat(task="STG1", obs="state", steps=400, workers=1, envs_per_worker=2, n_steps=10,
+                                 hidden=16, features=16, eval_every=0, lr=1e-3)
     train(config, run_dir, progress=False)
     args = build_parser().parse_args(["train", "--run-dir", str(run_dir), "--resume", "--steps", "800"])
     resumed = a3c_config_from(args)
-    assert resumed == A3CConfig(**{**config.to_dict(), "steps": 800})
+    assert resumed == A3CConfig.from_flat({**config.to_dict(), "steps": 800})
     out = tmp_path / "eval.json"
     assert main(["evaluate", str(run_dir), "--episodes", "3", "--out", str(out), "--gif", str(tmp_path / "e.gif")]) == 0
     result = json.loads(out.read_text())
