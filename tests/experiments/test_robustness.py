@@ -24,8 +24,8 @@ def test_the_expert_plans_with_the_nominal_model_and_meets_the_same_boards():
 
 
 def test_a_run_is_measured_on_every_condition(tmp_path):
-    config = A3CConfig(task="STG1", obs="state", workers=1, envs_per_worker=2, n_steps=5, eval_every=0, hidden=8,
-                       features=8, steps=100, randomize="physics")
+    config = A3CConfig.from_flat(task="STG1", obs="state", workers=1, envs_per_worker=2, n_steps=5, eval_every=0,
+                                 hidden=8, features=8, steps=100, randomize="physics")
     train(config, tmp_path / "run", progress=False)
     nominal = measure(str(tmp_path / "run"), "STG1", "nominal", None, episodes=4, seed=1, group="A3C")
     physics = measure(str(tmp_path / "run"), "STG1", "physics", randomization_preset("physics"), episodes=4, seed=1,
@@ -48,10 +48,10 @@ def test_summary_and_table_per_seed_with_an_interval(tmp_path):
 
 def test_training_randomisation_is_checked():
     with pytest.raises(ValueError, match="randomize must be None or one of"):
-        A3CConfig(obs="state", randomize="heavy")
+        A3CConfig.from_flat(obs="state", randomize="heavy")
     with pytest.raises(ValueError, match="camera, which needs obs='pixels'"):
-        A3CConfig(obs="state", randomize="camera")
-    assert A3CConfig(obs="pixels", randomize="all").randomize == "all"
+        A3CConfig.from_flat(obs="state", randomize="camera")
+    assert A3CConfig.from_flat(obs="pixels", randomize="all").randomize == "all"
     assert np.isfinite(randomization_preset("physics").marble_radius[1])
     with pytest.raises(ValueError, match="unknown randomisation 'x'; allowed: physics, camera, all"):
         randomization_preset("x")
