@@ -217,9 +217,9 @@ def test_resuming_checks_before_the_lock_and_changes_nothing_when_refused(tmp_pa
 
 
 def test_every_learner_writes_only_what_its_layout_declares():
-    from bimgame.learn import a3c, pretrain
+    from bimgame.learn import a3c_parent, pretrain
 
-    assert set(a3c._TABLES) == set(LAYOUTS[KIND_A3C].tables)
+    assert set(a3c_parent.TABLES) == set(LAYOUTS[KIND_A3C].tables)
     assert set(LAYOUTS[KIND_POLICY].tables) == {"pretrain"} and pretrain._TABLE
     with pytest.raises(ValueError, match="unknown run kind 'x'; allowed: a3c, dagger-policy"):
         RunDirectory("anywhere", "x")

@@ -140,7 +140,9 @@ def run_train(args: argparse.Namespace) -> int:
             f"--init {args.init} with --resume: a resumed run continues from its own checkpoint "
             f"(and keeps the π^s it started from); give --init only to start a new run"
         )
-    config = resolve_config(given_settings(args, A3CConfig, A3CConfig.flat_names()), args.run_dir, resume=args.resume, init=args.init)
+    config = resolve_config(
+        given_settings(args, A3CConfig, A3CConfig.flat_names()), args.run_dir, resume=args.resume, init=args.init
+    )
     reward = resolve_reward_settings(
         RewardSettings(value_reward=args.value_reward, geodesic_coef=args.geodesic_coef),
         args.run_dir,

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from typing import Any, ClassVar, Literal, get_args
 
 import torch
@@ -141,9 +141,9 @@ class A3CConfig(FlatSettings):
     demonstration starts."""
     network: NetworkSettings = dataclasses.field(default_factory=NetworkSettings)
     """The actor-critic's observations, sizes and inputs."""
-    optimization: OptimizationSettings = OptimizationSettings()
+    optimization: OptimizationSettings = dataclasses.field(default_factory=OptimizationSettings)
     """Segments, loss and optimiser."""
-    schedule: ScheduleSettings = ScheduleSettings()
+    schedule: ScheduleSettings = dataclasses.field(default_factory=ScheduleSettings)
     """Steps, processes and environments; checkpoints, evaluations and logs."""
     finetuning: FinetuneSettings | None = None
     """Fine-tuning π^s without forgetting it; None: a run from scratch."""

@@ -26,10 +26,10 @@ address one cause each, as A3C settings (:class:`~bimgame.learn.a3c_core.A3CConf
 Demonstration-start and reverse curricula change where episodes start, not the loss: see
 :mod:`bimgame.learn.starts`.
 
-:data:`~bimgame.learn.learner_settings.FINETUNE_PRESETS` names the combinations: ``paper`` (plain fine-tuning, which forgets) and
-``keep`` (the default of ``bimgame train --init``: critic warm-up and actor ramp, a constant KL to a
-sharpened π^s, advantage scaling). How ``keep`` was chosen, and what did not help, is measured in
-``docs/finetune/README.md``.
+:data:`~bimgame.learn.learner_settings.FINETUNE_PRESETS` names the combinations: ``paper`` (plain
+fine-tuning, which forgets) and ``keep`` (the default of ``bimgame train --init``: critic warm-up and
+actor ramp, a constant KL to a sharpened π^s, advantage scaling). How ``keep`` was chosen, and what
+did not help, is measured in ``docs/finetune/README.md``.
 """
 
 from __future__ import annotations
@@ -59,6 +59,7 @@ __all__ = [
     "DemoWindows",
     "bc_loss",
 ]
+
 
 @dataclasses.dataclass(frozen=True)
 class LossWeights:

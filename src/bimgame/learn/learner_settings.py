@@ -174,7 +174,6 @@ class FinetuneSettings:
     bc_decay_steps: int = 0
     """Steps over which the behaviour-cloning weight decays linearly to zero (0: constant)."""
 
-
     def __post_init__(self) -> None:
         owner = type(self).__name__
         check_choice(owner, "finetune", self.finetune, tuple(FINETUNE_PRESETS), optional=True)
@@ -302,4 +301,3 @@ class FlatSettings:
     def with_flat(self, **changes: Any) -> Self:
         """These settings with the given flat settings changed."""
         return self.from_flat({**self.to_dict(), **changes})
-
