@@ -37,8 +37,8 @@ def test_every_algorithm_but_dagger_is_an_a3c_run_and_the_paper_ones_come_first(
     for algorithm in ("a3c", "a3c+value", "pretrain+a3c+value"):
         assert finetune_overrides(algorithm, STEPS, DATA) == {}
     assert finetune_overrides("pretrain+a3c", STEPS, DATA) == {**FINETUNE_PRESETS["paper"], "finetune": "paper"}
-    default = A3CConfig()
-    assert all(getattr(default, field) == value for field, value in FINETUNE_PRESETS["paper"].items())
+    default = A3CConfig().to_dict()
+    assert all(default[field] == value for field, value in FINETUNE_PRESETS["paper"].items())
 
 
 def test_each_method_turns_on_the_keep_presets_values_of_its_own_settings_only():
@@ -99,10 +99,12 @@ def test_a3c_settings_of_every_algorithm_are_valid_and_record_the_dataset(tiny_b
     budget = dataclasses.replace(tiny_budget, algorithms=A3C_ALGORITHMS)
     for algorithm in A3C_ALGORITHMS:
         config = a3c_config_for(budget, "STG1", 1, algorithm, DATA)
-        assert config.steps == 2_000 and config.seed == 1, algorithm
+        assert config.schedule.steps == 2_000 and config.seed == 1, algorithm
         assert config.expert_data == (DATA if needs_expert_data(algorithm) else None), algorithm
-        assert config.kl_coef == 0 or uses_policy(algorithm), algorithm  # kickstarting needs π^s to start from
-    assert a3c_config_for(budget, "STG1", 0, "pretrain+a3c+bc", DATA).bc_decay_steps == 2_000  # decays over the run
+        kl_coef = 0 if config.finetuning is None else config.finetuning.kl_coef
+        assert kl_coef == 0 or uses_policy(algorithm), algorithm  # kickstarting needs π^s to start from
+    bc = a3c_config_for(budget, "STG1", 0, "pretrain+a3c+bc", DATA)
+    assert bc.finetuning is not None and bc.finetuning.bc_decay_steps == 2_000  # decays over the run
     assert a3c_config_for(budget, "STG1", 0) == a3c_config_for(budget, "STG1", 0, "a3c")
 
 
@@ -110,21 +112,21 @@ def test_pixel_levers_reach_every_network_but_the_papers_and_daggers(tiny_budget
     """With the budget's levers on, every A3C run and π^s use them; ``a3c+papernet`` is the paper's
     exact network; DAgger's learner has no privileged parts (its rollouts record no states)."""
     from bimgame.experiments.runners import dagger_config_for, pretrain_config_for
-    budget = dataclasses.replace(tiny_budget, obs="pixels", aux_heads=True, asymmetric_critic=True, precision="bf16",
-                                 augment_shift=2, algorithms=A3C_ALGORITHMS)
+    network = {"aux_heads": True, "asymmetric_critic": True, "precision": "bf16"}
+    budget = tiny_budget.replace(obs="pixels", network=network, a3c={"augment_shift": 2}, algorithms=A3C_ALGORITHMS)
     for algorithm in A3C_ALGORITHMS:
         config = a3c_config_for(budget, "STG1", 0, algorithm, DATA)
-        levers = (config.aux_heads, config.asymmetric_critic, config.augment_shift)
+        levers = (config.network.aux_heads, config.network.asymmetric_critic, config.optimization.augment_shift)
         assert levers == ((False, False, 0) if algorithm == "a3c+papernet" else (True, True, 2)), algorithm
-        assert config.precision == "bf16"
+        assert config.network.precision == "bf16"
     policy = pretrain_config_for(budget, "STG1", 0, "policy")
     assert (policy.aux_heads, policy.asymmetric_critic, policy.precision) == (True, True, "bf16")
     learner = dagger_config_for(budget, "STG1", 0).learner
     assert (learner.aux_heads, learner.asymmetric_critic, learner.precision) == (False, False, "bf16")
     with pytest.raises(ValueError, match="augment_shift"):
-        dataclasses.replace(tiny_budget, obs="state", augment_shift=2)
+        tiny_budget.replace(obs="state", a3c={"augment_shift": 2})
     with pytest.raises(ValueError, match="precision"):
-        dataclasses.replace(tiny_budget, precision="half")
+        tiny_budget.replace(network={"precision": "half"})
 
 
 @pytest.mark.parametrize("call, message", [
@@ -145,10 +147,10 @@ def test_an_unfinished_run_resumes_with_the_preset_name_it_was_started_with(tiny
     """A pre-train + A3C run started before it recorded finetune="paper" (None then) has the same
     settings: it resumes as it was started instead of failing the resume's settings check."""
     config = a3c_config_for(tiny_budget, "STG1", 0, "pretrain+a3c", DATA)
-    assert config.finetune == "paper"
-    stored = {f: v for f, v in dataclasses.asdict(config).items() if f not in FINETUNE_FIELDS and f != "finetune"}
-    assert _with_stored_preset_name(stored, config).finetune is None
+    assert config.finetuning is not None and config.finetuning.finetune == "paper"
+    stored = {f: v for f, v in config.to_dict().items() if f not in FINETUNE_FIELDS and f != "finetune"}
+    assert _with_stored_preset_name(stored, config).to_dict()["finetune"] is None
     # Other settings than the name: left as they are (the resume then names the difference).
     assert _with_stored_preset_name({**stored, "kl_coef": 1.0}, config) == config
     keep = a3c_config_for(tiny_budget, "STG1", 0, "pretrain+a3c+keep", DATA)
-    assert _with_stored_preset_name(dataclasses.asdict(keep), keep) == keep
+    assert _with_stored_preset_name(keep.to_dict(), keep) == keep
