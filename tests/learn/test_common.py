@@ -57,20 +57,20 @@ def test_bad_network_settings_name_the_field(values, field):
 
 
 def test_a_learners_settings_name_their_own_class():
-    with pytest.raises(ValueError, match=r"A3CConfig\.hidden"):
-        A3CConfig(hidden=0)
+    with pytest.raises(ValueError, match=r"NetworkSettings\.hidden"):
+        A3CConfig.from_flat(hidden=0)
     with pytest.raises(ValueError, match=r"PretrainConfig\.obs"):
         PretrainConfig(obs="rgb")
 
 
 def test_learners_give_equal_network_settings_for_equal_network_fields():
     fields = dict(obs="state", hidden=48, features=24, tilt_input=False, keypoints=False, subtract_background=False)
-    a3c = A3CConfig(task="STG2", steps=1000, **fields).network_settings()
+    a3c = A3CConfig.from_flat(task="STG2", steps=1000, **fields).network
     pretrain = PretrainConfig(task="STG3", epochs=2, **fields).network_settings()
     assert type(a3c) is NetworkSettings and type(pretrain) is NetworkSettings
     assert a3c == pretrain == NetworkSettings(**fields)
-    assert A3CConfig(obs="state").network_settings() == PretrainConfig(obs="state").network_settings()
-    assert A3CConfig(obs="state").network_settings() != PretrainConfig(obs="state", hidden=64).network_settings()
+    assert A3CConfig.from_flat(obs="state").network == PretrainConfig(obs="state").network_settings()
+    assert A3CConfig.from_flat(obs="state").network != PretrainConfig(obs="state", hidden=64).network_settings()
 
 
 def test_network_settings_dict_round_trip_and_unknown_keys():
@@ -114,11 +114,11 @@ def test_read_run_earlier_layout(tmp_path):
 
 
 def test_read_run_a3c_config_without_a_kind(tmp_path):
-    config = A3CConfig(task="STG3", obs="state", hidden=8, features=8, seed=11)
+    config = A3CConfig.from_flat(task="STG3", obs="state", hidden=8, features=8, seed=11)
     run_dir = _write_config(tmp_path / "a3c", {"a3c": config.to_dict()})  # as bimgame train writes it
     run = read_run(run_dir)
     assert run.kind == KIND_A3C and run.task == "STG3" and run.seed == 11 and run.time_limit == 750
-    assert run.network == config.network_settings()
+    assert run.network == config.network
 
 
 def test_read_run_without_config_names_config_json(tmp_path):

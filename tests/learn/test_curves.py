@@ -119,8 +119,8 @@ def test_plot_run_and_compare_draw_runs_with_an_unfinished_tail(tmp_path):
 
 def test_curves_and_compare_of_a_real_tiny_run(tmp_path):
     # Four envs, a 50-step time limit: an episode spans at most (50 + 10) × 4 steps of the x-axis.
-    config = A3CConfig(task="STG1", obs="state", workers=1, envs_per_worker=4, n_steps=10, eval_every=0, hidden=16,
-                       features=16, log_every=500, max_episode_steps=50, steps=2_000)
+    config = A3CConfig.from_flat(task="STG1", obs="state", workers=1, envs_per_worker=4, n_steps=10, eval_every=0,
+                                 hidden=16, features=16, log_every=500, max_episode_steps=50, steps=2_000)
     train(config, tmp_path / "run", progress=False)
     episodes = read_table(tmp_path / "run" / "episodes.csv")
     span = curves.episode_span(episodes, json.loads((tmp_path / "run" / "config.json").read_text()))
