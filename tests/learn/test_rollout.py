@@ -17,7 +17,7 @@ SMALL = dict(task="STG1", obs="state", hidden=16, features=16)
 
 
 def _collector(batch: int = 3, limit: int = 300, seed: int = 0, *, env_wrapper=None, **kwargs):
-    config = A3CConfig(**SMALL, seed=seed)
+    config = A3CConfig.from_flat(**SMALL, seed=seed)
     net = network_for(config)
     base = BallInMazeVectorEnv(batch, task="STG1", obs_mode="state", nthread=1, max_episode_steps=limit,
                                autoreset_mode="same_step", state_info=kwargs.get("privileged", False))
