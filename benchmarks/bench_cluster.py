@@ -21,7 +21,6 @@ Usage: ``python benchmarks/bench_cluster.py [--steps N] [--fault-steps N]``; wri
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import os
 import platform
@@ -30,7 +29,15 @@ import threading
 import time
 from pathlib import Path
 
-from bimgame.experiments.budgets import Budget
+from bimgame.experiments.budgets import (
+    A3CBudget,
+    Budget,
+    DaggerBudget,
+    DatasetBudget,
+    NetworkBudget,
+    PretrainBudget,
+    ValueBudget,
+)
 from bimgame.experiments.cluster import PIECE_MARKER, WORK_ROOT_ENV, local_cluster
 from bimgame.experiments.reproduce import reproduce
 from bimgame.util.files import atomic_write_bytes
@@ -41,11 +48,13 @@ RESULTS = Path(__file__).parent / "results" / "cluster.json"
 def tiny_grid(steps: int) -> Budget:
     """The benchmark's grid (see the module notes)."""
     return Budget(name="bench-cluster", tasks=("STG1",), algorithms=("a3c", "pretrain+a3c+value", "dagger"), seeds=2,
-                  obs="state", a3c_steps={"STG1": steps}, workers=1, envs_per_worker=8, hidden=32, features=32,
-                  eval_every=0, eval_episodes=4, checkpoint_every=5_000, dataset_task="STG1", dataset_episodes=8,
-                  dataset_workers=1, pretrain_epochs=4, pretrain_patience=2, pretrain_eval_episodes=4,
-                  value_epochs=4, value_patience=2, dagger_iterations=2, dagger_episodes=3, dagger_epochs=2,
-                  dagger_eval_episodes=4)
+                  obs="state", network=NetworkBudget(hidden=32, features=32),
+                  a3c=A3CBudget(steps={"STG1": steps}, workers=1, envs_per_worker=8, eval_every=0, eval_episodes=4,
+                                checkpoint_every=5_000),
+                  dataset=DatasetBudget(task="STG1", episodes=8, workers=1),
+                  pretrain=PretrainBudget(epochs=4, patience=2, eval_episodes=4),
+                  value=ValueBudget(epochs=4, patience=2),
+                  dagger=DaggerBudget(iterations=2, episodes=3, epochs=2, eval_episodes=4))
 
 
 def _node_past_the_middle(work_root: Path, piece_id: str, shipments: int, timeout: float) -> str | None:
@@ -84,7 +93,7 @@ def fault(cluster, root: Path, work_root: Path, budget: Budget) -> dict:
     faulted = time.monotonic() - started
     entry = json.loads((root / "faulted" / "status.json").read_text())["pieces"][piece]
     assert outcome["result"].complete and entry["note"].startswith("resumed"), entry
-    return {"a3c_steps": budget.steps_for("STG1"), "checkpoint_every": budget.checkpoint_every,
+    return {"a3c_steps": budget.steps_for("STG1"), "checkpoint_every": budget.a3c.checkpoint_every,
             "undisturbed_seconds": round(undisturbed, 1), "node_removed_after_seconds": round(killed_after, 1),
             "with_node_death_seconds": round(faulted, 1), "lost_seconds": round(faulted - undisturbed, 1),
             "note": entry["note"]}
@@ -99,8 +108,9 @@ def main() -> None:
     import ray
 
     budget = tiny_grid(args.steps)
-    fault_budget = dataclasses.replace(budget, algorithms=("a3c",), seeds=1, a3c_steps={"STG1": args.fault_steps},
-                                       checkpoint_every=max(1, args.fault_steps // 10))
+    fault_budget = budget.replace(algorithms=("a3c",), seeds=1,
+                                  a3c={"steps": {"STG1": args.fault_steps},
+                                       "checkpoint_every": max(1, args.fault_steps // 10)})
     with tempfile.TemporaryDirectory() as scratch:
         root = Path(scratch)
         os.environ[WORK_ROOT_ENV] = str(root / "node-work")  # the nodes inherit it: where their tasks work

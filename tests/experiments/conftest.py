@@ -9,16 +9,26 @@ import numpy as np
 import pytest
 from support import logs
 
-from bimgame.experiments.budgets import Budget
+from bimgame.experiments.budgets import (
+    A3CBudget,
+    Budget,
+    DaggerBudget,
+    DatasetBudget,
+    NetworkBudget,
+    PretrainBudget,
+    ValueBudget,
+)
 
 #: A reproduction small enough for a test: STG1, four expert episodes, 2,000 A3C steps on one
 #: worker, one DAgger iteration of two episodes, two seeds. Three algorithms cover every kind of
 #: piece: plain A3C, A3C from π^s with V̂'s reward (both pre-trainings), and DAgger.
 TINY = Budget(name="tiny", tasks=("STG1",), algorithms=("a3c", "pretrain+a3c+value", "dagger"), seeds=2,
-              obs="state", a3c_steps={"STG1": 2_000}, workers=1, envs_per_worker=4, hidden=16, features=16,
-              eval_every=0, eval_episodes=2, checkpoint_every=400, dataset_task="STG1", dataset_episodes=4,
-              dataset_workers=1, pretrain_epochs=2, pretrain_patience=1, pretrain_eval_episodes=2, value_epochs=2,
-              value_patience=1, dagger_iterations=1, dagger_episodes=2, dagger_epochs=1, dagger_eval_episodes=2)
+              obs="state", network=NetworkBudget(hidden=16, features=16),
+              a3c=A3CBudget(steps={"STG1": 2_000}, workers=1, envs_per_worker=4, eval_every=0, eval_episodes=2,
+                            checkpoint_every=400),
+              dataset=DatasetBudget(task="STG1", episodes=4, workers=1),
+              pretrain=PretrainBudget(epochs=2, patience=1, eval_episodes=2), value=ValueBudget(epochs=2, patience=1),
+              dagger=DaggerBudget(iterations=1, episodes=2, epochs=1, eval_episodes=2))
 
 
 @pytest.fixture

@@ -77,7 +77,7 @@ def test_a_registered_algorithm_is_in_the_labels_budgets_and_grid_until_it_is_re
 
 def test_a_tiny_grid_with_a_registered_algorithm_runs_and_reports_it(tmp_path, tiny_budget, beta0):
     # One short run of the new algorithm (the grid's other pieces are the kinds the other tests run).
-    budget = dataclasses.replace(tiny_budget, algorithms=(NAME,), seeds=1, a3c_steps={"STG1": 800})
+    budget = tiny_budget.replace(algorithms=(NAME,), seeds=1, a3c={"steps": {"STG1": 800}})
     result = reproduce(tmp_path, budget, progress=False)
     assert result.complete and result.computed == ["data", "runs/STG1/a3c-beta0/seed0"]
     assert load_plan(tmp_path)[0].algorithms == (NAME,)

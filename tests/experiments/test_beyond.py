@@ -4,7 +4,6 @@ steps to 80% greedy success, and their means over seeds with bootstrap intervals
 from __future__ import annotations
 
 import csv
-import dataclasses
 import math
 from pathlib import Path
 
@@ -106,4 +105,4 @@ def test_which_grids_get_the_section():
     # during the runs there are no dips to show.
     assert not shows_beyond(BUDGETS["pixels"]) and not shows_beyond(BUDGETS["quick"].with_grid(
         algorithms=["a3c", "a3c+papernet"]))
-    assert not shows_beyond(dataclasses.replace(BUDGETS["beyond"], eval_every=0))
+    assert not shows_beyond(BUDGETS["beyond"].replace(a3c={"eval_every": 0}))

@@ -3,10 +3,21 @@
 from __future__ import annotations
 
 import dataclasses
+import json
+from pathlib import Path
 
 import pytest
 
-from bimgame.experiments.budgets import ALGORITHMS, BUDGETS, PAPER_ALGORITHMS, PAPER_TASKS, budget_named
+from bimgame.experiments.budgets import (
+    ALGORITHMS,
+    BUDGETS,
+    FLAT_FIELDS,
+    PAPER_ALGORITHMS,
+    PAPER_TASKS,
+    Budget,
+    NetworkBudget,
+    budget_named,
+)
 from bimgame.experiments.costs import cluster_seconds, estimate_seconds, piece_cpus
 from bimgame.experiments.grid import plan_pieces
 from bimgame.experiments.methods import needs_expert_data
@@ -23,14 +34,26 @@ from bimgame.experiments.plan import check_compatible, write_plan
     ({"seeds": 0}, r"Budget.seeds must be an integer >= 1, got 0"),
     ({"obs": "rgb"}, r"Budget.obs must be one of pixels, state, got 'rgb'"),
     ({"threshold_fraction": 0.0}, r"Budget.threshold_fraction must be in \(0, 1\], got 0.0"),
-    ({"tasks": ("STG2",), "a3c_steps": {"STG1": 10}}, r"Budget.a3c_steps has no entry for \['STG2'\]"),
-    ({"a3c_steps": {"STG1": 0}}, r"Budget.a3c_steps\['STG1'\] must be an integer >= 1, got 0"),
-    ({"tasks": ("STG2",), "dataset_task": "STG1", "a3c_steps": {"STG2": 10}},
-     r"Budget.dataset_task STG1 cannot label \['STG2'\].*dataset_task='FULL'"),
+    ({"tasks": ("STG2",), "a3c": {"steps": {"STG1": 10}}}, r"Budget.a3c.steps has no entry for \['STG2'\]"),
+    ({"a3c": {"steps": {"STG1": 0}}}, r"Budget.a3c.steps\['STG1'\] must be an integer >= 1, got 0"),
+    ({"a3c": {"steps": {"STG9": 10}}}, r"Budget.a3c.steps: unknown task 'STG9'; allowed: FULL, STG1"),
+    ({"tasks": ("STG2",), "dataset": {"task": "STG1"}, "a3c": {"steps": {"STG2": 10}}},
+     r"Budget.dataset.task STG1 cannot label \['STG2'\].*dataset.task='FULL'"),
+    ({"dataset": {"episodes": 0}}, r"Budget.dataset.episodes must be an integer >= 1, got 0$"),
+    ({"dataset": {"max_steps": 0}}, r"Budget.dataset.max_steps must be an integer >= 1, got 0$"),
+    ({"network": {"hidden": 0}}, r"Budget.network.hidden must be an integer >= 1, got 0$"),
+    ({"network": {"aux_heads": 1}}, r"Budget.network.aux_heads must be True or False, got 1$"),
+    ({"a3c": {"eval_every": -1}}, r"Budget.a3c.eval_every must be an integer >= 0, got -1$"),
+    ({"a3c": {"augment_shift": 9}}, r"Budget.a3c.augment_shift must be 0..2 pixels, and 0 for state observations"),
+    ({"pretrain": {"patience": 0}}, r"Budget.pretrain.patience must be an integer >= 1, got 0$"),
+    ({"value": {"batch_frames": 0}}, r"Budget.value.batch_frames must be an integer >= 1, got 0$"),
+    ({"dagger": {"eval_episodes": -1}}, r"Budget.dagger.eval_episodes must be an integer >= 0, got -1$"),
+    ({"dagger": {"epochs": 0}}, r"Budget.dagger.epochs must be an integer >= 1, got 0$"),
+    ({"torch_threads": 0}, r"Budget.torch_threads must be an integer >= 1, got 0$"),
 ])
 def test_bad_budgets_are_rejected_naming_the_field_and_what_is_allowed(changes, message, tiny_budget):
     with pytest.raises(ValueError, match=message):
-        dataclasses.replace(tiny_budget, **changes)
+        tiny_budget.replace(**changes)
     with pytest.raises(ValueError, match="unknown budget 'huge'; allowed: quick, paper, pixels, beyond, ablation$"):
         budget_named("huge")
 
@@ -69,8 +92,8 @@ def test_the_presets_beyond_the_paper_plan_their_grids_within_two_hours(tmp_path
     assert set(ablation.algorithms) == set(ALGORITHMS[5:-1]) - {"pretrain+a3c+keepfade"} | {"pretrain+a3c"}
     assert [beyond.steps_for(t) for t in beyond.tasks] == [400_000, 500_000, 500_000, 500_000]
     for budget in (beyond, ablation):
-        assert (budget.obs, budget.eval_every, budget.eval_episodes) == ("state", 50_000, 20)
-        assert (budget.dataset_task, budget.dataset_episodes, budget.pretrain_eval_episodes) == ("FULL", 80, 50)
+        assert (budget.obs, budget.a3c.eval_every, budget.a3c.eval_episodes) == ("state", 50_000, 20)
+        assert (budget.dataset.task, budget.dataset.episodes, budget.pretrain.eval_episodes) == ("FULL", 80, 50)
     pieces = plan_pieces(beyond)
     # The dataset, then per task and seed π^s and the three runs.
     assert len(pieces) == 1 + 4 * 3 * (1 + 3)
@@ -94,17 +117,18 @@ def test_the_pixel_preset_is_the_papers_grid_from_pixels_within_two_hours():
     pixels = BUDGETS["pixels"]
     assert pixels.tasks == PAPER_TASKS and pixels.obs == "pixels" and pixels.seeds >= 3
     assert set(PAPER_ALGORITHMS) | {"a3c+papernet"} == set(pixels.algorithms)
-    assert (pixels.aux_heads, pixels.asymmetric_critic, pixels.precision) == (True, True, "bf16")
-    assert not pixels.subtract_background  # the paper's network row is the paper's exact configuration
+    network = pixels.network
+    assert (network.aux_heads, network.asymmetric_critic, network.precision) == (True, True, "bf16")
+    assert not pixels.network.subtract_background  # the paper's network row is the paper's exact configuration
     seconds = sum(estimate_seconds(p, pixels) for p in plan_pieces(pixels))
     assert seconds <= 2 * 3600, seconds / 3600
     # The bf16 rates are the ones that count: the same grid in float32 is expected to take longer.
-    fp32 = sum(estimate_seconds(p, dataclasses.replace(pixels, precision="fp32")) for p in plan_pieces(pixels))
+    fp32 = sum(estimate_seconds(p, pixels.replace(network={"precision": "fp32"})) for p in plan_pieces(pixels))
     assert fp32 > 1.1 * seconds
 
 
 def test_cpus_per_piece_and_the_expected_duration_on_a_cluster(tiny_budget):
-    budget = dataclasses.replace(tiny_budget, workers=2, eval_every=1_000, dataset_workers=3, torch_threads=1)
+    budget = tiny_budget.replace(a3c={"workers": 2, "eval_every": 1_000}, dataset={"workers": 3}, torch_threads=1)
     pieces = plan_pieces(budget)
     cpus = {p.kind: piece_cpus(p, budget) for p in pieces}
     assert cpus == {"dataset": 3, "pretrain-policy": 1, "pretrain-value": 1, "a3c": 3, "dagger": 1}
@@ -119,3 +143,48 @@ def test_cpus_per_piece_and_the_expected_duration_on_a_cluster(tiny_budget):
     assert cluster_seconds(pieces, budget, 10_000) == pytest.approx(chain)
     with pytest.raises(ValueError, match="needs CPUs"):
         cluster_seconds(pieces, budget, 0)
+
+
+DATA = Path(__file__).parent / "data"
+
+
+def test_a_flat_budget_stored_before_the_groups_loads_as_the_same_budget():
+    """``quick`` as ``plan.json`` stored it when every setting was a field of the budget itself."""
+    flat = json.loads((DATA / "quick_budget_flat.json").read_text())
+    assert "dagger_episodes" in flat and "dagger" not in flat
+    assert Budget.from_dict(flat) == BUDGETS["quick"]
+    # Every flat name has its place; none is left over or lost.
+    assert set(flat) == set(FLAT_FIELDS) | {"name", "tasks", "algorithms", "seeds", "obs", "threshold_fraction",
+                                           "torch_threads"}
+    with pytest.raises(ValueError, match=r"unknown budget settings \['dagger_rounds'\]; allowed: \['a3c', "):
+        Budget.from_dict({**flat, "dagger_rounds": 3})
+    with pytest.raises(ValueError, match=r"Budget.dagger.episodes twice: as 'dagger_episodes' and in 'dagger'"):
+        Budget.from_dict({**flat, "dagger": {"episodes": 3}})
+
+
+@pytest.mark.parametrize("name", list(BUDGETS))
+def test_every_preset_survives_its_stored_form(name):
+    budget = BUDGETS[name]
+    stored = json.loads(json.dumps(budget.to_dict()))
+    assert set(stored) == {f.name for f in dataclasses.fields(Budget)}
+    assert stored["a3c"]["steps"] == dict(budget.a3c.steps) and stored["dataset"]["task"] == "FULL"
+    assert Budget.from_dict(stored) == budget
+
+
+def test_stored_groups_with_unknown_or_malformed_settings_are_refused_by_name():
+    stored = BUDGETS["quick"].to_dict()
+    with pytest.raises(ValueError, match=r"unknown budget settings of Budget.dagger \['rounds'\]; allowed: "
+                                         r"\['episodes', 'epochs', 'eval_episodes', 'iterations'\]"):
+        Budget.from_dict({**stored, "dagger": {**stored["dagger"], "rounds": 3}})
+    with pytest.raises(ValueError, match=r"Budget.value must be a mapping of its settings, got 3"):
+        Budget.from_dict({**stored, "value": 3})
+    with pytest.raises(ValueError, match=r"Budget.network must be a NetworkBudget, got \{'hidden': 8\}"):
+        dataclasses.replace(BUDGETS["quick"], network={"hidden": 8})
+
+
+def test_replace_changes_only_the_named_fields_of_a_group():
+    quick = BUDGETS["quick"]
+    changed = quick.replace(seeds=1, dagger={"episodes": 3}, network=NetworkBudget(hidden=8))
+    assert (changed.seeds, changed.dagger.episodes, changed.network.hidden) == (1, 3, 8)
+    assert changed.dagger == dataclasses.replace(quick.dagger, episodes=3) and changed.a3c == quick.a3c
+    assert quick.dagger.episodes == 6  # the preset itself is unchanged

@@ -152,7 +152,7 @@ def test_a_piece_that_raises_on_a_node_is_a_recorded_failure(cluster, tmp_path, 
 
 
 def test_pieces_that_fit_no_node_are_refused(cluster, tmp_path, tiny_budget):
-    budget = dataclasses.replace(tiny_budget, algorithms=("a3c",), seeds=1, workers=2)
+    budget = tiny_budget.replace(algorithms=("a3c",), seeds=1, a3c={"workers": 2})
     with pytest.raises(ValueError, match=r"largest node has 1 CPUs, but a3c pieces need 2"):
         reproduce(tmp_path, budget, progress=False, backend="ray")
 
@@ -204,8 +204,8 @@ def test_a_piece_whose_node_dies_continues_on_another_node_from_its_shipped_chec
                                                                                      tiny_budget):
     """Last in the module: it removes a node (and adds a fresh one back)."""
     ray_cluster, work_root = cluster
-    budget = dataclasses.replace(tiny_budget, name="long", algorithms=("a3c",), seeds=1, a3c_steps={"STG1": 60_000},
-                                 checkpoint_every=5_000)
+    budget = tiny_budget.replace(name="long", algorithms=("a3c",), seeds=1,
+                                 a3c={"steps": {"STG1": 60_000}, "checkpoint_every": 5_000})
     outcome: dict = {}
     driver = threading.Thread(target=lambda: outcome.update(
         result=reproduce(tmp_path, budget, progress=False, backend="ray")))

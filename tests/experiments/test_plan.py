@@ -1,13 +1,17 @@
-"""Whether a reproduction's piece is finished (plan.piece_done), judged from its own outputs."""
+"""Whether a reproduction's piece is finished (plan.piece_done), judged from its own outputs; and a
+reproduction directory whose plan.json stores the budget as earlier versions did (flat) continues."""
 
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
+import pytest
 import torch
 
+from bimgame.experiments.budgets import BUDGETS
 from bimgame.experiments.grid import plan_pieces
-from bimgame.experiments.plan import piece_done
+from bimgame.experiments.plan import PLAN, check_compatible, load_plan, piece_done, write_plan
 from bimgame.learn.checkpoints import save_checkpoint
 
 
@@ -23,3 +27,21 @@ def test_an_a3c_run_stopped_in_its_final_evaluation_is_resumed_not_taken_as_fini
     assert not piece_done(piece, tmp_path, tiny_budget)
     (run / "summary.json").write_text(json.dumps({"stopped": "finished", "steps": steps}))
     assert piece_done(piece, tmp_path, tiny_budget)
+
+
+def test_a_reproduction_whose_plan_stores_a_flat_budget_continues_with_the_same_budget(tmp_path):
+    quick = BUDGETS["quick"]
+    write_plan(tmp_path, quick)
+    plan = json.loads((tmp_path / PLAN).read_text())
+    flat = json.loads((Path(__file__).parent / "data" / "quick_budget_flat.json").read_text())
+    (tmp_path / PLAN).write_text(json.dumps({**plan, "budget": flat}))
+    budget, pieces = load_plan(tmp_path)
+    assert budget == quick and pieces == plan_pieces(quick)
+    # The same budget, another grid, or the pixel-only background switch (state here): the directory continues.
+    check_compatible(tmp_path, quick)
+    check_compatible(tmp_path, quick.with_grid(tasks=["STG1"], algorithms=["a3c"], seeds=5))
+    check_compatible(tmp_path, quick.replace(network={"subtract_background": False}))
+    # Settings that change what a piece computes are refused, named by their paths.
+    with pytest.raises(ValueError, match=r"other settings \(dagger\.episodes: 6 there, 3 now; "
+                                         r"torch_threads: 1 there, 2 now\)"):
+        check_compatible(tmp_path, quick.replace(dagger={"episodes": 3}, torch_threads=2))

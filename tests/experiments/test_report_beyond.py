@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 from support.logs import write_csv
 
-from bimgame.experiments.budgets import Budget
+from bimgame.experiments.budgets import A3CBudget, Budget
 from bimgame.experiments.plan import write_plan
 from bimgame.experiments.report import build_report
 from bimgame.experiments.statistics import CURVE_BINS
@@ -48,7 +48,7 @@ def beyond_dir(tmp_path, training_episodes) -> Path:
     """A reproduction directory of STG3 × (pre-train + A3C, keep, reverse curriculum) × 2 seeds, all
     runs finished, no dataset."""
     budget = Budget(name="hand-made", tasks=("STG3",), algorithms=tuple(EVALUATIONS), seeds=2,
-                    a3c_steps={"STG3": STEPS}, eval_every=100_000, eval_episodes=20)
+                    a3c=A3CBudget(steps={"STG3": STEPS}, eval_every=100_000, eval_episodes=20))
     write_plan(tmp_path, budget)
     for algorithm, seeds in EVALUATIONS.items():
         for seed, evaluations in seeds.items():

@@ -61,9 +61,8 @@ def test_a_failing_piece_is_recorded_and_its_dependents_skipped(tmp_path, tiny_b
     assert status["data"]["state"] == "failed" and "NotADirectoryError" in status["data"]["traceback"]
     assert status["runs/STG1/pretrain-a3c/seed0"]["state"] == "skipped"
     # The same directory cannot be continued with settings that change what its pieces compute.
-    with pytest.raises(ValueError, match=r"other settings \(a3c_steps: .*dagger_episodes"):
-        reproduce(tmp_path, dataclasses.replace(budget, a3c_steps={"STG1": 3_000}, dagger_episodes=3),
-                  progress=False)
+    with pytest.raises(ValueError, match=r"other settings \(a3c\.steps: .*dagger\.episodes"):
+        reproduce(tmp_path, budget.replace(a3c={"steps": {"STG1": 3_000}}, dagger={"episodes": 3}), progress=False)
 
 
 # --------------------------------------------------------------------------- end to end
@@ -181,8 +180,8 @@ def _expert_successes(out: Path) -> list[bool]:
 def test_tiny_reproduction_beyond_the_paper_gives_the_runs_their_settings_and_the_dataset(tmp_path, tiny_budget):
     """Real runs of the two methods that read the expert's dataset: their pieces need it, they record
     the reproduction's DIR/data and the paper preset, and the report gets its section and figure."""
-    budget = dataclasses.replace(tiny_budget, algorithms=("pretrain+a3c+bc", "pretrain+a3c+demo"), seeds=1,
-                                 eval_every=1_000)
+    budget = tiny_budget.replace(algorithms=("pretrain+a3c+bc", "pretrain+a3c+demo"), seeds=1,
+                                 a3c={"eval_every": 1_000})
     result = reproduce(tmp_path, budget, progress=False)
     assert result.complete and result.computed == [
         "data", "pretrain/STG1/policy-seed0", "runs/STG1/pretrain-a3c-bc/seed0", "runs/STG1/pretrain-a3c-demo/seed0"]

@@ -54,7 +54,7 @@ def shows_beyond(budget: Budget) -> bool:
     them) and a fine-tuning method beyond the paper's (its record's ``finetuning``), or STG3/STG4, in
     the grid."""
     finetuning = any(algorithm_named(a).finetuning for a in budget.algorithms)
-    return budget.eval_every > 0 and (finetuning or any(t in BEYOND_TASKS for t in budget.tasks))
+    return budget.a3c.eval_every > 0 and (finetuning or any(t in BEYOND_TASKS for t in budget.tasks))
 
 
 def eval_curve(table: dict[str, np.ndarray]) -> tuple[np.ndarray, dict[str, np.ndarray]]:

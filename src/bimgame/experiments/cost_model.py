@@ -72,4 +72,4 @@ def eval_seconds(task: str, obs: str, episodes: int, costs: CostModel) -> float:
 def compute_rates(budget: Budget) -> str:
     """The key of the rates of ``budget``'s networks' compute in the model's per-observation tables:
     pixels in bfloat16 have their own measured rates."""
-    return "pixels-bf16" if budget.obs == "pixels" and budget.precision == "bf16" else budget.obs
+    return "pixels-bf16" if budget.obs == "pixels" and budget.network.precision == "bf16" else budget.obs

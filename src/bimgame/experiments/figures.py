@@ -177,7 +177,7 @@ def plot_eval_curves(
         axis.legend(fontsize=7)
     fig.suptitle(
         f"{task}, {budget.obs} observations: evaluation episodes from the task's own starts "
-        f"({budget.eval_episodes} per evaluation); thin: one seed, thick: mean over seeds; step 0 is "
+        f"({budget.a3c.eval_episodes} per evaluation); thin: one seed, thick: mean over seeds; step 0 is "
         f"the starting policy (π^s for pre-trained starts)",
         fontsize=9,
     )

@@ -88,7 +88,7 @@ def plan_pieces(budget: Budget) -> list[Piece]:
     pre-trainings that seed needs and its runs (seed 0 of every algorithm before seed 1, so a
     partial reproduction already holds whole comparisons). A run needs what its algorithm's record
     says it reads: the dataset, π^s, V̂ (:class:`~bimgame.experiments.algorithms.Algorithm`)."""
-    pieces = [Piece(id="data", kind=DATASET, path="data", task=budget.dataset_task)]
+    pieces = [Piece(id="data", kind=DATASET, path="data", task=budget.dataset.task)]
     for task in budget.tasks:
         for seed in range(budget.seeds):
             policy, value = policy_path(task, seed), value_path(task, seed)

@@ -80,7 +80,7 @@ class PieceKind(abc.ABC):
 
 def _training_frames(budget: Budget, task: str, costs: CostModel) -> float:
     """Frames a pre-training trains on: the dataset's steps, 20% held out."""
-    return budget.dataset_episodes * costs.expert_steps[task] * 0.8
+    return budget.dataset.episodes * costs.expert_steps[task] * 0.8
 
 
 class DatasetKind(PieceKind):
@@ -99,12 +99,12 @@ class DatasetKind(PieceKind):
         return True
 
     def seconds(self, piece: Piece, budget: Budget, costs: CostModel) -> float:
-        per_episode = costs.expert_episode_s[budget.dataset_task]
-        return costs.piece_overhead_s + budget.dataset_episodes * per_episode / min(budget.dataset_workers, 2)
+        per_episode = costs.expert_episode_s[budget.dataset.task]
+        return costs.piece_overhead_s + budget.dataset.episodes * per_episode / min(budget.dataset.workers, 2)
 
     def cpus(self, piece: Piece, budget: Budget) -> int:
         """Its expert worker processes."""
-        return budget.dataset_workers
+        return budget.dataset.workers
 
 
 class _PretrainKind(PieceKind):
@@ -127,12 +127,12 @@ class PretrainPolicyKind(_PretrainKind):
     name, target = PRETRAIN_POLICY, "policy"
 
     def seconds(self, piece: Piece, budget: Budget, costs: CostModel) -> float:
-        task, rates = piece.task or budget.dataset_task, compute_rates(budget)
-        epochs = min(budget.pretrain_epochs, costs.pretrain_epochs_expected)
+        task, rates = piece.task or budget.dataset.task, compute_rates(budget)
+        epochs = min(budget.pretrain.epochs, costs.pretrain_epochs_expected)
         return (
             costs.piece_overhead_s
             + epochs * _training_frames(budget, task, costs) * costs.train_frame_s[rates]
-            + eval_seconds(task, rates, budget.pretrain_eval_episodes, costs)
+            + eval_seconds(task, rates, budget.pretrain.eval_episodes, costs)
         )
 
 
@@ -142,8 +142,8 @@ class PretrainValueKind(_PretrainKind):
     name, target = PRETRAIN_VALUE, "value"
 
     def seconds(self, piece: Piece, budget: Budget, costs: CostModel) -> float:
-        task, rates = piece.task or budget.dataset_task, compute_rates(budget)
-        epochs = min(budget.value_epochs, 2 * costs.pretrain_epochs_expected)
+        task, rates = piece.task or budget.dataset.task, compute_rates(budget)
+        epochs = min(budget.value.epochs, 2 * costs.pretrain_epochs_expected)
         frames = _training_frames(budget, task, costs)
         return costs.piece_overhead_s + epochs * frames * costs.train_frame_s[rates] / 3  # feed-forward
 
@@ -211,12 +211,12 @@ class A3CRunKind(RunKind):
         )
 
     def seconds(self, piece: Piece, budget: Budget, costs: CostModel) -> float:
-        sps = costs.a3c_sps[compute_rates(budget)] * min(budget.workers, 2) / 2
-        return costs.a3c_overhead_s + budget.steps_for(piece.task or budget.dataset_task) / sps
+        sps = costs.a3c_sps[compute_rates(budget)] * min(budget.a3c.workers, 2) / 2
+        return costs.a3c_overhead_s + budget.steps_for(piece.task or budget.dataset.task) / sps
 
     def cpus(self, piece: Piece, budget: Budget) -> int:
         """Its workers plus its evaluator process (when it evaluates during training)."""
-        return budget.workers + (1 if budget.eval_every > 0 else 0)
+        return budget.a3c.workers + (1 if budget.a3c.eval_every > 0 else 0)
 
     def results(self, piece: Piece, out_dir: Path) -> RunResults:
         path = out_dir / piece.path
@@ -249,21 +249,21 @@ class DAggerRunKind(RunKind):
 
     def done(self, piece: Piece, out_dir: Path, budget: Budget) -> bool:
         state = read_json(out_dir / piece.path / "dagger_state.json")
-        return state is not None and int(state.get("iteration", 0)) >= budget.dagger_iterations
+        return state is not None and int(state.get("iteration", 0)) >= budget.dagger.iterations
 
     def seconds(self, piece: Piece, budget: Budget, costs: CostModel) -> float:
-        task, rates = piece.task or budget.dataset_task, compute_rates(budget)
+        task, rates = piece.task or budget.dataset.task, compute_rates(budget)
         seconds = costs.piece_overhead_s
         aggregated = 0.0
-        for iteration in range(budget.dagger_iterations):
+        for iteration in range(budget.dagger.iterations):
             # Iteration 0 follows the expert; later ones mostly the learner, whose failures run long.
             length = costs.expert_steps[task] if iteration == 0 else costs.dagger_length_share * Task(task).time_limit
-            labels = budget.dagger_episodes * length
+            labels = budget.dagger.episodes * length
             aggregated += labels
             seconds += (
                 labels * costs.expert_label_s
-                + budget.dagger_epochs * aggregated * costs.train_frame_s[rates]
-                + eval_seconds(task, rates, budget.dagger_eval_episodes, costs)
+                + budget.dagger.epochs * aggregated * costs.train_frame_s[rates]
+                + eval_seconds(task, rates, budget.dagger.eval_episodes, costs)
             )
         return seconds
 

@@ -102,10 +102,7 @@ def check_compatible(out_dir: str | Path, budget: Budget) -> None:
     if not (out_dir / PLAN).exists():
         return
     stored, _ = load_plan(out_dir)
-    old, new = stored.to_dict(), budget.to_dict()
-    # a pixel-only setting changes nothing with state observations
-    old["subtract_background"] = stored.network_subtract_background
-    new["subtract_background"] = budget.network_subtract_background
+    old, new = stored.compared_settings(), budget.compared_settings()
     changed = [k for k in new if k not in GRID_FIELDS and k != "name" and old.get(k) != new[k]]
     if changed:
         details = "; ".join(f"{k}: {old.get(k)!r} there, {new[k]!r} now" for k in changed)

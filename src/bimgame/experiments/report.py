@@ -153,7 +153,7 @@ def _expert(
         return None, {}
     sequences = dataset_sequences(out_dir / "data")
     expert = expert_success_by_task(sequences, budget.tasks)
-    figures.append(plot_expert_lengths(sequences, budget.dataset_task, out_dir / "fig_expert_lengths.png"))
+    figures.append(plot_expert_lengths(sequences, budget.dataset.task, out_dir / "fig_expert_lengths.png"))
     return dataset_summary(out_dir / "data"), expert
 
 
@@ -168,7 +168,7 @@ def _task_numbers(
     """One task's entry of ``table_speedup.json``: its threshold, per algorithm the runs' numbers,
     the speed-ups; its learning curves are drawn into ``figures``."""
     budget, rng = context.budget, context.rng
-    steps = budget.steps_for(task) if task in budget.a3c_steps else 0
+    steps = budget.steps_for(task) if task in budget.a3c.steps else 0
     edges = np.linspace(0.0, float(steps), CURVE_BINS + 1) if steps else np.array([0.0, 1.0])
     # No threshold without an expert that succeeds: 0 × anything would be "reached" at once.
     threshold = context.threshold_fraction * expert[task] if expert.get(task, 0.0) > 0 else None
@@ -332,7 +332,7 @@ def _pretraining(finished: dict[str, Piece], out_dir: Path, budget: Budget) -> d
             "chance_accuracy": 0.2,
             "policy_greedy_success": [e.get("greedy_success_rate") for e in evals],
             "policy_sampled_success": [e.get("sampled_success_rate") for e in evals],
-            "policy_eval_episodes": budget.pretrain_eval_episodes,
+            "policy_eval_episodes": budget.pretrain.eval_episodes,
             "value_rmse": [v.get("val_value_rmse") for _, v in value],
         }
     return out

@@ -232,7 +232,7 @@ def _pretraining_table(pretraining: dict[str, Any], budget: Budget) -> list[str]
         )
     lines.append("")
     lines.append(
-        f"π^s alone: {budget.pretrain_eval_episodes} greedy and {budget.pretrain_eval_episodes} sampled "
+        f"π^s alone: {budget.pretrain.eval_episodes} greedy and {budget.pretrain.eval_episodes} sampled "
         f"episodes per seed, before any A3C update."
     )
     lines.append("")
@@ -286,12 +286,13 @@ def beyond_markdown(beyond: dict[str, Any], budget: Budget) -> str:
 
 def _beyond_introduction(target: float, budget: Budget) -> list[str]:
     """The section's heading and what its cells hold."""
-    every = f"every {steps_text(budget.eval_every)} steps" if budget.eval_every else "at the end only"
+    every = f"every {steps_text(budget.a3c.eval_every)} steps" if budget.a3c.eval_every else "at the end only"
+    episodes = budget.a3c.eval_episodes
     lines = [
         "## Beyond the paper: fine-tuning that keeps π^s",
         "",
         (
-            f"From each A3C run's evaluations ({budget.eval_episodes} greedy and {budget.eval_episodes} sampled "
+            f"From each A3C run's evaluations ({episodes} greedy and {episodes} sampled "
             f"episodes from the task's own starts, {every}; step 0 is the policy the run started from — π^s for "
             f"the pre-trained starts — and the last evaluation the final one). Each cell: every seed's value, then "
             f"the mean over seeds with its 95% percentile-bootstrap interval over seeds (never the best seed). "

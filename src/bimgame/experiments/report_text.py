@@ -112,7 +112,7 @@ def _expert_section(numbers: dict[str, Any], budget: Budget) -> list[str]:
     return lines + [
         "![expert trajectory lengths](fig_expert_lengths.png)",
         "",
-        f"Dataset: {d['episodes']} {budget.dataset_task} episodes, {d['steps']:,} steps, expert success "
+        f"Dataset: {d['episodes']} {budget.dataset.task} episodes, {d['steps']:,} steps, expert success "
         f"{d['success_rate']:.0%}, mean length {d['mean_length']:.0f} steps. Success relabelled per task "
         f"(within the task's time limit): "
         + ", ".join(f"{t} {pct(v)}" for t, v in expert["success_by_task"].items())
@@ -124,7 +124,7 @@ def _expert_section(numbers: dict[str, Any], budget: Budget) -> list[str]:
 def _settings_section(budget: Budget) -> list[str]:
     """Every setting of the budget, one row each."""
     lines = ["## Settings", "", "| setting | value |", "|---|---|"]
-    for key, value in budget.to_dict().items():
+    for key, value in budget.settings_by_path().items():
         lines.append(f"| {key} | {_setting_text(key, value, budget)} |")
     return lines
 
@@ -134,9 +134,9 @@ def _setting_text(key: str, value: object, budget: Budget) -> object:
     only), a list comma-separated."""
     if isinstance(value, dict):
         return ", ".join(
-            f"{k} {steps_text(v) if key == 'a3c_steps' else v}"
+            f"{k} {steps_text(v) if key == 'a3c.steps' else v}"
             for k, v in value.items()
-            if key != "a3c_steps" or k in budget.tasks
+            if key != "a3c.steps" or k in budget.tasks
         )
     if isinstance(value, (list, tuple)):
         return ", ".join(map(str, value))

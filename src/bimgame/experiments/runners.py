@@ -17,9 +17,10 @@ thread each.
 
 from __future__ import annotations
 
-import dataclasses
 import shutil
+from dataclasses import asdict
 from pathlib import Path
+from typing import Any
 
 from bimgame.experiments.algorithms import A3C, algorithm_named
 from bimgame.experiments.budgets import Budget
@@ -28,64 +29,102 @@ from bimgame.experiments.methods import finetune_overrides
 from bimgame.expert.datasets import generate_dataset
 from bimgame.learn.a3c import A3CConfig, train
 from bimgame.learn.dagger import DAggerConfig, dagger
-from bimgame.learn.finetune import FINETUNE_FIELDS
+from bimgame.learn.learner_settings import FINETUNE_FIELDS
 from bimgame.learn.pretrain import pretrain
 from bimgame.learn.rewards import RewardSettings, env_wrapper_for
 from bimgame.learn.runs import CONFIG, KIND_POLICY, KIND_VALUE, write_run_json
 from bimgame.learn.supervised import PretrainConfig
 from bimgame.util.files import read_json
 
-__all__ = ["pretrain_config_for", "a3c_config_for", "dagger_config_for", "run_dataset", "run_pretrain", "run_a3c",
-           "run_dagger"]
+__all__ = [
+    "pretrain_config_for",
+    "a3c_config_for",
+    "dagger_config_for",
+    "run_dataset",
+    "run_pretrain",
+    "run_a3c",
+    "run_dagger",
+]
+
+
+#: The network settings that need the simulator's state while learning: V̂ and DAgger's learner have none.
+_PRIVILEGED = ("aux_heads", "asymmetric_critic")
+
+
+def _network(budget: Budget, *, privileged: bool) -> dict[str, Any]:
+    """The network settings of the budget's pieces (:class:`~bimgame.learn.common.NetworkSettings`'s
+    names); without the privileged ones (``aux_heads``, ``asymmetric_critic``) unless ``privileged``."""
+    settings = {"obs": budget.obs, **budget.network.settings_for(budget.obs)}
+    return settings if privileged else {k: v for k, v in settings.items() if k not in _PRIVILEGED}
 
 
 def pretrain_config_for(budget: Budget, task: str, seed: int, target: str) -> PretrainConfig:
-    """The pre-training settings of π^s (``target="policy"``) or V̂ (``"value"``) for a task and seed."""
-    common = dict(task=task, obs=budget.obs, seed=seed, hidden=budget.hidden, features=budget.features,
-                  subtract_background=budget.network_subtract_background, precision=budget.precision)
+    """The pre-training settings of π^s (``target="policy"``) or V̂ (``"value"``) for a task and seed:
+    the budget's networks with its ``pretrain`` or ``value`` group. V̂ is not measured as a policy and
+    has no asymmetric critic; its auxiliary heads are the networks' default for the observations."""
     if target == "policy":
-        return PretrainConfig(target="policy", epochs=budget.pretrain_epochs, patience=budget.pretrain_patience,
-                              eval_episodes=budget.pretrain_eval_episodes, aux_heads=budget.aux_heads,
-                              asymmetric_critic=budget.asymmetric_critic, **common)
+        return PretrainConfig(
+            target="policy", task=task, seed=seed, **_network(budget, privileged=True), **asdict(budget.pretrain)
+        )
     if target == "value":
-        return PretrainConfig(target="value", epochs=budget.value_epochs, patience=budget.value_patience,
-                              batch_frames=budget.value_batch_frames, eval_episodes=0, **common)
+        return PretrainConfig(
+            target="value",
+            task=task,
+            seed=seed,
+            eval_episodes=0,
+            **_network(budget, privileged=False),
+            **asdict(budget.value),
+        )
     raise ValueError(f"unknown pre-training target {target!r}; allowed: policy, value")
 
 
-def a3c_config_for(budget: Budget, task: str, seed: int, algorithm: str = A3C.name,
-                   data_dir: str | Path | None = None) -> A3CConfig:
-    """The A3C settings of ``algorithm``'s run for a task and seed: the budget's, with the
-    algorithm's fine-tuning settings (:func:`~bimgame.experiments.methods.finetune_overrides`;
-    ``data_dir``, the reproduction's expert dataset, for the algorithms that read it). The paper's
-    algorithms differ in the initial weights and the reward, not in these."""
+def a3c_config_for(
+    budget: Budget, task: str, seed: int, algorithm: str = A3C.name, data_dir: str | Path | None = None
+) -> A3CConfig:
+    """The A3C settings of ``algorithm``'s run for a task and seed: the budget's networks and ``a3c``
+    group (its steps for ``task``), with the algorithm's fine-tuning settings
+    (:func:`~bimgame.experiments.methods.finetune_overrides`; ``data_dir``, the reproduction's expert
+    dataset, for the algorithms that read it). The paper's algorithms differ in the initial weights
+    and the reward, not in these."""
     steps = budget.steps_for(task)
     overrides = finetune_overrides(algorithm, steps, None if data_dir is None else str(data_dir))
-    settings = dict(task=task, obs=budget.obs, steps=steps, workers=budget.workers,
-                    envs_per_worker=budget.envs_per_worker, seed=seed, hidden=budget.hidden, features=budget.features,
-                    subtract_background=budget.network_subtract_background, precision=budget.precision,
-                    aux_heads=budget.aux_heads, asymmetric_critic=budget.asymmetric_critic,
-                    augment_shift=budget.augment_shift, eval_every=budget.eval_every,
-                    eval_episodes=budget.eval_episodes, checkpoint_every=budget.checkpoint_every)
-    return A3CConfig(**{**settings, **overrides})
+    run = {**asdict(budget.a3c), "steps": steps}
+    settings = {"task": task, "seed": seed, **_network(budget, privileged=True), **run}
+    return A3CConfig.from_flat({**settings, **overrides})
 
 
 def dagger_config_for(budget: Budget, task: str, seed: int) -> DAggerConfig:
-    """DAgger's settings for a task and seed (the learner is the same network as A3C's)."""
-    learner = PretrainConfig(task=task, obs=budget.obs, seed=seed, hidden=budget.hidden, features=budget.features,
-                             subtract_background=budget.network_subtract_background, precision=budget.precision,
-                             aux_heads=False, asymmetric_critic=False, eval_episodes=0)
-    return DAggerConfig(learner=learner, iterations=budget.dagger_iterations,
-                        episodes_per_iteration=budget.dagger_episodes, epochs_per_iteration=budget.dagger_epochs,
-                        eval_episodes=budget.dagger_eval_episodes)
+    """DAgger's settings for a task and seed: the budget's ``dagger`` group, and as the learner the
+    same network as A3C's without the privileged inputs (its own rollouts record no simulator states)."""
+    learner = PretrainConfig(
+        task=task,
+        seed=seed,
+        aux_heads=False,
+        asymmetric_critic=False,
+        eval_episodes=0,
+        **_network(budget, privileged=False),
+    )
+    group = budget.dagger
+    return DAggerConfig(
+        learner=learner,
+        iterations=group.iterations,
+        episodes_per_iteration=group.episodes,
+        epochs_per_iteration=group.epochs,
+        eval_episodes=group.eval_episodes,
+    )
 
 
 def run_dataset(piece: Piece, budget: Budget, out_dir: Path) -> str:
-    """Generate (or complete) the expert dataset."""
-    generate_dataset(out_dir / piece.path, task=budget.dataset_task, episodes=budget.dataset_episodes,
-                     seed=budget.dataset_seed, workers=budget.dataset_workers, progress=False,
-                     max_steps=budget.dataset_max_steps)
+    """Generate (or complete) the expert dataset of the budget's ``dataset`` group."""
+    generate_dataset(out_dir / piece.path, progress=False, **asdict(budget.dataset))
     return ""
+
+
+def _task_and_seed(piece: Piece) -> tuple[str, int]:
+    """The task and seed of a piece trained for one of them (every such piece of a plan has both)."""
+    if piece.task is None or piece.seed is None:
+        raise ValueError(f"piece {piece.id!r} has no task or no seed")
+    return piece.task, piece.seed
 
 
 def run_pretrain(piece: Piece, budget: Budget, out_dir: Path, target: str) -> str:
@@ -98,11 +137,13 @@ def run_pretrain(piece: Piece, budget: Budget, out_dir: Path, target: str) -> st
         # run directory is removed.
         expected = KIND_POLICY if target == "policy" else KIND_VALUE
         if stored is None or stored.get("kind") != expected:
-            raise ValueError(f"{path} holds something other than an unfinished {expected} run; move it away "
-                             f"and run again")
+            raise ValueError(
+                f"{path} holds something other than an unfinished {expected} run; move it away and run again"
+            )
         shutil.rmtree(path)
         note = "restarted an unfinished pre-training"
-    pretrain(pretrain_config_for(budget, piece.task, piece.seed, target), out_dir / "data", path, progress=False)
+    task, seed = _task_and_seed(piece)
+    pretrain(pretrain_config_for(budget, task, seed, target), out_dir / "data", path, progress=False)
     return note
 
 
@@ -115,15 +156,17 @@ def run_a3c(piece: Piece, budget: Budget, out_dir: Path) -> str:
     init = (out_dir / policy_path(piece.task, piece.seed)).resolve() if algorithm.starts_from_policy else None
     value = (out_dir / value_path(piece.task, piece.seed)).resolve() if algorithm.value_reward else None
     reward = RewardSettings(value_reward=None if value is None else str(value))
-    wrapper = env_wrapper_for(reward, obs=config.obs, gamma=config.gamma)
+    wrapper = env_wrapper_for(reward, obs=config.network.obs, gamma=config.optimization.gamma)
     resume = (path / CONFIG).is_file()
     if resume:
         stored = read_json(path / CONFIG) or {}
         if isinstance(stored.get("a3c"), dict):
             config = _with_stored_preset_name(stored["a3c"], config)
             _point_at_the_dataset_now(path, stored, config)
-    extra = {"reward": reward.to_dict(),
-             "reproduction": {"algorithm": piece.algorithm, "task": piece.task, "seed": piece.seed}}
+    extra = {
+        "reward": reward.to_dict(),
+        "reproduction": {"algorithm": piece.algorithm, "task": piece.task, "seed": piece.seed},
+    }
     result = train(config, path, resume=resume, init=init, env_wrapper=wrapper, progress=False, extra_config=extra)
     if result.stopped != "finished":
         raise KeyboardInterrupt
@@ -134,10 +177,11 @@ def _with_stored_preset_name(previous: dict, config: A3CConfig) -> A3CConfig:
     """``config`` with the fine-tuning preset name of the unfinished run whose stored A3C settings are
     ``previous`` when only the name differs: a ``pretrain+a3c`` run started before it recorded
     ``finetune="paper"`` (None then) has the same settings and resumes as it was started."""
-    if previous.get("finetune") == config.finetune:
+    flat, defaults = config.to_dict(), A3CConfig().to_dict()
+    if previous.get("finetune") == flat["finetune"]:
         return config
-    same = all(previous.get(field, getattr(A3CConfig, field)) == getattr(config, field) for field in FINETUNE_FIELDS)
-    return dataclasses.replace(config, finetune=previous.get("finetune")) if same else config
+    same = all(previous.get(field, defaults[field]) == flat[field] for field in FINETUNE_FIELDS)
+    return config.with_flat(finetune=previous.get("finetune")) if same else config
 
 
 def _point_at_the_dataset_now(path: Path, stored: dict, config: A3CConfig) -> None:
@@ -161,5 +205,6 @@ def run_dagger(piece: Piece, budget: Budget, out_dir: Path) -> str:
     """Run (or continue after its last finished iteration) a DAgger run."""
     path = out_dir / piece.path
     resume = (path / CONFIG).is_file()
-    dagger(dagger_config_for(budget, piece.task, piece.seed), path, resume=resume, progress=False)
+    task, seed = _task_and_seed(piece)
+    dagger(dagger_config_for(budget, task, seed), path, resume=resume, progress=False)
     return "resumed after its last finished iteration" if resume else ""
