@@ -3,7 +3,6 @@ crossings, and the report's refusals of bad input."""
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import shutil
 from pathlib import Path
@@ -11,7 +10,7 @@ from pathlib import Path
 import pytest
 from support.logs import write_csv
 
-from bimgame.experiments.budgets import Budget
+from bimgame.experiments.budgets import A3CBudget, Budget, DaggerBudget, DatasetBudget
 from bimgame.experiments.plan import write_plan
 from bimgame.experiments.report import build_report
 from bimgame.experiments.statistics import CURVE_BINS
@@ -53,8 +52,8 @@ def tiny_dataset(tmp_path_factory) -> Path:
 
 def test_report_is_rebuilt_from_saved_results(tmp_path, tiny_dataset, fake_run):
     steps = 100_000
-    budget = Budget(name="hand-made", tasks=("STG1",), seeds=2, a3c_steps={"STG1": steps}, dataset_task="STG1",
-                    dataset_episodes=4, dataset_workers=1, dagger_iterations=3)
+    budget = Budget(name="hand-made", tasks=("STG1",), seeds=2, a3c=A3CBudget(steps={"STG1": steps}),
+                    dataset=DatasetBudget(task="STG1", episodes=4, workers=1), dagger=DaggerBudget(iterations=3))
     pieces = write_plan(tmp_path, budget)
     shutil.copytree(tiny_dataset, tmp_path / "data")
     # Known crossings (bins of 2.5k steps): A3C at 60k and 70k, pre-trained at 20k and 35k, value
@@ -141,8 +140,9 @@ def test_report_counts_only_training_episodes_known_to_have_ended(tmp_path, tiny
     # bin showed 100% and "reached" the 80% threshold at 400k, and the final training success
     # (episodes started after 360k) read 57%.
     steps = 400_000
-    budget = Budget(name="hand-made", tasks=("STG1",), algorithms=("a3c",), seeds=1, a3c_steps={"STG1": steps},
-                    workers=1, envs_per_worker=64, dataset_task="STG1", dataset_episodes=4, dataset_workers=1)
+    budget = Budget(name="hand-made", tasks=("STG1",), algorithms=("a3c",), seeds=1,
+                    a3c=A3CBudget(steps={"STG1": steps}, workers=1, envs_per_worker=64),
+                    dataset=DatasetBudget(task="STG1", episodes=4, workers=1))
     write_plan(tmp_path, budget)
     shutil.copytree(tiny_dataset, tmp_path / "data")
     a3c = {"task": "STG1", "max_episode_steps": 200, "workers": 1, "envs_per_worker": 64, "n_steps": 20}
@@ -165,7 +165,7 @@ def test_report_counts_only_training_episodes_known_to_have_ended(tmp_path, tiny
 def test_report_rejects_bad_input(tmp_path):
     with pytest.raises(ValueError, match="not a reproduction directory .no readable plan.json"):
         build_report(tmp_path)
-    write_plan(tmp_path, dataclasses.replace(Budget(), a3c_steps={"STG1": 1000}))
+    write_plan(tmp_path, Budget().replace(a3c={"steps": {"STG1": 1000}}))
     with pytest.raises(ValueError, match=r"threshold_fraction must be in \(0, 1\], got 1.5"):
         build_report(tmp_path, threshold_fraction=1.5)
     with pytest.raises(ValueError, match="resamples must be an integer >= 1, got 0"):
