@@ -17,7 +17,6 @@ from bimgame.learn.a3c import A3CConfig, apply_update, make_optimizer, network_f
 from bimgame.learn.a3c_core import a3c_segment_loss
 from bimgame.learn.checkpoints import save_checkpoint
 from bimgame.learn.finetune import (
-    FINETUNE_PRESETS,
     DemoWindows,
     EntropyTarget,
     LossWeights,
@@ -27,6 +26,7 @@ from bimgame.learn.finetune import (
     kl_to_teacher,
     loss_weights,
 )
+from bimgame.learn.learner_settings import FINETUNE_PRESETS
 from bimgame.learn.nets import LSTMState
 from bimgame.learn.rollout import Segment
 
@@ -44,25 +44,27 @@ def _segment(config: A3CConfig, steps: int, batch: int, seed: int = 0) -> Segmen
             "starts": starts, "actions": torch.randint(0, 5, (steps, batch), generator=g),
             "rewards": (torch.rand(steps, batch, generator=g) < 0.2).float(),
             "ends": starts[1:].clone(),
-            "initial_state": LSTMState(torch.zeros(batch, config.hidden), torch.zeros(batch, config.hidden))})
+            "initial_state": LSTMState(torch.zeros(batch, config.network.hidden),
+                                       torch.zeros(batch, config.network.hidden))})
 
 
 def test_schedules_warm_up_ramp_and_decay():
-    config = A3CConfig(**SMALL, critic_warmup_steps=100, actor_ramp_steps=200, kl_coef=2.0, kl_decay_steps=1000,
-                       bc_coef=0.5, bc_decay_steps=400, expert_data="unused")
-    assert loss_weights(config, 0) == LossWeights(actor=0.0, kl=2.0, bc=0.5, critic_only=True)
-    assert loss_weights(config, 99).critic_only
-    middle = loss_weights(config, 200)
+    config = A3CConfig.from_flat(**SMALL, critic_warmup_steps=100, actor_ramp_steps=200, kl_coef=2.0,
+                                 kl_decay_steps=1000, bc_coef=0.5, bc_decay_steps=400, expert_data="unused")
+    settings = config.finetuning
+    assert loss_weights(settings, 0) == LossWeights(actor=0.0, kl=2.0, bc=0.5, critic_only=True)
+    assert loss_weights(settings, 99).critic_only
+    middle = loss_weights(settings, 200)
     assert not middle.critic_only and middle.actor == pytest.approx(0.5)
     assert middle.kl == pytest.approx(2.0 * 0.8) and middle.bc == pytest.approx(0.5 * 0.5)
-    late = loss_weights(config, 5000)
+    late = loss_weights(settings, 5000)
     assert late == LossWeights(actor=1.0, kl=0.0, bc=0.0, critic_only=False)
-    plain = loss_weights(A3CConfig(**SMALL), 0)
+    plain = loss_weights(A3CConfig.from_flat(**SMALL).finetuning, 0)
     assert plain == LossWeights(actor=1.0, kl=0.0, bc=0.0, critic_only=False)
 
 
 def test_kl_is_zero_for_the_teacher_itself_and_positive_otherwise():
-    config = A3CConfig(**SMALL)
+    config = A3CConfig.from_flat(**SMALL)
     student = network_for(config)
     seg = _segment(config, 8, 3)
     teacher = Teacher(copy.deepcopy(student), 3)
@@ -83,7 +85,7 @@ def test_kl_is_zero_for_the_teacher_itself_and_positive_otherwise():
 
 def test_teacher_carries_its_lstm_state_across_segments():
     """Following two consecutive segments gives the same distributions as following one long one."""
-    config = A3CConfig(**SMALL)
+    config = A3CConfig.from_flat(**SMALL)
     net = network_for(config)
     whole = _segment(config, 10, 2, seed=3)
     inputs = ("obs", "prev_action", "prev_reward", "tilt", "starts")
@@ -96,19 +98,19 @@ def test_teacher_carries_its_lstm_state_across_segments():
 
 
 def test_critic_warm_up_changes_only_the_value_head_and_the_ramp_scales_the_policy_learning_rate():
-    config = A3CConfig(**SMALL, critic_warmup_steps=1000, actor_ramp_steps=1000, lr=1e-2)
+    config = A3CConfig.from_flat(**SMALL, critic_warmup_steps=1000, actor_ramp_steps=1000, lr=1e-2)
     shared = network_for(config)
     local = copy.deepcopy(shared)
     optimizer = make_optimizer(config, shared)
     assert [len(g["params"]) for g in optimizer.param_groups] == [2, len(list(shared.parameters())) - 2]
     before = {k: v.clone() for k, v in shared.state_dict().items()}
     parts = apply_update(local, list(shared.parameters()), optimizer, _segment(config, 8, 3), config,
-                         loss_weights(config, 0))
+                         loss_weights(config.finetuning, 0))
     assert parts["applied"]
     changed = {k for k, v in shared.state_dict().items() if not torch.equal(v, before[k])}
     assert changed == {"value.weight", "value.bias"}
     apply_update(local, list(shared.parameters()), optimizer, _segment(config, 8, 3, seed=1), config,
-                 loss_weights(config, 1500))
+                 loss_weights(config.finetuning, 1500))
     assert optimizer.param_groups[0]["lr"] == pytest.approx(0.5e-2)
     assert optimizer.param_groups[1]["lr"] == pytest.approx(1e-2)
     assert not torch.equal(shared.state_dict()["policy.weight"], before["policy.weight"])
@@ -117,7 +119,7 @@ def test_critic_warm_up_changes_only_the_value_head_and_the_ramp_scales_the_poli
 def test_advantage_scaling_makes_the_policy_gradient_independent_of_the_reward_scale():
     """Rewards ×1000 and a critic that is scaled alike: with advantage scaling the policy loss is the
     same; without it, it is 1000 times larger."""
-    config = A3CConfig(**SMALL, value_coef=0.0, entropy_coef=0.0)
+    config = A3CConfig.from_flat(**SMALL, value_coef=0.0, entropy_coef=0.0)
     net = network_for(config)
     seg = _segment(config, 8, 4)
     big = seg.replace(rewards=seg.rewards * 1000)
@@ -160,7 +162,7 @@ def test_demo_windows_are_slices_of_the_episodes_and_the_bc_term_learns_them():
         assert not batch["mask"][n:, b].any()
     assert np.array_equal(windows.sample(6, np.random.default_rng(1))["obs"].numpy(), batch["obs"].numpy())
     torch.manual_seed(0)
-    net = network_for(A3CConfig(**SMALL))
+    net = network_for(A3CConfig.from_flat(**SMALL))
     optimizer = torch.optim.Adam(net.parameters(), lr=1e-2)
     sample_rng = np.random.default_rng(2)
     first = bc_loss(net, windows.sample(8, sample_rng)).item()
@@ -174,30 +176,31 @@ def test_demo_windows_are_slices_of_the_episodes_and_the_bc_term_learns_them():
 
 def test_presets_apply_with_init_and_yield_to_given_settings(tmp_path):
     init = tmp_path / "pi.pt"
-    config = A3CConfig(**SMALL)
+    config = A3CConfig.from_flat(**SMALL)
     save_checkpoint(init, model=network_for(config).state_dict(), step=0)
     default = resolve_config({"obs": "state"}, tmp_path / "run", init=init)
-    assert default.finetune == "keep"
-    assert {k: getattr(default, k) for k in FINETUNE_PRESETS["keep"]} == FINETUNE_PRESETS["keep"]
+    assert default.finetuning is not None and default.finetuning.finetune == "keep"
+    assert {k: default.to_dict()[k] for k in FINETUNE_PRESETS["keep"]} == FINETUNE_PRESETS["keep"]
     paper = resolve_config({"obs": "state", "finetune": "paper"}, tmp_path / "run", init=init)
-    assert {k: getattr(paper, k) for k in FINETUNE_PRESETS["paper"]} == FINETUNE_PRESETS["paper"]
+    assert {k: paper.to_dict()[k] for k in FINETUNE_PRESETS["paper"]} == FINETUNE_PRESETS["paper"]
     mixed = resolve_config({"obs": "state", "kl_coef": 0.25}, tmp_path / "run", init=init)
-    assert mixed.kl_coef == 0.25 and mixed.critic_warmup_steps == FINETUNE_PRESETS["keep"]["critic_warmup_steps"]
+    assert mixed.finetuning is not None and mixed.finetuning.kl_coef == 0.25
+    assert mixed.finetuning.critic_warmup_steps == FINETUNE_PRESETS["keep"]["critic_warmup_steps"]
     scratch = resolve_config({"obs": "state"}, tmp_path / "run")
-    assert scratch.finetune is None and scratch.kl_coef == 0.0
+    assert scratch.finetuning is None  # no preset (finetune None) and kl_coef 0: no fine-tuning part
     with pytest.raises(ValueError, match="finetune must be one of paper, keep, got 'forget'"):
         resolve_config({"obs": "state", "finetune": "forget"}, tmp_path / "run", init=init)
     with pytest.raises(ValueError, match="bc_coef needs expert_data"):
-        A3CConfig(**SMALL, bc_coef=0.1)
+        A3CConfig.from_flat(**SMALL, bc_coef=0.1)
     with pytest.raises(ValueError, match="kl_coef > 0 .* needs a pre-trained policy"):
-        train(A3CConfig(**SMALL, kl_coef=1.0), tmp_path / "no-teacher", progress=False)
+        train(A3CConfig.from_flat(**SMALL, kl_coef=1.0), tmp_path / "no-teacher", progress=False)
     assert not (tmp_path / "no-teacher").exists()
 
 
 def test_fine_tuned_run_keeps_its_teacher_logs_the_terms_and_resumes(tmp_path):
     base = dict(task="STG1", workers=1, envs_per_worker=4, n_steps=10, eval_every=0, log_every=200, **SMALL)
     init = tmp_path / "pi.pt"
-    teacher_net = network_for(A3CConfig(**base, seed=5))
+    teacher_net = network_for(A3CConfig.from_flat(**base, seed=5))
     save_checkpoint(init, model=teacher_net.state_dict(), step=0)
     given = {**base, "steps": 2_000, "critic_warmup_steps": 400, "actor_ramp_steps": 400,
              "kl_decay_steps": 4_000, "checkpoint_every": 1_000}
@@ -228,7 +231,7 @@ def test_entropy_target_sharpens_above_the_target_and_protects_below_it():
     assert coef == pytest.approx(0.05)
     assert target.update(float("nan"), 1000) == coef
     with pytest.raises(ValueError, match="entropy_target must be None or in"):
-        A3CConfig(**SMALL, entropy_target=2.0)
+        A3CConfig.from_flat(**SMALL, entropy_target=2.0)
 
 
 @pytest.mark.parametrize("curriculum", ["demo", "reverse"])
@@ -239,9 +242,9 @@ def test_start_curricula_train_and_keep_training_success_to_the_true_starts(tmp_
     if curriculum == "demo":
         data = tmp_path / "data"
         generate_dataset(data, task="STG1", episodes=2, seed=0, workers=1, progress=False)
-    config = A3CConfig(task="STG1", workers=1, envs_per_worker=4, n_steps=10, eval_every=0, log_every=200, steps=3_000,
-                       start_curriculum=curriculum, expert_data=None if data is None else str(data),
-                       entropy_target=1.0, entropy_target_steps=2_000, **SMALL)
+    config = A3CConfig.from_flat(task="STG1", workers=1, envs_per_worker=4, n_steps=10, eval_every=0, log_every=200,
+                                 steps=3_000, start_curriculum=curriculum, expert_data=None if data is None else str(data),
+                                 entropy_target=1.0, entropy_target_steps=2_000, **SMALL)
     result = train(config, tmp_path / "run", progress=False)
     assert result.stopped == "finished"
     with open(tmp_path / "run" / "episodes.csv") as handle:
@@ -251,7 +254,7 @@ def test_start_curricula_train_and_keep_training_success_to_the_true_starts(tmp_
     with open(tmp_path / "run" / "updates.csv") as handle:
         updates = list(csv.DictReader(handle))
     assert all(row["curriculum_stage"] != "" for row in updates)
-    assert float(updates[-1]["entropy_coef"]) != config.entropy_coef  # the coefficient adapted
+    assert float(updates[-1]["entropy_coef"]) != config.optimization.entropy_coef  # the coefficient adapted
     true_starts = [row["success"] == "True" for row in episodes if row["true_start"] == "True"]
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
     if true_starts:
@@ -260,7 +263,7 @@ def test_start_curricula_train_and_keep_training_success_to_the_true_starts(tmp_
 
 
 def test_a_cooler_teacher_is_sharper_with_the_same_greedy_action():
-    config = A3CConfig(**SMALL)
+    config = A3CConfig.from_flat(**SMALL)
     net = network_for(config)
     with torch.no_grad():
         net.policy.bias += torch.tensor([0.3, 0.0, -0.2, 0.1, 0.0])
@@ -272,4 +275,4 @@ def test_a_cooler_teacher_is_sharper_with_the_same_greedy_action():
     assert torch.equal(cool.argmax(-1), warm.argmax(-1))
     assert torch.allclose(cool, torch.log_softmax(warm * 4, dim=-1), atol=1e-5)
     with pytest.raises(ValueError, match="kl_temperature must be a finite number > 0"):
-        A3CConfig(**SMALL, kl_temperature=0)
+        A3CConfig.from_flat(**SMALL, kl_temperature=0)
