@@ -192,8 +192,8 @@ def test_train_init_starts_from_the_pretrained_weights(shaped_run_from_pretraine
     pretrained = json.loads((pretrained_stg1.run_dir / "config.json").read_text())["network"]
     # The network settings come from the pre-trained run.
     for key in ("obs", "hidden", "features", "tilt_input"):
-        assert getattr(config, key) == pretrained[key]
-    assert config.eval_episodes == 10
+        assert getattr(config.network, key) == pretrained[key]
+    assert config.schedule.eval_episodes == 10
 
     first = _csv_rows(run_dir / "eval.csv")[0]
     assert int(first["step"]) == 0
@@ -226,7 +226,8 @@ def test_shaped_training_logs_the_task_reward_and_resume_keeps_the_shaping(
     # The recorded settings build the shaping the workers used: r + 5·(d − d') + γ·V̂(s') − V̂(s).
     config = A3CConfig.from_dict(stored["a3c"])
     vhat, _ = load_value_network(value_stg1.run_dir)
-    env = env_wrapper_for(RewardSettings(**stored["reward"]), obs=config.obs, gamma=config.gamma)(
+    env = env_wrapper_for(RewardSettings(**stored["reward"]), obs=config.network.obs,
+                          gamma=config.optimization.gamma)(
         BallInMazeVectorEnv(4, task="STG1", obs_mode="state", max_episode_steps=300, nthread=1,
                             autoreset_mode="same_step"))
 
@@ -241,7 +242,7 @@ def test_shaped_training_logs_the_task_reward_and_resume_keeps_the_shaping(
         obs, r, terminated, truncated, info = env.step(rng.integers(5, size=4))
         assert not (terminated | truncated).any()
         phi_next, distance_next = potential(obs, info), info["geodesic_distance"].sum(axis=-1)
-        expected = SHAPING_COEF * (distance - distance_next) + config.gamma * phi_next - phi
+        expected = SHAPING_COEF * (distance - distance_next) + config.optimization.gamma * phi_next - phi
         np.testing.assert_allclose(info["shaping"], expected, rtol=1e-5, atol=1e-7)
         np.testing.assert_allclose(r, info["task_reward"] + info["shaping"])
         assert np.all(np.abs(info["shaping"]) > 0)
