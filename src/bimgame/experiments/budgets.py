@@ -7,6 +7,12 @@ The budget is the one input of a reproduction: it is stored in ``plan.json``
 every piece's settings (:mod:`bimgame.experiments.runners`). It is validated here, when it is
 made, so that a bad value fails before anything runs, naming the field and what is allowed.
 
+The grid (tasks, algorithms, seeds, observations) is the budget's own; the pieces' settings come in
+groups (:mod:`bimgame.experiments.budget_groups`): ``network``, ``a3c``, ``dataset``, ``pretrain``,
+``value`` and ``dagger``, each named by its path (``dagger.episodes``) in errors, reports and
+``plan.json``. A ``plan.json`` written when every setting was a field of the budget itself
+(``dagger_episodes``) still loads as the same budget (:data:`FLAT_FIELDS`).
+
 The compared algorithms are the records of :mod:`bimgame.experiments.algorithms` (each says what it
 is); a budget names them. Why the presets have the sizes they have, and what they measured, is in
 ``docs/budgets.md``.
