@@ -2,8 +2,9 @@
 the value-only network V̂ (README, "Learning from trajectories").
 
 **π^s** (``target="policy"``): the A3C network itself is trained on whole expert episodes with the
-paper's loss (:mod:`bimgame.learn.supervised`). Episodes are split into training and held-out sets; the weights with the lowest held-out loss are
-kept (early stopping matters: on expert data the network starts to overfit within tens of epochs).
+paper's loss (:mod:`bimgame.learn.supervised`). Episodes are split into training and held-out sets;
+the weights with the lowest held-out loss are kept (early stopping matters: on expert data the
+network starts to overfit within tens of epochs).
 The result is a run directory that ``bimgame train --init`` and ``bimgame evaluate`` accept.
 
 **V̂** (``target="value"``): a feed-forward :class:`~bimgame.learn.nets.ValueNetwork` trained on the value
@@ -21,6 +22,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -31,6 +33,7 @@ from bimgame.expert.datasets import dataset_manifest, iterate_sequences, load_da
 from bimgame.expert.episode import Episode, relabel
 from bimgame.learn.checkpoints import load_weights, save_checkpoint
 from bimgame.learn.common import evaluate_greedy_and_sampled
+from bimgame.learn.metric_logs import MetricLog
 from bimgame.learn.nets import RecurrentActorCritic, ValueNetwork
 from bimgame.learn.run_dir import RunDirectory
 from bimgame.learn.runs import CHECKPOINT, KIND_POLICY, KIND_VALUE, torch_threads
@@ -42,14 +45,29 @@ from bimgame.util.progress import ProgressBar
 from bimgame.util.signals import sigterm_as_interrupt
 
 __all__ = ["PretrainResult", "pretrain", "load_sequences", "build_model", "evaluate_policy", "data_source"]
-_TABLE = ["train_loss", "train_accuracy", "train_value_rmse", "train_aux", "val_loss", "val_accuracy",
-          "val_value_rmse", "val_aux",
-          "seconds"]
+_TABLE = [
+    "train_loss",
+    "train_accuracy",
+    "train_value_rmse",
+    "train_aux",
+    "val_loss",
+    "val_accuracy",
+    "val_value_rmse",
+    "val_aux",
+    "seconds",
+]
 
 
 # ------------------------------------------------------------------------------------- data
-def load_sequences(data_dir: str | Path, task: str | Task, obs: str, gamma: float,
-                   spec: MazeSpec | None = None, *, progress: bool = False) -> list[Episode]:
+def load_sequences(
+    data_dir: str | Path,
+    task: str | Task,
+    obs: str,
+    gamma: float,
+    spec: MazeSpec | None = None,
+    *,
+    progress: bool = False,
+) -> list[Episode]:
     """Every episode of a dataset directory, relabelled for ``task`` (see
     :func:`~bimgame.expert.episode.relabel`)."""
     spec = spec or MazeSpec.merl()
@@ -57,9 +75,11 @@ def load_sequences(data_dir: str | Path, task: str | Task, obs: str, gamma: floa
     manifest = dataset_manifest(data_dir)
     data_task = parse_task(manifest["task"], spec)
     if task.walls_to_pass(spec) > data_task.walls_to_pass(spec):
-        raise ValueError(f"the dataset in {data_dir} holds {data_task.value} episodes, which end before a "
-                         f"{task.value} episode would; use a dataset of {task.value} or a harder task "
-                         f"(FULL labels every task)")
+        raise ValueError(
+            f"the dataset in {data_dir} holds {data_task.value} episodes, which end before a "
+            f"{task.value} episode would; use a dataset of {task.value} or a harder task "
+            f"(FULL labels every task)"
+        )
     dataset = load_dataset(data_dir)
     sequences = []
     with ProgressBar(f"reading {obs} episodes", dataset.total_episodes, enabled=progress, transient=True) as bar:
@@ -70,20 +90,30 @@ def load_sequences(data_dir: str | Path, task: str | Task, obs: str, gamma: floa
 
 
 def _frames(sequences: list[Episode], indices: np.ndarray, max_tilt: float) -> dict[str, torch.Tensor]:
-    return {"obs": torch.as_tensor(np.concatenate([sequences[i].obs for i in indices])),
-            "tilt": torch.as_tensor(np.concatenate([sequences[i].tilt for i in indices]) / max_tilt),
-            "returns": torch.as_tensor(np.concatenate([sequences[i].returns for i in indices]))}
+    """The frames of the episodes ``indices`` as flat tensors: observations, scaled tilts, returns."""
+    return {
+        "obs": torch.as_tensor(np.concatenate([sequences[i].obs for i in indices])),
+        "tilt": torch.as_tensor(np.concatenate([sequences[i].tilt for i in indices]) / max_tilt),
+        "returns": torch.as_tensor(np.concatenate([sequences[i].returns for i in indices])),
+    }
 
 
-def _value_epoch(net: ValueNetwork, frames: dict[str, torch.Tensor], config: PretrainConfig,
-                 rng: np.random.Generator, optimizer) -> dict[str, float]:
+def _value_epoch(
+    net: ValueNetwork,
+    frames: dict[str, torch.Tensor],
+    config: PretrainConfig,
+    rng: np.random.Generator,
+    optimizer: torch.optim.Optimizer | None,
+) -> dict[str, float]:
+    """One pass of V̂'s loss (value and L2 terms) over ``frames``: training with ``optimizer`` on
+    shuffled batches, else measuring only, in order."""
     n = len(frames["returns"])
     order = torch.as_tensor(rng.permutation(n) if optimizer is not None else np.arange(n))
     value_se = 0.0
     net.train(optimizer is not None)
     with torch.set_grad_enabled(optimizer is not None):
         for start in range(0, n, config.batch_frames):
-            idx = order[start:start + config.batch_frames]
+            idx = order[start : start + config.batch_frames]
             values = net(frames["obs"][idx], frames["tilt"][idx] if net.config.tilt_input else None)
             se = (values - frames["returns"][idx]).pow(2)
             if optimizer is not None:
@@ -93,13 +123,16 @@ def _value_epoch(net: ValueNetwork, frames: dict[str, torch.Tensor], config: Pre
                 torch.nn.utils.clip_grad_norm_(net.parameters(), config.max_grad_norm)
                 optimizer.step()
             value_se += float(se.detach().sum())
-    return summarise({"ce": 0.0, "value_se": value_se, "correct": 0.0, "count": float(n)},
-                      config.value_coef, policy=False)
+    return summarise(
+        {"ce": 0.0, "value_se": value_se, "correct": 0.0, "count": float(n)}, config.value_coef, policy=False
+    )
 
 
 # ---------------------------------------------------------------------------------- training
 @dataclasses.dataclass
 class PretrainResult:
+    """What pre-training produced: the run, its best epoch and held-out numbers, π^s as a policy."""
+
     run_dir: Path
     best_epoch: int
     epochs_run: int
@@ -120,8 +153,14 @@ def build_model(config: PretrainConfig, maze: MazeSpec | None = None) -> Recurre
     return config.build_value(config.seed, maze)
 
 
-def pretrain(config: PretrainConfig, data_dir: str | Path, out_dir: str | Path, *, progress: bool = True,
-             sequences: list[Episode] | None = None) -> PretrainResult:
+def pretrain(
+    config: PretrainConfig,
+    data_dir: str | Path,
+    out_dir: str | Path,
+    *,
+    progress: bool = True,
+    sequences: list[Episode] | None = None,
+) -> PretrainResult:
     """Train π^s or V̂ on the dataset in ``data_dir``; everything is written to ``out_dir``:
     ``config.json``, ``checkpoint.pt`` (the best held-out weights), ``pretrain.csv`` and TensorBoard
     scalars per epoch, ``summary.json``. ``sequences`` (already loaded with
@@ -137,13 +176,17 @@ def pretrain(config: PretrainConfig, data_dir: str | Path, out_dir: str | Path, 
             with sigterm_as_interrupt():
                 return _pretrain(config, data_dir, run, progress=progress, sequences=sequences)
         except FileWriteError as error:
-            raise error.with_advice(f"Pre-training cannot resume, so its files are removed from {run.path}: free "
-                                    f"some space and run the same command again") from error
+            raise error.with_advice(
+                f"Pre-training cannot resume, so its files are removed from {run.path}: free "
+                f"some space and run the same command again"
+            ) from error
 
 
-def _pretrain(config: PretrainConfig, data_dir: str | Path, run: RunDirectory, *, progress: bool,
-              sequences: list[Episode] | None) -> PretrainResult:
-    out_dir = run.path
+def _pretrain(
+    config: PretrainConfig, data_dir: str | Path, run: RunDirectory, *, progress: bool, sequences: list[Episode] | None
+) -> PretrainResult:
+    """:func:`pretrain` in the run directory ``run``, already held: read the data, write the settings,
+    train with early stopping, keep the best held-out weights, evaluate π^s, write the summary."""
     maze = MazeSpec.merl()
     if sequences is None:
         sequences = load_sequences(data_dir, config.task, config.obs, config.gamma, maze, progress=progress)
@@ -151,74 +194,188 @@ def _pretrain(config: PretrainConfig, data_dir: str | Path, run: RunDirectory, *
     train_idx, val_idx = split_episodes(len(sequences), config.val_fraction, rng)
     net = build_model(config, maze)
     kind = run.layout.kind
-    run.write_config({"task": config.task, "seed": config.seed, "network": config.network_settings().to_dict(),
-                      "net": net.config.to_dict(), "pretrain": config.to_dict(), "data": str(data_dir),
-                      "episodes": {"train": len(train_idx), "held_out": len(val_idx)}})
+    run.write_config(
+        {
+            "task": config.task,
+            "seed": config.seed,
+            "network": config.network_settings().to_dict(),
+            "net": net.config.to_dict(),
+            "pretrain": config.to_dict(),
+            "data": str(data_dir),
+            "episodes": {"train": len(train_idx), "held_out": len(val_idx)},
+        }
+    )
     optimizer = torch.optim.Adam(net.parameters(), lr=config.lr)
-    max_tilt = maze.max_tilt
-    if config.target == "value":
-        train_frames, val_frames = _frames(sequences, train_idx, max_tilt), _frames(sequences, val_idx, max_tilt)
-
-        def run_epoch(training: bool) -> dict[str, float]:
-            return _value_epoch(net, train_frames if training else val_frames, config, rng,
-                                optimizer if training else None)
+    split = _Split(sequences, train_idx, val_idx, maze.max_tilt)
+    if isinstance(net, ValueNetwork):
+        run_epoch = _value_epochs(net, split, config, rng, optimizer)
     else:
-        held_out = list(policy_batches(sequences, val_idx, config, max_tilt))  # the same every epoch: built once
-
-        def run_epoch(training: bool) -> dict[str, float]:
-            if training:
-                order = rng.permutation(train_idx)
-                return policy_epoch(net, policy_batches(sequences, order, config, max_tilt), config, optimizer)
-            return policy_epoch(net, held_out, config, None)
-
+        run_epoch = _policy_epochs(net, split, config, rng, optimizer)
     log = run.metric_log({"pretrain": _TABLE})
     started = time.monotonic()
-    best: dict[str, Any] = {"loss": math.inf, "epoch": 0, "accuracy": float("nan"), "value_rmse": float("nan")}
-    initial = run_epoch(False)
-    log.write("pretrain", 0, {"val_loss": initial["loss"], "val_accuracy": initial["accuracy"],
-                              "val_value_rmse": initial["value_rmse"], "val_aux": initial["aux"], "seconds": 0.0},
-              scalars=("val_loss", "val_accuracy", "val_value_rmse", "val_aux"))
-    epochs_run = 0
+    _log_initial(log, run_epoch(False))
     try:
-        with ProgressBar(f"pretrain {config.target} {config.task} {config.obs}", config.epochs,
-                         enabled=progress) as bar:
-            for epoch in range(1, config.epochs + 1):
-                train_summary = run_epoch(True)
-                val = run_epoch(False)
-                epochs_run = epoch
-                if not math.isfinite(train_summary["loss"]):
-                    raise RuntimeError(f"pre-training diverged at epoch {epoch} (training loss "
-                                       f"{train_summary['loss']}); lower --lr (now {config.lr})")
-                row = {"train_loss": train_summary["loss"], "train_accuracy": train_summary["accuracy"],
-                       "train_value_rmse": train_summary["value_rmse"], "train_aux": train_summary["aux"],
-                       "val_loss": val["loss"], "val_accuracy": val["accuracy"], "val_value_rmse": val["value_rmse"],
-                       "val_aux": val["aux"],
-                       "seconds": time.monotonic() - started}
-                log.write("pretrain", epoch, row, scalars=_TABLE[:-1])
-                if val["loss"] < best["loss"]:
-                    best = {"loss": val["loss"], "epoch": epoch, "accuracy": val["accuracy"],
-                            "value_rmse": val["value_rmse"]}
-                    save_checkpoint(run / CHECKPOINT, model=net.state_dict(), step=0, epoch=epoch, kind=kind)
-                accuracy = "" if math.isnan(val["accuracy"]) else f"held-out accuracy {val['accuracy']:.1%}  "
-                bar.update(completed=epoch, info=f"{accuracy}value RMSE {val['value_rmse']:.3f}  "
-                                                 f"best epoch {best['epoch']}")
-                if epoch - best["epoch"] >= config.patience:
-                    break
+        best, epochs_run = _train_epochs(config, run, net, run_epoch, log, started, progress=progress)
     finally:
         log.close()
     if best["epoch"] == 0:
         save_checkpoint(run / CHECKPOINT, model=net.state_dict(), step=0, epoch=0, kind=kind)
     load_weights(net, run / CHECKPOINT)
     policy_eval = None
-    if config.target == "policy" and config.eval_episodes > 0:
+    if isinstance(net, RecurrentActorCritic) and config.eval_episodes > 0:
         policy_eval = evaluate_policy(net, config)
-    result = PretrainResult(out_dir, best["epoch"], epochs_run, best["accuracy"], best["value_rmse"],
-                            time.monotonic() - started, policy_eval, data_source(data_dir))
-    run.write_summary({"kind": kind, "data_source": result.data_source, "best_epoch": result.best_epoch,
-                       "epochs_run": epochs_run, "val_accuracy": result.val_accuracy,
-                       "val_value_rmse": result.val_value_rmse, "chance_accuracy": 0.2, "seconds": result.seconds,
-                       "policy_eval": policy_eval, "episodes": {"train": len(train_idx), "held_out": len(val_idx)}})
+    result = PretrainResult(
+        run.path,
+        best["epoch"],
+        epochs_run,
+        best["accuracy"],
+        best["value_rmse"],
+        time.monotonic() - started,
+        policy_eval,
+        data_source(data_dir),
+    )
+    _write_summary(run, result, episodes={"train": len(train_idx), "held_out": len(val_idx)})
     return result
+
+
+@dataclasses.dataclass(frozen=True)
+class _Split:
+    """The episodes, split into those trained on and those held out, and the maze's largest tilt."""
+
+    sequences: list[Episode]
+    train_idx: np.ndarray
+    val_idx: np.ndarray
+    max_tilt: float
+
+
+#: One epoch: training (``True``) or measuring on the held-out episodes (``False``); returns its summary.
+EpochRunner = Callable[[bool], dict[str, float]]
+
+
+def _value_epochs(
+    net: ValueNetwork, split: _Split, config: PretrainConfig, rng: np.random.Generator, optimizer: torch.optim.Optimizer
+) -> EpochRunner:
+    """The epochs of V̂: shuffled frames of the training episodes, or all held-out frames."""
+    train_frames = _frames(split.sequences, split.train_idx, split.max_tilt)
+    val_frames = _frames(split.sequences, split.val_idx, split.max_tilt)
+
+    def run_epoch(training: bool) -> dict[str, float]:
+        return _value_epoch(net, train_frames if training else val_frames, config, rng, optimizer if training else None)
+
+    return run_epoch
+
+
+def _policy_epochs(
+    net: RecurrentActorCritic,
+    split: _Split,
+    config: PretrainConfig,
+    rng: np.random.Generator,
+    optimizer: torch.optim.Optimizer,
+) -> EpochRunner:
+    """The epochs of π^s: the training episodes in a new order each time, or the held-out ones."""
+    held_out = list(policy_batches(split.sequences, split.val_idx, config, split.max_tilt))  # the same every epoch
+
+    def run_epoch(training: bool) -> dict[str, float]:
+        if training:
+            order = rng.permutation(split.train_idx)
+            return policy_epoch(net, policy_batches(split.sequences, order, config, split.max_tilt), config, optimizer)
+        return policy_epoch(net, held_out, config, None)
+
+    return run_epoch
+
+
+def _log_initial(log: MetricLog, initial: dict[str, float]) -> None:
+    """Log the untrained network's held-out summary ``initial`` as epoch 0."""
+    log.write(
+        "pretrain",
+        0,
+        {
+            "val_loss": initial["loss"],
+            "val_accuracy": initial["accuracy"],
+            "val_value_rmse": initial["value_rmse"],
+            "val_aux": initial["aux"],
+            "seconds": 0.0,
+        },
+        scalars=("val_loss", "val_accuracy", "val_value_rmse", "val_aux"),
+    )
+
+
+def _train_epochs(
+    config: PretrainConfig,
+    run: RunDirectory,
+    net: RecurrentActorCritic | ValueNetwork,
+    run_epoch: EpochRunner,
+    log: MetricLog,
+    started: float,
+    *,
+    progress: bool,
+) -> tuple[dict[str, Any], int]:
+    """Train up to ``config.epochs`` epochs, logging each and checkpointing every new best held-out
+    loss; stop after ``config.patience`` epochs without one. Returns the best epoch's numbers and
+    the epochs run."""
+    best: dict[str, Any] = {"loss": math.inf, "epoch": 0, "accuracy": float("nan"), "value_rmse": float("nan")}
+    epochs_run = 0
+    with ProgressBar(f"pretrain {config.target} {config.task} {config.obs}", config.epochs, enabled=progress) as bar:
+        for epoch in range(1, config.epochs + 1):
+            train_summary = run_epoch(True)
+            val = run_epoch(False)
+            epochs_run = epoch
+            if not math.isfinite(train_summary["loss"]):
+                raise RuntimeError(
+                    f"pre-training diverged at epoch {epoch} (training loss "
+                    f"{train_summary['loss']}); lower --lr (now {config.lr})"
+                )
+            log.write(
+                "pretrain", epoch, _epoch_row(train_summary, val, time.monotonic() - started), scalars=_TABLE[:-1]
+            )
+            if val["loss"] < best["loss"]:
+                best = {
+                    "loss": val["loss"],
+                    "epoch": epoch,
+                    "accuracy": val["accuracy"],
+                    "value_rmse": val["value_rmse"],
+                }
+                save_checkpoint(run / CHECKPOINT, model=net.state_dict(), step=0, epoch=epoch, kind=run.layout.kind)
+            accuracy = "" if math.isnan(val["accuracy"]) else f"held-out accuracy {val['accuracy']:.1%}  "
+            bar.update(
+                completed=epoch, info=f"{accuracy}value RMSE {val['value_rmse']:.3f}  best epoch {best['epoch']}"
+            )
+            if epoch - best["epoch"] >= config.patience:
+                break
+    return best, epochs_run
+
+
+def _epoch_row(train: dict[str, float], val: dict[str, float], seconds: float) -> dict[str, float]:
+    """An epoch's ``pretrain.csv`` row: its training and held-out summaries, ``seconds`` into the run."""
+    return {
+        "train_loss": train["loss"],
+        "train_accuracy": train["accuracy"],
+        "train_value_rmse": train["value_rmse"],
+        "train_aux": train["aux"],
+        "val_loss": val["loss"],
+        "val_accuracy": val["accuracy"],
+        "val_value_rmse": val["value_rmse"],
+        "val_aux": val["aux"],
+        "seconds": seconds,
+    }
+
+
+def _write_summary(run: RunDirectory, result: PretrainResult, *, episodes: dict[str, int]) -> None:
+    """Write the run's ``summary.json``: how pre-training ended (``episodes``: trained on, held out)."""
+    run.write_summary(
+        {
+            "kind": run.layout.kind,
+            "data_source": result.data_source,
+            "best_epoch": result.best_epoch,
+            "epochs_run": result.epochs_run,
+            "val_accuracy": result.val_accuracy,
+            "val_value_rmse": result.val_value_rmse,
+            "chance_accuracy": 0.2,
+            "seconds": result.seconds,
+            "policy_eval": result.policy_eval,
+            "episodes": episodes,
+        }
+    )
 
 
 def data_source(data_dir: str | Path) -> str:
@@ -232,6 +389,14 @@ def data_source(data_dir: str | Path) -> str:
 
 def evaluate_policy(net: RecurrentActorCritic, config: PretrainConfig, seed: int = 12345) -> dict[str, float]:
     """π^s alone on its task: greedy and sampled success rate, length and return."""
-    return {"episodes": config.eval_episodes,
-            **evaluate_greedy_and_sampled(net, task=config.task, obs=config.obs, episodes=config.eval_episodes,
-                                          seed=seed, time_limit=config.time_limit)}
+    return {
+        "episodes": config.eval_episodes,
+        **evaluate_greedy_and_sampled(
+            net,
+            task=config.task,
+            obs=config.obs,
+            episodes=config.eval_episodes,
+            seed=seed,
+            time_limit=config.time_limit,
+        ),
+    }

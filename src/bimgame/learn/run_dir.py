@@ -77,20 +77,24 @@ class RunLayout:
         return (*self.files, *(f"{table}.csv" for table in self.tables), *(("tb",) if self.tables else ()))
 
 
+_A3C_FILES = (CONFIG, CHECKPOINT, SUMMARY, TEACHER, "curves.png")
+_DAGGER_FILES = (CONFIG, CHECKPOINT, DAGGER_STATE, "data")
 _PRETRAINING_FILES = (CONFIG, CHECKPOINT, SUMMARY)
 
 #: The layout of every kind of run, by kind.
-LAYOUTS: dict[str, RunLayout] = {layout.kind: layout for layout in (
-    RunLayout(KIND_A3C, "A3C", "--run-dir", (CONFIG, CHECKPOINT, SUMMARY, TEACHER, "curves.png"),
-              ("episodes", "updates", "eval"), resumable=True),
-    RunLayout(KIND_DAGGER, "DAgger", "--run-dir", (CONFIG, CHECKPOINT, DAGGER_STATE, "data"), ("dagger",),
-              resumable=True),
-    RunLayout(KIND_POLICY, "pre-training", "--out", _PRETRAINING_FILES, ("pretrain",), resumable=False),
-    RunLayout(KIND_VALUE, "pre-training", "--out", _PRETRAINING_FILES, ("pretrain",), resumable=False),
-)}
+LAYOUTS: dict[str, RunLayout] = {
+    layout.kind: layout
+    for layout in (
+        RunLayout(KIND_A3C, "A3C", "--run-dir", _A3C_FILES, ("episodes", "updates", "eval"), resumable=True),
+        RunLayout(KIND_DAGGER, "DAgger", "--run-dir", _DAGGER_FILES, ("dagger",), resumable=True),
+        RunLayout(KIND_POLICY, "pre-training", "--out", _PRETRAINING_FILES, ("pretrain",), resumable=False),
+        RunLayout(KIND_VALUE, "pre-training", "--out", _PRETRAINING_FILES, ("pretrain",), resumable=False),
+    )
+}
 
 
 def _layout(kind: str) -> RunLayout:
+    """The layout of ``kind``; an unknown kind is refused, naming the known ones."""
     if kind not in LAYOUTS:
         raise ValueError(f"unknown run kind {kind!r}; allowed: {', '.join(LAYOUTS)}")
     return LAYOUTS[kind]
@@ -118,7 +122,7 @@ class RunDirectory:
         RunDirectoryInUse: another process holds the directory's lock; nothing was changed.
     """
 
-    def __init__(self, path: str | Path, kind: str, *, resume: bool = False):
+    def __init__(self, path: str | Path, kind: str, *, resume: bool = False) -> None:
         self.path = Path(path)
         self.layout = _layout(kind)
         self.resume = resume
@@ -132,6 +136,7 @@ class RunDirectory:
 
     # ------------------------------------------------------------------------- entering, leaving
     def __enter__(self) -> RunDirectory:
+        """Check the directory, create it for a new run and take its lock; check again under the lock."""
         RunLock.refuse_if_held(self.path)  # a busy directory is refused as such, whatever it holds
         self._check(first=True)
         if not self.resume:
@@ -148,18 +153,24 @@ class RunDirectory:
         return self
 
     def _check(self, *, first: bool) -> None:
+        """Refuse a directory that holds no run of this kind to continue, or cannot take a new one;
+        the ``first`` look records whether the directory is new."""
         layout = self.layout
         if self.resume:
-            self.config = check_resumable(self.path, kind=layout.kind, what=layout.what, flag=layout.flag,
-                                          needs=(CHECKPOINT,))
+            self.config = check_resumable(
+                self.path, kind=layout.kind, what=layout.what, flag=layout.flag, needs=(CHECKPOINT,)
+            )
             return
-        created = prepare_new_run(self.path, what=layout.what, flag=layout.flag,
-                                  kind=layout.kind if layout.resumable else None)
+        created = prepare_new_run(
+            self.path, what=layout.what, flag=layout.flag, kind=layout.kind if layout.resumable else None
+        )
         if first:
             self.created = created
 
-    def __exit__(self, exc_type: type[BaseException] | None, error: BaseException | None,
-                 traceback: TracebackType | None) -> None:
+    def __exit__(
+        self, exc_type: type[BaseException] | None, error: BaseException | None, traceback: TracebackType | None
+    ) -> None:
+        """Remove what a new run wrote if ``error`` discards it (:meth:`discards`), then release the lock."""
         try:
             if error is not None and self.discards(error):
                 discard_new_run(self.path, False, self.layout.names)  # nothing kept: a rerun starts afresh
@@ -190,15 +201,19 @@ class RunDirectory:
         the run directory: what a learner writes must be declared, so that a failed new run's
         discard removes it."""
         if Path(name).parts[0] not in self.layout.names:
-            raise ValueError(f"{name!r} is not a file of {_article(self.layout.what)} {self.layout.what} run; "
-                             f"declared: {', '.join(self.layout.names)}")
+            raise ValueError(
+                f"{name!r} is not a file of {_article(self.layout.what)} {self.layout.what} run; "
+                f"declared: {', '.join(self.layout.names)}"
+            )
         return self.path / name
 
     def write_config(self, values: dict[str, Any]) -> Path:
         """Write ``config.json``: ``values`` and the run's ``kind`` (which ``values`` must not hold)."""
         if "kind" in values:
-            raise ValueError(f"the settings to store hold a 'kind' ({values['kind']!r}); the run's kind is "
-                             f"{self.layout.kind!r} and is recorded by the run directory")
+            raise ValueError(
+                f"the settings to store hold a 'kind' ({values['kind']!r}); the run's kind is "
+                f"{self.layout.kind!r} and is recorded by the run directory"
+            )
         return write_run_json(self / CONFIG, {"kind": self.layout.kind, **values})
 
     def write_summary(self, values: dict[str, Any]) -> Path:
@@ -209,11 +224,13 @@ class RunDirectory:
         """The run's :class:`~bimgame.learn.metric_logs.MetricLog` of ``tables`` (declared in the layout)."""
         undeclared = sorted(set(tables) - set(self.layout.tables))
         if undeclared:
-            raise ValueError(f"logs {undeclared} are not declared for {self.layout.kind} runs; declared: "
-                             f"{', '.join(self.layout.tables)}")
+            raise ValueError(
+                f"logs {undeclared} are not declared for {self.layout.kind} runs; declared: "
+                f"{', '.join(self.layout.tables)}"
+            )
         return MetricLog(self.path, tables, **options)
 
 
 def _article(word: str) -> str:
+    """The indefinite article before ``word`` ("an A3C run", "a DAgger run")."""
     return "an" if word[:1].upper() in "AEIOU" else "a"
-

@@ -1,0 +1,152 @@
+"""DAgger's rollouts (:mod:`bimgame.learn.dagger`): the learner's episodes, run side by side, each
+step labelled by the MPC expert in the true simulator state and executed as the expert's action
+with probability β, else the learner's.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import torch
+
+from bimgame.envs.env import BallInMazeEnv
+from bimgame.expert.episode import Episode
+from bimgame.expert.mpc import RandomShootingMPC
+from bimgame.learn.actor import RecurrentActor, tilt_input
+from bimgame.learn.dagger_settings import DAggerConfig
+from bimgame.learn.nets import RecurrentActorCritic
+
+__all__ = ["collect_episodes"]
+
+
+@dataclasses.dataclass
+class _Record:
+    """What one rollout recorded, step by step: what the learner saw, the expert's label, the action
+    executed and the reward it brought."""
+
+    obs: list[np.ndarray] = dataclasses.field(default_factory=list)
+    tilt: list[np.ndarray] = dataclasses.field(default_factory=list)
+    actions: list[int] = dataclasses.field(default_factory=list)
+    executed: list[int] = dataclasses.field(default_factory=list)
+    rewards: list[float] = dataclasses.field(default_factory=list)
+
+    def as_episode(self, gamma: float) -> Episode:
+        """The rollout as an :class:`~bimgame.expert.episode.Episode` (``actions``: the expert's labels)."""
+        return Episode.from_steps(
+            obs=np.stack(self.obs),
+            actions=np.asarray(self.actions),
+            rewards=np.asarray(self.rewards),
+            tilt=np.asarray(self.tilt),
+            gamma=gamma,
+            executed=np.asarray(self.executed),
+        )
+
+
+@dataclasses.dataclass
+class _Rollouts:
+    """The rollouts of one iteration while they run side by side: each one's environment, expert and
+    record, its latest observation and tilt, whether it still runs, and how many succeeded."""
+
+    envs: list[BallInMazeEnv]
+    experts: list[RandomShootingMPC]
+    observations: list[np.ndarray]
+    tilts: list[np.ndarray]
+    records: list[_Record]
+    active: np.ndarray
+    successes: int = 0
+
+    @classmethod
+    def start(cls, envs: list[BallInMazeEnv], experts: list[RandomShootingMPC], env_seed: int) -> _Rollouts:
+        """Reset every environment (the ``i``-th with seed ``env_seed + i``)."""
+        observations, tilts = [], []
+        for i, env in enumerate(envs):
+            obs, info = env.reset(seed=env_seed + i)
+            observations.append(obs)
+            tilts.append(info["tilt"])
+        records = [_Record() for _ in envs]
+        return cls(envs, experts, observations, tilts, records, np.ones(len(envs), dtype=bool))
+
+    def step(self, actor: RecurrentActor, mix: np.random.Generator, beta: float, max_tilt: float) -> None:
+        """One step of every running rollout: the expert labels the state, and the expert's action
+        (with probability ``beta``) or the learner's is executed. Finished rollouts keep stepping the
+        actor on stale inputs; their records are closed."""
+        obs_batch = np.stack(self.observations)
+        tilt_batch = tilt_input({"tilt": np.stack(self.tilts)}, max_tilt)
+        policy_actions, _, _ = actor.act(obs_batch, tilt_batch)
+        executed = policy_actions.clone()
+        rewards = np.zeros(len(self.envs))
+        done = ~self.active.copy()
+        for i in map(int, np.flatnonzero(self.active)):
+            label = self.experts[i].act(self.envs[i].sim.get_state())
+            action = label if mix.random() < beta else int(policy_actions[i])
+            executed[i] = action
+            rewards[i], done[i] = self._step_one(i, label, action)
+        actor.observe(executed, rewards, done)
+
+    def _step_one(self, i: int, label: int, action: int) -> tuple[float, bool]:
+        """Record rollout ``i``'s step (``label``: the expert's action; ``action``: the one executed)
+        and take it; returns its reward and whether the episode ended."""
+        record = self.records[i]
+        record.obs.append(self.observations[i])
+        record.tilt.append(self.tilts[i])
+        record.actions.append(label)
+        record.executed.append(action)
+        obs, reward, terminated, _, info = self.envs[i].step(action)
+        record.rewards.append(reward)
+        self.observations[i], self.tilts[i] = obs, info["tilt"]
+        if terminated:
+            self.active[i] = False
+            self.successes += int(info["is_success"])
+        return reward, bool(terminated)
+
+    def close(self) -> None:
+        """Close every environment and expert."""
+        for env in self.envs:
+            env.close()
+        for expert in self.experts:
+            expert.close()
+
+
+@torch.no_grad()
+def collect_episodes(
+    net: RecurrentActorCritic,
+    config: DAggerConfig,
+    beta: float,
+    seed: int,
+) -> tuple[list[Episode], dict[str, int]]:
+    """``episodes_per_iteration`` episodes, run side by side (one batched forward pass per step),
+    executing the expert's action with probability ``beta`` and the learner's sampled action
+    otherwise; every visited state is labelled by the expert. Returns the episodes (as
+    :class:`~bimgame.expert.episode.Episode` records, ``actions`` being the expert's labels and
+    ``executed`` what was done) and the costs: ``env_steps``, ``labels``, ``expert_sim_steps``,
+    ``successes``."""
+    learner = config.learner
+    sequence = np.random.SeedSequence([seed])
+    env_seed, torch_seed, mix_seed, *expert_seeds = sequence.generate_state(3 + config.episodes_per_iteration)
+    count = config.episodes_per_iteration
+    envs = [BallInMazeEnv(learner.task, obs_mode=learner.obs) for _ in range(count)]
+    experts = [
+        RandomShootingMPC(envs[0].maze, config.expert, rng=np.random.default_rng(int(s)), task=learner.task)
+        for s in expert_seeds
+    ]
+    mix = np.random.default_rng(int(mix_seed))
+    actor = RecurrentActor(net, count, generator=torch.Generator().manual_seed(int(torch_seed)))
+    max_tilt = envs[0].maze.max_tilt
+    rollouts = _Rollouts.start(envs, experts, int(env_seed))
+    steps = 0
+    try:
+        while rollouts.active.any() and steps < config.time_limit:
+            rollouts.step(actor, mix, beta, max_tilt)
+            steps += 1
+    finally:
+        rollouts.close()
+    episodes = [record.as_episode(learner.gamma) for record in rollouts.records]
+    labels = sum(len(e) for e in episodes)
+    costs = {
+        "env_steps": labels,
+        "labels": labels,
+        "successes": rollouts.successes,
+        "expert_sim_steps": labels * config.expert.n_samples * config.expert.horizon,
+    }
+    return episodes, costs

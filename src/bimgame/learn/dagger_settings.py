@@ -1,0 +1,117 @@
+"""The settings of a DAgger run (:mod:`bimgame.learn.dagger`): its learner, iterations, β schedule,
+expert and evaluation, checked when made; and the settings a new or resumed run goes with.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any
+
+from bimgame.expert.mpc import MPCConfig
+from bimgame.learn.run_dir import stored_run_config
+from bimgame.learn.runs import KIND_DAGGER, read_run_settings
+from bimgame.learn.supervised import PretrainConfig
+from bimgame.util.settings import from_dict, require_int
+
+__all__ = ["DAggerConfig", "resolve_dagger_config"]
+
+#: Typo guards on what runs side by side (each rollout has its own simulator and expert).
+_LARGEST = {
+    "episodes_per_iteration": (10_000, "rollouts run side by side"),
+    "eval_episodes": (10_000, "episodes run side by side"),
+    "max_episode_steps": (10**9, "steps"),
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class DAggerConfig:
+    """Settings of a DAgger run; the network and its loss are ``learner``'s (a
+    :class:`~bimgame.learn.supervised.PretrainConfig`: task, observations, sizes, lr, L2, γ). The
+    learner has no auxiliary heads nor asymmetric critic: it trains on its own rollouts, which record
+    no simulator states."""
+
+    learner: PretrainConfig = dataclasses.field(
+        default_factory=lambda: PretrainConfig(task="STG1", aux_heads=False, asymmetric_critic=False)
+    )
+    iterations: int = 10
+    """Iterations to run (roll out, label, aggregate, retrain)."""
+    episodes_per_iteration: int = 20
+    """Learner rollouts per iteration, run side by side."""
+    beta0: float = 1.0
+    """Probability of executing the expert's action in iteration 0 (1: behaviour cloning data)."""
+    beta_decay: float = 0.5
+    """β_i = beta0 · beta_decay^i."""
+    epochs_per_iteration: int = 10
+    """Passes over the aggregated dataset after each iteration."""
+    expert: MPCConfig = dataclasses.field(default_factory=MPCConfig)
+    max_episode_steps: int | None = None
+    """Time limit of the rollouts; None: the task's."""
+    eval_episodes: int = 20
+    """Greedy and sampled evaluation episodes after every iteration (0: none)."""
+
+    def __post_init__(self) -> None:
+        """Refuse settings DAgger cannot run with, naming the setting."""
+        if self.learner.target != "policy":
+            raise ValueError("DAggerConfig.learner must train a policy (target='policy')")
+        if self.learner.aux_heads or self.learner.asymmetric_critic:
+            raise ValueError(
+                "DAggerConfig.learner must have aux_heads=False and asymmetric_critic=False: DAgger "
+                "trains on its own rollouts, which record no simulator states"
+            )
+        for name in ("iterations", "episodes_per_iteration", "epochs_per_iteration"):
+            require_int("DAggerConfig", name, getattr(self, name), 1)
+        for name in ("beta0", "beta_decay"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and 0.0 <= value <= 1.0):
+                raise ValueError(f"DAggerConfig.{name} must be in [0, 1], got {value!r}")
+        require_int("DAggerConfig", "eval_episodes", self.eval_episodes, 0)
+        require_int("DAggerConfig", "max_episode_steps", self.max_episode_steps, 1, optional=True)
+        for name, (largest, unit) in _LARGEST.items():
+            value = getattr(self, name)
+            if value is not None and value > largest:
+                raise ValueError(f"DAggerConfig.{name} must be at most {largest:,} ({unit}), got {value!r}")
+
+    #: What a resumed run may change.
+    RESUMABLE_CHANGES = ("iterations", "eval_episodes")
+
+    def beta(self, iteration: int) -> float:
+        """β of ``iteration``: the probability that a rollout executes the expert's action."""
+        return self.beta0 * self.beta_decay**iteration
+
+    @property
+    def time_limit(self) -> int:
+        """The rollouts' time limit: ``max_episode_steps`` if set, else the task's."""
+        return self.max_episode_steps or self.learner.time_limit
+
+    def to_dict(self) -> dict[str, Any]:
+        """The settings as nested plain values (``config.json``'s ``dagger`` block)."""
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, values: dict[str, Any]) -> DAggerConfig:
+        """The settings :meth:`to_dict` wrote; unknown or invalid names are refused."""
+        values = dict(values)
+        if "learner" in values:
+            values["learner"] = PretrainConfig.from_dict(values["learner"])
+        if "expert" in values:
+            values["expert"] = from_dict(MPCConfig, values["expert"], "MPC settings")
+        return from_dict(cls, values, "DAgger settings")
+
+
+def resolve_dagger_config(
+    learner: PretrainConfig, given: dict[str, Any], run_dir: str | Path, *, resume: bool
+) -> DAggerConfig:
+    """A run's DAgger settings: ``learner`` and ``given`` (DAggerConfig fields) for a new run; a resumed
+    run keeps its stored settings except those it may change (:attr:`DAggerConfig.RESUMABLE_CHANGES`)."""
+    if not resume:
+        return DAggerConfig(learner=learner, **given)
+    stored = _stored_config(run_dir)
+    return dataclasses.replace(stored, **{k: v for k, v in given.items() if k in DAggerConfig.RESUMABLE_CHANGES})
+
+
+def _stored_config(run_dir: str | Path) -> DAggerConfig:
+    """The settings of the DAgger run in ``run_dir`` that ``--resume`` would continue (refusing a
+    directory that holds none)."""
+    stored_run_config(run_dir, KIND_DAGGER)
+    return read_run_settings(run_dir, "dagger", DAggerConfig.from_dict)
