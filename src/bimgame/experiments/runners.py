@@ -151,10 +151,13 @@ def run_a3c(piece: Piece, budget: Budget, out_dir: Path) -> str:
     """Train (or continue) an A3C run of the piece's algorithm, from π^s and on V̂'s reward when its
     record says so."""
     path = out_dir / piece.path
+    task, seed = _task_and_seed(piece)
+    if piece.algorithm is None:
+        raise ValueError(f"piece {piece.id!r} names no algorithm")
     algorithm = algorithm_named(piece.algorithm)
-    config = a3c_config_for(budget, piece.task, piece.seed, piece.algorithm, (out_dir / "data").resolve())
-    init = (out_dir / policy_path(piece.task, piece.seed)).resolve() if algorithm.starts_from_policy else None
-    value = (out_dir / value_path(piece.task, piece.seed)).resolve() if algorithm.value_reward else None
+    config = a3c_config_for(budget, task, seed, piece.algorithm, (out_dir / "data").resolve())
+    init = (out_dir / policy_path(task, seed)).resolve() if algorithm.starts_from_policy else None
+    value = (out_dir / value_path(task, seed)).resolve() if algorithm.value_reward else None
     reward = RewardSettings(value_reward=None if value is None else str(value))
     wrapper = env_wrapper_for(reward, obs=config.network.obs, gamma=config.optimization.gamma)
     resume = (path / CONFIG).is_file()
