@@ -50,10 +50,13 @@ class PieceOutcome:
 class Backend(Protocol):
     """What the driver needs from a place that computes pieces."""
 
-    capacity: int | None
-    """Pieces in flight at once (None: as many as are ready; the cluster queues them by CPUs)."""
-    queues: bool
-    """Whether a submitted piece may wait in a queue before it runs (then "submitted", not "running")."""
+    @property
+    def capacity(self) -> int | None:
+        """Pieces in flight at once (None: as many as are ready; the cluster queues them by CPUs)."""
+
+    @property
+    def queues(self) -> bool:
+        """Whether a submitted piece may wait in a queue before it runs (then "submitted", not "running")."""
 
     def submit(self, piece: Piece) -> None:
         """Start computing ``piece``; every piece it needs is finished in the reproduction directory."""

@@ -22,11 +22,11 @@ from __future__ import annotations
 import dataclasses
 import time
 from pathlib import Path
-from typing import Any, TypeAlias
+from typing import Any
 
 from rich.console import Console
 
-from bimgame.experiments.backends import LocalBackend, PieceOutcome
+from bimgame.experiments.backends import Backend, LocalBackend, PieceOutcome
 from bimgame.experiments.budgets import Budget
 from bimgame.experiments.cluster import RayBackend
 from bimgame.experiments.costs import COSTS, CostModel, cluster_seconds, estimate_seconds, format_duration
@@ -40,10 +40,6 @@ from bimgame.util.signals import sigterm_as_interrupt
 __all__ = ["ReproductionResult", "reproduce"]
 
 _LOCK = ".reproduce.lock"
-
-#: The backends a reproduction runs on; both provide what :class:`~bimgame.experiments.backends.Backend`
-#: describes.
-_Runner: TypeAlias = LocalBackend | RayBackend
 
 
 def _exclusive(out_dir: Path):
@@ -181,7 +177,7 @@ def _backend(
     *,
     ray_address: str | None,
     max_retries: int,
-) -> _Runner:
+) -> Backend:
     """The backend that computes the pieces; a Ray cluster is checked to fit them and announced with
     its expected wall time."""
     if backend != "ray":
@@ -235,7 +231,7 @@ class _Driver:
     records each outcome, until nothing is in flight."""
 
     def __init__(
-        self, book: _Bookkeeping, runner: _Runner, finished: set[str], pending: list[Piece], stop_after: int | None
+        self, book: _Bookkeeping, runner: Backend, finished: set[str], pending: list[Piece], stop_after: int | None
     ):
         self.book, self.runner, self.stop_after = book, runner, stop_after
         self.finished, self.pending = finished, pending
