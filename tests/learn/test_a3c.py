@@ -34,14 +34,15 @@ def _segment(config: A3CConfig, steps: int, batch: int, seed: int = 0) -> Segmen
             "actions": torch.randint(0, 5, (steps, batch), generator=g),
             "rewards": (torch.rand(steps, batch, generator=g) < 0.2).float(),
             "ends": torch.rand(steps, batch, generator=g) < 0.15,
-            "initial_state": LSTMState(torch.zeros(batch, config.hidden), torch.zeros(batch, config.hidden))})
+            "initial_state": LSTMState(torch.zeros(batch, config.network.hidden),
+                                       torch.zeros(batch, config.network.hidden))})
 
 
 @pytest.mark.parametrize("gae_lambda", [1.0, 0.9])
 def test_segment_loss_matches_n_step_returns(gae_lambda):
     """With λ=1 the value target is the n-step return r_t + γ r_t+1 + … + γ^k V(s_T), cut at episode
     ends; with λ<1 it is the GAE target. Checked against a plain re-implementation."""
-    config = A3CConfig(obs="state", hidden=8, features=8, gamma=0.9, gae_lambda=gae_lambda)
+    config = A3CConfig.from_flat(obs="state", hidden=8, features=8, gamma=0.9, gae_lambda=gae_lambda)
     net = network_for(config)
     seg = _segment(config, 6, 3)
     loss, parts = a3c_segment_loss(net, seg, config)
@@ -72,23 +73,24 @@ def test_segment_loss_matches_n_step_returns(gae_lambda):
 
 
 def test_config_errors_name_the_setting():
-    with pytest.raises(ValueError, match="A3CConfig.obs must be one of"):
-        A3CConfig(obs="rgb")
-    with pytest.raises(ValueError, match="A3CConfig.workers must be an integer >= 1, got 0"):
-        A3CConfig(workers=0)
-    with pytest.raises(ValueError, match=r"A3CConfig.gamma must be in \[0.0, 1.0\]"):
-        A3CConfig(gamma=1.5)
-    with pytest.raises(ValueError, match="A3CConfig.lr must be a finite number > 0"):
-        A3CConfig(lr=float("nan"))
+    with pytest.raises(ValueError, match="NetworkSettings.obs must be one of"):
+        A3CConfig.from_flat(obs="rgb")
+    with pytest.raises(ValueError, match="ScheduleSettings.workers must be an integer >= 1, got 0"):
+        A3CConfig.from_flat(workers=0)
+    with pytest.raises(ValueError, match=r"OptimizationSettings.gamma must be in \[0.0, 1.0\]"):
+        A3CConfig.from_flat(gamma=1.5)
+    with pytest.raises(ValueError, match="OptimizationSettings.lr must be a finite number > 0"):
+        A3CConfig.from_flat(lr=float("nan"))
     with pytest.raises(ValueError, match="A3CConfig.task"):
-        A3CConfig(task="STG9")
-    with pytest.raises(ValueError, match="A3CConfig.optimizer must be one of"):
-        A3CConfig(optimizer="sgd")
-    assert A3CConfig(obs="state").hidden == 128 and A3CConfig(obs="pixels").hidden == 256
+        A3CConfig.from_flat(task="STG9")
+    with pytest.raises(ValueError, match="OptimizationSettings.optimizer must be one of"):
+        A3CConfig.from_flat(optimizer="sgd")
+    assert A3CConfig.from_flat(obs="state").network.hidden == 128
+    assert A3CConfig.from_flat(obs="pixels").network.hidden == 256
 
 
 def test_single_worker_run_is_deterministic(tmp_path):
-    config = A3CConfig(steps=2_000, seed=5, **FAST)
+    config = A3CConfig.from_flat(steps=2_000, seed=5, **FAST)
     train(config, tmp_path / "a", progress=False)
     train(config, tmp_path / "b", progress=False)
     a, b = load_checkpoint(tmp_path / "a"), load_checkpoint(tmp_path / "b")
@@ -97,19 +99,19 @@ def test_single_worker_run_is_deterministic(tmp_path):
         assert torch.equal(a["model"][key], b["model"][key]), key
     fresh = network_for(config).state_dict()
     assert any(not torch.equal(a["model"][k], fresh[k]) for k in fresh), "training changed the weights"
-    other = A3CConfig(steps=2_000, seed=6, **FAST)
+    other = A3CConfig.from_flat(steps=2_000, seed=6, **FAST)
     train(other, tmp_path / "c", progress=False)
     c = load_checkpoint(tmp_path / "c")
     assert any(not torch.equal(a["model"][k], c["model"][k]) for k in a["model"]), "the seed matters"
 
 
 def test_run_directory_guards(tmp_path):
-    config = A3CConfig(steps=400, **FAST)
+    config = A3CConfig.from_flat(steps=400, **FAST)
     train(config, tmp_path / "run", progress=False)
     with pytest.raises(ValueError, match="already holds a run; pass --resume"):
         train(config, tmp_path / "run", progress=False)
     with pytest.raises(ValueError, match=r"--resume must keep the run's settings; changed: lr"):
-        train(A3CConfig(steps=800, lr=1e-3, **FAST), tmp_path / "run", resume=True, progress=False)
+        train(A3CConfig.from_flat(steps=800, lr=1e-3, **FAST), tmp_path / "run", resume=True, progress=False)
     with pytest.raises(ValueError, match="already has .* steps >= steps=400"):
         train(config, tmp_path / "run", resume=True, progress=False)
     with pytest.raises(ValueError, match="has no config.json"):
@@ -143,7 +145,7 @@ class ScaledRewards:
 @pytest.mark.parametrize("factor, what", [(float("nan"), "reward from the env"), (1e38, "loss")])
 def test_non_finite_values_stop_the_run_and_keep_the_weights(tmp_path, factor, what):
     """After some training, the weights from before the bad update are kept (and can be resumed)."""
-    config = A3CConfig(steps=5_000, checkpoint_every=100, **FAST)
+    config = A3CConfig.from_flat(steps=5_000, checkpoint_every=100, **FAST)
     with pytest.raises(TrainingError, match=f"non-finite {what} .* the update was not applied.* saved in"):
         train(config, tmp_path / "run", env_wrapper=ScaledRewards(factor, after=100), progress=False)
     net = network_for(config)
@@ -155,7 +157,7 @@ def test_a_new_run_that_fails_before_training_leaves_nothing_that_blocks_a_rerun
     """A setting found bad only once the directory exists — a wrapper that cannot be sent to the
     workers, rewards that are NaN from the first step — leaves no directory behind: the same
     command runs again once the cause is fixed (an existing empty directory stays, empty)."""
-    config = A3CConfig(steps=400, **FAST)
+    config = A3CConfig.from_flat(steps=400, **FAST)
     with pytest.raises(Exception, match="pickle|Can't get local object"):
         train(config, tmp_path / "run", env_wrapper=lambda env: env, progress=False)  # not picklable
     assert not (tmp_path / "run").exists()
@@ -258,8 +260,8 @@ def test_ctrl_c_stops_cleanly_with_a_final_checkpoint(tmp_path):
 
 def test_a3c_learns_stg1_from_state_observations(tmp_path):
     """Well beyond a random policy on STG1 in about 300k steps (one deterministic worker)."""
-    config = A3CConfig(task="STG1", obs="state", workers=1, envs_per_worker=32, steps=300_000, seed=1,
-                       eval_every=0)
+    config = A3CConfig.from_flat(task="STG1", obs="state", workers=1, envs_per_worker=32, steps=300_000, seed=1,
+                                 eval_every=0)
     result = train(config, tmp_path / "run", progress=False)
     net = network_for(config)
     load_weights(net, tmp_path / "run")
@@ -277,8 +279,8 @@ def test_workers_that_die_silently_fail_the_run_instead_of_finishing_it(tmp_path
     own error handling: the run must fail with advice, not be recorded as finished at step 0."""
     script = tmp_path / "unguarded.py"
     script.write_text("import sys\nfrom bimgame.learn.a3c import A3CConfig, train\n"
-                      "train(A3CConfig(task='STG1', obs='state', workers=1, envs_per_worker=2, steps=2000, "
-                      "eval_every=0, hidden=16, features=16), sys.argv[1], progress=False)\n")
+                      "train(A3CConfig.from_flat(task='STG1', obs='state', workers=1, envs_per_worker=2, "
+                      "steps=2000, eval_every=0, hidden=16, features=16), sys.argv[1], progress=False)\n")
     done = subprocess.run([sys.executable, str(script), str(tmp_path / "run")], capture_output=True, text=True,
                           timeout=120, cwd=tmp_path)
     assert done.returncode != 0
