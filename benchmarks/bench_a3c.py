@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import dataclasses
 import json
 import multiprocessing as mp
 import sys
@@ -54,17 +53,17 @@ SETTINGS = {
 def _recorded_inputs(config: A3CConfig) -> dict[str, torch.Tensor]:
     """A segment's worth of real observations, tilts and (for privileged networks) states, so the
     network sees realistic frames."""
-    env = BallInMazeVectorEnv(config.envs_per_worker, task=config.task, obs_mode=config.obs, nthread=1,
-                              state_info=config.privileged)
+    network, batch = config.network, config.schedule.envs_per_worker
+    env = BallInMazeVectorEnv(batch, task=config.task, obs_mode=network.obs, nthread=1, state_info=network.privileged)
     obs, info = env.reset(seed=0)
     recorded: dict[str, list] = {"obs": [], "tilt": [], "privileged": []}
     rng = np.random.default_rng(0)
-    for _ in range(config.n_steps + 1):
+    for _ in range(config.optimization.n_steps + 1):
         recorded["obs"].append(torch.as_tensor(obs))
         recorded["tilt"].append(torch.as_tensor(info["tilt"], dtype=torch.float32))
-        if config.privileged:
+        if network.privileged:
             recorded["privileged"].append(torch.as_tensor(info["state"]))
-        obs, _, _, _, info = env.step(rng.integers(0, 5, config.envs_per_worker))
+        obs, _, _, _, info = env.step(rng.integers(0, 5, batch))
     return {k: torch.stack(v) for k, v in recorded.items() if v}
 
 
@@ -77,8 +76,8 @@ def _network_worker(config: A3CConfig, shared, optimizer_state, seconds: float, 
     shared_params = list(shared.parameters())
     for param, state in zip(shared_params, optimizer_state):
         optimizer.state[param] = state
-    actor = RecurrentActor(local, config.envs_per_worker, generator=torch.Generator().manual_seed(0))
-    n, batch = config.n_steps, config.envs_per_worker
+    n, batch = config.optimization.n_steps, config.schedule.envs_per_worker
+    actor = RecurrentActor(local, batch, generator=torch.Generator().manual_seed(0))
     samples, start, updates = 0, None, 0
     while True:
         if updates == 1:  # the first update warms up; time from the second
@@ -99,7 +98,7 @@ def _network_worker(config: A3CConfig, shared, optimizer_state, seconds: float, 
         seg["prev_reward"].append(actor.prev_reward)
         seg["starts"].append(actor.starts)
         stacked = {k: torch.stack(v) for k, v in seg.items()}
-        segment = Segment(**stacked, obs=inputs["obs"], tilt=inputs["tilt"] if config.tilt_input else None,
+        segment = Segment(**stacked, obs=inputs["obs"], tilt=inputs["tilt"] if config.network.tilt_input else None,
                           privileged=inputs.get("privileged"), rewards=torch.zeros(n, batch),
                           ends=torch.zeros(n, batch, dtype=torch.bool), initial_state=LSTMState(h0, c0))
         apply_update(local, shared_params, optimizer, segment, config)
@@ -116,7 +115,7 @@ def network_only_sps(config: A3CConfig, seconds: float) -> float:
     context = mp.get_context("spawn")
     results = context.Queue()
     processes = [context.Process(target=_network_worker, args=(config, shared, optimizer_state, seconds, results))
-                 for _ in range(config.workers)]
+                 for _ in range(config.schedule.workers)]
     for process in processes:
         process.start()
     rates = [results.get() for _ in processes]
@@ -146,13 +145,13 @@ def main() -> None:
     results = {"workers": args.workers, "envs_per_worker": args.envs_per_worker, "cpu_threads_per_worker": 1,
                "settings": []}
     for name in args.settings:
-        probe = A3CConfig(task="STG1", workers=args.workers, envs_per_worker=args.envs_per_worker, steps=1,
-                          eval_every=0, **SETTINGS[name])
+        probe = A3CConfig.from_flat(task="STG1", workers=args.workers, envs_per_worker=args.envs_per_worker, steps=1,
+                                    eval_every=0, **SETTINGS[name])
         limit = network_only_sps(probe, args.seconds)
         steps = int(max(limit, 500) * args.seconds * 1.2)
-        config = dataclasses.replace(probe, steps=steps, checkpoint_every=10 * steps, log_every=2_000)
+        config = probe.with_flat(steps=steps, checkpoint_every=10 * steps, log_every=2_000)
         sps = a3c_sps(config)
-        row = {"setting": name, **SETTINGS[name], "hidden": config.hidden, "features": config.features,
+        row = {"setting": name, **SETTINGS[name], "hidden": config.network.hidden, "features": config.network.features,
                "network_only_sps": limit, "a3c_sps": sps, "ratio": sps / limit}
         results["settings"].append(row)
         print(f"{name:>24}: A3C {sps:,.0f} env steps/s; network alone {limit:,.0f} samples/s; ratio {sps / limit:.2f}",
