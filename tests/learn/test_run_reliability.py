@@ -40,7 +40,7 @@ FINISHED = {**TINY, "envs_per_worker": 4, "steps": 1600}
 def finished_run(tmp_path_factory) -> Path:
     """A finished tiny run; tests work on copies of it."""
     run_dir = tmp_path_factory.mktemp("finished") / "run"
-    train(A3CConfig(**FINISHED), run_dir, progress=False)
+    train(A3CConfig.from_flat(**FINISHED), run_dir, progress=False)
     return run_dir
 
 
@@ -60,7 +60,7 @@ def _append(path: Path, text: str) -> None:
 
 # ----------------------------------------------------------------- other people's directories
 def test_train_refuses_a_directory_that_is_not_an_a3c_run(tmp_path, capsys):
-    config = A3CConfig(**TINY)
+    config = A3CConfig.from_flat(**TINY)
     mine = tmp_path / "mine"
     mine.mkdir()
     for name, text in (("episodes.csv", "my,own\n1,2\n"), ("summary.json", '{"mine": true}\n'), ("notes.txt", "x")):
@@ -106,7 +106,7 @@ def test_resume_refuses_a_log_whose_header_differs(finished_run, tmp_path):
     path.write_text(lines[0].replace("return", "reward") + "".join(lines[1:]))
     before = snapshot(run_dir)
     with pytest.raises(ValueError) as refused:
-        train(A3CConfig(**{**FINISHED, "steps": 3200}), run_dir, resume=True, progress=False)
+        train(A3CConfig.from_flat({**FINISHED, "steps": 3200}), run_dir, resume=True, progress=False)
     message = str(refused.value)
     assert str(path) in message
     assert "step,start_step,worker,reward,length,success" in message  # found
@@ -121,7 +121,7 @@ def test_resume_without_a_checkpoint_is_refused(finished_run, tmp_path, capsys):
     before = snapshot(run_dir)
     with pytest.raises(ValueError, match=r"--resume: .* has no checkpoint.pt, so the A3C run in it cannot be "
                                          r"continued .*Start anew without --resume in a new --run-dir"):
-        train(A3CConfig(**{**FINISHED, "steps": 3200}), run_dir, resume=True, progress=False)
+        train(A3CConfig.from_flat({**FINISHED, "steps": 3200}), run_dir, resume=True, progress=False)
     assert main(["train", "--run-dir", str(run_dir), "--resume", "--steps", "3200", "--no-progress"]) == 2
     assert "has no checkpoint.pt" in capsys.readouterr().err
     assert snapshot(run_dir) == before
@@ -138,7 +138,7 @@ def test_resume_keeps_the_rows_before_the_checkpoint_and_counts_the_whole_run(tm
     checkpoint's weights at S (the step-0 evaluation of the fresh run survives). A row cut off by a
     kill is dropped. Seconds count the whole run."""
     run_dir = tmp_path / "run"
-    config = A3CConfig(**{**TINY, "eval_every": 200, "eval_episodes": 2})
+    config = A3CConfig.from_flat({**TINY, "eval_every": 200, "eval_episodes": 2})
     train(config, run_dir, progress=False)
     payload = load_checkpoint(run_dir)
     step = payload["step"]
@@ -151,7 +151,7 @@ def test_resume_keeps_the_rows_before_the_checkpoint_and_counts_the_whole_run(tm
     _append(run_dir / "updates.csv", f"{step},1,12345,0,0,0,0{blanks}\r\n{step + 20},1,54321,0,0,0,0{blanks}\r\n")
     _append(run_dir / "episodes.csv", f"{step + 1},0,9,1")  # cut off by a kill
 
-    result = train(A3CConfig(**{**config.to_dict(), "steps": 800}), run_dir, resume=True, progress=False)
+    result = train(A3CConfig.from_flat({**config.to_dict(), "steps": 800}), run_dir, resume=True, progress=False)
     assert result.stopped == "finished" and result.steps >= 800
     workers = [r["worker"] for r in _rows(run_dir / "episodes.csv")]
     assert "8" in workers and "7" not in workers and "9" not in workers
@@ -355,7 +355,7 @@ def test_an_a3c_run_stored_before_its_kind_was_recorded_still_resumes_and_evalua
     (run_dir / "config.json").write_text(OLD_A3C_CONFIG)
     stored = json.loads(OLD_A3C_CONFIG)
     config = A3CConfig.from_dict(stored["a3c"])
-    assert "kind" not in stored and config == A3CConfig(**TINY)
+    assert "kind" not in stored and config == A3CConfig.from_flat(**TINY)
     save_checkpoint(run_dir / "checkpoint.pt", model=network_for(config).state_dict(), step=0, seconds=0.0,
                     config=json.dumps(config.to_dict()))
     assert run_kind(run_dir) == KIND_A3C
@@ -374,7 +374,7 @@ class _Code:
 
 
 def test_unreadable_init_checkpoints_say_why_and_never_advise_weights_only_false(tmp_path, capsys):
-    config = A3CConfig(**TINY)
+    config = A3CConfig.from_flat(**TINY)
     (tmp_path / "empty.pt").write_bytes(b"")
     with pytest.raises(CheckpointError, match=r"--init: cannot read checkpoint .*empty.pt: the file is empty"):
         train(config, tmp_path / "run", init=tmp_path / "empty.pt", progress=False)
@@ -401,7 +401,7 @@ def test_unreadable_init_checkpoints_say_why_and_never_advise_weights_only_false
 
 def _hand_made_run(run_dir: Path) -> Path:
     """A run directory as train() writes it, without training: config.json and a checkpoint."""
-    config = A3CConfig(**TINY)
+    config = A3CConfig.from_flat(**TINY)
     run_dir.mkdir()
     (run_dir / "config.json").write_text(json.dumps({"a3c": config.to_dict()}))
     save_checkpoint(run_dir / "checkpoint.pt", model=network_for(config).state_dict(), step=0)
@@ -420,7 +420,7 @@ def test_a_broken_config_json_is_named_by_every_reader(tmp_path, capsys, text, s
         resolve_config({}, run_dir, resume=True)
     assert str(path) in str(refused.value) and says in str(refused.value)
     with pytest.raises(ValueError, match=str(path)):
-        train(A3CConfig(**TINY), run_dir, resume=True, progress=False)
+        train(A3CConfig.from_flat(**TINY), run_dir, resume=True, progress=False)
     for argv in (["evaluate", str(run_dir)], ["train", "--run-dir", str(run_dir), "--resume"],
                  ["train", "--run-dir", str(tmp_path / "new"), "--init", str(run_dir)]):
         assert main(argv) == 2, argv
@@ -466,8 +466,9 @@ def _exit_code(argv: list[str]) -> int:
     (["train", "--run-dir", "R", "--obs", "state", "--steps", "1e30"], "at most 1e12"),
     (["train", "--run-dir", "R", "--obs", "state", "--steps", "1e400"], "at most 1e12"),
     (["train", "--run-dir", "R", "--obs", "state", "--checkpoint-every", "1e13"], "at most 1e12"),
-    (["train", "--run-dir", "R", "--obs", "state", "--hidden", "100000"], "A3CConfig.hidden must be at most 4096"),
-    (["train", "--run-dir", "R", "--obs", "state", "--workers", "100000"], "A3CConfig.workers must be at most"),
+    (["train", "--run-dir", "R", "--obs", "state", "--hidden", "100000"],
+     "NetworkSettings.hidden must be at most 4096"),
+    (["train", "--run-dir", "R", "--obs", "state", "--workers", "100000"], "ScheduleSettings.workers must be at most"),
     (["train", "--run-dir", "R", "--obs", "state", "--eval-episodes", "1000000"], "--eval-episodes"),
     (["evaluate", "R", "--seed", "-1"], "--seed"),
     (["evaluate", "R", "--seed", str(2**64)], "--seed"),
@@ -493,8 +494,8 @@ def test_integer_options_that_would_fail_later_are_refused_by_name_up_front(argv
 
 
 def test_settings_classes_bound_steps_and_seeds():
-    with pytest.raises(ValueError, match=r"A3CConfig.steps must be at most 1,000,000,000,000"):
-        A3CConfig(steps=10**30)
+    with pytest.raises(ValueError, match=r"ScheduleSettings.steps must be at most 1,000,000,000,000"):
+        A3CConfig.from_flat(steps=10**30)
     with pytest.raises(ValueError, match=r"A3CConfig.seed must be an integer from 0 to 4294967295"):
-        A3CConfig(seed=2**64)
-    assert A3CConfig(steps=10**12, seed=2**32 - 1).steps == 10**12
+        A3CConfig.from_flat(seed=2**64)
+    assert A3CConfig.from_flat(steps=10**12, seed=2**32 - 1).schedule.steps == 10**12
