@@ -83,7 +83,7 @@ def test_a_tiny_grid_with_a_registered_algorithm_runs_and_reports_it(tmp_path, t
     assert load_plan(tmp_path)[0].algorithms == (NAME,)
     stored = json.loads((tmp_path / "runs/STG1/a3c-beta0/seed0/config.json").read_text())
     assert stored["a3c"]["entropy_coef"] == 0.0 and stored["init"] is None
-    assert a3c_config_for(budget, "STG1", 0, "a3c").entropy_coef == 0.01  # A3C's own is unchanged
+    assert a3c_config_for(budget, "STG1", 0, "a3c").optimization.entropy_coef == 0.01  # A3C's own is unchanged
 
     paths = build_report(tmp_path, resamples=100)
     numbers = json.loads(paths.table_json.read_text())["tasks"]["STG1"]["algorithms"]

@@ -123,7 +123,7 @@ def test_a_restarted_driver_continues_an_unfinished_run_from_its_snapshot(cluste
     the reproduction's .snapshots/; the same command continues the run from it."""
     budget = dataclasses.replace(tiny_budget, algorithms=("a3c",), seeds=1)
     partial = tmp_path / "elsewhere" / "run"
-    train(dataclasses.replace(a3c_config_for(budget, "STG1", 0), steps=800), partial, progress=False,
+    train(a3c_config_for(budget, "STG1", 0).with_flat(steps=800), partial, progress=False,
           extra_config={"reward": {"value_reward": None, "geodesic_coef": None}})
     # Mark the first attempt's first episode (length 9999), to tell a continued run from a new one.
     log = partial / "episodes.csv"

@@ -83,7 +83,7 @@ def test_tiny_reproduction_stops_resumes_and_reports_what_the_runs_logged(tmp_pa
 
     # An A3C run interrupted after a checkpoint: a run of the piece's settings with fewer steps.
     partial = out / "runs/STG1/a3c/seed1"
-    train(dataclasses.replace(a3c_config_for(tiny_budget, "STG1", 1), steps=400), partial, progress=False,
+    train(a3c_config_for(tiny_budget, "STG1", 1).with_flat(steps=400), partial, progress=False,
           extra_config={"reward": {"value_reward": None, "geodesic_coef": None}})
     partial_config = (partial / "config.json").stat().st_mtime_ns
     partial_rows = read_table(partial / "episodes.csv")

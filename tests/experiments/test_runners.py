@@ -36,7 +36,7 @@ def test_a_run_that_reads_the_dataset_resumes_after_its_reproduction_moved(tmp_p
     assert reproduce(before, budget, progress=False, stop_after=2).computed == ["data", "pretrain/STG1/policy-seed0"]
     partial = before / "runs/STG1/pretrain-a3c-bc/seed0"
     config = a3c_config_for(budget, "STG1", 0, "pretrain+a3c+bc", (before / "data").resolve())
-    train(dataclasses.replace(config, steps=400), partial, progress=False,
+    train(config.with_flat(steps=400), partial, progress=False,
           extra_config={"reward": {"value_reward": None, "geodesic_coef": None}})
     shutil.move(before, after)
     result = reproduce(after, budget, progress=False)
