@@ -12,6 +12,7 @@ import pytest
 SOURCE = pathlib.Path(__file__).resolve().parents[1] / "src" / "bimgame"
 #: Bottom to top; a module may import its own layer and the ones before it.
 LAYERS = ("util", "sim", "envs", "expert", "learn", "experiments", "play", "cli")
+#: Each learner is a module or a package of modules (all of them belong to it).
 LEARNERS = {"bimgame.learn.a3c", "bimgame.learn.pretrain", "bimgame.learn.dagger"}
 #: Imports allowed inside functions: heavy optional or slow dependencies, each with its reason in the code.
 LAZY_ALLOWED = {"ray", "torch.utils.tensorboard"}
@@ -82,10 +83,17 @@ def test_the_package_root_imports_only_the_lowest_layers():
     assert all(_layer(t) <= LAYERS.index("sim") for t in edges), edges
 
 
+def _learner_of(module: str) -> str | None:
+    """The learner a module belongs to (its own module, or a module of its package), or None."""
+    return next((learner for learner in LEARNERS if module == learner or module.startswith(learner + ".")), None)
+
+
 def test_no_learner_imports_another():
     edges = _package_edges(_modules())
-    crossed = [f"{a} imports {b}" for a in LEARNERS for b in edges[a] if b in LEARNERS]
+    crossed = [f"{a} imports {b}" for a, targets in edges.items() for b in targets
+               if _learner_of(a) is not None and _learner_of(b) not in (None, _learner_of(a))]
     assert not crossed, crossed
+    assert {_learner_of(m) for m in edges} >= LEARNERS, "a learner named here no longer exists"
 
 
 def test_no_import_cycle():
@@ -128,3 +136,10 @@ def test_the_checks_see_a_real_upward_import(tmp_path):
     tree = ast.parse("from bimgame.cli.main import main\n\ndef f():\n    import ray\n")
     assert _imports(tree) == [("bimgame.cli.main.main", 1, False), ("ray", 4, True)]
     assert _layer("bimgame.cli.main") > _layer("bimgame.sim.maze")
+
+
+def test_a_learners_package_modules_belong_to_it():
+    """The learner check sees the modules inside a learner's package (and not a look-alike name)."""
+    assert _learner_of("bimgame.learn.a3c.workers") == "bimgame.learn.a3c"
+    assert _learner_of("bimgame.learn.dagger") == "bimgame.learn.dagger"
+    assert _learner_of("bimgame.learn.a3c_extra") is None and _learner_of("bimgame.learn.nets") is None

@@ -298,7 +298,8 @@ def test_train_has_two_way_privileged_switches_and_says_what_no_tilt_input_does(
 
 
 def test_choices_in_help_are_the_settings_modules_own_tuples():
-    from bimgame.learn.a3c_core import OPTIMIZERS, START_CURRICULA
+    from bimgame.learn.a3c.settings import OPTIMIZERS
+    from bimgame.learn.learner_settings import START_CURRICULA
 
     train = _verb_parser("train")
     assert _action(train, "optimizer").choices is OPTIMIZERS

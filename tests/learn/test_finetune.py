@@ -14,7 +14,7 @@ import torch
 from bimgame.expert.datasets import generate_dataset
 from bimgame.expert.episode import Episode
 from bimgame.learn.a3c import A3CConfig, apply_update, make_optimizer, network_for, resolve_config, train
-from bimgame.learn.a3c_core import a3c_segment_loss
+from bimgame.learn.a3c.update import a3c_segment_loss
 from bimgame.learn.checkpoints import save_checkpoint
 from bimgame.learn.finetune import (
     DemoWindows,

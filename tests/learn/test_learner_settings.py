@@ -1,4 +1,4 @@
-"""A3C's settings in parts (:mod:`bimgame.learn.learner_settings`, :class:`~bimgame.learn.a3c_core.A3CConfig`):
+"""A3C's settings in parts (:mod:`bimgame.learn.learner_settings`, :class:`~bimgame.learn.a3c.A3CConfig`):
 flat names in and out, the optional parts, config.json files an earlier version wrote, and each part's
 own checks."""
 
@@ -10,9 +10,8 @@ from pathlib import Path
 import pytest
 
 import bimgame.learn.a3c as a3c
-import bimgame.learn.a3c_core as a3c_core
 from bimgame.learn.a3c import A3CConfig, network_for
-from bimgame.learn.a3c_core import OptimizationSettings
+from bimgame.learn.a3c.settings import OptimizationSettings
 from bimgame.learn.common import NetworkSettings
 from bimgame.learn.learner_settings import (
     FINETUNE_FIELDS,
@@ -105,9 +104,9 @@ def test_derived_values():
     assert config.with_flat(max_episode_steps=123).time_limit == 123
 
 
-def test_the_moved_names_are_still_importable_where_they_were():
-    assert a3c_core.START_CURRICULA is START_CURRICULA and a3c.START_CURRICULA is START_CURRICULA
-    assert a3c_core.MAX_STEPS == a3c.MAX_STEPS == MAX_STEPS == 10**12
+def test_the_shared_names_are_importable_from_the_a3c_package():
+    assert a3c.START_CURRICULA is START_CURRICULA
+    assert a3c.MAX_STEPS == MAX_STEPS == 10**12
     assert FINETUNE_FIELDS == tuple(FINETUNE_PRESETS["paper"])
     assert set(FINETUNE_FIELDS) <= set(A3CConfig.flat_names())
 

@@ -8,8 +8,8 @@ import re
 from pathlib import Path
 
 from bimgame.expert.pool import BACKENDS
-from bimgame.learn.a3c_core import MAX_STEPS
 from bimgame.learn.common import MAX_SEED
+from bimgame.learn.learner_settings import MAX_STEPS
 from bimgame.sim.tasks import Task
 
 __all__ = [

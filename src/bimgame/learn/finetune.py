@@ -5,7 +5,7 @@ sparse tasks (STG3, STG4). Measured here, three causes: the inherited critic doe
 task, so the first advantages are noise; the entropy bonus (0.01 · ln 5) dwarfs a sparse +1 that
 is worth 0.99^400 ≈ 0.02 at the start, so the entropy term alone unlearns the cloned policy; and the
 step size of a from-scratch run is too large for a policy that is already good. The methods here
-address one cause each, as A3C settings (:class:`~bimgame.learn.a3c_core.A3CConfig`):
+address one cause each, as A3C settings (:class:`~bimgame.learn.a3c.update.A3CConfig`):
 
 - **critic warm-up** (``critic_warmup_steps``): only the value head learns, on the learner's own
   rollouts, so the advantages mean something before the policy moves; then the actor's learning

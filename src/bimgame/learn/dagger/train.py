@@ -28,9 +28,9 @@ that fails before its first iteration finished removes its files again; a run ho
 lock while it works (:class:`~bimgame.learn.run_dir.RunDirectory`). ``bimgame evaluate`` and
 ``bimgame train --init`` accept the run.
 
-The settings (:class:`DAggerConfig`) are in :mod:`bimgame.learn.dagger_settings` and the rollouts
-(:func:`collect_episodes`) in :mod:`bimgame.learn.dagger_rollouts`; this module runs the iterations
-in a run directory and is where a caller finds all three.
+The settings (:class:`~bimgame.learn.dagger.settings.DAggerConfig`) are in
+:mod:`bimgame.learn.dagger.settings` and the rollouts in :mod:`bimgame.learn.dagger.rollouts`; this
+module runs the iterations in a run directory.
 """
 
 from __future__ import annotations
@@ -47,8 +47,8 @@ import numpy as np
 from bimgame.expert.episode import Episode
 from bimgame.learn.checkpoints import CheckpointError, apply_weights, load_checkpoint, load_weights, save_checkpoint
 from bimgame.learn.common import EVAL_COLUMNS, evaluate_greedy_and_sampled, evaluation_seed
-from bimgame.learn.dagger_rollouts import collect_episodes
-from bimgame.learn.dagger_settings import DAggerConfig, resolve_dagger_config
+from bimgame.learn.dagger.rollouts import collect_episodes
+from bimgame.learn.dagger.settings import DAggerConfig
 from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.learn.run_dir import DAGGER_STATE, RunDirectory
 from bimgame.learn.runs import CHECKPOINT, KIND_DAGGER, read_run_settings, torch_threads, write_run_json
@@ -60,7 +60,7 @@ from bimgame.util.progress import ProgressBar
 from bimgame.util.seeding import episode_seed
 from bimgame.util.signals import sigterm_as_interrupt
 
-__all__ = ["resolve_dagger_config", "DAggerConfig", "DAggerResult", "dagger", "collect_episodes", "KIND_DAGGER"]
+__all__ = ["DAggerResult", "dagger"]
 
 STATE = DAGGER_STATE
 #: The counters of ``dagger_state.json``.

@@ -1,25 +1,18 @@
-"""A3C's settings and the pieces both the parent and the worker processes use: :class:`A3CConfig`,
-the network and shared optimiser a run starts from, the loss of one segment and the Hogwild update,
-and the run's periodic evaluation. :mod:`bimgame.learn.a3c` describes the algorithm and re-exports
-all of these."""
+"""A3C's settings: its own optimisation part (:class:`OptimizationSettings`) and :class:`A3CConfig`,
+which composes it with the parts every on-policy learner shares (the network, the schedule, and the
+optional fine-tuning and start-curriculum parts of :mod:`bimgame.learn.learner_settings`)."""
 
 from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable, Sequence
 from typing import Any, ClassVar, Literal, get_args
 
-import torch
-
 from bimgame.envs.randomization import OBSERVATION_FIELDS, RANDOMIZATION_PRESETS
-from bimgame.envs.vector import BallInMazeVectorEnv
 from bimgame.learn.augment import MAX_SHIFT
-from bimgame.learn.common import NetworkSettings, check_seed, evaluate_greedy_and_sampled, evaluation_seed
-from bimgame.learn.finetune import LossWeights, RunningScale
+from bimgame.learn.common import NetworkSettings, check_seed
 from bimgame.learn.learner_settings import (
     MAX_STEPS,
-    START_CURRICULA,
     CurriculumSettings,
     FinetuneSettings,
     FlatSettings,
@@ -28,33 +21,13 @@ from bimgame.learn.learner_settings import (
     check_choice,
     check_number,
 )
-from bimgame.learn.loss_terms import LossTerm
-from bimgame.learn.nets import RecurrentActorCritic
-from bimgame.learn.rollout import Segment, advantages_and_targets
-from bimgame.sim.maze import MazeSpec
 from bimgame.sim.tasks import Task, task_setting
 from bimgame.util.settings import require_int
 
-__all__ = [
-    "A3CConfig",
-    "OptimizationSettings",
-    "OPTIMIZERS",
-    "START_CURRICULA",
-    "MAX_STEPS",
-    "EnvWrapper",
-    "network_for",
-    "make_optimizer",
-    "shared_optimizer_state",
-    "a3c_segment_loss",
-    "apply_update",
-    "evaluate",
-]
+__all__ = ["Optimizer", "OPTIMIZERS", "OptimizationSettings", "A3CConfig"]
 
 Optimizer = Literal["rmsprop", "adam"]
 OPTIMIZERS: tuple[str, ...] = get_args(Optimizer)
-#: A callable that wraps a worker's vector env (e.g. reward shaping). It is sent to spawned worker
-#: processes, so it must be picklable (a module-level function or an instance of a module-level class).
-EnvWrapper = Callable[[BallInMazeVectorEnv], Any]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -226,164 +199,3 @@ class A3CConfig(FlatSettings):
         """Whether the actor's learning rate follows a schedule (critic warm-up or actor ramp): the
         policy head then has its own optimiser parameter group."""
         return self.finetuning is not None and self.finetuning.schedules_actor
-
-
-def network_for(config: A3CConfig, maze: MazeSpec | None = None) -> RecurrentActorCritic:
-    """A fresh network for ``config``'s run, initialised from its seed."""
-    return config.network.build_policy(config.seed, maze)
-
-
-def make_optimizer(config: A3CConfig, net: RecurrentActorCritic) -> torch.optim.Optimizer:
-    """The optimiser of ``net``'s parameters; with a scheduled actor, the policy head is parameter
-    group 0 (its learning rate is set per update) and the rest group 1."""
-    if config.schedules_actor:
-        head = {id(p) for p in net.policy.parameters()}
-        params: Any = [
-            {"params": list(net.policy.parameters())},
-            {"params": [p for p in net.parameters() if id(p) not in head]},
-        ]
-    else:
-        params = net.parameters()
-    settings = config.optimization
-    if settings.optimizer == "rmsprop":
-        return torch.optim.RMSprop(params, lr=settings.lr, alpha=settings.rmsprop_alpha, eps=settings.optimizer_eps)
-    return torch.optim.Adam(params, lr=settings.lr, eps=settings.optimizer_eps)
-
-
-def shared_optimizer_state(optimizer: torch.optim.Optimizer) -> list[dict[str, torch.Tensor]]:
-    """Create every parameter's optimiser statistics (if not loaded) and move them to shared memory,
-    so all workers update the same statistics (A3C's 'shared RMSProp')."""
-    params = [p for group in optimizer.param_groups for p in group["params"]]
-    if not optimizer.state:
-        # One step with zero gradients creates the statistics without changing any weight (RMSProp
-        # and Adam both move by 0 for a zero gradient); then the step counts are reset to 0.
-        for p in params:
-            p.grad = torch.zeros_like(p)
-        optimizer.step()
-        for p in params:
-            p.grad = None
-            optimizer.state[p]["step"].zero_()
-    states = []
-    for p in params:
-        state = optimizer.state[p]
-        for value in state.values():
-            if torch.is_tensor(value):
-                value.share_memory_()
-        states.append(state)
-    return states
-
-
-def a3c_segment_loss(
-    net: RecurrentActorCritic,
-    segment: Segment,
-    config: A3CConfig,
-    weights: LossWeights = LossWeights(),
-    *,
-    terms: Sequence[LossTerm] = (),
-    advantage_scale: RunningScale | None = None,
-    entropy_coef: float | None = None,
-) -> tuple[torch.Tensor, dict[str, float]]:
-    """The actor-critic loss of one :class:`~bimgame.learn.rollout.Segment` (T steps × B envs),
-    recomputed with gradients from the LSTM state the segment started from.
-
-    A network with auxiliary heads adds ``aux_coef`` times their loss
-    (:meth:`~bimgame.learn.nets.RecurrentActorCritic.aux_loss`), which needs the segment's
-    ``privileged`` states. ``terms`` are the run's optional loss terms (:mod:`bimgame.learn.loss_terms`),
-    already prepared with this segment; ``weights`` scales the actor's terms and theirs, and during a
-    critic warm-up the loss is the value loss alone. ``advantage_scale`` divides the advantages by
-    their running RMS; ``entropy_coef`` replaces ``config.entropy_coef`` (an adapting coefficient,
-    see :class:`~bimgame.learn.finetune.EntropyTarget`)."""
-    settings = config.optimization
-    privileged = segment.privileged
-    out = net.unroll_features(
-        segment.obs,
-        segment.prev_action,
-        segment.prev_reward,
-        segment.tilt,
-        segment.initial_state,
-        segment.starts,
-        privileged=privileged,
-    )
-    logits, bootstrap, values = out.logits[:-1], out.values[-1].detach(), out.values[:-1]
-    advantages, targets = advantages_and_targets(
-        segment.rewards, segment.ends, values.detach(), bootstrap, settings.gamma, settings.gae_lambda
-    )
-    value_loss = 0.5 * (targets - values).pow(2).mean()
-    log_probs = torch.log_softmax(logits, dim=-1)
-    entropy = -(log_probs.exp() * log_probs).sum(-1).mean()
-    if advantage_scale is not None:
-        advantages = advantages / advantage_scale.update(advantages)
-    chosen = log_probs.gather(-1, segment.actions.unsqueeze(-1)).squeeze(-1)
-    policy_loss = -(chosen * advantages).mean()
-    parts = {"policy_loss": policy_loss.item(), "value_loss": value_loss.item(), "entropy": entropy.item()}
-    added: list[torch.Tensor] = []
-    if net.config.aux_heads:
-        if privileged is None:
-            raise ValueError(
-                "a network with auxiliary heads needs the segment's privileged states (Segment.privileged)"
-            )
-        aux, aux_parts = net.aux_loss(out.features, out.hidden, privileged)
-        parts.update(aux_parts)
-        added.append(settings.aux_coef * aux)
-    for term in terms:
-        contribution, term_parts = term.loss(net, log_probs, weights)
-        parts.update(term_parts)
-        if contribution is not None:
-            added.append(contribution)
-    if weights.critic_only:
-        return settings.value_coef * value_loss, parts
-    beta = settings.entropy_coef if entropy_coef is None else entropy_coef
-    loss = weights.actor * (policy_loss - beta * entropy) + settings.value_coef * value_loss
-    for contribution in added:
-        loss = loss + contribution
-    return loss, parts
-
-
-def apply_update(
-    local: RecurrentActorCritic,
-    shared_params: Sequence[torch.Tensor],
-    optimizer: torch.optim.Optimizer,
-    segment: Segment,
-    config: A3CConfig,
-    weights: LossWeights = LossWeights(),
-    *,
-    terms: Sequence[LossTerm] = (),
-    advantage_scale: RunningScale | None = None,
-    entropy_coef: float | None = None,
-) -> dict[str, float]:
-    """One A3C update: the segment's loss, its gradient (norm clipped) on the local network, applied
-    to the shared weights by the shared optimiser. A non-finite loss or gradient is not applied
-    (``applied`` is False in the returned losses). ``weights``, ``terms``, ``advantage_scale`` and
-    ``entropy_coef`` are those of :func:`a3c_segment_loss`; during a critic warm-up only the value head
-    changes, and with a scheduled actor the policy head's learning rate is ``lr · weights.actor``."""
-    loss, parts = a3c_segment_loss(
-        local, segment, config, weights, terms=terms, advantage_scale=advantage_scale, entropy_coef=entropy_coef
-    )
-    local.zero_grad(set_to_none=True)
-    loss.backward()
-    if weights.critic_only:
-        value_head = {id(p) for p in local.critic_parameters()}
-        for param in local.parameters():
-            if id(param) not in value_head:
-                param.grad = None  # the optimiser leaves parameters without a gradient untouched
-    grad_norm = float(torch.nn.utils.clip_grad_norm_(local.parameters(), config.optimization.max_grad_norm))
-    applied = math.isfinite(loss.item()) and math.isfinite(grad_norm)
-    if applied:
-        if config.schedules_actor:
-            optimizer.param_groups[0]["lr"] = config.optimization.lr * weights.actor
-        for shared_param, param in zip(shared_params, local.parameters(), strict=True):
-            shared_param.grad = param.grad
-        optimizer.step()
-    return {**parts, "loss": loss.item(), "grad_norm": grad_norm, "applied": applied}
-
-
-def evaluate(net: RecurrentActorCritic, config: A3CConfig) -> dict[str, float]:
-    """The run's periodic evaluation: greedy and sampled, on its evaluation episodes and seed."""
-    return evaluate_greedy_and_sampled(
-        net,
-        task=config.task,
-        obs=config.network.obs,
-        episodes=config.schedule.eval_episodes,
-        seed=evaluation_seed(config.seed),
-        time_limit=config.time_limit,
-    )

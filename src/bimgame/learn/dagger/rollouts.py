@@ -14,7 +14,7 @@ from bimgame.envs.env import BallInMazeEnv
 from bimgame.expert.episode import Episode
 from bimgame.expert.mpc import RandomShootingMPC
 from bimgame.learn.actor import RecurrentActor, tilt_input
-from bimgame.learn.dagger_settings import DAggerConfig
+from bimgame.learn.dagger.settings import DAggerConfig
 from bimgame.learn.nets import RecurrentActorCritic
 
 __all__ = ["collect_episodes"]

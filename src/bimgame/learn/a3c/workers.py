@@ -17,7 +17,8 @@ import torch
 
 from bimgame.envs.randomization import RANDOMIZATION_PRESETS
 from bimgame.envs.vector import BallInMazeVectorEnv
-from bimgame.learn.a3c_core import A3CConfig, EnvWrapper, apply_update, evaluate, make_optimizer, network_for
+from bimgame.learn.a3c.settings import A3CConfig
+from bimgame.learn.a3c.update import EnvWrapper, apply_update, evaluate, make_optimizer, network_for
 from bimgame.learn.actor import RecurrentActor
 from bimgame.learn.augment import random_shift
 from bimgame.learn.finetune import DemoWindows, EntropyTarget, LossWeights, RunningScale, Teacher, loss_weights
@@ -161,7 +162,7 @@ class _WorkerUpdate:
         return fixed if self.adapted_entropy_coef is None else self.adapted_entropy_coef
 
     def update(self, segment: Segment, step: int) -> dict[str, Any]:
-        """Apply one segment's gradient (see :func:`~bimgame.learn.a3c_core.apply_update`); its losses,
+        """Apply one segment's gradient (see :func:`~bimgame.learn.a3c.update.apply_update`); its losses,
         with ``applied`` False when the loss or gradient was not finite."""
         self.weights = weights = loss_weights(self.config.finetuning, step)
         for term in self.terms:

@@ -1,30 +1,6 @@
-"""A3C: asynchronous advantage actor-critic (Mnih et al., "Asynchronous Methods for Deep
-Reinforcement Learning", ICML 2016) with a recurrent network, as the BiMGame paper trained it.
-
-``workers`` processes each own a copy of the environment (``envs_per_worker`` of them, stepped as
-one batch) and a local copy of the network. Each repeatedly
-
-1. copies the shared weights into its local network,
-2. acts for ``n_steps`` steps (one batched no-grad forward per step),
-3. computes n-step returns (or GAE), the policy-gradient, value and entropy losses over the segment
-   — unrolling the LSTM from the state it had at the segment's start, so the gradient is exactly
-   that of the policy that acted,
-4. clips the gradient norm and applies it to the *shared* weights with the *shared* optimiser
-   statistics, without locks (Hogwild).
-
-With ``envs_per_worker=1`` this is exactly the paper's A3C. A separate evaluator process
-periodically runs greedy and sampled episodes with the shared weights. The parent process only
-orchestrates: it logs what workers report, shows progress, writes checkpoints, and stops everything
-on Ctrl-C, on a non-finite loss, or when the step budget is spent.
-
-Why our own implementation: no maintained library ships recurrent A3C for PyTorch (RLlib removed
-A3C; Stable-Baselines3 has no recurrent A2C).
-
-This module owns :func:`train` and the parent process (the run directory, checkpoints, logs,
-progress); it re-exports the rest of the public API. The settings, loss and update that the worker
-processes share with it live in :mod:`bimgame.learn.a3c_core`, the worker and evaluator processes
-in :mod:`bimgame.learn.a3c_workers`.
-"""
+"""Training an A3C run in its directory: the settings a run resolves to (:func:`resolve_config`), a new
+or resumed run's start (config.json, teacher, step-0 checkpoint), one session of the worker processes
+(:mod:`bimgame.learn.a3c.parent`), the final evaluation and the summary."""
 
 from __future__ import annotations
 
@@ -34,20 +10,13 @@ import time
 from pathlib import Path
 from typing import Any
 
-from bimgame.learn.a3c_core import (
-    MAX_STEPS,
-    OPTIMIZERS,
-    START_CURRICULA,
-    A3CConfig,
+from bimgame.learn.a3c.parent import TABLES, Monitor, SessionStart, TrainingError, run_processes
+from bimgame.learn.a3c.settings import A3CConfig
+from bimgame.learn.a3c.update import (
     EnvWrapper,
-    a3c_segment_loss,
-    apply_update,
     evaluate,
-    make_optimizer,
     network_for,
-    shared_optimizer_state,
 )
-from bimgame.learn.a3c_parent import TABLES, Monitor, SessionStart, TrainingError, run_processes
 from bimgame.learn.checkpoints import CheckpointError, apply_weights, load_checkpoint, load_weights, save_checkpoint
 from bimgame.learn.common import init_network_settings
 from bimgame.learn.curves import plot_run
@@ -58,23 +27,7 @@ from bimgame.learn.runs import CHECKPOINT, KIND_A3C, SUMMARY, read_run_settings,
 from bimgame.util.files import FileWriteError, read_json
 from bimgame.util.signals import sigterm_as_interrupt
 
-__all__ = [
-    "A3CConfig",
-    "TrainingError",
-    "TrainResult",
-    "train",
-    "network_for",
-    "make_optimizer",
-    "evaluate",
-    "OPTIMIZERS",
-    "START_CURRICULA",
-    "MAX_STEPS",
-    "EnvWrapper",
-    "resolve_config",
-    "a3c_segment_loss",
-    "apply_update",
-    "shared_optimizer_state",
-]
+__all__ = ["TrainResult", "train", "resolve_config", "finetune_settings"]
 
 
 @dataclasses.dataclass

@@ -1,5 +1,5 @@
 """What the parent process of an A3C run does while its workers train: start the worker and evaluator
-processes (:mod:`bimgame.learn.a3c_workers`), log what they report, show progress, write the
+processes (:mod:`bimgame.learn.a3c.workers`), log what they report, show progress, write the
 checkpoints, and stop them — at the end of the steps, on Ctrl-C or SIGTERM, or at the first failure,
 which it turns into a :class:`TrainingError` that says what is kept and how to continue.
 :func:`bimgame.learn.a3c.train` runs one such session per call."""
@@ -18,8 +18,9 @@ import numpy as np
 import torch
 import torch.multiprocessing as mp
 
-from bimgame.learn.a3c_core import A3CConfig, EnvWrapper, make_optimizer, shared_optimizer_state
-from bimgame.learn.a3c_workers import RunShared, _evaluator, _worker
+from bimgame.learn.a3c.settings import A3CConfig
+from bimgame.learn.a3c.update import EnvWrapper, make_optimizer, shared_optimizer_state
+from bimgame.learn.a3c.workers import RunShared, _evaluator, _worker
 from bimgame.learn.checkpoints import save_checkpoint
 from bimgame.learn.common import EVAL_COLUMNS
 from bimgame.learn.metric_logs import MetricLog
