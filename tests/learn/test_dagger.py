@@ -480,7 +480,7 @@ def test_a_kill_between_the_commit_and_the_state_copy_neither_redoes_nor_loses_a
 def test_a_new_dagger_run_that_fails_in_its_first_iteration_leaves_nothing(tmp_path, monkeypatch):
     def broken(*args, **kwargs):
         raise ValueError("a setting only the rollouts find bad")
-    monkeypatch.setattr("bimgame.learn.dagger.train.collect_episodes", broken)
+    monkeypatch.setattr("bimgame.learn.dagger.training.collect_episodes", broken)
     with pytest.raises(ValueError, match="only the rollouts find bad"):
         dagger(SMALL, tmp_path / "run", progress=False)
     assert not (tmp_path / "run").exists()
@@ -501,7 +501,7 @@ def test_disk_full_during_dagger_names_the_file_and_keeps_the_finished_iteration
 def test_ctrl_c_stops_dagger_with_a_resumable_run(tmp_path, monkeypatch, capsys):
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
-    monkeypatch.setattr("bimgame.learn.dagger.train.collect_episodes", interrupted)
+    monkeypatch.setattr("bimgame.learn.dagger.training.collect_episodes", interrupted)
     run_dir = tmp_path / "run"
     assert main(["dagger", "--run-dir", str(run_dir), "--obs", "state", "--no-progress"]) == 130
     assert "--resume" in capsys.readouterr().err

@@ -217,7 +217,8 @@ def test_resuming_checks_before_the_lock_and_changes_nothing_when_refused(tmp_pa
 
 
 def test_every_learner_writes_only_what_its_layout_declares():
-    from bimgame.learn import a3c_parent, pretrain
+    from bimgame.learn import pretrain
+    from bimgame.learn.a3c import parent as a3c_parent
 
     assert set(a3c_parent.TABLES) == set(LAYOUTS[KIND_A3C].tables)
     assert set(LAYOUTS[KIND_POLICY].tables) == {"pretrain"} and pretrain._TABLE

@@ -169,7 +169,7 @@ def test_resume_keeps_the_rows_before_the_checkpoint_and_counts_the_whole_run(tm
 _STOP_IN_FINAL_EVALUATION = '''
 import os, signal, sys, time
 
-import bimgame.learn.a3c as a3c
+import bimgame.learn.a3c.training as a3c_train
 from bimgame.cli.main import main
 
 
@@ -180,7 +180,7 @@ def evaluate(net, config):
 
 
 if __name__ == "__main__":
-    a3c.evaluate = evaluate  # the parent's final evaluation (--eval-every 0: no evaluator process)
+    a3c_train.evaluate = evaluate  # the parent's final evaluation (--eval-every 0: no evaluator process)
     sys.exit(main(sys.argv[1:]))
 '''
 

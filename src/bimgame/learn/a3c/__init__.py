@@ -24,13 +24,13 @@ The package's modules, one job each: :mod:`~bimgame.learn.a3c.settings` (:class:
 its optimisation part), :mod:`~bimgame.learn.a3c.update` (the network, shared optimiser, loss and
 Hogwild update the processes share), :mod:`~bimgame.learn.a3c.workers` (the worker and evaluator
 processes), :mod:`~bimgame.learn.a3c.parent` (the parent's side of a session) and
-:mod:`~bimgame.learn.a3c.train` (:func:`train`: the run directory, resume, the final evaluation).
+:mod:`~bimgame.learn.a3c.training` (:func:`train`: the run directory, resume, the final evaluation).
 The public API is importable from the package.
 """
 
 from bimgame.learn.a3c.parent import TrainingError
 from bimgame.learn.a3c.settings import OPTIMIZERS, A3CConfig, OptimizationSettings
-from bimgame.learn.a3c.train import TrainResult, resolve_config, train
+from bimgame.learn.a3c.training import TrainResult, resolve_config, train
 from bimgame.learn.a3c.update import (
     EnvWrapper,
     a3c_segment_loss,
