@@ -30,7 +30,7 @@ from bimgame.util.files import FileWriteError
 from bimgame.util.progress import ProgressBar
 from bimgame.util.signals import sigterm_as_interrupt
 
-__all__ = ["TrainingError", "SessionStart", "Monitor", "TABLES", "run_processes"]
+__all__ = ["TrainingError", "SessionStart", "Session", "Monitor", "TABLES"]
 
 
 class TrainingError(RuntimeError):
@@ -105,32 +105,10 @@ class SessionStart:
     """Step of the newest checkpoint written (0 until the first one after the start)."""
 
 
-def run_processes(
-    config: A3CConfig,
-    run_dir: Path,
-    shared: RecurrentActorCritic,
-    start: SessionStart,
-    log: MetricLog,
-    monitor: Monitor,
-    started: float,
-    *,
-    env_wrapper: EnvWrapper | None,
-    progress: bool,
-) -> tuple[int, str]:
-    """The workers and the evaluator, until the steps are done, Ctrl-C, or a failure; writes the
-    checkpoints. Returns (step, "finished" or "interrupted"); raises :class:`TrainingError`."""
-    session = _Session(config, run_dir, shared, start, log, monitor, started, env_wrapper)
-    session.watch(progress)
-    step = int(session.counter.value)
-    session.note_unreported_exit(step)
-    saved = session.final_checkpoint(step)
-    session.raise_failure(step, saved)
-    return step, session.stopped
-
-
-class _Session:
+class Session:
     """One session's processes, as the parent sees them: what they report, the checkpoints, and how
-    the session ended (``stopped``, ``failure``: a worker's error, ``write_failure``: a full disk)."""
+    the session ended (``stopped``, ``failure``: a worker's error, ``write_failure``: a full disk).
+    :meth:`run` runs the session."""
 
     def __init__(
         self,
@@ -171,6 +149,16 @@ class _Session:
         self.stopped = "finished"
         self.failure: str | None = None
         self.write_failure: FileWriteError | None = None
+
+    def run(self, progress: bool) -> tuple[int, str]:
+        """The workers and the evaluator, until the steps are done, Ctrl-C, or a failure; writes the
+        checkpoints. Returns (step, "finished" or "interrupted"); raises :class:`TrainingError`."""
+        self.watch(progress)
+        step = int(self.counter.value)
+        self.note_unreported_exit(step)
+        saved = self.final_checkpoint(step)
+        self.raise_failure(step, saved)
+        return step, self.stopped
 
     def checkpoint(self) -> None:
         step = int(self.counter.value)

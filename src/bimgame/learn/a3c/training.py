@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from bimgame.learn.a3c.parent import TABLES, Monitor, SessionStart, TrainingError, run_processes
+from bimgame.learn.a3c.parent import TABLES, Monitor, Session, SessionStart, TrainingError
 from bimgame.learn.a3c.settings import A3CConfig
 from bimgame.learn.a3c.update import (
     EnvWrapper,
@@ -235,9 +235,8 @@ def _session(
     step, stopped = start.step, "finished"
     if step < config.schedule.steps:
         try:
-            step, stopped = run_processes(
-                config, run_dir, shared, start, log, monitor, started, env_wrapper=env_wrapper, progress=progress
-            )
+            session = Session(config, run_dir, shared, start, log, monitor, started, env_wrapper)
+            step, stopped = session.run(progress)
         except BaseException:
             log.close()
             raise
