@@ -211,6 +211,7 @@ def test_each_part_validates_alone(make, message):
     ({"lr": float("nan")}, r"OptimizationSettings\.lr must be a finite number > 0"),
     ({"kl_temperature": -1.0}, r"FinetuneSettings\.kl_temperature"),
     ({"start_curriculum": "reverse", "curriculum_threshold": 2.0}, r"CurriculumSettings\.curriculum_threshold"),
+    ({"curriculum_threshold": 2.0}, r"CurriculumSettings\.curriculum_threshold"),  # checked without a curriculum too
     ({"hidden": 0}, r"NetworkSettings\.hidden"),
     ({"augment_shift": 2}, r"A3CConfig\.augment_shift must be 0\.\.\d+ pixels, and 0 for state observations"),
     ({"task": "STG9"}, r"A3CConfig\.task"),

@@ -263,6 +263,7 @@ class FlatSettings:
             names = [f.name for f in dataclasses.fields(part)]
             part_values = {name: given[name] for name in names if name in given}
             if field in cls.OPTIONAL_PARTS and cls._means_none(part, part_values):
+                part(**{k: v for k, v in part_values.items() if k not in cls.NONE_VALUES})  # checked all the same
                 arguments[field] = None
             else:
                 arguments[field] = part(**part_values)
@@ -272,7 +273,7 @@ class FlatSettings:
     def _means_none(cls, part: type, values: Mapping[str, Any]) -> bool:
         """Whether an optional part's flat values stand for no part. A part with a "none" value (a
         curriculum: ``start_curriculum="none"``) is absent unless another value is given for that
-        setting (its other settings then mean nothing and are dropped); a part without one (fine-tuning)
+        setting (its other settings, still checked, then mean nothing and are dropped); a part without one (fine-tuning)
         is absent when every value is at its default."""
         markers = [name for name in cls.NONE_VALUES if name in {f.name for f in dataclasses.fields(part)}]
         if markers:
