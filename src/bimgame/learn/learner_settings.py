@@ -228,6 +228,9 @@ class FlatSettings:
     PARTS: ClassVar[dict[str, type]] = {}
     OPTIONAL_PARTS: ClassVar[frozenset[str]] = frozenset()
     NONE_VALUES: ClassVar[dict[str, Any]] = {}
+    #: Flat values a part takes in this class unless given, where they differ from the part class's
+    #: own defaults (PPO's schedule: one process).
+    PART_DEFAULTS: ClassVar[dict[str, dict[str, Any]]] = {}
     #: What a settings dict of this class is called in errors ("unknown A3C settings [...]").
     SETTINGS_NAME: ClassVar[str] = "settings"
 
@@ -261,7 +264,7 @@ class FlatSettings:
         arguments: dict[str, Any] = {name: given[name] for name in cls.own_names() if name in given}
         for field, part in cls.PARTS.items():
             names = [f.name for f in dataclasses.fields(part)]
-            part_values = {name: given[name] for name in names if name in given}
+            part_values = {**cls.PART_DEFAULTS.get(field, {}), **{name: given[name] for name in names if name in given}}
             if field in cls.OPTIONAL_PARTS and cls._means_none(part, part_values):
                 part(**{k: v for k, v in part_values.items() if k not in cls.NONE_VALUES})  # checked all the same
                 arguments[field] = None

@@ -88,6 +88,18 @@ class Segment:
         """A copy with some fields replaced (e.g. augmented observations)."""
         return dataclasses.replace(self, **changes)
 
+    def envs(self, index: torch.Tensor) -> Segment:
+        """The segment of the environments ``index`` (a 1-D tensor of environment indices), each
+        sequence whole: what a learner that splits a segment into minibatches (PPO) trains on, so
+        that the LSTM is unrolled over every step of each environment it sees."""
+        by_env: dict[str, Any] = {}
+        for field in dataclasses.fields(self):
+            value = getattr(self, field.name)
+            if isinstance(value, torch.Tensor):
+                by_env[field.name] = value[:, index]
+        h, c = self.initial_state
+        return dataclasses.replace(self, **by_env, initial_state=LSTMState(h[index], c[index]))
+
 
 def advantages_and_targets(
     rewards: torch.Tensor,

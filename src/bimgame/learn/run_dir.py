@@ -36,6 +36,7 @@ from bimgame.learn.runs import (
     KIND_A3C,
     KIND_DAGGER,
     KIND_POLICY,
+    KIND_PPO,
     KIND_VALUE,
     SUMMARY,
     check_resumable,
@@ -80,6 +81,7 @@ class RunLayout:
 _A3C_FILES = (CONFIG, CHECKPOINT, SUMMARY, TEACHER, "curves.png")
 _DAGGER_FILES = (CONFIG, CHECKPOINT, DAGGER_STATE, "data")
 _PRETRAINING_FILES = (CONFIG, CHECKPOINT, SUMMARY)
+_PPO_FILES = (CONFIG, CHECKPOINT, SUMMARY, "curves.png")
 
 #: The layout of every kind of run, by kind.
 LAYOUTS: dict[str, RunLayout] = {
@@ -87,6 +89,7 @@ LAYOUTS: dict[str, RunLayout] = {
     for layout in (
         RunLayout(KIND_A3C, "A3C", "--run-dir", _A3C_FILES, ("episodes", "updates", "eval"), resumable=True),
         RunLayout(KIND_DAGGER, "DAgger", "--run-dir", _DAGGER_FILES, ("dagger",), resumable=True),
+        RunLayout(KIND_PPO, "PPO", "--run-dir", _PPO_FILES, ("episodes", "updates", "eval"), resumable=True),
         RunLayout(KIND_POLICY, "pre-training", "--out", _PRETRAINING_FILES, ("pretrain",), resumable=False),
         RunLayout(KIND_VALUE, "pre-training", "--out", _PRETRAINING_FILES, ("pretrain",), resumable=False),
     )

@@ -50,6 +50,7 @@ __all__ = [
     "KIND_POLICY",
     "KIND_VALUE",
     "KIND_DAGGER",
+    "KIND_PPO",
     "read_run_config",
     "read_run_settings",
     "CHECKPOINT",
@@ -71,6 +72,7 @@ KIND_A3C = "a3c"
 KIND_POLICY = "pretrained-policy"
 KIND_VALUE = "value-function"
 KIND_DAGGER = "dagger-policy"
+KIND_PPO = "ppo"
 T = TypeVar("T")
 
 

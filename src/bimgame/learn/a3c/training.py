@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from bimgame.learn.a3c.parent import TABLES, Monitor, Session, SessionStart, TrainingError
+from bimgame.learn.a3c.parent import TABLES, Session, SessionStart, TrainingError
 from bimgame.learn.a3c.settings import A3CConfig
 from bimgame.learn.a3c.update import (
     EnvWrapper,
@@ -20,6 +20,7 @@ from bimgame.learn.a3c.update import (
 from bimgame.learn.checkpoints import CheckpointError, apply_weights, load_checkpoint, load_weights, save_checkpoint
 from bimgame.learn.common import init_network_settings
 from bimgame.learn.curves import plot_run
+from bimgame.learn.episode_monitor import Monitor
 from bimgame.learn.learner_settings import DEFAULT_FINETUNE, FINETUNE_PRESETS
 from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.learn.run_dir import TEACHER, RunDirectory, stored_run_config

@@ -1,0 +1,132 @@
+"""PPO's settings: its own optimisation part (:class:`PPOOptimizationSettings`) and :class:`PPOConfig`,
+which composes it with the network and schedule parts every on-policy learner shares
+(:mod:`bimgame.learn.learner_settings`). Defaults follow the recurrent PPO of CleanRL's
+``ppo_atari_lstm.py`` (clip 0.2, GAE λ 0.95, 4 epochs of 4 minibatches, Adam 2.5e-4), with A3C's
+entropy and value weights."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any, ClassVar
+
+from bimgame.learn.common import NetworkSettings, check_seed
+from bimgame.learn.learner_settings import MAX_STEPS, FlatSettings, ScheduleSettings, check_at_most, check_number
+from bimgame.sim.tasks import Task, task_setting
+from bimgame.util.settings import require_int
+
+__all__ = ["PPOOptimizationSettings", "PPOConfig"]
+
+
+@dataclasses.dataclass(frozen=True)
+class PPOOptimizationSettings:
+    """PPO's rollouts, clipped objective and optimiser (Schulman et al. 2017)."""
+
+    n_steps: int = 128
+    """Steps each environment acts per rollout (the LSTM is unrolled over all of them)."""
+    epochs: int = 4
+    """Passes over each rollout."""
+    minibatches: int = 4
+    """Minibatches per epoch, split by environment so that every sequence stays whole (at most the
+    number of environments)."""
+    clip: float = 0.2
+    """The ratio clip ε of the surrogate objective."""
+    value_clip: float | None = None
+    """Clip the value function's change per rollout to this (PPO2's value clipping); None: no clipping."""
+    gamma: float = 0.99
+    """Discount."""
+    gae_lambda: float = 0.95
+    """λ of generalised advantage estimation."""
+    lr: float = 2.5e-4
+    """Adam's learning rate."""
+    optimizer_eps: float = 1e-5
+    """Adam's epsilon."""
+    entropy_coef: float = 0.01
+    """Weight of the entropy bonus."""
+    value_coef: float = 0.5
+    """Weight of the value loss."""
+    max_grad_norm: float = 0.5
+    """Clip each minibatch's gradient to this global norm."""
+    advantage_norm: bool = True
+    """Normalise the advantages of each minibatch to zero mean and unit variance."""
+    aux_coef: float = 1.0
+    """Weight of the auxiliary heads' loss when the network has them (``aux_heads``)."""
+
+    def __post_init__(self) -> None:
+        owner = type(self).__name__
+        for name in ("n_steps", "epochs", "minibatches"):
+            require_int(owner, name, getattr(self, name), 1)
+        check_at_most(owner, "n_steps", self.n_steps, 10_000, "steps kept in memory per rollout")
+        for name in ("gamma", "gae_lambda"):
+            check_number(owner, name, getattr(self, name), 0.0, 1.0)
+        for name in ("clip", "lr", "optimizer_eps", "max_grad_norm"):
+            check_number(owner, name, getattr(self, name), 0.0, math.inf, low_open=True)
+        if self.value_clip is not None:
+            check_number(owner, "value_clip", self.value_clip, 0.0, math.inf, low_open=True)
+        for name in ("entropy_coef", "value_coef", "aux_coef"):
+            check_number(owner, name, getattr(self, name), 0.0, math.inf)
+        if not isinstance(self.advantage_norm, bool):
+            raise ValueError(f"{owner}.advantage_norm must be True or False, got {self.advantage_norm!r}")
+
+
+def _single_process_schedule() -> ScheduleSettings:
+    return ScheduleSettings(workers=1)
+
+
+@dataclasses.dataclass(frozen=True)
+class PPOConfig(FlatSettings):
+    """Settings of a PPO run: the task and its episodes, the network, PPO's optimisation and the
+    schedule. Every setting also has a flat name (:meth:`from_flat`, :meth:`to_dict`), its flag and
+    its key in ``config.json``."""
+
+    task: str = "STG1"
+    """FULL, STG1 … STG4."""
+    seed: int = 0
+    """Seeds the network's initial weights, the environments, the sampling and the minibatches."""
+    max_episode_steps: int | None = None
+    """Time limit; None uses the task's (STG1 300, STG2 500, STG3 750, STG4/FULL 1000)."""
+    network: NetworkSettings = dataclasses.field(default_factory=NetworkSettings)
+    """The actor-critic's observations, sizes and inputs (the same networks as A3C's)."""
+    optimization: PPOOptimizationSettings = dataclasses.field(default_factory=PPOOptimizationSettings)
+    """Rollouts, the clipped objective and Adam."""
+    schedule: ScheduleSettings = dataclasses.field(default_factory=_single_process_schedule)
+    """Steps and environments; checkpoints, evaluations and logs. PPO steps its environments in the
+    learner's process: ``workers`` must be 1 (``envs_per_worker`` sets how many environments)."""
+
+    PARTS: ClassVar[dict[str, type]] = {
+        "network": NetworkSettings,
+        "optimization": PPOOptimizationSettings,
+        "schedule": ScheduleSettings,
+    }
+    PART_DEFAULTS: ClassVar[dict[str, dict[str, Any]]] = {"schedule": {"workers": 1}}
+    SETTINGS_NAME: ClassVar[str] = "PPO settings"
+    # What a resumed run may change without changing what is being learned.
+    RESUMABLE_CHANGES = ("steps", "checkpoint_every", "eval_every", "eval_episodes", "log_every")
+
+    def __post_init__(self) -> None:
+        owner = type(self).__name__
+        object.__setattr__(self, "task", task_setting(owner, self.task))
+        check_seed(owner, self.seed)
+        require_int(owner, "max_episode_steps", self.max_episode_steps, 1, optional=True)
+        check_at_most(owner, "max_episode_steps", self.max_episode_steps, MAX_STEPS, "1e12 environment steps")
+        for name, part in self.PARTS.items():
+            if not isinstance(getattr(self, name), part):
+                raise ValueError(f"{owner}.{name} must be a {part.__name__}, got {getattr(self, name)!r}")
+        if self.schedule.workers != 1:
+            raise ValueError(
+                f"{owner}: workers must be 1 (PPO steps its environments in the learner's process; "
+                f"envs_per_worker sets how many), got {self.schedule.workers!r}"
+            )
+        if self.optimization.minibatches > self.schedule.envs_per_worker:
+            raise ValueError(
+                f"{owner}.minibatches must be at most envs_per_worker ({self.schedule.envs_per_worker}): "
+                f"minibatches split the environments, got {self.optimization.minibatches!r}"
+            )
+
+    @property
+    def time_limit(self) -> int:
+        return self.max_episode_steps or Task(self.task).time_limit
+
+    @property
+    def steps_per_rollout(self) -> int:
+        return self.optimization.n_steps * self.schedule.envs_per_worker

@@ -1,0 +1,137 @@
+"""PPO's update of one rollout: advantages under the network that acted, then ``epochs`` passes of
+``minibatches`` minibatches, each a set of whole environment sequences over which the LSTM is
+unrolled again from the state the rollout started with (CleanRL's ``ppo_atari_lstm.py`` splits by
+environment for the same reason), with the clipped surrogate objective."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from bimgame.learn.nets import RecurrentActorCritic
+from bimgame.learn.ppo.settings import PPOOptimizationSettings
+from bimgame.learn.rollout import Segment, advantages_and_targets
+
+__all__ = ["RolloutTargets", "rollout_targets", "ppo_minibatch_loss", "ppo_update"]
+
+#: The statistics an update averages over its minibatches.
+_AVERAGED = ("policy_loss", "value_loss", "entropy", "approx_kl", "clip_fraction", "grad_norm")
+
+
+class RolloutTargets:
+    """What every minibatch of a rollout is trained towards: GAE advantages, value targets, and the
+    values and log-probabilities of the network that acted — each (T, B)."""
+
+    def __init__(self, advantages: torch.Tensor, returns: torch.Tensor, values: torch.Tensor, log_probs: torch.Tensor):
+        self.advantages, self.returns, self.values, self.log_probs = advantages, returns, values, log_probs
+
+    def envs(self, index: torch.Tensor) -> RolloutTargets:
+        """The targets of the environments ``index`` (as :meth:`Segment.envs`)."""
+        return RolloutTargets(
+            self.advantages[:, index], self.returns[:, index], self.values[:, index], self.log_probs[:, index]
+        )
+
+
+@torch.no_grad()
+def rollout_targets(net: RecurrentActorCritic, segment: Segment, settings: PPOOptimizationSettings) -> RolloutTargets:
+    """GAE advantages and value targets of ``segment`` under ``net`` before any update (the network
+    that acted), bootstrapped from the value of the observation after its last step; the old
+    log-probabilities are those recorded while acting."""
+    if segment.log_probs is None:
+        raise ValueError("a PPO update needs the segment's log-probabilities of the acting policy (Segment.log_probs)")
+    out = net.unroll_features(
+        segment.obs,
+        segment.prev_action,
+        segment.prev_reward,
+        segment.tilt,
+        segment.initial_state,
+        segment.starts,
+        privileged=segment.privileged,
+    )
+    values, bootstrap = out.values[:-1], out.values[-1]
+    advantages, returns = advantages_and_targets(
+        segment.rewards, segment.ends, values, bootstrap, settings.gamma, settings.gae_lambda
+    )
+    return RolloutTargets(advantages, returns, values, segment.log_probs)
+
+
+def ppo_minibatch_loss(
+    net: RecurrentActorCritic, segment: Segment, targets: RolloutTargets, settings: PPOOptimizationSettings
+) -> tuple[torch.Tensor, dict[str, float]]:
+    """The PPO loss of one minibatch (``segment`` and ``targets`` of the same environments): the
+    clipped surrogate, the (optionally clipped) value loss, the entropy bonus and, for a network with
+    auxiliary heads, their loss."""
+    out = net.unroll_features(
+        segment.obs,
+        segment.prev_action,
+        segment.prev_reward,
+        segment.tilt,
+        segment.initial_state,
+        segment.starts,
+        privileged=segment.privileged,
+    )
+    log_probs = torch.log_softmax(out.logits[:-1], dim=-1)
+    chosen = log_probs.gather(-1, segment.actions.unsqueeze(-1)).squeeze(-1)
+    entropy = -(log_probs.exp() * log_probs).sum(-1).mean()
+    log_ratio = chosen - targets.log_probs
+    ratio = log_ratio.exp()
+    advantages = targets.advantages
+    if settings.advantage_norm:
+        advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
+    surrogate = torch.max(-advantages * ratio, -advantages * ratio.clamp(1 - settings.clip, 1 + settings.clip))
+    policy_loss = surrogate.mean()
+    values = out.values[:-1]
+    value_error = (values - targets.returns).pow(2)
+    if settings.value_clip is not None:
+        clipped = targets.values + (values - targets.values).clamp(-settings.value_clip, settings.value_clip)
+        value_error = torch.max(value_error, (clipped - targets.returns).pow(2))
+    value_loss = 0.5 * value_error.mean()
+    loss = policy_loss - settings.entropy_coef * entropy + settings.value_coef * value_loss
+    with torch.no_grad():
+        parts = {
+            "policy_loss": policy_loss.item(),
+            "value_loss": value_loss.item(),
+            "entropy": entropy.item(),
+            "approx_kl": ((ratio - 1) - log_ratio).mean().item(),  # Schulman's low-variance estimator
+            "clip_fraction": ((ratio - 1).abs() > settings.clip).float().mean().item(),
+        }
+    if net.config.aux_heads:
+        if segment.privileged is None:
+            raise ValueError(
+                "a network with auxiliary heads needs the segment's privileged states (Segment.privileged)"
+            )
+        aux, aux_parts = net.aux_loss(out.features, out.hidden, segment.privileged)
+        parts.update(aux_parts)
+        loss = loss + settings.aux_coef * aux
+    return loss, parts
+
+
+def ppo_update(
+    net: RecurrentActorCritic,
+    optimizer: torch.optim.Optimizer,
+    segment: Segment,
+    settings: PPOOptimizationSettings,
+    generator: torch.Generator,
+) -> dict[str, float]:
+    """Train ``net`` on one rollout: ``epochs`` passes over minibatches of whole environment
+    sequences, drawn from ``generator``. Returns the losses and statistics averaged over the
+    minibatches, and ``applied``: False if a loss or gradient was not finite (that minibatch, and the
+    rest of the update, is then skipped so that no non-finite value reaches the weights)."""
+    targets = rollout_targets(net, segment, settings)
+    sums = dict.fromkeys(_AVERAGED, 0.0)
+    count = 0
+    for _ in range(settings.epochs):
+        order = torch.randperm(segment.batch, generator=generator)
+        for index in order.chunk(settings.minibatches):
+            loss, parts = ppo_minibatch_loss(net, segment.envs(index), targets.envs(index), settings)
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            grad_norm = float(torch.nn.utils.clip_grad_norm_(net.parameters(), settings.max_grad_norm))
+            if not (math.isfinite(loss.item()) and math.isfinite(grad_norm)):
+                return {**parts, "grad_norm": grad_norm, "loss": loss.item(), "applied": False}
+            optimizer.step()
+            for key in _AVERAGED:
+                sums[key] += grad_norm if key == "grad_norm" else parts[key]
+            count += 1
+    return {**{key: value / count for key, value in sums.items()}, "applied": True}

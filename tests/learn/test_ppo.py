@@ -1,0 +1,140 @@
+"""PPO (bimgame.learn.ppo): its settings, the clipped loss against a hand computation, minibatches of
+whole sequences, same seed same result, the run directory (resume, evaluate), and learning STG1."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+
+import pytest
+import torch
+
+from bimgame.envs.vector import BallInMazeVectorEnv
+from bimgame.learn.actor import RecurrentActor
+from bimgame.learn.checkpoints import load_checkpoint
+from bimgame.learn.common import load_run_network
+from bimgame.learn.ppo import PPOConfig, PPOOptimizationSettings, ppo_minibatch_loss, ppo_update, train_ppo
+from bimgame.learn.ppo.update import rollout_targets
+from bimgame.learn.rollout import RolloutCollector
+from bimgame.learn.runs import KIND_PPO
+
+TINY = dict(task="STG1", obs="state", hidden=16, features=16, envs_per_worker=4, n_steps=16, minibatches=2,
+            eval_every=0, eval_episodes=2, log_every=64)
+
+
+def _segment(config: PPOConfig, seed: int = 0):
+    net = config.network.build_policy(config.seed)
+    envs = config.schedule.envs_per_worker
+    env = BallInMazeVectorEnv(envs, task=config.task, obs_mode=config.network.obs, nthread=1,
+                              max_episode_steps=config.time_limit, autoreset_mode="same_step")
+    actor = RecurrentActor(net, envs, generator=torch.Generator().manual_seed(seed))
+    collector = RolloutCollector(env, env, actor, gamma=config.optimization.gamma,
+                                 tilt_input=config.network.tilt_input)
+    collector.reset(seed, 0)
+    return net, collector.collect(config.optimization.n_steps, 0)
+
+
+def test_settings_compose_the_shared_parts_and_refuse_what_ppo_cannot_do():
+    config = PPOConfig.from_flat(TINY, lr=1e-3, clip=0.1)
+    assert config.optimization.lr == 1e-3 and config.optimization.clip == 0.1
+    assert config.schedule.workers == 1 and config.network.hidden == 16
+    assert PPOConfig.from_dict(config.to_dict()) == config
+    assert config.steps_per_rollout == 4 * 16
+    with pytest.raises(ValueError, match="workers must be 1"):
+        PPOConfig.from_flat(TINY, workers=2)
+    with pytest.raises(ValueError, match=r"PPOConfig\.minibatches must be at most envs_per_worker \(4\)"):
+        PPOConfig.from_flat(TINY, minibatches=5)
+    with pytest.raises(ValueError, match=r"PPOOptimizationSettings\.clip must be a finite number > 0"):
+        PPOOptimizationSettings(clip=0.0)
+    with pytest.raises(ValueError, match=r"unknown PPO settings \['rmsprop_alpha'\]"):
+        PPOConfig.from_flat(TINY, rmsprop_alpha=0.9)
+
+
+def test_a_segment_of_some_environments_keeps_their_whole_sequences():
+    config = PPOConfig.from_flat(TINY)
+    _, segment = _segment(config)
+    index = torch.tensor([2, 0])
+    part = segment.envs(index)
+    assert part.batch == 2 and part.steps == segment.steps
+    assert torch.equal(part.obs, segment.obs[:, index]) and torch.equal(part.actions, segment.actions[:, index])
+    assert torch.equal(part.starts, segment.starts[:, index]) and torch.equal(part.log_probs, segment.log_probs[:, index])
+    assert torch.equal(part.initial_state.h, segment.initial_state.h[index])
+
+
+def test_the_clipped_surrogate_matches_a_hand_computation():
+    settings = PPOOptimizationSettings(clip=0.2, advantage_norm=False, entropy_coef=0.0, value_coef=0.0)
+    config = PPOConfig.from_flat(TINY)
+    net, segment = _segment(config)
+    targets = rollout_targets(net, segment, settings)
+    # Under the network that acted every ratio is 1: no clipping, no KL, and the loss is −mean(A).
+    loss, parts = ppo_minibatch_loss(net, segment, targets, settings)
+    assert parts["approx_kl"] == pytest.approx(0.0, abs=1e-6) and parts["clip_fraction"] == 0.0
+    assert loss.item() == pytest.approx(-targets.advantages.mean().item(), rel=1e-4, abs=1e-6)
+    # Old probabilities twice the new ones: ratio 0.5, clipped to 0.8 where that is the larger loss.
+    targets.log_probs = targets.log_probs + math.log(2.0)
+    advantages = targets.advantages
+    expected = torch.max(-advantages * 0.5, -advantages * 0.8).mean()
+    loss, parts = ppo_minibatch_loss(net, segment, targets, settings)
+    assert loss.item() == pytest.approx(expected.item(), rel=1e-4, abs=1e-6)
+    assert parts["clip_fraction"] == 1.0
+
+
+def test_value_clipping_limits_the_value_loss_to_the_clipped_change():
+    settings = PPOOptimizationSettings(advantage_norm=False, entropy_coef=0.0, value_coef=1.0, value_clip=0.1)
+    net, segment = _segment(PPOConfig.from_flat(TINY))
+    targets = rollout_targets(net, segment, settings)
+    targets.returns = targets.values + 1.0  # every target one unit above the old value
+    _, parts = ppo_minibatch_loss(net, segment, targets, settings)
+    # The new values equal the old ones: unclipped error 1; clipped prediction moves at most 0.1, so the
+    # larger of the two errors, 1, counts: value loss 0.5 · 1².
+    assert parts["value_loss"] == pytest.approx(0.5, rel=1e-4)
+
+
+def test_an_update_moves_the_policy_and_is_the_same_for_the_same_seed():
+    config = PPOConfig.from_flat(TINY, lr=1e-2)
+    results = []
+    for _ in range(2):
+        net, segment = _segment(config)
+        optimizer = torch.optim.Adam(net.parameters(), lr=1e-2)
+        before = [p.detach().clone() for p in net.parameters()]
+        parts = ppo_update(net, optimizer, segment, config.optimization, torch.Generator().manual_seed(3))
+        assert parts["applied"] and math.isfinite(parts["policy_loss"])
+        assert parts["approx_kl"] > 0 and any(not torch.equal(a, b) for a, b in zip(before, net.parameters()))
+        results.append(([p.detach().clone() for p in net.parameters()], parts))
+    assert all(torch.equal(a, b) for a, b in zip(results[0][0], results[1][0], strict=True))
+    assert results[0][1] == results[1][1]
+
+
+def _rows(path):
+    with open(path) as handle:
+        return list(csv.DictReader(handle))
+
+
+def test_a_run_writes_its_directory_resumes_and_can_be_evaluated(tmp_path):
+    config = PPOConfig.from_flat(TINY, steps=256)
+    first = train_ppo(config, tmp_path / "run", progress=False)
+    assert first.stopped == "finished" and first.steps == 256 and first.final_eval is not None
+    stored = json.loads((tmp_path / "run" / "config.json").read_text())
+    assert stored["kind"] == KIND_PPO and PPOConfig.from_dict(stored["ppo"]) == config
+    assert load_checkpoint(tmp_path / "run")["step"] == 256
+    net, run, step = load_run_network(tmp_path / "run")  # what bimgame evaluate and --init read
+    assert run.kind == KIND_PPO and run.task == "STG1" and step == 256 and net.config.hidden == 16
+    updates = _rows(tmp_path / "run" / "updates.csv")
+    assert [int(r["step"]) for r in updates] == [64, 128, 192, 256]
+    with pytest.raises(ValueError, match=r"--resume must keep the run's settings; changed: lr"):
+        train_ppo(PPOConfig.from_flat(TINY, steps=512, lr=1e-3), tmp_path / "run", resume=True, progress=False)
+    resumed = train_ppo(PPOConfig.from_flat(TINY, steps=512), tmp_path / "run", resume=True, progress=False)
+    assert resumed.steps == 512
+    assert [int(r["step"]) for r in _rows(tmp_path / "run" / "updates.csv")] == [64 * k for k in range(1, 9)]
+
+
+def test_the_same_seed_gives_the_same_run(tmp_path):
+    config = PPOConfig.from_flat(TINY, steps=192, seed=4)
+    for name in ("a", "b"):
+        train_ppo(config, tmp_path / name, progress=False)
+    drop = lambda rows: [{k: v for k, v in r.items() if k not in ("seconds", "sps")} for r in rows]  # noqa: E731
+    assert drop(_rows(tmp_path / "a" / "updates.csv")) == drop(_rows(tmp_path / "b" / "updates.csv"))
+    assert _rows(tmp_path / "a" / "episodes.csv") == _rows(tmp_path / "b" / "episodes.csv")
+    weights = [load_checkpoint(tmp_path / name)["model"] for name in ("a", "b")]
+    assert all(torch.equal(weights[0][k], weights[1][k]) for k in weights[0])
