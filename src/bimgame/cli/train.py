@@ -12,6 +12,7 @@ from rich.table import Table
 
 from bimgame.cli.argtypes import check_output_file, episode_count, positive_float, seed, step_count, step_count_or_zero
 from bimgame.cli.flags import add_flag_groups, add_grouped_settings_flags, given_settings, plain
+from bimgame.cli.train_ppo import PPO_GROUP, add_ppo_arguments, run_train_ppo
 from bimgame.envs.shaping import DEFAULT_GEODESIC_COEF
 from bimgame.learn.a3c import A3CConfig, TrainingError, resolve_config, train
 from bimgame.learn.actor import evaluate_network
@@ -26,6 +27,8 @@ from bimgame.util.settings import field_docs
 __all__ = ["add_train_arguments", "add_evaluate_arguments", "run_train", "run_evaluate", "TRAIN_GROUPS", "A3C_GROUPS"]
 
 
+#: The learners ``bimgame train --algo`` runs.
+ALGOS = ("a3c", "ppo")
 #: ``bimgame train --help``'s groups: (title, description) in the order shown.
 TRAIN_GROUPS = (
     ("run", "the run directory and where the run starts from"),
@@ -41,6 +44,7 @@ TRAIN_GROUPS = (
     ),
     ("curriculum", "where training episodes start"),
     ("logging", "checkpoints, evaluations and logs"),
+    PPO_GROUP,
 )
 #: The group of each A3C setting (the network settings are all in "network").
 A3C_GROUPS: dict[str, tuple[str, ...]] = {
@@ -105,6 +109,7 @@ def add_train_arguments(parser: argparse.ArgumentParser) -> None:
         help="continue the run in --run-dir from its last checkpoint (settings come from its config.json)",
     )
     run("--init", type=Path, default=None, help="start from these weights (checkpoint file or run directory)")
+    run("--algo", choices=ALGOS, default="a3c", help="the learner: a3c (the paper's) or ppo (default a3c)")
     flat_defaults = SimpleNamespace(**A3CConfig().to_dict())  # an absent part's flat values included
     for cls, names in A3CConfig.name_groups():
         add_grouped_settings_flags(
@@ -132,9 +137,12 @@ def add_train_arguments(parser: argparse.ArgumentParser) -> None:
         help=f"{plain(docs['geodesic_coef'])} (COEF default {DEFAULT_GEODESIC_COEF:g})",
     )
     groups["logging"].add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_ppo_arguments(parser, groups)
 
 
 def run_train(args: argparse.Namespace) -> int:
+    if args.algo == "ppo":
+        return run_train_ppo(args)
     if args.resume and args.init is not None:
         raise ValueError(
             f"--init {args.init} with --resume: a resumed run continues from its own checkpoint "

@@ -23,7 +23,7 @@ import torch
 from bimgame.envs.vector import BallInMazeVectorEnv
 from bimgame.learn.actor import RecurrentActor
 from bimgame.learn.checkpoints import CheckpointError, apply_weights, load_checkpoint, load_weights, save_checkpoint
-from bimgame.learn.common import EVAL_COLUMNS, evaluate_greedy_and_sampled, evaluation_seed
+from bimgame.learn.common import EVAL_COLUMNS, evaluate_greedy_and_sampled, evaluation_seed, init_network_settings
 from bimgame.learn.curves import plot_run
 from bimgame.learn.episode_monitor import Monitor
 from bimgame.learn.metric_logs import MetricLog
@@ -31,12 +31,12 @@ from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.learn.ppo.settings import PPOConfig
 from bimgame.learn.ppo.update import ppo_update
 from bimgame.learn.rollout import FinishedEpisode, NonFiniteReward, RolloutCollector
-from bimgame.learn.run_dir import RunDirectory
+from bimgame.learn.run_dir import RunDirectory, stored_run_config
 from bimgame.learn.runs import CHECKPOINT, KIND_PPO, torch_threads
 from bimgame.util.progress import ProgressBar
 from bimgame.util.signals import sigterm_as_interrupt
 
-__all__ = ["PPOTrainingError", "PPOResult", "train_ppo", "evaluate_ppo", "TABLES"]
+__all__ = ["PPOTrainingError", "PPOResult", "resolve_ppo_config", "train_ppo", "evaluate_ppo", "TABLES"]
 
 #: The run's CSV logs and their columns.
 TABLES = {
@@ -83,6 +83,22 @@ def evaluate_ppo(net: RecurrentActorCritic, config: PPOConfig) -> dict[str, floa
         seed=evaluation_seed(config.seed),
         time_limit=config.time_limit,
     )
+
+
+def resolve_ppo_config(
+    given: dict[str, Any], run_dir: str | Path, *, resume: bool = False, init: str | Path | None = None
+) -> PPOConfig:
+    """A run's settings from the ones a user gave (flat names, only those given): the defaults, or with
+    ``resume`` the run's stored settings, overridden by ``given``; with ``init``, the network settings
+    of the run it points at unless given (a pre-trained π^s fixes the network's shape)."""
+    if resume:
+        stored = stored_run_config(run_dir, KIND_PPO).get("ppo")
+        if not isinstance(stored, dict):
+            raise ValueError(f"{Path(run_dir) / 'config.json'} holds no PPO settings ('ppo')")
+        return PPOConfig.from_flat({**stored, **given})
+    if init is not None:
+        given = {**init_network_settings(init), **given}
+    return PPOConfig.from_flat(given)
 
 
 def train_ppo(

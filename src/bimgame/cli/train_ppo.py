@@ -1,0 +1,77 @@
+"""``bimgame train --algo ppo``: PPO's own flags (a help group of their own) and the run. The flags PPO
+shares with A3C (``--lr``, ``--n-steps``, ``--gamma``, the network, the schedule) are ``train``'s; a
+setting not given takes PPO's default, and an A3C-only flag is refused by name."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from types import SimpleNamespace
+
+from bimgame.cli.flags import add_grouped_settings_flags, given_settings
+from bimgame.learn.a3c import A3CConfig
+from bimgame.learn.ppo import PPOConfig, PPOOptimizationSettings, PPOTrainingError, resolve_ppo_config, train_ppo
+
+__all__ = ["PPO_GROUP", "add_ppo_arguments", "run_train_ppo"]
+
+_DEFAULTS = PPOOptimizationSettings()
+#: The help group of PPO's own settings: (title, description), the shared defaults read from the class.
+PPO_GROUP = (
+    "PPO (--algo ppo)",
+    (
+        f"PPO's own settings; the shared flags above take PPO's defaults with --algo ppo (lr {_DEFAULTS.lr:g}, "
+        f"n-steps {_DEFAULTS.n_steps}, gae-lambda {_DEFAULTS.gae_lambda:g}; one process: --workers 1)"
+    ),
+)
+#: The reward-shaping flags ``--algo ppo`` does not support yet, by their destination.
+_NOT_FOR_PPO = {"value_reward": "--value-reward", "geodesic_coef": "--geodesic-reward"}
+
+
+def add_ppo_arguments(parser: argparse.ArgumentParser, groups: dict[str, argparse._ArgumentGroup]) -> None:
+    """PPO's own settings as flags (defaults of None: ``--resume`` keeps what is not given)."""
+    title = PPO_GROUP[0]  # the group is one of train's (TRAIN_GROUPS)
+    shared = set(A3CConfig.flat_names())
+    own = [name for name in PPOConfig.flat_names() if name not in shared]
+    add_grouped_settings_flags(
+        parser,
+        groups,
+        PPOOptimizationSettings,
+        [name for name in own if name in PPOOptimizationSettings.__dataclass_fields__],
+        {title: tuple(own)},
+        defaults=SimpleNamespace(**PPOConfig().to_dict()),
+        default_none=True,
+    )
+
+
+def run_train_ppo(args: argparse.Namespace) -> int:
+    """Resolve the PPO settings from the flags given and train; returns the exit code."""
+    refused = [flag for name, flag in _NOT_FOR_PPO.items() if getattr(args, name, None) is not None]
+    if refused:
+        raise ValueError(f"{', '.join(refused)}: reward shaping is not supported with --algo ppo yet")
+    # Every settings flag given, A3C's too: an A3C-only one is refused by PPOConfig, naming it.
+    given = given_settings(args, PPOConfig, sorted(set(A3CConfig.flat_names()) | set(PPOConfig.flat_names())))
+    config = resolve_ppo_config(given, args.run_dir, resume=args.resume, init=args.init)
+    print(
+        f"PPO on {config.task} ({config.network.obs}): {config.schedule.steps:,} steps, "
+        f"{config.schedule.envs_per_worker} envs{', from ' + str(args.init) if args.init else ''} -> {args.run_dir}",
+        file=sys.stderr,
+    )
+    try:
+        result = train_ppo(config, args.run_dir, resume=args.resume, init=args.init, progress=not args.no_progress)
+    except PPOTrainingError as error:
+        print(f"bimgame train: stopped: {error}", file=sys.stderr)
+        return 1
+    if result.stopped == "interrupted":
+        print(
+            f"interrupted at {result.steps:,} steps; checkpoint saved. Continue with: bimgame train --algo ppo "
+            f"--run-dir {args.run_dir} --resume",
+            file=sys.stderr,
+        )
+        return 130
+    final = result.final_eval or {}
+    print(
+        f"done: {result.steps:,} steps in {result.seconds / 60:.1f} min; final evaluation: greedy success "
+        f"{final.get('greedy_success_rate', float('nan')):.0%}, sampled success "
+        f"{final.get('sampled_success_rate', float('nan')):.0%}"
+    )
+    return 0

@@ -1,0 +1,33 @@
+"""``bimgame train --algo ppo``: PPO's flags, its run, resume, and the flags it refuses."""
+
+from __future__ import annotations
+
+import json
+
+from bimgame.cli.main import main
+from bimgame.learn.ppo import PPOConfig
+
+TINY = ["--obs", "state", "--hidden", "8", "--features", "8", "--envs-per-worker", "4", "--n-steps", "16",
+        "--minibatches", "2", "--eval-every", "0", "--eval-episodes", "2", "--no-progress"]
+
+
+def test_ppo_trains_resumes_and_takes_its_own_defaults(tmp_path, capsys):
+    run_dir = tmp_path / "run"
+    assert main(["train", "--algo", "ppo", "--run-dir", str(run_dir), "--steps", "128", "--clip", "0.1", *TINY]) == 0
+    assert "done: 128 steps" in capsys.readouterr().out
+    stored = PPOConfig.from_dict(json.loads((run_dir / "config.json").read_text())["ppo"])
+    assert stored.optimization.clip == 0.1 and stored.schedule.workers == 1
+    assert stored.optimization.lr == PPOConfig().optimization.lr  # PPO's default, not A3C's
+    assert main(["train", "--algo", "ppo", "--run-dir", str(run_dir), "--resume", "--steps", "192",
+                 "--no-progress"]) == 0
+    assert "done: 192 steps" in capsys.readouterr().out
+    resumed = PPOConfig.from_dict(json.loads((run_dir / "config.json").read_text())["ppo"])
+    assert resumed.optimization.clip == 0.1
+
+
+def test_ppo_refuses_a3c_only_flags_and_reward_shaping_by_name(tmp_path, capsys):
+    assert main(["train", "--algo", "ppo", "--run-dir", str(tmp_path / "a"), "--rmsprop-alpha", "0.9", *TINY]) == 2
+    assert "unknown PPO settings ['rmsprop_alpha']" in capsys.readouterr().err
+    assert main(["train", "--algo", "ppo", "--run-dir", str(tmp_path / "b"), "--geodesic-reward", *TINY]) == 2
+    assert "--geodesic-reward: reward shaping is not supported with --algo ppo yet" in capsys.readouterr().err
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
