@@ -138,3 +138,8 @@ def test_the_same_seed_gives_the_same_run(tmp_path):
     assert _rows(tmp_path / "a" / "episodes.csv") == _rows(tmp_path / "b" / "episodes.csv")
     weights = [load_checkpoint(tmp_path / name)["model"] for name in ("a", "b")]
     assert all(torch.equal(weights[0][k], weights[1][k]) for k in weights[0])
+
+
+def test_updates_are_logged_every_log_every_steps(tmp_path):
+    train_ppo(PPOConfig.from_flat(TINY, steps=256, log_every=128), tmp_path / "run", progress=False)
+    assert [int(r["step"]) for r in _rows(tmp_path / "run" / "updates.csv")] == [128, 256]

@@ -181,7 +181,7 @@ class _Session:
         seconds: float,
     ):
         self.config, self.directory, self.net, self.optimizer = config, run, net, optimizer
-        self.step = self.start_step = self.checkpoint_step = self.eval_step = step
+        self.step = self.start_step = self.checkpoint_step = self.eval_step = self.log_step = step
         self.started = time.monotonic() - seconds  # seconds count the whole run, across resumes
         fresh = step == 0 and not run.resume
         # An update's row is logged before its step's checkpoint: a resumed run keeps it.
@@ -280,8 +280,11 @@ class _Session:
                 f"Lower --lr or --max-grad-norm. The last checkpoint is kept."
             )
         self.step += config.steps_per_rollout
-        timing = {"sps": self.monitor.sps(self.step), "seconds": time.monotonic() - self.started}
-        self.log.write("updates", self.step, {**parts, **self.monitor.recent(), **timing}, scalars=_UPDATE_SCALARS)
+        if self.step - self.log_step >= config.schedule.log_every:  # the update's losses, every log_every steps
+            self.log_step = self.step
+            timing = {"sps": self.monitor.sps(self.step), "seconds": time.monotonic() - self.started}
+            row = {**parts, **self.monitor.recent(), **timing}
+            self.log.write("updates", self.step, row, scalars=_UPDATE_SCALARS)
         if config.schedule.eval_every and self.step - self.eval_step >= config.schedule.eval_every:
             self.eval_step = self.step
             self.log.write("eval", self.step, {"step": self.step, **evaluate_ppo(self.net, config)})
