@@ -6,8 +6,9 @@ For each run: environment steps per second at steady state (the median of the se
 updates.csv), steps to 80% training success (training episodes by the step they started at, in bins
 of ``--bin`` steps with at least 10 episodes, as the reproduction's report counts them; censored at
 the last complete bin when not reached), and the final greedy and sampled evaluation. Across seeds:
-PPO's speed-up over A3C in steps to 80% with a stratified bootstrap interval, and a figure of both
-learning curves. Runs are kept in ``--out`` (a rerun reuses the finished ones). Writes
+each variant's speed-up over A3C in steps to 80% with a stratified bootstrap interval, and a figure of
+the learning curves. Runs are kept in ``--out`` (a rerun reuses the finished ones); every variant found
+there is reported (``a3c``, ``ppo-mb4``, ``ppo-mb2`` after ``--ppo-minibatches 2``, …). Writes
 benchmarks/results/learners.json and docs/ppo/learners_<task>_<obs>.png.
 
 Usage: python benchmarks/bench_learners.py [--task STG1] [--obs state] [--steps 300000] [--seeds 3]
@@ -31,10 +32,9 @@ from bimgame.util.files import atomic_write_bytes, read_json
 
 ROOT = Path(__file__).resolve().parents[1]
 LEARNERS = ("a3c", "ppo")
-LABELS = {"a3c": "A3C (2 × 16 envs)", "ppo": "PPO (16 envs)"}
 
 
-def _train(learner: str, run_dir: Path, *, task: str, obs: str, steps: int, seed: int) -> None:
+def _train(learner: str, run_dir: Path, *, task: str, obs: str, steps: int, seed: int, ppo: dict) -> None:
     """Train one run unless ``run_dir`` holds a finished one."""
     summary = read_json(run_dir / "summary.json")
     if summary is not None and summary.get("stopped") == "finished":
@@ -43,7 +43,7 @@ def _train(learner: str, run_dir: Path, *, task: str, obs: str, steps: int, seed
     if learner == "a3c":
         train(A3CConfig.from_flat(common, workers=2), run_dir, progress=False)
     else:
-        train_ppo(PPOConfig.from_flat(common), run_dir, progress=False)
+        train_ppo(PPOConfig.from_flat(common, **ppo), run_dir, progress=False)
 
 
 def _measure(run_dir: Path, steps: int, bin_steps: int, threshold: float) -> tuple[dict, Crossing]:
@@ -73,29 +73,36 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--bin", type=int, default=7_500, help="steps per bin of training success (default 7500)")
     parser.add_argument("--threshold", type=float, default=0.8)
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "bench-learners")
+    parser.add_argument("--ppo-minibatches", type=int, default=None, help="PPO's minibatches (default: PPO's own)")
+    parser.add_argument("--learners", nargs="+", choices=LEARNERS, default=list(LEARNERS))
     args = parser.parse_args(argv)
-    runs: dict[str, list[Path]] = {learner: [] for learner in LEARNERS}
+    ppo = {} if args.ppo_minibatches is None else {"minibatches": args.ppo_minibatches}
+    minibatches = PPOConfig.from_flat(ppo).optimization.minibatches
+    names = {"a3c": "a3c", "ppo": f"ppo-mb{minibatches}"}
     for seed in range(args.seeds):
-        for learner in LEARNERS:
-            run_dir = args.out / f"{args.task}-{args.obs}" / learner / f"seed{seed}"
+        for learner in args.learners:
+            run_dir = args.out / f"{args.task}-{args.obs}" / names[learner] / f"seed{seed}"
             print(f"{learner} seed {seed} -> {run_dir}", file=sys.stderr)
-            _train(learner, run_dir, task=args.task, obs=args.obs, steps=args.steps, seed=seed)
-            runs[learner].append(run_dir)
+            _train(learner, run_dir, task=args.task, obs=args.obs, steps=args.steps, seed=seed, ppo=ppo)
+    # Every variant whose runs are in --out is reported (a3c, ppo-mb4, ppo-mb2, …), each against A3C.
+    grid = args.out / f"{args.task}-{args.obs}"
+    found = {d.name: sorted(d.glob("seed*")) for d in sorted(grid.iterdir()) if d.is_dir()}
     results: dict = {"task": args.task, "obs": args.obs, "steps": args.steps, "threshold": args.threshold,
-                     "bin": args.bin, "learners": {}}
+                     "bin": args.bin, "learners": {}, "speedup_over_a3c": {}}
     crossings: dict[str, list[Crossing]] = {}
-    for learner, dirs in runs.items():
+    for name, dirs in found.items():
         measured = [_measure(d, args.steps, args.bin, args.threshold) for d in dirs]
-        crossings[learner] = [c for _, c in measured]
-        results["learners"][learner] = {"label": LABELS[learner], "seeds": [row for row, _ in measured]}
-    rng = np.random.default_rng(0)
-    results["ppo_speedup_over_a3c"] = speedup(crossings["a3c"], crossings["ppo"], rng=rng)
+        crossings[name] = [c for _, c in measured]
+        results["learners"][name] = {"seeds": [row for row, _ in measured]}
+    for name in crossings:
+        if name != "a3c" and "a3c" in crossings:
+            rng = np.random.default_rng(0)
+            results["speedup_over_a3c"][name] = speedup(crossings["a3c"], crossings[name], rng=rng)
     out_json = ROOT / "benchmarks" / "results" / "learners.json"
     atomic_write_bytes(out_json, (json.dumps(results, indent=1) + "\n").encode())
     figure = ROOT / "docs" / "ppo" / f"learners_{args.task}_{args.obs}.png"
     figure.parent.mkdir(parents=True, exist_ok=True)
-    plot_comparison({LABELS[k]: v for k, v in runs.items()}, figure, title=f"{args.task} from {args.obs}",
-                    max_step=args.steps)
+    plot_comparison(found, figure, title=f"{args.task} from {args.obs}", max_step=args.steps)
     print(json.dumps(results, indent=1))
     print(f"wrote {out_json} and {figure}", file=sys.stderr)
     return 0
