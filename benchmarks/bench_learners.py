@@ -102,7 +102,8 @@ def main(argv: list[str] | None = None) -> int:
     atomic_write_bytes(out_json, (json.dumps(results, indent=1) + "\n").encode())
     figure = ROOT / "docs" / "ppo" / f"learners_{args.task}_{args.obs}.png"
     figure.parent.mkdir(parents=True, exist_ok=True)
-    plot_comparison(found, figure, title=f"{args.task} from {args.obs}", max_step=args.steps)
+    # No cut at --steps: every run has that budget, and its final evaluation lies one update past it.
+    plot_comparison(found, figure, title=f"{args.task} from {args.obs}")
     print(json.dumps(results, indent=1))
     print(f"wrote {out_json} and {figure}", file=sys.stderr)
     return 0

@@ -262,6 +262,10 @@ def plot_comparison(
         xlabel="environment steps", ylabel="success rate", title="training episodes (by start step)", ylim=(-0.02, 1.02)
     )
     ax_eval.set(xlabel="environment steps", ylabel="success rate", title="evaluation, greedy", ylim=(-0.02, 1.02))
+    # Both panels on one step axis (a run's only evaluation may be its last, one update past the budget).
+    (train_left, train_right), (eval_left, eval_right) = ax_train.get_xlim(), ax_eval.get_xlim()
+    for axis in (ax_train, ax_eval):
+        axis.set_xlim(min(train_left, eval_left), max(train_right, eval_right))
     for axis in (ax_train, ax_eval):
         axis.grid(alpha=0.3)
         axis.legend(fontsize=8)
