@@ -13,7 +13,8 @@ import torch
 from bimgame.cli.main import main
 from bimgame.envs.vector import BallInMazeVectorEnv
 from bimgame.expert.datasets import iterate_sequences
-from bimgame.learn.a3c import A3CConfig, evaluate, network_for
+from bimgame.learn.a3c import A3CConfig, network_for
+from bimgame.learn.common import run_evaluation as evaluate
 from bimgame.learn.actor import RecurrentActor, evaluate_network
 from bimgame.learn.checkpoints import load_weights
 from bimgame.learn.common import load_run_network, load_value_network

@@ -180,7 +180,7 @@ def evaluate(net, config):
 
 
 if __name__ == "__main__":
-    a3c_train.evaluate = evaluate  # the parent's final evaluation (--eval-every 0: no evaluator process)
+    a3c_train.run_evaluation = evaluate  # the parent's final evaluation (--eval-every 0: no evaluator process)
     sys.exit(main(sys.argv[1:]))
 '''
 

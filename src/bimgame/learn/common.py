@@ -13,11 +13,12 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Any, ClassVar, Self
+from typing import Any, ClassVar, Protocol, Self
 
 from bimgame.envs.observe import OBS_MODES
 from bimgame.learn.actor import evaluate_network
 from bimgame.learn.checkpoints import load_weights
+from bimgame.learn.learner_settings import ScheduleSettings
 from bimgame.learn.nets import (
     PRECISIONS,
     NetConfig,
@@ -43,6 +44,8 @@ __all__ = [
     "network_settings_of",
     "init_network_settings",
     "evaluate_greedy_and_sampled",
+    "EvaluatedRun",
+    "run_evaluation",
     "evaluation_seed",
     "EVAL_COLUMNS",
     "MAX_SEED",
@@ -331,6 +334,34 @@ def evaluation_seed(seed: int) -> int:
 EVAL_COLUMNS = tuple(
     f"{mode}_{key}" for mode in ("greedy", "sampled") for key in ("success_rate", "mean_length", "mean_return")
 )
+
+
+class EvaluatedRun(Protocol):
+    """What :func:`run_evaluation` reads of a learner's settings (A3C's, PPO's)."""
+
+    @property
+    def task(self) -> str: ...
+    @property
+    def seed(self) -> int: ...
+    @property
+    def network(self) -> NetworkSettings: ...
+    @property
+    def schedule(self) -> ScheduleSettings: ...
+    @property
+    def time_limit(self) -> int: ...
+
+
+def run_evaluation(net: RecurrentActorCritic, config: EvaluatedRun) -> dict[str, float]:
+    """A run's periodic and final evaluation: greedy and sampled, over its ``eval_episodes`` episodes
+    from its evaluation seed, on its task and time limit — the same start positions every time."""
+    return evaluate_greedy_and_sampled(
+        net,
+        task=config.task,
+        obs=config.network.obs,
+        episodes=config.schedule.eval_episodes,
+        seed=evaluation_seed(config.seed),
+        time_limit=config.time_limit,
+    )
 
 
 def evaluate_greedy_and_sampled(

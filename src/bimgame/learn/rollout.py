@@ -25,8 +25,9 @@ from typing import Any, Protocol
 import numpy as np
 import torch
 
+from bimgame.envs.vector import BallInMazeVectorEnv
 from bimgame.learn.actor import RecurrentActor, tilt_input
-from bimgame.learn.nets import LSTMState
+from bimgame.learn.nets import LSTMState, RecurrentActorCritic, Unrolled
 from bimgame.learn.starts import TRUE_START
 
 __all__ = [
@@ -35,6 +36,8 @@ __all__ = [
     "NonFiniteReward",
     "StartCurriculum",
     "RolloutCollector",
+    "unroll",
+    "training_env",
     "advantages_and_targets",
 ]
 
@@ -99,6 +102,39 @@ class Segment:
                 by_env[field.name] = value[:, index]
         h, c = self.initial_state
         return dataclasses.replace(self, **by_env, initial_state=LSTMState(h[index], c[index]))
+
+
+def unroll(net: RecurrentActorCritic, segment: Segment) -> Unrolled:
+    """``net`` unrolled over ``segment`` (T+1 steps) from the LSTM state the segment started with,
+    with gradients: the policy and values a learner's loss is taken of, exactly those of the policy
+    that acted if ``net`` holds the acting weights."""
+    return net.unroll_features(
+        segment.obs,
+        segment.prev_action,
+        segment.prev_reward,
+        segment.tilt,
+        segment.initial_state,
+        segment.starts,
+        privileged=segment.privileged,
+    )
+
+
+def training_env(
+    num_envs: int, *, task: str, obs: str, time_limit: int, privileged: bool, **options: Any
+) -> BallInMazeVectorEnv:
+    """The batched env a learner's :class:`RolloutCollector` steps: one MuJoCo thread per process
+    (the learners' processes share the cores), and same-step autoreset, whose ``final_obs`` the
+    collector's time-limit bootstrap reads. ``options`` go to the env (a start sampler, randomisation)."""
+    return BallInMazeVectorEnv(
+        num_envs,
+        task=task,
+        obs_mode=obs,
+        nthread=1,
+        max_episode_steps=time_limit,
+        autoreset_mode="same_step",
+        state_info=privileged,
+        **options,
+    )
 
 
 def advantages_and_targets(

@@ -14,11 +14,10 @@ from bimgame.learn.a3c.parent import TABLES, Session, SessionStart, TrainingErro
 from bimgame.learn.a3c.settings import A3CConfig
 from bimgame.learn.a3c.update import (
     EnvWrapper,
-    evaluate,
     network_for,
 )
 from bimgame.learn.checkpoints import CheckpointError, apply_weights, load_checkpoint, load_weights, save_checkpoint
-from bimgame.learn.common import init_network_settings
+from bimgame.learn.common import init_network_settings, run_evaluation
 from bimgame.learn.curves import plot_run
 from bimgame.learn.episode_monitor import Monitor
 from bimgame.learn.learner_settings import DEFAULT_FINETUNE, FINETUNE_PRESETS
@@ -245,7 +244,7 @@ def _session(
     if stopped == "finished":
         try:
             with sigterm_as_interrupt():  # Ctrl-C or SIGTERM here: --resume does just this evaluation
-                final_eval = {"step": step, **evaluate(shared, config)}
+                final_eval = {"step": step, **run_evaluation(shared, config)}
         except KeyboardInterrupt:
             stopped = "interrupted"
     try:

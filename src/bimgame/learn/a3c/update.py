@@ -12,11 +12,10 @@ import torch
 
 from bimgame.envs.vector import BallInMazeVectorEnv
 from bimgame.learn.a3c.settings import A3CConfig
-from bimgame.learn.common import evaluate_greedy_and_sampled, evaluation_seed
 from bimgame.learn.finetune import LossWeights, RunningScale
 from bimgame.learn.loss_terms import LossTerm
 from bimgame.learn.nets import RecurrentActorCritic
-from bimgame.learn.rollout import Segment, advantages_and_targets
+from bimgame.learn.rollout import Segment, advantages_and_targets, unroll
 from bimgame.sim.maze import MazeSpec
 
 __all__ = [
@@ -26,7 +25,6 @@ __all__ = [
     "shared_optimizer_state",
     "a3c_segment_loss",
     "apply_update",
-    "evaluate",
 ]
 
 #: A callable that wraps a worker's vector env (e.g. reward shaping). It is sent to spawned worker
@@ -101,15 +99,7 @@ def a3c_segment_loss(
     see :class:`~bimgame.learn.finetune.EntropyTarget`)."""
     settings = config.optimization
     privileged = segment.privileged
-    out = net.unroll_features(
-        segment.obs,
-        segment.prev_action,
-        segment.prev_reward,
-        segment.tilt,
-        segment.initial_state,
-        segment.starts,
-        privileged=privileged,
-    )
+    out = unroll(net, segment)
     logits, bootstrap, values = out.logits[:-1], out.values[-1].detach(), out.values[:-1]
     advantages, targets = advantages_and_targets(
         segment.rewards, segment.ends, values.detach(), bootstrap, settings.gamma, settings.gae_lambda
@@ -181,15 +171,3 @@ def apply_update(
             shared_param.grad = param.grad
         optimizer.step()
     return {**parts, "loss": loss.item(), "grad_norm": grad_norm, "applied": applied}
-
-
-def evaluate(net: RecurrentActorCritic, config: A3CConfig) -> dict[str, float]:
-    """The run's periodic evaluation: greedy and sampled, on its evaluation episodes and seed."""
-    return evaluate_greedy_and_sampled(
-        net,
-        task=config.task,
-        obs=config.network.obs,
-        episodes=config.schedule.eval_episodes,
-        seed=evaluation_seed(config.seed),
-        time_limit=config.time_limit,
-    )

@@ -18,13 +18,14 @@ import torch
 from bimgame.envs.randomization import RANDOMIZATION_PRESETS
 from bimgame.envs.vector import BallInMazeVectorEnv
 from bimgame.learn.a3c.settings import A3CConfig
-from bimgame.learn.a3c.update import EnvWrapper, apply_update, evaluate, make_optimizer, network_for
+from bimgame.learn.a3c.update import EnvWrapper, apply_update, make_optimizer, network_for
 from bimgame.learn.actor import RecurrentActor
 from bimgame.learn.augment import random_shift
+from bimgame.learn.common import run_evaluation
 from bimgame.learn.finetune import DemoWindows, EntropyTarget, LossWeights, RunningScale, Teacher, loss_weights
 from bimgame.learn.loss_terms import BehaviourCloning, LossTerm, TeacherKL
 from bimgame.learn.nets import RecurrentActorCritic
-from bimgame.learn.rollout import FinishedEpisode, NonFiniteReward, RolloutCollector, Segment
+from bimgame.learn.rollout import FinishedEpisode, NonFiniteReward, RolloutCollector, Segment, training_env
 from bimgame.learn.starts import DemoStartCurriculum, ReverseCurriculum
 from bimgame.sim.maze import MazeSpec
 from bimgame.util.processes import exit_when_parent_dies
@@ -55,14 +56,12 @@ def _start_sampler(config: A3CConfig) -> DemoStartCurriculum | ReverseCurriculum
 
 def _make_env(config: A3CConfig, num_envs: int, **kwargs: Any) -> BallInMazeVectorEnv:
     randomize = None if config.randomize is None else RANDOMIZATION_PRESETS[config.randomize]
-    return BallInMazeVectorEnv(
+    return training_env(
         num_envs,
         task=config.task,
-        obs_mode=config.network.obs,
-        nthread=1,
-        max_episode_steps=config.time_limit,
-        autoreset_mode="same_step",
-        state_info=config.network.privileged,
+        obs=config.network.obs,
+        time_limit=config.time_limit,
+        privileged=config.network.privileged,
         randomize=randomize,
         **kwargs,
     )
@@ -320,7 +319,7 @@ def _evaluator(
         local = network_for(config)
         # A copy of the weights taken before any worker started.
         local.load_state_dict(initial_weights)
-        messages.put(("eval", -1, {"step": start_step, **evaluate(local, config)}))
+        messages.put(("eval", -1, {"step": start_step, **run_evaluation(local, config)}))
         next_eval = (start_step // config.schedule.eval_every + 1) * config.schedule.eval_every
         while not stop.is_set():
             step = counter.value
@@ -330,7 +329,7 @@ def _evaluator(
                 time.sleep(0.1)
                 continue
             local.load_state_dict(shared.state_dict())
-            messages.put(("eval", -1, {"step": int(step), **evaluate(local, config)}))
+            messages.put(("eval", -1, {"step": int(step), **run_evaluation(local, config)}))
             next_eval = (step // config.schedule.eval_every + 1) * config.schedule.eval_every
     except Exception:  # noqa: BLE001 - any failure goes to the parent as a traceback, which stops the run
         messages.put(("error", -1, traceback.format_exc()))

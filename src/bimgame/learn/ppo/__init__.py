@@ -19,7 +19,7 @@ fine-tuning terms and start curricula A3C has (``--init`` does start from π^s).
 """
 
 from bimgame.learn.ppo.settings import PPOConfig, PPOOptimizationSettings
-from bimgame.learn.ppo.training import PPOResult, PPOTrainingError, evaluate_ppo, resolve_ppo_config, train_ppo
+from bimgame.learn.ppo.training import PPOResult, PPOTrainingError, resolve_ppo_config, train_ppo
 from bimgame.learn.ppo.update import ppo_minibatch_loss, ppo_update
 
 __all__ = [
@@ -29,7 +29,6 @@ __all__ = [
     "PPOTrainingError",
     "train_ppo",
     "resolve_ppo_config",
-    "evaluate_ppo",
     "ppo_update",
     "ppo_minibatch_loss",
 ]

@@ -20,23 +20,22 @@ from typing import Any
 import numpy as np
 import torch
 
-from bimgame.envs.vector import BallInMazeVectorEnv
 from bimgame.learn.actor import RecurrentActor
 from bimgame.learn.checkpoints import CheckpointError, apply_weights, load_checkpoint, load_weights, save_checkpoint
-from bimgame.learn.common import EVAL_COLUMNS, evaluate_greedy_and_sampled, evaluation_seed, init_network_settings
+from bimgame.learn.common import EVAL_COLUMNS, init_network_settings, run_evaluation
 from bimgame.learn.curves import plot_run
 from bimgame.learn.episode_monitor import Monitor
 from bimgame.learn.metric_logs import MetricLog
 from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.learn.ppo.settings import PPOConfig
 from bimgame.learn.ppo.update import ppo_update
-from bimgame.learn.rollout import FinishedEpisode, NonFiniteReward, RolloutCollector
+from bimgame.learn.rollout import FinishedEpisode, NonFiniteReward, RolloutCollector, training_env
 from bimgame.learn.run_dir import RunDirectory, stored_run_config
 from bimgame.learn.runs import CHECKPOINT, KIND_PPO, torch_threads
 from bimgame.util.progress import ProgressBar
 from bimgame.util.signals import sigterm_as_interrupt
 
-__all__ = ["PPOTrainingError", "PPOResult", "resolve_ppo_config", "train_ppo", "evaluate_ppo", "TABLES"]
+__all__ = ["PPOTrainingError", "PPOResult", "resolve_ppo_config", "train_ppo", "TABLES"]
 
 #: The run's CSV logs and their columns.
 TABLES = {
@@ -71,18 +70,6 @@ class PPOResult:
     """``finished`` (budget spent) or ``interrupted`` (Ctrl-C, SIGTERM)."""
     final_eval: dict[str, Any] | None
     seconds: float
-
-
-def evaluate_ppo(net: RecurrentActorCritic, config: PPOConfig) -> dict[str, float]:
-    """The run's periodic evaluation: greedy and sampled, on its evaluation episodes and seed."""
-    return evaluate_greedy_and_sampled(
-        net,
-        task=config.task,
-        obs=config.network.obs,
-        episodes=config.schedule.eval_episodes,
-        seed=evaluation_seed(config.seed),
-        time_limit=config.time_limit,
-    )
 
 
 def resolve_ppo_config(
@@ -197,14 +184,12 @@ class _Session:
 
     def _collector(self, act_seed: int) -> RolloutCollector:
         config, envs = self.config, self.config.schedule.envs_per_worker
-        env = BallInMazeVectorEnv(
+        env = training_env(
             envs,
             task=config.task,
-            obs_mode=config.network.obs,
-            nthread=1,
-            max_episode_steps=config.time_limit,
-            autoreset_mode="same_step",
-            state_info=config.network.privileged,
+            obs=config.network.obs,
+            time_limit=config.time_limit,
+            privileged=config.network.privileged,
         )
         actor = RecurrentActor(self.net, envs, generator=torch.Generator().manual_seed(act_seed))
         return RolloutCollector(
@@ -263,7 +248,7 @@ class _Session:
                 success = self.monitor.recent()["recent_success"]
                 shown = "-" if math.isnan(success) else f"{success:.0%}"
                 bar.update(completed=self.step, info=f"{self.monitor.sps(self.step):,.0f} SPS  success {shown}")
-            final_eval = {"step": self.step, **evaluate_ppo(self.net, config)}
+            final_eval = {"step": self.step, **run_evaluation(self.net, config)}
         self.log.write("eval", self.step, final_eval, scalars=tuple(TABLES["eval"]))
         return final_eval
 
@@ -287,7 +272,7 @@ class _Session:
             self.log.write("updates", self.step, row, scalars=_UPDATE_SCALARS)
         if config.schedule.eval_every and self.step - self.eval_step >= config.schedule.eval_every:
             self.eval_step = self.step
-            self.log.write("eval", self.step, {"step": self.step, **evaluate_ppo(self.net, config)})
+            self.log.write("eval", self.step, {"step": self.step, **run_evaluation(self.net, config)})
         if self.step - self.checkpoint_step >= config.schedule.checkpoint_every:
             self._checkpoint()
 

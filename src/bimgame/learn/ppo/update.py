@@ -11,7 +11,7 @@ import torch
 
 from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.learn.ppo.settings import PPOOptimizationSettings
-from bimgame.learn.rollout import Segment, advantages_and_targets
+from bimgame.learn.rollout import Segment, advantages_and_targets, unroll
 
 __all__ = ["RolloutTargets", "rollout_targets", "ppo_minibatch_loss", "ppo_update"]
 
@@ -40,15 +40,7 @@ def rollout_targets(net: RecurrentActorCritic, segment: Segment, settings: PPOOp
     log-probabilities are those recorded while acting."""
     if segment.log_probs is None:
         raise ValueError("a PPO update needs the segment's log-probabilities of the acting policy (Segment.log_probs)")
-    out = net.unroll_features(
-        segment.obs,
-        segment.prev_action,
-        segment.prev_reward,
-        segment.tilt,
-        segment.initial_state,
-        segment.starts,
-        privileged=segment.privileged,
-    )
+    out = unroll(net, segment)
     values, bootstrap = out.values[:-1], out.values[-1]
     advantages, returns = advantages_and_targets(
         segment.rewards, segment.ends, values, bootstrap, settings.gamma, settings.gae_lambda
@@ -62,15 +54,7 @@ def ppo_minibatch_loss(
     """The PPO loss of one minibatch (``segment`` and ``targets`` of the same environments): the
     clipped surrogate, the (optionally clipped) value loss, the entropy bonus and, for a network with
     auxiliary heads, their loss."""
-    out = net.unroll_features(
-        segment.obs,
-        segment.prev_action,
-        segment.prev_reward,
-        segment.tilt,
-        segment.initial_state,
-        segment.starts,
-        privileged=segment.privileged,
-    )
+    out = unroll(net, segment)
     log_probs = torch.log_softmax(out.logits[:-1], dim=-1)
     chosen = log_probs.gather(-1, segment.actions.unsqueeze(-1)).squeeze(-1)
     entropy = -(log_probs.exp() * log_probs).sum(-1).mean()
