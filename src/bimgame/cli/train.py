@@ -12,13 +12,14 @@ from rich.table import Table
 
 from bimgame.cli.argtypes import check_output_file, episode_count, positive_float, seed, step_count, step_count_or_zero
 from bimgame.cli.flags import add_flag_groups, add_grouped_settings_flags, given_settings, plain
-from bimgame.cli.train_ppo import PPO_GROUP, add_ppo_arguments, run_train_ppo
+from bimgame.cli.train_ppo import PPO_GROUP, add_ppo_arguments, train_ppo_from_args
 from bimgame.envs.shaping import DEFAULT_GEODESIC_COEF
-from bimgame.learn.a3c import A3CConfig, TrainingError, resolve_config, train
+from bimgame.learn.a3c import A3CConfig, resolve_config, train
 from bimgame.learn.actor import evaluate_network
 from bimgame.learn.common import NetworkSettings, load_run_network
 from bimgame.learn.learner_settings import DEFAULT_FINETUNE
 from bimgame.learn.rewards import RewardSettings, env_wrapper_for, resolve_reward_settings
+from bimgame.learn.run_dir import TrainingError, TrainResult
 from bimgame.sim.tasks import parse_task
 from bimgame.util.files import write_json
 from bimgame.util.images import write_gif
@@ -141,13 +142,39 @@ def add_train_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run_train(args: argparse.Namespace) -> int:
-    if args.algo == "ppo":
-        return run_train_ppo(args)
     if args.resume and args.init is not None:
         raise ValueError(
             f"--init {args.init} with --resume: a resumed run continues from its own checkpoint "
             f"(and keeps the π^s it started from); give --init only to start a new run"
         )
+    try:
+        result, steps = train_ppo_from_args(args) if args.algo == "ppo" else _train_a3c(args)
+    except TrainingError as error:
+        print(f"bimgame train: stopped: {error}", file=sys.stderr)
+        return 1
+    resume = f"bimgame train{' --algo ppo' if args.algo == 'ppo' else ''} --run-dir {args.run_dir} --resume"
+    if result.stopped == "interrupted" and result.steps >= steps:
+        print(
+            f"interrupted after all {result.steps:,} steps, before the final evaluation; checkpoint saved. "
+            f"Evaluate and write the summary with: {resume}",
+            file=sys.stderr,
+        )
+        return 130
+    if result.stopped == "interrupted":
+        print(f"interrupted at {result.steps:,} steps; checkpoint saved. Continue with: {resume}", file=sys.stderr)
+        return 130
+    final = result.final_eval or {}
+    print(
+        f"done: {result.steps:,} steps in {result.seconds / 60:.1f} min; final evaluation: greedy success "
+        f"{final.get('greedy_success_rate', float('nan')):.0%}, sampled success "
+        f"{final.get('sampled_success_rate', float('nan')):.0%}"
+    )
+    return 0
+
+
+def _train_a3c(args: argparse.Namespace) -> tuple[TrainResult, int]:
+    """Resolve the A3C settings and reward shaping from the flags given and train; returns the run's
+    outcome and its step budget."""
     config = resolve_config(
         given_settings(args, A3CConfig, A3CConfig.flat_names()), args.run_dir, resume=args.resume, init=args.init
     )
@@ -165,40 +192,16 @@ def run_train(args: argparse.Namespace) -> int:
         f"{', from ' + str(args.init) if args.init else ''} -> {args.run_dir}",
         file=sys.stderr,
     )
-    try:
-        result = train(
-            config,
-            args.run_dir,
-            resume=args.resume,
-            init=args.init,
-            progress=not args.no_progress,
-            env_wrapper=wrapper,
-            extra_config={"reward": reward.to_dict()},
-        )
-    except TrainingError as error:
-        print(f"bimgame train: stopped: {error}", file=sys.stderr)
-        return 1
-    if result.stopped == "interrupted" and result.steps >= schedule.steps:
-        print(
-            f"interrupted after all {result.steps:,} steps, before the final evaluation; checkpoint saved. "
-            f"Evaluate and write the summary with: bimgame train --run-dir {args.run_dir} --resume",
-            file=sys.stderr,
-        )
-        return 130
-    if result.stopped == "interrupted":
-        print(
-            f"interrupted at {result.steps:,} steps; checkpoint saved. Continue with: bimgame train "
-            f"--run-dir {args.run_dir} --resume",
-            file=sys.stderr,
-        )
-        return 130
-    final = result.final_eval or {}
-    print(
-        f"done: {result.steps:,} steps in {result.seconds / 60:.1f} min; final evaluation: greedy success "
-        f"{final.get('greedy_success_rate', float('nan')):.0%}, sampled success "
-        f"{final.get('sampled_success_rate', float('nan')):.0%}"
+    result = train(
+        config,
+        args.run_dir,
+        resume=args.resume,
+        init=args.init,
+        progress=not args.no_progress,
+        env_wrapper=wrapper,
+        extra_config={"reward": reward.to_dict()},
     )
-    return 0
+    return result, schedule.steps
 
 
 def add_evaluate_arguments(parser: argparse.ArgumentParser) -> None:

@@ -10,9 +10,10 @@ from types import SimpleNamespace
 
 from bimgame.cli.flags import add_grouped_settings_flags, given_settings
 from bimgame.learn.a3c import A3CConfig
-from bimgame.learn.ppo import PPOConfig, PPOOptimizationSettings, PPOTrainingError, resolve_ppo_config, train_ppo
+from bimgame.learn.ppo import PPOConfig, PPOOptimizationSettings, resolve_ppo_config, train_ppo
+from bimgame.learn.run_dir import TrainResult
 
-__all__ = ["PPO_GROUP", "add_ppo_arguments", "run_train_ppo"]
+__all__ = ["PPO_GROUP", "add_ppo_arguments", "train_ppo_from_args"]
 
 _DEFAULTS = PPOOptimizationSettings()
 #: The help group of PPO's own settings: (title, description), the shared defaults read from the class.
@@ -43,8 +44,10 @@ def add_ppo_arguments(parser: argparse.ArgumentParser, groups: dict[str, argpars
     )
 
 
-def run_train_ppo(args: argparse.Namespace) -> int:
-    """Resolve the PPO settings from the flags given and train; returns the exit code."""
+def train_ppo_from_args(args: argparse.Namespace) -> tuple[TrainResult, int]:
+    """Resolve the PPO settings from the flags given and train; returns the run's outcome and its step
+    budget (``bimgame train`` reports both learners' outcomes alike). Raises
+    :class:`~bimgame.learn.run_dir.TrainingError` when training fails."""
     refused = [flag for name, flag in _NOT_FOR_PPO.items() if getattr(args, name, None) is not None]
     if refused:
         raise ValueError(f"{', '.join(refused)}: reward shaping is not supported with --algo ppo yet")
@@ -56,22 +59,5 @@ def run_train_ppo(args: argparse.Namespace) -> int:
         f"{config.schedule.envs_per_worker} envs{', from ' + str(args.init) if args.init else ''} -> {args.run_dir}",
         file=sys.stderr,
     )
-    try:
-        result = train_ppo(config, args.run_dir, resume=args.resume, init=args.init, progress=not args.no_progress)
-    except PPOTrainingError as error:
-        print(f"bimgame train: stopped: {error}", file=sys.stderr)
-        return 1
-    if result.stopped == "interrupted":
-        print(
-            f"interrupted at {result.steps:,} steps; checkpoint saved. Continue with: bimgame train --algo ppo "
-            f"--run-dir {args.run_dir} --resume",
-            file=sys.stderr,
-        )
-        return 130
-    final = result.final_eval or {}
-    print(
-        f"done: {result.steps:,} steps in {result.seconds / 60:.1f} min; final evaluation: greedy success "
-        f"{final.get('greedy_success_rate', float('nan')):.0%}, sampled success "
-        f"{final.get('sampled_success_rate', float('nan')):.0%}"
-    )
-    return 0
+    result = train_ppo(config, args.run_dir, resume=args.resume, init=args.init, progress=not args.no_progress)
+    return result, config.schedule.steps

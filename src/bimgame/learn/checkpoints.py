@@ -23,7 +23,14 @@ from bimgame.learn.runs import CHECKPOINT
 from bimgame.util import files
 from bimgame.util.files import FileWriteError
 
-__all__ = ["CheckpointError", "save_checkpoint", "load_checkpoint", "load_weights", "apply_weights"]
+__all__ = [
+    "CheckpointError",
+    "save_checkpoint",
+    "load_checkpoint",
+    "load_weights",
+    "load_init_weights",
+    "apply_weights",
+]
 
 #: The format tag every bimgame checkpoint carries.
 _FORMAT = "bimgame-checkpoint-1"
@@ -152,6 +159,18 @@ def load_weights(module: torch.nn.Module, source: str | Path) -> int:
     """Load a checkpoint's (or run directory's) weights into ``module``; returns the checkpoint's
     step. Shapes must match exactly."""
     return apply_weights(module, load_checkpoint(source), source)
+
+
+def load_init_weights(module: torch.nn.Module, init: str | Path | None) -> None:
+    """Start ``module`` from the weights ``--init`` names (a checkpoint file or run directory; None:
+    keep its fresh weights); a checkpoint that cannot be used is a :class:`CheckpointError` naming
+    the flag."""
+    if init is None:
+        return
+    try:
+        load_weights(module, init)
+    except CheckpointError as error:
+        raise CheckpointError(f"--init: {error}") from None
 
 
 def apply_weights(module: torch.nn.Module, payload: dict[str, Any], source: str | Path) -> int:

@@ -18,7 +18,7 @@ from typing import Any, ClassVar, Protocol, Self
 from bimgame.envs.observe import OBS_MODES
 from bimgame.learn.actor import evaluate_network
 from bimgame.learn.checkpoints import load_weights
-from bimgame.learn.learner_settings import ScheduleSettings
+from bimgame.learn.learner_settings import MAX_STEPS, FlatSettings, ScheduleSettings, check_at_most
 from bimgame.learn.nets import (
     PRECISIONS,
     NetConfig,
@@ -31,7 +31,7 @@ from bimgame.learn.nets import (
 )
 from bimgame.learn.runs import CONFIG, KIND_A3C, KIND_VALUE, read_run_config
 from bimgame.sim.maze import MazeSpec
-from bimgame.sim.tasks import Task, parse_task
+from bimgame.sim.tasks import Task, parse_task, task_setting
 from bimgame.util.seeding import episode_seed
 from bimgame.util.settings import from_dict, require_int
 
@@ -44,6 +44,7 @@ __all__ = [
     "network_settings_of",
     "init_network_settings",
     "evaluate_greedy_and_sampled",
+    "LearnerSettings",
     "EvaluatedRun",
     "run_evaluation",
     "evaluation_seed",
@@ -334,6 +335,32 @@ def evaluation_seed(seed: int) -> int:
 EVAL_COLUMNS = tuple(
     f"{mode}_{key}" for mode in ("greedy", "sampled") for key in ("success_rate", "mean_length", "mean_return")
 )
+
+
+@dataclasses.dataclass(frozen=True)
+class LearnerSettings(FlatSettings):
+    """What every on-policy learner's settings (A3C's, PPO's) hold besides their parts: the task, the
+    seed and the time limit, checked here once; a subclass adds its parts (and settings of its own)."""
+
+    task: str = "STG1"
+    """FULL, STG1 … STG4."""
+    seed: int = 0
+    """Seeds everything the run draws: the network's initial weights, the environments, the sampling
+    and the evaluations."""
+    max_episode_steps: int | None = None
+    """Time limit; None uses the task's (STG1 300, STG2 500, STG3 750, STG4/FULL 1000)."""
+
+    def __post_init__(self) -> None:
+        owner = type(self).__name__
+        object.__setattr__(self, "task", task_setting(owner, self.task))
+        check_seed(owner, self.seed)  # numpy's seed sequences take no negative seeds, torch none of 2**64
+        require_int(owner, "max_episode_steps", self.max_episode_steps, 1, optional=True)
+        check_at_most(owner, "max_episode_steps", self.max_episode_steps, MAX_STEPS, "1e12 environment steps")
+        self.check_parts()
+
+    @property
+    def time_limit(self) -> int:
+        return self.max_episode_steps or Task(self.task).time_limit
 
 
 class EvaluatedRun(Protocol):

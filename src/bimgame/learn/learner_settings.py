@@ -231,6 +231,8 @@ class FlatSettings:
     #: Flat values a part takes in this class unless given, where they differ from the part class's
     #: own defaults (PPO's schedule: one process).
     PART_DEFAULTS: ClassVar[dict[str, dict[str, Any]]] = {}
+    #: The flat settings a resumed run may change without changing what is being learned.
+    RESUMABLE_CHANGES: ClassVar[tuple[str, ...]] = ()
     #: What a settings dict of this class is called in errors ("unknown A3C settings [...]").
     SETTINGS_NAME: ClassVar[str] = "settings"
 
@@ -305,3 +307,24 @@ class FlatSettings:
     def with_flat(self, **changes: Any) -> Self:
         """These settings with the given flat settings changed."""
         return self.from_flat({**self.to_dict(), **changes})
+
+    def check_parts(self) -> None:
+        """Raise unless each part is an instance of its class (or None, where it is optional)."""
+        owner = type(self).__name__
+        for name, part in self.PARTS.items():
+            value = getattr(self, name)
+            if not (isinstance(value, part) or (value is None and name in self.OPTIONAL_PARTS)):
+                allowed = f"None or a {part.__name__}" if name in self.OPTIONAL_PARTS else f"a {part.__name__}"
+                raise ValueError(f"{owner}.{name} must be {allowed}, got {value!r}")
+
+    def check_resumable_from(self, previous: FlatSettings) -> None:
+        """Refuse to resume a run stored with ``previous`` settings with these, unless only
+        :attr:`RESUMABLE_CHANGES` differ; the message names each change."""
+        before, now = previous.to_dict(), self.to_dict()
+        changed = [name for name in now if before[name] != now[name] and name not in self.RESUMABLE_CHANGES]
+        if changed:
+            raise ValueError(
+                "--resume must keep the run's settings; changed: "
+                + ", ".join(f"{k} ({before[k]!r} -> {now[k]!r})" for k in changed)
+                + f". Allowed to change: {', '.join(self.RESUMABLE_CHANGES)}"
+            )

@@ -46,12 +46,40 @@ from bimgame.learn.runs import (
 )
 from bimgame.util.files import FileWriteError
 
-__all__ = ["RunLayout", "LAYOUTS", "TEACHER", "DAGGER_STATE", "RunDirectory", "stored_run_config"]
+__all__ = [
+    "TrainingError",
+    "TrainResult",
+    "RunLayout",
+    "LAYOUTS",
+    "TEACHER",
+    "DAGGER_STATE",
+    "RunDirectory",
+    "stored_run_config",
+]
 
 #: A3C's frozen π^s of a run with the KL term (kickstarting): the weights it started from.
 TEACHER = "teacher.pt"
 #: DAgger's counters after the last finished iteration (a readable copy of its checkpoint's).
 DAGGER_STATE = "dagger_state.json"
+
+
+class TrainingError(RuntimeError):
+    """A learner's run stopped because something went wrong (a non-finite reward, loss or gradient,
+    a crashed worker, a full disk); the message says what is kept and how to continue."""
+
+
+@dataclasses.dataclass
+class TrainResult:
+    """How a learner's run (A3C, PPO) ended."""
+
+    run_dir: Path
+    steps: int
+    """Environment steps trained, all sessions together."""
+    stopped: str
+    """``finished`` (budget spent) or ``interrupted`` (Ctrl-C, SIGTERM)."""
+    final_eval: dict[str, Any] | None
+    """The final greedy and sampled evaluation; None when interrupted before it."""
+    seconds: float
 
 
 @dataclasses.dataclass(frozen=True)

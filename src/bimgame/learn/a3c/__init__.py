@@ -28,9 +28,8 @@ processes), :mod:`~bimgame.learn.a3c.parent` (the parent's side of a session) an
 The public API is importable from the package.
 """
 
-from bimgame.learn.a3c.parent import TrainingError
 from bimgame.learn.a3c.settings import OPTIMIZERS, A3CConfig, OptimizationSettings
-from bimgame.learn.a3c.training import TrainResult, resolve_config, train
+from bimgame.learn.a3c.training import resolve_config, train
 from bimgame.learn.a3c.update import (
     EnvWrapper,
     a3c_segment_loss,
@@ -40,6 +39,7 @@ from bimgame.learn.a3c.update import (
     shared_optimizer_state,
 )
 from bimgame.learn.learner_settings import MAX_STEPS, START_CURRICULA
+from bimgame.learn.run_dir import TrainingError, TrainResult
 
 __all__ = [
     "A3CConfig",

@@ -25,16 +25,13 @@ from bimgame.learn.common import EVAL_COLUMNS
 from bimgame.learn.episode_monitor import Monitor
 from bimgame.learn.metric_logs import MetricLog
 from bimgame.learn.nets import RecurrentActorCritic
+from bimgame.learn.run_dir import TrainingError
 from bimgame.learn.runs import CHECKPOINT
 from bimgame.util.files import FileWriteError
 from bimgame.util.progress import ProgressBar
 from bimgame.util.signals import sigterm_as_interrupt
 
-__all__ = ["TrainingError", "SessionStart", "Session", "TABLES"]
-
-
-class TrainingError(RuntimeError):
-    """Training stopped because something went wrong (a non-finite loss, a crashed worker)."""
+__all__ = ["SessionStart", "Session", "TABLES"]
 
 
 #: The run's CSV logs and their columns.

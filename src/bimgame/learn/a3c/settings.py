@@ -10,18 +10,15 @@ from typing import Any, ClassVar, Literal, get_args
 
 from bimgame.envs.randomization import OBSERVATION_FIELDS, RANDOMIZATION_PRESETS
 from bimgame.learn.augment import MAX_SHIFT
-from bimgame.learn.common import NetworkSettings, check_seed
+from bimgame.learn.common import LearnerSettings, NetworkSettings
 from bimgame.learn.learner_settings import (
-    MAX_STEPS,
     CurriculumSettings,
     FinetuneSettings,
-    FlatSettings,
     ScheduleSettings,
     check_at_most,
     check_choice,
     check_number,
 )
-from bimgame.sim.tasks import Task, task_setting
 from bimgame.util.settings import require_int
 
 __all__ = ["Optimizer", "OPTIMIZERS", "OptimizationSettings", "A3CConfig"]
@@ -93,18 +90,12 @@ class OptimizationSettings:
 
 
 @dataclasses.dataclass(frozen=True)
-class A3CConfig(FlatSettings):
+class A3CConfig(LearnerSettings):
     """Settings of an A3C run: the task and its episodes, and the run's parts — the network, the
     optimisation, the schedule, and optionally fine-tuning and a start curriculum. Every setting also
     has a flat name (``lr``, ``hidden``, ``kl_coef``: :meth:`from_flat`, :meth:`to_dict`), its flag
     and its key in ``config.json``."""
 
-    task: str = "STG1"
-    """FULL, STG1 … STG4."""
-    seed: int = 0
-    """Seeds the network's initial weights, the workers' environments and sampling, and the evaluations."""
-    max_episode_steps: int | None = None
-    """Time limit; None uses the task's (STG1 300, STG2 500, STG3 750, STG4/FULL 1000)."""
     randomize: str | None = None
     """Domain randomisation of the training episodes: a preset of
     :data:`~bimgame.envs.randomization.RANDOMIZATION_PRESETS` (``physics``, ``camera``, ``all``; the
@@ -134,19 +125,17 @@ class A3CConfig(FlatSettings):
     NONE_VALUES: ClassVar[dict[str, Any]] = {"start_curriculum": "none"}
     SETTINGS_NAME: ClassVar[str] = "A3C settings"
     # What a resumed run may change without changing what is being learned.
-    RESUMABLE_CHANGES = ("steps", "workers", "checkpoint_every", "eval_every", "eval_episodes", "log_every")
+    RESUMABLE_CHANGES: ClassVar[tuple[str, ...]] = (
+        "steps",
+        "workers",
+        "checkpoint_every",
+        "eval_every",
+        "eval_episodes",
+        "log_every",
+    )
 
     def __post_init__(self) -> None:
-        owner = type(self).__name__
-        object.__setattr__(self, "task", task_setting(owner, self.task))
-        check_seed(owner, self.seed)  # numpy's seed sequences take no negative seeds, torch none of 2**64
-        require_int(owner, "max_episode_steps", self.max_episode_steps, 1, optional=True)
-        check_at_most(owner, "max_episode_steps", self.max_episode_steps, MAX_STEPS, "1e12 environment steps")
-        for name, part in self.PARTS.items():
-            value = getattr(self, name)
-            if not (isinstance(value, part) or (value is None and name in self.OPTIONAL_PARTS)):
-                allowed = f"None or a {part.__name__}" if name in self.OPTIONAL_PARTS else f"a {part.__name__}"
-                raise ValueError(f"{owner}.{name} must be {allowed}, got {value!r}")
+        super().__post_init__()
         if self.finetuning is not None and self.finetuning.changes_nothing:
             object.__setattr__(self, "finetuning", None)
         self._check_expert_data()
@@ -180,10 +169,6 @@ class A3CConfig(FlatSettings):
                 f"A3CConfig.augment_shift must be 0..{MAX_SHIFT} pixels, and 0 for state observations, "
                 f"got {self.optimization.augment_shift!r} with obs={obs!r}"
             )
-
-    @property
-    def time_limit(self) -> int:
-        return self.max_episode_steps or Task(self.task).time_limit
 
     @property
     def steps_per_update(self) -> int:

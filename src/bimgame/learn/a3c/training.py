@@ -4,40 +4,29 @@ or resumed run's start (config.json, teacher, step-0 checkpoint), one session of
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import time
 from pathlib import Path
 from typing import Any
 
-from bimgame.learn.a3c.parent import TABLES, Session, SessionStart, TrainingError
+from bimgame.learn.a3c.parent import TABLES, Session, SessionStart
 from bimgame.learn.a3c.settings import A3CConfig
 from bimgame.learn.a3c.update import (
     EnvWrapper,
     network_for,
 )
-from bimgame.learn.checkpoints import CheckpointError, apply_weights, load_checkpoint, load_weights, save_checkpoint
+from bimgame.learn.checkpoints import apply_weights, load_checkpoint, load_init_weights, save_checkpoint
 from bimgame.learn.common import init_network_settings, run_evaluation
 from bimgame.learn.curves import plot_run
 from bimgame.learn.episode_monitor import Monitor
 from bimgame.learn.learner_settings import DEFAULT_FINETUNE, FINETUNE_PRESETS
 from bimgame.learn.nets import RecurrentActorCritic
-from bimgame.learn.run_dir import TEACHER, RunDirectory, stored_run_config
+from bimgame.learn.run_dir import TEACHER, RunDirectory, TrainingError, TrainResult, stored_run_config
 from bimgame.learn.runs import CHECKPOINT, KIND_A3C, SUMMARY, read_run_settings, torch_threads
 from bimgame.util.files import FileWriteError, read_json
 from bimgame.util.signals import sigterm_as_interrupt
 
-__all__ = ["TrainResult", "train", "resolve_config", "finetune_settings"]
-
-
-@dataclasses.dataclass
-class TrainResult:
-    run_dir: Path
-    steps: int
-    stopped: str
-    """``finished`` (budget spent) or ``interrupted`` (Ctrl-C)."""
-    final_eval: dict[str, Any] | None
-    seconds: float
+__all__ = ["train", "resolve_config", "finetune_settings"]
 
 
 def resolve_config(
@@ -68,15 +57,7 @@ def finetune_settings(preset: str | None) -> dict[str, Any]:
 def _check_resume(run_dir: Path, config: A3CConfig) -> None:
     """Refuse to resume the run in ``run_dir`` (checked to be an A3C run with its checkpoint) with
     settings other than its own, except :attr:`A3CConfig.RESUMABLE_CHANGES`."""
-    previous = read_run_settings(run_dir, "a3c", A3CConfig.from_dict).to_dict()
-    current = config.to_dict()
-    changed = [name for name in current if previous[name] != current[name] and name not in A3CConfig.RESUMABLE_CHANGES]
-    if changed:
-        raise ValueError(
-            "--resume must keep the run's settings; changed: "
-            + ", ".join(f"{k} ({previous[k]!r} -> {current[k]!r})" for k in changed)
-            + f". Allowed to change: {', '.join(A3CConfig.RESUMABLE_CHANGES)}"
-        )
+    config.check_resumable_from(read_run_settings(run_dir, "a3c", A3CConfig.from_dict))
 
 
 def _summarised(run_dir: Path, step: int) -> bool:
@@ -191,11 +172,7 @@ def _started(
     """The start of a new run: ``shared`` from ``init`` (if given), its teacher, and its settings, teacher
     and step-0 checkpoint written before anything else, so the directory always holds both."""
     start = SessionStart()
-    if init is not None:
-        try:
-            load_weights(shared, init)
-        except CheckpointError as error:
-            raise CheckpointError(f"--init: {error}") from None
+    load_init_weights(shared, init)
     if config.has_teacher:
         start.teacher = {k: v.detach().clone() for k, v in shared.state_dict().items()}
     run.write_config(

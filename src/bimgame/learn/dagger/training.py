@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 
 from bimgame.expert.episode import Episode
-from bimgame.learn.checkpoints import CheckpointError, apply_weights, load_checkpoint, load_weights, save_checkpoint
+from bimgame.learn.checkpoints import apply_weights, load_checkpoint, load_init_weights, save_checkpoint
 from bimgame.learn.common import EVAL_COLUMNS, evaluate_greedy_and_sampled, evaluation_seed
 from bimgame.learn.dagger.rollouts import collect_episodes
 from bimgame.learn.dagger.settings import DAggerConfig
@@ -155,11 +155,7 @@ def _dagger(
 
 def _new_state(net: RecurrentActorCritic, init: str | Path | None) -> dict[str, Any]:
     """The state of a new run, its learner ``net`` started from ``init``'s weights if given."""
-    if init is not None:
-        try:
-            load_weights(net, init)
-        except CheckpointError as error:
-            raise CheckpointError(f"--init: {error}") from None
+    load_init_weights(net, init)
     return {"iteration": 0, "env_steps": 0, "expert_sim_steps": 0, "labels": 0, "seconds": 0.0}
 
 

@@ -19,14 +19,12 @@ fine-tuning terms and start curricula A3C has (``--init`` does start from π^s).
 """
 
 from bimgame.learn.ppo.settings import PPOConfig, PPOOptimizationSettings
-from bimgame.learn.ppo.training import PPOResult, PPOTrainingError, resolve_ppo_config, train_ppo
+from bimgame.learn.ppo.training import resolve_ppo_config, train_ppo
 from bimgame.learn.ppo.update import ppo_minibatch_loss, ppo_update
 
 __all__ = [
     "PPOConfig",
     "PPOOptimizationSettings",
-    "PPOResult",
-    "PPOTrainingError",
     "train_ppo",
     "resolve_ppo_config",
     "ppo_update",

@@ -10,9 +10,8 @@ import dataclasses
 import math
 from typing import Any, ClassVar
 
-from bimgame.learn.common import NetworkSettings, check_seed
-from bimgame.learn.learner_settings import MAX_STEPS, FlatSettings, ScheduleSettings, check_at_most, check_number
-from bimgame.sim.tasks import Task, task_setting
+from bimgame.learn.common import LearnerSettings, NetworkSettings
+from bimgame.learn.learner_settings import ScheduleSettings, check_at_most, check_number
 from bimgame.util.settings import require_int
 
 __all__ = ["PPOOptimizationSettings", "PPOConfig"]
@@ -69,22 +68,20 @@ class PPOOptimizationSettings:
             raise ValueError(f"{owner}.advantage_norm must be True or False, got {self.advantage_norm!r}")
 
 
+#: PPO's schedule unless told otherwise: one process (its environments are stepped in the learner's).
+_SCHEDULE_DEFAULTS: dict[str, Any] = {"workers": 1}
+
+
 def _single_process_schedule() -> ScheduleSettings:
-    return ScheduleSettings(workers=1)
+    return ScheduleSettings(**_SCHEDULE_DEFAULTS)
 
 
 @dataclasses.dataclass(frozen=True)
-class PPOConfig(FlatSettings):
+class PPOConfig(LearnerSettings):
     """Settings of a PPO run: the task and its episodes, the network, PPO's optimisation and the
     schedule. Every setting also has a flat name (:meth:`from_flat`, :meth:`to_dict`), its flag and
     its key in ``config.json``."""
 
-    task: str = "STG1"
-    """FULL, STG1 … STG4."""
-    seed: int = 0
-    """Seeds the network's initial weights, the environments, the sampling and the minibatches."""
-    max_episode_steps: int | None = None
-    """Time limit; None uses the task's (STG1 300, STG2 500, STG3 750, STG4/FULL 1000)."""
     network: NetworkSettings = dataclasses.field(default_factory=NetworkSettings)
     """The actor-critic's observations, sizes and inputs (the same networks as A3C's)."""
     optimization: PPOOptimizationSettings = dataclasses.field(default_factory=PPOOptimizationSettings)
@@ -98,20 +95,20 @@ class PPOConfig(FlatSettings):
         "optimization": PPOOptimizationSettings,
         "schedule": ScheduleSettings,
     }
-    PART_DEFAULTS: ClassVar[dict[str, dict[str, Any]]] = {"schedule": {"workers": 1}}
+    PART_DEFAULTS: ClassVar[dict[str, dict[str, Any]]] = {"schedule": _SCHEDULE_DEFAULTS}
     SETTINGS_NAME: ClassVar[str] = "PPO settings"
     # What a resumed run may change without changing what is being learned.
-    RESUMABLE_CHANGES = ("steps", "checkpoint_every", "eval_every", "eval_episodes", "log_every")
+    RESUMABLE_CHANGES: ClassVar[tuple[str, ...]] = (
+        "steps",
+        "checkpoint_every",
+        "eval_every",
+        "eval_episodes",
+        "log_every",
+    )
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         owner = type(self).__name__
-        object.__setattr__(self, "task", task_setting(owner, self.task))
-        check_seed(owner, self.seed)
-        require_int(owner, "max_episode_steps", self.max_episode_steps, 1, optional=True)
-        check_at_most(owner, "max_episode_steps", self.max_episode_steps, MAX_STEPS, "1e12 environment steps")
-        for name, part in self.PARTS.items():
-            if not isinstance(getattr(self, name), part):
-                raise ValueError(f"{owner}.{name} must be a {part.__name__}, got {getattr(self, name)!r}")
         if self.schedule.workers != 1:
             raise ValueError(
                 f"{owner}: workers must be 1 (PPO steps its environments in the learner's process; "
@@ -122,10 +119,6 @@ class PPOConfig(FlatSettings):
                 f"{owner}.minibatches must be at most envs_per_worker ({self.schedule.envs_per_worker}): "
                 f"minibatches split the environments, got {self.optimization.minibatches!r}"
             )
-
-    @property
-    def time_limit(self) -> int:
-        return self.max_episode_steps or Task(self.task).time_limit
 
     @property
     def steps_per_rollout(self) -> int:

@@ -10,7 +10,6 @@ A resumed run continues from its checkpoint (weights, Adam's statistics, steps) 
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 import time
@@ -21,7 +20,7 @@ import numpy as np
 import torch
 
 from bimgame.learn.actor import RecurrentActor
-from bimgame.learn.checkpoints import CheckpointError, apply_weights, load_checkpoint, load_weights, save_checkpoint
+from bimgame.learn.checkpoints import apply_weights, load_checkpoint, load_init_weights, save_checkpoint
 from bimgame.learn.common import EVAL_COLUMNS, init_network_settings, run_evaluation
 from bimgame.learn.curves import plot_run
 from bimgame.learn.episode_monitor import Monitor
@@ -30,12 +29,12 @@ from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.learn.ppo.settings import PPOConfig
 from bimgame.learn.ppo.update import ppo_update
 from bimgame.learn.rollout import FinishedEpisode, NonFiniteReward, RolloutCollector, training_env
-from bimgame.learn.run_dir import RunDirectory, stored_run_config
+from bimgame.learn.run_dir import RunDirectory, TrainingError, TrainResult, stored_run_config
 from bimgame.learn.runs import CHECKPOINT, KIND_PPO, torch_threads
 from bimgame.util.progress import ProgressBar
 from bimgame.util.signals import sigterm_as_interrupt
 
-__all__ = ["PPOTrainingError", "PPOResult", "resolve_ppo_config", "train_ppo", "TABLES"]
+__all__ = ["resolve_ppo_config", "train_ppo", "TABLES"]
 
 #: The run's CSV logs and their columns.
 TABLES = {
@@ -56,20 +55,6 @@ TABLES = {
     "eval": list(EVAL_COLUMNS),
 }
 _UPDATE_SCALARS = ("sps", "policy_loss", "value_loss", "entropy", "approx_kl", "clip_fraction", "recent_success")
-
-
-class PPOTrainingError(RuntimeError):
-    """Training stopped because something went wrong (a non-finite reward, loss or gradient)."""
-
-
-@dataclasses.dataclass
-class PPOResult:
-    run_dir: Path
-    steps: int
-    stopped: str
-    """``finished`` (budget spent) or ``interrupted`` (Ctrl-C, SIGTERM)."""
-    final_eval: dict[str, Any] | None
-    seconds: float
 
 
 def resolve_ppo_config(
@@ -95,11 +80,11 @@ def train_ppo(
     resume: bool = False,
     init: str | Path | None = None,
     progress: bool = True,
-) -> PPOResult:
+) -> TrainResult:
     """Train with PPO; everything is saved in ``run_dir`` (a new or empty directory, or with
     ``resume`` the PPO run in it). ``init``: a checkpoint file or run directory whose weights the
     network starts from (e.g. a pre-trained π^s; its network settings must match ``config``'s).
-    Raises :class:`PPOTrainingError` for a non-finite reward, loss or gradient (the last checkpoint
+    Raises :class:`TrainingError` for a non-finite reward, loss or gradient (the last checkpoint
     is kept)."""
     if resume and init is not None:
         raise ValueError("--init with --resume: a resumed run continues from its own checkpoint")
@@ -115,11 +100,7 @@ def _started(
     config: PPOConfig, run: RunDirectory, net: RecurrentActorCritic, init: str | Path | None
 ) -> tuple[int, float]:
     """A new run: ``net`` from ``init`` (if given); its settings and step-0 checkpoint written first."""
-    if init is not None:
-        try:
-            load_weights(net, init)
-        except CheckpointError as error:
-            raise CheckpointError(f"--init: {error}") from None
+    load_init_weights(net, init)
     run.write_config(
         {
             "task": config.task,
@@ -139,15 +120,7 @@ def _resumed(
     config: PPOConfig, run: RunDirectory, net: RecurrentActorCritic, optimizer: torch.optim.Optimizer
 ) -> tuple[int, float]:
     """A resumed run: its checkpoint's weights and Adam's statistics; refuses other settings."""
-    stored = PPOConfig.from_dict((run.config or {}).get("ppo", {})).to_dict()
-    current = config.to_dict()
-    changed = [k for k in current if stored[k] != current[k] and k not in PPOConfig.RESUMABLE_CHANGES]
-    if changed:
-        raise ValueError(
-            "--resume must keep the run's settings; changed: "
-            + ", ".join(f"{k} ({stored[k]!r} -> {current[k]!r})" for k in changed)
-            + f". Allowed to change: {', '.join(PPOConfig.RESUMABLE_CHANGES)}"
-        )
+    config.check_resumable_from(PPOConfig.from_dict((run.config or {}).get("ppo", {})))
     payload = load_checkpoint(run / CHECKPOINT)
     apply_weights(net, payload, run / CHECKPOINT)
     if payload.get("optimizer") is not None:
@@ -168,7 +141,7 @@ class _Session:
         seconds: float,
     ):
         self.config, self.directory, self.net, self.optimizer = config, run, net, optimizer
-        self.step = self.start_step = self.checkpoint_step = self.eval_step = self.log_step = step
+        self.step = self.checkpoint_step = self.eval_step = self.log_step = step
         self.started = time.monotonic() - seconds  # seconds count the whole run, across resumes
         fresh = step == 0 and not run.resume
         # An update's row is logged before its step's checkpoint: a resumed run keeps it.
@@ -208,7 +181,7 @@ class _Session:
         self.monitor.episode(row)
         self.log.write("episodes", row["end_step"], row, scalars=("return", "length", "success"))
 
-    def run(self, progress: bool) -> PPOResult:
+    def run(self, progress: bool) -> TrainResult:
         """Train to the run's steps, then evaluate and write the summary; Ctrl-C or SIGTERM stops with a
         checkpoint (``--resume`` continues). A failure keeps the last checkpoint (and removes a new run
         that had not trained)."""
@@ -233,7 +206,7 @@ class _Session:
             plot_run(self.directory.path, title=f"PPO on {config.task} ({config.network.obs})")
         except (ValueError, OSError):
             pass  # no finished episode yet (nothing to plot), or no room for the figure: the logs hold it all
-        return PPOResult(self.directory.path, self.step, stopped, final_eval, seconds)
+        return TrainResult(self.directory.path, self.step, stopped, final_eval, seconds)
 
     def _train_and_evaluate(self, progress: bool) -> dict[str, Any]:
         """Rollouts and updates to the run's steps, then the final evaluation (logged)."""
@@ -257,10 +230,10 @@ class _Session:
         try:
             segment = self.collector.collect(config.optimization.n_steps, self.step)
         except NonFiniteReward as error:
-            raise PPOTrainingError(f"non-finite reward from the env at step {error.step}: {error.rewards}") from error
+            raise TrainingError(f"non-finite reward from the env at step {error.step}: {error.rewards}") from error
         parts = ppo_update(self.net, self.optimizer, segment, config.optimization, self.batches)
         if not parts.pop("applied"):
-            raise PPOTrainingError(
+            raise TrainingError(
                 f"non-finite loss or gradient at step {self.step:,} ({parts}); the update was not applied. "
                 f"Lower --lr or --max-grad-norm. The last checkpoint is kept."
             )
