@@ -228,9 +228,6 @@ class FlatSettings:
     PARTS: ClassVar[dict[str, type]] = {}
     OPTIONAL_PARTS: ClassVar[frozenset[str]] = frozenset()
     NONE_VALUES: ClassVar[dict[str, Any]] = {}
-    #: Flat values a part takes in this class unless given, where they differ from the part class's
-    #: own defaults (PPO's schedule: one process).
-    PART_DEFAULTS: ClassVar[dict[str, dict[str, Any]]] = {}
     #: The flat settings a resumed run may change without changing what is being learned.
     RESUMABLE_CHANGES: ClassVar[tuple[str, ...]] = ()
     #: What a settings dict of this class is called in errors ("unknown A3C settings [...]").
@@ -266,13 +263,22 @@ class FlatSettings:
         arguments: dict[str, Any] = {name: given[name] for name in cls.own_names() if name in given}
         for field, part in cls.PARTS.items():
             names = [f.name for f in dataclasses.fields(part)]
-            part_values = {**cls.PART_DEFAULTS.get(field, {}), **{name: given[name] for name in names if name in given}}
+            part_values = {name: given[name] for name in names if name in given}
             if field in cls.OPTIONAL_PARTS and cls._means_none(part, part_values):
                 part(**{k: v for k, v in part_values.items() if k not in cls.NONE_VALUES})  # checked all the same
                 arguments[field] = None
             else:
-                arguments[field] = part(**part_values)
+                arguments[field] = cls._part_from(field, part, part_values)
         return cls(**arguments)
+
+    @classmethod
+    def _part_from(cls, field: str, part: type, values: dict[str, Any]) -> Any:
+        """The part ``field`` with the flat ``values`` given; the others take this class's default for
+        the part when it declares one other than the part class's own (PPO's one-process schedule)."""
+        factory = {f.name: f for f in dataclasses.fields(cls)}[field].default_factory  # type: ignore[arg-type]
+        if factory is dataclasses.MISSING or factory is part:
+            return part(**values)
+        return dataclasses.replace(factory(), **values)
 
     @classmethod
     def _means_none(cls, part: type, values: Mapping[str, Any]) -> bool:

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any, ClassVar
+from typing import ClassVar
 
 from bimgame.learn.common import LearnerSettings, NetworkSettings
 from bimgame.learn.learner_settings import ScheduleSettings, check_at_most, check_number
@@ -68,12 +68,9 @@ class PPOOptimizationSettings:
             raise ValueError(f"{owner}.advantage_norm must be True or False, got {self.advantage_norm!r}")
 
 
-#: PPO's schedule unless told otherwise: one process (its environments are stepped in the learner's).
-_SCHEDULE_DEFAULTS: dict[str, Any] = {"workers": 1}
-
-
 def _single_process_schedule() -> ScheduleSettings:
-    return ScheduleSettings(**_SCHEDULE_DEFAULTS)
+    """PPO's schedule unless told otherwise: one process (its environments are stepped in the learner's)."""
+    return ScheduleSettings(workers=1)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -95,7 +92,6 @@ class PPOConfig(LearnerSettings):
         "optimization": PPOOptimizationSettings,
         "schedule": ScheduleSettings,
     }
-    PART_DEFAULTS: ClassVar[dict[str, dict[str, Any]]] = {"schedule": _SCHEDULE_DEFAULTS}
     SETTINGS_NAME: ClassVar[str] = "PPO settings"
     # What a resumed run may change without changing what is being learned.
     RESUMABLE_CHANGES: ClassVar[tuple[str, ...]] = (
