@@ -16,7 +16,7 @@ from bimgame.learn.checkpoints import load_checkpoint
 from bimgame.learn.common import load_run_network
 from bimgame.learn.ppo import PPOConfig, PPOOptimizationSettings, ppo_minibatch_loss, ppo_update, train_ppo
 from bimgame.learn.ppo.update import rollout_targets
-from bimgame.learn.rollout import RolloutCollector
+from bimgame.learn.rollout import RolloutCollector, sequence_start_states, unroll
 from bimgame.learn.runs import KIND_PPO
 
 TINY = dict(task="STG1", obs="state", hidden=16, features=16, envs_per_worker=4, n_steps=16, minibatches=2,
@@ -43,8 +43,11 @@ def test_settings_compose_the_shared_parts_and_refuse_what_ppo_cannot_do():
     assert config.steps_per_rollout == 4 * 16
     with pytest.raises(ValueError, match="workers must be 1"):
         PPOConfig.from_flat(TINY, workers=2)
-    with pytest.raises(ValueError, match=r"PPOConfig\.minibatches must be at most envs_per_worker \(4\)"):
+    with pytest.raises(ValueError, match=r"PPOConfig\.minibatches must be at most the sequences of a rollout \(4:"):
         PPOConfig.from_flat(TINY, minibatches=5)
+    assert PPOConfig.from_flat(TINY, minibatches=16, sequence_length=4).sequences_per_rollout == 16
+    with pytest.raises(ValueError, match=r"sequence_length must divide n_steps \(16\) or be None, got 5"):
+        PPOConfig.from_flat(TINY, sequence_length=5)
     with pytest.raises(ValueError, match=r"PPOOptimizationSettings\.clip must be a finite number > 0"):
         PPOOptimizationSettings(clip=0.0)
     with pytest.raises(ValueError, match=r"unknown PPO settings \['rmsprop_alpha'\]"):
@@ -62,11 +65,32 @@ def test_a_segment_of_some_environments_keeps_their_whole_sequences():
     assert torch.equal(part.initial_state.h, segment.initial_state.h[index])
 
 
+def test_sequences_are_pieces_of_each_environment_started_from_the_acting_lstm_state():
+    config = PPOConfig.from_flat(TINY)  # 16 steps of 4 environments
+    net, segment = _segment(config)
+    _, states = sequence_start_states(net, segment, 4)
+    pieces = segment.sequences(4, states)
+    assert pieces.steps == 4 and pieces.batch == 16 and pieces.obs.shape[0] == 5
+    for k in range(4):
+        for b in range(4):
+            column = k * 4 + b
+            assert torch.equal(pieces.obs[:, column], segment.obs[4 * k : 4 * k + 5, b])
+            assert torch.equal(pieces.actions[:, column], segment.actions[4 * k : 4 * k + 4, b])
+            assert torch.equal(pieces.starts[:, column], segment.starts[4 * k : 4 * k + 5, b])
+    # Each piece unrolled from its stored state gives what the whole rollout gave at those steps.
+    with torch.no_grad():
+        whole, cut = unroll(net, segment), unroll(net, pieces)
+    for k in range(4):
+        assert torch.allclose(cut.logits[:4, 4 * k : 4 * k + 4], whole.logits[4 * k : 4 * k + 4], atol=1e-5)
+    with pytest.raises(ValueError, match="sequence length must divide the segment's 16 steps, got 3"):
+        segment.sequences(3, states)
+
+
 def test_the_clipped_surrogate_matches_a_hand_computation():
     settings = PPOOptimizationSettings(clip=0.2, advantage_norm=False, entropy_coef=0.0, value_coef=0.0)
     config = PPOConfig.from_flat(TINY)
     net, segment = _segment(config)
-    targets = rollout_targets(net, segment, settings)
+    segment, targets = rollout_targets(net, segment, settings)
     # Under the network that acted every ratio is 1: no clipping, no KL, and the loss is −mean(A).
     loss, parts = ppo_minibatch_loss(net, segment, targets, settings)
     assert parts["approx_kl"] == pytest.approx(0.0, abs=1e-6) and parts["clip_fraction"] == 0.0
@@ -83,7 +107,7 @@ def test_the_clipped_surrogate_matches_a_hand_computation():
 def test_value_clipping_limits_the_value_loss_to_the_clipped_change():
     settings = PPOOptimizationSettings(advantage_norm=False, entropy_coef=0.0, value_coef=1.0, value_clip=0.1)
     net, segment = _segment(PPOConfig.from_flat(TINY))
-    targets = rollout_targets(net, segment, settings)
+    segment, targets = rollout_targets(net, segment, settings)
     targets.returns = targets.values + 1.0  # every target one unit above the old value
     _, parts = ppo_minibatch_loss(net, segment, targets, settings)
     # The new values equal the old ones: unclipped error 1; clipped prediction moves at most 0.1, so the

@@ -37,6 +37,8 @@ __all__ = [
     "StartCurriculum",
     "RolloutCollector",
     "unroll",
+    "sequence_start_states",
+    "in_sequences",
     "training_env",
     "advantages_and_targets",
 ]
@@ -103,6 +105,36 @@ class Segment:
         h, c = self.initial_state
         return dataclasses.replace(self, **by_env, initial_state=LSTMState(h[index], c[index]))
 
+    def sequences(self, length: int, states: LSTMState) -> Segment:
+        """The segment cut into sequences of ``length`` acting steps, each laid out as an environment
+        of its own: (``length``, K·B) with K = T / ``length``, sequence k·B + b holding environment
+        b's steps [k·length, (k+1)·length) and the observation after them. ``states`` (K·B, H) are
+        the LSTM states the sequences start from, in that order (:func:`sequence_start_states`).
+
+        What a recurrent learner trains on when it unrolls short sequences from stored states
+        (truncated backpropagation through time; R2D2's "stored state", Kapturowski et al. 2019)
+        instead of whole rollouts: K times fewer steps to backpropagate one after the other."""
+        if length < 1 or self.steps % length:
+            raise ValueError(f"sequence length must divide the segment's {self.steps} steps, got {length}")
+        needed = self.steps // length * self.batch
+        if states.h.shape[0] != needed:
+            raise ValueError(f"{needed} sequence start states needed, got {states.h.shape[0]}")
+        cut: dict[str, Any] = {}
+        for field in dataclasses.fields(self):
+            value = getattr(self, field.name)
+            if isinstance(value, torch.Tensor):
+                cut[field.name] = in_sequences(value, length, self.steps)
+        return dataclasses.replace(self, **cut, initial_state=states)
+
+
+def in_sequences(value: torch.Tensor, length: int, steps: int) -> torch.Tensor:
+    """A (T or T+1, B, …) tensor of a ``steps``-step segment as (``length`` or ``length``+1, K·B, …)
+    sequences, as :meth:`Segment.sequences` lays them out: a tensor of T+1 steps (the network's
+    inputs) keeps, for each sequence, the step after its last."""
+    extra = value.shape[0] - steps
+    pieces = [value[k * length : (k + 1) * length + extra] for k in range(steps // length)]
+    return torch.stack(pieces, dim=1).flatten(1, 2)
+
 
 def unroll(net: RecurrentActorCritic, segment: Segment) -> Unrolled:
     """``net`` unrolled over ``segment`` (T+1 steps) from the LSTM state the segment started with,
@@ -117,6 +149,35 @@ def unroll(net: RecurrentActorCritic, segment: Segment) -> Unrolled:
         segment.starts,
         privileged=segment.privileged,
     )
+
+
+@torch.no_grad()
+def sequence_start_states(net: RecurrentActorCritic, segment: Segment, length: int) -> tuple[torch.Tensor, LSTMState]:
+    """``net``'s values over the segment's T+1 steps, unrolled from the state it started with, and
+    the LSTM states that its sequences of ``length`` steps start from, stacked as
+    :meth:`Segment.sequences` lays them out (K·B, H)."""
+    if length < 1 or segment.steps % length:
+        raise ValueError(f"sequence length must divide the segment's {segment.steps} steps, got {length}")
+    state, values, starts = segment.initial_state, [], []
+    for begin in range(0, segment.steps + 1, length):
+        end = min(begin + length, segment.steps + 1)  # the last piece: the observation after the last step
+        if begin < segment.steps:
+            starts.append(state)
+        tilt = segment.tilt[begin:end] if segment.tilt is not None else None
+        privileged = segment.privileged[begin:end] if segment.privileged is not None else None
+        out = net.unroll_features(
+            segment.obs[begin:end],
+            segment.prev_action[begin:end],
+            segment.prev_reward[begin:end],
+            tilt,
+            state,
+            segment.starts[begin:end],
+            privileged=privileged,
+        )
+        values.append(out.values)
+        state = out.state
+    stacked = LSTMState(torch.cat([s.h for s in starts]), torch.cat([s.c for s in starts]))
+    return torch.cat(values), stacked
 
 
 def training_env(

@@ -26,8 +26,13 @@ class PPOOptimizationSettings:
     epochs: int = 4
     """Passes over each rollout."""
     minibatches: int = 4
-    """Minibatches per epoch, split by environment so that every sequence stays whole (at most the
-    number of environments)."""
+    """Minibatches per epoch, each a random set of whole sequences (at most the number of sequences:
+    environments × ``n_steps`` / ``sequence_length``)."""
+    sequence_length: int | None = None
+    """Steps of the sequences a minibatch unrolls the LSTM over, each from the LSTM state the acting
+    network had at its first step (a divisor of ``n_steps``); None: each environment's whole rollout
+    (CleanRL's recurrent PPO). Shorter sequences backpropagate through fewer steps one after the
+    other: the update is faster, the gradient of memory truncated."""
     clip: float = 0.2
     """The ratio clip ε of the surrogate objective."""
     value_clip: float | None = None
@@ -56,6 +61,13 @@ class PPOOptimizationSettings:
         for name in ("n_steps", "epochs", "minibatches"):
             require_int(owner, name, getattr(self, name), 1)
         check_at_most(owner, "n_steps", self.n_steps, 10_000, "steps kept in memory per rollout")
+        if self.sequence_length is not None:
+            require_int(owner, "sequence_length", self.sequence_length, 1)
+            if self.n_steps % self.sequence_length:
+                raise ValueError(
+                    f"{owner}.sequence_length must divide n_steps ({self.n_steps}) or be None, "
+                    f"got {self.sequence_length!r}"
+                )
         for name in ("gamma", "gae_lambda"):
             check_number(owner, name, getattr(self, name), 0.0, 1.0)
         for name in ("clip", "lr", "optimizer_eps", "max_grad_norm"):
@@ -110,12 +122,19 @@ class PPOConfig(LearnerSettings):
                 f"{owner}: workers must be 1 (PPO steps its environments in the learner's process; "
                 f"envs_per_worker sets how many), got {self.schedule.workers!r}"
             )
-        if self.optimization.minibatches > self.schedule.envs_per_worker:
+        if self.optimization.minibatches > self.sequences_per_rollout:
             raise ValueError(
-                f"{owner}.minibatches must be at most envs_per_worker ({self.schedule.envs_per_worker}): "
-                f"minibatches split the environments, got {self.optimization.minibatches!r}"
+                f"{owner}.minibatches must be at most the sequences of a rollout ({self.sequences_per_rollout}: "
+                f"envs_per_worker {self.schedule.envs_per_worker} × n_steps / sequence_length): minibatches "
+                f"split the sequences, got {self.optimization.minibatches!r}"
             )
 
     @property
     def steps_per_rollout(self) -> int:
         return self.optimization.n_steps * self.schedule.envs_per_worker
+
+    @property
+    def sequences_per_rollout(self) -> int:
+        """The sequences minibatches are drawn from: every environment's rollout, cut to ``sequence_length``."""
+        length = self.optimization.sequence_length or self.optimization.n_steps
+        return self.schedule.envs_per_worker * (self.optimization.n_steps // length)

@@ -1,7 +1,8 @@
 """PPO's update of one rollout: advantages under the network that acted, then ``epochs`` passes of
-``minibatches`` minibatches, each a set of whole environment sequences over which the LSTM is
-unrolled again from the state the rollout started with (CleanRL's ``ppo_atari_lstm.py`` splits by
-environment for the same reason), with the clipped surrogate objective."""
+``minibatches`` minibatches, each a set of whole sequences over which the LSTM is unrolled again from
+the state the acting network had at their first step, with the clipped surrogate objective. A
+sequence is an environment's whole rollout (CleanRL's ``ppo_atari_lstm.py`` splits by environment
+for the same reason) or, with ``sequence_length``, a piece of it."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ import torch
 
 from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.learn.ppo.settings import PPOOptimizationSettings
-from bimgame.learn.rollout import Segment, advantages_and_targets, unroll
+from bimgame.learn.rollout import Segment, advantages_and_targets, in_sequences, sequence_start_states, unroll
 
 __all__ = ["RolloutTargets", "rollout_targets", "ppo_minibatch_loss", "ppo_update"]
 
@@ -32,20 +33,36 @@ class RolloutTargets:
             self.advantages[:, index], self.returns[:, index], self.values[:, index], self.log_probs[:, index]
         )
 
+    def sequences(self, length: int) -> RolloutTargets:
+        """The targets cut into sequences as :meth:`Segment.sequences` cuts the segment."""
+        steps = int(self.advantages.shape[0])
+        return RolloutTargets(*(in_sequences(value, length, steps) for value in self.tensors()))
+
+    def tensors(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        return self.advantages, self.returns, self.values, self.log_probs
+
 
 @torch.no_grad()
-def rollout_targets(net: RecurrentActorCritic, segment: Segment, settings: PPOOptimizationSettings) -> RolloutTargets:
-    """GAE advantages and value targets of ``segment`` under ``net`` before any update (the network
-    that acted), bootstrapped from the value of the observation after its last step; the old
-    log-probabilities are those recorded while acting."""
+def rollout_targets(
+    net: RecurrentActorCritic, segment: Segment, settings: PPOOptimizationSettings
+) -> tuple[Segment, RolloutTargets]:
+    """What the update trains on: the segment's sequences (:meth:`Segment.sequences`, started from
+    the LSTM states of ``net`` before any update, the network that acted; the whole segment without
+    a ``sequence_length``) and their targets: GAE advantages and value targets under that network,
+    bootstrapped from the value of the observation after the segment's last step, and the
+    log-probabilities recorded while acting."""
     if segment.log_probs is None:
         raise ValueError("a PPO update needs the segment's log-probabilities of the acting policy (Segment.log_probs)")
-    out = unroll(net, segment)
-    values, bootstrap = out.values[:-1], out.values[-1]
+    length = settings.sequence_length or segment.steps
+    all_values, states = sequence_start_states(net, segment, length)
+    values, bootstrap = all_values[:-1], all_values[-1]
     advantages, returns = advantages_and_targets(
         segment.rewards, segment.ends, values, bootstrap, settings.gamma, settings.gae_lambda
     )
-    return RolloutTargets(advantages, returns, values, segment.log_probs)
+    targets = RolloutTargets(advantages, returns, values, segment.log_probs)
+    if length == segment.steps:
+        return segment, targets
+    return segment.sequences(length, states), targets.sequences(length)
 
 
 def ppo_minibatch_loss(
@@ -98,11 +115,11 @@ def ppo_update(
     settings: PPOOptimizationSettings,
     generator: torch.Generator,
 ) -> dict[str, float]:
-    """Train ``net`` on one rollout: ``epochs`` passes over minibatches of whole environment
-    sequences, drawn from ``generator``. Returns the losses and statistics averaged over the
+    """Train ``net`` on one rollout: ``epochs`` passes over minibatches of whole sequences (each
+    environment's rollout, or its pieces of ``sequence_length`` steps), drawn from ``generator``. Returns the losses and statistics averaged over the
     minibatches, and ``applied``: False if a loss or gradient was not finite (that minibatch, and the
     rest of the update, is then skipped so that no non-finite value reaches the weights)."""
-    targets = rollout_targets(net, segment, settings)
+    segment, targets = rollout_targets(net, segment, settings)
     sums = dict.fromkeys(_AVERAGED, 0.0)
     count = 0
     for _ in range(settings.epochs):
