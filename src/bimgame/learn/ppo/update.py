@@ -116,8 +116,8 @@ def ppo_update(
     generator: torch.Generator,
 ) -> dict[str, float]:
     """Train ``net`` on one rollout: ``epochs`` passes over minibatches of whole sequences (each
-    environment's rollout, or its pieces of ``sequence_length`` steps), drawn from ``generator``. Returns the losses and statistics averaged over the
-    minibatches, and ``applied``: False if a loss or gradient was not finite (that minibatch, and the
+    environment's rollout, or its pieces of ``sequence_length`` steps), drawn from ``generator``.
+    Returns the losses and statistics averaged over the minibatches, and ``applied``: False if a loss or gradient was not finite (that minibatch, and the
     rest of the update, is then skipped so that no non-finite value reaches the weights)."""
     segment, targets = rollout_targets(net, segment, settings)
     sums = dict.fromkeys(_AVERAGED, 0.0)
