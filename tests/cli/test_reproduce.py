@@ -154,3 +154,15 @@ def test_a_damaged_plan_of_the_right_format_is_refused_with_a_message(tmp_path, 
     argv = ["report", str(tmp_path)] if verb == "report" else ["reproduce", "--out", str(tmp_path), "--dry-run"]
     assert main(argv) == 2
     assert "plan.json" in capsys.readouterr().err
+
+
+def test_dry_run_plans_ppo_beside_a3c_on_the_same_pi_s_and_the_help_names_them(tmp_path, capsys):
+    err = _dry_run(["--out", str(tmp_path / "r"), "--algorithms", "pretrain+ppo", "ppo", "pretrain+a3c"], capsys)
+    budget = BUDGETS["quick"].with_grid(algorithms=["pretrain+a3c", "ppo", "pretrain+ppo"])
+    listed = list(_listed(err))
+    assert listed == [p.id for p in plan_pieces(budget)]
+    assert sum(i.startswith("pretrain/") for i in listed) == 2  # one π^s per seed, for both learners
+    assert "runs/STG1/pretrain-ppo/seed1" in listed and "ppo ×4" in " ".join(err.split())
+    with pytest.raises(SystemExit):
+        main(["reproduce", "--help"])
+    assert "ppo and pretrain+ppo" in " ".join(capsys.readouterr().out.split())

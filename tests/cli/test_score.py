@@ -23,3 +23,22 @@ def test_bad_policy_and_out_are_refused(tmp_path, capsys):
     assert "is a directory" in capsys.readouterr().err
     assert main(["score", "--episodes", "2"]) == 2
     assert "POLICY is required" in capsys.readouterr().err
+
+
+def test_a_ppo_run_scores_like_an_a3c_run_from_its_directory_or_its_checkpoint(tmp_path):
+    """A PPO run directory (kind ``ppo``) or its checkpoint is a POLICY like an A3C run's."""
+    from bimgame.learn.ppo import PPOConfig, train_ppo
+
+    run = tmp_path / "ppo-run"
+    config = PPOConfig.from_flat({"task": "STG1", "obs": "state", "hidden": 16, "features": 16, "steps": 128,
+                                  "envs_per_worker": 4, "n_steps": 32, "eval_every": 0, "eval_episodes": 1})
+    train_ppo(config, run, progress=False)
+    scores = []
+    for policy, extra in ((run, []), (run / "checkpoint.pt", ["--sampled"])):
+        out = tmp_path / f"score-{len(scores)}.json"
+        argv = ["score", str(policy), "--episodes", "2", "--out", str(out), "--no-progress", *extra]
+        assert main(argv) == 0
+        scores.append(json.loads(out.read_text()))
+    assert [s["policy"] for s in scores] == [str(run), str(run / "checkpoint.pt")]
+    assert all(s["episodes"] == 2 and s["normalised_score"] is not None for s in scores)
+    assert main(["score", str(run), "--obs", "pixels", "--episodes", "2", "--no-progress"]) == 2  # trained on state

@@ -18,8 +18,10 @@ from bimgame.experiments.budgets import (
     NetworkBudget,
     budget_named,
 )
+from bimgame.experiments.algorithms import algorithm_named
 from bimgame.experiments.costs import cluster_seconds, estimate_seconds, piece_cpus
 from bimgame.experiments.grid import plan_pieces
+from bimgame.experiments.kinds import kind_of
 from bimgame.experiments.methods import needs_expert_data
 from bimgame.experiments.plan import check_compatible, write_plan
 
@@ -27,10 +29,10 @@ from bimgame.experiments.plan import check_compatible, write_plan
 @pytest.mark.parametrize("changes, message", [
     ({"tasks": ("STG9",)}, r"Budget.tasks: unknown task 'STG9'; allowed: FULL, STG1, STG2, STG3, STG4"),
     ({"tasks": ()}, r"Budget.tasks must name at least one task"),
-    ({"algorithms": ("ppo",)}, r"Budget.algorithms: unknown \['ppo'\]; allowed: a3c, pretrain\+a3c, a3c\+value, "
+    ({"algorithms": ("sac",)}, r"Budget.algorithms: unknown \['sac'\]; allowed: a3c, pretrain\+a3c, a3c\+value, "
                                r"pretrain\+a3c\+value, dagger, pretrain\+a3c\+warmup, pretrain\+a3c\+kl, "
                                r"pretrain\+a3c\+norm, pretrain\+a3c\+bc, pretrain\+a3c\+demo, pretrain\+a3c\+keep, "
-                               r"pretrain\+a3c\+keepfade, a3c\+reverse, a3c\+papernet$"),
+                               r"pretrain\+a3c\+keepfade, a3c\+reverse, a3c\+papernet, ppo, pretrain\+ppo$"),
     ({"seeds": 0}, r"Budget.seeds must be an integer >= 1, got 0"),
     ({"obs": "rgb"}, r"Budget.obs must be one of pixels, state, got 'rgb'"),
     ({"threshold_fraction": 0.0}, r"Budget.threshold_fraction must be in \(0, 1\], got 0.0"),
@@ -89,7 +91,8 @@ def test_the_presets_beyond_the_paper_plan_their_grids_within_two_hours(tmp_path
     assert beyond.algorithms == ("a3c", "pretrain+a3c", "pretrain+a3c+keep")
     # The ablation: each fine-tuning method on its own, and keep (not keepfade, a variant of keep for weak π^s).
     assert ablation.tasks == ("STG3",)
-    assert set(ablation.algorithms) == set(ALGORITHMS[5:-1]) - {"pretrain+a3c+keepfade"} | {"pretrain+a3c"}
+    finetuning = {a for a in ALGORITHMS if algorithm_named(a).finetuning}
+    assert set(ablation.algorithms) == finetuning - {"pretrain+a3c+keepfade"} | {"pretrain+a3c"}
     assert [beyond.steps_for(t) for t in beyond.tasks] == [400_000, 500_000, 500_000, 500_000]
     for budget in (beyond, ablation):
         assert (budget.obs, budget.a3c.eval_every, budget.a3c.eval_episodes) == ("state", 50_000, 20)
@@ -188,3 +191,59 @@ def test_replace_changes_only_the_named_fields_of_a_group():
     assert (changed.seeds, changed.dagger.episodes, changed.network.hidden) == (1, 3, 8)
     assert changed.dagger == dataclasses.replace(quick.dagger, episodes=3) and changed.a3c == quick.a3c
     assert quick.dagger.episodes == 6  # the preset itself is unchanged
+
+
+# ------------------------------------------------------------------------------------------- PPO
+def test_the_ppo_group_is_ppos_defaults_and_survives_its_stored_form():
+    from bimgame.learn.ppo import PPOConfig, PPOOptimizationSettings
+
+    quick = BUDGETS["quick"]
+    defaults = PPOConfig().optimization
+    # Every PPO optimisation setting is a field of the group, at PPO's own default.
+    assert {f.name: getattr(quick.ppo, f.name) for f in dataclasses.fields(PPOOptimizationSettings)} == \
+        dataclasses.asdict(defaults)
+    assert quick.ppo.envs_per_worker == 16 and all(b.ppo == quick.ppo for b in BUDGETS.values())
+    changed = quick.replace(ppo={"n_steps": 64, "sequence_length": 16, "lr": 1e-4})
+    stored = json.loads(json.dumps(changed.to_dict()))
+    assert stored["ppo"]["n_steps"] == 64 and Budget.from_dict(stored) == changed
+    assert changed.settings_by_path()["ppo.sequence_length"] == 16
+
+
+def test_a_nested_plan_stored_before_the_ppo_group_loads_with_ppos_defaults():
+    for name, budget in BUDGETS.items():
+        stored = json.loads(json.dumps(budget.to_dict()))
+        del stored["ppo"]
+        assert Budget.from_dict(stored) == budget, name
+
+
+@pytest.mark.parametrize("changes, message", [
+    ({"ppo": {"n_steps": 0}}, r"Budget.ppo.n_steps must be an integer >= 1, got 0$"),
+    ({"ppo": {"envs_per_worker": 0}}, r"Budget.ppo.envs_per_worker must be an integer >= 1, got 0$"),
+    ({"ppo": {"sequence_length": 7}}, r"Budget.ppo.sequence_length must divide n_steps \(128\) or be None, got 7$"),
+    ({"ppo": {"minibatches": 64}}, r"Budget.ppo.minibatches must be at most the sequences of a rollout \(16: "),
+    ({"ppo": {"clip": 0.0}}, r"Budget.ppo.clip must be "),
+    ({"obs": "pixels", "algorithms": ("a3c", "ppo"), "a3c": {"augment_shift": 2}},
+     r"Budget.a3c.augment_shift 2 with ppo in the grid: PPO's runs have no random shifts.*leave ppo out"),
+])
+def test_bad_ppo_settings_are_rejected_by_their_path(changes, message, tiny_budget):
+    with pytest.raises(ValueError, match=message):
+        tiny_budget.replace(**changes)
+    with pytest.raises(ValueError, match=r"unknown budget settings of Budget.ppo \['epoch'\]; allowed: \["):
+        Budget.from_dict({**tiny_budget.to_dict(), "ppo": {"epoch": 3}})
+
+
+def test_ppo_runs_share_the_a3c_runs_steps_and_pi_s_and_cost_their_own_speed():
+    quick = BUDGETS["quick"].with_grid(algorithms=["a3c", "pretrain+a3c", "ppo", "pretrain+ppo"])
+    pieces = {p.id: p for p in plan_pieces(quick)}
+    # One π^s per task and seed, read by both learners' pre-trained runs.
+    assert [i for i in pieces if i.startswith("pretrain/")] == ["pretrain/STG1/policy-seed0", "pretrain/STG1/policy-seed1"]
+    ppo, pretrained = pieces["runs/STG1/ppo/seed0"], pieces["runs/STG1/pretrain-ppo/seed0"]
+    assert (ppo.kind, ppo.needs) == ("ppo", ()) and pretrained.needs == ("pretrain/STG1/policy-seed0",)
+    assert pieces["runs/STG1/pretrain-a3c/seed0"].needs == pretrained.needs
+    # PPO: one process at about a quarter of A3C's speed with two workers, plus its evaluations.
+    a3c_seconds = estimate_seconds(pieces["runs/STG1/a3c/seed0"], quick)
+    ppo_seconds = estimate_seconds(ppo, quick)
+    assert 3 * a3c_seconds < ppo_seconds < 5 * a3c_seconds
+    assert piece_cpus(ppo, quick) == quick.torch_threads == 1 and piece_cpus(pieces["runs/STG1/a3c/seed0"], quick) == 3
+    assert estimate_seconds(ppo, quick.replace(a3c={"eval_every": 0})) < ppo_seconds  # evaluations stop it
+    assert kind_of(ppo).resumable  # a cluster ships its checkpoints home, as an A3C run's

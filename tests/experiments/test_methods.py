@@ -14,6 +14,7 @@ from bimgame.experiments.methods import (
     BC_COEF,
     finetune_overrides,
     needs_expert_data,
+    ppo_overrides,
     uses_start_curriculum,
 )
 from bimgame.experiments.runners import _with_stored_preset_name, a3c_config_for
@@ -32,7 +33,7 @@ def _changed_from_paper(algorithm: str) -> dict:
 
 def test_every_algorithm_but_dagger_is_an_a3c_run_and_the_paper_ones_come_first():
     assert ALGORITHMS[:5] == PAPER_ALGORITHMS
-    assert set(A3C_ALGORITHMS) == set(ALGORITHMS) - {"dagger"}
+    assert set(A3C_ALGORITHMS) == set(ALGORITHMS) - {"dagger", "ppo", "pretrain+ppo"}
     # The paper's A3C algorithms keep A3C's defaults; pre-train + A3C records the paper preset (all off).
     for algorithm in ("a3c", "a3c+value", "pretrain+a3c+value"):
         assert finetune_overrides(algorithm, STEPS, DATA) == {}
@@ -130,9 +131,12 @@ def test_pixel_levers_reach_every_network_but_the_papers_and_daggers(tiny_budget
 
 
 @pytest.mark.parametrize("call, message", [
-    (lambda: finetune_overrides("ppo", STEPS, DATA),
-     r"unknown A3C algorithm 'ppo'; allowed: a3c, pretrain\+a3c, a3c\+value, .*pretrain\+a3c\+keep, "
+    (lambda: finetune_overrides("sac", STEPS, DATA),
+     r"unknown A3C algorithm 'sac'; allowed: a3c, pretrain\+a3c, a3c\+value, .*pretrain\+a3c\+keep, "
      r"pretrain\+a3c\+keepfade, a3c\+reverse, a3c\+papernet$"),
+    (lambda: finetune_overrides("ppo", STEPS, DATA), r"unknown A3C algorithm 'ppo'.*\(PPO is not an A3C run\)$"),
+    (lambda: ppo_overrides("a3c", STEPS, DATA),
+     r"unknown PPO algorithm 'a3c'; allowed: ppo, pretrain\+ppo \(A3C is not a PPO run\)$"),
     (lambda: finetune_overrides("dagger", STEPS, DATA), r"unknown A3C algorithm 'dagger'.*not an A3C run"),
     (lambda: finetune_overrides("pretrain+a3c+bc", 0, DATA), r"steps must be an integer >= 1, got 0"),
     (lambda: finetune_overrides("pretrain+a3c+demo", STEPS, None),
@@ -154,3 +158,22 @@ def test_an_unfinished_run_resumes_with_the_preset_name_it_was_started_with(tiny
     assert _with_stored_preset_name({**stored, "kl_coef": 1.0}, config) == config
     keep = a3c_config_for(tiny_budget, "STG1", 0, "pretrain+a3c+keep", DATA)
     assert _with_stored_preset_name(keep.to_dict(), keep) == keep
+
+
+def test_a_ppo_run_gets_the_a3c_runs_steps_evaluations_and_network_with_ppos_own_settings():
+    from bimgame.experiments.runners import ppo_config_for
+
+    budget = Budget(tasks=("STG2",), algorithms=("a3c", "ppo", "pretrain+ppo"), obs="pixels", seeds=1).replace(
+        a3c={"steps": {"STG2": 123_456}, "eval_every": 10_000, "eval_episodes": 7, "checkpoint_every": 5_000},
+        network={"aux_heads": True, "hidden": 32}, ppo={"n_steps": 64, "lr": 1e-4})
+    assert ppo_overrides("ppo", STEPS, DATA) == {} and ppo_overrides("pretrain+ppo", STEPS, DATA) == {}
+    for algorithm in ("ppo", "pretrain+ppo"):
+        config = ppo_config_for(budget, "STG2", 3, algorithm)
+        schedule, optimization = config.schedule, config.optimization
+        assert (config.task, config.seed) == ("STG2", 3)
+        assert (schedule.steps, schedule.eval_every, schedule.eval_episodes, schedule.checkpoint_every) == (
+            budget.steps_for("STG2"), 10_000, 7, 5_000)
+        assert (schedule.workers, schedule.envs_per_worker) == (1, 16)
+        assert (optimization.n_steps, optimization.lr, optimization.epochs) == (64, 1e-4, 4)
+        a3c = a3c_config_for(budget, "STG2", 3)
+        assert config.network == a3c.network  # the networks π^s is pre-trained with

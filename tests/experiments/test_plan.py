@@ -45,3 +45,18 @@ def test_a_reproduction_whose_plan_stores_a_flat_budget_continues_with_the_same_
     with pytest.raises(ValueError, match=r"other settings \(dagger\.episodes: 6 there, 3 now; "
                                          r"torch_threads: 1 there, 2 now\)"):
         check_compatible(tmp_path, quick.replace(dagger={"episodes": 3}, torch_threads=2))
+
+
+def test_a_reproduction_whose_plan_was_stored_before_the_ppo_group_continues_with_its_preset(tmp_path):
+    """A nested ``plan.json`` of a reproduction started before PPO was in the reproduction has no
+    ``ppo`` group: it loads with PPO's defaults, which the presets keep, and may add PPO's algorithms."""
+    beyond = BUDGETS["beyond"]
+    write_plan(tmp_path, beyond)
+    plan = json.loads((tmp_path / PLAN).read_text())
+    del plan["budget"]["ppo"]
+    (tmp_path / PLAN).write_text(json.dumps(plan))
+    budget, pieces = load_plan(tmp_path)
+    assert budget == beyond and pieces == plan_pieces(beyond)
+    check_compatible(tmp_path, beyond.with_grid(algorithms=["a3c", "pretrain+a3c", "ppo", "pretrain+ppo"]))
+    with pytest.raises(ValueError, match=r"other settings \(ppo\.n_steps: 128 there, 64 now\)"):
+        check_compatible(tmp_path, beyond.replace(ppo={"n_steps": 64}))

@@ -109,5 +109,5 @@ def test_an_unfinished_grid_still_renders_the_section(beyond_dir):
             (beyond_dir / "runs" / "STG3" / algorithm.replace("+", "-") / f"seed{seed}" / "summary.json").unlink()
     paths = build_report(beyond_dir, resamples=100)
     report = paths.report.read_text()
-    assert "### STG3\n\nNo finished A3C run yet." in report
+    assert "### STG3\n\nNo finished A3C or PPO run yet." in report
     assert not (beyond_dir / "fig_eval_STG3.png").exists()

@@ -26,7 +26,7 @@ def test_cli_rejects_bad_flags(tmp_path, capsys):
     for argv, message in ((["--tasks", "STG9"], "invalid choice: 'STG9'"),
                           (["--budget", "huge"], "invalid choice: 'huge'"),
                           (["--seeds", "0"], "expected a positive integer, got '0'"),
-                          (["--algorithms", "ppo"], "invalid choice: 'ppo'")):
+                          (["--algorithms", "sac"], "invalid choice: 'sac'")):
         with pytest.raises(SystemExit) as exit_info:
             main(["reproduce", "--out", str(tmp_path / "r"), *argv])
         assert exit_info.value.code == 2

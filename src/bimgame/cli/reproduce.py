@@ -67,7 +67,7 @@ def add_reproduce_arguments(parser: argparse.ArgumentParser) -> None:
         default=3,
         metavar="N",
         help="with --backend ray: how often a piece whose node or worker died is started again (default 3); "
-        "A3C and DAgger runs continue from the last checkpoint they shipped back",
+        "A3C, PPO and DAgger runs continue from the last checkpoint they shipped back",
     )
     add(
         "--stop-after",

@@ -10,7 +10,14 @@ Everything else of the reproduction asks a record instead of reading meaning fro
 **Adding an algorithm** is one :func:`register` call with its record (and, for a new kind of
 learner, a :class:`~bimgame.experiments.kinds.RunKind` for its pieces); the budget, the grid, the
 runs, the figures and the report then take it. The built-in records below are registered when this
-module is imported, in the order of the paper's figures, then the fine-tuning methods beyond it.
+module is imported, in the order of the paper's figures, then the fine-tuning methods beyond it,
+then PPO's (last, so that the other algorithms keep their colours in figures).
+
+**PPO.** ``ppo`` and ``pretrain+ppo`` are the paper's comparison of a start from random weights
+with a start from π^s, run by PPO (:mod:`bimgame.learn.ppo`) instead of A3C: the same budget of
+environment steps per task, the same evaluations, and ``pretrain+ppo`` starts from the very π^s
+piece ``pretrain+a3c`` starts from (one per task and seed, pre-trained once). Their runs are
+pieces of their own kind (``ppo``); their settings are the budget's ``ppo`` group.
 
 **A3C settings.** The paper's A3C algorithms differ only in their initial weights and reward; the
 methods beyond it differ in their fine-tuning settings (:mod:`bimgame.learn.finetune`). Every
@@ -34,6 +41,7 @@ from bimgame.learn.learner_settings import FINETUNE_PRESETS
 
 __all__ = [
     "Learner",
+    "LEARNER_CAPABILITIES",
     "Algorithm",
     "reads_expert_data",
     "register",
@@ -50,6 +58,8 @@ __all__ = [
     "A3C_VALUE",
     "PRETRAIN_A3C_VALUE",
     "DAGGER",
+    "PPO",
+    "PRETRAIN_PPO",
 ]
 
 
@@ -61,9 +71,22 @@ class Learner(enum.Enum):
     """:func:`bimgame.learn.a3c.train`: runs of a budgeted number of environment steps."""
     DAGGER = "dagger"
     """:func:`bimgame.learn.dagger.dagger` with the MPC expert: runs of a budgeted number of iterations."""
+    PPO = "ppo"
+    """:func:`bimgame.learn.ppo.train_ppo`: runs of the same budgeted number of environment steps as A3C's."""
 
 
-#: A3C settings (field → value) of a run, as a function of the run's environment steps.
+#: What a record may ask of each learner's runs: ``settings`` (the learner's flat settings beyond
+#: the budget's), ``starts_from_policy`` (initial weights from π^s) and ``value_reward`` (V̂'s reward,
+#: an environment wrapper only A3C's runs take). A DAgger run is its budget group and nothing else.
+LEARNER_CAPABILITIES: dict[Learner, frozenset[str]] = {
+    Learner.A3C: frozenset({"settings", "starts_from_policy", "value_reward"}),
+    Learner.PPO: frozenset({"settings", "starts_from_policy"}),
+    Learner.DAGGER: frozenset(),
+}
+#: The learners whose runs take the budget's environment steps per task (``a3c.steps``).
+_BY_STEPS = frozenset({Learner.A3C, Learner.PPO})
+
+#: A learner's settings (flat name → value) of a run, as a function of the run's environment steps.
 Settings = Callable[[int], dict[str, Any]]
 
 
@@ -87,8 +110,9 @@ class Algorithm:
     value_reward: bool = False
     """Its runs are rewarded with r + γV̂(s') − V̂(s), V̂ pre-trained on the dataset (the grid pre-trains it)."""
     settings: Settings = _none
-    """A3C only: the settings its runs set beyond the budget's, for a run of the given steps (read at
-    planning time, so that they follow the presets of :mod:`bimgame.learn.finetune`)."""
+    """A3C and PPO: the settings (its learner's flat names) its runs set beyond the budget's, for a run
+    of the given steps (read at planning time, so that they follow the presets of
+    :mod:`bimgame.learn.finetune`)."""
     paper: bool = False
     """One of the paper's compared methods (the presets' default grid)."""
     finetuning: bool = False
@@ -105,12 +129,22 @@ class Algorithm:
             raise ValueError(
                 f"Algorithm.learner must be one of {', '.join(str(m) for m in Learner)}, got {self.learner!r}"
             )
-        if self.learner is not Learner.A3C and (
-            self.settings is not _none or self.starts_from_policy or self.value_reward
-        ):
+        asked = [
+            name
+            for name, given in (
+                ("settings", self.settings is not _none),
+                ("starts_from_policy", self.starts_from_policy),
+                ("value_reward", self.value_reward),
+            )
+            if given and name not in LEARNER_CAPABILITIES[self.learner]
+        ]
+        if asked:
+            allowed = "; ".join(
+                f"{learner.value}: {', '.join(sorted(can)) or 'none'}" for learner, can in LEARNER_CAPABILITIES.items()
+            )
             raise ValueError(
-                f"{self.name}: settings, starts_from_policy and value_reward are A3C's; "
-                f"{self.learner.value} runs have none of them"
+                f"{self.name}: {self.learner.value} runs take no {', '.join(asked)}; what each learner's runs "
+                f"take — {allowed}"
             )
 
     @property
@@ -120,30 +154,36 @@ class Algorithm:
 
     @property
     def trains_by_steps(self) -> bool:
-        """Whether its runs take the budget's environment steps per task (A3C's ``a3c_steps``)."""
-        return self.learner is Learner.A3C
+        """Whether its runs take the budget's environment steps per task (``a3c.steps``: A3C's and
+        PPO's runs, the same budget for both)."""
+        return self.learner in _BY_STEPS
+
+    def run_settings(self, steps: int) -> dict[str, Any]:
+        """The settings (its learner's flat names) its runs of ``steps`` environment steps set beyond
+        the budget's; {} for a learner that takes none."""
+        return dict(self.settings(steps))
 
     def a3c_settings(self, steps: int) -> dict[str, Any]:
         """The A3C settings its runs of ``steps`` environment steps set beyond the budget's."""
         if self.learner is not Learner.A3C:
             raise ValueError(f"{self.name} is not an A3C run (its learner is {self.learner.value})")
-        return dict(self.settings(steps))
+        return self.run_settings(steps)
 
     @property
     def needs_expert_data(self) -> bool:
         """Whether its runs read the expert's dataset (a behaviour-cloning term or demonstration
         starts), so they need the dataset piece; DAgger's data come from the expert it queries."""
-        return self.learner is Learner.A3C and reads_expert_data(self.settings(1))
+        return reads_expert_data(self.run_settings(1))
 
     @property
     def start_curriculum(self) -> bool:
         """Whether its training episodes start elsewhere than the task's own starts: their training
         success is then not the task's, only their evaluations are."""
-        return self.learner is Learner.A3C and self.settings(1).get("start_curriculum", "none") != "none"
+        return self.run_settings(1).get("start_curriculum", "none") != "none"
 
 
 def reads_expert_data(settings: Mapping[str, Any]) -> bool:
-    """Whether A3C settings read an expert dataset (a behaviour-cloning term or demonstration starts)."""
+    """Whether a learner's settings read an expert dataset (a behaviour-cloning term or demonstration starts)."""
     return settings.get("bc_coef", 0.0) > 0 or settings.get("start_curriculum", "none") == "demo"
 
 
@@ -347,3 +387,8 @@ register(
 )
 """A3C with the paper's exact network whatever the budget's levers (no auxiliary heads or privileged
 critic, no augmentation), shown beside the improved one when the levers are on."""
+PPO = register(Algorithm("ppo", "PPO", learner=Learner.PPO))
+"""PPO from random weights, on the same steps per task as A3C."""
+PRETRAIN_PPO = register(Algorithm("pretrain+ppo", "pre-train + PPO", learner=Learner.PPO, starts_from_policy=True))
+"""PPO starting from π^s — the same π^s piece ``pretrain+a3c`` starts from — with PPO's own settings
+(plain fine-tuning: PPO has no fine-tuning terms yet)."""

@@ -1,10 +1,11 @@
 """The report's numbers beyond the paper: whether fine-tuning keeps what π^s knew, read from each A3C
-run's periodic evaluations (``eval.csv``).
+and PPO run's periodic evaluations (``eval.csv``).
 
 Evaluations, not training episodes: they always start from the task's own starts, also in runs with
 a start curriculum (whose training episodes start nearer the goal), and they measure the greedy and
 the sampled policy separately. The first row of a run's ``eval.csv`` is step 0, the policy it
-started from — for a ``pretrain…`` run, π^s itself — and the last row is its final evaluation.
+started from — for a ``pretrain…`` run, π^s itself — and the last row is its final evaluation. A
+PPO run evaluates first after ``eval_every`` steps: it has no step-0 row, so no start or drop.
 
 Per run (:func:`run_metrics`): the final greedy and sampled success; the **dip**, the lowest
 success after step 0 and how far it fell below step 0's (the forgetting the paper reports on STG3
@@ -148,7 +149,7 @@ def beyond_numbers(
     resamples: int = DEFAULT_RESAMPLES,
     rng: np.random.Generator,
 ) -> dict[str, Any]:
-    """The section's numbers: per task (``runs``: task → algorithm → finished runs) and A3C algorithm,
+    """The section's numbers: per task (``runs``: task → algorithm → finished runs) and A3C or PPO algorithm,
     each seed's :func:`run_metrics` and their summaries over seeds (:data:`SUMMARISED` as
     :func:`mean_ci`, ``steps_to_target``); ``planned`` counts the runs planned per (task, algorithm).
     Runs without periodic evaluations of their own (DAgger's) are left out."""

@@ -1,16 +1,23 @@
 """The groups of settings of a reproduction's :class:`~bimgame.experiments.budgets.Budget`: its networks
 (:class:`NetworkBudget`), its A3C runs (:class:`A3CBudget`), its expert dataset (:class:`DatasetBudget`),
-pre-training π^s (:class:`PretrainBudget`) and V̂ (:class:`ValueBudget`), and its DAgger runs
-(:class:`DaggerBudget`).
+pre-training π^s (:class:`PretrainBudget`) and V̂ (:class:`ValueBudget`), its DAgger runs
+(:class:`DaggerBudget`) and its PPO runs (:class:`PPOBudget`).
 
 Each group validates its own fields when it is made, naming the field by its path in the budget
 (``Budget.dataset.episodes must be an integer >= 1, got 0``); what also depends on the grid (every
 task of the grid has A3C steps, the dataset labels every task, pixel shifts only for pixels) is
 checked by the budget. A group's fields are named as the settings they become
 (:mod:`bimgame.experiments.runners`): :class:`~bimgame.learn.common.NetworkSettings`'s,
-:class:`~bimgame.learn.a3c.A3CConfig`'s flat names, :class:`~bimgame.learn.supervised.PretrainConfig`'s
-and :func:`~bimgame.expert.datasets.generate_dataset`'s arguments; DAgger's ``episodes`` and ``epochs``
-are its ``episodes_per_iteration`` and ``epochs_per_iteration``.
+:class:`~bimgame.learn.a3c.A3CConfig`'s and :class:`~bimgame.learn.ppo.PPOConfig`'s flat names,
+:class:`~bimgame.learn.supervised.PretrainConfig`'s and :func:`~bimgame.expert.datasets.generate_dataset`'s
+arguments; DAgger's ``episodes`` and ``epochs`` are its ``episodes_per_iteration`` and ``epochs_per_iteration``.
+
+**One step budget.** A3C's and PPO's runs are compared on the same environment steps per task, the
+same evaluations and the same checkpoints: the ``a3c`` group's ``steps``, ``eval_every``,
+``eval_episodes`` and ``checkpoint_every`` are every such run's, PPO's included. The ``ppo`` group
+holds only what is PPO's own (its environments and its optimisation), so a budget cannot give the
+two learners different budgets, and a ``plan.json`` written before PPO was in the reproduction
+(without a ``ppo`` group) loads with PPO's defaults.
 
 The networks have a group of their own rather than a
 :class:`~bimgame.learn.common.NetworkSettings`: that class holds the observations (a grid setting,
@@ -27,6 +34,7 @@ from typing import Any, ClassVar
 
 from bimgame.learn.augment import MAX_SHIFT
 from bimgame.learn.nets import PRECISIONS
+from bimgame.learn.ppo import PPOConfig, PPOOptimizationSettings
 from bimgame.sim.tasks import Task, parse_task
 from bimgame.util.settings import require_int
 
@@ -37,6 +45,7 @@ __all__ = [
     "PretrainBudget",
     "ValueBudget",
     "DaggerBudget",
+    "PPOBudget",
     "allowed_tasks",
     "task_named",
 ]
@@ -107,7 +116,8 @@ class A3CBudget:
     PATH: ClassVar[str] = "Budget.a3c"
 
     steps: Mapping[str, int] = dataclasses.field(default_factory=lambda: {t.value: 1_000_000 for t in Task})
-    """Environment steps per A3C run, per task (every task of the grid needs an entry)."""
+    """Environment steps per A3C run, per task (every task of the grid needs an entry); PPO's runs take
+    the same (one step budget for every method compared)."""
     workers: int = 2
     """A3C worker processes."""
     envs_per_worker: int = 16
@@ -115,11 +125,11 @@ class A3CBudget:
     augment_shift: int = 0
     """A3C from pixels: DrQ random shifts of up to this many pixels (0: none)."""
     eval_every: int = 100_000
-    """A3C: environment steps between greedy/sampled evaluations (0: only the final one)."""
+    """A3C and PPO: environment steps between greedy/sampled evaluations (0: only the final one)."""
     eval_episodes: int = 10
-    """A3C: episodes per evaluation."""
+    """A3C and PPO: episodes per evaluation."""
     checkpoint_every: int = 50_000
-    """A3C: environment steps between checkpoints (what an interruption can lose)."""
+    """A3C and PPO: environment steps between checkpoints (what an interruption can lose)."""
 
     def __post_init__(self) -> None:
         steps = dict(self.steps)
@@ -220,3 +230,63 @@ class DaggerBudget:
     def __post_init__(self) -> None:
         _require_ints(self.PATH, self, ("iterations", "episodes", "epochs"), 1)
         require_int(self.PATH, "eval_episodes", self.eval_episodes, 0)
+
+
+#: PPO's own defaults, which the ``ppo`` group's fields take (read, never copied).
+_PPO = PPOOptimizationSettings()
+
+
+@dataclasses.dataclass(frozen=True)
+class PPOBudget:
+    """Every PPO run of the grid: its environments and PPO's optimisation settings, PPO's defaults
+    unless a budget changes them. Its steps per task, evaluations and checkpoints are the ``a3c``
+    group's (see the module notes); it runs in one process with the budget's ``torch_threads``."""
+
+    PATH: ClassVar[str] = "Budget.ppo"
+
+    envs_per_worker: int = 16
+    """Environments stepped as one batch in the run's process (A3C's per worker)."""
+    n_steps: int = _PPO.n_steps
+    """Steps each environment acts per rollout."""
+    epochs: int = _PPO.epochs
+    """Passes over each rollout."""
+    minibatches: int = _PPO.minibatches
+    """Minibatches per epoch (at most the rollout's sequences)."""
+    sequence_length: int | None = _PPO.sequence_length
+    """Steps of the sequences a minibatch unrolls the LSTM over (a divisor of ``n_steps``); None: each
+    environment's whole rollout."""
+    clip: float = _PPO.clip
+    """The ratio clip ε of the surrogate objective."""
+    value_clip: float | None = _PPO.value_clip
+    """Clip of the value function's change per rollout; None: none."""
+    gamma: float = _PPO.gamma
+    """Discount."""
+    gae_lambda: float = _PPO.gae_lambda
+    """λ of generalised advantage estimation."""
+    lr: float = _PPO.lr
+    """Adam's learning rate."""
+    optimizer_eps: float = _PPO.optimizer_eps
+    """Adam's epsilon."""
+    entropy_coef: float = _PPO.entropy_coef
+    """Weight of the entropy bonus."""
+    value_coef: float = _PPO.value_coef
+    """Weight of the value loss."""
+    max_grad_norm: float = _PPO.max_grad_norm
+    """Global norm each minibatch's gradient is clipped to."""
+    advantage_norm: bool = _PPO.advantage_norm
+    """Normalise each minibatch's advantages."""
+    aux_coef: float = _PPO.aux_coef
+    """Weight of the auxiliary heads' loss when the networks have them."""
+
+    def __post_init__(self) -> None:
+        require_int(self.PATH, "envs_per_worker", self.envs_per_worker, 1)
+        try:
+            PPOConfig.from_flat(dataclasses.asdict(self))
+        except (ValueError, TypeError) as error:
+            raise ValueError(self._named(str(error))) from None
+
+    def _named(self, message: str) -> str:
+        """A message of PPO's settings with each setting named by its path in the budget."""
+        for owner in ("PPOOptimizationSettings.", "ScheduleSettings.", "PPOConfig.", "PPOConfig: "):
+            message = message.replace(owner, f"{self.PATH}." if owner.endswith(".") else f"{self.PATH}: ")
+        return message

@@ -9,9 +9,11 @@ made, so that a bad value fails before anything runs, naming the field and what 
 
 The grid (tasks, algorithms, seeds, observations) is the budget's own; the pieces' settings come in
 groups (:mod:`bimgame.experiments.budget_groups`): ``network``, ``a3c``, ``dataset``, ``pretrain``,
-``value`` and ``dagger``, each named by its path (``dagger.episodes``) in errors, reports and
-``plan.json``. A ``plan.json`` written when every setting was a field of the budget itself
-(``dagger_episodes``) still loads as the same budget (:data:`FLAT_FIELDS`).
+``value``, ``dagger`` and ``ppo``, each named by its path (``dagger.episodes``) in errors, reports
+and ``plan.json``. A ``plan.json`` written when every setting was a field of the budget itself
+(``dagger_episodes``) still loads as the same budget (:data:`FLAT_FIELDS`); one written before the
+``ppo`` group (PPO was not in the reproduction then) loads with PPO's defaults, which every preset
+keeps, so such a directory continues with its preset.
 
 The compared algorithms are the records of :mod:`bimgame.experiments.algorithms` (each says what it
 is); a budget names them. Why the presets have the sizes they have, and what they measured, is in
@@ -25,12 +27,13 @@ from collections.abc import Mapping
 from typing import Any
 
 from bimgame.envs.observe import OBS_MODES
-from bimgame.experiments.algorithms import LABELS, algorithm_named, algorithm_names, registered
+from bimgame.experiments.algorithms import LABELS, Learner, algorithm_named, algorithm_names, registered
 from bimgame.experiments.budget_groups import (
     A3CBudget,
     DaggerBudget,
     DatasetBudget,
     NetworkBudget,
+    PPOBudget,
     PretrainBudget,
     ValueBudget,
     allowed_tasks,
@@ -55,6 +58,7 @@ __all__ = [
     "PretrainBudget",
     "ValueBudget",
     "DaggerBudget",
+    "PPOBudget",
     "BUDGETS",
     "budget_named",
 ]
@@ -80,6 +84,7 @@ GROUPS: dict[str, type] = {
     "pretrain": PretrainBudget,
     "value": ValueBudget,
     "dagger": DaggerBudget,
+    "ppo": PPOBudget,
 }
 
 #: Where each setting of a flat budget — the ``plan.json`` of a reproduction started before the budget
@@ -131,8 +136,9 @@ class Budget:
     """Tasks of the grid (FULL, STG1 … STG4)."""
     algorithms: tuple[str, ...] = PAPER_ALGORITHMS
     """Methods of the grid, by the names of their records in :mod:`bimgame.experiments.algorithms`:
-    the paper's a3c, pretrain+a3c, a3c+value, pretrain+a3c+value, dagger (the default) and the
-    fine-tuning methods beyond it; kept in the registry's order."""
+    the paper's a3c, pretrain+a3c, a3c+value, pretrain+a3c+value, dagger (the default), the
+    fine-tuning methods beyond it, and ppo and pretrain+ppo (PPO from random weights and from the
+    same π^s); kept in the registry's order."""
     seeds: int = 2
     """Runs per task and algorithm (seeds 0 … seeds−1)."""
     obs: str = "state"
@@ -149,6 +155,8 @@ class Budget:
     """Pre-training V̂."""
     dagger: DaggerBudget = dataclasses.field(default_factory=DaggerBudget)
     """Every DAgger run."""
+    ppo: PPOBudget = dataclasses.field(default_factory=PPOBudget)
+    """Every PPO run's environments and optimisation (its steps, evaluations and checkpoints are ``a3c``'s)."""
     threshold_fraction: float = 0.8
     """Steps-to-threshold: the success rate to reach, as a fraction of the expert's on the task."""
     torch_threads: int = 1
@@ -172,12 +180,20 @@ class Budget:
 
     def _check_across_groups(self) -> None:
         """What the groups cannot check alone: every task of the grid has A3C steps when an algorithm
-        trains by steps, pixel shifts only for pixels, and a dataset that labels every task."""
+        trains by steps, pixel shifts only for pixels and not beside PPO (which has none, so its runs
+        would not be comparable), and a dataset that labels every task."""
         missing = [t for t in self.tasks if t not in self.a3c.steps]
         if missing and any(algorithm_named(a).trains_by_steps for a in self.algorithms):
             raise ValueError(f"Budget.a3c.steps has no entry for {missing}; give steps for every task of the grid")
         if self.a3c.augment_shift and self.obs != "pixels":
             raise ValueError(self.a3c.shift_message())
+        ppo = [a for a in self.algorithms if algorithm_named(a).learner is Learner.PPO]
+        if self.a3c.augment_shift and ppo:
+            raise ValueError(
+                f"Budget.a3c.augment_shift {self.a3c.augment_shift} with {', '.join(ppo)} in the grid: PPO's runs "
+                f"have no random shifts, so they would not be compared with A3C's on equal terms; use "
+                f"augment_shift=0, or leave {', '.join(ppo)} out of Budget.algorithms"
+            )
         spec = MazeSpec.merl()
         data_task = Task(self.dataset.task)
         too_deep = [t for t in self.tasks if Task(t).walls_to_pass(spec) > data_task.walls_to_pass(spec)]
@@ -240,7 +256,7 @@ class Budget:
         return {**self.settings_by_path(), "network.subtract_background": self.network_subtract_background}
 
     def steps_for(self, task: str) -> int:
-        """Environment steps of an A3C run on ``task``."""
+        """Environment steps of an A3C or PPO run on ``task``."""
         return int(self.a3c.steps[parse_task(task).value])
 
     @property

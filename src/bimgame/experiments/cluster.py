@@ -12,7 +12,7 @@ archive that other pieces read is put into the object store once, by the driver,
 the node that computed it.
 
 **Faults.** A task whose node dies, or whose worker process is killed, is retried by Ray on another
-node (``max_retries``). Pieces that can continue from a checkpoint (A3C and DAgger runs,
+node (``max_retries``). Pieces that can continue from a checkpoint (A3C, PPO and DAgger runs,
 :attr:`~bimgame.experiments.kinds.PieceKind.resumable`) ship their directory to the driver's node each
 time they write a new checkpoint (:class:`SnapshotStore`, an actor pinned to the driver's node,
 keeps the latest one per piece in the reproduction's :data:`SNAPSHOTS` directory), so the retried

@@ -31,6 +31,18 @@ class CostModel:
     there, 3,200–4,300 in 1M-step STG1 runs with other work on the machine)."""
     a3c_overhead_s: float = 6.0
     """Per A3C run: starting the worker processes, the final evaluation, the curves figure."""
+    ppo_sps: Mapping[str, float] = dataclasses.field(
+        default_factory=lambda: {"state": 2_500.0, "pixels": 650.0, "pixels-bf16": 750.0}
+    )
+    """PPO environment steps/s in its one process with 16 envs and PPO's defaults (4 epochs of 4
+    minibatches), evaluations apart: a quarter of A3C's with 2 workers (state: 2,400–2,500 in
+    benchmarks/bench_learners.py's 300k-step STG1 runs on the idle machine, where A3C made
+    10,000–11,200; pixels-bf16: 0.30 of the state rate, as measured side by side with one torch thread
+    on a loaded machine, 296 against 1,000 steps/s in short STG1 runs with auxiliary heads; pixels:
+    A3C's float32/bf16 ratio, 0.87, applied to that)."""
+    ppo_overhead_s: float = 4.0
+    """Per PPO run: building the network and environments, the curves figure (its evaluations are
+    counted apart: they stop its training while they run)."""
     expert_episode_s: Mapping[str, float] = dataclasses.field(
         default_factory=lambda: {"FULL": 2.3, "STG1": 0.6, "STG2": 1.0, "STG3": 1.5, "STG4": 2.0}
     )

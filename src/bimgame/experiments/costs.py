@@ -22,7 +22,7 @@ def estimate_seconds(piece: Piece, budget: Budget, costs: CostModel = COSTS) -> 
 def piece_cpus(piece: Piece, budget: Budget) -> int:
     """The CPUs ``piece`` keeps busy, which a cluster reserves for it: an A3C run its workers plus its
     evaluator process (when it evaluates during training); the dataset its expert worker processes;
-    a pre-training or DAgger run its torch threads (the budget's ``torch_threads``)."""
+    a pre-training, DAgger or PPO run its torch threads (the budget's ``torch_threads``)."""
     return kind_of(piece).cpus(piece, budget)
 
 

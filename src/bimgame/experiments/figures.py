@@ -1,6 +1,6 @@
 """The report's figures, drawn from the runs' saved logs: the learning curves of each task (the
 paper's Fig. 2), the lengths of the expert's dataset episodes (Fig. 1b), and beyond the paper the
-periodic evaluations of each task's A3C runs (:func:`plot_eval_curves`).
+periodic evaluations of each task's A3C and PPO runs (:func:`plot_eval_curves`).
 
 Curves are training episodes binned by the step they *started* at, up to where the log holds all
 of them (:attr:`bimgame.experiments.results.RunResults.until`), the task's own reward (also for
@@ -149,7 +149,7 @@ def plot_eval_curves(
     task: str, runs: dict[str, list[RunResults]], path: Path, *, budget: Budget, target: float | None = None
 ) -> Path:
     """Beyond the paper, for ``task``: greedy and sampled evaluation success (``eval.csv``, the task's
-    own starts) against environment steps, one colour per A3C algorithm, a thin line per seed and a
+    own starts) against environment steps, one colour per A3C or PPO algorithm, a thin line per seed and a
     thick line for the mean over seeds (each seed interpolated between its evaluations; the mean
     only where every seed was evaluated); ``target`` as a dashed line. Written to ``path``."""
     fig, axes = subplots(1, len(MODES), figsize=(12, 4.4), sharey=True)

@@ -7,7 +7,7 @@ A reproduction directory ``DIR`` holds one directory per piece::
     data/                             the expert dataset (FULL by default: it labels every task)
     pretrain/<TASK>/policy-seed<k>/   π^s, pre-trained on the dataset relabelled for TASK
     pretrain/<TASK>/value-seed<k>/    V̂, the value-only network used as a shaping potential
-    runs/<TASK>/<algorithm>/seed<k>/  an A3C run (bimgame.learn.a3c) or a DAgger run (bimgame.learn.dagger)
+    runs/<TASK>/<algorithm>/seed<k>/  an A3C, PPO or DAgger run (bimgame.learn.a3c, .ppo, .dagger)
 
 **Pre-training is done per task and per seed**, not once per task: seed k of ``pretrain+a3c``
 starts from a π^s trained with seed k (its own initial weights and held-out split), so the spread
@@ -79,7 +79,7 @@ def value_path(task: str, seed: int) -> str:
 
 
 def run_path(task: str, algorithm: str, seed: int) -> str:
-    """Directory (relative to DIR) of an A3C or DAgger run."""
+    """Directory (relative to DIR) of an A3C, PPO or DAgger run."""
     return f"runs/{task}/{algorithm_slug(algorithm)}/seed{seed}"
 
 

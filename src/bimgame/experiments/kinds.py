@@ -9,10 +9,15 @@ the backends, the cluster, the results, the report — asks the piece's kind (:f
 :attr:`PieceKind.name`.
 
 **Finished.** Decided from a piece's own outputs, never from ``status.json``: a dataset with its
-``COMPLETE`` marker, a pre-training with its ``summary.json`` and checkpoint, an A3C run with a
-``summary.json`` that says it finished its steps (not its checkpoint: one holding all the steps
+``COMPLETE`` marker, a pre-training with its ``summary.json`` and checkpoint, an A3C or PPO run with
+a ``summary.json`` that says it finished its steps (not its checkpoint: one holding all the steps
 without a summary is a run stopped during its final evaluation, which a resume finishes), a DAgger
 run whose ``dagger_state.json`` counts all its iterations.
+
+**A3C and PPO runs** have the same directory (``episodes.csv``, ``eval.csv``, ``summary.json`` with
+its ``final_eval``, ``config.json``) and the same step budget, so they are read back alike
+(:class:`StepsRunKind`); they differ in how they are run and what they cost: A3C's worker processes
+and evaluator against PPO's one process, which also evaluates.
 """
 
 from __future__ import annotations
@@ -28,7 +33,7 @@ from bimgame.experiments.budgets import Budget
 from bimgame.experiments.cost_model import CostModel, compute_rates, eval_seconds
 from bimgame.experiments.grid import DATASET, PRETRAIN_POLICY, PRETRAIN_VALUE, Piece
 from bimgame.experiments.run_logs import RunResults, final_training_success
-from bimgame.experiments.runners import run_a3c, run_dagger, run_dataset, run_pretrain
+from bimgame.experiments.runners import run_a3c, run_dagger, run_dataset, run_ppo, run_pretrain
 from bimgame.experiments.statistics import Crossing, dagger_crossing, run_crossing
 from bimgame.expert.datasets import DatasetError, dataset_summary
 from bimgame.learn.curves import read_table, run_config
@@ -38,10 +43,12 @@ from bimgame.util.files import read_json
 __all__ = [
     "PieceKind",
     "RunKind",
+    "StepsRunKind",
     "DatasetKind",
     "PretrainPolicyKind",
     "PretrainValueKind",
     "A3CRunKind",
+    "PPORunKind",
     "DAggerRunKind",
     "KINDS",
     "kind_of",
@@ -194,13 +201,11 @@ class RunKind(PieceKind):
         """The environment steps the run used."""
 
 
-class A3CRunKind(RunKind):
-    """An A3C run (:func:`bimgame.learn.a3c.train`) of the budget's steps for its task."""
+class StepsRunKind(RunKind):
+    """A run of the budget's environment steps for its task that logs its training episodes and
+    evaluations in A3C's run directory (A3C's and PPO's): when it is finished and what it logged."""
 
-    name, learner, training_episodes = Learner.A3C.value, Learner.A3C, True
-
-    def run(self, piece: Piece, budget: Budget, out_dir: Path) -> str:
-        return run_a3c(piece, budget, out_dir)
+    training_episodes = True
 
     def done(self, piece: Piece, out_dir: Path, budget: Budget) -> bool:
         summary = read_json(out_dir / piece.path / "summary.json")
@@ -209,14 +214,6 @@ class A3CRunKind(RunKind):
             and summary.get("stopped") == "finished"
             and int(summary.get("steps", 0)) >= budget.steps_for(_run_task(piece))
         )
-
-    def seconds(self, piece: Piece, budget: Budget, costs: CostModel) -> float:
-        sps = costs.a3c_sps[compute_rates(budget)] * min(budget.a3c.workers, 2) / 2
-        return costs.a3c_overhead_s + budget.steps_for(piece.task or budget.dataset.task) / sps
-
-    def cpus(self, piece: Piece, budget: Budget) -> int:
-        """Its workers plus its evaluator process (when it evaluates during training)."""
-        return budget.a3c.workers + (1 if budget.a3c.eval_every > 0 else 0)
 
     def results(self, piece: Piece, out_dir: Path) -> RunResults:
         path = out_dir / piece.path
@@ -237,6 +234,46 @@ class A3CRunKind(RunKind):
 
     def env_steps(self, run: RunResults) -> float | None:
         return (run.summary or {}).get("steps")
+
+
+class A3CRunKind(StepsRunKind):
+    """An A3C run (:func:`bimgame.learn.a3c.train`) of the budget's steps for its task."""
+
+    name, learner = Learner.A3C.value, Learner.A3C
+
+    def run(self, piece: Piece, budget: Budget, out_dir: Path) -> str:
+        return run_a3c(piece, budget, out_dir)
+
+    def seconds(self, piece: Piece, budget: Budget, costs: CostModel) -> float:
+        sps = costs.a3c_sps[compute_rates(budget)] * min(budget.a3c.workers, 2) / 2
+        return costs.a3c_overhead_s + budget.steps_for(piece.task or budget.dataset.task) / sps
+
+    def cpus(self, piece: Piece, budget: Budget) -> int:
+        """Its workers plus its evaluator process (when it evaluates during training)."""
+        return budget.a3c.workers + (1 if budget.a3c.eval_every > 0 else 0)
+
+
+class PPORunKind(StepsRunKind):
+    """A PPO run (:func:`bimgame.learn.ppo.train_ppo`) of the budget's steps for its task, in one
+    process: its environments, updates and evaluations on the budget's ``torch_threads``."""
+
+    name, learner = Learner.PPO.value, Learner.PPO
+
+    def run(self, piece: Piece, budget: Budget, out_dir: Path) -> str:
+        return run_ppo(piece, budget, out_dir)
+
+    def seconds(self, piece: Piece, budget: Budget, costs: CostModel) -> float:
+        """Its steps at PPO's own measured speed (one process: more environments batch the same
+        work, they add no CPU), and its evaluations, which stop its training while they run (A3C's
+        evaluator process runs beside its workers instead)."""
+        task, rates = piece.task or budget.dataset.task, compute_rates(budget)
+        steps = budget.steps_for(task)
+        evaluations = 1 + (steps // budget.a3c.eval_every if budget.a3c.eval_every > 0 else 0)
+        return (
+            costs.ppo_overhead_s
+            + steps / costs.ppo_sps[rates]
+            + evaluations * eval_seconds(task, rates, budget.a3c.eval_episodes, costs)
+        )
 
 
 class DAggerRunKind(RunKind):
@@ -286,7 +323,14 @@ class DAggerRunKind(RunKind):
 #: Every piece kind by name: the dataset, the pre-trainings, one run kind per learner.
 KINDS: dict[str, PieceKind] = {
     kind.name: kind
-    for kind in (DatasetKind(), PretrainPolicyKind(), PretrainValueKind(), A3CRunKind(), DAggerRunKind())
+    for kind in (
+        DatasetKind(),
+        PretrainPolicyKind(),
+        PretrainValueKind(),
+        A3CRunKind(),
+        DAggerRunKind(),
+        PPORunKind(),
+    )
 }
 
 

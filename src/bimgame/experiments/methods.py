@@ -1,7 +1,7 @@
-"""The A3C settings that make each algorithm of a reproduction what it is, read from its record in
-:mod:`bimgame.experiments.algorithms`: :func:`finetune_overrides` (with the expert's dataset for
-the algorithms that read it) and what follows from them (:func:`needs_expert_data`,
-:func:`uses_start_curriculum`).
+"""The settings that make each algorithm of a reproduction what it is, read from its record in
+:mod:`bimgame.experiments.algorithms`: :func:`finetune_overrides` for A3C's runs and
+:func:`ppo_overrides` for PPO's (with the expert's dataset for the algorithms that read it), and
+what follows from them (:func:`needs_expert_data`, :func:`uses_start_curriculum`).
 
 Adding an algorithm is one :func:`~bimgame.experiments.algorithms.register` call with its
 :class:`~bimgame.experiments.algorithms.Algorithm` record (name, label, what its runs need, its
@@ -29,6 +29,7 @@ __all__ = [
     "A3C_ALGORITHMS",
     "a3c_algorithms",
     "finetune_overrides",
+    "ppo_overrides",
     "needs_expert_data",
     "uses_start_curriculum",
 ]
@@ -43,14 +44,15 @@ def a3c_algorithms() -> tuple[str, ...]:
 A3C_ALGORITHMS = a3c_algorithms()
 
 
-def _a3c_record(algorithm: str) -> Algorithm:
-    """The record of the A3C algorithm ``algorithm``; a ValueError listing the A3C ones otherwise."""
-    records = {a.name: a for a in registered() if a.learner is Learner.A3C}
+def _learner_record(algorithm: str, learner: Learner) -> Algorithm:
+    """The record of ``algorithm``, run by ``learner``; a ValueError listing that learner's algorithms otherwise."""
+    records = {a.name: a for a in registered() if a.learner is learner}
+    name = learner.name
     if algorithm not in records:
         other = algorithm_named(algorithm) if algorithm in algorithm_names() else None
         raise ValueError(
-            f"unknown A3C algorithm {algorithm!r}; allowed: {', '.join(records)}"
-            + (f" ({other.label} is not an A3C run)" if other is not None else "")
+            f"unknown {name} algorithm {algorithm!r}; allowed: {', '.join(records)}"
+            + (f" ({other.label} is not {'an' if name[0] in 'AEIOU' else 'a'} {name} run)" if other else "")
         )
     return records[algorithm]
 
@@ -59,10 +61,22 @@ def finetune_overrides(algorithm: str, steps: int, data_dir: str | None) -> dict
     """The A3C settings (field → value) that ``algorithm``'s run sets beyond the budget's, for a run
     of ``steps`` environment steps; ``data_dir`` is the reproduction's expert dataset, given as
     ``expert_data`` to the algorithms that read it (a ValueError when they need it and it is None)."""
-    record = _a3c_record(algorithm)
+    return _overrides(_learner_record(algorithm, Learner.A3C), steps, data_dir)
+
+
+def ppo_overrides(algorithm: str, steps: int, data_dir: str | None) -> dict[str, Any]:
+    """The PPO settings (flat name → value) that ``algorithm``'s run sets beyond the budget's ``ppo``
+    group, for a run of ``steps`` environment steps (``data_dir`` as for :func:`finetune_overrides`)."""
+    return _overrides(_learner_record(algorithm, Learner.PPO), steps, data_dir)
+
+
+def _overrides(record: Algorithm, steps: int, data_dir: str | None) -> dict[str, Any]:
+    """The settings ``record``'s runs of ``steps`` steps set, checked: a KL to π^s only from π^s, and
+    the dataset's place for the settings that read it."""
+    algorithm = record.name
     if not (isinstance(steps, int) and steps >= 1):
         raise ValueError(f"steps must be an integer >= 1, got {steps!r}")
-    settings = record.a3c_settings(steps)
+    settings = record.run_settings(steps)
     if settings.get("kl_coef", 0.0) > 0 and not record.starts_from_policy:
         raise ValueError(
             f"{algorithm}: kl_coef > 0 needs the run to start from π^s; allowed only for algorithms "

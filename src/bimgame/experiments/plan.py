@@ -4,7 +4,7 @@ whether a piece is finished.
 
 **Resuming.** Whether a piece is finished is decided from its own outputs (:func:`piece_done`, by
 its kind: :mod:`bimgame.experiments.kinds`), never from ``status.json`` alone. Finished pieces are
-skipped; an unfinished A3C or DAgger run is resumed from its last checkpoint (an A3C run stopped
+skipped; an unfinished A3C, PPO or DAgger run is resumed from its last checkpoint (an A3C run stopped
 in its final evaluation, whose checkpoint holds all its steps, then only evaluates and writes its
 summary), an unfinished dataset from its saved episodes; an unfinished pre-training (not
 resumable, and cheap) is started again. So an interrupted reproduction — Ctrl-C, a crash,

@@ -2,7 +2,7 @@
 
 - a built-in name: ``random`` (uniform actions, seeded per episode), ``noop``, ``geodesic`` (the
   scripted controller), ``expert`` (the default MPC expert on the simulator state);
-- a bimgame run directory or a checkpoint file in one (A3C, pre-trained π^s, DAgger): the network
+- a bimgame run directory or a checkpoint file in one (A3C, PPO, pre-trained π^s, DAgger): the network
   acts greedily (``sampled`` samples, with a generator seeded per episode);
 - a Stable-Baselines3 model file (``.zip``), loaded with SB3 when it is installed;
 - ``module:callable``: a function (or an object with ``reset()``) taking an observation and

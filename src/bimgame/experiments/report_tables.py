@@ -133,7 +133,7 @@ def _threshold_note(task: str, entry: dict[str, Any], threshold_fraction: float)
     return [
         (
             f"Threshold: success rate {entry['threshold']:.2f} = {threshold_fraction:.0%} of "
-            f"the expert's {entry['expert_success']:.0%} on {task}. A3C runs: training episodes by start "
+            f"the expert's {entry['expert_success']:.0%} on {task}. A3C and PPO runs: training episodes by start "
             f"step in bins of {steps_text(entry['curve_bin_steps'])} steps (at least "
             f"{entry['min_episodes_per_bin']} episodes); DAgger: greedy evaluation per iteration. "
             f'"> N": not reached by step N, up to which all its training episodes had ended (censored).'
@@ -292,7 +292,7 @@ def _beyond_introduction(target: float, budget: Budget) -> list[str]:
         "## Beyond the paper: fine-tuning that keeps π^s",
         "",
         (
-            f"From each A3C run's evaluations ({episodes} greedy and {episodes} sampled "
+            f"From each A3C and PPO run's evaluations ({episodes} greedy and {episodes} sampled "
             f"episodes from the task's own starts, {every}; step 0 is the policy the run started from — π^s for "
             f"the pre-trained starts — and the last evaluation the final one). Each cell: every seed's value, then "
             f"the mean over seeds with its 95% percentile-bootstrap interval over seeds (never the best seed). "
@@ -313,7 +313,7 @@ def _beyond_task(task: str, entry: dict[str, Any], target: float) -> list[str]:
     lines = [f"### {task}", ""]
     groups = {a: v for a, v in entry["algorithms"].items() if v["runs"]}
     if not groups:
-        return lines + ["No finished A3C run yet.", ""]
+        return lines + ["No finished A3C or PPO run yet.", ""]
     if "figure" in entry:
         lines += [f"![{task} evaluations]({entry['figure']})", ""]
     lines += [

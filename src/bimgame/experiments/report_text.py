@@ -326,8 +326,8 @@ _METHODS = (
 )
 
 _METHODS_BEYOND = (
-    "Beyond the paper: from each A3C run's periodic evaluations (eval.csv, the task's own starts, also for start-"
-    "curriculum runs), step 0 being the starting policy and the last row the final evaluation; dip = the lowest "
+    "Beyond the paper: from each A3C and PPO run's periodic evaluations (eval.csv, the task's own starts, also for "
+    "start-curriculum runs), step 0 being the starting policy and the last row the final evaluation; dip = the lowest "
     "success after step 0, drop = step 0's success minus the dip (0 when it never fell); steps to 80% = the first "
     "evaluation step with greedy success ≥ 80%, unreached runs counted at their last evaluation (a lower bound). "
     "Means over seeds with a 95% percentile-bootstrap interval over seeds (their own seeded generator)."

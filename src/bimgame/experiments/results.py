@@ -1,5 +1,5 @@
 """The saved results of a reproduction, read back for the report: which pieces are finished, the
-logs of each A3C and DAgger run (``episodes.csv``, ``eval.csv``, ``summary.json``, ``config.json``;
+logs of each A3C, PPO and DAgger run (``episodes.csv``, ``eval.csv``, ``summary.json``, ``config.json``;
 ``dagger.csv``, ``dagger_state.json``), their final success rates, and the expert's success rate per
 task from its dataset. Reading only: nothing here computes a statistic over seeds or writes a file.
 What a run's directory holds is its kind's to read (:meth:`bimgame.experiments.kinds.RunKind.results`;
@@ -52,7 +52,7 @@ def collect_runs(pieces: dict[str, Piece], out_dir: Path, task: str, algorithm: 
 
 
 def final_eval(run: RunResults, algorithm: str, mode: str = "greedy") -> float:
-    """Success rate of a run's last evaluation, acting ``greedy`` or ``sampled``: an A3C run's final
+    """Success rate of a run's last evaluation, acting ``greedy`` or ``sampled``: an A3C or PPO run's final
     evaluation (summary.json, else the last row of eval.csv), DAgger's after its last iteration."""
     key = f"{mode}_success_rate"
     final = run_kind(algorithm_named(algorithm)).final_evaluation(run)

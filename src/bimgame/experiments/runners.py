@@ -1,9 +1,9 @@
 """Running one piece of a reproduction: the settings each piece passes to the library
-(:func:`pretrain_config_for`, :func:`a3c_config_for`, :func:`dagger_config_for`, all derived from
-the budget and the algorithm's record) and one function per kind of work (:func:`run_dataset`,
-:func:`run_pretrain`, :func:`run_a3c`, :func:`run_dagger`) that computes — or continues — a piece
-in its directory and returns a note for ``status.json`` ("resumed from its checkpoint", …). Which
-piece runs which function is :mod:`bimgame.experiments.kinds`.
+(:func:`pretrain_config_for`, :func:`a3c_config_for`, :func:`ppo_config_for`, :func:`dagger_config_for`,
+all derived from the budget and the algorithm's record) and one function per kind of work
+(:func:`run_dataset`, :func:`run_pretrain`, :func:`run_a3c`, :func:`run_ppo`, :func:`run_dagger`)
+that computes — or continues — a piece in its directory and returns a note for ``status.json``
+("resumed from its checkpoint", …). Which piece runs which function is :mod:`bimgame.experiments.kinds`.
 
 A runner raises ``KeyboardInterrupt`` when the piece stopped before it finished (Ctrl-C, SIGTERM),
 so that :func:`bimgame.experiments.reproduce.reproduce` marks it interrupted; any other error marks
@@ -11,8 +11,8 @@ it failed.
 
 **Threads.** Pre-training and DAgger run in this process; the budget's ``torch_threads`` (default
 1: more intra-op threads slowed small networks down on a busy machine, see ``docs/budgets.md``)
-sets their torch threads (:func:`bimgame.learn.runs.torch_threads`); A3C workers always use one
-thread each.
+sets their torch threads (:func:`bimgame.learn.runs.torch_threads`), and those of PPO's runs, which
+step their environments and update in this process; A3C workers always use one thread each.
 """
 
 from __future__ import annotations
@@ -25,11 +25,12 @@ from typing import Any
 from bimgame.experiments.algorithms import A3C, algorithm_named
 from bimgame.experiments.budgets import Budget
 from bimgame.experiments.grid import Piece, policy_path, value_path
-from bimgame.experiments.methods import finetune_overrides
+from bimgame.experiments.methods import finetune_overrides, ppo_overrides
 from bimgame.expert.datasets import generate_dataset
 from bimgame.learn.a3c import A3CConfig, train
 from bimgame.learn.dagger import DAggerConfig, dagger
 from bimgame.learn.learner_settings import FINETUNE_FIELDS
+from bimgame.learn.ppo import PPOConfig, train_ppo
 from bimgame.learn.pretrain import pretrain
 from bimgame.learn.rewards import RewardSettings, env_wrapper_for
 from bimgame.learn.runs import CONFIG, KIND_POLICY, KIND_VALUE, write_run_json
@@ -39,10 +40,12 @@ from bimgame.util.files import read_json
 __all__ = [
     "pretrain_config_for",
     "a3c_config_for",
+    "ppo_config_for",
     "dagger_config_for",
     "run_dataset",
     "run_pretrain",
     "run_a3c",
+    "run_ppo",
     "run_dagger",
 ]
 
@@ -91,6 +94,26 @@ def a3c_config_for(
     run = {**asdict(budget.a3c), "steps": steps}
     settings = {"task": task, "seed": seed, **_network(budget, privileged=True), **run}
     return A3CConfig.from_flat({**settings, **overrides})
+
+
+#: The ``a3c`` group's settings that every run trained by steps takes, PPO's too: one budget of
+#: evaluations and checkpoints for every method compared (its ``steps`` are :meth:`Budget.steps_for`).
+_SHARED_SCHEDULE = ("eval_every", "eval_episodes", "checkpoint_every")
+
+
+def ppo_config_for(
+    budget: Budget, task: str, seed: int, algorithm: str = "ppo", data_dir: str | Path | None = None
+) -> PPOConfig:
+    """The PPO settings of ``algorithm``'s run for a task and seed: the budget's networks (the same as
+    A3C's and π^s's, so that a run can start from π^s), its ``ppo`` group, A3C's steps for ``task``
+    and A3C's evaluations and checkpoints (the same budget as A3C's runs), with the algorithm's own
+    settings (:func:`~bimgame.experiments.methods.ppo_overrides`)."""
+    steps = budget.steps_for(task)
+    overrides = ppo_overrides(algorithm, steps, None if data_dir is None else str(data_dir))
+    schedule = {name: getattr(budget.a3c, name) for name in _SHARED_SCHEDULE}
+    run = {**asdict(budget.ppo), **schedule, "steps": steps}
+    settings = {"task": task, "seed": seed, **_network(budget, privileged=True), **run}
+    return PPOConfig.from_flat({**settings, **overrides})
 
 
 def dagger_config_for(budget: Budget, task: str, seed: int) -> DAggerConfig:
@@ -202,6 +225,24 @@ def _point_at_the_dataset_now(path: Path, stored: dict, config: A3CConfig) -> No
     before = settings.get("expert_data")
     if isinstance(before, str) and before != config.expert_data and Path(before).name == Path(config.expert_data).name:
         write_run_json(path / CONFIG, {**stored, "a3c": {**settings, "expert_data": config.expert_data}})
+
+
+def run_ppo(piece: Piece, budget: Budget, out_dir: Path) -> str:
+    """Train (or continue) a PPO run of the piece's algorithm, from π^s when its record says so (the
+    π^s piece the A3C runs of its task and seed start from)."""
+    path = out_dir / piece.path
+    task, seed = _task_and_seed(piece)
+    if piece.algorithm is None:
+        raise ValueError(f"piece {piece.id!r} names no algorithm")
+    algorithm = algorithm_named(piece.algorithm)
+    config = ppo_config_for(budget, task, seed, piece.algorithm, (out_dir / "data").resolve())
+    resume = (path / CONFIG).is_file()
+    # A resumed run continues from its own checkpoint; only a new one starts from π^s.
+    init = (out_dir / policy_path(task, seed)).resolve() if algorithm.starts_from_policy and not resume else None
+    result = train_ppo(config, path, resume=resume, init=init, progress=False)
+    if result.stopped != "finished":
+        raise KeyboardInterrupt
+    return "resumed from its checkpoint" if resume else ""
 
 
 def run_dagger(piece: Piece, budget: Budget, out_dir: Path) -> str:
