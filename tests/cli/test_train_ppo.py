@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from bimgame.cli.main import main
 from bimgame.learn.ppo import PPOConfig
 
@@ -31,3 +33,18 @@ def test_ppo_refuses_a3c_only_flags_and_reward_shaping_by_name(tmp_path, capsys)
     assert main(["train", "--algo", "ppo", "--run-dir", str(tmp_path / "b"), "--geodesic-reward", *TINY]) == 2
     assert "--geodesic-reward: reward shaping is not supported with --algo ppo yet" in capsys.readouterr().err
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
+def test_ppo_trains_continuous_actions_and_a3c_refuses_them(tmp_path, capsys):
+    run_dir = tmp_path / "run"
+    assert main(["train", "--algo", "ppo", "--action-type", "continuous", "--run-dir", str(run_dir), "--steps", "128",
+                 *TINY]) == 0
+    assert "done: 128 steps" in capsys.readouterr().out
+    stored = PPOConfig.from_dict(json.loads((run_dir / "config.json").read_text())["ppo"])
+    assert stored.network.action_type == "continuous"
+    assert main(["evaluate", str(run_dir), "--episodes", "2"]) == 0
+    assert main(["train", "--run-dir", str(tmp_path / "a3c"), "--action-type", "continuous", *TINY]) == 2
+    assert "A3C supports action_type 'discrete' only; got 'continuous' (use --algo ppo)" in capsys.readouterr().err
+    with pytest.raises(SystemExit):  # argparse refuses it, naming the choices
+        main(["train", "--algo", "ppo", "--run-dir", str(tmp_path / "x"), "--action-type", "box", *TINY])
+    assert "invalid choice: 'box' (choose from 'discrete', 'continuous')" in capsys.readouterr().err

@@ -265,3 +265,53 @@ def test_eval_result_summary_of_nothing_is_nan():
     assert all(math.isnan(summary[k]) for k in ("success_rate", "mean_length", "mean_return"))
     result = EvalResult([True, False, False, True], [10, 300, 300, 30], [1.0, 0.0, 0.0, 1.0])
     assert result.summary() == {"success_rate": 0.5, "mean_length": 160.0, "mean_return": 0.5, "episodes": 4}
+
+
+# ------------------------------------------------------------------------------ continuous actions
+def _continuous_net(seed: int = 0):
+    """A small state-observation network with a Gaussian policy over the 2 tilt changes."""
+    config = NetConfig(encoder="mlp", obs_shape=(7,), features=16, hidden=8, action_type="continuous")
+    return build_network(config, obs_scale=state_obs_scale(SPEC), seed=seed)
+
+
+def test_a_continuous_actor_feeds_back_the_executed_action_and_zeros_at_a_start():
+    net = _continuous_net()
+    actor = RecurrentActor(net, BATCH, generator=torch.Generator().manual_seed(0))
+    assert torch.equal(actor.prev_action, torch.zeros(BATCH, 2)) and actor.starts.all()
+    obs, tilt = _inputs(2)
+    actions, means, values = actor.act(obs[0], tilt[0])
+    assert actions.shape == means.shape == (BATCH, 2) and actions.dtype == torch.float32 and values.shape == (BATCH,)
+    actions = torch.tensor([[0.5, -0.25], [1.7, -3.0], [0.0, 0.1], [-1.2, 0.9]])
+    executed = actor.executed(actions)
+    assert torch.equal(executed, torch.tensor([[0.5, -0.25], [1.0, -1.0], [0.0, 0.1], [-1.0, 0.9]]))
+    actor.observe(actions, np.array([0.0, 1.0, 0.0, 0.5]), np.array([False, False, True, False]))
+    assert torch.equal(actor.prev_action, executed * torch.tensor([[1.0], [1.0], [0.0], [1.0]]))
+    assert actor.starts.tolist() == [False, False, True, False]
+    actor.reset()
+    assert torch.equal(actor.prev_action, torch.zeros(BATCH, 2))
+
+
+def test_continuous_sampling_is_seeded_and_greedy_acting_is_the_mean():
+    net = _continuous_net()
+    first, again = _sampled_actions(net, seed=3), _sampled_actions(net, seed=3)
+    assert first.shape == (30, 8, 2) and torch.equal(first, again)
+    assert not torch.equal(first, _sampled_actions(net, seed=4))
+    # The initial spread: σ = exp(LOG_STD_INIT) around means near 0.
+    assert first.std().item() == pytest.approx(math.exp(-0.5), rel=0.15)
+    assert torch.equal(_sampled_actions(net, seed=1, greedy=True), _sampled_actions(net, seed=2, greedy=True))
+    actor = RecurrentActor(net, BATCH, greedy=True)
+    obs, tilt = _inputs(1)
+    actions, means, _ = actor.act(obs[0], tilt[0])
+    assert torch.equal(actions, means)
+
+
+def test_evaluate_network_steps_a_continuous_env_for_a_continuous_network():
+    net = _continuous_net(seed=1)
+    for greedy in (True, False):
+        result = evaluate_network(net, task="STG1", obs_mode="state", episodes=3, seed=0, greedy=greedy,
+                                  max_episode_steps=25)
+        _check_first_episodes(result, 3, 25)
+    with torch.no_grad():
+        net.policy.bias.fill_(5.0)  # greedy means far outside [-1, 1]: executed clipped, not refused
+    _check_first_episodes(evaluate_network(net, task="STG1", obs_mode="state", episodes=2, seed=0,
+                                           max_episode_steps=10), 2, 10)

@@ -175,9 +175,11 @@ def test_a_config_json_of_the_flat_version_loads_into_the_expected_parts():
     assert config.finetuning == FinetuneSettings(finetune="keep", **KEEP)
     assert config.curriculum is None
     assert config.has_teacher and config.schedules_actor and config.time_limit == 500
-    # Written back, it is the same record; its network is the one the run stored.
-    assert config.to_dict() == stored["a3c"]
-    assert json.loads(json.dumps(network_for(config).config.to_dict())) == stored["net"]
+    # Written back, it is the same record (with the settings added since at their defaults); its network
+    # is the one the run stored.
+    added = {"action_type": "discrete"}
+    assert config.to_dict() == {**stored["a3c"], **added}
+    assert json.loads(json.dumps(network_for(config).config.to_dict())) == {**stored["net"], **added}
 
 
 # ------------------------------------------------------------------------------ each part's checks

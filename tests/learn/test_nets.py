@@ -5,6 +5,7 @@ import pytest
 import torch
 
 from bimgame.learn.nets import NO_ACTION, NetConfig, build_network, state_obs_scale
+from bimgame.learn.policy_heads import LOG_STD_INIT, Categorical, DiagonalGaussian
 from bimgame.sim.maze import MazeSpec
 
 
@@ -239,3 +240,69 @@ def test_bf16_and_fp32_act_alike_on_real_frames():
     assert decisive.sum() > 10
     assert torch.equal(logits32.argmax(-1)[decisive], logits16.argmax(-1)[decisive])
     assert logits16.dtype == torch.float32
+
+
+# ------------------------------------------------------------------------------ continuous actions
+#: A small discrete network with every optional part: its weights' names, shapes and, for seed 11,
+#: sums — as built before continuous actions existed (the same parameters from the same draws, so
+#: that stored checkpoints and seeds keep their meaning).
+_DISCRETE = NetConfig(encoder="mlp", obs_shape=(7,), features=16, hidden=8, privileged_size=7, aux_heads=True,
+                      asymmetric_critic=True)
+_DISCRETE_SHAPES = [("encoder.scale", (7,)), ("encoder.net.0.weight", (16, 7)), ("encoder.net.0.bias", (16,)),
+                    ("encoder.net.2.weight", (16, 16)), ("encoder.net.2.bias", (16,)), ("lstm.weight_ih", (32, 24)),
+                    ("lstm.weight_hh", (32, 8)), ("lstm.bias_ih", (32,)), ("lstm.bias_hh", (32,)),
+                    ("policy.weight", (5, 8)), ("policy.bias", (5,)), ("critic_state.0.weight", (128, 7)),
+                    ("critic_state.0.bias", (128,)), ("critic_state.2.weight", (128, 128)),
+                    ("critic_state.2.bias", (128,)), ("value.weight", (1, 136)), ("value.bias", (1,)),
+                    ("aux_frame.weight", (3, 16)), ("aux_frame.bias", (3,)), ("aux_memory.weight", (7, 8)),
+                    ("aux_memory.bias", (7,))]
+_DISCRETE_SUMS = {"encoder.net.0.weight": 0.898434, "encoder.net.0.bias": 0.927611, "encoder.net.2.weight": -0.550163,
+                  "encoder.net.2.bias": -0.179427, "lstm.weight_ih": -3.502347, "lstm.weight_hh": -1.332567,
+                  "policy.weight": -0.077163, "critic_state.0.weight": 2.720631, "critic_state.0.bias": 1.523801,
+                  "critic_state.2.weight": -5.604327, "critic_state.2.bias": 1.5e-05,
+                  "value.weight": 0.544885, "aux_frame.weight": -0.181156,
+                  "aux_frame.bias": -0.034993, "aux_memory.weight": 0.879648, "aux_memory.bias": -0.172429}
+
+
+def _continuous(**overrides) -> "RecurrentActorCritic":  # noqa: F821
+    config = NetConfig(encoder="mlp", obs_shape=(7,), features=16, hidden=8, action_type="continuous", **overrides)
+    return build_network(config, obs_scale=state_obs_scale(MazeSpec.merl()), seed=1)
+
+
+def test_discrete_networks_keep_their_weights_names_shapes_and_initial_values():
+    net = build_network(_DISCRETE, privileged_scale=state_obs_scale(MazeSpec.merl()), seed=11)
+    assert [(k, tuple(v.shape)) for k, v in net.state_dict().items()] == _DISCRETE_SHAPES
+    assert net.log_std is None and isinstance(net.distribution(torch.zeros(2, 5)), Categorical)
+    sums = {name: float(p.detach().double().sum()) for name, p in net.named_parameters() if p.detach().abs().sum() > 0}
+    assert sums == pytest.approx(_DISCRETE_SUMS, abs=2e-6)
+    # Stored network settings from before action_type are discrete.
+    stored = {k: v for k, v in _DISCRETE.to_dict().items() if k != "action_type"}
+    assert NetConfig.from_dict(stored) == _DISCRETE and _DISCRETE.action_type == "discrete"
+    with pytest.raises(ValueError, match=r"NetConfig\.action_type must be one of \('discrete', 'continuous'\), got 'box'"):
+        NetConfig(action_type="box")
+
+
+def test_a_continuous_network_outputs_gaussian_means_and_a_learned_log_std():
+    net = _continuous()
+    assert net.policy.out_features == 2 and net.lstm.input_size == 16 + 2 + 1 + 2  # previous action: 2 numbers
+    assert net.log_std is not None and torch.equal(net.log_std.detach(), torch.full((2,), LOG_STD_INIT))
+    assert "log_std" in net.state_dict() and any(p is net.log_std for p in net.parameters())
+    g = torch.Generator().manual_seed(0)
+    obs, rewards, tilt = torch.randn(6, 3, 7, generator=g), torch.randn(6, 3, generator=g), torch.zeros(6, 3, 2)
+    prev_action = torch.rand(6, 3, 2, generator=g) * 2 - 1
+    starts = torch.zeros(6, 3, dtype=torch.bool)
+    starts[0] = starts[3, 1] = True
+    prev_action[starts] = 0.0  # an episode's first step: no previous action
+    means_u, values_u, _ = net.unroll(obs, prev_action, rewards, tilt, net.initial_state(3), starts)
+    assert means_u.shape == (6, 3, 2) and values_u.shape == (6, 3)
+    state = net.initial_state(3)
+    for t in range(6):  # stepping computes what unrolling computes
+        keep = (~starts[t]).float().unsqueeze(-1)
+        means, values, state = net.step(obs[t], prev_action[t], rewards[t], tilt[t], (state.h * keep, state.c * keep))
+        torch.testing.assert_close(means, means_u[t], rtol=1e-5, atol=1e-6)
+        torch.testing.assert_close(values, values_u[t], rtol=1e-5, atol=1e-6)
+    policy = net.distribution(means_u)
+    assert isinstance(policy, DiagonalGaussian) and torch.equal(policy.greedy(), means_u)
+    assert means_u.abs().max() < 0.2  # small initial means: exploration comes from the log std
+    with pytest.raises(ValueError, match=r"previous actions of shape \(…, 2\)"):
+        net.step(obs[0], torch.zeros(3, dtype=torch.long), torch.zeros(3), torch.zeros(3, 2), net.initial_state(3))

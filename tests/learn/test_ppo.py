@@ -12,12 +12,14 @@ import torch
 
 from bimgame.envs.vector import BallInMazeVectorEnv
 from bimgame.learn.actor import RecurrentActor
-from bimgame.learn.checkpoints import load_checkpoint
+from bimgame.learn.a3c import A3CConfig
+from bimgame.learn.checkpoints import CheckpointError, load_checkpoint, load_init_weights
 from bimgame.learn.common import load_run_network
 from bimgame.learn.ppo import PPOConfig, PPOOptimizationSettings, ppo_minibatch_loss, ppo_update, train_ppo
 from bimgame.learn.ppo.update import rollout_targets
 from bimgame.learn.rollout import RolloutCollector, sequence_start_states, unroll
 from bimgame.learn.runs import KIND_PPO
+from bimgame.learn.supervised import PretrainConfig
 
 TINY = dict(task="STG1", obs="state", hidden=16, features=16, envs_per_worker=4, n_steps=16, minibatches=2,
             eval_every=0, eval_episodes=2, log_every=64)
@@ -27,7 +29,8 @@ def _segment(config: PPOConfig, seed: int = 0):
     net = config.network.build_policy(config.seed)
     envs = config.schedule.envs_per_worker
     env = BallInMazeVectorEnv(envs, task=config.task, obs_mode=config.network.obs, nthread=1,
-                              max_episode_steps=config.time_limit, autoreset_mode="same_step")
+                              max_episode_steps=config.time_limit, autoreset_mode="same_step",
+                              action_type=config.network.action_type)
     actor = RecurrentActor(net, envs, generator=torch.Generator().manual_seed(seed))
     collector = RolloutCollector(env, env, actor, gamma=config.optimization.gamma,
                                  tilt_input=config.network.tilt_input)
@@ -167,6 +170,77 @@ def test_the_same_seed_gives_the_same_run(tmp_path):
 def test_updates_are_logged_every_log_every_steps(tmp_path):
     train_ppo(PPOConfig.from_flat(TINY, steps=256, log_every=128), tmp_path / "run", progress=False)
     assert [int(r["step"]) for r in _rows(tmp_path / "run" / "updates.csv")] == [128, 256]
+
+
+# ------------------------------------------------------------------------------ continuous actions
+def test_a_continuous_segment_records_unclipped_actions_and_their_log_probabilities():
+    config = PPOConfig.from_flat(TINY, action_type="continuous")
+    net, segment = _segment(config)
+    assert segment.actions.shape == (16, 4, 2) and segment.actions.dtype == torch.float32
+    assert segment.prev_action.shape == (17, 4, 2) and segment.log_probs.shape == (16, 4)
+    assert segment.actions.abs().max() > 1  # σ ≈ 0.6: some samples fall outside [-1, 1] ...
+    assert segment.prev_action.abs().max() <= 1  # ... and are fed back as executed, clipped
+    acted = segment.prev_action[1:][~segment.starts[1:]]
+    assert torch.equal(acted, segment.actions.clamp(-1, 1)[~segment.starts[1:]])
+    assert not segment.prev_action[segment.starts].any()  # zeros at an episode's first step
+    # The recorded log-probabilities are those of the unclipped samples under the acting network.
+    with torch.no_grad():
+        out = unroll(net, segment)
+        expected = net.distribution(out.logits[:-1]).log_prob(segment.actions)
+    torch.testing.assert_close(segment.log_probs, expected, rtol=1e-5, atol=1e-5)
+    # Environments and sequences keep the action dimension.
+    part = segment.envs(torch.tensor([3, 1]))
+    assert part.actions.shape == (16, 2, 2) and torch.equal(part.actions, segment.actions[:, [3, 1]])
+    _, states = sequence_start_states(net, segment, 4)
+    pieces = segment.sequences(4, states)
+    assert pieces.actions.shape == (4, 16, 2) and pieces.prev_action.shape == (5, 16, 2)
+    assert torch.equal(pieces.actions[:, 2 * 4 + 1], segment.actions[8:12, 1])
+
+
+def test_a_continuous_update_moves_the_policy_and_its_spread_and_is_the_same_for_the_same_seed():
+    config = PPOConfig.from_flat(TINY, lr=1e-2, action_type="continuous", sequence_length=8)
+    results = []
+    for _ in range(2):
+        net, segment = _segment(config)
+        optimizer = torch.optim.Adam(net.parameters(), lr=1e-2)
+        before = {name: p.detach().clone() for name, p in net.named_parameters()}
+        parts = ppo_update(net, optimizer, segment, config.optimization, torch.Generator().manual_seed(3))
+        assert parts["applied"] and math.isfinite(parts["policy_loss"]) and parts["approx_kl"] > 0
+        # Entropy of the initial Gaussian: 2 · (½ + ½ log 2π + LOG_STD_INIT) ≈ 1.84, then it moves.
+        assert 1.7 < parts["entropy"] < 2.0
+        after = dict(net.named_parameters())
+        assert not torch.equal(before["log_std"], after["log_std"])
+        assert not torch.equal(before["policy.weight"], after["policy.weight"])
+        results.append(([p.detach().clone() for p in net.parameters()], parts))
+    assert all(torch.equal(a, b) for a, b in zip(results[0][0], results[1][0], strict=True))
+    assert results[0][1] == results[1][1]
+
+
+def test_a_continuous_run_writes_its_directory_and_evaluates(tmp_path):
+    config = PPOConfig.from_flat(TINY, steps=256, action_type="continuous")
+    result = train_ppo(config, tmp_path / "run", progress=False)
+    assert result.stopped == "finished" and result.final_eval is not None
+    assert 0 <= result.final_eval["greedy_success_rate"] <= 1
+    stored = json.loads((tmp_path / "run" / "config.json").read_text())
+    assert stored["ppo"]["action_type"] == "continuous" and stored["net"]["action_type"] == "continuous"
+    net, run, step = load_run_network(tmp_path / "run")  # what bimgame evaluate reads
+    assert step == 256 and run.network.action_type == "continuous" and net.log_std is not None
+    assert "log_std" in load_checkpoint(tmp_path / "run")["model"]
+    # The discrete learners and a discrete network refuse it by name.
+    with pytest.raises(ValueError, match=r"A3C supports action_type 'discrete' only; got 'continuous' \(use --algo ppo\)"):
+        A3CConfig.from_flat(task="STG1", obs="state", action_type="continuous")
+    with pytest.raises(ValueError, match=r"pre-training \(and DAgger\) supports action_type 'discrete' only"):
+        PretrainConfig(obs="state", action_type="continuous")
+    with pytest.raises(CheckpointError, match="one network has continuous actions, the other discrete"):
+        load_init_weights(PPOConfig.from_flat(TINY).network.build_policy(0), tmp_path / "run")
+
+
+def test_the_collector_refuses_an_env_of_the_other_kind_of_action():
+    net = PPOConfig.from_flat(TINY, action_type="continuous").network.build_policy(0)
+    env = BallInMazeVectorEnv(2, task="STG1", obs_mode="state", nthread=1, autoreset_mode="same_step")
+    with pytest.raises(ValueError, match=r"the env takes discrete actions but the network acts with continuous ones"):
+        RolloutCollector(env, env, RecurrentActor(net, 2), gamma=0.99)
+    env.close()
 
 
 def test_ppo_learns_stg1_from_state_far_beyond_a_random_policy(tmp_path):

@@ -32,6 +32,7 @@ from types import UnionType
 from typing import Any
 
 from bimgame.cli.argtypes import TASK_NAMES, non_negative_float, non_negative_int, positive_float, positive_int
+from bimgame.envs.env import ACTION_TYPES
 from bimgame.envs.observe import OBS_MODES
 from bimgame.envs.randomization import RANDOMIZATION_PRESETS
 from bimgame.experiments.budgets import ALGORITHMS
@@ -58,6 +59,7 @@ FIELD_CHOICES: dict[str, tuple[str, ...]] = {
     "task": TASK_NAMES,
     "tasks": TASK_NAMES,
     "obs": OBS_MODES,
+    "action_type": ACTION_TYPES,
     "optimizer": OPTIMIZERS,
     "target": TARGETS,
     "sampling": SAMPLINGS,

@@ -25,6 +25,7 @@ from bimgame.expert.policies import POLICIES, Policy, make_policy
 from bimgame.learn.actor import RecurrentActor, tilt_input
 from bimgame.learn.common import load_run_network
 from bimgame.learn.nets import RecurrentActorCritic
+from bimgame.learn.policy_heads import require_discrete
 from bimgame.sim.maze import MazeSpec
 
 __all__ = ["EpisodePolicy", "load_policy", "builtin_policy", "NetworkPolicy", "CallablePolicy", "SB3Policy"]
@@ -196,6 +197,8 @@ def load_policy(spec: str, *, obs: str, sampled: bool = False) -> EpisodePolicy:
         if path.suffix == ".zip":
             return _load_sb3(path)
         net, run, _ = load_run_network(path)
+        # The benchmark protocol's env takes the paper's discrete actions.
+        require_discrete("the benchmark protocol", run.network.action_type, f"evaluate {spec} with bimgame evaluate")
         if run.network.obs != obs:
             raise ValueError(
                 f"{spec}: the network was trained on {run.network.obs} observations; score it "

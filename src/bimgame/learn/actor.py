@@ -3,7 +3,10 @@
 :class:`RecurrentActor` keeps what the network needs between steps — previous action, previous
 reward, LSTM state — and resets it at episode boundaries. The A3C workers, the evaluator,
 ``bimgame evaluate`` and the learners from trajectories all act through it, so the inputs the
-network sees never differ between training and testing.
+network sees never differ between training and testing. What depends on the network's kind of
+action (discrete or continuous) is its :class:`~bimgame.learn.policy_heads.ActionHead`'s: the
+actor draws from :meth:`~bimgame.learn.nets.RecurrentActorCritic.distribution` and sends the env
+:meth:`RecurrentActor.executed` actions (a Gaussian's samples clipped to [-1, 1]).
 """
 
 from __future__ import annotations
@@ -15,7 +18,7 @@ import numpy as np
 import torch
 
 from bimgame.envs.vector import BallInMazeVectorEnv
-from bimgame.learn.nets import NO_ACTION, LSTMState, RecurrentActorCritic
+from bimgame.learn.nets import LSTMState, RecurrentActorCritic
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.tasks import parse_task
 
@@ -49,7 +52,7 @@ class RecurrentActor:
 
     def reset(self) -> None:
         """Every environment starts a new episode."""
-        self.prev_action = torch.full((self.num_envs,), NO_ACTION, dtype=torch.long)
+        self.prev_action = self.net.action_head.no_action(self.num_envs)
         self.prev_reward = torch.zeros(self.num_envs)
         self.state: LSTMState = self.net.initial_state(self.num_envs)
         self.starts = torch.ones(self.num_envs, dtype=torch.bool)
@@ -60,21 +63,28 @@ class RecurrentActor:
         obs: np.ndarray | torch.Tensor,
         tilt: torch.Tensor | None,
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Actions (B,), logits (B, A) and values (B,) for the current observations; advances the
-        LSTM state."""
+        """Actions (B,) (continuous: (B, 2), before clipping), the policy's output (B, A) (logits, or
+        the Gaussian's means; :meth:`~bimgame.learn.nets.RecurrentActorCritic.distribution`) and
+        values (B,) for the current observations; advances the LSTM state. Greedy: the most likely
+        action (the Gaussian's mean); else a sample, every random number from the actor's generator."""
         obs_t = torch.as_tensor(obs)
-        logits, values, self.state = self.net.step(obs_t, self.prev_action, self.prev_reward, tilt, self.state)
-        if self.greedy:
-            actions = logits.argmax(dim=-1)
-        else:
-            probs = torch.softmax(logits, dim=-1)
-            actions = torch.multinomial(probs, 1, generator=self.generator).squeeze(-1)
-        return actions, logits, values
+        output, values, self.state = self.net.step(obs_t, self.prev_action, self.prev_reward, tilt, self.state)
+        policy = self.net.distribution(output)
+        actions = policy.greedy() if self.greedy else policy.sample(self.generator)
+        return actions, output, values
+
+    def executed(self, actions: torch.Tensor) -> torch.Tensor:
+        """What the env executes of :meth:`act`'s actions: the same discrete actions, or continuous
+        ones clipped to [-1, 1]. Send ``executed(actions).numpy()`` to the env."""
+        return self.net.action_head.executed(actions)
 
     def observe(self, actions: torch.Tensor, rewards: np.ndarray, done: np.ndarray) -> None:
-        """Record the step's actions and rewards; environments whose episode ended start afresh."""
+        """Record the step's actions (as :meth:`act` gave them, or as executed) and rewards;
+        environments whose episode ended start afresh."""
         done_t = torch.as_tensor(done, dtype=torch.bool)
-        self.prev_action = torch.where(done_t, torch.full_like(actions, NO_ACTION), actions)
+        executed = self.executed(actions)
+        ended = done_t.reshape(done_t.shape + (1,) * (executed.dim() - 1))
+        self.prev_action = torch.where(ended, self.net.action_head.no_action(len(done_t)).to(executed.dtype), executed)
         self.prev_reward = torch.where(done_t, torch.zeros(()), torch.as_tensor(rewards, dtype=torch.float32))
         if done_t.any():
             keep = (~done_t).float().unsqueeze(-1)
@@ -132,8 +142,14 @@ def evaluate_network(
     Start positions come from ``seed`` (the same seed gives the same starts, so evaluations along a
     run are comparable); sampled actions draw from a generator seeded with ``seed`` too.
     ``record`` keeps RGB frames of the first environment's episode. ``randomize`` (a
-    :class:`~bimgame.envs.randomization.Randomization`) evaluates on domain-randomised boards."""
-    kwargs: dict[str, Any] = {"task": task, "obs_mode": obs_mode, "randomize": randomize}
+    :class:`~bimgame.envs.randomization.Randomization`) evaluates on domain-randomised boards. The
+    env has the network's kind of action (``net.config.action_type``)."""
+    kwargs: dict[str, Any] = {
+        "task": task,
+        "obs_mode": obs_mode,
+        "randomize": randomize,
+        "action_type": net.config.action_type,
+    }
     if maze is not None:
         kwargs["maze"] = maze
     if record:
@@ -155,7 +171,7 @@ def evaluate_network(
                 assert frames is not None  # render_mode="rgb_array" renders every environment
                 result.frames.append(frames[0])
             actions, _, _ = actor.act(obs, tilt_input(info, max_tilt))
-            obs, reward, terminated, truncated, info = env.step(actions.numpy())
+            obs, reward, terminated, truncated, info = env.step(actor.executed(actions).numpy())
             returns += reward
             lengths += 1
             done = terminated | truncated

@@ -183,8 +183,10 @@ def apply_weights(module: torch.nn.Module, payload: dict[str, Any], source: str 
     mismatched = [k for k in expected if k in weights and weights[k].shape != expected[k].shape]
     if missing or unexpected or mismatched:
         shapes = [(k, tuple(weights[k].shape), tuple(expected[k].shape)) for k in mismatched]
+        # Only a continuous-action network has a log_std: one side is discrete, the other continuous.
+        hint = " (one network has continuous actions, the other discrete)" if "log_std" in missing + unexpected else ""
         raise CheckpointError(
-            f"weights in {source} do not fit this network: missing {missing}, unexpected {unexpected}, "
+            f"weights in {source} do not fit this network{hint}: missing {missing}, unexpected {unexpected}, "
             f"shape mismatch {shapes}"
         )
     module.load_state_dict(weights)

@@ -29,6 +29,7 @@ from bimgame.learn.nets import (
     maze_background,
     state_obs_scale,
 )
+from bimgame.learn.policy_heads import check_action_type
 from bimgame.learn.runs import CONFIG, KIND_A3C, KIND_VALUE, read_run_config
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.tasks import Task, parse_task, task_setting
@@ -99,6 +100,9 @@ class NetworkSettings:
     """Pixels: the encoder's compute, ``fp32`` or ``bf16`` (bfloat16 autocast). None: ``bf16`` for
     pixels on a CPU with native bfloat16 arithmetic (AVX512-BF16 or AMX; ≈ 1.5× faster there),
     else ``fp32``."""
+    action_type: str = "discrete"
+    """The policy's actions: ``discrete`` (the paper's 5: no-op, ±1 tilt step about x or y) or
+    ``continuous`` (a Gaussian over the tilt change about x and y, in [-1, 1] tilt steps; PPO only)."""
 
     def __post_init__(self) -> None:
         owner = type(self).__name__
@@ -125,6 +129,7 @@ class NetworkSettings:
                 raise ValueError(f"{owner}.{name} must be True or False, got {getattr(self, name)!r}")
         if self.precision not in PRECISIONS:
             raise ValueError(f"{owner}.precision must be one of {PRECISIONS}, got {self.precision!r}")
+        check_action_type(owner, self.action_type)
 
     @property
     def privileged(self) -> bool:
@@ -160,6 +165,7 @@ class NetworkSettings:
                 features=features,
                 hidden=hidden,
                 tilt_input=self.tilt_input,
+                action_type=self.action_type,
                 keypoints=self.keypoints,
                 subtract_background=self.subtract_background,
                 precision=precision,
@@ -172,6 +178,7 @@ class NetworkSettings:
             features=features,
             hidden=hidden,
             tilt_input=self.tilt_input,
+            action_type=self.action_type,
             **privileged,
         )
         return net_config, {"obs_scale": scale, **inputs}

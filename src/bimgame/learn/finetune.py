@@ -45,6 +45,7 @@ from bimgame.expert.datasets import iterate_sequences
 from bimgame.expert.episode import Episode, relabel
 from bimgame.learn.learner_settings import FinetuneSettings
 from bimgame.learn.nets import LSTMState, RecurrentActorCritic
+from bimgame.learn.policy_heads import require_discrete
 from bimgame.learn.rollout import Segment
 from bimgame.learn.supervised import padded_batch
 from bimgame.sim.maze import MazeSpec
@@ -109,6 +110,7 @@ class Teacher:
     distribution is the one π^s would have had in the learner's situation."""
 
     def __init__(self, net: RecurrentActorCritic, batch: int, temperature: float = 1.0):
+        require_discrete("the fine-tuning teacher (KL to π^s)", net.config.action_type, "π^s is a discrete policy")
         self.net = net.eval()
         self.temperature = temperature
         for param in self.net.parameters():

@@ -6,6 +6,9 @@ cell that also receives the previous action (one-hot; all zeros at an episode's 
 previous reward and — by default — the board's tilt, then two linear heads, π(a|s) (logits) and
 V(s).
 
+``action_type="continuous"``: π is a diagonal Gaussian over the env's 2 tilt changes (mean from the
+head, a learned ``log_std``), the previous action the executed 2-vector (:mod:`bimgame.learn.policy_heads`).
+
 Why the tilt: an 84×84 frame shows where the marble is but not how the board is tilted, and the
 actions change the tilt by ±1 step. The paper's network must integrate its own past actions in the
 LSTM to know the tilt; a robot reads it from its joint encoders. ``tilt_input=False`` gives the
@@ -48,6 +51,7 @@ from torch import nn
 
 from bimgame.envs.env import NO_ACTION
 from bimgame.learn.encoders import ConvEncoder, MLPEncoder
+from bimgame.learn.policy_heads import LOG_STD_INIT, ActionDistribution, action_head, check_action_type
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.render import MazeRenderer
 from bimgame.util.settings import from_dict
@@ -119,6 +123,9 @@ class NetConfig:
     """Heads that predict the privileged state from the encoder's and the LSTM's features."""
     asymmetric_critic: bool = False
     """The value head also reads the privileged state (training only; not the paper's)."""
+    action_type: str = "discrete"
+    """``discrete`` (``n_actions`` logits, the paper's) or ``continuous`` (a Gaussian over the env's
+    2 tilt changes; see :mod:`bimgame.learn.policy_heads`). Stored settings without it are discrete."""
 
     def __post_init__(self) -> None:
         if self.encoder not in ENCODERS:
@@ -133,6 +140,7 @@ class NetConfig:
         for name in ("features", "hidden", "n_actions"):
             if getattr(self, name) < 1:
                 raise ValueError(f"NetConfig.{name} must be >= 1, got {getattr(self, name)}")
+        check_action_type("NetConfig", self.action_type)
         if self.precision not in PRECISIONS:
             raise ValueError(f"NetConfig.precision must be one of {PRECISIONS}, got {self.precision!r}")
         if self.privileged_size < 0 or (self.privileged_size and (self.privileged_size - 2) % 5):
@@ -171,7 +179,8 @@ class Unrolled(NamedTuple):
     """What :meth:`RecurrentActorCritic.unroll_features` returns for a segment of T steps × B envs."""
 
     logits: torch.Tensor
-    """(T, B, A)"""
+    """(T, B, A) the policy head's output: logits, or a continuous network's Gaussian means (T, B, 2);
+    :meth:`RecurrentActorCritic.distribution` makes π of it."""
     values: torch.Tensor
     """(T, B); NaN for an asymmetric critic given no privileged state."""
     state: LSTMState
@@ -197,7 +206,10 @@ def make_encoder(config: NetConfig) -> ConvEncoder | MLPEncoder:
 
 
 class RecurrentActorCritic(nn.Module):
-    """Encoder → LSTM cell (with previous action, previous reward, tilt) → policy and value heads."""
+    """Encoder → LSTM cell (with previous action, previous reward, tilt) → policy and value heads;
+    a continuous network also has ``log_std``, the Gaussian's learned log standard deviations."""
+
+    log_std: nn.Parameter | None
 
     privileged_scale: torch.Tensor
     """(P,) divisors that bring the privileged state to order 1."""
@@ -208,9 +220,14 @@ class RecurrentActorCritic(nn.Module):
         super().__init__()
         self.config = config
         self.encoder = make_encoder(config)
-        self.side_size = config.n_actions + 1 + (2 if config.tilt_input else 0)
+        self.action_head = action_head(config.action_type, config.n_actions)
+        self.side_size = self.action_head.input_size + 1 + (2 if config.tilt_input else 0)
         self.lstm = nn.LSTMCell(config.features + self.side_size, config.hidden)
-        self.policy = nn.Linear(config.hidden, config.n_actions)
+        self.policy = nn.Linear(config.hidden, self.action_head.output_size)
+        # No random draw: a discrete network's initial weights are what they were before log_std existed.
+        self.log_std = None
+        if config.action_type == "continuous":
+            self.log_std = nn.Parameter(torch.full((self.action_head.output_size,), LOG_STD_INIT))
         # Divisors that bring the privileged state to order 1 (set by build_network).
         self.register_buffer("privileged_scale", torch.ones(config.privileged_size), persistent=False)
         critic_inputs = config.hidden
@@ -245,17 +262,19 @@ class RecurrentActorCritic(nn.Module):
     def side_inputs(
         self, prev_action: torch.Tensor, prev_reward: torch.Tensor, tilt: torch.Tensor | None
     ) -> torch.Tensor:
-        """(…,) previous actions (NO_ACTION allowed), (…,) previous rewards, (…, 2) tilts in units of
-        the maximum tilt → (…, side_size)."""
-        valid = prev_action >= 0
-        one_hot = nn.functional.one_hot(prev_action.long().clamp(min=0), self.config.n_actions)
-        one_hot = one_hot * valid.unsqueeze(-1)
-        parts = [one_hot.float(), prev_reward.float().unsqueeze(-1)]
+        """(…,) previous actions (NO_ACTION allowed; a continuous network's: (…, 2), zeros at an
+        episode's first step), (…,) previous rewards, (…, 2) tilts in units of the maximum tilt →
+        (…, side_size)."""
+        parts = [self.action_head.encode(prev_action), prev_reward.float().unsqueeze(-1)]
         if self.config.tilt_input:
             if tilt is None:
                 raise ValueError("this network takes the board tilt as input (tilt_input=True); pass tilt")
             parts.append(tilt.float())
         return torch.cat(parts, dim=-1)
+
+    def distribution(self, output: torch.Tensor) -> ActionDistribution:
+        """π(·|s) from the policy head's output (…, A) (:meth:`step`'s, or :attr:`Unrolled.logits`)."""
+        return self.action_head.distribution(output, self.log_std)
 
     def critic_parameters(self) -> list[nn.Parameter]:
         """The weights only the value estimate uses: the value head and an asymmetric critic's state MLP."""
@@ -282,7 +301,8 @@ class RecurrentActorCritic(nn.Module):
         *,
         privileged: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor, LSTMState]:
-        """One time step for B environments → logits (B, A), values (B,), next state.
+        """One time step for B environments → the policy's output (B, A) (logits; :meth:`distribution`),
+        values (B,), next state.
         ``privileged`` (B, P): the state observation an asymmetric critic reads."""
         x = torch.cat([self.encoder(obs), self.side_inputs(prev_action, prev_reward, tilt)], dim=-1)
         h, c = self.lstm(x, state)
@@ -299,7 +319,7 @@ class RecurrentActorCritic(nn.Module):
         *,
         privileged: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor, LSTMState]:
-        """A segment of T steps for B environments → logits (T, B, A), values (T, B), final state.
+        """A segment of T steps for B environments → the policy's output (T, B, A), values (T, B), final state.
 
         ``starts`` (T, B) marks the first step of an episode: the LSTM state is zeroed there (the
         previous action and reward inputs should then be NO_ACTION and 0). ``privileged`` (T, B, P):

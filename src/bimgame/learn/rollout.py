@@ -54,7 +54,8 @@ class Segment:
     obs: torch.Tensor
     """(T+1, B, …) observations (uint8 frames or float32 state vectors)."""
     prev_action: torch.Tensor
-    """(T+1, B) the action before each step (NO_ACTION at an episode's first step)."""
+    """(T+1, B) the action before each step (NO_ACTION at an episode's first step); a continuous
+    network's (T+1, B, 2), the executed (clipped) action, zeros at an episode's first step."""
     prev_reward: torch.Tensor
     """(T+1, B) the reward before each step (0 at an episode's first step)."""
     tilt: torch.Tensor | None
@@ -62,7 +63,8 @@ class Segment:
     starts: torch.Tensor
     """(T+1, B) bool: the step is an episode's first (the LSTM state is zeroed there)."""
     actions: torch.Tensor
-    """(T, B) the actions taken."""
+    """(T, B) the actions taken; continuous: (T, B, 2) float, the policy's samples before the env's
+    clipping to [-1, 1] (what their log-probabilities are of)."""
     rewards: torch.Tensor
     """(T, B) float32 rewards, with γ·V(final observation) already added at time-limit truncations."""
     ends: torch.Tensor
@@ -181,11 +183,19 @@ def sequence_start_states(net: RecurrentActorCritic, segment: Segment, length: i
 
 
 def training_env(
-    num_envs: int, *, task: str, obs: str, time_limit: int, privileged: bool, **options: Any
+    num_envs: int,
+    *,
+    task: str,
+    obs: str,
+    time_limit: int,
+    privileged: bool,
+    action_type: str = "discrete",
+    **options: Any,
 ) -> BallInMazeVectorEnv:
     """The batched env a learner's :class:`RolloutCollector` steps: one MuJoCo thread per process
     (the learners' processes share the cores), and same-step autoreset, whose ``final_obs`` the
-    collector's time-limit bootstrap reads. ``options`` go to the env (a start sampler, randomisation)."""
+    collector's time-limit bootstrap reads; its actions are the network's ``action_type``.
+    ``options`` go to the env (a start sampler, randomisation)."""
     return BallInMazeVectorEnv(
         num_envs,
         task=task,
@@ -194,6 +204,7 @@ def training_env(
         max_episode_steps=time_limit,
         autoreset_mode="same_step",
         state_info=privileged,
+        action_type=action_type,
         **options,
     )
 
@@ -252,6 +263,17 @@ class FinishedEpisode:
         }
 
 
+def _check_action_type(env: Any, net: RecurrentActorCritic) -> None:
+    """Refuse an env whose actions are not the network's kind (``training_env(action_type=...)``)."""
+    template = getattr(env, "template", None)  # a BallInMazeVectorEnv's single env
+    env_type, net_type = getattr(template, "action_type", None), net.config.action_type
+    if env_type is not None and env_type != net_type:
+        raise ValueError(
+            f"the env takes {env_type} actions but the network acts with {net_type} ones; "
+            f"build the env with action_type={net_type!r} (training_env(..., action_type=...))"
+        )
+
+
 class NonFiniteReward(ValueError):
     """The env returned a NaN or infinite reward: the segment cannot be learned from."""
 
@@ -292,6 +314,7 @@ class RolloutCollector:
         global_step: Callable[[], int] = lambda: 0,
     ):
         self.env, self.base_env, self.actor = env, base_env, actor
+        _check_action_type(base_env, actor.net)
         self.gamma = gamma
         self.keeps_tilt, self.privileged = tilt_input, privileged
         self.curriculum = curriculum
@@ -309,9 +332,11 @@ class RolloutCollector:
         self.obs, self.info = self.env.reset(seed=seed)
         self.episode_start[:] = step
 
+    @torch.no_grad()
     def collect(self, n_steps: int, step_at_start: int) -> Segment:
-        """Act for ``n_steps`` steps and return them as a segment. Raises :class:`NonFiniteReward`
-        (after booking the episodes that ended before it) when the env returns a non-finite reward."""
+        """Act for ``n_steps`` steps and return them as a segment (no gradients: a learner unrolls the
+        network over it again). Raises :class:`NonFiniteReward` (after booking the episodes that ended
+        before it) when the env returns a non-finite reward."""
         actor = self.actor
         initial_state = actor.state
         columns: dict[str, list[torch.Tensor]] = {
@@ -333,8 +358,8 @@ class RolloutCollector:
         for _ in range(n_steps):
             obs = torch.as_tensor(self.obs)
             self._record_inputs(columns, obs, tilt)
-            actions, logits, values = actor.act(obs, tilt)
-            columns["log_probs"].append(torch.log_softmax(logits, dim=-1).gather(-1, actions.unsqueeze(-1)).squeeze(-1))
+            actions, output, values = actor.act(obs, tilt)
+            columns["log_probs"].append(actor.net.distribution(output).log_prob(actions))
             columns["values"].append(values)
             rewards = self._step(actions, step_at_start)
             columns["actions"].append(actions)
@@ -377,7 +402,7 @@ class RolloutCollector:
         """Step the env with ``actions``, book the episodes that ended; returns the rewards to learn from."""
         start_tags = self.base_env.start_tags.copy() if self.curriculum is not None else None
         # (the step resets finished envs and their tags: read them before)
-        self.obs, reward, terminated, truncated, self.info = self.env.step(actions.numpy())
+        self.obs, reward, terminated, truncated, self.info = self.env.step(self.actor.executed(actions).numpy())
         reward = np.asarray(reward, dtype=np.float64)
         if not np.all(np.isfinite(reward)):
             raise NonFiniteReward(int(self.global_step()), reward)
@@ -422,7 +447,7 @@ class RolloutCollector:
         with torch.no_grad():
             _, values, _ = self.actor.net.step(
                 torch.as_tensor(self.info["final_obs"]),
-                actions,
+                self.actor.executed(actions),
                 torch.as_tensor(reward, dtype=torch.float32),
                 final_tilt,
                 self.actor.state,

@@ -27,6 +27,7 @@ from bimgame.envs.env import NO_ACTION
 from bimgame.expert.episode import Episode
 from bimgame.learn.common import NetworkSettings, check_seed
 from bimgame.learn.nets import RecurrentActorCritic
+from bimgame.learn.policy_heads import require_discrete
 from bimgame.sim.tasks import Task, task_setting
 from bimgame.util.settings import require_int
 
@@ -90,6 +91,11 @@ class PretrainConfig(NetworkSettings):
     def __post_init__(self) -> None:
         super().__post_init__()
         object.__setattr__(self, "task", task_setting("PretrainConfig", self.task))
+        require_discrete(
+            "pre-training (and DAgger)",
+            self.action_type,
+            "the expert's actions are discrete; continuous actions train with bimgame train --algo ppo",
+        )
         if self.target not in TARGETS:
             raise ValueError(f"PretrainConfig.target must be one of {TARGETS}, got {self.target!r}")
         for name in ("epochs", "patience", "batch_episodes", "batch_frames", "bptt"):

@@ -17,6 +17,7 @@ import torch
 from bimgame.envs.observe import Observer
 from bimgame.learn.actor import RecurrentActor, tilt_input
 from bimgame.learn.common import RunInfo, load_run_network
+from bimgame.learn.policy_heads import require_discrete
 from bimgame.sim.layout import StateLayout
 from bimgame.sim.maze import MazeSpec
 
@@ -31,6 +32,8 @@ class AgentPlayer:
 
     def __init__(self, source: str | Path, maze: MazeSpec, layout: StateLayout, *, greedy: bool = True, seed: int = 0):
         net, run, _ = load_run_network(source)
+        # A person plays the same game with the keyboard's discrete actions, and the agent is told them.
+        require_discrete("bimgame play", net.config.action_type, f"evaluate {run.run_dir} with bimgame evaluate")
         net.eval()
         self.run: RunInfo = run
         self.obs_mode = run.network.obs

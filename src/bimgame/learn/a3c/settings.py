@@ -19,6 +19,7 @@ from bimgame.learn.learner_settings import (
     check_choice,
     check_number,
 )
+from bimgame.learn.policy_heads import require_discrete
 from bimgame.util.settings import require_int
 
 __all__ = ["Optimizer", "OPTIMIZERS", "OptimizationSettings", "A3CConfig"]
@@ -138,6 +139,8 @@ class A3CConfig(LearnerSettings):
         super().__post_init__()
         if self.finetuning is not None and self.finetuning.changes_nothing:
             object.__setattr__(self, "finetuning", None)
+        # A3C's loss, fine-tuning terms and teacher are those of a categorical policy.
+        require_discrete("A3C", self.network.action_type, "use --algo ppo")
         self._check_expert_data()
         self._check_pixel_settings()
 

@@ -10,12 +10,17 @@ minibatches, each a set of whole environment sequences over which the LSTM is un
 the rollout's initial state (masked at episode starts), minimise the clipped surrogate, the value
 loss (optionally clipped) and minus the entropy bonus, with Adam.
 
+Actions are the paper's discrete ones or, with ``action_type="continuous"`` (``--action-type
+continuous``), the env's continuous tilt changes under a diagonal Gaussian policy
+(:mod:`bimgame.learn.policy_heads`): the loss takes log-probabilities and entropy from the network's
+action distribution, whichever it is.
+
 Modules: :mod:`~bimgame.learn.ppo.settings` (:class:`PPOConfig` and its optimisation part),
 :mod:`~bimgame.learn.ppo.update` (the loss and the update of one rollout) and
 :mod:`~bimgame.learn.ppo.training` (:func:`train_ppo`: the run directory, logs, checkpoints, resume).
 
-Not yet: environments stepped in worker processes, a GPU device, continuous actions, and the
-fine-tuning terms and start curricula A3C has (``--init`` does start from π^s).
+Not yet: environments stepped in worker processes, a GPU device, and the fine-tuning terms and start
+curricula A3C has (``--init`` does start from π^s).
 """
 
 from bimgame.learn.ppo.settings import PPOConfig, PPOOptimizationSettings

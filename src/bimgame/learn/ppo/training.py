@@ -163,6 +163,7 @@ class _Session:
             obs=config.network.obs,
             time_limit=config.time_limit,
             privileged=config.network.privileged,
+            action_type=config.network.action_type,
         )
         actor = RecurrentActor(self.net, envs, generator=torch.Generator().manual_seed(act_seed))
         return RolloutCollector(

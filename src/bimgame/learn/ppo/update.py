@@ -70,11 +70,12 @@ def ppo_minibatch_loss(
 ) -> tuple[torch.Tensor, dict[str, float]]:
     """The PPO loss of one minibatch (``segment`` and ``targets`` of the same environments): the
     clipped surrogate, the (optionally clipped) value loss, the entropy bonus and, for a network with
-    auxiliary heads, their loss."""
+    auxiliary heads, their loss. Log-probabilities and entropy are those of the network's action
+    distribution (categorical or Gaussian: :meth:`~bimgame.learn.nets.RecurrentActorCritic.distribution`)."""
     out = unroll(net, segment)
-    log_probs = torch.log_softmax(out.logits[:-1], dim=-1)
-    chosen = log_probs.gather(-1, segment.actions.unsqueeze(-1)).squeeze(-1)
-    entropy = -(log_probs.exp() * log_probs).sum(-1).mean()
+    policy = net.distribution(out.logits[:-1])
+    chosen = policy.log_prob(segment.actions)
+    entropy = policy.entropy().mean()
     log_ratio = chosen - targets.log_probs
     ratio = log_ratio.exp()
     advantages = targets.advantages
