@@ -44,8 +44,7 @@ def test_settings_compose_the_shared_parts_and_refuse_what_ppo_cannot_do():
     assert config.schedule.workers == 1 and config.network.hidden == 16
     assert PPOConfig.from_dict(config.to_dict()) == config
     assert config.steps_per_rollout == 4 * 16
-    with pytest.raises(ValueError, match="workers must be 1"):
-        PPOConfig.from_flat(TINY, workers=2)
+    assert PPOConfig.from_flat(TINY, workers=2).steps_per_rollout == 2 * 4 * 16  # every rank's environments
     with pytest.raises(ValueError, match=r"PPOConfig\.minibatches must be at most the sequences of a rollout \(4:"):
         PPOConfig.from_flat(TINY, minibatches=5)
     assert PPOConfig.from_flat(TINY, minibatches=16, sequence_length=4).sequences_per_rollout == 16

@@ -109,7 +109,7 @@ class RunLayout:
 _A3C_FILES = (CONFIG, CHECKPOINT, SUMMARY, TEACHER, "curves.png")
 _DAGGER_FILES = (CONFIG, CHECKPOINT, DAGGER_STATE, "data")
 _PRETRAINING_FILES = (CONFIG, CHECKPOINT, SUMMARY)
-_PPO_FILES = (CONFIG, CHECKPOINT, SUMMARY, "curves.png")
+_PPO_FILES = (CONFIG, CHECKPOINT, SUMMARY, "curves.png", TEACHER)
 
 #: The layout of every kind of run, by kind.
 LAYOUTS: dict[str, RunLayout] = {

@@ -14,7 +14,7 @@ from bimgame.learn.common import LearnerSettings, NetworkSettings
 from bimgame.learn.learner_settings import ScheduleSettings, check_at_most, check_number
 from bimgame.util.settings import require_int
 
-__all__ = ["PPOOptimizationSettings", "PPOConfig"]
+__all__ = ["PPOOptimizationSettings", "PPOFinetuneSettings", "PPOConfig"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -80,6 +80,35 @@ class PPOOptimizationSettings:
             raise ValueError(f"{owner}.advantage_norm must be True or False, got {self.advantage_norm!r}")
 
 
+@dataclasses.dataclass(frozen=True)
+class PPOFinetuneSettings:
+    """Keeping a pre-trained π^s while PPO fine-tunes it: kickstarting's KL(π^s ‖ π) on the learner's
+    own rollouts (Schmitt et al. 2018), the term of A3C's ``keep`` preset that PPO takes. The same
+    flat names as A3C's fine-tuning settings; PPO has its own part because A3C's also holds
+    ``advantage_norm`` (a running RMS), a name PPO's optimisation already uses for its per-minibatch
+    normalisation. The teacher and the KL are A3C's (:class:`~bimgame.learn.loss_terms.TeacherKL`)."""
+
+    kl_coef: float = 0.0
+    """Initial weight of KL(π^s ‖ π); π^s is the network the run started from (``--init``)."""
+    kl_decay_steps: int = 0
+    """Steps over which the KL weight decays linearly to zero (0: it stays constant)."""
+    kl_temperature: float = 1.0
+    """Temperature of the teacher's distribution: 1 is π^s itself, below 1 a sharper π^s."""
+
+    def __post_init__(self) -> None:
+        owner = type(self).__name__
+        check_number(owner, "kl_coef", self.kl_coef, 0.0, math.inf)
+        require_int(owner, "kl_decay_steps", self.kl_decay_steps, 0)
+        check_number(owner, "kl_temperature", self.kl_temperature, 0.0, math.inf, low_open=True)
+
+    def kl_weight(self, step: int) -> float:
+        """The KL weight at the run's ``step``: ``kl_coef``, decayed linearly to zero over
+        ``kl_decay_steps`` when that is positive."""
+        if self.kl_decay_steps <= 0:
+            return self.kl_coef
+        return self.kl_coef * max(0.0, 1.0 - step / self.kl_decay_steps)
+
+
 def _single_process_schedule() -> ScheduleSettings:
     """PPO's schedule unless told otherwise: one process (its environments are stepped in the learner's)."""
     return ScheduleSettings(workers=1)
@@ -96,14 +125,18 @@ class PPOConfig(LearnerSettings):
     optimization: PPOOptimizationSettings = dataclasses.field(default_factory=PPOOptimizationSettings)
     """Rollouts, the clipped objective and Adam."""
     schedule: ScheduleSettings = dataclasses.field(default_factory=_single_process_schedule)
-    """Steps and environments; checkpoints, evaluations and logs. PPO steps its environments in the
-    learner's process: ``workers`` must be 1 (``envs_per_worker`` sets how many environments)."""
+    """Steps and environments; checkpoints, evaluations and logs. ``workers`` processes (ranks), each
+    stepping ``envs_per_worker`` environments, their gradients averaged (:mod:`bimgame.learn.ppo.parallel`)."""
+    finetuning: PPOFinetuneSettings | None = None
+    """The KL to π^s while fine-tuning from ``--init``; None: no term (also with ``--init``)."""
 
     PARTS: ClassVar[dict[str, type]] = {
         "network": NetworkSettings,
         "optimization": PPOOptimizationSettings,
         "schedule": ScheduleSettings,
+        "finetuning": PPOFinetuneSettings,
     }
+    OPTIONAL_PARTS: ClassVar[frozenset[str]] = frozenset({"finetuning"})
     SETTINGS_NAME: ClassVar[str] = "PPO settings"
     # What a resumed run may change without changing what is being learned.
     RESUMABLE_CHANGES: ClassVar[tuple[str, ...]] = (
@@ -117,11 +150,6 @@ class PPOConfig(LearnerSettings):
     def __post_init__(self) -> None:
         super().__post_init__()
         owner = type(self).__name__
-        if self.schedule.workers != 1:
-            raise ValueError(
-                f"{owner}: workers must be 1 (PPO steps its environments in the learner's process; "
-                f"envs_per_worker sets how many), got {self.schedule.workers!r}"
-            )
         if self.optimization.minibatches > self.sequences_per_rollout:
             raise ValueError(
                 f"{owner}.minibatches must be at most the sequences of a rollout ({self.sequences_per_rollout}: "
@@ -130,8 +158,14 @@ class PPOConfig(LearnerSettings):
             )
 
     @property
+    def has_teacher(self) -> bool:
+        """Whether the run keeps π^s (the weights it started from) for a KL term."""
+        return self.finetuning is not None and self.finetuning.kl_coef > 0
+
+    @property
     def steps_per_rollout(self) -> int:
-        return self.optimization.n_steps * self.schedule.envs_per_worker
+        """Environment steps of one rollout, every rank's together."""
+        return self.optimization.n_steps * self.schedule.envs_per_worker * self.schedule.workers
 
     @property
     def sequences_per_rollout(self) -> int:

@@ -10,26 +10,27 @@ A resumed run continues from its checkpoint (weights, Adam's statistics, steps) 
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import time
+from contextlib import nullcontext
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
 
-from bimgame.learn.actor import RecurrentActor
 from bimgame.learn.checkpoints import apply_weights, load_checkpoint, load_init_weights, save_checkpoint
 from bimgame.learn.common import EVAL_COLUMNS, init_network_settings, run_evaluation
 from bimgame.learn.curves import plot_run
 from bimgame.learn.episode_monitor import Monitor
 from bimgame.learn.metric_logs import MetricLog
 from bimgame.learn.nets import RecurrentActorCritic
+from bimgame.learn.ppo.learner import RankLearner, adam
+from bimgame.learn.ppo.parallel import WorkerGroup
 from bimgame.learn.ppo.settings import PPOConfig
-from bimgame.learn.ppo.update import ppo_update
-from bimgame.learn.rollout import FinishedEpisode, NonFiniteReward, RolloutCollector, training_env
-from bimgame.learn.run_dir import RunDirectory, TrainingError, TrainResult, stored_run_config
+from bimgame.learn.rollout import FinishedEpisode
+from bimgame.learn.run_dir import TEACHER, RunDirectory, TrainResult, stored_run_config
 from bimgame.learn.runs import CHECKPOINT, KIND_PPO, torch_threads
 from bimgame.util.progress import ProgressBar
 from bimgame.util.signals import sigterm_as_interrupt
@@ -48,6 +49,7 @@ TABLES = {
         "approx_kl",
         "clip_fraction",
         "grad_norm",
+        "kl",
         "recent_success",
         "recent_return",
         "recent_length",
@@ -88,19 +90,36 @@ def train_ppo(
     is kept)."""
     if resume and init is not None:
         raise ValueError("--init with --resume: a resumed run continues from its own checkpoint")
-    with torch_threads(), RunDirectory(run_dir, KIND_PPO, resume=resume) as run:
+    # With worker processes every rank has one core's share: one thread each.
+    threads = 1 if config.schedule.workers > 1 else None
+    with torch_threads(threads), RunDirectory(run_dir, KIND_PPO, resume=resume) as run:
         net = config.network.build_policy(config.seed)
-        optimizer = torch.optim.Adam(net.parameters(), lr=config.optimization.lr, eps=config.optimization.optimizer_eps)
-        step, seconds = _resumed(config, run, net, optimizer) if resume else _started(config, run, net, init)
-        result = _Session(config, run, net, optimizer, step, seconds).run(progress)
-        return result
+        optimizer = adam(net, config)
+        start = _resumed(config, run, net, optimizer) if resume else _started(config, run, net, init)
+        return _Session(config, run, net, optimizer, start).run(progress)
 
 
-def _started(
-    config: PPOConfig, run: RunDirectory, net: RecurrentActorCritic, init: str | Path | None
-) -> tuple[int, float]:
-    """A new run: ``net`` from ``init`` (if given); its settings and step-0 checkpoint written first."""
+@dataclasses.dataclass(frozen=True)
+class _Start:
+    """Where a session starts: the run's step and seconds so far, and π^s's weights for a KL term."""
+
+    step: int
+    seconds: float
+    teacher: dict[str, torch.Tensor] | None = None
+
+
+def _started(config: PPOConfig, run: RunDirectory, net: RecurrentActorCritic, init: str | Path | None) -> _Start:
+    """A new run: ``net`` from ``init`` (if given), π^s kept for a KL term (``teacher.pt``); its
+    settings and step-0 checkpoint written first."""
+    if config.has_teacher and init is None:
+        raise ValueError(
+            "PPOFinetuneSettings.kl_coef > 0 (kickstarting) needs a pre-trained policy to stay close to: "
+            "pass --init (or set kl_coef to 0)"
+        )
     load_init_weights(net, init)
+    teacher = {k: v.detach().clone() for k, v in net.state_dict().items()} if config.has_teacher else None
+    if teacher is not None:
+        save_checkpoint(run / TEACHER, model=teacher, step=0, source=str(init))
     run.write_config(
         {
             "task": config.task,
@@ -113,19 +132,20 @@ def _started(
         }
     )
     save_checkpoint(run / CHECKPOINT, model=net.state_dict(), step=0, seconds=0.0, config=json.dumps(config.to_dict()))
-    return 0, 0.0
+    return _Start(0, 0.0, teacher)
 
 
 def _resumed(
     config: PPOConfig, run: RunDirectory, net: RecurrentActorCritic, optimizer: torch.optim.Optimizer
-) -> tuple[int, float]:
-    """A resumed run: its checkpoint's weights and Adam's statistics; refuses other settings."""
+) -> _Start:
+    """A resumed run: its checkpoint's weights, Adam's statistics and its π^s; refuses other settings."""
     config.check_resumable_from(PPOConfig.from_dict((run.config or {}).get("ppo", {})))
     payload = load_checkpoint(run / CHECKPOINT)
     apply_weights(net, payload, run / CHECKPOINT)
     if payload.get("optimizer") is not None:
         optimizer.load_state_dict(payload["optimizer"])
-    return int(payload["step"]), float(payload.get("seconds", 0.0))
+    teacher = load_checkpoint(run / TEACHER)["model"] if config.has_teacher else None
+    return _Start(int(payload["step"]), float(payload.get("seconds", 0.0)), teacher)
 
 
 class _Session:
@@ -137,12 +157,12 @@ class _Session:
         run: RunDirectory,
         net: RecurrentActorCritic,
         optimizer: torch.optim.Optimizer,
-        step: int,
-        seconds: float,
+        start: _Start,
     ):
         self.config, self.directory, self.net, self.optimizer = config, run, net, optimizer
-        self.step = self.checkpoint_step = self.eval_step = self.log_step = step
-        self.started = time.monotonic() - seconds  # seconds count the whole run, across resumes
+        step = self.step = self.checkpoint_step = self.eval_step = self.log_step = start.step
+        self.teacher = start.teacher
+        self.started = time.monotonic() - start.seconds  # seconds count the whole run, across resumes
         fresh = step == 0 and not run.resume
         # An update's row is logged before its step's checkpoint: a resumed run keeps it.
         self.log: MetricLog = run.metric_log(
@@ -150,32 +170,6 @@ class _Session:
         )
         self.monitor = Monitor(step)
         self.monitor.restore(self.log.kept["episodes"])
-        env_seed, act_seed, batch_seed = np.random.SeedSequence([config.seed, step]).generate_state(3)
-        self.batches = torch.Generator().manual_seed(int(batch_seed))
-        self.collector = self._collector(int(act_seed))
-        self.collector.reset(int(env_seed), step)
-
-    def _collector(self, act_seed: int) -> RolloutCollector:
-        config, envs = self.config, self.config.schedule.envs_per_worker
-        env = training_env(
-            envs,
-            task=config.task,
-            obs=config.network.obs,
-            time_limit=config.time_limit,
-            privileged=config.network.privileged,
-            action_type=config.network.action_type,
-        )
-        actor = RecurrentActor(self.net, envs, generator=torch.Generator().manual_seed(act_seed))
-        return RolloutCollector(
-            env,
-            env,
-            actor,
-            gamma=config.optimization.gamma,
-            tilt_input=config.network.tilt_input,
-            privileged=config.network.privileged,
-            on_episode=self._book,
-            global_step=lambda: self.step,
-        )
 
     def _book(self, episode: FinishedEpisode) -> None:
         row = episode.row()
@@ -210,15 +204,29 @@ class _Session:
         return TrainResult(self.directory.path, self.step, stopped, final_eval, seconds)
 
     def _train_and_evaluate(self, progress: bool) -> dict[str, Any]:
-        """Rollouts and updates to the run's steps, then the final evaluation (logged)."""
+        """Rollouts and updates to the run's steps (with the worker processes, if any), then the final
+        evaluation (logged)."""
         config = self.config
         title = f"PPO {config.task} {config.network.obs}"
+        group = WorkerGroup(config) if config.schedule.workers > 1 else None
         with (
             sigterm_as_interrupt(),
+            group.start(self.net, self.optimizer, self.step, self.teacher) if group is not None else nullcontext(),
             ProgressBar(title, config.schedule.steps, completed=self.step, enabled=progress, eta=True) as bar,
         ):
+            learner = RankLearner(
+                config,
+                self.net,
+                self.optimizer,
+                rank=0,
+                step=self.step,
+                on_episode=self._book,
+                global_step=lambda: self.step,
+                average=group.average if group is not None else None,
+                teacher=self.teacher,
+            )
             while self.step < config.schedule.steps:
-                self._rollout_and_update()
+                self._rollout_and_update(learner, group)
                 success = self.monitor.recent()["recent_success"]
                 shown = "-" if math.isnan(success) else f"{success:.0%}"
                 bar.update(completed=self.step, info=f"{self.monitor.sps(self.step):,.0f} SPS  success {shown}")
@@ -226,18 +234,14 @@ class _Session:
         self.log.write("eval", self.step, final_eval, scalars=tuple(TABLES["eval"]))
         return final_eval
 
-    def _rollout_and_update(self) -> None:
+    def _rollout_and_update(self, learner: RankLearner, group: WorkerGroup | None) -> None:
         config = self.config
-        try:
-            segment = self.collector.collect(config.optimization.n_steps, self.step)
-        except NonFiniteReward as error:
-            raise TrainingError(f"non-finite reward from the env at step {error.step}: {error.rewards}") from error
-        parts = ppo_update(self.net, self.optimizer, segment, config.optimization, self.batches)
-        if not parts.pop("applied"):
-            raise TrainingError(
-                f"non-finite loss or gradient at step {self.step:,} ({parts}); the update was not applied. "
-                f"Lower --lr or --max-grad-norm. The last checkpoint is kept."
-            )
+        if group is not None:
+            group.go(self.step)
+        parts = learner.rollout_and_update(self.step)
+        if group is not None:
+            for episode in group.episodes():
+                self._book(episode)
         self.step += config.steps_per_rollout
         if self.step - self.log_step >= config.schedule.log_every:  # the update's losses, every log_every steps
             self.log_step = self.step

@@ -6,51 +6,100 @@ for the same reason) or, with ``sequence_length``, a piece of it."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
+from collections.abc import Callable
+from typing import NamedTuple
 
 import torch
+import torch.distributed as dist
 
+from bimgame.learn.finetune import kl_to_teacher
 from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.learn.ppo.settings import PPOOptimizationSettings
 from bimgame.learn.rollout import Segment, advantages_and_targets, in_sequences, sequence_start_states, unroll
 
-__all__ = ["RolloutTargets", "rollout_targets", "ppo_minibatch_loss", "ppo_update"]
+__all__ = ["GradientAverage", "KLTarget", "RolloutTargets", "rollout_targets", "ppo_minibatch_loss", "ppo_update"]
 
 #: The statistics an update averages over its minibatches.
-_AVERAGED = ("policy_loss", "value_loss", "entropy", "approx_kl", "clip_fraction", "grad_norm")
+_AVERAGED = ("policy_loss", "value_loss", "entropy", "approx_kl", "clip_fraction", "grad_norm", "kl")
 
 
+class GradientAverage:
+    """Averages each minibatch's gradient over the ranks of a multi-process PPO run, in place: one
+    all-reduce (``torch.distributed``, gloo) of all gradients flattened into one buffer, which also
+    carries a count of the ranks whose loss was not finite. Every rank then holds the same gradient,
+    and after Adam's step the same weights."""
+
+    def __init__(self, world: int):
+        self.world = world
+
+    def __call__(self, net: torch.nn.Module, finite_loss: bool) -> bool:
+        """Average the gradients of ``net`` over the ranks; True when every rank's loss was finite."""
+        params = list(net.parameters())
+        grads = [p.grad if p.grad is not None else torch.zeros_like(p) for p in params]
+        flag = torch.tensor([0.0 if finite_loss else 1.0])
+        flat = torch.cat([g.reshape(-1) for g in grads] + [flag])
+        dist.all_reduce(flat)
+        offset = 0
+        for param, grad in zip(params, grads, strict=True):
+            count = grad.numel()
+            param.grad = (flat[offset : offset + count] / self.world).view_as(param).clone()
+            offset += count
+        return bool(flat[-1].item() == 0.0)
+
+
+class KLTarget(NamedTuple):
+    """π^s's part of a fine-tuning update: its log-probabilities over the rollout (T, B, A) and the
+    weight of KL(π^s ‖ π) in the loss."""
+
+    log_probs: torch.Tensor
+    weight: float
+
+
+@dataclasses.dataclass
 class RolloutTargets:
     """What every minibatch of a rollout is trained towards: GAE advantages, value targets, and the
-    values and log-probabilities of the network that acted — each (T, B)."""
+    values and log-probabilities of the network that acted — each (T, B) — and, when fine-tuning
+    keeps π^s, its log-probabilities (T, B, A) and the KL's weight."""
 
-    def __init__(self, advantages: torch.Tensor, returns: torch.Tensor, values: torch.Tensor, log_probs: torch.Tensor):
-        self.advantages, self.returns, self.values, self.log_probs = advantages, returns, values, log_probs
+    advantages: torch.Tensor
+    returns: torch.Tensor
+    values: torch.Tensor
+    log_probs: torch.Tensor
+    teacher_log_probs: torch.Tensor | None = None
+    kl_weight: float = 0.0
+
+    def _map(self, change: Callable[[torch.Tensor], torch.Tensor]) -> RolloutTargets:
+        teacher = self.teacher_log_probs
+        return RolloutTargets(
+            change(self.advantages),
+            change(self.returns),
+            change(self.values),
+            change(self.log_probs),
+            None if teacher is None else change(teacher),
+            self.kl_weight,
+        )
 
     def envs(self, index: torch.Tensor) -> RolloutTargets:
         """The targets of the environments ``index`` (as :meth:`Segment.envs`)."""
-        return RolloutTargets(
-            self.advantages[:, index], self.returns[:, index], self.values[:, index], self.log_probs[:, index]
-        )
+        return self._map(lambda value: value[:, index])
 
     def sequences(self, length: int) -> RolloutTargets:
         """The targets cut into sequences as :meth:`Segment.sequences` cuts the segment."""
         steps = int(self.advantages.shape[0])
-        return RolloutTargets(*(in_sequences(value, length, steps) for value in self.tensors()))
-
-    def tensors(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-        return self.advantages, self.returns, self.values, self.log_probs
+        return self._map(lambda value: in_sequences(value, length, steps))
 
 
 @torch.no_grad()
 def rollout_targets(
-    net: RecurrentActorCritic, segment: Segment, settings: PPOOptimizationSettings
+    net: RecurrentActorCritic, segment: Segment, settings: PPOOptimizationSettings, kl: KLTarget | None = None
 ) -> tuple[Segment, RolloutTargets]:
     """What the update trains on: the segment's sequences (:meth:`Segment.sequences`, started from
     the LSTM states of ``net`` before any update, the network that acted; the whole segment without
     a ``sequence_length``) and their targets: GAE advantages and value targets under that network,
     bootstrapped from the value of the observation after the segment's last step, and the
-    log-probabilities recorded while acting."""
+    log-probabilities recorded while acting (and ``kl``'s π^s log-probabilities and weight)."""
     if segment.log_probs is None:
         raise ValueError("a PPO update needs the segment's log-probabilities of the acting policy (Segment.log_probs)")
     length = settings.sequence_length or segment.steps
@@ -60,6 +109,8 @@ def rollout_targets(
         segment.rewards, segment.ends, values, bootstrap, settings.gamma, settings.gae_lambda
     )
     targets = RolloutTargets(advantages, returns, values, segment.log_probs)
+    if kl is not None:
+        targets.teacher_log_probs, targets.kl_weight = kl.log_probs, kl.weight
     if length == segment.steps:
         return segment, targets
     return segment.sequences(length, states), targets.sequences(length)
@@ -70,7 +121,8 @@ def ppo_minibatch_loss(
 ) -> tuple[torch.Tensor, dict[str, float]]:
     """The PPO loss of one minibatch (``segment`` and ``targets`` of the same environments): the
     clipped surrogate, the (optionally clipped) value loss, the entropy bonus and, for a network with
-    auxiliary heads, their loss. Log-probabilities and entropy are those of the network's action
+    auxiliary heads, their loss; when fine-tuning keeps π^s, the weighted KL(π^s ‖ π) (logged as
+    ``kl``). Log-probabilities and entropy are those of the network's action
     distribution (categorical or Gaussian: :meth:`~bimgame.learn.nets.RecurrentActorCritic.distribution`)."""
     out = unroll(net, segment)
     policy = net.distribution(out.logits[:-1])
@@ -106,6 +158,11 @@ def ppo_minibatch_loss(
         aux, aux_parts = net.aux_loss(out.features, out.hidden, segment.privileged)
         parts.update(aux_parts)
         loss = loss + settings.aux_coef * aux
+    if targets.teacher_log_probs is not None:
+        kl = kl_to_teacher(targets.teacher_log_probs, torch.log_softmax(out.logits[:-1], dim=-1))
+        parts["kl"] = kl.item()
+        if targets.kl_weight > 0:
+            loss = loss + targets.kl_weight * kl
     return loss, parts
 
 
@@ -115,13 +172,19 @@ def ppo_update(
     segment: Segment,
     settings: PPOOptimizationSettings,
     generator: torch.Generator,
+    *,
+    average: GradientAverage | None = None,
+    kl: KLTarget | None = None,
 ) -> dict[str, float]:
     """Train ``net`` on one rollout: ``epochs`` passes over minibatches of whole sequences (each
     environment's rollout, or its pieces of ``sequence_length`` steps), drawn from ``generator``.
-    Returns the losses and statistics averaged over the minibatches, and ``applied``: False if a loss or gradient was not finite (that minibatch, and the
-    rest of the update, is then skipped so that no non-finite value reaches the weights)."""
-    segment, targets = rollout_targets(net, segment, settings)
-    sums = dict.fromkeys(_AVERAGED, 0.0)
+    Returns the losses and statistics averaged over the minibatches, and ``applied``: False if a
+    loss or gradient was not finite (that minibatch, and the rest of the update, is then skipped so
+    that no non-finite value reaches the weights). With ``average``, each minibatch's gradient is
+    averaged over the run's ranks before the step, and a loss that is not finite on any rank skips
+    the update on every rank. With ``kl``, the loss also holds its weight times KL(π^s ‖ π)."""
+    segment, targets = rollout_targets(net, segment, settings, kl)
+    sums: dict[str, float] = {}
     count = 0
     for _ in range(settings.epochs):
         order = torch.randperm(segment.batch, generator=generator)
@@ -129,11 +192,15 @@ def ppo_update(
             loss, parts = ppo_minibatch_loss(net, segment.envs(index), targets.envs(index), settings)
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
+            finite = math.isfinite(loss.item())
+            if average is not None:
+                finite = average(net, finite)
             grad_norm = float(torch.nn.utils.clip_grad_norm_(net.parameters(), settings.max_grad_norm))
-            if not (math.isfinite(loss.item()) and math.isfinite(grad_norm)):
+            if not (finite and math.isfinite(grad_norm)):
                 return {**parts, "grad_norm": grad_norm, "loss": loss.item(), "applied": False}
             optimizer.step()
             for key in _AVERAGED:
-                sums[key] += grad_norm if key == "grad_norm" else parts[key]
+                if key == "grad_norm" or key in parts:  # (kl: only when fine-tuning keeps π^s)
+                    sums[key] = sums.get(key, 0.0) + (grad_norm if key == "grad_norm" else parts[key])
             count += 1
     return {**{key: value / count for key, value in sums.items()}, "applied": True}

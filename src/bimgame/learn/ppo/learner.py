@@ -1,0 +1,125 @@
+"""One PPO rank: its environments, the collector that steps them, and the update of its rollouts.
+
+A run has ``workers`` ranks, each a process with ``envs_per_worker`` environments and its own copy
+of the network and of Adam. Rank 0 is the process that called :func:`~bimgame.learn.ppo.train_ppo`
+(it also logs, evaluates and checkpoints); the others are the worker processes of
+:mod:`bimgame.learn.ppo.parallel`. Every rank collects a rollout and trains on its own sequences;
+the gradients of each minibatch are averaged over the ranks before the step (decentralised
+distributed PPO, Wijmans et al. 2020), so the copies stay identical and the run is one PPO whose
+rollout holds every rank's environments. With one worker nothing is averaged.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+import torch
+
+from bimgame.learn.actor import RecurrentActor
+from bimgame.learn.finetune import Teacher
+from bimgame.learn.nets import RecurrentActorCritic
+from bimgame.learn.ppo.settings import PPOConfig
+from bimgame.learn.ppo.update import GradientAverage, KLTarget, ppo_update
+from bimgame.learn.rollout import FinishedEpisode, NonFiniteReward, RolloutCollector, Segment, training_env
+from bimgame.learn.run_dir import TrainingError
+
+__all__ = ["RankLearner", "rank_seeds", "adam"]
+
+
+def adam(net: torch.nn.Module, config: PPOConfig) -> torch.optim.Adam:
+    """PPO's optimiser (every rank builds the same)."""
+    return torch.optim.Adam(net.parameters(), lr=config.optimization.lr, eps=config.optimization.optimizer_eps)
+
+
+def rank_seeds(seed: int, step: int, rank: int) -> tuple[int, int, int]:
+    """The seeds of a rank's environments, action sampling and minibatch order for a session that
+    starts at ``step`` (fresh episodes at every resume). Rank 0's are those of a one-process run."""
+    entropy = [seed, step] if rank == 0 else [seed, step, rank]
+    env_seed, act_seed, batch_seed = np.random.SeedSequence(entropy).generate_state(3)
+    return int(env_seed), int(act_seed), int(batch_seed)
+
+
+class RankLearner:
+    """A rank's collector and update. ``on_episode`` receives each episode its environments finish;
+    ``global_step`` reads the run's step count (the same on every rank); ``average`` averages the
+    gradients over the ranks (None: one rank)."""
+
+    def __init__(
+        self,
+        config: PPOConfig,
+        net: RecurrentActorCritic,
+        optimizer: torch.optim.Optimizer,
+        *,
+        rank: int,
+        step: int,
+        on_episode: Callable[[FinishedEpisode], None],
+        global_step: Callable[[], int],
+        average: GradientAverage | None = None,
+        teacher: dict[str, torch.Tensor] | None = None,
+    ):
+        self.config, self.net, self.optimizer, self.average = config, net, optimizer, average
+        self.teacher = _teacher(config, teacher)
+        env_seed, act_seed, batch_seed = rank_seeds(config.seed, step, rank)
+        self.batches = torch.Generator().manual_seed(batch_seed)
+        envs = config.schedule.envs_per_worker
+        env = training_env(
+            envs,
+            task=config.task,
+            obs=config.network.obs,
+            time_limit=config.time_limit,
+            privileged=config.network.privileged,
+            action_type=config.network.action_type,
+        )
+        actor = RecurrentActor(net, envs, generator=torch.Generator().manual_seed(act_seed))
+        self.collector = RolloutCollector(
+            env,
+            env,
+            actor,
+            gamma=config.optimization.gamma,
+            tilt_input=config.network.tilt_input,
+            privileged=config.network.privileged,
+            on_episode=on_episode,
+            global_step=global_step,
+        )
+        self.collector.reset(env_seed, step)
+
+    def rollout_and_update(self, step: int) -> dict[str, float]:
+        """Collect one rollout (the run at ``step``) and train on it; returns the update's averaged
+        losses and statistics. Raises :class:`TrainingError` for a non-finite reward, or a non-finite
+        loss or gradient on any rank (the update is then not applied on any rank)."""
+        try:
+            segment = self.collector.collect(self.config.optimization.n_steps, step)
+        except NonFiniteReward as error:
+            raise TrainingError(f"non-finite reward from the env at step {error.step}: {error.rewards}") from error
+        kl = self._kl_to_teacher(segment, step)
+        parts = ppo_update(
+            self.net, self.optimizer, segment, self.config.optimization, self.batches, average=self.average, kl=kl
+        )
+        if not parts.pop("applied"):
+            raise TrainingError(
+                f"non-finite loss or gradient at step {step:,} ({parts}); the update was not applied. "
+                f"Lower --lr or --max-grad-norm. The last checkpoint is kept."
+            )
+        return parts
+
+    def _kl_to_teacher(self, segment: Segment, step: int) -> KLTarget | None:
+        """π^s's log-probabilities over the segment and the KL weight at ``step`` (None without a
+        teacher, or once a decaying weight has reached zero: the teacher then stops following)."""
+        finetuning = self.config.finetuning
+        if self.teacher is None or finetuning is None:
+            return None
+        weight = finetuning.kl_weight(step)
+        if weight <= 0 and finetuning.kl_decay_steps > 0:
+            self.teacher = None  # annealed away: it costs nothing from now on
+            return None
+        return KLTarget(self.teacher.follow(segment), weight)
+
+
+def _teacher(config: PPOConfig, weights: dict[str, torch.Tensor] | None) -> Teacher | None:
+    """π^s following this rank's environments, for a KL term (None when the run has none)."""
+    if weights is None or config.finetuning is None:
+        return None
+    net = config.network.build_policy(config.seed)
+    net.load_state_dict(weights)
+    return Teacher(net, config.schedule.envs_per_worker, config.finetuning.kl_temperature)

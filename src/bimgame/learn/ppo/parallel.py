@@ -1,0 +1,235 @@
+"""The worker processes of a multi-process PPO run (``workers`` > 1) and the process group that joins
+them to the run's own process (rank 0).
+
+Why processes with averaged gradients (decentralised distributed PPO, Wijmans et al. 2020) rather
+than one learner fed by environment processes: on a CPU machine both halves of PPO — stepping the
+environments with the network acting, and the epochs of minibatch updates — are compute, and
+synchronous PPO alternates them; with every rank doing both on its own share, every core works in
+both phases. The ranks meet only to average each minibatch's gradient (one ``torch.distributed``
+gloo all-reduce: PyTorch's own collective, nothing hand-written) and once per rollout, when each
+worker sends rank 0 the episodes it finished (rank 0 logs them in rank order, so a run's logs do
+not depend on timing).
+
+Rank 0 leads: it tells the workers when to collect each rollout (so that they wait for it while it
+logs, evaluates and checkpoints, not inside a collective), and when to stop. Each worker ignores
+Ctrl-C (the terminal sends it to the whole process group): rank 0 decides when the run stops. A
+worker that fails sends its traceback before it exits; rank 0 raises it as a
+:class:`~bimgame.learn.run_dir.TrainingError`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime
+import multiprocessing
+import os
+import queue
+import signal
+import tempfile
+import traceback
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import torch
+import torch.distributed as dist
+
+from bimgame.learn.ppo.learner import RankLearner, adam
+from bimgame.learn.ppo.settings import PPOConfig
+from bimgame.learn.ppo.update import GradientAverage
+from bimgame.learn.rollout import FinishedEpisode
+from bimgame.learn.run_dir import TrainingError
+
+__all__ = ["WorkerGroup"]
+
+#: How long a rank waits for the others to join the group or to reach an all-reduce (the ranks
+#: start every rollout together, so this bounds the difference of their collection times).
+_COLLECTIVE_TIMEOUT = datetime.timedelta(minutes=5)
+#: How often rank 0 checks that a worker it waits for is still alive.
+_POLL_SECONDS = 1.0
+
+
+@dataclasses.dataclass(frozen=True)
+class _WorkerStart:
+    """What a worker process starts from: the run's settings, its rank, the rendezvous file, the step
+    the session starts at, and rank 0's weights and Adam statistics (so that every copy is the same)."""
+
+    config: dict[str, Any]
+    rank: int
+    rendezvous: str
+    step: int
+    model: dict[str, torch.Tensor]
+    optimizer: dict[str, Any]
+    parent: int
+    """The process id of rank 0."""
+    teacher: dict[str, torch.Tensor] | None = None
+    """π^s's weights, for a KL term."""
+
+
+def _worker_main(start: _WorkerStart, commands: Any, messages: Any) -> None:
+    """A worker process: join the group, then for every ``("go", step)`` rank 0 sends, collect and
+    update, and send rank 0 the rollout's finished episodes; ``("stop", _)`` ends it. A failure is
+    sent as a traceback."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    torch.set_num_threads(1)
+    try:
+        config = PPOConfig.from_dict(start.config)
+        _join(start.rendezvous, start.rank, config.schedule.workers)
+        net = config.network.build_policy(config.seed)
+        net.load_state_dict(start.model)
+        optimizer = adam(net, config)
+        optimizer.load_state_dict(start.optimizer)
+        step = start.step
+        finished: list[FinishedEpisode] = []
+        learner = RankLearner(
+            config,
+            net,
+            optimizer,
+            rank=start.rank,
+            step=step,
+            on_episode=finished.append,
+            global_step=lambda: step,
+            average=GradientAverage(config.schedule.workers),
+            teacher=start.teacher,
+        )
+        while True:
+            command, step = _next_command(commands, start.parent)
+            if command == "stop":
+                break
+            learner.rollout_and_update(step)
+            messages.put(("episodes", start.rank, list(finished)))
+            finished.clear()
+    except BaseException:
+        messages.put(("error", start.rank, traceback.format_exc()))
+        raise
+    finally:
+        if dist.is_initialized():
+            dist.destroy_process_group()
+
+
+def _next_command(commands: Any, parent: int) -> tuple[str, int]:
+    """Rank 0's next command; a worker whose parent is gone (killed without a word) stops."""
+    while True:
+        try:
+            return commands.get(timeout=_POLL_SECONDS)
+        except queue.Empty:
+            if os.getppid() != parent:
+                return "stop", 0
+
+
+def _join(rendezvous: str, rank: int, world: int) -> None:
+    dist.init_process_group(
+        "gloo", init_method=f"file://{rendezvous}", rank=rank, world_size=world, timeout=_COLLECTIVE_TIMEOUT
+    )
+
+
+class WorkerGroup:
+    """Rank 0's side of a multi-process run: the worker processes and the process group
+    (:meth:`start`), the gradient average, and each rollout's episodes of the workers
+    (:meth:`episodes`)."""
+
+    def __init__(self, config: PPOConfig):
+        self.config = config
+        self.world = config.schedule.workers
+        self.average = GradientAverage(self.world)
+        context = multiprocessing.get_context("spawn")
+        self.messages = context.Queue()
+        self.commands = [context.Queue() for _ in range(1, self.world)]
+        self.context = context
+        self.processes: list[Any] = []
+
+    @contextmanager
+    def start(
+        self,
+        net: torch.nn.Module,
+        optimizer: torch.optim.Optimizer,
+        step: int,
+        teacher: dict[str, torch.Tensor] | None = None,
+    ) -> Iterator[WorkerGroup]:
+        """Start the workers from ``net``'s weights and ``optimizer``'s statistics at ``step`` (with
+        π^s's ``teacher`` weights for a KL term), join them in a process group; on leaving, end them
+        and the group."""
+        if dist.is_initialized():
+            raise RuntimeError(
+                "PPO with workers > 1 makes its own torch.distributed process group; this process has one "
+                "already (use workers=1 inside a distributed job)"
+            )
+        with tempfile.TemporaryDirectory(prefix="bimgame-ppo-") as directory:
+            rendezvous = str(Path(directory) / "rendezvous")
+            model = {key: value.detach().clone() for key, value in net.state_dict().items()}
+            for rank in range(1, self.world):
+                start = _WorkerStart(
+                    self.config.to_dict(), rank, rendezvous, step, model, optimizer.state_dict(), os.getpid(), teacher
+                )
+                process = self.context.Process(
+                    target=_worker_main, args=(start, self.commands[rank - 1], self.messages), daemon=True
+                )
+                process.start()
+                self.processes.append(process)
+            try:
+                _join(rendezvous, 0, self.world)
+                yield self
+            except RuntimeError as error:  # a failed collective: a worker died (it says why), or another error
+                failure = self._worker_failure()
+                self._stop(terminate=True)
+                if failure is None:
+                    raise
+                raise failure from error
+            except BaseException:
+                self._stop(terminate=True)
+                raise
+            self._stop(terminate=False)
+
+    def go(self, step: int) -> None:
+        """Tell every worker to collect and train on the rollout at ``step`` (as rank 0 does)."""
+        for commands in self.commands:
+            commands.put(("go", step))
+
+    def episodes(self) -> list[FinishedEpisode]:
+        """The episodes the workers finished in the rollout just trained on, in rank order (waits for
+        every worker's message of that rollout)."""
+        by_rank: dict[int, list[FinishedEpisode]] = {}
+        while len(by_rank) < self.world - 1:
+            kind, rank, payload = self._next_message()
+            if kind == "error":
+                raise TrainingError(f"PPO worker {rank} failed:\n{payload}")
+            by_rank[rank] = payload
+        return [episode for rank in sorted(by_rank) for episode in by_rank[rank]]
+
+    def _next_message(self) -> tuple[str, int, Any]:
+        while True:
+            try:
+                return self.messages.get(timeout=_POLL_SECONDS)
+            except queue.Empty:
+                for rank, process in enumerate(self.processes, 1):
+                    if not process.is_alive():
+                        raise TrainingError(
+                            f"PPO worker {rank} ended without a word (exit code {process.exitcode})"
+                        ) from None
+
+    def _worker_failure(self) -> TrainingError | None:
+        """A worker's own report of its failure, if one comes within a few seconds."""
+        while True:
+            try:
+                kind, rank, payload = self.messages.get(timeout=5.0)
+            except queue.Empty:
+                return None
+            if kind == "error":
+                return TrainingError(f"PPO worker {rank} failed:\n{payload}")
+
+    def _stop(self, *, terminate: bool) -> None:
+        """End the workers — at the run's end they have finished, after a failure or an interruption
+        they are stopped — and the process group."""
+        for commands in self.commands:
+            commands.put(("stop", 0))
+        for process in self.processes:
+            if terminate:
+                process.terminate()
+            process.join(timeout=30.0)
+            if process.is_alive():
+                process.kill()
+                process.join()
+        self.processes.clear()
+        if dist.is_initialized():
+            dist.destroy_process_group()
