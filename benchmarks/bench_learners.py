@@ -138,11 +138,27 @@ def _measure(run_dir: Path, steps: int, bin_steps: int, threshold: float) -> tup
     return row, crossing
 
 
+def _settings(pairs: list[str], parser: argparse.ArgumentParser) -> dict[str, object]:
+    """``NAME=VALUE`` pairs as PPO flat settings (values read as JSON where they parse: numbers, null)."""
+    settings: dict[str, object] = {}
+    for pair in pairs:
+        name, sep, text = pair.partition("=")
+        if not sep or name not in PPOConfig.flat_names():
+            parser.error(f"--ppo-set takes NAME=VALUE with a PPO setting's flat name, got {pair!r}")
+        try:
+            settings[name] = json.loads(text)
+        except json.JSONDecodeError:
+            settings[name] = text
+    PPOConfig.from_flat(settings)  # refuse bad values now, not after hours of other runs
+    return settings
+
+
 def _variant_names(ppo: dict, sb3_n_steps: int) -> dict[str, str]:
     """Each learner's variant name, which says the settings it was run with where they are not the default."""
     minibatches = PPOConfig.from_flat(ppo).optimization.minibatches
+    others = "".join(f"-{key.replace('_', '-')}{value}" for key, value in sorted(ppo.items()) if key != "minibatches")
     suffix = "" if sb3_n_steps == SB3_N_STEPS else f"-n{sb3_n_steps}"
-    return {"a3c": "a3c", "ppo": f"ppo-mb{minibatches}", **{name: name + suffix for name in SB3_PACKAGES}}
+    return {"a3c": "a3c", "ppo": f"ppo-mb{minibatches}{others}", **{name: name + suffix for name in SB3_PACKAGES}}
 
 
 def _plot_sps(results: dict[str, Any], out: Path, title: str) -> Path:
@@ -233,6 +249,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "bench-learners")
     parser.add_argument("--ppo-minibatches", type=int, default=None, help="PPO's minibatches (default: PPO's own)")
     parser.add_argument(
+        "--ppo-set",
+        nargs="+",
+        default=[],
+        metavar="NAME=VALUE",
+        help="other PPO settings by flat name (e.g. sequence_length=16 envs_per_worker=32); they name the variant",
+    )
+    parser.add_argument(
         "--learners",
         nargs="+",
         choices=LEARNERS,
@@ -263,6 +286,7 @@ def main(argv: list[str] | None = None) -> int:
     for learner, why in skipped.items():
         print(f"skipped {learner}: {why}", file=sys.stderr)
     ppo = {} if args.ppo_minibatches is None else {"minibatches": args.ppo_minibatches}
+    ppo.update(_settings(args.ppo_set, parser))
     sb3 = {"n_steps": args.sb3_n_steps, "sps_only_steps": args.sb3_sps_only_steps}
     names = _variant_names(ppo, args.sb3_n_steps)
     for seed in range(args.seeds):

@@ -102,7 +102,7 @@ def test_a_tiny_grid_with_a_registered_algorithm_runs_and_reports_it(tmp_path, t
 def test_a_tiny_grid_with_ppo_from_scratch_and_from_pi_s_runs_resumes_and_reports_them(tmp_path, tiny_budget):
     """Both PPO algorithms through the real pieces: π^s pre-trained once and read by ``pretrain+ppo``,
     an unfinished PPO run continued from its checkpoint, and both in the report's tables and figures."""
-    budget = tiny_budget.replace(algorithms=("ppo", "pretrain+ppo"), seeds=1,
+    budget = tiny_budget.replace(algorithms=("ppo", "pretrain+ppo", "pretrain+ppo+keep"), seeds=1,
                                  a3c={"steps": {"STG1": 512}, "eval_every": 256, "checkpoint_every": 128},
                                  ppo={"envs_per_worker": 4, "n_steps": 32})
     first = reproduce(tmp_path, budget, progress=False, stop_after=2)
@@ -111,7 +111,11 @@ def test_a_tiny_grid_with_ppo_from_scratch_and_from_pi_s_runs_resumes_and_report
     partial = tmp_path / "runs/STG1/ppo/seed0"
     train_ppo(ppo_config_for(budget, "STG1", 0, "ppo").with_flat(steps=256), partial, progress=False)
     result = reproduce(tmp_path, budget, progress=False)
-    assert result.complete and result.computed == ["runs/STG1/ppo/seed0", "runs/STG1/pretrain-ppo/seed0"]
+    assert result.complete and result.computed == [
+        "runs/STG1/ppo/seed0", "runs/STG1/pretrain-ppo/seed0", "runs/STG1/pretrain-ppo-keep/seed0"]
+    keep = json.loads((tmp_path / "runs/STG1/pretrain-ppo-keep/seed0/config.json").read_text())["ppo"]
+    assert (keep["kl_coef"], keep["kl_temperature"]) == (0.2, 0.3)  # the keep preset's KL, read from it
+    assert (tmp_path / "runs/STG1/pretrain-ppo-keep/seed0/teacher.pt").is_file()
     assert load_status(tmp_path)["pieces"]["runs/STG1/ppo/seed0"]["note"] == "resumed from its checkpoint"
     for slug, init in (("ppo", None), ("pretrain-ppo", str((tmp_path / "pretrain/STG1/policy-seed0").resolve()))):
         run = tmp_path / "runs/STG1" / slug / "seed0"
@@ -144,7 +148,7 @@ def test_the_records_say_what_the_names_used_to():
     for algorithm in registered():
         assert run_kind(algorithm).name == algorithm.learner.value
     assert set(KINDS) == {"dataset", "pretrain-policy", "pretrain-value", "a3c", "dagger", "ppo"}
-    assert [a.name for a in registered() if a.learner is Learner.PPO] == ["ppo", "pretrain+ppo"]
+    assert [a.name for a in registered() if a.learner is Learner.PPO] == ["ppo", "pretrain+ppo", "pretrain+ppo+keep"]
 
 
 def test_bad_records_and_kinds_are_refused_naming_what_is_allowed():

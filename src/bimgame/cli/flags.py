@@ -38,6 +38,7 @@ from bimgame.envs.randomization import RANDOMIZATION_PRESETS
 from bimgame.experiments.budgets import ALGORITHMS
 from bimgame.expert.mpc import PLANNING_REWARDS, SAMPLINGS
 from bimgame.learn.a3c import OPTIMIZERS, START_CURRICULA
+from bimgame.learn.devices import DEVICES
 from bimgame.learn.learner_settings import FINETUNE_PRESETS
 from bimgame.learn.nets import PRECISIONS
 from bimgame.learn.supervised import TARGETS
@@ -68,6 +69,7 @@ FIELD_CHOICES: dict[str, tuple[str, ...]] = {
     "finetune": tuple(FINETUNE_PRESETS),
     "start_curriculum": START_CURRICULA,
     "precision": PRECISIONS,
+    "device": DEVICES,
     "randomize": tuple(RANDOMIZATION_PRESETS),
 }
 #: Switches that get both ``--x`` and ``--no-x``: those a fine-tuning preset sets (``--init`` turns

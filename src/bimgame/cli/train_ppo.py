@@ -21,7 +21,8 @@ PPO_GROUP = (
     "PPO (--algo ppo)",
     (
         f"PPO's own settings; the shared flags above take PPO's defaults with --algo ppo (lr {_DEFAULTS.lr:g}, "
-        f"n-steps {_DEFAULTS.n_steps}, gae-lambda {_DEFAULTS.gae_lambda:g}; one process: --workers 1)"
+        f"n-steps {_DEFAULTS.n_steps}, gae-lambda {_DEFAULTS.gae_lambda:g}; one process: --workers 1; "
+        f"--workers N: N processes averaging their gradients)"
     ),
 )
 #: The reward-shaping flags ``--algo ppo`` does not support yet, by their destination.
@@ -33,15 +34,16 @@ def add_ppo_arguments(parser: argparse.ArgumentParser, groups: dict[str, argpars
     title = PPO_GROUP[0]  # the group is one of train's (TRAIN_GROUPS)
     shared = set(A3CConfig.flat_names())
     own = [name for name in PPOConfig.flat_names() if name not in shared]
-    add_grouped_settings_flags(
-        parser,
-        groups,
-        PPOOptimizationSettings,
-        [name for name in own if name in PPOOptimizationSettings.__dataclass_fields__],
-        {title: tuple(own)},
-        defaults=SimpleNamespace(**PPOConfig().to_dict()),
-        default_none=True,
-    )
+    for owner in (PPOConfig, PPOOptimizationSettings):  # PPO's own top-level settings (device), then its part's
+        add_grouped_settings_flags(
+            parser,
+            groups,
+            owner,
+            [name for name in own if name in owner.__dataclass_fields__],
+            {title: tuple(own)},
+            defaults=SimpleNamespace(**PPOConfig().to_dict()),
+            default_none=True,
+        )
 
 
 def train_ppo_from_args(args: argparse.Namespace) -> tuple[TrainResult, int]:

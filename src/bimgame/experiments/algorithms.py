@@ -391,4 +391,18 @@ PPO = register(Algorithm("ppo", "PPO", learner=Learner.PPO))
 """PPO from random weights, on the same steps per task as A3C."""
 PRETRAIN_PPO = register(Algorithm("pretrain+ppo", "pre-train + PPO", learner=Learner.PPO, starts_from_policy=True))
 """PPO starting from π^s — the same π^s piece ``pretrain+a3c`` starts from — with PPO's own settings
-(plain fine-tuning: PPO has no fine-tuning terms yet)."""
+(plain fine-tuning)."""
+#: The ``keep`` preset's settings PPO takes: its KL to π^s (PPO has no critic warm-up or actor ramp,
+#: and normalises every minibatch's advantages already).
+PPO_KEEP_FIELDS = ("kl_coef", "kl_decay_steps", "kl_temperature")
+register(
+    Algorithm(
+        "pretrain+ppo+keep",
+        "pre-train + PPO, keep's KL",
+        learner=Learner.PPO,
+        starts_from_policy=True,
+        finetuning=True,
+        settings=lambda steps: {field: FINETUNE_PRESETS["keep"][field] for field in PPO_KEEP_FIELDS},
+    )
+)
+"""PPO from π^s with the ``keep`` preset's KL(π^s ‖ π) (weight and temperature read from the preset)."""

@@ -85,7 +85,7 @@ class ConvEncoder(nn.Module):
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
         if not self.bf16:
             return self._features(obs)
-        with torch.autocast("cpu", dtype=torch.bfloat16):
+        with torch.autocast(obs.device.type, dtype=torch.bfloat16):
             return self._features(obs).float()
 
     def _features(self, obs: torch.Tensor) -> torch.Tensor:

@@ -107,6 +107,16 @@ class Segment:
         h, c = self.initial_state
         return dataclasses.replace(self, **by_env, initial_state=LSTMState(h[index], c[index]))
 
+    def to(self, device: torch.device) -> Segment:
+        """The segment on ``device`` (where a learner's update runs)."""
+        moved: dict[str, Any] = {
+            field.name: value.to(device)
+            for field in dataclasses.fields(self)
+            if isinstance(value := getattr(self, field.name), torch.Tensor)
+        }
+        h, c = self.initial_state
+        return dataclasses.replace(self, **moved, initial_state=LSTMState(h.to(device), c.to(device)))
+
     def sequences(self, length: int, states: LSTMState) -> Segment:
         """The segment cut into sequences of ``length`` acting steps, each laid out as an environment
         of its own: (``length``, K·B) with K = T / ``length``, sequence k·B + b holding environment

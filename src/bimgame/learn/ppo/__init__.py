@@ -6,8 +6,9 @@ Each rollout, ``envs_per_worker`` environments act ``n_steps`` steps with the cu
 (:class:`~bimgame.learn.rollout.RolloutCollector`, shared with A3C: time-limit bootstrap, LSTM state
 carried across rollouts, episodes booked by the step they started at). The rollout's GAE advantages
 and value targets come from the network that acted; then ``epochs`` passes of ``minibatches``
-minibatches, each a set of whole environment sequences over which the LSTM is unrolled again from
-the rollout's initial state (masked at episode starts), minimise the clipped surrogate, the value
+minibatches, each a set of whole sequences over which the LSTM is unrolled again — each
+environment's rollout from the state it started with, or with ``sequence_length`` its pieces from the
+acting network's stored states (masked at episode starts) — minimise the clipped surrogate, the value
 loss (optionally clipped) and minus the entropy bonus, with Adam.
 
 Actions are the paper's discrete ones or, with ``action_type="continuous"`` (``--action-type
@@ -15,21 +16,28 @@ continuous``), the env's continuous tilt changes under a diagonal Gaussian polic
 (:mod:`bimgame.learn.policy_heads`): the loss takes log-probabilities and entropy from the network's
 action distribution, whichever it is.
 
-Modules: :mod:`~bimgame.learn.ppo.settings` (:class:`PPOConfig` and its optimisation part),
-:mod:`~bimgame.learn.ppo.update` (the loss and the update of one rollout) and
-:mod:`~bimgame.learn.ppo.training` (:func:`train_ppo`: the run directory, logs, checkpoints, resume).
+Beyond one process: ``workers`` ranks, each with its own environments, average every minibatch's
+gradient (:mod:`~bimgame.learn.ppo.parallel`); ``device`` puts the update on a GPU while the
+environments and the acting network stay on the CPU (:mod:`bimgame.learn.devices`). Fine-tuning from
+π^s (``--init``) can keep it with kickstarting's KL (:class:`~bimgame.learn.ppo.settings.PPOFinetuneSettings`).
 
-Not yet: environments stepped in worker processes, a GPU device, and the fine-tuning terms and start
-curricula A3C has (``--init`` does start from π^s).
+Modules: :mod:`~bimgame.learn.ppo.settings` (:class:`PPOConfig` and its parts),
+:mod:`~bimgame.learn.ppo.update` (the loss and the update of one rollout),
+:mod:`~bimgame.learn.ppo.learner` (one rank: its environments, collector and update),
+:mod:`~bimgame.learn.ppo.parallel` (the worker processes) and :mod:`~bimgame.learn.ppo.training`
+(:func:`train_ppo`: the run directory, logs, checkpoints, resume).
+
+Not yet: A3C's critic warm-up, actor ramp, behaviour cloning, start curricula and reward shaping.
 """
 
-from bimgame.learn.ppo.settings import PPOConfig, PPOOptimizationSettings
+from bimgame.learn.ppo.settings import PPOConfig, PPOFinetuneSettings, PPOOptimizationSettings
 from bimgame.learn.ppo.training import resolve_ppo_config, train_ppo
 from bimgame.learn.ppo.update import ppo_minibatch_loss, ppo_update
 
 __all__ = [
     "PPOConfig",
     "PPOOptimizationSettings",
+    "PPOFinetuneSettings",
     "train_ppo",
     "resolve_ppo_config",
     "ppo_update",

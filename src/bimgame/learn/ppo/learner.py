@@ -41,9 +41,11 @@ def rank_seeds(seed: int, step: int, rank: int) -> tuple[int, int, int]:
 
 
 class RankLearner:
-    """A rank's collector and update. ``on_episode`` receives each episode its environments finish;
-    ``global_step`` reads the run's step count (the same on every rank); ``average`` averages the
-    gradients over the ranks (None: one rank)."""
+    """A rank's collector and update. ``net`` acts (on the CPU); ``learning`` is the copy the update
+    trains on another device (``optimizer`` holds its weights), copied back to ``net`` after every
+    update — None: ``net`` itself learns. ``on_episode`` receives each episode its environments
+    finish; ``global_step`` reads the run's step count (the same on every rank); ``average`` averages
+    the gradients over the ranks (None: one rank)."""
 
     def __init__(
         self,
@@ -57,8 +59,11 @@ class RankLearner:
         global_step: Callable[[], int],
         average: GradientAverage | None = None,
         teacher: dict[str, torch.Tensor] | None = None,
+        learning: RecurrentActorCritic | None = None,
     ):
         self.config, self.net, self.optimizer, self.average = config, net, optimizer, average
+        self.learning = learning if learning is not None else net
+        self.device = next(self.learning.parameters()).device
         self.teacher = _teacher(config, teacher)
         env_seed, act_seed, batch_seed = rank_seeds(config.seed, step, rank)
         self.batches = torch.Generator().manual_seed(batch_seed)
@@ -93,9 +98,14 @@ class RankLearner:
         except NonFiniteReward as error:
             raise TrainingError(f"non-finite reward from the env at step {error.step}: {error.rewards}") from error
         kl = self._kl_to_teacher(segment, step)
+        if self.learning is not self.net:
+            segment = segment.to(self.device)
+            kl = None if kl is None else KLTarget(kl.log_probs.to(self.device), kl.weight)
         parts = ppo_update(
-            self.net, self.optimizer, segment, self.config.optimization, self.batches, average=self.average, kl=kl
+            self.learning, self.optimizer, segment, self.config.optimization, self.batches, average=self.average, kl=kl
         )
+        if self.learning is not self.net:
+            self.net.load_state_dict(self.learning.state_dict())  # the acting copy takes the new weights
         if not parts.pop("applied"):
             raise TrainingError(
                 f"non-finite loss or gradient at step {step:,} ({parts}); the update was not applied. "

@@ -11,7 +11,8 @@ import math
 from typing import ClassVar
 
 from bimgame.learn.common import LearnerSettings, NetworkSettings
-from bimgame.learn.learner_settings import ScheduleSettings, check_at_most, check_number
+from bimgame.learn.devices import DEVICES, Device
+from bimgame.learn.learner_settings import ScheduleSettings, check_at_most, check_choice, check_number
 from bimgame.util.settings import require_int
 
 __all__ = ["PPOOptimizationSettings", "PPOFinetuneSettings", "PPOConfig"]
@@ -120,6 +121,9 @@ class PPOConfig(LearnerSettings):
     schedule. Every setting also has a flat name (:meth:`from_flat`, :meth:`to_dict`), its flag and
     its key in ``config.json``."""
 
+    device: Device = "cpu"
+    """Where the update runs: ``cpu``, ``cuda`` or ``auto`` (CUDA when there is one). The
+    environments and the acting network stay on the CPU (:mod:`bimgame.learn.devices`)."""
     network: NetworkSettings = dataclasses.field(default_factory=NetworkSettings)
     """The actor-critic's observations, sizes and inputs (the same networks as A3C's)."""
     optimization: PPOOptimizationSettings = dataclasses.field(default_factory=PPOOptimizationSettings)
@@ -140,6 +144,7 @@ class PPOConfig(LearnerSettings):
     SETTINGS_NAME: ClassVar[str] = "PPO settings"
     # What a resumed run may change without changing what is being learned.
     RESUMABLE_CHANGES: ClassVar[tuple[str, ...]] = (
+        "device",
         "steps",
         "checkpoint_every",
         "eval_every",
@@ -150,6 +155,12 @@ class PPOConfig(LearnerSettings):
     def __post_init__(self) -> None:
         super().__post_init__()
         owner = type(self).__name__
+        check_choice(owner, "device", self.device, DEVICES)
+        if self.device == "cuda" and self.schedule.workers > 1:
+            raise ValueError(
+                f"{owner}: device 'cuda' takes one process (workers 1; a GPU learner is fed by its own "
+                f"environments), got workers {self.schedule.workers!r}"
+            )
         if self.optimization.minibatches > self.sequences_per_rollout:
             raise ValueError(
                 f"{owner}.minibatches must be at most the sequences of a rollout ({self.sequences_per_rollout}: "

@@ -10,6 +10,7 @@ A resumed run continues from its checkpoint (weights, Adam's statistics, steps) 
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import json
 import math
@@ -23,6 +24,7 @@ import torch
 from bimgame.learn.checkpoints import apply_weights, load_checkpoint, load_init_weights, save_checkpoint
 from bimgame.learn.common import EVAL_COLUMNS, init_network_settings, run_evaluation
 from bimgame.learn.curves import plot_run
+from bimgame.learn.devices import resolve_device
 from bimgame.learn.episode_monitor import Monitor
 from bimgame.learn.metric_logs import MetricLog
 from bimgame.learn.nets import RecurrentActorCritic
@@ -92,11 +94,22 @@ def train_ppo(
         raise ValueError("--init with --resume: a resumed run continues from its own checkpoint")
     # With worker processes every rank has one core's share: one thread each.
     threads = 1 if config.schedule.workers > 1 else None
+    device = resolve_device(config.device)
+    if device.type != "cpu" and config.schedule.workers > 1:
+        raise ValueError(f"device {config.device!r} ({device}) takes one process (workers 1)")
     with torch_threads(threads), RunDirectory(run_dir, KIND_PPO, resume=resume) as run:
         net = config.network.build_policy(config.seed)
-        optimizer = adam(net, config)
+        learning = learning_copy(net, device)
+        optimizer = adam(learning if learning is not None else net, config)
         start = _resumed(config, run, net, optimizer) if resume else _started(config, run, net, init)
-        return _Session(config, run, net, optimizer, start).run(progress)
+        if learning is not None:
+            learning.load_state_dict(net.state_dict())  # the weights the run starts from
+        return _Session(config, run, net, optimizer, start, learning).run(progress)
+
+
+def learning_copy(net: RecurrentActorCritic, device: torch.device) -> RecurrentActorCritic | None:
+    """The copy of ``net`` the update trains on ``device``, or None on the CPU (``net`` itself learns)."""
+    return None if device.type == "cpu" else copy.deepcopy(net).to(device)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -158,10 +171,11 @@ class _Session:
         net: RecurrentActorCritic,
         optimizer: torch.optim.Optimizer,
         start: _Start,
+        learning: RecurrentActorCritic | None = None,
     ):
         self.config, self.directory, self.net, self.optimizer = config, run, net, optimizer
         step = self.step = self.checkpoint_step = self.eval_step = self.log_step = start.step
-        self.teacher = start.teacher
+        self.teacher, self.learning = start.teacher, learning
         self.started = time.monotonic() - start.seconds  # seconds count the whole run, across resumes
         fresh = step == 0 and not run.resume
         # An update's row is logged before its step's checkpoint: a resumed run keeps it.
@@ -224,6 +238,7 @@ class _Session:
                 global_step=lambda: self.step,
                 average=group.average if group is not None else None,
                 teacher=self.teacher,
+                learning=self.learning,
             )
             while self.step < config.schedule.steps:
                 self._rollout_and_update(learner, group)
