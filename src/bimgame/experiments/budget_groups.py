@@ -244,7 +244,7 @@ class PPOBudget:
 
     PATH: ClassVar[str] = "Budget.ppo"
 
-    envs_per_worker: int = 16
+    envs_per_worker: int = PPOConfig().schedule.envs_per_worker
     """Environments stepped as one batch in the run's process (A3C's per worker)."""
     n_steps: int = _PPO.n_steps
     """Steps each environment acts per rollout."""

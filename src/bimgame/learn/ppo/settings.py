@@ -23,17 +23,19 @@ class PPOOptimizationSettings:
     """PPO's rollouts, clipped objective and optimiser (Schulman et al. 2017)."""
 
     n_steps: int = 128
-    """Steps each environment acts per rollout (the LSTM is unrolled over all of them)."""
+    """Steps each environment acts per rollout."""
     epochs: int = 4
     """Passes over each rollout."""
     minibatches: int = 4
     """Minibatches per epoch, each a random set of whole sequences (at most the number of sequences:
     environments × ``n_steps`` / ``sequence_length``)."""
-    sequence_length: int | None = None
+    sequence_length: int | None = 16
     """Steps of the sequences a minibatch unrolls the LSTM over, each from the LSTM state the acting
     network had at its first step (a divisor of ``n_steps``); None: each environment's whole rollout
     (CleanRL's recurrent PPO). Shorter sequences backpropagate through fewer steps one after the
-    other: the update is faster, the gradient of memory truncated."""
+    other: the update is faster, the gradient of memory truncated. The default, 16, ran at about
+    twice the steps/s of whole 128-step rollouts and reached 80% on STG1 in fewer steps, on each of
+    three seeds (``benchmarks/results/learners.json``)."""
     clip: float = 0.2
     """The ratio clip ε of the surrogate objective."""
     value_clip: float | None = None
@@ -111,7 +113,8 @@ class PPOFinetuneSettings:
 
 
 def _single_process_schedule() -> ScheduleSettings:
-    """PPO's schedule unless told otherwise: one process (its environments are stepped in the learner's)."""
+    """PPO's schedule unless told otherwise: one process (``workers`` > 1 averages the gradients of
+    several; on a 2-core machine that measured slower, see :mod:`bimgame.learn.ppo.parallel`)."""
     return ScheduleSettings(workers=1)
 
 
