@@ -33,7 +33,7 @@ def _changed_from_paper(algorithm: str) -> dict:
 
 def test_every_algorithm_but_dagger_is_an_a3c_run_and_the_paper_ones_come_first():
     assert ALGORITHMS[:5] == PAPER_ALGORITHMS
-    assert set(A3C_ALGORITHMS) == set(ALGORITHMS) - {"dagger", "ppo", "pretrain+ppo"}
+    assert set(A3C_ALGORITHMS) == set(ALGORITHMS) - {"dagger", "ppo", "pretrain+ppo", "pretrain+ppo+keep"}
     # The paper's A3C algorithms keep A3C's defaults; pre-train + A3C records the paper preset (all off).
     for algorithm in ("a3c", "a3c+value", "pretrain+a3c+value"):
         assert finetune_overrides(algorithm, STEPS, DATA) == {}
@@ -136,7 +136,7 @@ def test_pixel_levers_reach_every_network_but_the_papers_and_daggers(tiny_budget
      r"pretrain\+a3c\+keepfade, a3c\+reverse, a3c\+papernet$"),
     (lambda: finetune_overrides("ppo", STEPS, DATA), r"unknown A3C algorithm 'ppo'.*\(PPO is not an A3C run\)$"),
     (lambda: ppo_overrides("a3c", STEPS, DATA),
-     r"unknown PPO algorithm 'a3c'; allowed: ppo, pretrain\+ppo \(A3C is not a PPO run\)$"),
+     r"unknown PPO algorithm 'a3c'; allowed: ppo, pretrain\+ppo, pretrain\+ppo\+keep \(A3C is not a PPO run\)$"),
     (lambda: finetune_overrides("dagger", STEPS, DATA), r"unknown A3C algorithm 'dagger'.*not an A3C run"),
     (lambda: finetune_overrides("pretrain+a3c+bc", 0, DATA), r"steps must be an integer >= 1, got 0"),
     (lambda: finetune_overrides("pretrain+a3c+demo", STEPS, None),
