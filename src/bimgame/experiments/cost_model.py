@@ -37,8 +37,9 @@ class CostModel:
     """PPO environment steps/s in its one process with 16 envs and PPO's defaults (4 epochs of 4
     minibatches of 16-step sequences), evaluations apart (state: 2,100–2,900 in
     benchmarks/bench_learners.py's 300k-step STG1 runs, where A3C made 4,700–5,700 on the same
-    machine; whole 128-step sequences made 2,400–2,500 on a faster machine where A3C made 10,000–11,200; pixels-bf16: 0.30 of the state rate, as measured side by side with one torch thread
-    on a loaded machine, 296 against 1,000 steps/s in short STG1 runs with auxiliary heads; pixels:
+    machine; whole 128-step sequences made 2,400–2,500 on a faster machine where A3C made
+    10,000–11,200; pixels-bf16: 0.30 of the state rate, as measured side by side with one torch
+    thread on a loaded machine, 296 against 1,000 steps/s in short STG1 runs with auxiliary heads; pixels:
     A3C's float32/bf16 ratio, 0.87, applied to that)."""
     ppo_overhead_s: float = 4.0
     """Per PPO run: building the network and environments, the curves figure (its evaluations are
