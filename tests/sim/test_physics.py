@@ -72,8 +72,9 @@ def marble_energy(sim: MazeSim, state: np.ndarray, i: int = 0) -> float:
     return 0.5 * m * v @ v + 0.5 * (0.4 * m * r * r) * w @ w + m * G * z
 
 
-def rolling_acceleration(friction: Friction, tilt_y: float, settle: float = 0.2,
-                         duration: float = 0.5) -> tuple[float, np.ndarray]:
+def rolling_acceleration(
+    friction: Friction, tilt_y: float, settle: float = 0.2, duration: float = 0.5
+) -> tuple[float, np.ndarray]:
     """Board-frame x acceleration of a marble released at rest on a wall-free board tilted by
     ``tilt_y`` about y: finite difference of the velocity over ``duration`` after ``settle``."""
     sim = MazeSim(flat_spec(friction=friction))
@@ -117,14 +118,15 @@ def test_rates():
 # --------------------------------------------------------------------------------------- rolling
 THETA = 5 * DEG
 ROLL_THEORY = 5 / 7 * G * math.sin(THETA)  # 0.6107 m/s²
-SLIDE_THEORY = G * math.sin(THETA)          # 0.8550 m/s²
+SLIDE_THEORY = G * math.sin(THETA)  # 0.8550 m/s²
 
 CONDIM_BUG = (
     "sim/physics.py contact_condim(): MERL's friction (slide 0.5, spin 1e-5, roll 1e-6) has spin == mjMINMU, "
     "so condim=6 is chosen and MuJoCo raises the rolling friction 1e-6 to 1e-5 "
     "(d.contact.friction == [0.5, 0.5, 1e-5, 1e-5, 1e-5]): the marble rolls 2.2% slower than "
     "(5/7) g sinθ without static friction (0.5973 vs 0.6107 m/s²) and 2.3% slower than the static-"
-    "friction theory with it (0.5838 vs 0.5972). condim=4 (torsional only) gives 0.6073 / 0.5938.")
+    "friction theory with it (0.5838 vs 0.5972). condim=4 (torsional only) gives 0.6073 / 0.5938."
+)
 
 
 def test_rolling_direction_and_plane():
@@ -200,12 +202,16 @@ def test_rolling_marble_stays_on_floor():
         assert _max_height_after_launch(speed, rolling=True) < 0.1 * MM  # measured ≤ 0.042 mm
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "sim/physics.py (150 Hz physics): a marble sliding without spin on the floor is thrown upwards by "
-    "the contact solver while friction spins it up: it rises 0.33 / 0.89 / 3.4 mm above its resting "
-    "height at 0.3 / 0.5 / 1 m/s (independent of impratio, cone type and noslip iterations); at "
-    "600 Hz physics the hop is ~0.1 mm. Rolling marbles do not hop (<= 0.04 mm). Sliding happens "
-    "after every wall impact."))
+@pytest.mark.xfail(
+    strict=True,
+    reason=(
+        "sim/physics.py (150 Hz physics): a marble sliding without spin on the floor is thrown upwards by "
+        "the contact solver while friction spins it up: it rises 0.33 / 0.89 / 3.4 mm above its resting "
+        "height at 0.3 / 0.5 / 1 m/s (independent of impratio, cone type and noslip iterations); at "
+        "600 Hz physics the hop is ~0.1 mm. Rolling marbles do not hop (<= 0.04 mm). Sliding happens "
+        "after every wall impact."
+    ),
+)
 def test_sliding_marble_stays_on_floor():
     assert _max_height_after_launch(0.5, rolling=False) < 0.2 * MM
 
@@ -261,8 +267,9 @@ def _angle_away_from_gates(spec: MazeSpec, channel: int) -> float:
     return float(best)
 
 
-@pytest.mark.parametrize("channel, direction", [
-    (0, +1), (1, -1), (1, +1), (2, -1), (2, +1), (3, -1), (3, +1), (4, -1), (4, +1)])
+@pytest.mark.parametrize(
+    "channel, direction", [(0, +1), (1, -1), (1, +1), (2, -1), (2, +1), (3, -1), (3, +1), (4, -1), (4, +1)]
+)
 def test_walls_stop_a_fast_marble(merl, merl_fine, channel, direction):
     """Fired at 1 m/s radially into a wall away from any gate, the marble is stopped and never
     changes channel in 0.5 s (checked at every physics step). The contacts are nearly perfectly
@@ -298,7 +305,7 @@ def test_walls_stop_a_fast_marble(merl, merl_fine, channel, direction):
         overlap = face - radii.min()
     assert -0.1 * MM < overlap < one_step + 0.2 * MM
     # ... and it comes back off the wall: the last 0.2 s are spent clear of it.
-    tail = radii[-round(0.2 * PHYSICS_HZ):]
+    tail = radii[-round(0.2 * PHYSICS_HZ) :]
     assert np.all(tail < face + 0.5 * MM) if direction > 0 else np.all(tail > face - 0.5 * MM)
 
 
@@ -340,8 +347,7 @@ def test_random_actions_cross_walls_only_in_gates(merl, merl_fine):
         t = (wall.mid_radius - r[i]) / (r[i + 1] - r[i])
         p = pos[i, :2] + t * (pos[i + 1, :2] - pos[i, :2])
         ang = math.atan2(p[1], p[0])
-        margin = min(abs((ang - g.angle + math.pi) % (2 * math.pi) - math.pi) - g.width / 2
-                     for g in wall.gates)
+        margin = min(abs((ang - g.angle + math.pi) % (2 * math.pi) - math.pi) - g.width / 2 for g in wall.gates)
         worst = max(worst, margin)
         tol = math.asin(merl.marble_radius / wall.mid_radius)
         assert wall.in_gate(ang) or margin < tol
@@ -378,7 +384,7 @@ def test_energy_never_grows_on_fixed_tilted_board(merl, merl_fine):
         heading = rng.uniform(0, 2 * np.pi)
         launch(sim, [[speed * math.cos(heading), speed * math.sin(heading)]], rolling=trial > 0)
         e0 = marble_energy(sim, sim.get_state())
-        ke0 = 0.5 * merl.marble_mass * speed ** 2
+        ke0 = 0.5 * merl.marble_mass * speed**2
         energies = []
         for _ in range(round(5 * PHYSICS_HZ)):
             sim.step(np.zeros(2))
@@ -429,8 +435,9 @@ def test_rollout_equals_stepping(merl, nthread):
     batch, horizon = 4, 25
     starts = []
     for _ in range(batch):
-        sim.reset(polar(merl.channel_centre_radius(4), rng.uniform(0, 360))[None],
-                  tilt=rng.integers(-3, 4, size=2) * DEG)
+        sim.reset(
+            polar(merl.channel_centre_radius(4), rng.uniform(0, 360))[None], tilt=rng.integers(-3, 4, size=2) * DEG
+        )
         for a in _random_actions(rng, 1, 5, merl)[0]:
             sim.step(a)
         starts.append(sim.get_state())
@@ -468,13 +475,16 @@ def test_rollout_threads_agree(merl):
     sim.close()
 
 
-@pytest.mark.parametrize("states_shape, deltas_shape, match", [
-    ((3, 10), (3, 5, 2), "states must have last dimension"),
-    (("S",), (5, 3), r"tilt_deltas must have shape \(B, H, 2\)"),
-    (("S",), (5,), r"tilt_deltas must have shape \(B, H, 2\)"),
-    (("S",), (2, 3, 5, 2), r"tilt_deltas must have shape \(B, H, 2\)"),
-    ((2, "S"), (3, 5, 2), "batch sizes"),
-])
+@pytest.mark.parametrize(
+    "states_shape, deltas_shape, match",
+    [
+        ((3, 10), (3, 5, 2), "states must have last dimension"),
+        (("S",), (5, 3), r"tilt_deltas must have shape \(B, H, 2\)"),
+        (("S",), (5,), r"tilt_deltas must have shape \(B, H, 2\)"),
+        (("S",), (2, 3, 5, 2), r"tilt_deltas must have shape \(B, H, 2\)"),
+        ((2, "S"), (3, 5, 2), "batch sizes"),
+    ],
+)
 def test_rollout_rejects_bad_shapes(merl, states_shape, deltas_shape, match):
     sim = MazeSim(merl)
     size = sim.state_size
@@ -568,10 +578,14 @@ def test_two_marbles_fast_collision_is_bounded_by_one_step():
     _check_two_marbles(spec, pos, 0.5 / PHYSICS_HZ + 0.2 * MM)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "sim/physics.py: contacts are detected only after overlap, at 150 Hz: two marbles closing at 0.5 m/s "
-    "overlap by up to 0.5 m/s / 150 Hz = 3.3 mm (measured 2.49 mm); walls likewise (2.8 mm at "
-    "0.5 m/s, 4.2 mm at 0.7 m/s; a marble at >= 1.5 m/s tunnels through a wall)"))
+@pytest.mark.xfail(
+    strict=True,
+    reason=(
+        "sim/physics.py: contacts are detected only after overlap, at 150 Hz: two marbles closing at 0.5 m/s "
+        "overlap by up to 0.5 m/s / 150 Hz = 3.3 mm (measured 2.49 mm); walls likewise (2.8 mm at "
+        "0.5 m/s, 4.2 mm at 0.7 m/s; a marble at >= 1.5 m/s tunnels through a wall)"
+    ),
+)
 def test_two_marbles_fast_collision_overlap_below_half_mm():
     spec, pos = _two_marble_collision(0.25)
     _check_two_marbles(spec, pos, 0.5 * MM)
@@ -612,8 +626,7 @@ def test_board_frame_norm_and_velocity_while_tilting(merl):
     p, v = sim.layout.board_frame(states)  # vectorised over leading dims
     assert p.shape == (len(states), 1, 3) and v.shape == p.shape
     world = states[:, sim.layout.marble_pos[0]]
-    np.testing.assert_allclose(np.linalg.norm(p[:, 0], axis=-1), np.linalg.norm(world, axis=-1),
-                               rtol=1e-13)
+    np.testing.assert_allclose(np.linalg.norm(p[:, 0], axis=-1), np.linalg.norm(world, axis=-1), rtol=1e-13)
     # The integrator is semi-implicit (q_{n+1} = q_n + dt·v_{n+1}), so the backward difference of
     # the board-frame position matches the velocity at the later step up to O(dt·|ω|·|v|, dt·|ω|²|p|)
     # (< 1 mm/s here; dropping the ω×p term would be wrong by tens of mm/s).
@@ -673,3 +686,67 @@ def test_nan_tilt_changes_are_refused_instead_of_resetting_the_state(merl):
         sim.rollout(bad, np.zeros((1, 2)))
     sim.step((np.inf, 0.0))  # an infinite change is only clamped at max_tilt
     np.testing.assert_allclose(sim.target_tilt, [merl.max_tilt, 0.0])
+
+
+# ---------------------------------------------------------------- switching mazes without a rebuild
+def _slotted_trajectory(sim, spec, seed=0, steps=300, model=None):
+    from bimgame.envs.env import DISCRETE_TILTS
+    from bimgame.sim.placement import sample_start
+
+    sim.reset(sample_start(spec, 1, np.random.default_rng(seed)))
+    actions = np.random.default_rng(seed + 1).integers(0, 5, steps)
+    models = None if model is None else [model]
+    return sim.rollout(sim.get_state(), DISCRETE_TILTS[actions] * spec.tilt_step, models=models)[0]
+
+
+def test_set_walls_steps_exactly_as_a_model_built_for_the_maze():
+    import copy
+
+    from bimgame.sim.maze_sets import maze_number
+    from bimgame.sim.mjcf import wall_slots
+
+    slots = wall_slots(MazeSpec.merl(), 4)
+    switched = MazeSim(MazeSpec.merl(), wall_slots=slots)
+    copy_model = copy.copy(switched.model)
+    for number in (0, 1, 2):
+        maze = maze_number(number)
+        built = MazeSim(maze, wall_slots=slots)
+        switched.set_walls(maze)
+        expected = _slotted_trajectory(built, maze, seed=number)
+        np.testing.assert_array_equal(_slotted_trajectory(switched, maze, seed=number), expected)
+        switched.set_walls(maze, copy_model)  # a model copy, as a vector env's envs have
+        np.testing.assert_array_equal(_slotted_trajectory(switched, maze, seed=number, model=copy_model), expected)
+    # And the marble meets the new walls: MERL's model would give another trajectory.
+    merl = _slotted_trajectory(MazeSim(MazeSpec.merl()), maze, seed=2)
+    assert not np.array_equal(merl, expected)
+
+
+def test_set_walls_refuses_another_board_a_sim_without_slots_and_too_many_gates():
+    from bimgame.sim.generate import GateRules, random_maze
+    from bimgame.sim.mjcf import wall_boxes, wall_slots
+
+    base = MazeSpec.merl()
+    with pytest.raises(ValueError, match="built with wall_slots"):
+        MazeSim(base).set_walls(base)
+    sim = MazeSim(base, wall_slots=wall_slots(base, 4))
+    with pytest.raises(ValueError, match="marble_mass"):
+        sim.set_walls(base.replace(marble_mass=0.01))
+    with pytest.raises(ValueError, match="radii"):
+        sim.set_walls(base.replace(walls=base.walls[1:]))
+    exact = MazeSim(base, wall_slots=tuple(len(boxes) for boxes in wall_boxes(base)))  # no spare slot
+    many = random_maze(np.random.default_rng(0), rules=GateRules(min_gates=8, max_gates=8))
+    with pytest.raises(ValueError, match=r"walls\[\d\] of the new maze needs \d+ pieces, more than the \d+ slots"):
+        exact.set_walls(many)
+
+
+def test_wall_slots_hold_every_random_maze():
+    from bimgame.sim.generate import random_maze
+    from bimgame.sim.mjcf import wall_boxes, wall_slots
+
+    slots = wall_slots(MazeSpec.merl(), 4)
+    most = [0] * len(slots)
+    for seed in range(300):
+        for k, boxes in enumerate(wall_boxes(random_maze(np.random.default_rng(seed)))):
+            most[k] = max(most[k], len(boxes))
+    assert all(m <= s for m, s in zip(most, slots))
+    assert sum(slots) - sum(most) < 40  # and not wastefully many (parked pieces still cost a pair test)

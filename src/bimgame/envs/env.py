@@ -14,8 +14,10 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
+from bimgame.envs.mazes import EnvMazes, maze_encoding
 from bimgame.envs.observe import OBS_MODES, Observer
 from bimgame.envs.randomization import EpisodeRandomizer, Randomization, observation_space
+from bimgame.sim.generate import GateRules
 from bimgame.sim.maze import MazeSpec, MazeSpecError
 from bimgame.sim.physics import MazeSim
 from bimgame.sim.placement import check_marble_xy, check_n_marbles, check_sim_state, finite_array, sample_start
@@ -34,7 +36,7 @@ ACTION_MEANINGS = ("noop", "tilt +x", "tilt -x", "tilt +y", "tilt -y")
 #: previous-action input and the datasets' ``prev_actions`` hold at step 0.
 NO_ACTION = -1
 #: The keys ``reset(options=...)`` takes, for error messages.
-RESET_OPTIONS = "'marble_xy', 'sim_state'"
+RESET_OPTIONS = "'marble_xy', 'sim_state', 'maze' (with num_mazes)"
 #: What the discrete actions mean, for error messages.
 ACTIONS_HELP = ", ".join(f"{i}={m}" for i, m in enumerate(ACTION_MEANINGS))
 _FAST_INTS = (int, np.int64, np.int32)
@@ -87,7 +89,9 @@ class BallInMazeEnv(gym.Env):
     ``obs_mode="state"``: ``Box((5n + 2,), float32)`` for ``n`` marbles, laid out as
     ``[x_1, y_1, vx_1, vy_1, …, x_n, y_n, vx_n, vy_n, tilt_x, tilt_y, channel_1, …, channel_n]``:
     board-frame positions (m) and velocities (m/s), the board's tilt (rad) and each marble's
-    channel (0 = centre … 4 = outermost).
+    channel (0 = centre … 4 = outermost). With ``num_mazes``, then the episode's maze as each
+    wall's openness at 32 angles (:func:`~bimgame.envs.mazes.maze_encoding`, 128 values in [0, 1]);
+    pixels show the episode's maze.
 
     ## Rewards
 
@@ -117,6 +121,18 @@ class BallInMazeEnv(gym.Env):
     the side of the wall's mid-line it is on (the run itself may still have counted it on the other
     side, until it cleared the wall). ``marble_xy`` and ``sim_state`` exclude each other.
 
+    ## Many mazes
+
+    ``num_mazes`` (default None: the one ``maze``) draws each episode's maze, as Procgen's
+    ``num_levels``: ``num_mazes`` random mazes from number ``start_maze`` on, uniformly (0: unlimited,
+    a new maze every episode), of ``maze_split`` ``"train"`` or ``"test"`` — the held-out mazes,
+    whose hashes occur in no training set (:mod:`bimgame.sim.maze_sets`). Every maze keeps ``maze``'s
+    board (its walls' radii, rim and marble; default MERL's) with 1–4 random gates per wall
+    (``maze_rules``, a :class:`~bimgame.sim.generate.GateRules`). ``reset(options={"maze": i})``
+    picks maze number ``i`` of the set. The physics switches mazes without building a model
+    (:meth:`~bimgame.sim.physics.MazeSim.set_walls`); ``env.maze`` is the episode's maze and
+    ``info["maze"]`` its number.
+
     ## Episode End
 
     Termination: FULL — the marble reaches the centre; STGk — it passes the k-th wall (with several
@@ -131,7 +147,8 @@ class BallInMazeEnv(gym.Env):
 
     ``channel`` (n,) int, ``gate_crossings`` (n,) int (+1 inwards / -1 outwards this step),
     ``geodesic_distance`` (n,) float (m, shortest path to the centre through the gates),
-    ``is_success`` bool (the task's goal reached), ``tilt`` (2,) float (rad). With ``randomize``:
+    ``is_success`` bool (the task's goal reached), ``tilt`` (2,) float (rad). With ``num_mazes``:
+    ``maze``, the episode's maze number. With ``randomize``:
     ``randomization``, the current episode's draws (a dict of floats, ``latency`` an int; see
     :class:`~bimgame.envs.randomization.Randomization` for names and units).
 
@@ -146,8 +163,8 @@ class BallInMazeEnv(gym.Env):
     "mujoco" — MuJoCo's 3D OpenGL renderer), ``randomize`` (None — the default, nothing drawn —
     or a :class:`~bimgame.envs.randomization.Randomization` of ranges, or a dict of its fields:
     domain randomisation, drawn from ``np_random`` at every reset after the start; camera ranges
-    need ``obs_mode="pixels"``). Each is checked at construction (``ValueError`` naming it and what
-    is allowed).
+    need ``obs_mode="pixels"``), ``num_mazes``, ``start_maze``, ``maze_split``, ``maze_rules`` (see
+    Many mazes). Each is checked at construction (``ValueError`` naming it and what is allowed).
 
     ## Version History
 
@@ -171,6 +188,10 @@ class BallInMazeEnv(gym.Env):
         render_size: int = 480,
         renderer: str = "raster",
         randomize: Randomization | Mapping[str, Any] | None = None,
+        num_mazes: int | None = None,
+        start_maze: int = 0,
+        maze_split: str = "train",
+        maze_rules: GateRules | None = None,
     ):
         spec = maze if maze is not None else MazeSpec.merl()
         if not isinstance(spec, MazeSpec):
@@ -186,6 +207,17 @@ class BallInMazeEnv(gym.Env):
             raise MazeSpecError(
                 f"{error} (from tilt_step_deg={tilt_step_deg!r}, max_tilt_deg={max_tilt_deg!r}, in degrees)"
             ) from None
+        #: The mazes episodes are drawn from (None: always :attr:`maze`).
+        self.mazes = (
+            None
+            if num_mazes is None
+            else EnvMazes.from_options(self.maze, num_mazes, start_maze, maze_split, maze_rules)
+        )
+        #: The current episode's maze number (None without ``num_mazes``).
+        self.maze_number: int | None = None
+        if self.mazes is not None:
+            self.maze_number = self.mazes.first_number()
+            self.maze = self.mazes.maze(self.maze_number)
         self.task = parse_task(task, self.maze)
         if obs_mode not in OBS_MODES:
             raise ValueError(f"unknown obs_mode {obs_mode!r}; allowed: {', '.join(OBS_MODES)}")
@@ -204,17 +236,26 @@ class BallInMazeEnv(gym.Env):
         self.randomize = Randomization.from_value(randomize)
         if self.randomize is not None:
             self.randomize.check(self.maze, obs_mode, obs_size)
+            if self.mazes is not None and self.randomize.marble_radius is not None:
+                raise ValueError(
+                    "randomize.marble_radius with num_mazes: random mazes' gates are sized for the nominal "
+                    "marble (GateRules.margin); leave marble_radius out of the randomisation"
+                )
         self._init_kwargs = dict(
             task=self.task.value,
             obs_mode=obs_mode,
             action_type=action_type,
-            maze=self.maze,
+            maze=self.maze if self.mazes is None else self.mazes.base,
             n_marbles=int(n_marbles),
             obs_size=obs_size,
             render_mode=render_mode,
             render_size=render_size,
             renderer=renderer,
             randomize=self.randomize,
+            num_mazes=num_mazes,
+            start_maze=start_maze,
+            maze_split=maze_split,
+            maze_rules=maze_rules,
         )
         self.obs_mode = obs_mode
         self.action_type = action_type
@@ -222,8 +263,17 @@ class BallInMazeEnv(gym.Env):
         self.render_mode = render_mode
         self.render_size = int(render_size)
         self.renderer = renderer
-        self.sim = MazeSim(self.maze, n_marbles=self.n_marbles)
-        self.observer = Observer(self.maze, self.n_marbles, obs_mode, obs_size=obs_size, layout=self.sim.layout)
+        self.sim = MazeSim(
+            self.maze, n_marbles=self.n_marbles, wall_slots=None if self.mazes is None else self.mazes.wall_slots
+        )
+        self.observer = Observer(
+            self.maze,
+            self.n_marbles,
+            obs_mode,
+            obs_size=obs_size,
+            layout=self.sim.layout,
+            maze_encoding=self.mazes is not None,
+        )
         self.observation_space = observation_space(
             self.observer.space, self.randomize, self.maze, self.n_marbles, obs_mode
         )
@@ -254,7 +304,7 @@ class BallInMazeEnv(gym.Env):
         options = {} if options is None else options
         if not isinstance(options, Mapping):
             raise ValueError(f"reset options must be a dict (allowed keys: {RESET_OPTIONS}), got {options!r}")
-        unknown = set(options) - {"marble_xy", "sim_state"}
+        unknown = set(options) - {"marble_xy", "sim_state", "maze"}
         if unknown:
             raise ValueError(f"unknown reset options {sorted(unknown)}; allowed: {RESET_OPTIONS} (one of them)")
         if "marble_xy" in options and "sim_state" in options:
@@ -262,6 +312,15 @@ class BallInMazeEnv(gym.Env):
                 "reset options 'marble_xy' and 'sim_state' exclude each other: give the marbles' "
                 "positions (a start at rest) or a whole physics state, not both"
             )
+        if self.mazes is not None:  # the maze first: starts are checked against its walls
+            number = (
+                self.mazes.check_number(options["maze"], "options['maze']")
+                if "maze" in options
+                else self.mazes.maze_set.draw(self.np_random)
+            )
+            self.switch_maze(number)
+        elif "maze" in options:
+            raise ValueError("reset option 'maze' needs an env built with num_mazes (it names a maze of the set)")
         state = None
         if "sim_state" in options:
             state, xy = check_sim_state(self.maze, self.sim.layout, options["sim_state"], "options['sim_state']")
@@ -329,6 +388,15 @@ class BallInMazeEnv(gym.Env):
             self._mujoco_renderer = None
         self.sim.close()
 
+    def switch_maze(self, number: int) -> None:
+        """Show maze ``number`` of :attr:`mazes` from now on (``reset`` does it at every episode)."""
+        if self.mazes is None:
+            raise ValueError("switch_maze needs an env built with num_mazes")
+        spec = self.mazes.maze(number)
+        self.sim.set_walls(spec)
+        self.maze, self.maze_number = spec, number
+        self.observer.set_maze(spec)
+
     # ------------------------------------------------------------------ helpers
     def _start_randomized_episode(self, randomizer: EpisodeRandomizer) -> None:
         """Draw the episode's randomisation from ``np_random`` and set its physics on the model."""
@@ -349,6 +417,8 @@ class BallInMazeEnv(gym.Env):
         # tests check the single env against the batched vector env observation by observation).
         tilt = self.sim.data.qpos
         values = [v for k in kinematics for v in k] + [tilt[0], tilt[1]] + self._channels
+        if self.mazes is not None:
+            return np.concatenate([np.array(values, dtype=np.float32), maze_encoding(self.maze)])
         return np.array(values, dtype=np.float32)
 
     def _info(self, kinematics, crossings: list[int], success: bool) -> dict[str, Any]:
@@ -360,6 +430,8 @@ class BallInMazeEnv(gym.Env):
             "is_success": success,
             "tilt": self.sim.data.qpos[:2].copy(),
         }
+        if self.maze_number is not None:
+            info["maze"] = self.maze_number
         if self.randomizer is not None:
             info["randomization"] = dict(self._draws)
         return info
@@ -384,6 +456,7 @@ class BallInMazeEnv(gym.Env):
         return {
             "kwargs": self._init_kwargs,
             "sim_state": self.sim.get_state(),
+            "maze_number": self.maze_number,
             "task": (list(self._channels), list(self._reached), self._has_reset, self._episode_over),
             "np_random": None if self._np_random is None else self._np_random.bit_generator.state,
             "randomization": None
@@ -393,6 +466,8 @@ class BallInMazeEnv(gym.Env):
 
     def __setstate__(self, state: dict) -> None:
         type(self).__init__(self, **state["kwargs"])
+        if state.get("maze_number") is not None:
+            self.switch_maze(state["maze_number"])
         if state.get("randomization") is not None:
             randomizer = self.randomizer
             assert randomizer is not None, "pickled with a randomisation, so built with one from the same kwargs"

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 from gymnasium import spaces
 
+from bimgame.envs.mazes import EnvMazes, maze_encoding, maze_encoding_size
 from bimgame.sim.layout import StateLayout
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.render import MazeRenderer
@@ -20,11 +21,19 @@ class Observer:
 
     ``pixels``: (B, 1, size, size) uint8 from :class:`~bimgame.sim.render.MazeRenderer`.
     ``state``: (B, 4n + 2 + n) float32 — per marble x, y, vx, vy (board frame, m and m/s), then
-    tilt about x and y (rad), then each marble's channel.
+    tilt about x and y (rad), then each marble's channel; with ``maze_encoding``, then the maze's
+    :func:`~bimgame.envs.mazes.maze_encoding` (each row's, given to :meth:`from_kinematics`).
     """
 
     def __init__(
-        self, spec: MazeSpec, n_marbles: int, obs_mode: str, *, obs_size: int = 84, layout: StateLayout | None = None
+        self,
+        spec: MazeSpec,
+        n_marbles: int,
+        obs_mode: str,
+        *,
+        obs_size: int = 84,
+        layout: StateLayout | None = None,
+        maze_encoding: bool = False,
     ):
         if obs_mode not in OBS_MODES:
             raise ValueError(f"unknown obs_mode {obs_mode!r}; allowed: {', '.join(OBS_MODES)}")
@@ -35,6 +44,7 @@ class Observer:
         self.obs_mode = obs_mode
         self.obs_size = int(obs_size)
         self.layout = layout
+        self.encoding_size = maze_encoding_size(spec) if maze_encoding and obs_mode == "state" else 0
         self._raster: MazeRenderer | None = None
         self.space: spaces.Box
         if obs_mode == "pixels":
@@ -52,14 +62,22 @@ class Observer:
                     np.full(n, spec.outermost_channel),
                 ]
             ).astype(np.float32)
+            low = np.concatenate([low, np.zeros(self.encoding_size, dtype=np.float32)])
+            high = np.concatenate([high, np.ones(self.encoding_size, dtype=np.float32)])
             self.space = spaces.Box(low, high, dtype=np.float32)
 
     @property
     def raster(self) -> MazeRenderer:
         """The pixel renderer (built on first use: state observations never need it)."""
         if self._raster is None:
-            self._raster = MazeRenderer(self.spec, self.obs_size)
+            self._raster = EnvMazes.raster(self.spec, self.obs_size)
         return self._raster
+
+    def set_maze(self, spec: MazeSpec) -> None:
+        """Observe ``spec`` from now on (a maze on the same board: its raster is drawn on first use)."""
+        if spec is not self.spec:
+            self.spec = spec
+            self._raster = None
 
     def __call__(
         self,
@@ -74,16 +92,29 @@ class Observer:
         return self.from_kinematics(positions, velocities, states[:, layout.tilt], channels)
 
     def from_kinematics(
-        self, positions: np.ndarray, velocities: np.ndarray, tilt: np.ndarray, channels: np.ndarray
+        self,
+        positions: np.ndarray,
+        velocities: np.ndarray,
+        tilt: np.ndarray,
+        channels: np.ndarray,
+        *,
+        encodings: np.ndarray | None = None,
+        backgrounds: np.ndarray | None = None,
     ) -> np.ndarray:
         """Observations from board-frame marble positions and velocities (B, n, 3), board tilt
-        (B, 2) and channels (B, n), for callers that already decoded their states."""
+        (B, 2) and channels (B, n), for callers that already decoded their states. When rows show
+        different mazes: ``encodings`` (B, :attr:`encoding_size`), each row's
+        :func:`~bimgame.envs.mazes.maze_encoding`, and ``backgrounds`` (B, size, size), each row's
+        raster background; by default every row shows :attr:`spec`."""
         batch = positions.shape[0]
         if self.obs_mode == "pixels":
-            return self.raster.gray(positions[..., :2])[:, None]
+            return self.raster.gray(positions[..., :2], backgrounds=backgrounds)[:, None]
         per_marble = np.concatenate([positions[..., :2], velocities[..., :2]], axis=-1)
-        out = np.empty((batch, 5 * self.n_marbles + 2), dtype=np.float32)
-        out[:, : 4 * self.n_marbles] = per_marble.reshape(batch, -1)
-        out[:, 4 * self.n_marbles : 4 * self.n_marbles + 2] = tilt
-        out[:, 4 * self.n_marbles + 2 :] = channels
+        n = self.n_marbles
+        out = np.empty((batch, 5 * n + 2 + self.encoding_size), dtype=np.float32)
+        out[:, : 4 * n] = per_marble.reshape(batch, -1)
+        out[:, 4 * n : 4 * n + 2] = tilt
+        out[:, 4 * n + 2 : 5 * n + 2] = channels
+        if self.encoding_size:
+            out[:, 5 * n + 2 :] = maze_encoding(self.spec) if encodings is None else encodings
         return out

@@ -26,6 +26,12 @@ pixel rate. ``benchmarks/bench_randomization.py`` measures these.
 ``start_sampler`` (a :class:`StartSampler`) chooses where episodes start — a start curriculum: at
 every reset of an env it returns a physics state to start from, or None for the task's own random
 start, and a tag that :attr:`BallInMazeVectorEnv.start_tags` keeps for the episode.
+
+``num_mazes=`` (see :class:`~bimgame.envs.env.BallInMazeEnv`) gives every env its own maze per
+episode, drawn from its own generator as a single env draws it; all are stepped by the one
+``mujoco.rollout`` call, each on its own model copy switched by
+:meth:`~bimgame.sim.physics.MazeSim.set_walls`, and their geodesic distances are computed in one
+pass (:class:`~bimgame.sim.maze_rows.MazeRows`). ``benchmarks/bench_mazes.py`` measures the cost.
 """
 
 from __future__ import annotations
@@ -41,8 +47,11 @@ from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
 from bimgame.envs.env import ACTIONS_HELP, DISCRETE_TILTS, BallInMazeEnv
+from bimgame.envs.mazes import EnvMazes, maze_encoding
 from bimgame.envs.observe import Observer
 from bimgame.envs.randomization import EpisodeRandomizer
+from bimgame.sim.maze import MazeSpec
+from bimgame.sim.maze_rows import MazeRows
 from bimgame.sim.placement import check_sim_state, sample_start
 from bimgame.sim.tasks import TaskState, initial_task_state, task_step
 from bimgame.util.settings import is_integer
@@ -156,7 +165,20 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
         self._autoreset = np.zeros(self.num_envs, dtype=bool)
         self._rngs: list[np.random.Generator] = []
         self._has_reset = False
-        self._state_observer = Observer(self.maze, n, "state")
+        #: The env's mazes (None: every env shows :attr:`maze`), and each env's current maze number.
+        self.mazes: EnvMazes | None = self.template.mazes
+        self.maze_numbers = np.zeros(self.num_envs, dtype=np.int64)
+        self._env_mazes: list[MazeSpec] = [self.maze] * self.num_envs
+        self._state_observer = Observer(self.maze, n, "state", maze_encoding=self.mazes is not None)
+        self._encodings: np.ndarray | None = None
+        self._backgrounds: np.ndarray | None = None
+        self._maze_rows: MazeRows | None = None
+        if self.mazes is not None:
+            self._encodings = np.zeros((self.num_envs, self._state_observer.encoding_size), dtype=np.float32)
+            self._maze_rows = MazeRows(self.mazes.base, self.num_envs, self.mazes.maze_set.rules.max_gates)
+            if self.template.obs_mode == "pixels":
+                size = self.template.observer.obs_size
+                self._backgrounds = np.zeros((self.num_envs, size, size), dtype=np.uint8)
         randomize = self.template.randomize
         self.randomizer = (
             None
@@ -168,8 +190,10 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
                 self.template.observer.raster if self.template.obs_mode == "pixels" else None,
             )
         )
-        if self.randomizer is not None and self.randomizer.physical:
-            # One model per env, each with its episode's physics, all stepped by one rollout call.
+        self._physical = self.randomizer is not None and self.randomizer.physical
+        self._models: list | None = None
+        if self._physical or self.mazes is not None:
+            # One model per env, each with its episode's physics and maze, all stepped by one rollout call.
             self._models = [copy.copy(self.sim.model) for _ in range(self.num_envs)]
             self._max_tilt = np.full(self.num_envs, self.maze.max_tilt)
 
@@ -254,9 +278,11 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
             gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array'")
             return None
         positions, _ = self.sim.layout.board_frame(self._states)
-        raster = self.template.observer.raster
+        size = self.template.observer.obs_size
         return tuple(
-            raster.rgb(positions[i, :, :2], size=self.template.render_size, tilt=self._states[i, self.sim.layout.tilt])
+            EnvMazes.raster(self._env_mazes[i], size).rgb(
+                positions[i, :, :2], size=self.template.render_size, tilt=self._states[i, self.sim.layout.tilt]
+            )
             for i in range(self.num_envs)
         )
 
@@ -289,11 +315,12 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
         """Step envs ``idx`` by ``deltas``, with their episodes' actuation and physics when randomised
         (then a model each)."""
         randomizer, models, max_tilt = self.randomizer, None, None
-        if randomizer is not None:
-            if randomizer.acting:
-                deltas = randomizer.tilt_deltas(deltas, idx, self._elapsed[idx])
-            if randomizer.physical:
-                models, max_tilt = [self._models[i] for i in idx], self._max_tilt[idx]
+        if randomizer is not None and randomizer.acting:
+            deltas = randomizer.tilt_deltas(deltas, idx, self._elapsed[idx])
+        if self._models is not None:
+            models = [self._models[i] for i in idx]
+            if self._physical:
+                max_tilt = self._max_tilt[idx]
         self._states[idx] = self.sim.rollout(
             self._states[idx], deltas[:, None], nthread=self.nthread, models=models, max_tilt=max_tilt
         )[:, 0]
@@ -301,11 +328,13 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
     def _reset_envs(self, mask: np.ndarray) -> None:
         n = self.template.n_marbles
         for i in np.flatnonzero(mask):
+            if self.mazes is not None:  # the maze first, as the single env draws it
+                self._switch_env_maze(int(i), self.mazes.maze_set.draw(self._rngs[i]))
             state = None
             if self.start_sampler is not None:
                 state, self.start_tags[i] = self._sampled_start(int(i), self.start_sampler)
             if state is None:
-                xy = sample_start(self.maze, n, self._rngs[i])
+                xy = sample_start(self._env_mazes[i], n, self._rngs[i])
                 self.sim.reset(xy)
                 self._states[i] = self.sim.get_state()
             else:
@@ -314,7 +343,8 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
                 self._states[i], xy = state
             if self.randomizer is not None:  # drawn after the start, as the single env does
                 self.randomizer.reset_row(int(i), self._rngs[i])
-                if self.randomizer.physical:
+                if self._physical:
+                    assert self._models is not None
                     physics = self.randomizer.physics(int(i))
                     self.sim.set_parameters(self._models[i], **physics)
                     self._max_tilt[i] = physics["max_tilt"]
@@ -324,6 +354,19 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
             self._task_state.channel[i] = start.channel[0]
             self._task_state.reached[i] = start.reached[0]
             self._elapsed[i] = 0
+
+    def _switch_env_maze(self, index: int, number: int) -> None:
+        """Env ``index`` shows maze ``number`` of :attr:`mazes`: its model, tables and pictures."""
+        assert self.mazes is not None and self._models is not None and self._maze_rows is not None
+        spec = self.mazes.maze(number)
+        self.sim.set_walls(spec, self._models[index])
+        self._env_mazes[index] = spec
+        self.maze_numbers[index] = number
+        self._maze_rows.set_row(index, spec)
+        if self._encodings is not None:
+            self._encodings[index] = maze_encoding(spec)
+        if self._backgrounds is not None:
+            self._backgrounds[index] = EnvMazes.raster(spec, self._backgrounds.shape[1]).background
 
     def _sampled_start(self, index: int, sampler: StartSampler) -> tuple[tuple[np.ndarray, np.ndarray] | None, int]:
         """The sampler's start for env ``index``: ``((state, marble_xy) or None, tag)``, checked."""
@@ -336,26 +379,37 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
         if state is None:
             return None, int(tag)
         name = f"the start_sampler's state for env {index} (tag {int(tag)})"
-        return check_sim_state(self.maze, self.sim.layout, state, name), int(tag)
+        return check_sim_state(self._env_mazes[index], self.sim.layout, state, name), int(tag)
 
     def _observe_and_info(
         self, positions: np.ndarray, velocities: np.ndarray, crossings: np.ndarray, success: np.ndarray
     ) -> tuple[np.ndarray, dict[str, Any]]:
         tilt = self._states[:, self.sim.layout.tilt]
-        obs = self.template.observer.from_kinematics(positions, velocities, tilt, self._task_state.channel)
+        obs = self.template.observer.from_kinematics(
+            positions,
+            velocities,
+            tilt,
+            self._task_state.channel,
+            encodings=self._encodings,
+            backgrounds=self._backgrounds,
+        )
         if self.randomizer is not None and self.randomizer.observing:
             obs = self.randomizer.pixels(obs, self._elapsed, positions[..., :2])
         values: dict[str, Any] = {
             "channel": self._task_state.channel.copy(),
             "gate_crossings": crossings.astype(np.int64),
-            "geodesic_distance": self.maze.geodesic_distance(positions[..., 0], positions[..., 1]),
+            "geodesic_distance": self.maze.geodesic_distance(positions[..., 0], positions[..., 1])
+            if self._maze_rows is None
+            else self._maze_rows.geodesic_distance(positions[..., 0], positions[..., 1]),
             "is_success": success,
             "tilt": tilt,
         }
         if self.state_info:
             values["state"] = self._state_observer.from_kinematics(
-                positions, velocities, tilt, self._task_state.channel
+                positions, velocities, tilt, self._task_state.channel, encodings=self._encodings
             )
+        if self.mazes is not None:
+            values["maze"] = self.maze_numbers.copy()
         every_env = np.ones(self.num_envs, dtype=bool)  # Gymnasium's per-key "_key" masks
         if self.randomizer is not None:  # nested as Gymnasium nests a dict info, with its own masks
             values["randomization"] = {

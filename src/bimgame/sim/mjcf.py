@@ -9,7 +9,7 @@ import math
 
 from bimgame.sim.maze import Friction, MazeSpec
 
-__all__ = ["build_mjcf", "contact_condim", "PHYSICS_HZ"]
+__all__ = ["build_mjcf", "contact_condim", "wall_boxes", "wall_slots", "PHYSICS_HZ", "PARKED_Z"]
 
 PHYSICS_HZ = 150.0
 
@@ -27,6 +27,15 @@ CONTACT_SOLIMP = "0.95 0.99 0.001"
 # Static friction (frictionloss) with MuJoCo's default softness lets a marble below its breakaway
 # tilt creep at ~0.5 mm/s; a high impedance makes it hold (0.06 mm in 1 s at half the breakaway).
 STATIC_FRICTION_SOLIMP = "0.99 0.999 0.001"
+#: Height (m, board frame) of a wall piece not used by the current maze: a metre below the floor,
+#: where no marble comes near (MuJoCo's bounding-sphere test drops its pair at once).
+PARKED_Z = -1.0
+#: Half sizes (m) of a parked piece.
+PARKED_HALF_SIZE = 1e-3
+
+#: A wall piece: centre ``(cx, cy)`` (m), half length along the wall, half depth across it (m) and
+#: the yaw (rad) of its depth axis.
+Box = tuple[float, float, float, float, float]
 
 
 def _arc_boxes(
@@ -95,6 +104,77 @@ def _trim_end_box(box, inner, outer, a0, a1, start, end):
     return (cx + shift * tx, cy + shift * ty, new_half, half_depth, yaw)
 
 
+def _box_geom(name: str, box: Box, height: float, exact: bool = False) -> str:
+    """The MJCF geom of one wall piece (its x axis radial, its y axis along the wall); ``exact``
+    writes every float so that it reads back bit for bit (slotted models: see :func:`build_mjcf`)."""
+    cx, cy, hl, hd, yaw = box
+    if exact:
+        return (
+            f'<geom name="{name}" class="wall" pos="{cx!r} {cy!r} {height / 2!r}" '
+            f'size="{hd!r} {hl!r} {height / 2!r}" euler="0 0 {yaw!r}"/>'
+        )
+    return (
+        f'<geom name="{name}" class="wall" pos="{cx:.9g} {cy:.9g} {height / 2:.9g}" '
+        f'size="{hd:.9g} {hl:.9g} {height / 2:.9g}" euler="0 0 {yaw:.12g}"/>'
+    )
+
+
+def wall_boxes(spec: MazeSpec) -> list[list[Box]]:
+    """The pieces of each ring wall of ``spec`` (not the rim), in the order the model lists them."""
+    return [
+        [
+            box
+            for a0, a1 in wall.solid_arcs()
+            for box in _arc_boxes(wall.inner_radius, wall.outer_radius, a0, a1, spec.arc_tolerance)
+        ]
+        for wall in spec.walls
+    ]
+
+
+def wall_slots(spec: MazeSpec, max_gates: int) -> tuple[int, ...]:
+    """Per wall of ``spec``, the most pieces any gates on it can need with up to ``max_gates`` gates.
+
+    :func:`_arc_boxes` covers an arc of span ``a`` with one piece, or with two end pieces (``delta_end``
+    each) and ``ceil((a - 2 delta_end) / delta_max)`` interior ones: at most
+    ``3 + (a - 2 delta_end) / delta_max`` either way. A wall with ``G`` gates has ``G`` arcs whose
+    spans add up to ``2π`` less the gates, each wider than the marble's chord ``w``, so it needs at
+    most ``3 G + (2π - G (w + 2 delta_end)) / delta_max`` pieces; the slots are the largest over
+    ``G = 1 … max_gates``.
+    """
+    slots = []
+    for wall in spec.walls:
+        delta_max = 2 * math.acos(1.0 / (1.0 + 2 * spec.arc_tolerance / wall.outer_radius))
+        delta_end = min(delta_max, 2 * math.atan(2 * spec.arc_tolerance / wall.thickness))
+        chord = 2 * math.asin(min(1.0, spec.marble_radius / wall.inner_radius))
+        slots.append(
+            max(
+                math.floor(3 * gates + (2 * math.pi - gates * (chord + 2 * delta_end)) / delta_max)
+                for gates in range(1, max_gates + 1)
+            )
+        )
+    return tuple(slots)
+
+
+def _parked_geom(name: str) -> str:
+    """The MJCF geom of a wall slot the maze does not use (see :data:`PARKED_Z`)."""
+    size = PARKED_HALF_SIZE
+    return f'<geom name="{name}" class="wall" pos="0 0 {PARKED_Z:.9g}" size="{size:.9g} {size:.9g} {size:.9g}"/>'
+
+
+def _slotted_boxes(spec: MazeSpec, slots: tuple[int, ...]) -> list[list[Box]]:
+    """Each wall's pieces, refused if they do not fit in its slot count."""
+    boxes = wall_boxes(spec)
+    if len(slots) != len(boxes):
+        raise ValueError(f"wall_slots has {len(slots)} counts for a maze of {len(boxes)} walls: give one per wall")
+    for k, (pieces, count) in enumerate(zip(boxes, slots, strict=True)):
+        if len(pieces) > count:
+            raise ValueError(
+                f"walls[{k}] needs {len(pieces)} pieces, more than its {count} slots: build the model with "
+                "wall_slots from mjcf.wall_slots(spec, max_gates) for the most gates a wall may have"
+            )
+    return boxes
+
+
 MUJOCO_MIN_FRICTION = 1e-5  # mjMINMU: MuJoCo raises smaller friction coefficients to this
 
 
@@ -114,9 +194,18 @@ def contact_condim(friction: Friction) -> int:
     return 3
 
 
-def build_mjcf(spec: MazeSpec, n_marbles: int = 1, physics_hz: float = PHYSICS_HZ) -> str:
+def build_mjcf(
+    spec: MazeSpec, n_marbles: int = 1, physics_hz: float = PHYSICS_HZ, wall_slots: tuple[int, ...] | None = None
+) -> str:
     """MJCF text of the maze with ``n_marbles`` marbles (placed at the origin; see
-    :meth:`MazeSim.reset`)."""
+    :meth:`MazeSim.reset`).
+
+    ``wall_slots`` (one count per wall; None: exactly the pieces ``spec`` needs) gives every wall a
+    fixed number of pieces, named ``wall{k}_s{i}``: ``spec``'s pieces first, the rest parked at
+    :data:`PARKED_Z`, so that :meth:`MazeSim.set_walls` can switch the model to another maze with
+    the same walls' radii and other gates without building it again. Their numbers are written
+    exactly (``repr``), so that :meth:`MazeSim.set_walls` writes the same values without formatting
+    each one; models without slots keep 9 significant digits (their trajectories stay as they were)."""
     if not (isinstance(n_marbles, int) and n_marbles >= 1):
         raise ValueError(f"n_marbles must be an integer >= 1, got {n_marbles!r}")
     h = spec.wall_height
@@ -126,16 +215,18 @@ def build_mjcf(spec: MazeSpec, n_marbles: int = 1, physics_hz: float = PHYSICS_H
     kv_x = 2 * (BOARD_INERTIA[0] + GIMBAL_INERTIA) * SERVO_OMEGA
     kv_y = 2 * BOARD_INERTIA[1] * SERVO_OMEGA
     walls = []
-    arcs = [(w.inner_radius, w.outer_radius, w.solid_arcs(), f"wall{k}") for k, w in enumerate(spec.walls)]
+    if wall_slots is None:
+        arcs = [(w.inner_radius, w.outer_radius, w.solid_arcs(), f"wall{k}") for k, w in enumerate(spec.walls)]
+    else:
+        arcs = []
+        for k, boxes in enumerate(_slotted_boxes(spec, wall_slots)):
+            walls += [_box_geom(f"wall{k}_s{i}", box, h, exact=True) for i, box in enumerate(boxes)]
+            walls += [_parked_geom(f"wall{k}_s{i}") for i in range(len(boxes), wall_slots[k])]
     arcs.append((spec.rim_radius, spec.rim_radius + spec.rim_thickness, [(-math.pi, math.pi)], "rim"))
     for inner, outer, solid, name in arcs:
         for j, (a0, a1) in enumerate(solid):
-            for i, (cx, cy, hl, hd, yaw) in enumerate(_arc_boxes(inner, outer, a0, a1, spec.arc_tolerance)):
-                # Box x axis is radial (depth), y axis tangential (length).
-                walls.append(
-                    f'<geom name="{name}_{j}_{i}" class="wall" pos="{cx:.9g} {cy:.9g} {h / 2:.9g}" '
-                    f'size="{hd:.9g} {hl:.9g} {h / 2:.9g}" euler="0 0 {yaw:.12g}"/>'
-                )
+            for i, box in enumerate(_arc_boxes(inner, outer, a0, a1, spec.arc_tolerance)):
+                walls.append(_box_geom(f"{name}_{j}_{i}", box, h))
     half = spec.rim_radius + spec.rim_thickness
     board_geoms = ["floor"] + [w.split('"')[1] for w in walls]
     pair_attrs = (

@@ -32,6 +32,8 @@ needs at every reset. The state's layout and board-frame decoding live in :mod:`
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import math
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -42,13 +44,55 @@ from mujoco import rollout as mj_rollout
 
 from bimgame.sim.layout import STATE_SPEC, StateLayout
 from bimgame.sim.maze import Friction, MazeSpec
-from bimgame.sim.mjcf import PHYSICS_HZ, build_mjcf, contact_condim
+from bimgame.sim.mjcf import PARKED_HALF_SIZE, PARKED_Z, PHYSICS_HZ, build_mjcf, contact_condim, wall_boxes
 from bimgame.sim.placement import finite_array
 
 __all__ = ["MazeSim", "StateLayout", "PHYSICS_HZ", "CONTROL_HZ"]
 
 CONTROL_HZ = 30.0
 CONTROL_SPEC = int(mujoco.mjtState.mjSTATE_CTRL)
+
+
+@functools.lru_cache(maxsize=4096)
+def _slot_geometry(spec: MazeSpec, slots: tuple[int, ...]) -> list[np.ndarray]:
+    """Per wall of ``spec``, its pieces as rows ``(x, y, z, quaternion (4), half sizes (3), bounding
+    radius)`` — what a slotted model built from ``spec`` holds (its numbers are written exactly) —
+    refused if they need more than ``slots`` (cached: a training set's mazes are computed once)."""
+    rows = []
+    for k, (boxes, count) in enumerate(zip(wall_boxes(spec), slots, strict=True)):
+        if len(boxes) > count:
+            raise ValueError(
+                f"walls[{k}] of the new maze needs {len(boxes)} pieces, more than the {count} slots this "
+                "sim was built with: build it with wall_slots for more gates"
+            )
+        cx, cy, half_length, half_depth, yaw = np.array(boxes, dtype=np.float64).reshape(-1, 5).T
+        z = np.full(len(boxes), spec.wall_height / 2)
+        sizes = np.stack([half_depth, half_length, z], axis=1)
+        zero = np.zeros(len(boxes))
+        quat = np.stack([np.cos(yaw / 2), zero, zero, np.sin(yaw / 2)], axis=1)
+        rows.append(
+            np.concatenate([np.stack([cx, cy, z], axis=1), quat, sizes, np.linalg.norm(sizes, axis=1)[:, None]], axis=1)
+        )
+    return rows
+
+
+def _check_same_board(current: MazeSpec, new: MazeSpec) -> None:
+    """Refuse a maze :meth:`MazeSim.set_walls` cannot switch to: other radii or other fields."""
+    if not isinstance(new, MazeSpec):
+        raise TypeError(f"spec must be a MazeSpec, got {type(new).__name__}")
+    radii = [(w.inner_radius, w.outer_radius) for w in current.walls]
+    new_radii = [(w.inner_radius, w.outer_radius) for w in new.walls]
+    if radii != new_radii:
+        raise ValueError(
+            f"set_walls switches gates only: the new maze's walls (inner, outer radii) {new_radii} must be the "
+            f"sim's {radii}"
+        )
+    for field in dataclasses.fields(current):
+        if field.name != "walls" and getattr(current, field.name) != getattr(new, field.name):
+            raise ValueError(
+                f"set_walls switches gates only: the new maze's {field.name} ({getattr(new, field.name)!r}) "
+                f"differs from the sim's ({getattr(current, field.name)!r})"
+            )
 
 
 class MazeSim:
@@ -59,10 +103,18 @@ class MazeSim:
         n_marbles: number of marbles (they collide with each other).
         physics_hz: physics rate (150 Hz as in MERL's simulator).
         substeps: physics steps per action step (5: actions at 30 Hz).
+        wall_slots: a fixed number of pieces per wall (``mjcf.wall_slots``), so that
+            :meth:`set_walls` can switch to other gates; None: exactly ``spec``'s pieces.
     """
 
     def __init__(
-        self, spec: MazeSpec | None = None, *, n_marbles: int = 1, physics_hz: float = PHYSICS_HZ, substeps: int = 5
+        self,
+        spec: MazeSpec | None = None,
+        *,
+        n_marbles: int = 1,
+        physics_hz: float = PHYSICS_HZ,
+        substeps: int = 5,
+        wall_slots: tuple[int, ...] | None = None,
     ):
         if not (isinstance(substeps, int) and substeps >= 1):
             raise ValueError(f"substeps must be an integer >= 1, got {substeps!r}")
@@ -71,7 +123,9 @@ class MazeSim:
         self.spec = spec if spec is not None else MazeSpec.merl()
         self.n_marbles = n_marbles
         self.substeps = substeps
-        self.model = mujoco.MjModel.from_xml_string(build_mjcf(self.spec, n_marbles, physics_hz))
+        self.wall_slots = None if wall_slots is None else tuple(int(n) for n in wall_slots)
+        self._slot_id_cache: list[np.ndarray] | None = None
+        self.model = mujoco.MjModel.from_xml_string(build_mjcf(self.spec, n_marbles, physics_hz, self.wall_slots))
         self.data = mujoco.MjData(self.model)
         self.control_dt = substeps * self.model.opt.timestep
         self.layout = StateLayout(self.model, n_marbles)
@@ -161,6 +215,47 @@ class MazeSim:
         m.stat.meaninertia = np.trace(full) / m.nv
         if model is None:
             self.max_tilt, self.marble_radius = limit, radius
+
+    def set_walls(self, spec: MazeSpec, model: mujoco.MjModel | None = None) -> None:
+        """Switch ``model`` (this sim's own by default, or a copy of it as for :meth:`set_parameters`)
+        to the gates of ``spec``, a maze with this sim's board: the same walls' radii and every
+        other field equal, only the gates differ (as :func:`~bimgame.sim.generate.random_maze` makes).
+
+        Each wall's pieces are written into its fixed slots (the sim must be built with
+        ``wall_slots``) exactly where building ``spec`` would put them, the rest parked: stepping
+        then matches a model built from ``spec`` (a test compares trajectories), at a fraction of a
+        rebuild's cost (``benchmarks/bench_mazes.py``). Setting this sim's own model also makes
+        ``spec`` its :attr:`spec`."""
+        if self.wall_slots is None:
+            raise ValueError("set_walls needs a MazeSim built with wall_slots (mjcf.wall_slots(spec, max_gates))")
+        _check_same_board(self.spec, spec)
+        m = self.model if model is None else model
+        for ids, boxes in zip(self._slot_ids(), _slot_geometry(spec, self.wall_slots), strict=True):
+            used, parked = ids[: len(boxes)], ids[len(boxes) :]
+            if len(boxes):
+                m.geom_pos[used], m.geom_quat[used], m.geom_size[used] = boxes[:, 0:3], boxes[:, 3:7], boxes[:, 7:10]
+                m.geom_rbound[used] = boxes[:, 10]
+                m.geom_aabb[used, :3], m.geom_aabb[used, 3:] = 0.0, boxes[:, 7:10]
+            # A slot's frame is never the board's: a parked piece (identity rotation) would otherwise
+            # be compiled as "same rotation as its body", and MuJoCo would ignore a yaw written later.
+            m.geom_sameframe[ids] = mujoco.mjtSameFrame.mjSAMEFRAME_NONE
+            m.geom_pos[parked] = (0.0, 0.0, PARKED_Z)
+            m.geom_quat[parked] = (1.0, 0.0, 0.0, 0.0)
+            m.geom_size[parked] = PARKED_HALF_SIZE
+            m.geom_rbound[parked] = math.sqrt(3) * PARKED_HALF_SIZE
+            m.geom_aabb[parked] = (0.0, 0.0, 0.0, PARKED_HALF_SIZE, PARKED_HALF_SIZE, PARKED_HALF_SIZE)
+        if model is None:
+            self.spec = spec
+
+    def _slot_ids(self) -> list[np.ndarray]:
+        """Per wall, the geom ids of its slots in order (looked up once)."""
+        if self._slot_id_cache is None:
+            assert self.wall_slots is not None
+            self._slot_id_cache = [
+                np.array([self.model.geom(f"wall{k}_s{i}").id for i in range(count)])
+                for k, count in enumerate(self.wall_slots)
+            ]
+        return self._slot_id_cache
 
     # ------------------------------------------------------------------ stepping
     def rates_for(

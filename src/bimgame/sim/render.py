@@ -381,12 +381,16 @@ class MazeRenderer:
         return grid
 
     # ------------------------------------------------------------------ grayscale observations
-    def gray(self, marble_xy: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    def gray(
+        self, marble_xy: np.ndarray, out: np.ndarray | None = None, backgrounds: np.ndarray | None = None
+    ) -> np.ndarray:
         """Grayscale frame(s) with marbles at board positions ``marble_xy`` (m).
 
         Args:
             marble_xy: (n_marbles, 2) for one frame or (B, n_marbles, 2) for a batch.
             out: optional C-contiguous uint8 array of the result's shape to draw into.
+            backgrounds: optional (B, size, size) uint8, each frame's own background (the
+                :attr:`background` of another maze on the same board); default :attr:`background`.
 
         Returns:
             (size, size) or (B, size, size) uint8 (``out`` if given). Marbles are composited in
@@ -411,7 +415,12 @@ class MazeRenderer:
                 f"out must be a C-contiguous uint8 array of shape {shape}, got "
                 f"{getattr(out, 'dtype', type(out).__name__)} {getattr(out, 'shape', '')}"
             )
-        np.copyto(out, self._background)
+        if backgrounds is None:
+            np.copyto(out, self._background)
+        elif backgrounds.shape == (batch, s, s):
+            np.copyto(out, backgrounds[0] if single else backgrounds)
+        else:
+            raise ValueError(f"backgrounds must have shape {(batch, s, s)} (one per frame), got {backgrounds.shape}")
         if n_marbles == 0 or batch == 0:
             return out
         grid = self._grid

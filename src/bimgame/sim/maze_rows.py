@@ -1,0 +1,84 @@
+"""Geodesic distances for a batch whose rows each show their own maze on one shared board.
+
+:meth:`MazeSpec.geodesic_distance <bimgame.sim.maze.MazeSpec.geodesic_distance>` is vectorised over
+the points of one maze. A vector env whose envs show different mazes (:mod:`bimgame.sim.maze_sets`)
+would call it once per env and step; mazes on one board share every radius, and differ only in their
+gates, so :class:`MazeRows` keeps each row's gate tables in padded arrays and computes every row in
+one pass, the same computation as the per-maze one (a test compares them).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bimgame.sim.geodesic import annulus_path_length, wrap_angle
+from bimgame.sim.maze import MazeSpec
+
+__all__ = ["MazeRows"]
+
+
+class MazeRows:
+    """Per-row gate tables of ``rows`` mazes on ``base``'s board, each with at most ``max_gates``
+    gates per wall, for :meth:`geodesic_distance` to the centre."""
+
+    def __init__(self, base: MazeSpec, rows: int, max_gates: int):
+        if not base.walls:
+            raise ValueError("MazeRows needs a board with walls")
+        self.base = base
+        tables = base._geodesic_tables(0)
+        self._bounds = tables["bounds"]
+        self._band_start = tables["band_start"]
+        self._obstacle = tables["obstacle"]
+        self._mids = tables["mids"]
+        walls = len(base.walls)
+        self._gate_angle = np.zeros((rows, walls + 1, max_gates))
+        self._gate_dist = np.full((rows, walls + 1, max_gates), np.inf)
+        self._gate_half_width = np.full((rows, walls, max_gates), -1.0)  # -1: no gate (never inside)
+        self._row_index = np.arange(rows)[:, None]
+
+    def set_row(self, row: int, spec: MazeSpec) -> None:
+        """Row ``row`` shows ``spec`` (a maze on the board, with at most ``max_gates`` gates a wall)."""
+        tables = spec._geodesic_tables(0)
+        gates = tables["gate_angle"].shape[1]
+        if gates > self._gate_angle.shape[2]:
+            raise ValueError(f"a maze with {gates} gates on a wall, more than MazeRows' {self._gate_angle.shape[2]}")
+        self._gate_angle[row] = 0.0
+        self._gate_dist[row] = np.inf
+        self._gate_half_width[row] = -1.0
+        self._gate_angle[row, :, :gates] = tables["gate_angle"]
+        self._gate_dist[row, :, :gates] = tables["gate_dist"]
+        for k, wall in enumerate(spec.walls):
+            self._gate_half_width[row, k, : len(wall.gates)] = [gate.width / 2 for gate in wall.gates]
+
+    def geodesic_distance(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Distances (m) to the centre of points ``x``, ``y`` of shape (rows, n), row ``b`` in its
+        maze: the computation of ``MazeSpec.geodesic_distance(x, y, 0)`` on every row at once."""
+        x = np.asarray(x, dtype=float)
+        y = np.asarray(y, dtype=float)
+        rows = self._row_index
+        r = np.hypot(x, y)
+        theta = np.arctan2(y, x)
+        walls = len(self.base.walls)
+        channel = np.searchsorted(self._bounds, r, side="right")
+        # Within a wall's band, outside its gates and beyond its mid radius: still outside (see
+        # MazeSpec.geodesic_distance).
+        in_band = r > self._band_start[channel]
+        wall = np.minimum(channel, walls - 1)
+        half_width = self._gate_half_width[rows, wall]  # (rows, n, gates)
+        angle = self._gate_angle[rows, np.minimum(channel, walls - 1) + 1]
+        in_gate = np.any(np.abs(wrap_angle(theta[..., None] - angle)) <= half_width, axis=-1)
+        into_wall = in_band & (channel < walls) & ~in_gate
+        from_outside = into_wall & (r >= self._mids[wall])
+        channel = np.where(from_outside, channel + 1, channel)
+        obstacle = self._obstacle[channel]
+        band_start = self._band_start[channel]
+        r_eff = np.minimum(r, band_start)
+        lengths = annulus_path_length(
+            r_eff[..., None],
+            theta[..., None],
+            obstacle[..., None],
+            self._gate_angle[rows, channel],
+            obstacle[..., None],
+        )
+        best = np.min(lengths + self._gate_dist[rows, channel], axis=-1) + (r - r_eff)
+        return np.where(channel <= 0, r, best)

@@ -1,0 +1,24 @@
+"""Geodesic distances of many mazes at once equal each maze's own."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bimgame.sim.maze import MazeSpec
+from bimgame.sim.maze_rows import MazeRows
+from bimgame.sim.maze_sets import maze_number
+
+
+def test_rows_give_each_mazes_own_geodesic_distance():
+    specs = [maze_number(i) for i in range(12)] + [MazeSpec.merl()]
+    rows = MazeRows(MazeSpec.merl(), len(specs), max_gates=4)
+    for i, spec in enumerate(specs):
+        rows.set_row(i, spec)
+    rng = np.random.default_rng(0)
+    radius = rng.uniform(0.0, 0.0968, (len(specs), 400))
+    angle = rng.uniform(-np.pi, np.pi, (len(specs), 400))
+    x, y = radius * np.cos(angle), radius * np.sin(angle)
+    expected = np.stack([spec.geodesic_distance(x[i], y[i]) for i, spec in enumerate(specs)])
+    np.testing.assert_array_equal(rows.geodesic_distance(x, y), expected)
+    rows.set_row(0, specs[1])  # a row switched to another maze forgets the old one's gates
+    np.testing.assert_array_equal(rows.geodesic_distance(x, y)[0], specs[1].geodesic_distance(x[0], y[0]))
