@@ -69,17 +69,18 @@ def test_pixel_convention(r84: MazeRenderer) -> None:
     s = r84.size
     assert r84.metres_per_pixel == pytest.approx(2 * EXTENT / s)
     corners = np.array([[-EXTENT, EXTENT], [EXTENT, -EXTENT], [0.0, 0.0]])
-    np.testing.assert_allclose(r84.world_to_pixel(corners),
-                               [[-0.5, -0.5], [s - 0.5, s - 0.5], [(s - 1) / 2, (s - 1) / 2]],
-                               atol=1e-9)
+    np.testing.assert_allclose(
+        r84.world_to_pixel(corners), [[-0.5, -0.5], [s - 0.5, s - 0.5], [(s - 1) / 2, (s - 1) / 2]], atol=1e-9
+    )
     # North up: +y is towards row 0, +x towards the last column.
     col, row = r84.world_to_pixel(np.array([0.01, 0.02]))
     assert col > (s - 1) / 2 and row < (s - 1) / 2
     # Pixel centres, and the inverse map.
     i, j = 10, 70
     centre = r84.pixel_to_world(np.array([j, i], dtype=float))
-    np.testing.assert_allclose(centre, [-EXTENT + (j + 0.5) * r84.metres_per_pixel,
-                                        EXTENT - (i + 0.5) * r84.metres_per_pixel])
+    np.testing.assert_allclose(
+        centre, [-EXTENT + (j + 0.5) * r84.metres_per_pixel, EXTENT - (i + 0.5) * r84.metres_per_pixel]
+    )
     xy = random_in_board(np.random.default_rng(0), 50).reshape(5, 10, 2)
     assert r84.world_to_pixel(xy).shape == (5, 10, 2)
     np.testing.assert_allclose(r84.pixel_to_world(r84.world_to_pixel(xy)), xy, atol=1e-12)
@@ -92,8 +93,9 @@ def test_north_up_gates(r400: MazeRenderer) -> None:
     wall = SPEC.walls[2]
     bg = r400.background
     for angle, expect in ((0.0, FLOOR), (math.pi / 2, FLOOR), (math.pi / 4, WALL)):
-        col, row = np.rint(r400.world_to_pixel(
-            wall.mid_radius * np.array([math.cos(angle), math.sin(angle)]))).astype(int)
+        col, row = np.rint(r400.world_to_pixel(wall.mid_radius * np.array([math.cos(angle), math.sin(angle)]))).astype(
+            int
+        )
         assert bg[row, col] == expect, angle
     col, row = r400.world_to_pixel(wall.mid_radius * np.array([0.0, 1.0]))
     assert row < 200 and abs(col - 199.5) < 1
@@ -168,7 +170,7 @@ def test_gray_marble_centroid(size: int) -> None:
         expected = renderer.world_to_pixel(xy)
         np.testing.assert_allclose(centroid(alpha), expected, atol=0.5)
         # Area check: the coverage sums to about the disc's area in pixels.
-        assert alpha.sum() == pytest.approx(math.pi * renderer.marble_radius_px ** 2, rel=0.1)
+        assert alpha.sum() == pytest.approx(math.pi * renderer.marble_radius_px**2, rel=0.1)
 
 
 def test_gray_centroid_is_subpixel_accurate(r84: MazeRenderer) -> None:
@@ -217,7 +219,7 @@ def test_batch_equals_single_frames(r84: MazeRenderer) -> None:
     assert imgs.shape == (batch, 84, 84) and imgs.dtype == np.uint8
     for b in range(batch):
         np.testing.assert_array_equal(imgs[b], r84.gray(xy[b]), err_msg=f"frame {b}")
-        np.testing.assert_array_equal(imgs[b], r84.gray(xy[b:b + 1])[0], err_msg=f"frame {b}")
+        np.testing.assert_array_equal(imgs[b], r84.gray(xy[b : b + 1])[0], err_msg=f"frame {b}")
     # All windows inside the image (the batch fast path) agree too.
     inner = random_in_board(rng, batch * n).reshape(batch, n, 2)
     imgs = r84.gray(inner)
@@ -230,8 +232,9 @@ def test_batch_equals_single_frames(r84: MazeRenderer) -> None:
     single = np.empty((84, 84), dtype=np.uint8)
     assert r84.gray(inner[5], out=single) is single
     np.testing.assert_array_equal(single, imgs[5])
-    np.testing.assert_array_equal(r84.gray(inner.astype(np.float32)),
-                                  r84.gray(inner.astype(np.float32).astype(np.float64)))
+    np.testing.assert_array_equal(
+        r84.gray(inner.astype(np.float32)), r84.gray(inner.astype(np.float32).astype(np.float64))
+    )
 
 
 def test_two_marbles_both_drawn(r84: MazeRenderer) -> None:
@@ -242,7 +245,7 @@ def test_two_marbles_both_drawn(r84: MazeRenderer) -> None:
         col, row = np.rint(r84.world_to_pixel(xy)).astype(int)
         assert img[row, col] == MARBLE
     alpha = gray_alpha(img, r84.background)
-    assert alpha.sum() == pytest.approx(2 * math.pi * r84.marble_radius_px ** 2, rel=0.1)
+    assert alpha.sum() == pytest.approx(2 * math.pi * r84.marble_radius_px**2, rel=0.1)
     # Touching marbles (overlapping antialiased edges) are both drawn, composited in order.
     c = b + np.array([2 * SPEC.marble_radius, 0.0])
     img = r84.gray(np.stack([b, c]))
@@ -255,9 +258,17 @@ def test_two_marbles_both_drawn(r84: MazeRenderer) -> None:
         assert np.any(rgb[row, col] != r84.background_rgb(200)[row, col])
 
 
-@pytest.mark.parametrize("xy", [(EXTENT, 0.0), (EXTENT, EXTENT), (-EXTENT, -EXTENT),
-                                (0.0, EXTENT + SPEC.marble_radius * 0.9), (1.0, 1.0),
-                                (-SPEC.rim_radius + SPEC.marble_radius, 0.0)])
+@pytest.mark.parametrize(
+    "xy",
+    [
+        (EXTENT, 0.0),
+        (EXTENT, EXTENT),
+        (-EXTENT, -EXTENT),
+        (0.0, EXTENT + SPEC.marble_radius * 0.9),
+        (1.0, 1.0),
+        (-SPEC.rim_radius + SPEC.marble_radius, 0.0),
+    ],
+)
 def test_marble_at_edge(r84: MazeRenderer, xy: tuple[float, float]) -> None:
     pos = np.array([xy])
     img = r84.gray(pos)
@@ -277,8 +288,7 @@ def test_marble_at_edge(r84: MazeRenderer, xy: tuple[float, float]) -> None:
 def test_non_finite_marble_draws_nothing(r84: MazeRenderer) -> None:
     img = r84.gray(np.array([[np.nan, 0.0], [np.inf, 0.01]]))
     np.testing.assert_array_equal(img, r84.background)
-    np.testing.assert_array_equal(r84.rgb(np.array([[np.nan, np.nan]]), size=96),
-                                  r84.background_rgb(96))
+    np.testing.assert_array_equal(r84.rgb(np.array([[np.nan, np.nan]]), size=96), r84.background_rgb(96))
 
 
 # ---------------------------------------------------------------------------------- shapes
@@ -353,3 +363,18 @@ def test_tilt_indicator(r84: MazeRenderer) -> None:
     up = _red_centroid(r84.rgb(xy, size=size, tilt=(-t, 0.0)))
     assert right[0] > left[0] + 5 and abs(right[1] - left[1]) < 1
     assert down[1] > up[1] + 5 and abs(down[0] - up[0]) < 1
+
+
+def test_a_renderer_for_another_maze_on_the_board_draws_what_a_new_one_draws():
+    from bimgame.sim.maze_sets import maze_number
+
+    board = MazeRenderer(MazeSpec.merl(), 84)
+    for number in range(4):
+        maze = maze_number(number)
+        fast = board.for_maze(maze)
+        np.testing.assert_array_equal(fast.background, MazeRenderer(maze, 84).background)
+        np.testing.assert_array_equal(fast.background_rgb(96), MazeRenderer(maze, 84).background_rgb(96))
+        assert fast.spec == maze
+    np.testing.assert_array_equal(board.background, MazeRenderer(MazeSpec.merl(), 84).background)  # unchanged
+    with pytest.raises(ValueError, match="same board"):
+        board.for_maze(MazeSpec.merl(marble_radius=5e-3))

@@ -273,6 +273,7 @@ class BallInMazeEnv(gym.Env):
             obs_size=obs_size,
             layout=self.sim.layout,
             maze_encoding=self.mazes is not None,
+            board=None if self.mazes is None else self.mazes.base,
         )
         self.observation_space = observation_space(
             self.observer.space, self.randomize, self.maze, self.n_marbles, obs_mode

@@ -22,7 +22,7 @@ from bimgame.sim.maze_sets import MAZE_SPLITS, MazeSet
 from bimgame.sim.mjcf import wall_slots
 from bimgame.sim.render import MazeRenderer
 
-__all__ = ["MAZE_ENCODING_ANGLES", "EnvMazes", "maze_encoding", "maze_encoding_size"]
+__all__ = ["MAZE_ENCODING_ANGLES", "EnvMazes", "maze_encoding", "maze_encoding_size", "maze_raster"]
 
 #: Angular bins per wall of :func:`maze_encoding`: 11.25° each, about one of MERL's outer gates.
 MAZE_ENCODING_ANGLES = 32
@@ -52,8 +52,13 @@ def maze_encoding(spec: MazeSpec) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=_RASTER_CACHE)
-def _raster(spec: MazeSpec, size: int) -> MazeRenderer:
-    return MazeRenderer(spec, size)
+def maze_raster(spec: MazeSpec, size: int, board: MazeSpec | None = None) -> MazeRenderer:
+    """The pixel raster of ``spec`` at ``size``, cached per process; with ``board`` (a maze with the
+    same radii and marble, e.g. an env's base), drawn from the board's raster where the gates differ
+    (:meth:`~bimgame.sim.render.MazeRenderer.for_maze`, ~1 ms against ~10 ms)."""
+    if board is None or board == spec:
+        return MazeRenderer(spec, size)
+    return maze_raster(board, size).for_maze(spec)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -103,7 +108,6 @@ class EnvMazes:
             raise ValueError(f"{where} must be a maze number of this env's set ({allowed}), got {number!r}")
         return int(number)
 
-    @staticmethod
-    def raster(spec: MazeSpec, size: int) -> MazeRenderer:
-        """The pixel raster of ``spec`` at ``size`` (cached per process)."""
-        return _raster(spec, size)
+    def raster(self, spec: MazeSpec, size: int) -> MazeRenderer:
+        """The pixel raster of ``spec``, a maze of the set, at ``size`` (cached per process)."""
+        return maze_raster(spec, size, self.base)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from gymnasium import spaces
 
-from bimgame.envs.mazes import EnvMazes, maze_encoding, maze_encoding_size
+from bimgame.envs.mazes import maze_encoding, maze_encoding_size, maze_raster
 from bimgame.sim.layout import StateLayout
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.render import MazeRenderer
@@ -34,6 +34,7 @@ class Observer:
         obs_size: int = 84,
         layout: StateLayout | None = None,
         maze_encoding: bool = False,
+        board: MazeSpec | None = None,
     ):
         if obs_mode not in OBS_MODES:
             raise ValueError(f"unknown obs_mode {obs_mode!r}; allowed: {', '.join(OBS_MODES)}")
@@ -45,6 +46,8 @@ class Observer:
         self.obs_size = int(obs_size)
         self.layout = layout
         self.encoding_size = maze_encoding_size(spec) if maze_encoding and obs_mode == "state" else 0
+        #: The board the mazes :meth:`set_maze` shows share (their rasters are drawn from its).
+        self.board = board
         self._raster: MazeRenderer | None = None
         self.space: spaces.Box
         if obs_mode == "pixels":
@@ -70,7 +73,7 @@ class Observer:
     def raster(self) -> MazeRenderer:
         """The pixel renderer (built on first use: state observations never need it)."""
         if self._raster is None:
-            self._raster = EnvMazes.raster(self.spec, self.obs_size)
+            self._raster = maze_raster(self.spec, self.obs_size, self.board)
         return self._raster
 
     def set_maze(self, spec: MazeSpec) -> None:

@@ -47,7 +47,7 @@ from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
 from bimgame.envs.env import ACTIONS_HELP, DISCRETE_TILTS, BallInMazeEnv
-from bimgame.envs.mazes import EnvMazes, maze_encoding
+from bimgame.envs.mazes import EnvMazes, maze_encoding, maze_raster
 from bimgame.envs.observe import Observer
 from bimgame.envs.randomization import EpisodeRandomizer
 from bimgame.sim.maze import MazeSpec
@@ -280,7 +280,7 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
         positions, _ = self.sim.layout.board_frame(self._states)
         size = self.template.observer.obs_size
         return tuple(
-            EnvMazes.raster(self._env_mazes[i], size).rgb(
+            maze_raster(self._env_mazes[i], size, None if self.mazes is None else self.mazes.base).rgb(
                 positions[i, :, :2], size=self.template.render_size, tilt=self._states[i, self.sim.layout.tilt]
             )
             for i in range(self.num_envs)
@@ -366,7 +366,7 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
         if self._encodings is not None:
             self._encodings[index] = maze_encoding(spec)
         if self._backgrounds is not None:
-            self._backgrounds[index] = EnvMazes.raster(spec, self._backgrounds.shape[1]).background
+            self._backgrounds[index] = self.mazes.raster(spec, self._backgrounds.shape[1]).background
 
     def _sampled_start(self, index: int, sampler: StartSampler) -> tuple[tuple[np.ndarray, np.ndarray] | None, int]:
         """The sampler's start for env ``index``: ``((state, marble_xy) or None, tag)``, checked."""

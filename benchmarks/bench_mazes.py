@@ -1,0 +1,146 @@
+"""What drawing a maze per episode (``num_mazes``, :mod:`bimgame.sim.maze_sets`) costs the vector env.
+
+Env steps/s of ``BallInMazeVectorEnv`` on STG2 with random actions, at STG2 episode lengths: episodes
+cut at ``--episode-steps`` (default 150, about the MPC expert's STG2 episodes; 500 is STG2's time
+limit), so that every env starts a new episode — and draws a new maze — every that many steps. Each
+of one maze (MERL's, ``num_mazes=None``), 100 mazes (their specs, models' wall pieces and pictures
+cached after the first use) and unlimited mazes (a new maze per episode: generated, its pieces
+computed and, for pixels, its raster drawn), for state and pixel observations and 16 and 64 envs.
+Rates are relative to one maze in the same run (the machine's speed drifts). Also: the µs of one
+``BallInMazeEnv.reset`` in each setting, and of ``MazeSim.set_walls`` against building a model.
+
+The issue's goal: mazes change with at most 10% loss of the vector env's steps/s.
+
+Usage: ``python benchmarks/bench_mazes.py [--episode-steps N] [--steps N]``; writes
+``benchmarks/results/mazes.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import time
+from pathlib import Path
+
+import mujoco
+import numpy as np
+from bench_env import best_of  # benchmarks/ is the script's directory, on sys.path
+
+from bimgame.envs.env import BallInMazeEnv
+from bimgame.envs.vector import BallInMazeVectorEnv
+from bimgame.sim.maze import MazeSpec
+from bimgame.sim.maze_sets import maze_number
+from bimgame.sim.mjcf import wall_slots
+from bimgame.sim.physics import MazeSim
+from bimgame.util.files import atomic_write_bytes
+
+RESULTS = Path(__file__).parent / "results" / "mazes.json"
+#: The settings compared: label and ``num_mazes``.
+SETTINGS = (("one maze", None), ("100 mazes", 100), ("unlimited", 0))
+
+
+def vector_rate(obs_mode: str, num_envs: int, steps: int, episode_steps: int, num_mazes: int | None) -> float:
+    """Env steps/s of the vector env on STG2 with random actions, episodes cut at ``episode_steps``."""
+    kwargs = {} if num_mazes is None else {"num_mazes": num_mazes}
+    env = BallInMazeVectorEnv(
+        num_envs, task="STG2", obs_mode=obs_mode, max_episode_steps=episode_steps, nthread=1, **kwargs
+    )
+    env.reset(seed=0)
+    actions = np.random.default_rng(0).integers(5, size=(steps, num_envs))
+
+    def run():
+        start = time.perf_counter()
+        for action in actions:
+            env.step(action)
+        return steps * num_envs, time.perf_counter() - start
+
+    rate = best_of(run, 3)
+    env.close()
+    return rate
+
+
+def reset_us(obs_mode: str, num_mazes: int | None, n: int = 200) -> float:
+    """µs per ``BallInMazeEnv.reset`` (a new maze each time with ``num_mazes``)."""
+    kwargs = {} if num_mazes is None else {"num_mazes": num_mazes}
+    env = BallInMazeEnv("STG2", obs_mode=obs_mode, **kwargs)
+    env.reset(seed=0)
+
+    def run():
+        start = time.perf_counter()
+        for _ in range(n):
+            env.reset()
+        return n, time.perf_counter() - start
+
+    return 1e6 / best_of(run)
+
+
+def switch_us(n: int = 100) -> tuple[float, float]:
+    """µs per ``MazeSim.set_walls`` to a new maze (pieces not cached), and per model built for it."""
+    base = MazeSpec.merl()
+    slots = wall_slots(base, 4)
+    sim = MazeSim(base, wall_slots=slots)
+    offset = [10_000]
+
+    def switch():
+        mazes = [maze_number(offset[0] + i) for i in range(n)]
+        offset[0] += n
+        start = time.perf_counter()
+        for maze in mazes:
+            sim.set_walls(maze)
+        return n, time.perf_counter() - start
+
+    def build():
+        mazes = [maze_number(i) for i in range(n // 10)]
+        start = time.perf_counter()
+        for maze in mazes:
+            MazeSim(maze, wall_slots=slots)
+        return len(mazes), time.perf_counter() - start
+
+    return 1e6 / best_of(switch), 1e6 / best_of(build)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--episode-steps", type=int, default=150, help="steps per episode (default 150)")
+    parser.add_argument("--steps", type=int, default=600, help="vector env steps per repeat (default 600)")
+    args = parser.parse_args()
+    switch, build = switch_us()
+    rows: dict[str, tuple[float, str, float | None]] = {
+        "MazeSim.set_walls to a new maze (µs)": (switch, "µs", None),
+        "MazeSim built for a maze (µs)": (build, "µs", None),
+    }
+    for obs_mode in ("state", "pixels"):
+        for label, num_mazes in SETTINGS:
+            rows[f"env.reset, {obs_mode}, {label} (µs)"] = (reset_us(obs_mode, num_mazes), "µs", None)
+    for obs_mode in ("state", "pixels"):
+        for num_envs in (16, 64):
+            baseline = None
+            for label, num_mazes in SETTINGS:
+                rate = vector_rate(obs_mode, num_envs, args.steps, args.episode_steps, num_mazes)
+                baseline = baseline or rate
+                rows[f"vector env {num_envs} envs, {obs_mode}, {label} (env steps/s)"] = (
+                    rate,
+                    "steps/s",
+                    rate / baseline,
+                )
+    table = {}
+    print(f"{'measurement':62s} {'value':>12s} {'vs one maze':>12s}")
+    for name, (value, unit, ratio) in rows.items():
+        table[name] = {"value": value, "unit": unit, "ratio_to_one_maze": ratio}
+        print(f"{name:62s} {value:12,.1f} {'' if ratio is None else f'{ratio:12.2f}'}")
+    result = {
+        "machine": platform.processor() or platform.machine(),
+        "python": platform.python_version(),
+        "mujoco": mujoco.__version__,
+        "episode_steps": args.episode_steps,
+        "steps": args.steps,
+        "time": time.strftime("%Y-%m-%dT%H:%M:%S"),
+        "results": table,
+    }
+    atomic_write_bytes(RESULTS, json.dumps(result, indent=2).encode())
+    print(f"wrote {RESULTS}")
+
+
+if __name__ == "__main__":
+    main()
