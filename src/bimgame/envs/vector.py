@@ -169,12 +169,12 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
         self.mazes: EnvMazes | None = self.template.mazes
         self.maze_numbers = np.zeros(self.num_envs, dtype=np.int64)
         self._env_mazes: list[MazeSpec] = [self.maze] * self.num_envs
-        self._state_observer = Observer(self.maze, n, "state", maze_encoding=self.mazes is not None)
+        self._state_observer = Observer(self.maze, n, "state")  # the marbles' state: the maze is not in it
         self._encodings: np.ndarray | None = None
         self._backgrounds: np.ndarray | None = None
         self._maze_rows: MazeRows | None = None
         if self.mazes is not None:
-            self._encodings = np.zeros((self.num_envs, self._state_observer.encoding_size), dtype=np.float32)
+            self._encodings = np.zeros((self.num_envs, self.template.observer.encoding_size), dtype=np.float32)
             self._maze_rows = MazeRows(self.mazes.base, self.num_envs, self.mazes.maze_set.rules.max_gates)
             if self.template.obs_mode == "pixels":
                 size = self.template.observer.obs_size
@@ -405,9 +405,8 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
             "tilt": tilt,
         }
         if self.state_info:
-            values["state"] = self._state_observer.from_kinematics(
-                positions, velocities, tilt, self._task_state.channel, encodings=self._encodings
-            )
+            channels = self._task_state.channel
+            values["state"] = self._state_observer.from_kinematics(positions, velocities, tilt, channels)
         if self.mazes is not None:
             values["maze"] = self.maze_numbers.copy()
         every_env = np.ones(self.num_envs, dtype=bool)  # Gymnasium's per-key "_key" masks

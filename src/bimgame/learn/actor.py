@@ -136,6 +136,7 @@ def evaluate_network(
     record: bool = False,
     render_size: int = 240,
     randomize: Any = None,
+    mazes: dict[str, Any] | None = None,
 ) -> EvalResult:
     """Run one episode in each of ``episodes`` environments (batched) with the true task reward.
 
@@ -143,7 +144,9 @@ def evaluate_network(
     run are comparable); sampled actions draw from a generator seeded with ``seed`` too.
     ``record`` keeps RGB frames of the first environment's episode. ``randomize`` (a
     :class:`~bimgame.envs.randomization.Randomization`) evaluates on domain-randomised boards. The
-    env has the network's kind of action (``net.config.action_type``)."""
+    env has the network's kind of action (``net.config.action_type``). ``mazes``: env arguments of
+    many mazes (``num_mazes``, ``start_maze``, ``maze_split``; see :class:`~bimgame.envs.env.BallInMazeEnv`),
+    each episode's maze drawn from ``seed`` too."""
     kwargs: dict[str, Any] = {
         "task": task,
         "obs_mode": obs_mode,
@@ -152,6 +155,7 @@ def evaluate_network(
     }
     if maze is not None:
         kwargs["maze"] = maze
+    kwargs.update(mazes or {})
     if record:
         kwargs.update(render_mode="rgb_array", render_size=render_size)
     limit = max_episode_steps or parse_task(task).time_limit

@@ -15,6 +15,9 @@ import dataclasses
 from pathlib import Path
 from typing import Any, ClassVar, Protocol, Self
 
+import numpy as np
+
+from bimgame.envs.mazes import maze_encoding_size
 from bimgame.envs.observe import OBS_MODES
 from bimgame.learn.actor import evaluate_network
 from bimgame.learn.checkpoints import load_weights
@@ -103,6 +106,10 @@ class NetworkSettings:
     action_type: str = "discrete"
     """The policy's actions: ``discrete`` (the paper's 5: no-op, ±1 tilt step about x or y) or
     ``continuous`` (a Gaussian over the tilt change about x and y, in [-1, 1] tilt steps; PPO only)."""
+    maze_encoding: bool = False
+    """State observations end with the maze's encoding (each wall's openness at 32 angles, see
+    :mod:`bimgame.envs.mazes`): what the envs of a run on many mazes (``num_mazes``) observe. Set
+    by ``num_mazes``; pixels show the maze instead."""
 
     def __post_init__(self) -> None:
         owner = type(self).__name__
@@ -124,12 +131,21 @@ class NetworkSettings:
             object.__setattr__(self, "aux_heads", pixels)
         if self.precision is None:
             object.__setattr__(self, "precision", "bf16" if pixels and native_bf16() else "fp32")
-        for name in ("tilt_input", "keypoints", "subtract_background", "aux_heads", "asymmetric_critic"):
+        for name in (
+            "tilt_input",
+            "keypoints",
+            "subtract_background",
+            "aux_heads",
+            "asymmetric_critic",
+            "maze_encoding",
+        ):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"{owner}.{name} must be True or False, got {getattr(self, name)!r}")
         if self.precision not in PRECISIONS:
             raise ValueError(f"{owner}.precision must be one of {PRECISIONS}, got {self.precision!r}")
         check_action_type(owner, self.action_type)
+        if self.maze_encoding and pixels:
+            raise ValueError(f"{owner}.maze_encoding applies to state observations only (pixels show the maze)")
 
     @property
     def privileged(self) -> bool:
@@ -152,6 +168,12 @@ class NetworkSettings:
         # __post_init__ replaced None by the defaults.
         assert features is not None and hidden is not None and precision is not None
         scale = state_obs_scale(maze)
+        # The maze's encoding is already in [0, 1]: divisors of 1.
+        obs_scale = (
+            np.concatenate([scale, np.ones(maze_encoding_size(maze), dtype=np.float32)])
+            if self.maze_encoding
+            else scale
+        )
         privileged: dict[str, Any] = (
             {"privileged_size": len(scale), "aux_heads": self.aux_heads, "asymmetric_critic": self.asymmetric_critic}
             if self.privileged
@@ -174,14 +196,14 @@ class NetworkSettings:
             return net_config, {"background": maze_background(maze) if self.subtract_background else None, **inputs}
         net_config = NetConfig(
             encoder="mlp",
-            obs_shape=(len(scale),),
+            obs_shape=(len(obs_scale),),
             features=features,
             hidden=hidden,
             tilt_input=self.tilt_input,
             action_type=self.action_type,
             **privileged,
         )
-        return net_config, {"obs_scale": scale, **inputs}
+        return net_config, {"obs_scale": obs_scale, **inputs}
 
     def build_policy(self, seed: int, maze: MazeSpec | None = None) -> RecurrentActorCritic:
         """A fresh actor-critic, initialised from ``seed``."""
@@ -356,6 +378,13 @@ class LearnerSettings(FlatSettings):
     and the evaluations."""
     max_episode_steps: int | None = None
     """Time limit; None uses the task's (STG1 300, STG2 500, STG3 750, STG4/FULL 1000)."""
+    num_mazes: int | None = None
+    """Train on random mazes (:mod:`bimgame.sim.maze_sets`): this many training mazes from number
+    ``start_maze`` on, one drawn per episode; 0: unlimited (a new maze every episode). None: MERL's
+    maze only. Evaluations during the run use the same mazes; ``bimgame score --mazes test`` scores
+    the held-out ones."""
+    start_maze: int = 0
+    """The first training maze's number (with ``num_mazes``)."""
 
     def __post_init__(self) -> None:
         owner = type(self).__name__
@@ -363,7 +392,26 @@ class LearnerSettings(FlatSettings):
         check_seed(owner, self.seed)  # numpy's seed sequences take no negative seeds, torch none of 2**64
         require_int(owner, "max_episode_steps", self.max_episode_steps, 1, optional=True)
         check_at_most(owner, "max_episode_steps", self.max_episode_steps, MAX_STEPS, "1e12 environment steps")
+        require_int(owner, "num_mazes", self.num_mazes, 0, optional=True)
+        require_int(owner, "start_maze", self.start_maze, 0)
+        if self.num_mazes is None and self.start_maze:
+            raise ValueError(f"{owner}.start_maze {self.start_maze} needs num_mazes (the training mazes' count)")
         self.check_parts()
+        network = getattr(self, "network", None)
+        if isinstance(network, NetworkSettings) and network.obs == "state":
+            if self.num_mazes is not None and not network.maze_encoding:  # derived, as the sizes' defaults
+                object.__setattr__(self, "network", dataclasses.replace(network, maze_encoding=True))
+            elif self.num_mazes is None and network.maze_encoding:
+                raise ValueError(
+                    f"{owner}: network.maze_encoding without num_mazes (the encoding is of the episodes' mazes)"
+                )
+
+    @property
+    def maze_options(self) -> dict[str, Any]:
+        """The env arguments of the run's mazes (empty on MERL's maze alone)."""
+        if self.num_mazes is None:
+            return {}
+        return {"num_mazes": self.num_mazes, "start_maze": self.start_maze}
 
     @property
     def time_limit(self) -> int:
@@ -383,6 +431,8 @@ class EvaluatedRun(Protocol):
     def schedule(self) -> ScheduleSettings: ...
     @property
     def time_limit(self) -> int: ...
+    @property
+    def maze_options(self) -> dict[str, Any]: ...
 
 
 def run_evaluation(net: RecurrentActorCritic, config: EvaluatedRun) -> dict[str, float]:
@@ -395,18 +445,34 @@ def run_evaluation(net: RecurrentActorCritic, config: EvaluatedRun) -> dict[str,
         episodes=config.schedule.eval_episodes,
         seed=evaluation_seed(config.seed),
         time_limit=config.time_limit,
+        mazes=config.maze_options,
     )
 
 
 def evaluate_greedy_and_sampled(
-    net: RecurrentActorCritic, *, task: str, obs: str, episodes: int, seed: int, time_limit: int | None = None
+    net: RecurrentActorCritic,
+    *,
+    task: str,
+    obs: str,
+    episodes: int,
+    seed: int,
+    time_limit: int | None = None,
+    mazes: dict[str, Any] | None = None,
 ) -> dict[str, float]:
     """Success rate, mean length and return of ``net`` on ``task``, acting greedily and sampling (keys
-    ``greedy_…``, ``sampled_…``), over the same ``episodes`` start positions from ``seed``."""
+    ``greedy_…``, ``sampled_…``), over the same ``episodes`` start positions (and mazes: ``mazes``,
+    env arguments such as ``num_mazes``) from ``seed``."""
     values: dict[str, float] = {}
     for mode, greedy in (("greedy", True), ("sampled", False)):
         result = evaluate_network(
-            net, task=task, obs_mode=obs, episodes=episodes, seed=seed, greedy=greedy, max_episode_steps=time_limit
+            net,
+            task=task,
+            obs_mode=obs,
+            episodes=episodes,
+            seed=seed,
+            greedy=greedy,
+            max_episode_steps=time_limit,
+            mazes=mazes,
         )
         values.update({f"{mode}_{k}": v for k, v in result.summary().items() if k != "episodes"})
     return values

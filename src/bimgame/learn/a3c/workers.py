@@ -63,6 +63,7 @@ def _make_env(config: A3CConfig, num_envs: int, **kwargs: Any) -> BallInMazeVect
         time_limit=config.time_limit,
         privileged=config.network.privileged,
         randomize=randomize,
+        **config.maze_options,
         **kwargs,
     )
 

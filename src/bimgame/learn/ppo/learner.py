@@ -75,6 +75,7 @@ class RankLearner:
             time_limit=config.time_limit,
             privileged=config.network.privileged,
             action_type=config.network.action_type,
+            **config.maze_options,
         )
         actor = RecurrentActor(net, envs, generator=torch.Generator().manual_seed(act_seed))
         self.collector = RolloutCollector(
