@@ -130,3 +130,19 @@ def test_vector_env_with_many_mazes_equals_sync_vector_env(obs_mode):
     assert len(mazes) >= 4  # autoresets switched mazes during the test
     sync.close()
     fast.close()
+
+
+def test_vector_env_reset_can_choose_each_envs_first_maze():
+    env = gym.make_vec("BiMGame/STG1-v0", num_envs=3, obs_mode="state", num_mazes=100, maze_split="test")
+    _, info = env.reset(seed=0, options={"maze": [7, 3, 99]})
+    assert info["maze"].tolist() == [7, 3, 99]
+    assert env.unwrapped._env_mazes[2] == maze_number(99, "test")
+    with pytest.raises(ValueError, match=r"options\['maze'\] must hold 3 maze numbers"):
+        env.reset(options={"maze": [1, 2]})
+    with pytest.raises(ValueError, match=r"must be a maze number of this env's set \(0..99\)"):
+        env.reset(options={"maze": [1, 2, 100]})
+    with pytest.raises(ValueError, match="takes only the option 'maze'"):
+        env.reset(options={"marble_xy": 1})
+    plain = gym.make_vec("BiMGame/STG1-v0", num_envs=2, obs_mode="state")
+    with pytest.raises(ValueError, match="needs a vector env built with num_mazes"):
+        plain.reset(options={"maze": [0, 1]})

@@ -174,7 +174,8 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
         self._backgrounds: np.ndarray | None = None
         self._maze_rows: MazeRows | None = None
         if self.mazes is not None:
-            self._encodings = np.zeros((self.num_envs, self.template.observer.encoding_size), dtype=np.float32)
+            if self.template.observer.encoding_size:
+                self._encodings = np.zeros((self.num_envs, self.template.observer.encoding_size), dtype=np.float32)
             self._maze_rows = MazeRows(self.mazes.base, self.num_envs, self.mazes.maze_set.rules.max_gates)
             if self.template.obs_mode == "pixels":
                 size = self.template.observer.obs_size
@@ -207,19 +208,14 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
             seeds = list(seed)
             if len(seeds) != self.num_envs:
                 raise ValueError(f"seed list must have {self.num_envs} entries, got {len(seeds)}")
-        if options:
-            shown = sorted(options) if isinstance(options, dict) else repr(options)
-            raise ValueError(
-                "BallInMazeVectorEnv.reset takes no options (starts are random, or chosen by "
-                f"start_sampler), got {shown}"
-            )
+        first_mazes = self._first_mazes(options)
         if not self._rngs:
             self._rngs = [seeding.np_random(s)[0] for s in seeds]
         else:
             self._rngs = [
                 seeding.np_random(s)[0] if s is not None else rng for s, rng in zip(seeds, self._rngs, strict=True)
             ]
-        self._reset_envs(np.ones(self.num_envs, dtype=bool))
+        self._reset_envs(np.ones(self.num_envs, dtype=bool), first_mazes)
         self._autoreset[:] = False
         self._has_reset = True
         crossings = np.zeros_like(self._task_state.channel)
@@ -325,11 +321,31 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
             self._states[idx], deltas[:, None], nthread=self.nthread, models=models, max_tilt=max_tilt
         )[:, 0]
 
-    def _reset_envs(self, mask: np.ndarray) -> None:
+    def _first_mazes(self, options: Any) -> np.ndarray | None:
+        """The maze numbers of ``reset(options={"maze": …})``, checked; None without options."""
+        if not options:
+            return None
+        allowed = "'maze' (with num_mazes: one maze number per env)"
+        if not isinstance(options, dict) or set(options) != {"maze"}:
+            shown = sorted(options) if isinstance(options, dict) else repr(options)
+            raise ValueError(f"BallInMazeVectorEnv.reset takes only the option {allowed}, got {shown}")
+        if self.mazes is None:
+            raise ValueError("reset option 'maze' needs a vector env built with num_mazes (it names mazes of the set)")
+        numbers = np.asarray(options["maze"])
+        if numbers.shape != (self.num_envs,):
+            raise ValueError(
+                f"options['maze'] must hold {self.num_envs} maze numbers (one per env), got {options['maze']!r}"
+            )
+        return np.array([self.mazes.check_number(n.item(), "options['maze']") for n in numbers], dtype=np.int64)
+
+    def _reset_envs(self, mask: np.ndarray, mazes: np.ndarray | None = None) -> None:
+        """Start new episodes in the envs of ``mask``; ``mazes``: every env's maze number (first reset)."""
         n = self.template.n_marbles
         for i in np.flatnonzero(mask):
-            if self.mazes is not None:  # the maze first, as the single env draws it
-                self._switch_env_maze(int(i), self.mazes.maze_set.draw(self._rngs[i]))
+            if self.mazes is not None:  # the maze first, as the single env draws it (or the caller's)
+                self._switch_env_maze(
+                    int(i), self.mazes.maze_set.draw(self._rngs[i]) if mazes is None else int(mazes[i])
+                )
             state = None
             if self.start_sampler is not None:
                 state, self.start_tags[i] = self._sampled_start(int(i), self.start_sampler)

@@ -12,6 +12,7 @@ actor draws from :meth:`~bimgame.learn.nets.RecurrentActorCritic.distribution` a
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -137,6 +138,7 @@ def evaluate_network(
     render_size: int = 240,
     randomize: Any = None,
     mazes: dict[str, Any] | None = None,
+    maze_numbers: Sequence[int] | None = None,
 ) -> EvalResult:
     """Run one episode in each of ``episodes`` environments (batched) with the true task reward.
 
@@ -146,7 +148,7 @@ def evaluate_network(
     :class:`~bimgame.envs.randomization.Randomization`) evaluates on domain-randomised boards. The
     env has the network's kind of action (``net.config.action_type``). ``mazes``: env arguments of
     many mazes (``num_mazes``, ``start_maze``, ``maze_split``; see :class:`~bimgame.envs.env.BallInMazeEnv`),
-    each episode's maze drawn from ``seed`` too."""
+    each episode's maze drawn from ``seed`` too, or episode ``k`` on maze ``maze_numbers[k]`` of that set."""
     kwargs: dict[str, Any] = {
         "task": task,
         "obs_mode": obs_mode,
@@ -162,7 +164,7 @@ def evaluate_network(
     env = BallInMazeVectorEnv(episodes, max_episode_steps=limit, nthread=1, autoreset_mode="same_step", **kwargs)
     generator = torch.Generator().manual_seed(int(seed))
     actor = RecurrentActor(net, episodes, generator=generator, greedy=greedy)
-    obs, info = env.reset(seed=int(seed))
+    obs, info = env.reset(seed=int(seed), options=None if maze_numbers is None else {"maze": list(maze_numbers)})
     max_tilt = env.maze.max_tilt
     finished = np.zeros(episodes, dtype=bool)
     result = EvalResult([False] * episodes, [0] * episodes, [0.0] * episodes)
