@@ -1,0 +1,194 @@
+"""Generalization to unseen mazes (Procgen/CoinRun's protocol, on random circular mazes).
+
+Each learner is trained on N random training mazes (``--num-mazes``: N = 1, 10, 100, 1000 and 0 =
+unlimited, a new maze every episode; :mod:`bimgame.sim.maze_sets`) for the same step budget, several
+seeds, and its final network is scored, greedily and sampling, on
+
+- **train**: episode k on training maze k mod min(N, 100) — the mazes it trained on (for N > 100 and
+  unlimited, the first 100 training mazes: mazes it may have met);
+- **test**: episode k on held-out test maze k, k < ``--episodes`` (100 by default) — mazes no
+  training set contains (their hashes are in the test partition).
+
+The generalization gap is train − test success. Across seeds: means with percentile-bootstrap 95%
+intervals (seeds resampled); per seed numbers are in the JSON. Runs are kept in ``--out`` (a rerun
+reuses finished runs and their scores). Writes ``--results`` (default
+benchmarks/results/generalization.json) and ``--figure`` (default docs/mazes/generalization.png):
+train and test success against N, one panel per learner, CoinRun's figure.
+
+Usage: python benchmarks/bench_generalization.py [--task STG1] [--obs state] [--steps 300000]
+       [--seeds 3] [--num-mazes 1 10 100 1000 0] [--learners ppo a3c] [--out runs/generalization]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from bimgame.experiments.statistics import mean_interval
+from bimgame.learn.a3c import A3CConfig, train
+from bimgame.learn.actor import evaluate_network
+from bimgame.learn.common import load_run_network
+from bimgame.learn.ppo import PPOConfig, train_ppo
+from bimgame.learn.runs import torch_threads
+from bimgame.util.files import atomic_write_bytes, read_json
+from bimgame.util.images import save_png, subplots
+
+ROOT = Path(__file__).resolve().parents[1]
+LEARNERS = ("ppo", "a3c")
+SPLITS = ("train", "test")
+MODES = ("greedy", "sampled")
+#: Evaluation seed of the scores (the same starts for every run).
+SCORE_SEED = 12345
+
+
+def _label(num_mazes: int) -> str:
+    return "unlimited" if num_mazes == 0 else str(num_mazes)
+
+
+def _train(learner: str, run_dir: Path, *, task: str, obs: str, steps: int, seed: int, num_mazes: int) -> float:
+    """Train one run unless ``run_dir`` holds a finished one; the wall-clock seconds it took (0: reused)."""
+    summary = read_json(run_dir / "summary.json")
+    if summary is not None and summary.get("stopped") == "finished":
+        return 0.0
+    common = dict(task=task, obs=obs, steps=steps, seed=seed, eval_every=0, eval_episodes=20, num_mazes=num_mazes)
+    start = time.perf_counter()
+    if learner == "a3c":
+        train(A3CConfig.from_flat(common, workers=2, envs_per_worker=16), run_dir, progress=False)
+    else:
+        train_ppo(PPOConfig.from_flat(common), run_dir, progress=False)
+    return time.perf_counter() - start
+
+
+def _score(run_dir: Path, num_mazes: int, episodes: int) -> dict[str, float]:
+    """Success of the run's final network on its training mazes and on held-out test mazes."""
+    scores_file = run_dir / "generalization_scores.json"
+    cached = read_json(scores_file)
+    if cached is not None and cached.get("episodes") == episodes:
+        return cached["scores"]
+    net, run, _ = load_run_network(run_dir)
+    seen = min(num_mazes, 100) if num_mazes else 100
+    splits = {
+        "train": ({"num_mazes": num_mazes, "start_maze": 0}, [k % seen for k in range(episodes)]),
+        "test": ({"num_mazes": episodes, "maze_split": "test"}, list(range(episodes))),
+    }
+    scores = {}
+    for split, (mazes, numbers) in splits.items():
+        for mode in MODES:
+            result = evaluate_network(
+                net,
+                task=run.task,
+                obs_mode=run.network.obs,
+                episodes=episodes,
+                seed=SCORE_SEED,
+                greedy=mode == "greedy",
+                max_episode_steps=run.time_limit,
+                mazes=mazes,
+                maze_numbers=numbers,
+            )
+            scores[f"{split}_{mode}"] = float(np.mean(result.successes))
+    atomic_write_bytes(scores_file, json.dumps({"episodes": episodes, "scores": scores}, indent=2).encode())
+    return scores
+
+
+def _aggregate(per_seed: list[dict[str, float]], rng: np.random.Generator) -> dict[str, Any]:
+    """Means over seeds with bootstrap intervals, and the gap train − test per mode."""
+    out: dict[str, Any] = {}
+    keys = [f"{s}_{m}" for s in SPLITS for m in MODES]
+    values = {key: np.array([scores[key] for scores in per_seed]) for key in keys}
+    for mode in MODES:
+        values[f"gap_{mode}"] = values[f"train_{mode}"] - values[f"test_{mode}"]
+    for key, array in values.items():
+        low, high = mean_interval(array, rng=rng)
+        out[key] = {"mean": float(array.mean()), "interval": [low, high], "per_seed": array.tolist()}
+    return out
+
+
+def _plot(results: dict[str, Any], path: Path, title: str) -> Path:
+    learners = [name for name in LEARNERS if name in results["learners"]]
+    fig, axes = subplots(1, len(learners), figsize=(5.2 * len(learners), 4.0), squeeze=False, layout="constrained")
+    for axis, learner in zip(axes[0], learners, strict=True):
+        rows = results["learners"][learner]
+        labels = list(rows)
+        x = np.arange(len(labels))
+        for split, colour in (("train", "tab:blue"), ("test", "tab:red")):
+            for mode, style in (("sampled", "-"), ("greedy", "--")):
+                stats = [rows[label][f"{split}_{mode}"] for label in labels]
+                mean = np.array([s["mean"] for s in stats])
+                low = np.array([s["interval"][0] for s in stats])
+                high = np.array([s["interval"][1] for s in stats])
+                axis.plot(x, 100 * mean, style, color=colour, marker="o", label=f"{split}, {mode}")
+                if mode == "sampled":
+                    axis.fill_between(x, 100 * low, 100 * high, color=colour, alpha=0.15)
+                per_seed = [s["per_seed"] for s in stats]
+                for i, seeds in enumerate(per_seed):
+                    axis.scatter([i] * len(seeds), 100 * np.array(seeds), s=8, color=colour, alpha=0.4)
+        axis.set_xticks(x, labels)
+        axis.set_xlabel("training mazes N")
+        axis.set_ylabel("success (%)")
+        axis.set_ylim(-3, 103)
+        axis.set_title(f"{learner.upper()}: {title}", fontsize=10)
+        axis.grid(alpha=0.3)
+        axis.legend(fontsize=8)
+    return save_png(fig, path, dpi=110)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--task", default="STG1")
+    parser.add_argument("--obs", default="state", choices=("state", "pixels"))
+    parser.add_argument("--steps", type=int, default=300_000, help="steps per run (default 300k)")
+    parser.add_argument("--seeds", type=int, default=3)
+    parser.add_argument("--num-mazes", type=int, nargs="+", default=[1, 10, 100, 1000, 0], help="0: unlimited")
+    parser.add_argument("--learners", nargs="+", default=["ppo"], choices=LEARNERS)
+    parser.add_argument("--episodes", type=int, default=100, help="scoring episodes per split and mode (default 100)")
+    parser.add_argument("--out", type=Path, default=ROOT / "runs" / "generalization")
+    parser.add_argument("--results", type=Path, default=ROOT / "benchmarks" / "results" / "generalization.json")
+    parser.add_argument("--figure", type=Path, default=ROOT / "docs" / "mazes" / "generalization.png")
+    args = parser.parse_args(argv)
+    if any(n < 0 for n in args.num_mazes):
+        parser.error(f"--num-mazes takes counts >= 0 (0: unlimited), got {args.num_mazes}")
+    rng = np.random.default_rng(0)
+    results: dict[str, Any] = {
+        "task": args.task,
+        "obs": args.obs,
+        "steps": args.steps,
+        "seeds": args.seeds,
+        "episodes": args.episodes,
+        "learners": {},
+        "wall_seconds": {},
+    }
+    with torch_threads(1):
+        torch.set_num_threads(1)
+        for learner in args.learners:
+            rows: dict[str, Any] = {}
+            for num_mazes in args.num_mazes:
+                per_seed = []
+                for seed in range(args.seeds):
+                    run_dir = args.out / f"{learner}-{args.task}-{args.obs}-n{_label(num_mazes)}" / f"seed{seed}"
+                    seconds = _train(
+                        learner, run_dir, task=args.task, obs=args.obs, steps=args.steps, seed=seed, num_mazes=num_mazes
+                    )
+                    if seconds:
+                        results["wall_seconds"][str(run_dir.relative_to(args.out))] = seconds
+                    scores = _score(run_dir, num_mazes, args.episodes)
+                    per_seed.append(scores)
+                    shown = "  ".join(f"{k} {100 * v:3.0f}%" for k, v in scores.items())
+                    print(f"{learner} N={_label(num_mazes):>9} seed {seed}: {shown}", flush=True)
+                rows[_label(num_mazes)] = _aggregate(per_seed, rng)
+            results["learners"][learner] = rows
+            atomic_write_bytes(args.results, json.dumps(results, indent=2).encode())
+    title = f"{args.task} from {args.obs}, {args.steps:,} steps, {args.seeds} seeds; {args.episodes} episodes per point"
+    figure = _plot(results, args.figure, title)
+    atomic_write_bytes(args.results, json.dumps(results, indent=2).encode())
+    print(f"wrote {args.results} and {figure}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
