@@ -102,8 +102,17 @@ def test_the_maze_is_drawn_to_scale_with_the_marble_at_its_start(drawings, name)
 # Floor points away from walls and labels, channel 0 to the outermost channel, at least 9 mm of
 # geodesic distance apart; ordered by their distance from the centre they would be in another
 # order (the shading is the path through the gates, not the radius).
-FLOOR_POINTS_MM = [(0.0, 10.0), (0.0, 28.0), (28.0, 0.0), (0.0, -48.0), (48.0, 0.0), (60.0, 35.0), (-45.0, 55.0),
-                   (0.0, 89.0), (44.5, 77.1)]
+FLOOR_POINTS_MM = [
+    (0.0, 10.0),
+    (0.0, 28.0),
+    (28.0, 0.0),
+    (0.0, -48.0),
+    (48.0, 0.0),
+    (60.0, 35.0),
+    (-45.0, 55.0),
+    (0.0, 89.0),
+    (44.5, 77.1),
+]
 
 
 def test_the_shading_follows_the_geodesic_distance_and_the_plain_floor_is_white(drawings):
@@ -134,10 +143,27 @@ def test_the_resolution_follows_dpi_and_the_maze_changes_the_picture(tmp_path):
     # Another maze (every gate of the outer wall turned by 20°) gives another picture.
     walls = list(SPEC.walls)
     outer = walls[-1]
-    walls[-1] = type(outer)(outer.inner_radius, outer.outer_radius,
-                            tuple(type(g)(g.angle + math.radians(20), g.width) for g in outer.gates))
+    walls[-1] = type(outer)(
+        outer.inner_radius, outer.outer_radius, tuple(type(g)(g.angle + math.radians(20), g.width) for g in outer.gates)
+    )
     turned = draw_maze(SPEC.replace(walls=tuple(walls)), tmp_path / "turned.png", geodesic=False, dpi=40)
     with Image.open(turned) as c:
         turned_pixels = np.asarray(c.convert("RGB")).astype(int)
     assert turned_pixels.shape == low_pixels.shape
     assert np.abs(turned_pixels - low_pixels).max(axis=-1).astype(bool).sum() > 100
+
+
+def test_random_mazes_are_drawn_side_by_side_and_differ(tmp_path):
+    from bimgame.cli.main import main
+
+    assert main(["maze", "--grid", "2", "--split", "test", "--out", str(tmp_path / "grid.png")]) == 0
+    grid = np.asarray(Image.open(tmp_path / "grid.png").convert("L"), dtype=float)
+    left, right = grid[:, : grid.shape[1] // 2], grid[:, grid.shape[1] // 2 :]
+    assert left.std() > 10 and np.abs(left - right[:, : left.shape[1]]).mean() > 1  # two different mazes
+    assert main(["maze", "--number", "5", "--out", str(tmp_path / "five.png")]) == 0
+    assert main(["maze", "--number", "6", "--out", str(tmp_path / "six.png")]) == 0
+    five = np.asarray(Image.open(tmp_path / "five.png").convert("L"), dtype=float)
+    six = np.asarray(Image.open(tmp_path / "six.png").convert("L"), dtype=float)
+    assert five.shape == six.shape and np.abs(five - six).mean() > 1
+    with pytest.raises(SystemExit, match="exclude each other"):
+        main(["maze", "--grid", "2", "--number", "1", "--out", str(tmp_path / "x.png")])

@@ -11,11 +11,13 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from bimgame.cli.argtypes import add_max_steps_argument, add_task_argument, positive_int
+from bimgame.cli.argtypes import add_max_steps_argument, add_task_argument, non_negative_int, positive_int
 from bimgame.expert.policies import POLICIES
 from bimgame.expert.rollout import run_episodes
-from bimgame.sim.figures import draw_maze
+from bimgame.sim.figures import draw_maze, draw_maze_grid
+from bimgame.sim.generate import maze_hash
 from bimgame.sim.maze import MazeSpec
+from bimgame.sim.maze_sets import MAZE_SPLITS, maze_number
 from bimgame.util.images import write_gif
 
 __all__ = ["add_parsers", "run_maze", "run_rollout", "run_demo"]
@@ -23,9 +25,19 @@ __all__ = ["add_parsers", "run_maze", "run_rollout", "run_demo"]
 
 def add_parsers(verbs: argparse._SubParsersAction) -> None:
     """Add the ``maze``, ``rollout`` and ``demo`` verbs to the command line's sub-parsers."""
-    maze = verbs.add_parser("maze", help="draw the maze to a PNG")
+    maze = verbs.add_parser("maze", help="draw the maze (MERL's, or random ones) to a PNG")
     maze.add_argument("--out", type=Path, default=Path("maze.png"), help="PNG path (default maze.png)")
     maze.add_argument("--no-geodesic", action="store_true", help="do not shade the geodesic distance")
+    maze.add_argument(
+        "--number",
+        type=non_negative_int,
+        default=None,
+        help="draw random maze NUMBER of --split (the mazes of --num-mazes; default: MERL's maze)",
+    )
+    maze.add_argument("--split", choices=MAZE_SPLITS, default="train", help="with --number or --grid (default train)")
+    maze.add_argument(
+        "--grid", type=positive_int, default=None, help="draw random mazes 0..GRID-1 of --split side by side"
+    )
     maze.set_defaults(run=run_maze)
 
     rollout = verbs.add_parser("rollout", help="run episodes of a simple policy and summarise them")
@@ -47,8 +59,16 @@ def add_parsers(verbs: argparse._SubParsersAction) -> None:
 
 
 def run_maze(args: argparse.Namespace) -> int:
-    """``bimgame maze``: MERL's maze drawn to a PNG."""
-    print(f"wrote {draw_maze(MazeSpec.merl(), args.out, geodesic=not args.no_geodesic)}")
+    """``bimgame maze``: MERL's maze, a random maze (``--number``) or several (``--grid``) drawn to a PNG."""
+    if args.grid is not None and args.number is not None:
+        raise SystemExit("bimgame maze: --grid and --number exclude each other (many mazes, or one)")
+    if args.grid is not None:
+        specs = [maze_number(i, args.split) for i in range(args.grid)]
+        titles = [f"{args.split} maze {i} ({maze_hash(spec)[:8]})" for i, spec in enumerate(specs)]
+        print(f"wrote {draw_maze_grid(specs, titles, args.out)}")
+        return 0
+    spec = MazeSpec.merl() if args.number is None else maze_number(args.number, args.split)
+    print(f"wrote {draw_maze(spec, args.out, geodesic=not args.no_geodesic)}")
     return 0
 
 
