@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from bimgame.cli.main import main
 
 
@@ -42,3 +44,59 @@ def test_a_ppo_run_scores_like_an_a3c_run_from_its_directory_or_its_checkpoint(t
     assert [s["policy"] for s in scores] == [str(run), str(run / "checkpoint.pt")]
     assert all(s["episodes"] == 2 and s["normalised_score"] is not None for s in scores)
     assert main(["score", str(run), "--obs", "pixels", "--episodes", "2", "--no-progress"]) == 2  # trained on state
+
+
+def test_score_on_test_mazes_names_them_in_the_table_and_the_json(tmp_path, capsys):
+    out = tmp_path / "score.json"
+    argv = ["score", "noop", "--mazes", "test", "--episodes", "3", "--out", str(out), "--no-progress"]
+    assert main(argv) == 0
+    result = json.loads(out.read_text())
+    assert (result["mazes"], result["maze_split"], result["maze_set"]) == ("test", "test", "held-out test mazes 0..2")
+    assert result["episodes"] == 3 and result["success_rate"] == 0.0
+    assert "held-out test mazes 0..2" in capsys.readouterr().out
+    assert main(["score", "noop", "--episodes", "2", "--out", str(out), "--no-progress"]) == 0
+    assert json.loads(out.read_text())["maze_split"] == "merl"
+
+
+def test_a_bad_mazes_value_is_refused_with_the_allowed_forms(capsys):
+    for bad in ("mars", "train", "test:0", "train:a:3"):
+        with pytest.raises(SystemExit) as exit_info:
+            main(["score", "random", "--mazes", bad, "--episodes", "2", "--no-progress"])
+        assert exit_info.value.code == 2
+        err = capsys.readouterr().err
+        assert "--mazes" in err and f"{bad!r}" in err and "train:START:N" in err
+
+
+def test_a_run_trained_on_mazes_scores_on_held_out_and_its_own_mazes(tmp_path):
+    """A PPO run with --num-mazes 3 (its network reads the maze's encoding) scores on the held-out
+    test mazes, on its three training mazes and on MERL's maze (given MERL's encoding)."""
+    from bimgame.learn.ppo import PPOConfig, train_ppo
+
+    run = tmp_path / "maze-run"
+    config = PPOConfig.from_flat(
+        {
+            "task": "STG1",
+            "obs": "state",
+            "hidden": 16,
+            "features": 16,
+            "envs_per_worker": 4,
+            "n_steps": 16,
+            "minibatches": 2,
+            "eval_every": 0,
+            "eval_episodes": 2,
+            "log_every": 64,
+            "steps": 64,
+            "num_mazes": 3,
+        }
+    )
+    train_ppo(config, run, progress=False)
+    results = {}
+    for mazes in ("test", "train:3", "merl"):
+        out = tmp_path / f"{mazes.replace(':', '-')}.json"
+        assert main(["score", str(run), "--mazes", mazes, "--episodes", "2", "--out", str(out), "--no-progress"]) == 0
+        results[mazes] = json.loads(out.read_text())
+    assert results["test"]["maze_set"] == "held-out test mazes 0..1" and results["test"]["notes"] == []
+    assert results["train:3"]["maze_set"] == "training mazes 0..2 (2 of them played)"
+    assert results["train:3"]["notes"] == []
+    assert len(results["merl"]["notes"]) == 1 and "MERL's maze's encoding" in results["merl"]["notes"][0]
+    assert all(r["episodes"] == 2 and 0.0 <= r["success_rate"] <= 1.0 for r in results.values())

@@ -88,6 +88,16 @@ def add_generate_arguments(parser: argparse.ArgumentParser) -> argparse.Argument
     )
     add_backend_arguments(parser, "episodes")
     add_max_steps_argument(parser)
+    parser.add_argument(
+        "--num-mazes",
+        type=non_negative_int,  # 0 is refused by generate_dataset, which says why
+        default=None,
+        help="play the episodes on this many random training mazes, episode j on maze START + (j mod N), "
+        "as `bimgame train --num-mazes N --start-maze START` trains on (default: MERL's maze)",
+    )
+    parser.add_argument(
+        "--start-maze", type=non_negative_int, default=0, help="the first training maze's number (with --num-mazes)"
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     return parser
 
@@ -107,14 +117,21 @@ def run_generate(args: argparse.Namespace) -> int:
             ray_address=args.ray_address,
             progress=not args.no_progress,
             max_steps=args.max_steps,
+            num_mazes=args.num_mazes,
+            start_maze=args.start_maze,
         )
     except ImportError as error:
         print(f"bimgame generate: error: {error}", file=sys.stderr)
         return 2
     seconds = time.perf_counter() - start
     summary = dataset_summary(out)
+    mazes = (
+        ""
+        if args.num_mazes is None
+        else f" on training mazes {args.start_maze}..{args.start_maze + args.num_mazes - 1}"
+    )
     print(
-        f"{summary['dataset_id']} in {out}: {summary['episodes']} episodes, {summary['steps']} steps, "
+        f"{summary['dataset_id']} in {out}: {summary['episodes']} episodes{mazes}, {summary['steps']} steps, "
         f"success {summary['success_rate']:.0%}, mean length {summary['mean_length']:.1f}, "
         f"{seconds:.1f} s"
     )

@@ -174,13 +174,15 @@ def run_pretrain(args: argparse.Namespace) -> int:
     )
     if result.policy_eval:
         e = result.policy_eval
+        where = "" if not result.mazes else f" (the dataset's {result.mazes['num_mazes']} mazes)"
         print(
-            f"π^s alone on {config.task}: greedy success {e['greedy_success_rate']:.0%} "
+            f"π^s alone on {config.task}{where}: greedy success {e['greedy_success_rate']:.0%} "
             f"(mean length {e['greedy_mean_length']:.0f}), sampled success {e['sampled_success_rate']:.0%} "
             f"over {e['episodes']} episodes"
         )
     use = "--value-reward" if config.target == "value" else "--init"
-    print(f"use it with: bimgame train --task {config.task} --obs {config.obs} {use} {args.out} --run-dir RUN")
+    mazes = "".join(f" --{name.replace('_', '-')} {value}" for name, value in result.mazes.items())
+    print(f"use it with: bimgame train --task {config.task} --obs {config.obs}{mazes} {use} {args.out} --run-dir RUN")
     return 0
 
 

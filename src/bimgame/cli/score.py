@@ -1,6 +1,6 @@
 """``bimgame score``: any policy scored with the benchmark protocol (:mod:`bimgame.experiments.protocol`),
-printed as a table and written as JSON; ``--measure-references`` measures the random and expert
-references of the normalised score anew."""
+on MERL's maze or on numbered random mazes (``--mazes``), printed as a table and written as JSON;
+``--measure-references`` measures the random and expert references of the normalised score anew."""
 
 from __future__ import annotations
 
@@ -15,11 +15,20 @@ from rich.table import Table
 from bimgame.cli.argtypes import TASK_NAMES, add_task_argument, check_output_file, positive_int, run_group
 from bimgame.envs.observe import OBS_MODES
 from bimgame.envs.randomization import RANDOMIZATION_PRESETS, randomization_preset
-from bimgame.experiments.protocol import PROTOCOL_EPISODES, measure_references, score
+from bimgame.experiments.protocol import MAZE_FORMS, PROTOCOL_EPISODES, MazeChoice, measure_references, score
 from bimgame.experiments.robustness import robustness_rows, write_robustness
 from bimgame.util.files import write_json
 
-__all__ = ["add_score_arguments", "run_score", "add_robustness_arguments", "run_robustness"]
+__all__ = ["add_score_arguments", "run_score", "maze_choice", "add_robustness_arguments", "run_robustness"]
+
+
+def maze_choice(text: str) -> str:
+    """A ``--mazes`` value in its canonical spelling (``argparse`` names the flag and the allowed forms
+    when it is not one)."""
+    try:
+        return str(MazeChoice.parse(text))
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
 
 
 def add_score_arguments(parser: argparse.ArgumentParser) -> None:
@@ -39,13 +48,27 @@ def add_score_arguments(parser: argparse.ArgumentParser) -> None:
         default=PROTOCOL_EPISODES,
         help=f"episodes of the protocol (default {PROTOCOL_EPISODES}; scores are comparable only at the default)",
     )
+    add(
+        "--mazes",
+        type=maze_choice,
+        default="merl",
+        metavar="MAZES",
+        help=f"the mazes the episodes are on, one of: {MAZE_FORMS}. merl (default): MERL's maze; test: "
+        "episode k on held-out test maze k (the default 100 episodes score 100 held-out mazes); test:N, "
+        "train:N: the episodes spread evenly over mazes 0..N-1 of the split (train:N: the mazes of a run "
+        "trained with --num-mazes N); train:START:N, test:START:N: mazes START..START+N-1. Built-in "
+        "policies plan in each episode's maze. On mazes, state observations end with the maze's encoding "
+        "(128 values): a bimgame network trained with --num-mazes reads it, one trained on MERL's maze "
+        "gets the observations without it, SB3 models and module:callable policies get it as it is",
+    )
     add("--sampled", action="store_true", help="a network samples its actions instead of acting greedily")
     add("--out", type=Path, default=None, help="write the result as JSON here")
     add("--no-progress", action="store_true", help="no progress bar")
     add(
         "--measure-references",
         action="store_true",
-        help="measure the random and expert reference returns of every task (writes --out; takes minutes)",
+        help="measure the random and expert reference returns of every task (writes --out; takes minutes) on "
+        "--mazes (MERL's maze, or e.g. test: the references of the normalised score on random mazes)",
     )
 
 
@@ -61,7 +84,9 @@ def run_score(args: argparse.Namespace) -> int:
     if args.measure_references:
         if args.out is None:
             raise ValueError("--measure-references needs --out FILE for the measured references")
-        references = measure_references(list(TASK_NAMES), episodes=args.episodes, progress=not args.no_progress)
+        references = measure_references(
+            list(TASK_NAMES), episodes=args.episodes, progress=not args.no_progress, mazes=args.mazes
+        )
         console.print(f"wrote {write_json(args.out, references)}")
         return 0
     if args.policy is None:
@@ -74,9 +99,11 @@ def run_score(args: argparse.Namespace) -> int:
         episodes=args.episodes,
         sampled=args.sampled,
         progress=not args.no_progress,
+        mazes=args.mazes,
     )
     table = Table(
-        title=f"{args.policy} on {summary['task']} ({summary['obs']}), {summary['episodes']} protocol episodes"
+        title=f"{args.policy} on {summary['task']} ({summary['obs']}), {summary['episodes']} protocol episodes, "
+        f"{summary['maze_set']}"
     )
     for column in ("success [95% CI]", "mean return", "mean length (solved)", "normalised score"):
         table.add_column(column, justify="right")
@@ -87,6 +114,13 @@ def run_score(args: argparse.Namespace) -> int:
         _pair(summary["normalised_score"], summary["normalised_score_ci"]),
     )
     console.print(table)
+    if summary["references"] is None:
+        console.print(
+            f"no normalised score: no reference scores for {summary['task']} on random mazes "
+            "(measured with: bimgame score --measure-references --mazes test --out FILE)"
+        )
+    for note in summary["notes"]:
+        console.print(f"note: {note}")
     if args.out is not None:
         console.print(f"wrote {write_json(args.out, {'policy': args.policy, **summary})}")
     return 0

@@ -50,7 +50,7 @@ TRAIN_GROUPS = (
 #: The group of each A3C setting (the network settings are all in "network").
 A3C_GROUPS: dict[str, tuple[str, ...]] = {
     "network": NetworkSettings.field_names(),
-    "environment": ("task", "max_episode_steps", "randomize"),
+    "environment": ("task", "max_episode_steps", "randomize", "num_mazes", "start_maze"),
     "optimisation": (
         "steps",
         "workers",

@@ -123,15 +123,11 @@ class BallInMazeEnv(gym.Env):
 
     ## Many mazes
 
-    ``num_mazes`` (default None: the one ``maze``) draws each episode's maze, as Procgen's
-    ``num_levels``: ``num_mazes`` random mazes from number ``start_maze`` on, uniformly (0: unlimited,
-    a new maze every episode), of ``maze_split`` ``"train"`` or ``"test"`` — the held-out mazes,
-    whose hashes occur in no training set (:mod:`bimgame.sim.maze_sets`). Every maze keeps ``maze``'s
-    board (its walls' radii, rim and marble; default MERL's) with 1–4 random gates per wall
-    (``maze_rules``, a :class:`~bimgame.sim.generate.GateRules`). ``reset(options={"maze": i})``
-    picks maze number ``i`` of the set. The physics switches mazes without building a model
-    (:meth:`~bimgame.sim.physics.MazeSim.set_walls`); ``env.maze`` is the episode's maze and
-    ``info["maze"]`` its number.
+    ``num_mazes`` (None: the one ``maze``) draws each episode's maze as Procgen's ``num_levels``:
+    mazes ``start_maze`` … of ``maze_split`` ``"train"`` or ``"test"`` (held out: no training set has
+    their hashes; :mod:`bimgame.sim.maze_sets`); 0: a new maze every episode. Each keeps ``maze``'s
+    board with 1–4 random gates per wall (``maze_rules``). ``reset(options={"maze": i})`` picks one;
+    ``env.maze`` is the episode's maze, ``info["maze"]`` its number; the physics switches in place.
 
     ## Episode End
 

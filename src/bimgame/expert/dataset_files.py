@@ -1,6 +1,6 @@
 """The files of a dataset directory (:mod:`bimgame.expert.datasets` describes the layout) and their
-checks: the generation manifest, the COMPLETE marker's counts and its verification, leftovers of a
-killed run."""
+checks: the generation manifest (with the mazes of a dataset on many mazes), the COMPLETE marker's
+counts and its verification, leftovers of a killed run."""
 
 from __future__ import annotations
 
@@ -14,7 +14,9 @@ from typing import Any
 import numpy as np
 
 from bimgame.expert.minari_build import EPISODES_DIR, DatasetError, episode_path, hash_arrays
-from bimgame.util.files import file_sha256
+from bimgame.sim.maze_sets import UNLIMITED_MAZE_NUMBERS
+from bimgame.util.files import atomic_write_bytes, file_sha256, reporting_full_disk
+from bimgame.util.settings import is_integer
 
 __all__ = [
     "FORMAT_NAME",
@@ -30,6 +32,9 @@ __all__ = [
     "episode_totals",
     "data_path",
     "verify_marker",
+    "maze_fields",
+    "prepare_out_dir",
+    "MANIFEST_KEYS",
 ]
 
 FORMAT_NAME = "bimgame-expert-dataset"
@@ -45,6 +50,51 @@ BUILD_PREFIX = ".minari-build-"
 def is_own_temporary(name: str) -> bool:
     """Whether ``name`` is a temporary file of an interrupted manifest write."""
     return name.startswith(f".{MANIFEST_NAME}.") and name.endswith(".tmp")
+
+
+#: The fields that decide the episodes' content: a resumed run must match them (the mazes' are absent
+#: from a manifest of MERL's maze).
+MANIFEST_KEYS = (
+    "format_version",
+    "task",
+    "episodes",
+    "seed",
+    "max_steps",
+    "mpc_config",
+    "bimgame_version",
+    "num_mazes",
+    "start_maze",
+)
+
+
+def prepare_out_dir(out_dir: Path, manifest: dict) -> None:
+    """Create ``out_dir`` with its manifest, or check it is this run's; never touch anything else."""
+    if out_dir.exists() and not out_dir.is_dir():
+        raise NotADirectoryError(f"out_dir {out_dir} exists and is not a directory")
+    manifest_path = out_dir / MANIFEST_NAME
+    if manifest_path.exists():
+        existing = read_manifest(out_dir, error=FileExistsError)
+        differences = [
+            f"{key}: {existing.get(key)!r} there, {manifest.get(key)!r} now"
+            for key in MANIFEST_KEYS
+            if existing.get(key) != manifest.get(key)
+        ]
+        if differences:
+            raise ValueError(
+                f"{out_dir} holds a generation run with different arguments ({'; '.join(differences)}); "
+                "use another directory, or the same arguments to resume or finish that run"
+            )
+        return
+    if out_dir.exists():
+        found = sorted(p.name + ("/" if p.is_dir() else "") for p in out_dir.iterdir() if not is_own_temporary(p.name))
+        if found:
+            shown = ", ".join(repr(name) for name in found[:5]) + (", …" if len(found) > 5 else "")
+            raise FileExistsError(
+                f"out_dir {out_dir} is not empty and is not a bimgame generation run (no {MANIFEST_NAME}; "
+                f"found {len(found)} entries: {shown}); nothing was changed. Use a new or empty directory."
+            )
+    with reporting_full_disk(manifest_path):
+        atomic_write_bytes(manifest_path, (json.dumps(manifest, indent=2) + "\n").encode())
 
 
 def read_manifest(out_dir: Path, error: type[Exception] = DatasetError) -> dict:
@@ -63,6 +113,30 @@ def read_manifest(out_dir: Path, error: type[Exception] = DatasetError) -> dict:
             f"{path} has format version {manifest.get('format_version')!r}; this bimgame reads version {FORMAT_VERSION}"
         )
     return manifest
+
+
+def maze_fields(num_mazes: Any, start_maze: Any) -> dict[str, int]:
+    """The manifest fields of a dataset on many mazes — ``num_mazes`` training mazes from number
+    ``start_maze`` on, episode ``j`` on maze ``start_maze + j mod num_mazes`` — or {} for MERL's maze
+    alone (``num_mazes`` None: the manifest stays as it always was). Checked: ``ValueError`` naming
+    the argument and what is allowed."""
+    if num_mazes is None:
+        if start_maze != 0:
+            raise ValueError(f"start_maze {start_maze!r} needs num_mazes (the number of training mazes)")
+        return {}
+    if not (is_integer(num_mazes) and num_mazes >= 1):
+        raise ValueError(
+            f"num_mazes must be an integer >= 1 (or None: MERL's maze), got {num_mazes!r}; a dataset must name "
+            "its mazes (episode j is played on maze start_maze + j mod num_mazes), and num_mazes=0, the "
+            "learners' unlimited set of a new maze per episode, names none"
+        )
+    last = UNLIMITED_MAZE_NUMBERS - int(num_mazes)
+    if not (is_integer(start_maze) and 0 <= start_maze <= last):
+        raise ValueError(
+            f"start_maze must be an integer in 0..{last} (maze numbers stay below {UNLIMITED_MAZE_NUMBERS} "
+            f"with num_mazes={num_mazes}), got {start_maze!r}"
+        )
+    return {"num_mazes": int(num_mazes), "start_maze": int(start_maze)}
 
 
 def remove_stale_temporaries(out_dir: Path, prefixes: tuple[str, ...] = (BUILD_PREFIX,)) -> None:

@@ -13,20 +13,29 @@ A generation run owns one directory, ``out_dir``::
 A full disk stops the run with :class:`~bimgame.util.files.DiskFullError` ("no space left on device
 while writing FILE; rerun the same command to resume"), losing no finished episode. The episode
 files and the Minari (HDF5) file, written by a child process so that a failed HDF5 write kills only
-that process, are :mod:`bimgame.expert.minari_build`'s; :mod:`bimgame.expert.dataset_files` reads the
-manifest and checks the marker.
+that process, are :mod:`bimgame.expert.minari_build`'s; :mod:`bimgame.expert.dataset_files` holds
+the manifest's and the marker's checks.
 
 Episode ``i`` is ``run_expert_episode(task, episode_seed(seed, i), config)``: it depends on the run
 seed and its index only, so the dataset is the same whatever the number of workers, the backend
 (local processes or Ray) or how often the run was interrupted and resumed.
 
+**Many mazes** (``num_mazes``, ``start_maze``; default: MERL's maze): episode ``i`` is played on
+training maze ``start_maze + (i mod num_mazes)`` (:func:`bimgame.sim.maze_sets.maze_number`), as an
+env built with ``num_mazes`` plays it, the expert planning in that maze
+(``run_expert_episode(..., maze_number=...)``). The manifest records ``num_mazes`` and
+``start_maze`` (a resumed run must match them); each episode file holds its ``maze``; the Minari
+dataset's environment is made with the same ``num_mazes``/``start_maze``, each episode's reset
+options are ``{"maze": number}`` and its ``infos["maze"]`` the number at every step; the state
+observations end with the maze's encoding (135 values for one marble), as the env's do.
+
 The Minari dataset holds, per episode of T steps: ``observations`` (T+1, 7) state observations,
 ``actions`` (T,), ``rewards``, ``terminations``, ``truncations`` (T,), and ``infos`` with
 ``sim_state`` (T+1, S) MuJoCo physics states and ``channel`` (T+1, n) task channels — T+1 like
 the observations, as Minari's ``DataCollector`` records the info of ``reset`` and of every step.
-From ``sim_state`` and ``channel``, :class:`~bimgame.envs.observe.Observer` re-renders the pixel
-observations exactly (:func:`iterate_sequences` with ``obs="pixels"``). Each episode's reset seed
-is Minari's episode metadata ``seed``.
+From ``sim_state`` and ``channel`` (and the episode's maze), :class:`~bimgame.envs.observe.Observer`
+re-renders the pixel observations exactly (:func:`iterate_sequences` with ``obs="pixels"``). Each
+episode's reset seed is Minari's episode metadata ``seed``.
 """
 
 from __future__ import annotations
@@ -47,6 +56,7 @@ import numpy as np
 from minari import MinariDataset
 
 import bimgame
+from bimgame.envs.mazes import maze_encoding_size
 from bimgame.envs.observe import Observer
 from bimgame.expert.dataset_files import (
     BUILD_PREFIX,
@@ -58,7 +68,8 @@ from bimgame.expert.dataset_files import (
     MINARI_DIR,
     data_path,
     episode_totals,
-    is_own_temporary,
+    maze_fields,
+    prepare_out_dir,
     read_manifest,
     remove_stale_temporaries,
     verify_marker,
@@ -68,6 +79,7 @@ from bimgame.expert.minari_build import (
     EPISODES_DIR,
     DatasetError,
     episode_bytes,
+    episode_maze,
     episode_path,
     read_episode,
     run_build_process,
@@ -75,6 +87,7 @@ from bimgame.expert.minari_build import (
 from bimgame.expert.mpc import MPCConfig
 from bimgame.expert.pool import BACKENDS, MAIN_GUARD, episode_progress, expert_episodes, import_ray
 from bimgame.sim.maze import MazeSpec
+from bimgame.sim.maze_sets import maze_number
 from bimgame.sim.physics import MazeSim
 from bimgame.sim.tasks import Task, parse_task
 from bimgame.util.files import atomic_write_bytes, exclusive_lock, file_sha256, reporting_full_disk
@@ -89,6 +102,7 @@ __all__ = [
     "dataset_summary",
     "dataset_id_for",
     "dataset_manifest",
+    "dataset_mazes",
     "episode_totals",
     "write_marker",
     "BACKENDS",
@@ -123,6 +137,8 @@ def generate_dataset(
     ray_address: str | None = None,
     progress: bool = True,
     max_steps: int | None = None,
+    num_mazes: int | None = None,
+    start_maze: int = 0,
 ) -> Path:
     """Generate ``episodes`` expert episodes on ``task`` into ``out_dir`` and build the Minari
     dataset from them; returns ``out_dir``.
@@ -150,6 +166,11 @@ def generate_dataset(
             locally with ``num_cpus=workers``. An already initialised Ray is used as is.
         progress: show a progress bar (episodes done, success so far, ETA) on stderr.
         max_steps: time limit per episode (default: the task's registered limit).
+        num_mazes: play the episodes on this many random training mazes, episode ``i`` on maze
+            ``start_maze + (i mod num_mazes)`` (see the module's "Many mazes"); at least 1 — a dataset
+            must name its mazes, so the learners' unlimited ``0`` is refused. None (default): MERL's
+            maze, the dataset exactly as without these arguments.
+        start_maze: the first training maze's number (with ``num_mazes``).
 
     Raises:
         DiskFullError: (an ``OSError``) the disk filled up; the message names the file. Every
@@ -176,8 +197,9 @@ def generate_dataset(
         raise TypeError(f"progress must be True or False, got {progress!r}")
     if backend == "ray":
         import_ray()  # fail before touching the disk
+    mazes = maze_fields(num_mazes, start_maze)
     config = dataclasses.replace(config, nthread=1)
-    manifest = _manifest(task_enum, int(episodes), int(seed), config, max_steps)
+    manifest = {**_manifest(task_enum, int(episodes), int(seed), config, max_steps), **mazes}
 
     with reporting_full_disk(None, lambda: _resume_advice(out_dir, episodes), default_path=out_dir):
         _generate(out_dir, manifest, config, progress, workers, backend, ray_address)
@@ -194,7 +216,7 @@ def _generate(
     ray_address: str | None,
 ) -> None:
     task, episodes, seed, max_steps = manifest["task"], manifest["episodes"], manifest["seed"], manifest["max_steps"]
-    _prepare_out_dir(out_dir, manifest)
+    prepare_out_dir(out_dir, manifest)
     with _locked(out_dir):
         marker_path = out_dir / MARKER_NAME
         if marker_path.exists():
@@ -214,12 +236,14 @@ def _generate(
             path = episode_path(out_dir, index)
             if path.exists():
                 try:
-                    done_success.append(bool(read_episode(path, index, episode_seed(seed, index))["success"]))
+                    saved = read_episode(path, index, episode_seed(seed, index), episode_maze(manifest, index))
+                    done_success.append(bool(saved["success"]))
                     continue
                 except DatasetError as error:
                     warnings.warn(f"{error}; generating episode {index} again", stacklevel=3)
             todo.append(index)
 
+        mazes = {i: number for i in todo if (number := episode_maze(manifest, i)) is not None} or None
         if todo:
             with episode_progress(
                 progress, f"expert on {task}", episodes, len(done_success), sum(done_success)
@@ -233,6 +257,7 @@ def _generate(
                     workers=workers,
                     backend=backend,
                     ray_address=ray_address,
+                    mazes=mazes,
                 ):
                     path = episode_path(out_dir, index)
                     with reporting_full_disk(path, lambda: _resume_advice(out_dir, episodes)):
@@ -263,40 +288,6 @@ def _manifest(task: Task, episodes: int, seed: int, config: MPCConfig, max_steps
     }
 
 
-# The fields that decide the episodes' content: a resumed run must match them.
-_MANIFEST_KEYS = ("format_version", "task", "episodes", "seed", "max_steps", "mpc_config", "bimgame_version")
-
-
-def _prepare_out_dir(out_dir: Path, manifest: dict) -> None:
-    """Create ``out_dir`` with its manifest, or check it is this run's; never touch anything else."""
-    if out_dir.exists() and not out_dir.is_dir():
-        raise NotADirectoryError(f"out_dir {out_dir} exists and is not a directory")
-    manifest_path = out_dir / MANIFEST_NAME
-    if manifest_path.exists():
-        existing = read_manifest(out_dir, error=FileExistsError)
-        differences = [
-            f"{key}: {existing.get(key)!r} there, {manifest[key]!r} now"
-            for key in _MANIFEST_KEYS
-            if existing.get(key) != manifest[key]
-        ]
-        if differences:
-            raise ValueError(
-                f"{out_dir} holds a generation run with different arguments ({'; '.join(differences)}); "
-                "use another directory, or the same arguments to resume or finish that run"
-            )
-        return
-    if out_dir.exists():
-        found = sorted(p.name + ("/" if p.is_dir() else "") for p in out_dir.iterdir() if not is_own_temporary(p.name))
-        if found:
-            shown = ", ".join(repr(name) for name in found[:5]) + (", …" if len(found) > 5 else "")
-            raise FileExistsError(
-                f"out_dir {out_dir} is not empty and is not a bimgame generation run (no {MANIFEST_NAME}; "
-                f"found {len(found)} entries: {shown}); nothing was changed. Use a new or empty directory."
-            )
-    with reporting_full_disk(manifest_path):
-        atomic_write_bytes(manifest_path, (json.dumps(manifest, indent=2) + "\n").encode())
-
-
 def _locked(out_dir: Path):
     """Hold an exclusive lock on ``out_dir`` (released by the OS even if the process is killed)."""
     return exclusive_lock(out_dir / LOCK_NAME, f"another process is generating into {out_dir}; wait for it to finish")
@@ -308,7 +299,10 @@ def _build_minari(out_dir: Path, manifest: dict) -> None:
     process), move it into place, then write the COMPLETE marker (the last step)."""
     episodes, seed = manifest["episodes"], manifest["seed"]
     totals = episode_totals(
-        episodes, lambda index: read_episode(episode_path(out_dir, index), index, episode_seed(seed, index))
+        episodes,
+        lambda index: read_episode(
+            episode_path(out_dir, index), index, episode_seed(seed, index), episode_maze(manifest, index)
+        ),
     )
 
     build_root = Path(tempfile.mkdtemp(prefix=BUILD_PREFIX, dir=out_dir))
@@ -380,6 +374,13 @@ def dataset_manifest(out_dir: str | Path) -> dict[str, Any]:
     return read_manifest(Path(out_dir))
 
 
+def dataset_mazes(out_dir: str | Path) -> dict[str, int]:
+    """The mazes a dataset was generated on, as the learners' settings and the envs' arguments name
+    them (``num_mazes``, ``start_maze``); {} for MERL's maze."""
+    manifest = read_manifest(Path(out_dir))
+    return maze_fields(manifest.get("num_mazes"), manifest.get("start_maze", 0))
+
+
 def dataset_summary(out_dir: str | Path) -> dict[str, Any]:
     """Counts and disk use of a finished dataset (from its marker, without re-hashing): episodes,
     steps, success rate, mean length, bytes of the episode files and of the Minari dataset, and
@@ -416,11 +417,13 @@ def iterate_sequences(
 
     ``dataset_or_dir``: a ``MinariDataset`` (e.g. from :func:`load_dataset`) or a dataset directory
     (opened with :func:`load_dataset`). Yields one :class:`~bimgame.expert.episode.Episode` per
-    episode: ``obs`` ``"state"`` is (T, 7) float32 from the stored observations, ``"pixels"`` is
-    (T, 1, 84, 84) uint8 re-rendered from the stored physics states (identical to the env's own
-    pixel observations); ``channels`` come from the stored infos (or the state observations);
-    ``state_obs`` are the stored state observations (also for pixels: the privileged targets of
-    auxiliary losses); ``id`` is the episode's index in the dataset.
+    episode: ``obs`` ``"state"`` is (T, 7) float32 from the stored observations ((T, 135) on many
+    mazes: with the maze's encoding), ``"pixels"`` is (T, 1, 84, 84) uint8 re-rendered from the
+    stored physics states, showing the episode's maze (identical to the env's own pixel
+    observations); ``channels`` come from the stored infos (or the state observations);
+    ``state_obs`` are the stored state observations without a maze's encoding (the marbles' and the
+    board's state, as the vector env's ``infos["state"]``; also for pixels: the privileged targets
+    of auxiliary losses); ``id`` is the episode's index in the dataset.
     """
     if obs not in ("state", "pixels"):
         raise ValueError(f"unknown obs {obs!r}; allowed: 'state', 'pixels'")
@@ -432,11 +435,15 @@ def iterate_sequences(
         dataset = dataset_or_dir
     else:
         raise TypeError(f"expected a MinariDataset or a dataset directory, got {type(dataset_or_dir).__name__}")
-    observer = None
+    board, observer = MazeSpec.merl(), None
     for episode in dataset.iterate_episodes():
         steps = len(episode.rewards)
         states = np.asarray(episode.observations[:steps], dtype=np.float32)
         infos = episode.infos or {}
+        # An episode on one of many mazes: its number at every step, its encoding after the marbles' state.
+        maze = int(infos["maze"][0]) if "maze" in infos else None
+        encoding = 0 if maze is None else maze_encoding_size(board)
+        n_marbles = (states.shape[1] - 2 - encoding) // 5  # [x, y, vx, vy] * n, tilt_x, tilt_y, channel * n
         if obs == "pixels":
             if "sim_state" not in infos or "channel" not in infos:
                 raise ValueError(
@@ -445,16 +452,17 @@ def iterate_sequences(
                 )
             if observer is None:
                 observer = _pixel_observer(infos["channel"].shape[1])
+            observer.set_maze(board if maze is None else maze_number(maze, "train", board))
             frames = observer(
                 np.asarray(infos["sim_state"][:steps], dtype=np.float64), np.asarray(infos["channel"][:steps])
             )
         else:
             frames = states
-        n_marbles = (states.shape[1] - 2) // 5  # [x, y, vx, vy] * n, tilt_x, tilt_y, channel * n
         if "channel" in infos:
             channels = np.asarray(infos["channel"][: steps + 1], dtype=np.int64)
         else:
-            channels = np.rint(np.asarray(episode.observations[: steps + 1])[:, 4 * n_marbles + 2 :]).astype(np.int64)
+            observed = np.asarray(episode.observations[: steps + 1])[:, 4 * n_marbles + 2 : 5 * n_marbles + 2]
+            channels = np.rint(observed).astype(np.int64)
         yield Episode.from_steps(
             obs=frames,
             actions=episode.actions,
@@ -465,16 +473,18 @@ def iterate_sequences(
             terminated=bool(episode.terminations[-1]),
             truncated=bool(episode.truncations[-1]),
             id=int(episode.id),
-            state_obs=states,
+            state_obs=states[:, : 5 * n_marbles + 2],
         )
 
 
 def _pixel_observer(n_marbles: int) -> Observer:
+    """The pixel observer of MERL's board: it shows MERL's maze, or any numbered maze on that board
+    after ``set_maze`` (its raster drawn from the board's, as the envs with ``num_mazes`` draw it)."""
     maze = MazeSpec.merl()
     sim = MazeSim(maze, n_marbles=n_marbles)
     layout = sim.layout
     sim.close()
-    return Observer(maze, n_marbles, "pixels", layout=layout)
+    return Observer(maze, n_marbles, "pixels", layout=layout, board=maze)
 
 
 def _check_int(name: str, value: Any, *, minimum: int) -> None:

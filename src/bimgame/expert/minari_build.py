@@ -2,10 +2,14 @@
 :mod:`bimgame.expert.datasets`).
 
 Each finished episode is one ``.npz`` file (:func:`episode_bytes`, read back checked by
-:func:`read_episode`). The Minari (HDF5) file is written by a child process
-(:func:`run_build_process`): HDF5 does not survive a failed write cleanly (errors from every object
-it frees, then often a segmentation fault), so only that process fails; its error output is
-captured here and a full disk is recognised in it (or in its exit status, the errno).
+:func:`read_episode`); an episode of a dataset on many mazes also holds ``maze``, its maze number
+(:func:`episode_maze`), which the Minari dataset keeps as the episode's reset options
+(``{"maze": number}``, next to its ``seed``) and as ``infos["maze"]``.
+
+The Minari (HDF5) file is written by a child process (:func:`run_build_process`): HDF5 does not
+survive a failed write cleanly (errors from every object it frees, then often a segmentation
+fault), so only that process fails; its error output is captured here and a full disk is
+recognised in it (or in its exit status, the errno).
 """
 
 from __future__ import annotations
@@ -47,6 +51,8 @@ __all__ = [
     "write_minari",
     "write_expert_minari",
     "EXPERT_WRITER",
+    "MAZE_KEY",
+    "episode_maze",
 ]
 
 ALGORITHM_NAME = "RandomShootingMPC"
@@ -62,6 +68,8 @@ EPISODE_KEYS = (
     "seed",
     "success",
 )
+#: The episode file's array of a dataset on many mazes: the maze number the episode was played on.
+MAZE_KEY = "maze"
 
 
 class DatasetError(ValueError):
@@ -73,17 +81,31 @@ def episode_path(out_dir: Path, index: int) -> Path:
     return out_dir / EPISODES_DIR / f"episode_{index:06d}.npz"
 
 
+def episode_maze(manifest: dict, index: int) -> int | None:
+    """The training maze episode ``index`` of a dataset is played on: ``start_maze + index mod
+    num_mazes`` for a dataset generated with ``num_mazes`` (its manifest names them), None — MERL's
+    maze — otherwise. Fixed by the index alone, so the dataset does not depend on the workers."""
+    num_mazes = manifest.get("num_mazes")
+    if num_mazes is None:
+        return None
+    return int(manifest["start_maze"]) + index % int(num_mazes)
+
+
 def episode_bytes(index: int, episode: dict[str, np.ndarray | np.generic]) -> bytes:
     buffer = io.BytesIO()
-    arrays: dict[str, Any] = {key: episode[key] for key in EPISODE_KEYS}  # not savez's allow_pickle
+    keys = (*EPISODE_KEYS, MAZE_KEY) if MAZE_KEY in episode else EPISODE_KEYS
+    arrays: dict[str, Any] = {key: episode[key] for key in keys}  # not savez's allow_pickle
     np.savez(buffer, index=np.int64(index), **arrays)
     return buffer.getvalue()
 
 
-def read_episode(path: Path, index: int, expected_seed: int | None) -> dict[str, np.ndarray]:
+def read_episode(
+    path: Path, index: int, expected_seed: int | None, expected_maze: int | None = None
+) -> dict[str, np.ndarray]:
     """An episode file's arrays, checked for completeness and consistency (else DatasetError);
     ``expected_seed`` None accepts the file's own seed (a human recording's episodes have no seed
-    derived from the run's)."""
+    derived from the run's). ``expected_maze``: the maze number the file's episode must have been
+    played on (:func:`episode_maze`); None: MERL's maze, the file names none."""
     try:
         with open(path, "rb") as handle, np.load(handle, allow_pickle=False) as archive:
             data = {key: archive[key] for key in archive.files}
@@ -96,6 +118,11 @@ def read_episode(path: Path, index: int, expected_seed: int | None) -> dict[str,
         raise DatasetError(
             f"episode file {path} holds episode {int(data['index'])} with seed "
             f"{int(data['seed'])}, expected episode {index} with seed {expected_seed}"
+        )
+    maze = int(data[MAZE_KEY]) if MAZE_KEY in data else None
+    if maze != expected_maze:
+        raise DatasetError(
+            f"episode file {path} holds an episode on {_maze_name(maze)}, expected {_maze_name(expected_maze)}"
         )
     steps = len(data["actions"])
     ends = data["terminations"] | data["truncations"]
@@ -112,10 +139,14 @@ def read_episode(path: Path, index: int, expected_seed: int | None) -> dict[str,
     return data
 
 
+def _maze_name(number: int | None) -> str:
+    return "MERL's maze" if number is None else f"maze {number}"
+
+
 def hash_arrays(digest, data: dict[str, np.ndarray]) -> None:
     """Feed an episode's arrays (names, dtypes, shapes, bytes) to a hash: identical episodes hash
-    identically however their files were written."""
-    for key in EPISODE_KEYS:
+    identically however their files were written (the maze number too, where there is one)."""
+    for key in (*EPISODE_KEYS, MAZE_KEY) if MAZE_KEY in data else EPISODE_KEYS:
         array = np.ascontiguousarray(data[key])
         digest.update(f"{key}:{array.dtype.str}:{array.shape};".encode())
         digest.update(array.tobytes())
@@ -210,16 +241,27 @@ def _build_process_main(job: dict) -> None:
 
 
 def episode_buffer(index: int, data: dict[str, np.ndarray]) -> EpisodeBuffer:
-    """An episode file's arrays as Minari's buffer (the physics states and channels as infos)."""
+    """An episode file's arrays as Minari's buffer (the physics states and channels as infos). An
+    episode on one of many mazes gets its maze number as its reset options (with its seed, what
+    ``reset(seed=seed, options=options)`` of the dataset's environment replays it from) and, per
+    step, as ``infos["maze"]`` (as the env's ``info["maze"]``, which Minari's ``DataCollector``
+    would record)."""
+    infos = {"sim_state": data["sim_states"], "channel": data["channels"]}
+    options = None
+    if MAZE_KEY in data:
+        number = int(data[MAZE_KEY])
+        options = {"maze": number}
+        infos["maze"] = np.full(len(data["observations"]), number, dtype=np.int64)
     return EpisodeBuffer(
         id=index,
         seed=int(data["seed"]),
+        options=options,
         observations=data["observations"],
         actions=data["actions"],
         rewards=data["rewards"],
         terminations=data["terminations"],
         truncations=data["truncations"],
-        infos={"sim_state": data["sim_states"], "channel": data["channels"]},
+        infos=infos,
     )
 
 
@@ -235,10 +277,12 @@ def write_minari(
 ) -> None:
     """Write the Minari dataset of episodes 0 … ``episodes``−1 (``read(index)`` gives each file's
     arrays) into the datasets root ``MINARI_DATASETS_PATH``, ``chunk`` episodes per write; the
-    environment, its time limit and the reference scores come from ``manifest``."""
+    environment, its time limit, its mazes and the reference scores come from ``manifest``."""
     kwargs: dict[str, Any] = {"obs_mode": "state"}
     if manifest["max_steps"] is not None:
         kwargs["max_episode_steps"] = manifest["max_steps"]
+    if manifest.get("num_mazes") is not None:  # the env a dataset on many mazes was played in
+        kwargs.update(num_mazes=manifest["num_mazes"], start_maze=manifest["start_maze"])
     env = gym.make(manifest["env_id"], **kwargs)
     if env.spec is None:  # gym.make always sets it
         raise RuntimeError(f"gym.make({manifest['env_id']!r}) made an env without a spec")
@@ -270,13 +314,15 @@ def write_minari(
 
 def write_expert_minari(out_dir: Path, manifest: dict, episodes: int, chunk: int) -> None:
     """The expert dataset's writer (the build process runs it): episode i's file holds the episode
-    of seed ``episode_seed(manifest["seed"], i)``."""
+    of seed ``episode_seed(manifest["seed"], i)``, on maze ``episode_maze(manifest, i)``."""
     seed = manifest["seed"]
     write_minari(
         manifest,
         episodes,
         chunk,
-        lambda index: read_episode(episode_path(out_dir, index), index, episode_seed(seed, index)),
+        lambda index: read_episode(
+            episode_path(out_dir, index), index, episode_seed(seed, index), episode_maze(manifest, index)
+        ),
         algorithm_name=ALGORITHM_NAME,
         description=_description(manifest),
     )
@@ -285,14 +331,16 @@ def write_expert_minari(out_dir: Path, manifest: dict, episodes: int, chunk: int
 def _reference_scores(manifest: dict) -> dict[str, float]:
     """Minari's ``ref_min_score``/``ref_max_score``: the task's random and expert reference returns
     (:mod:`bimgame.expert.references`), so that ``minari.get_normalized_score`` gives bimgame's
-    normalised score; none for a run with its own time limit (the references use the task's)."""
-    pair = references_for(manifest["task"]) if manifest.get("max_steps") is None else None
+    normalised score; none for a run with its own time limit (the references use the task's) or on
+    random mazes (they are MERL's maze's)."""
+    comparable = manifest.get("max_steps") is None and manifest.get("num_mazes") is None
+    pair = references_for(manifest["task"]) if comparable else None
     return {} if pair is None else {"ref_min_score": pair[0], "ref_max_score": pair[1]}
 
 
 def _description(manifest: dict) -> str:
     limit = manifest["max_steps"] if manifest["max_steps"] is not None else "the task's registered limit"
-    return (
+    text = (
         f"Expert trajectories of bimgame's random-shooting MPC expert ({ALGORITHM_NAME}, acting on "
         f"simulator states) on {manifest['env_id']}: {manifest['episodes']} episodes; episode i starts "
         f"from reset(seed=bimgame.util.seeding.episode_seed({manifest['seed']}, i)); time limit {limit} steps; "
@@ -300,4 +348,14 @@ def _description(manifest: dict) -> str:
         "Observations are state observations; infos['sim_state'] (T+1, S) MuJoCo physics states and "
         "infos['channel'] (T+1, n) task channels re-render pixel observations exactly "
         "(bimgame.expert.datasets.iterate_sequences(..., obs='pixels'))."
+    )
+    if manifest.get("num_mazes") is None:
+        return text
+    num_mazes, start = manifest["num_mazes"], manifest["start_maze"]
+    return text + (
+        f" Random mazes: episode i is played on training maze {start} + (i mod {num_mazes}) "
+        f"(bimgame.sim.maze_sets.maze_number), in the environment made with num_mazes={num_mazes}, "
+        f"start_maze={start}, from reset(seed=..., options={{'maze': number}}) (each episode's seed and "
+        "options are its metadata, its maze number also infos['maze']); the state observations end "
+        "with the maze's encoding (bimgame.envs.mazes.maze_encoding)."
     )

@@ -29,6 +29,7 @@ import numpy as np
 
 from bimgame.envs.env import DISCRETE_TILTS, BallInMazeEnv
 from bimgame.sim.maze import MazeSpec
+from bimgame.sim.maze_sets import UNLIMITED_MAZE_NUMBERS
 from bimgame.sim.physics import MazeSim
 from bimgame.sim.tasks import Task, parse_task
 from bimgame.util.settings import is_integer
@@ -152,6 +153,7 @@ def run_expert_episode(
     config: MPCConfig | None = None,
     *,
     maze: MazeSpec | None = None,
+    maze_number: int | None = None,
     max_steps: int | None = None,
     randomize: Any = None,
 ) -> dict[str, Any]:
@@ -159,17 +161,38 @@ def run_expert_episode(
     :class:`~bimgame.envs.randomization.Randomization`) plays it on a randomised board while the
     expert plans with the nominal model.
 
+    ``maze_number``: play training maze number ``maze_number`` (:func:`bimgame.sim.maze_sets.maze_number`
+    on ``maze``'s board, default MERL's) exactly as an env built with ``num_mazes`` plays it after
+    ``reset(seed=seed, options={"maze": maze_number})`` — its physics, and state observations that
+    end with the maze's encoding (:func:`~bimgame.envs.mazes.maze_encoding`) — so that the episode is
+    one a learner on those mazes could have seen; the expert plans in that maze. None: ``maze`` itself.
+
     Returns arrays (T = episode length): ``actions`` (T,) int64, ``rewards`` (T,) float64,
     ``terminations``/``truncations`` (T,) bool, ``observations`` (T+1, obs_dim) float32 state
     observations, ``sim_states`` (T+1, state_size) float64 physics states (enough to re-render
-    the pixel observation exactly), ``channels`` (T+1, n) int64, and scalars ``seed``, ``success``.
+    the pixel observation exactly), ``channels`` (T+1, n) int64, and scalars ``seed``, ``success``;
+    with ``maze_number`` also the scalar ``maze``, that number.
     """
     task_enum = parse_task(task)
     maze = maze if maze is not None else MazeSpec.merl()
-    env = BallInMazeEnv(task_enum, obs_mode="state", maze=maze, randomize=randomize)
-    expert = RandomShootingMPC(maze, config, rng=np.random.default_rng(seed), task=task_enum)
+    options: dict[str, Any] = {}
+    if maze_number is None:
+        env = BallInMazeEnv(task_enum, obs_mode="state", maze=maze, randomize=randomize)
+    else:
+        if not (is_integer(maze_number) and 0 <= maze_number < UNLIMITED_MAZE_NUMBERS):
+            raise ValueError(
+                f"maze_number must be an integer in 0..{UNLIMITED_MAZE_NUMBERS - 1} (a training maze), "
+                f"got {maze_number!r}"
+            )
+        # A set of this one maze: the env checks the number, builds the slotted physics every env
+        # with num_mazes has, and needs the option (else it would draw the maze from its generator).
+        env = BallInMazeEnv(
+            task_enum, obs_mode="state", maze=maze, randomize=randomize, num_mazes=1, start_maze=maze_number
+        )
+        options["maze"] = maze_number
+    obs, info = env.reset(seed=seed, options=options)
+    expert = RandomShootingMPC(env.maze, config, rng=np.random.default_rng(seed), task=task_enum)
     limit = max_steps if max_steps is not None else task_enum.time_limit
-    obs, info = env.reset(seed=seed)
     observations, sim_states, channels = [obs], [env.sim.get_state()], [info["channel"]]
     actions, rewards, terminations, truncations = [], [], [], []
     for step in range(limit):
@@ -187,7 +210,7 @@ def run_expert_episode(
             break
     expert.close()
     env.close()
-    return {
+    episode: dict[str, Any] = {
         "actions": np.array(actions, dtype=np.int64),
         "rewards": np.array(rewards, dtype=np.float64),
         "terminations": np.array(terminations, dtype=bool),
@@ -198,3 +221,6 @@ def run_expert_episode(
         "seed": np.int64(seed),
         "success": np.bool_(bool(terminations and terminations[-1])),
     }
+    if maze_number is not None:
+        episode["maze"] = np.int64(maze_number)
+    return episode

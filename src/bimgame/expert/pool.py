@@ -3,9 +3,10 @@
 (:mod:`bimgame.expert.datasets`) and expert evaluation (:mod:`bimgame.expert.evaluation`) both run
 their episodes through here.
 
-Episode ``i`` of a run is ``run_expert_episode(task, episode_seed(seed, i), config)``: it depends
-on the run seed and its index only, so results do not depend on the backend, the number of
-workers or the order in which episodes finish.
+Episode ``i`` of a run is ``run_expert_episode(task, episode_seed(seed, i), config)`` (on maze
+``mazes[i]`` when the caller gives mazes): it depends on the run seed, its index and its maze only,
+so results do not depend on the backend, the number of workers or the order in which episodes
+finish.
 
 Local workers end when their parent dies (:func:`bimgame.util.processes.exit_when_parent_dies`).
 """
@@ -17,7 +18,7 @@ import dataclasses
 import multiprocessing
 import os
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any
@@ -43,10 +44,18 @@ EpisodeOutcome = tuple[int, dict[str, Any], float]
 
 
 def _episode_job(
-    task: str, index: int, seed: int, config: MPCConfig, max_steps: int | None, randomize: Randomization | None
+    task: str,
+    index: int,
+    seed: int,
+    config: MPCConfig,
+    max_steps: int | None,
+    randomize: Randomization | None,
+    maze: int | None = None,
 ) -> EpisodeOutcome:
     start = time.perf_counter()
-    episode = run_expert_episode(task, episode_seed(seed, index), config, max_steps=max_steps, randomize=randomize)
+    episode = run_expert_episode(
+        task, episode_seed(seed, index), config, maze_number=maze, max_steps=max_steps, randomize=randomize
+    )
     return index, episode, time.perf_counter() - start
 
 
@@ -61,9 +70,12 @@ def expert_episodes(
     backend: str = "local",
     ray_address: str | None = None,
     randomize: Randomization | None = None,
+    mazes: Mapping[int, int] | None = None,
 ) -> Iterator[EpisodeOutcome]:
     """Expert episodes ``indices`` of the run ``seed``, yielded as they finish; with ``randomize``,
-    played on a randomised board while the expert plans with the nominal model.
+    played on a randomised board while the expert plans with the nominal model; with ``mazes``
+    (episode index → training maze number, one for each of ``indices``), episode ``i`` is played on
+    maze ``mazes[i]`` (``run_expert_episode(..., maze_number=mazes[i])``), else on MERL's maze.
 
     ``config.nthread`` is forced to 1 (each worker plans on one thread; the actions do not
     change). ``backend="local"`` runs ``workers`` processes, started with "spawn" (fresh
@@ -76,11 +88,16 @@ def expert_episodes(
         raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
     if backend not in BACKENDS:
         raise ValueError(f"unknown backend {backend!r}; allowed: {', '.join(BACKENDS)}")
+    if mazes is not None:
+        missing = [index for index in indices if index not in mazes]
+        if missing:
+            raise ValueError(f"mazes names no maze for episodes {missing[:5]}: give one for each of indices")
+    jobs = [(index, None if mazes is None else int(mazes[index])) for index in indices]
     config = dataclasses.replace(config, nthread=1)
     if backend == "ray":
-        yield from _ray_episodes(task, indices, seed, config, max_steps, workers, ray_address, randomize)
+        yield from _ray_episodes(task, jobs, seed, config, max_steps, workers, ray_address, randomize)
     else:
-        yield from _local_episodes(task, indices, seed, config, max_steps, workers, randomize)
+        yield from _local_episodes(task, jobs, seed, config, max_steps, workers, randomize)
 
 
 @contextlib.contextmanager
@@ -98,9 +115,13 @@ def environment(**values: str) -> Iterator[None]:
                 os.environ[key] = value
 
 
+#: The episodes a backend runs: (episode index, its maze number or None for the default maze).
+Jobs = list[tuple[int, int | None]]
+
+
 def _local_episodes(
     task: str,
-    todo: list[int],
+    todo: Jobs,
     seed: int,
     config: MPCConfig,
     max_steps: int | None,
@@ -108,14 +129,16 @@ def _local_episodes(
     randomize: Randomization | None,
 ) -> Iterator[EpisodeOutcome]:
     if workers == 1 or len(todo) == 1:
-        for index in todo:
-            yield _episode_job(task, index, seed, config, max_steps, randomize)
+        for index, maze in todo:
+            yield _episode_job(task, index, seed, config, max_steps, randomize, maze)
         return
     context = multiprocessing.get_context("spawn")
     with environment(**{name: "1" for name in _THREAD_VARS}):
         pool = ProcessPoolExecutor(max_workers=min(workers, len(todo)), mp_context=context, initializer=_worker_started)
         try:
-            pending = {pool.submit(_episode_job, task, index, seed, config, max_steps, randomize) for index in todo}
+            pending = {
+                pool.submit(_episode_job, task, index, seed, config, max_steps, randomize, maze) for index, maze in todo
+            }
             while pending:
                 finished, pending = wait(pending, return_when=FIRST_COMPLETED)
                 for future in finished:
@@ -149,7 +172,7 @@ def import_ray():
 
 def _ray_episodes(
     task: str,
-    todo: list[int],
+    todo: Jobs,
     seed: int,
     config: MPCConfig,
     max_steps: int | None,
@@ -167,7 +190,7 @@ def _ray_episodes(
         started = True
     try:
         job = ray.remote(num_cpus=1)(_episode_job)
-        pending = [job.remote(task, index, seed, config, max_steps, randomize) for index in todo]
+        pending = [job.remote(task, index, seed, config, max_steps, randomize, maze) for index, maze in todo]
         try:
             while pending:
                 finished, pending = ray.wait(pending, num_returns=1)

@@ -15,6 +15,13 @@ and L2 terms alone (frames shuffled, no sequences needed), then frozen and used 
 for an easier task from the marbles' recorded channels (:func:`bimgame.expert.episode.relabel`): an STG1 episode is the
 FULL episode up to the step the marble passed the outermost wall, with STG1's reward. A harder task
 than the dataset's cannot be labelled (its episodes stop too early) and is refused.
+
+**Many mazes.** A dataset generated on random mazes (``bimgame generate --num-mazes N``) has state
+observations that end with each episode's maze encoding, as the envs of a learner on those mazes
+have: a state network pre-trained on it reads the encoding (``maze_encoding``, set from the dataset),
+so π^s can start ``bimgame train --num-mazes N --init`` (a network of MERL's maze cannot: its input
+is 7 values, the dataset's 135). The run records the dataset's ``num_mazes``/``start_maze`` in its
+``config.json`` and π^s alone is evaluated on those mazes.
 """
 
 from __future__ import annotations
@@ -29,7 +36,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from bimgame.expert.datasets import dataset_manifest, iterate_sequences, load_dataset
+from bimgame.expert.datasets import dataset_manifest, dataset_mazes, iterate_sequences, load_dataset
 from bimgame.expert.episode import Episode, relabel
 from bimgame.learn.checkpoints import load_weights, save_checkpoint
 from bimgame.learn.common import evaluate_greedy_and_sampled
@@ -44,7 +51,15 @@ from bimgame.util.files import FileWriteError
 from bimgame.util.progress import ProgressBar
 from bimgame.util.signals import sigterm_as_interrupt
 
-__all__ = ["PretrainResult", "pretrain", "load_sequences", "build_model", "evaluate_policy", "data_source"]
+__all__ = [
+    "PretrainResult",
+    "pretrain",
+    "load_sequences",
+    "build_model",
+    "evaluate_policy",
+    "data_source",
+    "settings_for_dataset",
+]
 _TABLE = [
     "train_loss",
     "train_accuracy",
@@ -144,6 +159,9 @@ class PretrainResult:
     """π^s alone as a policy: greedy and sampled success rate and length (policy target only)."""
     data_source: str = "expert"
     """Where the dataset's episodes came from: ``expert`` (bimgame generate) or ``human`` (bimgame play)."""
+    mazes: dict[str, int] = dataclasses.field(default_factory=dict)
+    """The dataset's mazes as learner settings (``num_mazes``, ``start_maze``; empty for MERL's maze):
+    what ``bimgame train --init`` with this π^s trains on."""
 
 
 def build_model(config: PretrainConfig, maze: MazeSpec | None = None) -> RecurrentActorCritic | ValueNetwork:
@@ -188,6 +206,8 @@ def _pretrain(
     """:func:`pretrain` in the run directory ``run``, already held: read the data, write the settings,
     train with early stopping, keep the best held-out weights, evaluate π^s, write the summary."""
     maze = MazeSpec.merl()
+    mazes = dataset_mazes(data_dir)
+    config = settings_for_dataset(config, mazes, data_dir)
     if sequences is None:
         sequences = load_sequences(data_dir, config.task, config.obs, config.gamma, maze, progress=progress)
     rng = np.random.default_rng(config.seed)
@@ -203,6 +223,7 @@ def _pretrain(
             "pretrain": config.to_dict(),
             "data": str(data_dir),
             "episodes": {"train": len(train_idx), "held_out": len(val_idx)},
+            **mazes,
         }
     )
     optimizer = torch.optim.Adam(net.parameters(), lr=config.lr)
@@ -223,7 +244,7 @@ def _pretrain(
     load_weights(net, run / CHECKPOINT)
     policy_eval = None
     if isinstance(net, RecurrentActorCritic) and config.eval_episodes > 0:
-        policy_eval = evaluate_policy(net, config)
+        policy_eval = evaluate_policy(net, config, mazes=mazes)
     result = PretrainResult(
         run.path,
         best["epoch"],
@@ -233,6 +254,7 @@ def _pretrain(
         time.monotonic() - started,
         policy_eval,
         data_source(data_dir),
+        mazes,
     )
     _write_summary(run, result, episodes={"train": len(train_idx), "held_out": len(val_idx)})
     return result
@@ -387,8 +409,12 @@ def data_source(data_dir: str | Path) -> str:
         return "unknown"
 
 
-def evaluate_policy(net: RecurrentActorCritic, config: PretrainConfig, seed: int = 12345) -> dict[str, float]:
-    """π^s alone on its task: greedy and sampled success rate, length and return."""
+def evaluate_policy(
+    net: RecurrentActorCritic, config: PretrainConfig, seed: int = 12345, *, mazes: dict[str, int] | None = None
+) -> dict[str, float]:
+    """π^s alone on its task: greedy and sampled success rate, length and return; on the mazes
+    ``mazes`` (:func:`~bimgame.expert.datasets.dataset_mazes`: each episode's drawn from them) or,
+    without, MERL's maze."""
     return {
         "episodes": config.eval_episodes,
         **evaluate_greedy_and_sampled(
@@ -398,5 +424,23 @@ def evaluate_policy(net: RecurrentActorCritic, config: PretrainConfig, seed: int
             episodes=config.eval_episodes,
             seed=seed,
             time_limit=config.time_limit,
+            mazes=mazes or None,
         ),
     }
+
+
+def settings_for_dataset(config: PretrainConfig, mazes: dict[str, int], data_dir: str | Path) -> PretrainConfig:
+    """``config`` for a dataset on ``mazes`` (:func:`~bimgame.expert.datasets.dataset_mazes`): a
+    state network reads the maze encoding its observations end with exactly when the dataset has
+    mazes (set here, as a learner's ``num_mazes`` sets it); asking for the encoding on a dataset of
+    MERL's maze is refused."""
+    if config.obs != "state":
+        return config  # pixels show the maze: the same network either way
+    if mazes:
+        return dataclasses.replace(config, maze_encoding=True)
+    if config.maze_encoding:
+        raise ValueError(
+            f"PretrainConfig.maze_encoding: the dataset in {data_dir} was generated on MERL's maze alone, "
+            "its observations have no maze encoding; generate one with --num-mazes for a network that reads it"
+        )
+    return config

@@ -16,9 +16,10 @@ from bimgame.learn.a3c.update import (
     network_for,
 )
 from bimgame.learn.checkpoints import apply_weights, load_checkpoint, load_init_weights, save_checkpoint
-from bimgame.learn.common import init_network_settings, run_evaluation
+from bimgame.learn.common import run_evaluation
 from bimgame.learn.curves import plot_run
 from bimgame.learn.episode_monitor import Monitor
+from bimgame.learn.init_network import check_init_network, init_settings_for
 from bimgame.learn.learner_settings import DEFAULT_FINETUNE, FINETUNE_PRESETS
 from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.learn.run_dir import TEACHER, RunDirectory, TrainingError, TrainResult, stored_run_config
@@ -41,7 +42,7 @@ def resolve_config(
         stored_run_config(run_dir, KIND_A3C)
         return read_run_settings(run_dir, "a3c", lambda stored: A3CConfig.from_dict({**stored, **given}))
     if init is not None:
-        given = {**init_network_settings(init), **finetune_settings(given.get("finetune")), **given}
+        given = {**init_settings_for(init, given.get("num_mazes")), **finetune_settings(given.get("finetune")), **given}
     return A3CConfig.from_dict(given)
 
 
@@ -130,6 +131,8 @@ def _train(
             "A3CConfig.kl_coef > 0 (kickstarting) needs a pre-trained policy to stay close to: "
             "pass --init (or set kl_coef to 0)"
         )
+    if not resume:
+        check_init_network(init, config.network)  # before the run directory: a refused start writes nothing
     with RunDirectory(run_dir, KIND_A3C, resume=resume) as run:
         start = _resumed(config, run, shared) if resume else _started(config, run, shared, init, extra_config)
         try:

@@ -22,10 +22,11 @@ from typing import Any
 import torch
 
 from bimgame.learn.checkpoints import apply_weights, load_checkpoint, load_init_weights, save_checkpoint
-from bimgame.learn.common import EVAL_COLUMNS, init_network_settings, run_evaluation
+from bimgame.learn.common import EVAL_COLUMNS, run_evaluation
 from bimgame.learn.curves import plot_run
 from bimgame.learn.devices import resolve_device
 from bimgame.learn.episode_monitor import Monitor
+from bimgame.learn.init_network import check_init_network, init_settings_for
 from bimgame.learn.metric_logs import MetricLog
 from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.learn.ppo.learner import RankLearner, adam
@@ -73,7 +74,7 @@ def resolve_ppo_config(
             raise ValueError(f"{Path(run_dir) / 'config.json'} holds no PPO settings ('ppo')")
         return PPOConfig.from_flat({**stored, **given})
     if init is not None:
-        given = {**init_network_settings(init), **given}
+        given = {**init_settings_for(init, given.get("num_mazes")), **given}
     return PPOConfig.from_flat(given)
 
 
@@ -92,6 +93,7 @@ def train_ppo(
     is kept)."""
     if resume and init is not None:
         raise ValueError("--init with --resume: a resumed run continues from its own checkpoint")
+    check_init_network(init, config.network)  # before the run directory: a refused start writes nothing
     # With worker processes every rank has one core's share: one thread each.
     threads = 1 if config.schedule.workers > 1 else None
     device = resolve_device(config.device)
