@@ -248,5 +248,5 @@ def test_vector_env_counts_refuse_bools(argument):
 
 def test_vector_env_refuses_options_naming_them():
     env = BallInMazeVectorEnv(2, task="FULL", obs_mode="state")
-    with pytest.raises(ValueError, match=r"takes no options .*\['marble_xy'\]"):
+    with pytest.raises(ValueError, match=r"takes only the option 'maze' .*\['marble_xy'\]"):
         env.reset(options={"marble_xy": [[0.0, 0.0]]})
