@@ -132,10 +132,11 @@ def env_rate(obs_mode: str, n: int, wrapped: bool) -> float:
     return best_of(run, 3)
 
 
-def vector_rate(obs_mode: str, num_envs: int, steps: int, nthread: int | None = None, **env_kwargs) -> float:
-    """Env steps/s of the vector env on FULL with random actions (``env_kwargs``: e.g. ``randomize``)."""
-    env = BallInMazeVectorEnv(num_envs, task="FULL", obs_mode=obs_mode, max_episode_steps=1000, nthread=nthread,
-                              **env_kwargs)
+def vector_rate(obs_mode: str, num_envs: int, steps: int, nthread: int | None = None, *, task: str = "FULL",
+                max_episode_steps: int = 1000, **env_kwargs) -> float:
+    """Env steps/s of the vector env on ``task`` with random actions (``env_kwargs``: e.g. ``randomize``)."""
+    env = BallInMazeVectorEnv(num_envs, task=task, obs_mode=obs_mode, max_episode_steps=max_episode_steps,
+                              nthread=nthread, **env_kwargs)
     env.reset(seed=0)
     actions = np.random.default_rng(0).integers(5, size=(steps, num_envs))
 

@@ -24,11 +24,9 @@ import time
 from pathlib import Path
 
 import mujoco
-import numpy as np
-from bench_env import best_of  # benchmarks/ is the script's directory, on sys.path
+from bench_env import best_of, vector_rate  # benchmarks/ is the script's directory, on sys.path
 
 from bimgame.envs.env import BallInMazeEnv
-from bimgame.envs.vector import BallInMazeVectorEnv
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.maze_sets import maze_number
 from bimgame.sim.mjcf import wall_slots
@@ -40,24 +38,10 @@ RESULTS = Path(__file__).parent / "results" / "mazes.json"
 SETTINGS = (("one maze", None), ("100 mazes", 100), ("unlimited", 0))
 
 
-def vector_rate(obs_mode: str, num_envs: int, steps: int, episode_steps: int, num_mazes: int | None) -> float:
+def maze_vector_rate(obs_mode: str, num_envs: int, steps: int, episode_steps: int, num_mazes: int | None) -> float:
     """Env steps/s of the vector env on STG2 with random actions, episodes cut at ``episode_steps``."""
     kwargs = {} if num_mazes is None else {"num_mazes": num_mazes}
-    env = BallInMazeVectorEnv(
-        num_envs, task="STG2", obs_mode=obs_mode, max_episode_steps=episode_steps, nthread=1, **kwargs
-    )
-    env.reset(seed=0)
-    actions = np.random.default_rng(0).integers(5, size=(steps, num_envs))
-
-    def run():
-        start = time.perf_counter()
-        for action in actions:
-            env.step(action)
-        return steps * num_envs, time.perf_counter() - start
-
-    rate = best_of(run, 3)
-    env.close()
-    return rate
+    return vector_rate(obs_mode, num_envs, steps, 1, task="STG2", max_episode_steps=episode_steps, **kwargs)
 
 
 def reset_us(obs_mode: str, num_mazes: int | None, n: int = 200) -> float:
@@ -117,7 +101,7 @@ def main() -> None:
         for num_envs in (16, 64):
             baseline = None
             for label, num_mazes in SETTINGS:
-                rate = vector_rate(obs_mode, num_envs, args.steps, args.episode_steps, num_mazes)
+                rate = maze_vector_rate(obs_mode, num_envs, args.steps, args.episode_steps, num_mazes)
                 baseline = baseline or rate
                 rows[f"vector env {num_envs} envs, {obs_mode}, {label} (env steps/s)"] = (
                     rate,

@@ -211,6 +211,7 @@ class BallInMazeEnv(gym.Env):
         )
         #: The current episode's maze number (None without ``num_mazes``).
         self.maze_number: int | None = None
+        self._encoding: list[float] = []  # the state observations' maze encoding (set by switch_maze)
         if self.mazes is not None:
             self.maze_number = self.mazes.first_number()
             self.maze = self.mazes.maze(self.maze_number)
@@ -391,7 +392,7 @@ class BallInMazeEnv(gym.Env):
             raise ValueError("switch_maze needs an env built with num_mazes")
         spec = self.mazes.maze(number)
         self.sim.set_walls(spec)
-        self.maze, self.maze_number = spec, number
+        self.maze, self.maze_number, self._encoding = spec, number, maze_encoding(spec).tolist()  # once, not per step
         self.observer.set_maze(spec)
 
     # ------------------------------------------------------------------ helpers
@@ -415,7 +416,7 @@ class BallInMazeEnv(gym.Env):
         tilt = self.sim.data.qpos
         values = [v for k in kinematics for v in k] + [tilt[0], tilt[1]] + self._channels
         if self.mazes is not None:
-            return np.concatenate([np.array(values, dtype=np.float32), maze_encoding(self.maze)])
+            values += self._encoding
         return np.array(values, dtype=np.float32)
 
     def _info(self, kinematics, crossings: list[int], success: bool) -> dict[str, Any]:

@@ -20,18 +20,7 @@ __all__ = ["MATCHED_SETTINGS", "check_init_network", "init_settings_for"]
 
 #: The network settings that decide the weights or what their inputs mean (``precision`` is only how
 #: they are computed).
-MATCHED_SETTINGS = (
-    "obs",
-    "hidden",
-    "features",
-    "tilt_input",
-    "keypoints",
-    "subtract_background",
-    "aux_heads",
-    "asymmetric_critic",
-    "action_type",
-    "maze_encoding",
-)
+MATCHED_SETTINGS = tuple(name for name in NetworkSettings.field_names() if name != "precision")
 
 _LACKS_ENCODING = (
     "this run on many mazes (num_mazes) reads the maze encoding, which that network, trained on "

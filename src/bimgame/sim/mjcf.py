@@ -9,7 +9,7 @@ import math
 
 from bimgame.sim.maze import Friction, MazeSpec
 
-__all__ = ["build_mjcf", "contact_condim", "wall_boxes", "wall_slots", "PHYSICS_HZ", "PARKED_Z"]
+__all__ = ["build_mjcf", "contact_condim", "slotted_boxes", "wall_boxes", "wall_slots", "PHYSICS_HZ", "PARKED_Z"]
 
 PHYSICS_HZ = 150.0
 
@@ -161,7 +161,7 @@ def _parked_geom(name: str) -> str:
     return f'<geom name="{name}" class="wall" pos="0 0 {PARKED_Z:.9g}" size="{size:.9g} {size:.9g} {size:.9g}"/>'
 
 
-def _slotted_boxes(spec: MazeSpec, slots: tuple[int, ...]) -> list[list[Box]]:
+def slotted_boxes(spec: MazeSpec, slots: tuple[int, ...]) -> list[list[Box]]:
     """Each wall's pieces, refused if they do not fit in its slot count."""
     boxes = wall_boxes(spec)
     if len(slots) != len(boxes):
@@ -169,8 +169,8 @@ def _slotted_boxes(spec: MazeSpec, slots: tuple[int, ...]) -> list[list[Box]]:
     for k, (pieces, count) in enumerate(zip(boxes, slots, strict=True)):
         if len(pieces) > count:
             raise ValueError(
-                f"walls[{k}] needs {len(pieces)} pieces, more than its {count} slots: build the model with "
-                "wall_slots from mjcf.wall_slots(spec, max_gates) for the most gates a wall may have"
+                f"walls[{k}] of the new maze needs {len(pieces)} pieces, more than the {count} slots of the "
+                "model: build it with wall_slots from mjcf.wall_slots(spec, max_gates) (the most gates a wall has)"
             )
     return boxes
 
@@ -219,7 +219,7 @@ def build_mjcf(
         arcs = [(w.inner_radius, w.outer_radius, w.solid_arcs(), f"wall{k}") for k, w in enumerate(spec.walls)]
     else:
         arcs = []
-        for k, boxes in enumerate(_slotted_boxes(spec, wall_slots)):
+        for k, boxes in enumerate(slotted_boxes(spec, wall_slots)):
             walls += [_box_geom(f"wall{k}_s{i}", box, h, exact=True) for i, box in enumerate(boxes)]
             walls += [_parked_geom(f"wall{k}_s{i}") for i in range(len(boxes), wall_slots[k])]
     arcs.append((spec.rim_radius, spec.rim_radius + spec.rim_thickness, [(-math.pi, math.pi)], "rim"))

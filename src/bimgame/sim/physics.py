@@ -44,7 +44,7 @@ from mujoco import rollout as mj_rollout
 
 from bimgame.sim.layout import STATE_SPEC, StateLayout
 from bimgame.sim.maze import Friction, MazeSpec
-from bimgame.sim.mjcf import PARKED_HALF_SIZE, PARKED_Z, PHYSICS_HZ, build_mjcf, contact_condim, wall_boxes
+from bimgame.sim.mjcf import PARKED_HALF_SIZE, PARKED_Z, PHYSICS_HZ, build_mjcf, contact_condim, slotted_boxes
 from bimgame.sim.placement import finite_array
 
 __all__ = ["MazeSim", "StateLayout", "PHYSICS_HZ", "CONTROL_HZ"]
@@ -59,12 +59,7 @@ def _slot_geometry(spec: MazeSpec, slots: tuple[int, ...]) -> list[np.ndarray]:
     radius)`` — what a slotted model built from ``spec`` holds (its numbers are written exactly) —
     refused if they need more than ``slots`` (cached: a training set's mazes are computed once)."""
     rows = []
-    for k, (boxes, count) in enumerate(zip(wall_boxes(spec), slots, strict=True)):
-        if len(boxes) > count:
-            raise ValueError(
-                f"walls[{k}] of the new maze needs {len(boxes)} pieces, more than the {count} slots this "
-                "sim was built with: build it with wall_slots for more gates"
-            )
+    for boxes in slotted_boxes(spec, slots):
         cx, cy, half_length, half_depth, yaw = np.array(boxes, dtype=np.float64).reshape(-1, 5).T
         z = np.full(len(boxes), spec.wall_height / 2)
         sizes = np.stack([half_depth, half_length, z], axis=1)
@@ -126,6 +121,11 @@ class MazeSim:
         self.wall_slots = None if wall_slots is None else tuple(int(n) for n in wall_slots)
         self._slot_id_cache: list[np.ndarray] | None = None
         self.model = mujoco.MjModel.from_xml_string(build_mjcf(self.spec, n_marbles, physics_hz, self.wall_slots))
+        if self.wall_slots is not None:
+            # A slot's frame is never the board's: a parked piece (identity rotation) is compiled as
+            # "same rotation as its body", and MuJoCo would then ignore a yaw set_walls writes later.
+            # Once here: the model copies set_walls switches are made from this model.
+            self.model.geom_sameframe[np.concatenate(self._slot_ids())] = mujoco.mjtSameFrame.mjSAMEFRAME_NONE
         self.data = mujoco.MjData(self.model)
         self.control_dt = substeps * self.model.opt.timestep
         self.layout = StateLayout(self.model, n_marbles)
@@ -236,9 +236,6 @@ class MazeSim:
                 m.geom_pos[used], m.geom_quat[used], m.geom_size[used] = boxes[:, 0:3], boxes[:, 3:7], boxes[:, 7:10]
                 m.geom_rbound[used] = boxes[:, 10]
                 m.geom_aabb[used, :3], m.geom_aabb[used, 3:] = 0.0, boxes[:, 7:10]
-            # A slot's frame is never the board's: a parked piece (identity rotation) would otherwise
-            # be compiled as "same rotation as its body", and MuJoCo would ignore a yaw written later.
-            m.geom_sameframe[ids] = mujoco.mjtSameFrame.mjSAMEFRAME_NONE
             m.geom_pos[parked] = (0.0, 0.0, PARKED_Z)
             m.geom_quat[parked] = (1.0, 0.0, 0.0, 0.0)
             m.geom_size[parked] = PARKED_HALF_SIZE
