@@ -16,19 +16,20 @@ benchmarks/results/generalization.json) and ``--figure`` (default docs/mazes/gen
 train and test success against N, one panel per learner, CoinRun's figure.
 
 Usage: python benchmarks/bench_generalization.py [--task STG1] [--obs state] [--steps 300000]
-       [--seeds 3] [--num-mazes 1 10 100 1000 0] [--learners ppo a3c] [--out runs/generalization]
+       [--seeds 3] [--num-mazes 1 10 100 1000 0] [--learners ppo a3c] [--jobs 2] [--out runs/generalization]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import multiprocessing
 import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch
 
 from bimgame.experiments.statistics import mean_interval
 from bimgame.learn.a3c import A3CConfig, train
@@ -96,6 +97,15 @@ def _score(run_dir: Path, num_mazes: int, episodes: int) -> dict[str, float]:
     return scores
 
 
+def _run(learner: str, run_dir: Path, num_mazes: int, seed: int, args: argparse.Namespace) -> tuple[float, dict]:
+    """Train (unless finished) and score one run with one torch thread: a job of ``--jobs``."""
+    with torch_threads(1):
+        seconds = _train(
+            learner, run_dir, task=args.task, obs=args.obs, steps=args.steps, seed=seed, num_mazes=num_mazes
+        )
+        return seconds, _score(run_dir, num_mazes, args.episodes)
+
+
 def _aggregate(per_seed: list[dict[str, float]], rng: np.random.Generator) -> dict[str, Any]:
     """Means over seeds with bootstrap intervals, and the gap train − test per mode."""
     out: dict[str, Any] = {}
@@ -147,10 +157,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--num-mazes", type=int, nargs="+", default=[1, 10, 100, 1000, 0], help="0: unlimited")
     parser.add_argument("--learners", nargs="+", default=["ppo"], choices=LEARNERS)
     parser.add_argument("--episodes", type=int, default=100, help="scoring episodes per split and mode (default 100)")
+    parser.add_argument("--jobs", type=int, default=1, help="runs trained at once, one process each (default 1)")
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "generalization")
     parser.add_argument("--results", type=Path, default=ROOT / "benchmarks" / "results" / "generalization.json")
     parser.add_argument("--figure", type=Path, default=ROOT / "docs" / "mazes" / "generalization.png")
     args = parser.parse_args(argv)
+    if args.jobs < 1:
+        parser.error(f"--jobs takes a count >= 1, got {args.jobs}")
     if any(n < 0 for n in args.num_mazes):
         parser.error(f"--num-mazes takes counts >= 0 (0: unlimited), got {args.num_mazes}")
     rng = np.random.default_rng(0)
@@ -163,26 +176,33 @@ def main(argv: list[str] | None = None) -> int:
         "learners": {},
         "wall_seconds": {},
     }
-    with torch_threads(1):
-        torch.set_num_threads(1)
-        for learner in args.learners:
-            rows: dict[str, Any] = {}
-            for num_mazes in args.num_mazes:
-                per_seed = []
-                for seed in range(args.seeds):
-                    run_dir = args.out / f"{learner}-{args.task}-{args.obs}-n{_label(num_mazes)}" / f"seed{seed}"
-                    seconds = _train(
-                        learner, run_dir, task=args.task, obs=args.obs, steps=args.steps, seed=seed, num_mazes=num_mazes
-                    )
-                    if seconds:
-                        results["wall_seconds"][str(run_dir.relative_to(args.out))] = seconds
-                    scores = _score(run_dir, num_mazes, args.episodes)
-                    per_seed.append(scores)
-                    shown = "  ".join(f"{k} {100 * v:3.0f}%" for k, v in scores.items())
-                    print(f"{learner} N={_label(num_mazes):>9} seed {seed}: {shown}", flush=True)
-                rows[_label(num_mazes)] = _aggregate(per_seed, rng)
-            results["learners"][learner] = rows
-            atomic_write_bytes(args.results, json.dumps(results, indent=2).encode())
+    jobs = [
+        (learner, num_mazes, seed, args.out / f"{learner}-{args.task}-{args.obs}-n{_label(num_mazes)}" / f"seed{seed}")
+        for learner in args.learners
+        for num_mazes in args.num_mazes
+        for seed in range(args.seeds)
+    ]
+    done: dict[Path, dict] = {}
+    # Runs are independent: --jobs of them at once, each in its own process with one torch thread.
+    with ProcessPoolExecutor(args.jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
+        futures = {
+            pool.submit(_run, learner, run_dir, n, seed, args): (learner, n, seed, run_dir)
+            for learner, n, seed, run_dir in jobs
+        }
+        for future in as_completed(futures):
+            learner, num_mazes, seed, run_dir = futures[future]
+            seconds, scores = future.result()
+            if seconds:
+                results["wall_seconds"][str(run_dir.relative_to(args.out))] = seconds
+            done[run_dir] = scores
+            shown = "  ".join(f"{k} {100 * v:3.0f}%" for k, v in scores.items())
+            print(f"{learner} N={_label(num_mazes):>9} seed {seed}: {shown}", flush=True)
+    for learner in args.learners:
+        rows: dict[str, Any] = {}
+        for num_mazes in args.num_mazes:
+            per_seed = [done[run_dir] for ln, n, _, run_dir in jobs if ln == learner and n == num_mazes]
+            rows[_label(num_mazes)] = _aggregate(per_seed, rng)
+        results["learners"][learner] = rows
     title = f"{args.task} from {args.obs}, {args.steps:,} steps, {args.seeds} seeds; {args.episodes} episodes per point"
     figure = _plot(results, args.figure, title)
     atomic_write_bytes(args.results, json.dumps(results, indent=2).encode())

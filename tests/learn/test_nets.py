@@ -306,3 +306,35 @@ def test_a_continuous_network_outputs_gaussian_means_and_a_learned_log_std():
     assert means_u.abs().max() < 0.2  # small initial means: exploration comes from the log std
     with pytest.raises(ValueError, match=r"previous actions of shape \(…, 2\)"):
         net.step(obs[0], torch.zeros(3, dtype=torch.long), torch.zeros(3), torch.zeros(3, 2), net.initial_state(3))
+
+
+def test_maze_input_starts_silent_and_learns():
+    """A network reading a maze encoding through its own zero-initialised weights is, untrained, the
+    network without the encoding from the same seed (same weights, same outputs whatever the maze),
+    and the encoding's weights get gradients."""
+    plain = build_network(NetConfig(encoder="mlp", obs_shape=(7,), features=32, hidden=16), seed=3)
+    mazed = build_network(NetConfig(encoder="mlp", obs_shape=(7 + 128,), features=32, hidden=16, maze_size=128), seed=3)
+    plain_state, mazed_state = plain.state_dict(), mazed.state_dict()
+    assert set(mazed_state) == set(plain_state) | {"encoder.maze_weight"}
+    for name, value in plain_state.items():
+        if name != "encoder.scale":
+            assert torch.equal(mazed_state[name], value), name
+    assert torch.count_nonzero(mazed.encoder.maze_weight) == 0
+    obs, prev_action, prev_reward, tilt, starts = _inputs(plain.config, 4, 2)
+    encoding = (torch.rand(4, 2, 128) < 0.2).float()
+    logits_p, values_p, _ = plain.unroll(obs, prev_action, prev_reward, tilt, plain.initial_state(2), starts)
+    logits_m, values_m, _ = mazed.unroll(torch.cat([obs, encoding], -1), prev_action, prev_reward, tilt,
+                                         mazed.initial_state(2), starts)
+    torch.testing.assert_close(logits_m, logits_p)
+    torch.testing.assert_close(values_m, values_p)
+    (logits_m.sum() + values_m.sum()).backward()
+    assert torch.count_nonzero(mazed.encoder.maze_weight.grad) > 0
+
+
+def test_maze_size_is_checked():
+    with pytest.raises(ValueError, match="maze_size needs the mlp encoder"):
+        NetConfig(maze_size=128)
+    with pytest.raises(ValueError, match="must be below obs_shape's 7 values"):
+        NetConfig(encoder="mlp", obs_shape=(7,), maze_size=7)
+    # Networks stored before maze_size read a 135-value observation as plain inputs: they still build.
+    assert build_network(NetConfig(encoder="mlp", obs_shape=(135,), features=8, hidden=8)).encoder.maze_weight is None

@@ -201,6 +201,7 @@ class NetworkSettings:
             hidden=hidden,
             tilt_input=self.tilt_input,
             action_type=self.action_type,
+            maze_size=maze_encoding_size(maze) if self.maze_encoding else 0,
             **privileged,
         )
         return net_config, {"obs_scale": obs_scale, **inputs}

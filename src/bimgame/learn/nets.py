@@ -123,6 +123,10 @@ class NetConfig:
     """Heads that predict the privileged state from the encoder's and the LSTM's features."""
     asymmetric_critic: bool = False
     """The value head also reads the privileged state (training only; not the paper's)."""
+    maze_size: int = 0
+    """MLP encoder only: the last ``maze_size`` values of a state observation are the maze's
+    encoding, read through weights of their own that start at zero (:class:`~bimgame.learn.encoders.MLPEncoder`).
+    0: none, or (networks stored before this setting) an encoding read as plain inputs."""
     action_type: str = "discrete"
     """``discrete`` (``n_actions`` logits, the paper's) or ``continuous`` (a Gaussian over the env's
     2 tilt changes; see :mod:`bimgame.learn.policy_heads`). Stored settings without it are discrete."""
@@ -141,6 +145,11 @@ class NetConfig:
             if getattr(self, name) < 1:
                 raise ValueError(f"NetConfig.{name} must be >= 1, got {getattr(self, name)}")
         check_action_type("NetConfig", self.action_type)
+        if self.maze_size and (self.encoder != "mlp" or not 0 < self.maze_size < shape[0]):
+            raise ValueError(
+                f"NetConfig.maze_size needs the mlp encoder and must be below obs_shape's {shape[0]} values, "
+                f"got {self.maze_size} with encoder {self.encoder!r}"
+            )
         if self.precision not in PRECISIONS:
             raise ValueError(f"NetConfig.precision must be one of {PRECISIONS}, got {self.precision!r}")
         if self.privileged_size < 0 or (self.privileged_size and (self.privileged_size - 2) % 5):
@@ -202,7 +211,7 @@ def make_encoder(config: NetConfig) -> ConvEncoder | MLPEncoder:
             bf16=config.precision == "bf16",
         )
     (dim,) = config.obs_shape
-    return MLPEncoder(dim, config.features)
+    return MLPEncoder(dim, config.features, config.maze_size)
 
 
 class RecurrentActorCritic(nn.Module):
