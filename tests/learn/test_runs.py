@@ -78,6 +78,18 @@ def test_bad_checkpoints_are_named(tmp_path):
         load_weights(torch.nn.Linear(3, 2), tmp_path / "small.pt")
 
 
+def test_a_maze_network_of_the_old_layout_is_named(tmp_path):
+    """A network that read the maze encoding as plain inputs (stored before NetConfig.maze_size) does
+    not start a network that reads it through weights of its own: the error says why."""
+    from bimgame.learn.nets import NetConfig, build_network
+
+    old = build_network(NetConfig(encoder="mlp", obs_shape=(135,), features=8, hidden=8))
+    save_checkpoint(tmp_path / "old.pt", model=old.state_dict(), step=3)
+    new = build_network(NetConfig(encoder="mlp", obs_shape=(135,), features=8, hidden=8, maze_size=128))
+    with pytest.raises(CheckpointError, match="read it as plain inputs and cannot start new runs"):
+        load_weights(new, tmp_path / "old.pt")
+
+
 def test_resumed_rows_keep_what_was_logged_before_the_checkpoint(tmp_path):
     """Rows at exactly the checkpoint's step came after it (e.g. episodes that ended in the segment
     the checkpoint did not include) and are dropped, unless the table logs such rows before writing

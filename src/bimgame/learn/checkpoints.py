@@ -185,6 +185,11 @@ def apply_weights(module: torch.nn.Module, payload: dict[str, Any], source: str 
         shapes = [(k, tuple(weights[k].shape), tuple(expected[k].shape)) for k in mismatched]
         # Only a continuous-action network has a log_std: one side is discrete, the other continuous.
         hint = " (one network has continuous actions, the other discrete)" if "log_std" in missing + unexpected else ""
+        if "encoder.maze_weight" in missing + unexpected:
+            hint = (
+                " (one network reads the maze encoding through weights of its own, the other does not: networks "
+                "trained on many mazes before NetConfig.maze_size read it as plain inputs and cannot start new runs)"
+            )
         raise CheckpointError(
             f"weights in {source} do not fit this network{hint}: missing {missing}, unexpected {unexpected}, "
             f"shape mismatch {shapes}"
