@@ -172,3 +172,32 @@ def test_reset_locates_the_nearest_segment_and_checks_the_index(hard):
     assert step.segment in (19, 20) and step.progress == pytest.approx(hard.path.cumulative[20])
     with pytest.raises(ValueError, match="segment"):
         tracker.reset(hard.start, segment=hard.path.n_segments)
+
+
+def test_a_wall_between_marble_and_path_puts_it_off_the_path():
+    """Within the tolerance by distance but behind a wall: off the path; in front of it: on it."""
+    wall = (0.02, 0.005, 0.08, 0.010)
+    path = WaypointPath([(0.0, 0.0), (0.1, 0.0), (0.1, 0.05)], tolerance=0.025, walls=[wall])
+    xy = np.array([[0.05, 0.015], [0.05, 0.004], [0.01, 0.015], [0.05, 0.0075]])
+    segment, progress, off = path.advance(xy, np.zeros(4, dtype=int), np.zeros(4))
+    assert segment.tolist() == [0, 0, 0, 0]
+    assert off.tolist() == [True, False, False, True]  # behind, in front, beside the wall's end, inside it
+    assert progress.tolist() == pytest.approx([0.0, 0.05, 0.01, 0.0])
+
+
+def test_line_of_sight_slab_test():
+    path = WaypointPath([(0.0, 0.0), (1.0, 0.0)], tolerance=1.0, walls=[(0.4, -0.1, 0.6, 0.1)])
+    p = np.array([[0.0, 0.0], [0.0, 0.2], [0.0, -0.3], [0.5, 0.05], [0.7, 0.0], [0.6, 0.1]])
+    q = np.array([[1.0, 0.0], [1.0, 0.2], [1.0, 0.3], [0.5, 0.5], [0.9, 0.0], [0.9, 0.1]])
+    # through it; above it (parallel); diagonally through it; leaving it; beyond it; along its face
+    assert path.blocked(p, q).tolist() == [True, False, True, True, False, False]
+
+
+def test_layout_walls_hide_the_path_behind_them(hard):
+    """Hard layout: a point just above the wall along y = 204.5 mm (x 94.5..159.5) is 9 mm from the
+    start segment (y = 218 mm) — in sight — and one just below it is 19.5 mm away but hidden."""
+    tracker = PathProgress(hard)
+    tracker.reset(hard.start, segment=0)
+    x = 0.120 - 0.138
+    assert not tracker.update((x, 0.209 - 0.1155)).off_path
+    assert tracker.update((x, 0.1985 - 0.1155)).off_path
