@@ -360,7 +360,7 @@ class WaypointPath:
         best = np.argmin(np.where(seen, distance, np.inf), axis=-1)[..., None]
         new_segment = np.take_along_axis(candidates, best, axis=-1)[..., 0]
         new_arc = np.take_along_axis(arc, best, axis=-1)[..., 0]
-        off = ~seen.any(axis=-1)
+        off = np.logical_not(seen.any(axis=-1))
         return np.where(off, k, new_segment), np.where(off, old, new_arc), off
 
 
