@@ -22,8 +22,8 @@ step is the largest whole fraction of an action no longer than 1/``PHYSICS_HZ`` 
 at 150 Hz for 30 Hz actions, 3 substeps at 165 Hz for 55 Hz.
 
 Tilt rate. The board's floor moves at (tilt rate × distance from the pivot), so fast tilting throws
-the marble: random changes of 2° per 55 Hz action (110°/s) lifted it up to 24 mm, over the 15 mm
-walls, while 0.5° per action (27°/s) kept it within 1.4 mm of the floor. The real motors' rate
+the marble: random changes of up to 2° per 55 Hz action (110°/s) raised its bottom up to 18 mm off
+the floor, above the 15 mm walls, while 0.5° per action (27°/s) kept it within 1.4 mm. The real motors' rate
 limit is not published as an angle rate; an env should bound the tilt rate (phase 2).
 
 Determinism. The solver's warm start is cleared at the start of every action step, so a step is a
