@@ -334,7 +334,7 @@ def test_maze_input_starts_silent_and_learns():
 def test_maze_size_is_checked():
     with pytest.raises(ValueError, match="maze_size needs the mlp encoder"):
         NetConfig(maze_size=128)
-    with pytest.raises(ValueError, match="must be below obs_shape's 7 values"):
+    with pytest.raises(ValueError, match="needs the mlp encoder and < 7 values, got 7"):
         NetConfig(encoder="mlp", obs_shape=(7,), maze_size=7)
     # Networks stored before maze_size read a 135-value observation as plain inputs: they still build.
     assert build_network(NetConfig(encoder="mlp", obs_shape=(135,), features=8, hidden=8)).encoder.maze_weight is None

@@ -36,8 +36,7 @@ Two entry points, one set of weights:
 - :meth:`RecurrentActorCritic.unroll` — a whole segment (T, B): the encoder runs once on all T·B
   observations (one large convolution instead of T small ones), then the LSTM cell runs over time,
   zeroing its state wherever an episode starts. This is what the learners backpropagate through.
-
-The observation encoders themselves are in :mod:`bimgame.learn.encoders`.
+  The observation encoders are in :mod:`bimgame.learn.encoders`.
 """
 
 from __future__ import annotations
@@ -124,9 +123,8 @@ class NetConfig:
     asymmetric_critic: bool = False
     """The value head also reads the privileged state (training only; not the paper's)."""
     maze_size: int = 0
-    """MLP encoder only: the last ``maze_size`` values of a state observation are the maze's
-    encoding, read through weights of their own that start at zero (:class:`~bimgame.learn.encoders.MLPEncoder`).
-    0: none, or (networks stored before this setting) an encoding read as plain inputs."""
+    """MLP only: the observation's last ``maze_size`` values are a maze encoding with weights of their own
+    (:class:`~bimgame.learn.encoders.MLPEncoder`); 0: none (or, stored before this setting, plain inputs)."""
     action_type: str = "discrete"
     """``discrete`` (``n_actions`` logits, the paper's) or ``continuous`` (a Gaussian over the env's
     2 tilt changes; see :mod:`bimgame.learn.policy_heads`). Stored settings without it are discrete."""
@@ -146,10 +144,7 @@ class NetConfig:
                 raise ValueError(f"NetConfig.{name} must be >= 1, got {getattr(self, name)}")
         check_action_type("NetConfig", self.action_type)
         if self.maze_size and (self.encoder != "mlp" or not 0 < self.maze_size < shape[0]):
-            raise ValueError(
-                f"NetConfig.maze_size needs the mlp encoder and must be below obs_shape's {shape[0]} values, "
-                f"got {self.maze_size} with encoder {self.encoder!r}"
-            )
+            raise ValueError(f"NetConfig.maze_size needs the mlp encoder and < {shape[0]} values, got {self.maze_size}")
         if self.precision not in PRECISIONS:
             raise ValueError(f"NetConfig.precision must be one of {PRECISIONS}, got {self.precision!r}")
         if self.privileged_size < 0 or (self.privileged_size and (self.privileged_size - 2) % 5):
