@@ -5,12 +5,22 @@ test session, lazily, by the first test that asks for them."""
 
 from __future__ import annotations
 
-import pytest
+import os
 
-from bimgame.expert.datasets import generate_dataset
-from bimgame.learn.pretrain import PretrainResult, pretrain
-from bimgame.learn.runs import torch_threads
-from bimgame.learn.supervised import PretrainConfig
+# The suite runs as two xdist workers on two cores: one intra-op thread per process, subprocesses
+# included (set before torch starts its thread pool). A second thread spins against the other
+# worker: the 100k-step PPO test took 12 minutes with two threads on a loaded machine.
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import pytest  # noqa: E402
+import torch  # noqa: E402
+
+from bimgame.expert.datasets import generate_dataset  # noqa: E402
+from bimgame.learn.pretrain import PretrainResult, pretrain  # noqa: E402
+from bimgame.learn.runs import torch_threads  # noqa: E402
+from bimgame.learn.supervised import PretrainConfig  # noqa: E402
+
+torch.set_num_threads(1)
 
 #: Episodes of :func:`stg1_dataset` (≈0.6 s of MPC planning each on one core).
 STG1_DATASET_EPISODES = 60
