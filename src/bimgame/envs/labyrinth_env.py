@@ -351,7 +351,10 @@ class LabyrinthEnv(gym.Env):
             if not ok:
                 raise ValueError(f"invalid action {action!r}: discrete actions are integers 0..4 ({ACTIONS_HELP})")
             return self._discrete_deltas[index]
-        array = np.asarray(action, dtype=np.float64)
+        try:
+            array = np.asarray(action, dtype=np.float64)
+        except (TypeError, ValueError):
+            array = np.full(0, np.nan)
         if array.shape != (2,) or not np.all(np.isfinite(array)) or np.any(np.abs(array) > 1.0):
             raise ValueError(
                 f"invalid action {action!r}: continuous actions are 2 finite numbers in [-1, 1] "
