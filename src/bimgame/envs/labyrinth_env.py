@@ -18,10 +18,11 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from bimgame.sim.labyrinth import LabyrinthSpec, PathProgress, PathStep, WaypointPath
+from bimgame.sim.labyrinth import LabyrinthSpec, PathStep, WaypointPath
 from bimgame.sim.labyrinth_layouts import LAYOUT_NAMES
 from bimgame.sim.labyrinth_physics import LabyrinthSim
 from bimgame.sim.labyrinth_render import LabyrinthRaster, board_grid, sheet_grid
+from bimgame.sim.labyrinth_tracker import ScalarPathProgress
 from bimgame.util.settings import is_integer, is_real
 
 __all__ = [
@@ -238,7 +239,7 @@ class LabyrinthEnv(gym.Env):
         )  # fmt: skip
         self.sim = LabyrinthSim(board, control_hz=self.control_hz)
         self.path = board.path
-        self.tracker = PathProgress(board)
+        self.tracker = ScalarPathProgress(board)  # PathProgress's rule, scalar: the per-step fast path
         #: Tilt change (rad) of one full-rate action.
         self.tilt_step = self.max_tilt_rate / self.control_hz
         self._discrete_deltas = [DISCRETE_TILTS[i] * self.tilt_step for i in range(5)]
@@ -258,6 +259,7 @@ class LabyrinthEnv(gym.Env):
         self._has_reset = False
         self._episode_over = True
         self._last: PathStep | None = None
+        self._kinematics: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)  # marble x, y, vx, vy
 
     # ------------------------------------------------------------------ construction helpers
     def _check_start(self) -> None:
@@ -307,7 +309,8 @@ class LabyrinthEnv(gym.Env):
                 self.sim.reset(xy)
             except ValueError as error:
                 raise ValueError(f"options['marble_xy']: {error}") from None
-        self._last = self.tracker.reset(self.sim.marble_xy().tolist())
+        self._kinematics = self.sim.layout.board_frame_one(self.sim.data.qpos, self.sim.data.qvel)[0]
+        self._last = self.tracker.reset(self._kinematics[:2])
         self._has_reset, self._episode_over = True, False
         return self._observe(), self._info(self._last, False)
 
@@ -316,8 +319,10 @@ class LabyrinthEnv(gym.Env):
             if not self._has_reset:
                 raise RuntimeError("call reset() before step()")
             raise RuntimeError("the episode has ended (terminated); call reset() before step()")
-        self.sim.step(self._tilt_delta(action))
-        step = self._last = self.tracker.update(self.sim.marble_xy().tolist())
+        sim = self.sim
+        sim.step(self._tilt_delta(action))
+        self._kinematics = sim.layout.board_frame_one(sim.data.qpos, sim.data.qvel)[0]
+        step = self._last = self.tracker.update(self._kinematics[:2])
         failed = step.over_hole or (self.end_off_path and step.off_path)
         success = step.goal and not step.over_hole
         reward = self.fail_reward if failed else self.progress_scale * step.delta
@@ -363,23 +368,24 @@ class LabyrinthEnv(gym.Env):
         return array * self.tilt_step
 
     def _observe(self) -> Any:
-        x, y, vx, vy = self.sim.layout.board_frame_one(self.sim.data.qpos, self.sim.data.qvel)[0]
+        x, y, vx, vy = self._kinematics
         if self.obs_mode == "pixels":
             assert self._raster is not None
             return self._raster.gray(np.array([x, y]))[None]
         tilt = self.sim.data.qpos[:2]
         assert self._last is not None
-        relative = (path_points_ahead(self.path, self._last.progress) - (x, y)).ravel()
+        ahead = self.tracker.points_ahead(self._last.progress, PATH_AHEAD, PATH_SPACING)
+        relative = [v for px, py in ahead for v in (px - x, py - y)]
         if self.obs_mode == "state":
             head = [x, y, vx, vy, tilt[0], tilt[1], self._last.progress / self.path.length]
-            return np.concatenate([head, relative]).astype(np.float32)
+            return np.array(head + relative, dtype=np.float32)
         assert self._raster is not None
         w, h = self.board.board_size
         states = [tilt[0] / CYBERRUNNER_TILT_NORM, tilt[1] / CYBERRUNNER_TILT_NORM, (x + w / 2) / w, (y + h / 2) / h]
         return {
             "image": self._raster.crop(np.array([x, y]), CROP_SIZE)[None],
             "states": np.asarray(states, dtype=np.float32),
-            "goal": (relative / self._goal_norm).astype(np.float32),
+            "goal": (np.array(relative) / self._goal_norm).astype(np.float32),
         }
 
     def _info(self, step: PathStep, success: bool) -> dict[str, Any]:
@@ -407,6 +413,7 @@ class LabyrinthEnv(gym.Env):
     def __setstate__(self, state: dict) -> None:
         type(self).__init__(self, **state["kwargs"])
         self.sim.set_state(state["sim_state"])
+        self._kinematics = self.sim.layout.board_frame_one(self.sim.data.qpos, self.sim.data.qvel)[0]
         (self.tracker.segment, self.tracker.progress), self._last, self._has_reset, self._episode_over = state[
             "episode"
         ]
