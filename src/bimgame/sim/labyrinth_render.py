@@ -22,7 +22,8 @@ Layers, from the bottom: outside (beyond the rim), floor (the playable area), th
 ``path_width`` wide through the waypoints, as printed on the real board), holes (discs of
 ``hole_radius``), walls and rim, then the marble. Rectangles (floor, walls, rim) are antialiased by
 their exact pixel coverage, discs and path lines by ``SUPERSAMPLE`` × ``SUPERSAMPLE`` sub-samples;
-the marble by ``clip(R + 0.5 - d, 0, 1)`` as the circular maze's. Gray levels (:data:`GRAY`) make
+the marble by ``clip(R + 0.5 - d, 0, 1)`` as the circular maze's, looked up for its position
+quantised to 1/:data:`LUT_STEPS` of a pixel. Gray levels (:data:`GRAY`) make
 the marble the only pure white and holes the only black, walls light, the floor mid-gray.
 """
 
@@ -31,15 +32,28 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
 from bimgame.sim.labyrinth import LabyrinthSpec
 
-__all__ = ["GRAY", "RGB", "SUPERSAMPLE", "RasterGrid", "LabyrinthRaster", "board_grid", "sheet_grid", "background"]
+__all__ = [
+    "GRAY",
+    "RGB",
+    "SUPERSAMPLE",
+    "LUT_STEPS",
+    "RasterGrid",
+    "LabyrinthRaster",
+    "board_grid",
+    "sheet_grid",
+    "background",
+]
 
 #: Sub-samples per axis for the antialiasing of discs (holes) and path lines.
 SUPERSAMPLE = 4
+#: The marble's sub-pixel position is quantised to 1/LUT_STEPS of a pixel (its coverage is looked up).
+LUT_STEPS = 32
 #: Gray level of each layer (uint8): the marble is the only 255, a hole's centre the only 0.
 GRAY: dict[str, tuple[int, ...]] = {
     "outside": (60,),
@@ -221,38 +235,61 @@ class LabyrinthRaster:
         self.marble_radius = spec.marble_radius / grid.pixel
 
     def _draw(self, image: np.ndarray, col: float, row: float, value: tuple[int, ...]) -> np.ndarray:
-        """Blend the marble centred at pixel coordinates ``(col, row)`` into ``image`` (in place)."""
+        """Blend the marble centred at pixel coordinates ``(col, row)`` into ``image`` (in place).
+        Its coverage comes from :attr:`_lut`, the window around pixel ``(floor(col), floor(row))``
+        for the centre's fraction of a pixel quantised to 1/``LUT_STEPS``."""
         if not (math.isfinite(col) and math.isfinite(row)):
             return image
-        r = self.marble_radius
-        i0, i1 = max(0, math.floor(row - r - 1)), min(image.shape[0], math.ceil(row + r + 2))
-        j0, j1 = max(0, math.floor(col - r - 1)), min(image.shape[1], math.ceil(col + r + 2))
-        if i0 >= i1 or j0 >= j1:
+        i0, j0 = math.floor(row), math.floor(col)
+        k = self._lut_half
+        coverage = self._lut[round((row - i0) * LUT_STEPS), round((col - j0) * LUT_STEPS)]
+        a0, a1 = max(0, i0 - k), min(image.shape[0], i0 + k + 1)
+        b0, b1 = max(0, j0 - k), min(image.shape[1], j0 + k + 1)
+        if a0 >= a1 or b0 >= b1:
             return image
-        d = np.hypot(np.arange(i0, i1)[:, None] - row, np.arange(j0, j1)[None, :] - col)
-        a = np.clip(r + 0.5 - d, 0.0, 1.0)
-        window = image[i0:i1, j0:j1]
+        a = coverage[a0 - i0 + k : a1 - i0 + k, b0 - j0 + k : b1 - j0 + k]
+        window = image[a0:a1, b0:b1]
         if image.ndim == 3:
             a = a[..., None]
-        window[...] = np.rint(window * (1 - a) + np.asarray(value, np.float64) * a)
+        window[...] = np.rint(window + (np.asarray(value, np.float64) - window) * a)
         return image
+
+    @functools.cached_property
+    def _lut_half(self) -> int:
+        return math.ceil(self.marble_radius + 1.5)
+
+    @functools.cached_property
+    def _lut(self) -> np.ndarray:
+        """Marble coverage ``clip(R + 0.5 - d, 0, 1)`` of the (2K+1)² window around pixel (i0, j0),
+        for centre fractions 0, 1/LUT_STEPS, …, 1 of a pixel in row and column: (S+1, S+1, 2K+1, 2K+1)."""
+        k, r = self._lut_half, self.marble_radius
+        offsets = np.arange(-k, k + 1, dtype=np.float64)
+        fractions = np.arange(LUT_STEPS + 1) / LUT_STEPS
+        dy = offsets[None, :] - fractions[:, None]  # (S+1, 2K+1): pixel row minus centre row
+        d = np.hypot(dy[:, None, :, None], dy[None, :, None, :])
+        return np.clip(r + 0.5 - d, 0.0, 1.0)
+
+    def _pixel(self, xy: np.ndarray | Sequence[float]) -> tuple[float, float]:
+        """:meth:`RasterGrid.to_pixel` of one point, in plain floats (the per-frame path)."""
+        g = self.grid
+        return (float(xy[0]) - g.left) / g.pixel - 0.5, (g.top - float(xy[1])) / g.pixel - 0.5
 
     def gray(self, xy: np.ndarray) -> np.ndarray:
         """The whole grid (height, width) uint8 with the marble at board point ``xy`` (m)."""
-        col, row = self.grid.to_pixel(np.asarray(xy, dtype=np.float64)[:2])
-        return self._draw(self.background.copy(), float(col), float(row), GRAY["marble"])
+        col, row = self._pixel(xy)
+        return self._draw(self.background.copy(), col, row, GRAY["marble"])
 
     def rgb(self, xy: np.ndarray) -> np.ndarray:
         """The whole grid in colour (height, width, 3) uint8 with the marble at ``xy`` (m)."""
-        col, row = self.grid.to_pixel(np.asarray(xy, dtype=np.float64)[:2])
+        col, row = self._pixel(xy)
         image = background(self.spec, self.grid, self.path_width, colour=True).copy()
-        return self._draw(image, float(col), float(row), RGB["marble"])
+        return self._draw(image, col, row, RGB["marble"])
 
     def crop(self, xy: np.ndarray, size: int = 64) -> np.ndarray:
         """A ``size`` × ``size`` uint8 window of the grid centred on the marble at ``xy`` (m): the
         marble's pixel (the nearest to its centre) is ``[size // 2, size // 2]`` and the marble is
         drawn at its exact sub-pixel position; beyond the grid the window shows the outside."""
-        col, row = (float(v) for v in self.grid.to_pixel(np.asarray(xy, dtype=np.float64)[:2]))
+        col, row = self._pixel(xy)
         if not (math.isfinite(col) and math.isfinite(row)):
             raise ValueError(f"xy must be finite board coordinates (m), got {xy!r}")
         i0, j0 = round(row) - size // 2, round(col) - size // 2
