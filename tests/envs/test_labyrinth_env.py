@@ -250,6 +250,7 @@ def test_cyberrunner_observation():
         ({"start_noise": 0.01}, r"start_noise must be a finite number in \[0, 0.005\]"),
         ({"start_noise": 0.005, "layout": "easy"}, "start_noise .* lets the marble start"),
         ({"board": "hard"}, "board must be a LabyrinthSpec"),
+        ({"path_width": -0.001}, r"path_width must be a finite number in \[0, 0.02\]"),
     ],
 )
 def test_bad_arguments_name_what_is_allowed(kwargs, message):
