@@ -1,4 +1,4 @@
-"""Env steps/s of the labyrinth (issue 26) next to the circular maze's, in one run on one machine.
+"""Env steps/s of the labyrinth next to the circular maze's, in one run on one machine.
 
 Measured, single process, one thread (``OMP_NUM_THREADS=1``), the raw env (no Gymnasium wrappers):
 

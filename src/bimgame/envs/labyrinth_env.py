@@ -1,4 +1,4 @@
-"""Gymnasium environment of CyberRunner's labyrinth (the BRIO board, issue 26).
+"""Gymnasium environment of CyberRunner's labyrinth (the BRIO board).
 
 See :class:`LabyrinthEnv` for the full description (Gymnasium's documentation layout). Facts cited
 below come from Bi & D'Andrea, "Sample-Efficient Learning to Solve a Real-World Labyrinth Game Using
