@@ -29,6 +29,11 @@ limit is not published as an angle rate; an env should bound the tilt rate (phas
 Determinism. The solver's warm start is cleared at the start of every action step, so a step is a
 pure function of the physics state ``(time, qpos, qvel, act)`` (:meth:`LabyrinthSim.get_state`):
 the same state and actions give bit-identical states.
+
+Rollouts. :meth:`LabyrinthSim.rollout` runs K open-loop sequences of H actions from one state with
+``mujoco.rollout`` (the planner's model, :mod:`bimgame.expert.labyrinth_mpc`), one rollout call per
+action step with each row's rate computed from its own servo target exactly as :meth:`LabyrinthSim.step`
+does (as :meth:`bimgame.sim.physics.MazeSim.rollout`): the states are bit-identical to stepping.
 """
 
 from __future__ import annotations
@@ -38,6 +43,7 @@ from collections.abc import Sequence
 
 import mujoco
 import numpy as np
+from mujoco import rollout as mj_rollout
 
 from bimgame.sim.labyrinth import LabyrinthSpec
 from bimgame.sim.layout import STATE_SPEC, StateLayout
@@ -56,6 +62,8 @@ from bimgame.sim.mjcf import (
 from bimgame.sim.placement import finite_array
 
 __all__ = ["LabyrinthSim", "labyrinth_mjcf", "servo_mjcf", "substeps_for", "CONTROL_RATES"]
+
+_CONTROL_SPEC = int(mujoco.mjtState.mjSTATE_CTRL)
 
 #: Action rates (Hz) the labyrinth is meant for: CyberRunner's camera and control (55) and MERL's (30).
 CONTROL_RATES = (30.0, 55.0)
@@ -179,6 +187,9 @@ class LabyrinthSim:
         self.control_dt = self.substeps * self.model.opt.timestep
         self.layout = StateLayout(self.model, 1)
         self.max_tilt = self.spec.max_tilt
+        self._runner: mj_rollout.Rollout | None = None
+        self._runner_threads = 0
+        self._rollout_data: mujoco.MjData | None = None
 
     # ------------------------------------------------------------------ state
     @property
@@ -240,6 +251,71 @@ class LabyrinthSim:
         data.qacc_warmstart[:] = 0.0
         mujoco.mj_step(self.model, data, nstep=self.substeps)
 
+    def rollout(self, state: np.ndarray, controls: np.ndarray, nthread: int = 1) -> np.ndarray:
+        """Roll out K open-loop sequences of H actions from one physics state with ``mujoco.rollout``.
+
+        Args:
+            state: (state_size,) the start (:meth:`get_state`); the sim's own data is left untouched.
+            controls: (K, H, 2) commanded tilt change per action (rad), what :meth:`step` takes (the
+                env's action times its tilt step), or (H, 2) for one sequence.
+            nthread: MuJoCo's rollout threads over the K rows (1: the calling thread, the right choice
+                inside worker processes and on a shared machine).
+
+        Returns:
+            (K, H, state_size) the state after each action; bit-identical to :meth:`set_state` then H
+            calls of :meth:`step` per row.
+        """
+        start = np.asarray(state, dtype=np.float64)
+        deltas = np.asarray(controls, dtype=np.float64)
+        deltas = deltas[None] if deltas.ndim == 2 else deltas
+        if start.shape != (self.layout.size,) or not np.all(np.isfinite(start)):
+            raise ValueError(
+                f"state must be a finite float vector of length {self.layout.size} (LabyrinthSim.get_state), "
+                f"got shape {start.shape}"
+            )
+        if deltas.ndim != 3 or deltas.shape[-1] != 2 or not np.all(np.isfinite(deltas)):
+            raise ValueError(f"controls must be finite tilt changes (rad) of shape (K, H, 2), got shape {deltas.shape}")
+        if not (isinstance(nthread, (int, np.integer)) and not isinstance(nthread, bool) and nthread >= 1):
+            raise ValueError(f"nthread must be a positive integer, got {nthread!r}")
+        k, horizon = deltas.shape[:2]
+        nthread = min(int(nthread), k)
+        if self._runner is None or self._runner_threads != nthread:
+            if self._runner is not None:
+                self._runner.close()
+            self._runner = mj_rollout.Rollout(nthread=0 if nthread == 1 else nthread)
+            self._runner_threads = nthread
+            self._rollout_data = mujoco.MjData(self.model)
+        assert self._rollout_data is not None
+        datas = [self._rollout_data] + [mujoco.MjData(self.model) for _ in range(nthread - 1)]
+        out = np.empty((k, horizon, self.layout.size))
+        current = np.ascontiguousarray(np.broadcast_to(start, (k, self.layout.size)))
+        warmstart = np.zeros((k, self.model.nv))
+        control = np.empty((k, self.substeps, self.model.nu))
+        states_out = np.empty((k, self.substeps, self.layout.size))
+        models = [self.model] * k
+        target, limit, dt = self.layout.target_tilt, self.max_tilt, self.control_dt
+        for t in range(horizon):
+            # The rate from each row's own servo target, operation for operation as :meth:`step`
+            # (add, clamp, subtract, divide in IEEE doubles): that keeps the two bit-identical.
+            ramp = current[:, target]
+            rate = (np.clip(ramp + deltas[:, t], -limit, limit) - ramp) / dt
+            control[:, :, 0] = control[:, :, 1] = rate[:, None, 0]
+            control[:, :, 2] = control[:, :, 3] = rate[:, None, 1]
+            self._runner.rollout(
+                models,
+                datas,
+                current,
+                control,
+                control_spec=_CONTROL_SPEC,
+                skip_checks=True,
+                nstep=self.substeps,
+                initial_warmstart=warmstart,
+                state=states_out,
+            )
+            current = states_out[:, -1].copy()
+            out[:, t] = current
+        return out
+
     # ------------------------------------------------------------------ observation helpers
     def marble_kinematics(self) -> tuple[np.ndarray, np.ndarray]:
         """The marble's board-frame position and velocity (m, m/s), each (3,)."""
@@ -266,4 +342,7 @@ class LabyrinthSim:
         return self.data.act[:2].copy()
 
     def close(self) -> None:
-        """Release resources (none beyond the model and data today; kept for MazeSim's interface)."""
+        """Release the rollout runner, if any (kept for MazeSim's interface)."""
+        if self._runner is not None:
+            self._runner.close()
+            self._runner = None
