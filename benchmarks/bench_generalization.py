@@ -17,6 +17,7 @@ train and test success against N, one panel per learner, CoinRun's figure.
 
 Usage: python benchmarks/bench_generalization.py [--task STG1] [--obs state] [--steps 300000]
        [--seeds 3] [--num-mazes 1 10 100 1000 0] [--learners ppo a3c] [--jobs 2] [--out runs/generalization]
+       [--score-unfinished]   (score the last checkpoints of runs stopped early, e.g. for time)
 """
 
 from __future__ import annotations
@@ -66,13 +67,14 @@ def _train(learner: str, run_dir: Path, *, task: str, obs: str, steps: int, seed
     return time.perf_counter() - start
 
 
-def _score(run_dir: Path, num_mazes: int, episodes: int) -> dict[str, float]:
-    """Success of the run's final network on its training mazes and on held-out test mazes."""
+def _score(run_dir: Path, num_mazes: int, episodes: int) -> tuple[dict[str, float], int]:
+    """Success of the run's network (its last checkpoint: the final one of a finished run) on its
+    training mazes and on held-out test mazes, and the step of that checkpoint."""
     scores_file = run_dir / "generalization_scores.json"
     cached = read_json(scores_file)
-    if cached is not None and cached.get("episodes") == episodes:
-        return cached["scores"]
-    net, run, _ = load_run_network(run_dir)
+    net, run, step = load_run_network(run_dir)
+    if cached is not None and cached.get("episodes") == episodes and cached.get("step", step) == step:
+        return cached["scores"], step
     seen = min(num_mazes, 100) if num_mazes else 100
     splits = {
         "train": ({"num_mazes": num_mazes, "start_maze": 0}, [k % seen for k in range(episodes)]),
@@ -93,17 +95,24 @@ def _score(run_dir: Path, num_mazes: int, episodes: int) -> dict[str, float]:
                 maze_numbers=numbers,
             )
             scores[f"{split}_{mode}"] = float(np.mean(result.successes))
-    atomic_write_bytes(scores_file, json.dumps({"episodes": episodes, "scores": scores}, indent=2).encode())
-    return scores
+    atomic_write_bytes(
+        scores_file, json.dumps({"episodes": episodes, "step": step, "scores": scores}, indent=2).encode()
+    )
+    return scores, step
 
 
-def _run(learner: str, run_dir: Path, num_mazes: int, seed: int, args: argparse.Namespace) -> tuple[float, dict]:
-    """Train (unless finished) and score one run with one torch thread: a job of ``--jobs``."""
+def _run(
+    learner: str, run_dir: Path, num_mazes: int, seed: int, args: argparse.Namespace
+) -> tuple[float, dict[str, float], int]:
+    """Train (unless finished, or with ``--score-unfinished``) and score one run with one torch
+    thread: a job of ``--jobs``. Returns the training seconds, the scores and the scored step."""
     with torch_threads(1):
-        seconds = _train(
-            learner, run_dir, task=args.task, obs=args.obs, steps=args.steps, seed=seed, num_mazes=num_mazes
-        )
-        return seconds, _score(run_dir, num_mazes, args.episodes)
+        seconds = 0.0
+        if not args.score_unfinished:
+            seconds = _train(
+                learner, run_dir, task=args.task, obs=args.obs, steps=args.steps, seed=seed, num_mazes=num_mazes
+            )
+        return (seconds, *_score(run_dir, num_mazes, args.episodes))
 
 
 def _aggregate(per_seed: list[dict[str, float]], rng: np.random.Generator) -> dict[str, Any]:
@@ -157,6 +166,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--num-mazes", type=int, nargs="+", default=[1, 10, 100, 1000, 0], help="0: unlimited")
     parser.add_argument("--learners", nargs="+", default=["ppo"], choices=LEARNERS)
     parser.add_argument("--episodes", type=int, default=100, help="scoring episodes per split and mode (default 100)")
+    parser.add_argument(
+        "--score-unfinished",
+        action="store_true",
+        help="train nothing: score each run's last checkpoint (runs stopped early; steps_scored says where)",
+    )
     parser.add_argument("--jobs", type=int, default=1, help="runs trained at once, one process each (default 1)")
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "generalization")
     parser.add_argument("--results", type=Path, default=ROOT / "benchmarks" / "results" / "generalization.json")
@@ -175,6 +189,7 @@ def main(argv: list[str] | None = None) -> int:
         "episodes": args.episodes,
         "learners": {},
         "wall_seconds": {},
+        "steps_scored": {},
     }
     jobs = [
         (learner, num_mazes, seed, args.out / f"{learner}-{args.task}-{args.obs}-n{_label(num_mazes)}" / f"seed{seed}")
@@ -191,9 +206,10 @@ def main(argv: list[str] | None = None) -> int:
         }
         for future in as_completed(futures):
             learner, num_mazes, seed, run_dir = futures[future]
-            seconds, scores = future.result()
+            seconds, scores, step = future.result()
             if seconds:
                 results["wall_seconds"][str(run_dir.relative_to(args.out))] = seconds
+            results["steps_scored"][str(run_dir.relative_to(args.out))] = step
             done[run_dir] = scores
             shown = "  ".join(f"{k} {100 * v:3.0f}%" for k, v in scores.items())
             print(f"{learner} N={_label(num_mazes):>9} seed {seed}: {shown}", flush=True)
