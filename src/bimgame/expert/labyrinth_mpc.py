@@ -1,0 +1,329 @@
+"""Random-shooting MPC on CyberRunner's labyrinth (issue 26), with the simulator as its model.
+
+At every step, from the true physics state, the expert samples K sequences of H actions, rolls all
+of them out with :meth:`~bimgame.sim.labyrinth_physics.LabyrinthSim.rollout` (``mujoco.rollout``),
+scores each and applies the first action of the best (as :mod:`bimgame.expert.mpc` on the circular
+maze). The score is the env's reward along the sequence, with failures made expensive:
+
+- path progress (m) times ``progress_scale``, by the env's own no-shortcut rule:
+  :meth:`~bimgame.sim.labyrinth.WaypointPath.advance` batched over the K sequences, applied state by
+  state along the H states from the env's current segment, so skipping path pays nothing here either;
+- minus ``hole_penalty`` if a state of the sequence has the marble's centre within ``hole_radius +
+  hole_margin`` of a hole (the episode would end there: progress counts up to that state only), and
+  minus ``off_path_penalty`` if it leaves the path; both scaled by ``1 + (steps left) / H`` so that
+  among failing sequences a later failure ranks higher (the planner keeps braking while it can);
+- plus ``goal_bonus`` (and the same earliness factor) when a state reaches the goal;
+- minus ``path_weight`` times the marble's mean distance (m) from its path segment over the H states:
+  without it the marble, pinned by the planner's short-sighted greed, got stuck in a dead-end pocket
+  beside the hard board's path (between two holes, 21 mm off the line but still within the 25 mm
+  tolerance), where every sequence of 0.55 s that gets out first loses progress.
+
+Sampling. ``"hold"``: each sequence is runs of ``hold_min``..``hold_max`` steps of one action — for
+continuous actions a tilt-rate vector whose components are drawn from ``rate_levels`` evenly spaced
+levels in [-1, 1] (5: -1, -0.5, 0, 0.5, 1), for discrete actions one of the 5 actions; ``"uniform"``:
+independent uniform actions every step. With ``keep_best`` the previous decision's best sequence,
+shifted by one step, is one of the K candidates (the plan is refined rather than redrawn).
+
+The expert acts on the true simulator state; the env's path segment (``info["segment"]``) is passed
+along, or the expert follows it itself from consecutive states (:meth:`LabyrinthMPC.reset`).
+benchmarks/bench_expert_labyrinth.py measures it; the defaults of :class:`LabyrinthMPCConfig` are
+from the sweep reported there.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import numpy as np
+
+from bimgame.envs.labyrinth_env import DISCRETE_TILTS, LABYRINTH_ACTION_TYPES, LabyrinthEnv
+from bimgame.sim.labyrinth import LabyrinthSpec, WaypointPath
+from bimgame.sim.labyrinth_physics import LabyrinthSim
+from bimgame.sim.labyrinth_tracker import ScalarPathProgress
+from bimgame.util.settings import is_integer, is_real
+
+__all__ = ["LabyrinthMPCConfig", "LabyrinthMPC", "LABYRINTH_SAMPLINGS", "run_labyrinth_expert_episode"]
+
+LABYRINTH_SAMPLINGS = ("hold", "uniform")
+
+
+@dataclasses.dataclass(frozen=True)
+class LabyrinthMPCConfig:
+    """Settings of the labyrinth's random-shooting expert (defaults from bench_expert_labyrinth.py's sweep)."""
+
+    n_samples: int = 32
+    """K: action sequences sampled per decision."""
+    horizon: int = 30
+    """H: actions per sequence (30 at 55 Hz: 0.55 s, enough to stop the marble from a walking pace)."""
+    sampling: str = "hold"
+    """"hold" (runs of one action, hold_min..hold_max steps) or "uniform" (independent actions)."""
+    hold_min: int = 5
+    """"hold": shortest run of one action (steps)."""
+    hold_max: int = 15
+    """"hold": longest run of one action (steps)."""
+    rate_levels: int = 5
+    """"hold", continuous actions: levels of each tilt-rate component, evenly spaced in [-1, 1] (odd: 0 is one)."""
+    keep_best: bool = True
+    """Whether the last decision's best sequence, shifted by one step, is one of the K candidates."""
+    hole_penalty: float = 10.0
+    """Score (reward units) taken from a sequence that puts the marble over a hole."""
+    hole_margin: float = 0.0
+    """Extra distance (m) around each hole that the planner treats as the hole."""
+    off_path_penalty: float = 10.0
+    """Score taken from a sequence that leaves the path (the env ends such an episode too)."""
+    path_weight: float = 5.0
+    """Score taken per metre of the marble's mean distance from its path segment over the horizon:
+    keeps it near the printed line, away from holes and out of dead-end pockets beside the path."""
+    nthread: int = 1
+    """MuJoCo rollout threads (1 inside worker processes or on a shared machine)."""
+
+    def __post_init__(self) -> None:
+        for name in ("n_samples", "horizon", "hold_min", "hold_max", "rate_levels", "nthread"):
+            value = getattr(self, name)
+            if not (is_integer(value) and value >= 1):
+                raise ValueError(f"LabyrinthMPCConfig.{name} must be a positive integer, got {value!r}")
+        if self.rate_levels < 2:
+            raise ValueError(f"LabyrinthMPCConfig.rate_levels must be an integer >= 2, got {self.rate_levels!r}")
+        if self.hold_max < self.hold_min:
+            raise ValueError(
+                f"LabyrinthMPCConfig.hold_max ({self.hold_max}) must be an integer >= hold_min ({self.hold_min})"
+            )
+        if self.sampling not in LABYRINTH_SAMPLINGS:
+            raise ValueError(
+                f"unknown LabyrinthMPCConfig.sampling {self.sampling!r}; allowed: {', '.join(LABYRINTH_SAMPLINGS)}"
+            )
+        if not isinstance(self.keep_best, (bool, np.bool_)):
+            raise ValueError(f"LabyrinthMPCConfig.keep_best must be True or False, got {self.keep_best!r}")
+        for name in ("hole_penalty", "hole_margin", "off_path_penalty", "path_weight"):
+            value = getattr(self, name)
+            if not (is_real(value) and math.isfinite(value) and value >= 0):
+                raise ValueError(f"LabyrinthMPCConfig.{name} must be a finite number >= 0, got {value!r}")
+
+
+class LabyrinthMPC:
+    """The labyrinth's MPC expert: ``act(state)`` is an action of the env's action space for a
+    physics state from :meth:`LabyrinthSim.get_state`; every random draw comes from ``rng``.
+
+    Build it with :meth:`for_env` to match an env (board, rate, action type, reward constants).
+
+    Args:
+        board: the labyrinth it plans in.
+        config: K, H, sampling and penalties.
+        rng: the seeded generator of the sampled sequences.
+        action_type: "continuous" (tilt-rate fractions in [-1, 1]²) or "discrete" (0..4).
+        control_hz: action rate (Hz) of the env it controls.
+        max_tilt_rate_deg: the env's full tilt rate (°/s): one full action changes the tilt by it / control_hz.
+        progress_scale, goal_bonus: the env's reward per metre of progress and for the goal.
+    """
+
+    def __init__(
+        self,
+        board: LabyrinthSpec,
+        config: LabyrinthMPCConfig | None = None,
+        *,
+        rng: np.random.Generator,
+        action_type: str = "continuous",
+        control_hz: float = 55,
+        max_tilt_rate_deg: float = 30.0,
+        progress_scale: float = 1.25,
+        goal_bonus: float = 0.5,
+    ):
+        if not isinstance(rng, np.random.Generator):
+            raise TypeError(f"rng must be a numpy Generator (np.random.default_rng(seed)), got {type(rng).__name__}")
+        if action_type not in LABYRINTH_ACTION_TYPES:
+            raise ValueError(f"unknown action_type {action_type!r}; allowed: {', '.join(LABYRINTH_ACTION_TYPES)}")
+        self.config = config if config is not None else LabyrinthMPCConfig()
+        if not isinstance(self.config, LabyrinthMPCConfig):
+            raise TypeError(f"config must be a LabyrinthMPCConfig, got {type(self.config).__name__}")
+        self.board, self.rng, self.action_type = board, rng, action_type
+        self.sim = LabyrinthSim(board, control_hz=control_hz)
+        self.path = board.path
+        self.tilt_step = math.radians(max_tilt_rate_deg) / control_hz
+        self.progress_scale, self.goal_bonus = float(progress_scale), float(goal_bonus)
+        self.levels = np.linspace(-1.0, 1.0, self.config.rate_levels)
+        self._holes = np.asarray(board.holes, dtype=np.float64).reshape(-1, 2)
+        self._tracker = ScalarPathProgress(board)
+        self._tracking = False
+        self._best: np.ndarray | None = None
+
+    @classmethod
+    def for_env(cls, env: Any, config: LabyrinthMPCConfig | None = None, *, rng: np.random.Generator) -> LabyrinthMPC:
+        """An expert matching ``env`` (a :class:`LabyrinthEnv`, possibly wrapped)."""
+        inner = env.unwrapped
+        if not isinstance(inner, LabyrinthEnv):
+            raise TypeError(f"env must be a LabyrinthEnv (possibly wrapped), got {type(inner).__name__}")
+        return cls(
+            inner.board,
+            config,
+            rng=rng,
+            action_type=inner.action_type,
+            control_hz=inner.control_hz,
+            max_tilt_rate_deg=math.degrees(inner.max_tilt_rate),
+            progress_scale=inner.progress_scale,
+            goal_bonus=inner.goal_bonus,
+        )
+
+    # ------------------------------------------------------------------ sampling
+    def sample_sequences(self) -> np.ndarray:
+        """(K, H, 2) continuous rate fractions or (K, H) discrete actions, per the sampling scheme."""
+        c = self.config
+        k, h = c.n_samples, c.horizon
+        if c.sampling == "uniform":
+            if self.action_type == "discrete":
+                return self.rng.integers(5, size=(k, h))
+            return self.rng.uniform(-1.0, 1.0, size=(k, h, 2))
+        n_runs = -(-h // c.hold_min)
+        lengths = self.rng.integers(c.hold_min, c.hold_max + 1, size=(k, n_runs))
+        run = np.minimum((np.cumsum(lengths, axis=1)[:, :, None] <= np.arange(h)).sum(axis=1), n_runs - 1)
+        if self.action_type == "discrete":
+            return np.take_along_axis(self.rng.integers(5, size=(k, n_runs)), run, axis=1)
+        values = self.levels[self.rng.integers(len(self.levels), size=(k, n_runs, 2))]
+        return np.take_along_axis(values, run[:, :, None], axis=1)
+
+    def tilt_deltas(self, sequences: np.ndarray) -> np.ndarray:
+        """(K, H, 2) tilt changes (rad) of sampled sequences, as the env turns its actions into sim steps."""
+        if self.action_type == "discrete":
+            return DISCRETE_TILTS[sequences] * self.tilt_step
+        return sequences * self.tilt_step
+
+    # ------------------------------------------------------------------ scoring
+    def score(self, states: np.ndarray, segment: int, progress: float) -> np.ndarray:
+        """Score (reward units) of each of K rolled-out sequences, (K, H, state_size), starting from
+        path ``segment`` and ``progress`` (m): see the module docstring."""
+        c = self.config
+        k, h = states.shape[:2]
+        positions, _ = self.sim.layout.board_frame(states)
+        xy = positions[..., 0, :2]  # (K, H, 2)
+        radius = self.board.hole_radius + c.hole_margin
+        if len(self._holes):
+            d2 = ((xy[:, :, None, :] - self._holes) ** 2).sum(axis=-1)
+            hole = np.any(d2 <= radius**2, axis=-1)
+        else:
+            hole = np.zeros((k, h), dtype=bool)
+        goal_close = self.board.reached_goal(xy)
+        last = self.path.n_segments - 1
+        path = self._local_path(xy)
+        seg = np.full(k, segment, dtype=np.intp)
+        prog = np.full(k, progress, dtype=np.float64)
+        alive = np.ones(k, dtype=bool)
+        score = np.zeros(k)
+        segments = np.empty((k, h), dtype=np.intp)  # the segment of each state (frozen after an end)
+        for t in range(h):
+            new_seg, new_prog, off = path.advance(xy[:, t], seg, prog)
+            earliness = 1.0 + (h - t) / h
+            fell, left = alive & hole[:, t], alive & ~hole[:, t] & off
+            score -= earliness * (c.hole_penalty * fell + c.off_path_penalty * left)
+            moving = alive & ~fell & ~left
+            seg, prog = np.where(moving, new_seg, seg), np.where(moving, new_prog, prog)
+            reached = moving & (seg == last) & goal_close[:, t]
+            score += earliness * self.goal_bonus * reached
+            alive = moving & ~reached
+            segments[:, t] = seg
+        if c.path_weight:
+            # States after a sequence's end count at its last segment (a constant of that sequence's
+            # fate, already scored): the mean then weighs every sequence over the same H states.
+            _, distance = path.project(xy, segments)
+            score -= c.path_weight * distance.mean(axis=1)
+        return score + self.progress_scale * (prog - progress)
+
+    def _local_path(self, xy: np.ndarray) -> WaypointPath:
+        """The board's path with only the walls that can block a line of sight from these positions:
+        those meeting the positions' bounding box grown by the path tolerance. Exact: a segment in
+        sight has its foot point within the tolerance of the marble, so the line of sight lies in that
+        box, and a wall outside it cannot cross it. It makes the scoring ≈ 3× cheaper on the hard board."""
+        grow = self.path.tolerance
+        lo, hi = xy.reshape(-1, 2).min(axis=0) - grow, xy.reshape(-1, 2).max(axis=0) + grow
+        walls = self.path.walls
+        near = (walls[:, 2] >= lo[0]) & (walls[:, 0] <= hi[0]) & (walls[:, 3] >= lo[1]) & (walls[:, 1] <= hi[1])
+        local = WaypointPath.__new__(WaypointPath)
+        local.__dict__.update(self.path.__dict__)
+        local.walls = walls[near]
+        return local
+
+    # ------------------------------------------------------------------ acting
+    def reset(self) -> None:
+        """Forget the last plan and the followed segment (a new episode)."""
+        self._tracking, self._best = False, None
+
+    def _segment_of(self, state: np.ndarray, segment: int | None) -> tuple[int, float]:
+        """The path segment and progress (m) of ``state``'s marble: on ``segment`` if given, else the
+        expert's own tracker following consecutive states (the nearest segment in sight at first)."""
+        positions, _ = self.sim.layout.board_frame(state)
+        x, y = float(positions[0, 0]), float(positions[0, 1])
+        if segment is not None:
+            if not (is_integer(segment) and 0 <= segment < self.path.n_segments):
+                raise ValueError(f"segment must be an integer in 0..{self.path.n_segments - 1}, got {segment!r}")
+            arc, _ = self.path.project(np.array([x, y]), np.array(segment))
+            self._tracker.segment, self._tracker.progress = int(segment), float(arc)
+            self._tracking = True
+        elif self._tracking:
+            self._tracker.update((x, y))
+        else:
+            self._tracker.reset((x, y))
+            self._tracking = True
+        return self._tracker.segment, self._tracker.progress
+
+    def plan(self, state: np.ndarray, segment: int | None = None) -> tuple[Any, dict[str, Any]]:
+        """Best first action from physics ``state`` (on path ``segment``; None: followed by the
+        expert) and what the planner saw: ``scores`` (K,), the best ``sequence``."""
+        state = np.asarray(state, dtype=np.float64)
+        if state.shape != (self.sim.state_size,):
+            raise ValueError(
+                f"state must have shape ({self.sim.state_size},) (LabyrinthSim.get_state), got {state.shape}"
+            )
+        seg, progress = self._segment_of(state, segment)
+        sequences = self.sample_sequences()
+        if self.config.keep_best and self._best is not None:
+            sequences[0] = np.concatenate([self._best[1:], self._best[-1:]])
+        states = self.sim.rollout(state, self.tilt_deltas(sequences), nthread=self.config.nthread)
+        scores = self.score(states, seg, progress)
+        best = int(np.argmax(scores))
+        self._best = sequences[best].copy()
+        first = sequences[best, 0]
+        action = int(first) if self.action_type == "discrete" else np.asarray(first, dtype=np.float32)
+        return action, {"scores": scores, "sequence": sequences[best], "segment": seg, "progress": progress}
+
+    def act(self, state: np.ndarray, segment: int | None = None) -> Any:
+        """The expert's action for a physics state (see :meth:`plan`)."""
+        return self.plan(state, segment)[0]
+
+    def close(self) -> None:
+        self.sim.close()
+
+
+def run_labyrinth_expert_episode(
+    env: Any, expert: LabyrinthMPC, *, seed: int | None = None, max_steps: int | None = None
+) -> dict[str, Any]:
+    """One episode of ``expert`` on ``env`` (a :class:`LabyrinthEnv`, possibly wrapped) from
+    ``env.reset(seed=seed)``, stopped after ``max_steps`` (None: when the env truncates, or
+    CyberRunner's 3000 steps at 55 Hz without a TimeLimit).
+
+    Returns ``success`` (goal reached), ``failure`` ("hole", "off_path", "time" or None), ``steps``,
+    ``time_s`` (steps / control rate: the completion time when successful), ``progress`` (m along
+    the path), ``progress_fraction`` and ``return`` (summed env reward)."""
+    inner = env.unwrapped
+    if max_steps is None:
+        max_steps = env.spec.max_episode_steps if getattr(env, "spec", None) and env.spec.max_episode_steps else 3000
+    _, info = env.reset(seed=seed)
+    expert.reset()
+    total, steps, terminated, truncated = 0.0, 0, False, False
+    while steps < max_steps and not (terminated or truncated):
+        action = expert.act(inner.sim.get_state(), info["segment"])
+        _, reward, terminated, truncated, info = env.step(action)
+        total += reward
+        steps += 1
+    success = bool(info["is_success"])
+    failure = None
+    if not success:
+        failure = "hole" if info["over_hole"] else "off_path" if info["off_path"] else "time"
+    return {
+        "success": success,
+        "failure": failure,
+        "steps": steps,
+        "time_s": steps / inner.control_hz,
+        "progress": float(info["progress"]),
+        "progress_fraction": float(info["progress_fraction"]),
+        "return": total,
+    }

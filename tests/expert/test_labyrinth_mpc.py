@@ -1,0 +1,136 @@
+"""Tests of the labyrinth's MPC expert (bimgame.expert.labyrinth_mpc): the score ranks a sequence
+into a hole below one that stays clear, sampling and actions in the env's spaces, the expert
+outprogresses a random policy on the easy board within 150 steps, and bad settings name the field.
+Small K, H and step budgets keep the file within about 20 s on a loaded machine."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from bimgame.envs.labyrinth_env import LabyrinthEnv
+from bimgame.expert.labyrinth_mpc import LabyrinthMPC, LabyrinthMPCConfig, run_labyrinth_expert_episode
+from bimgame.sim.labyrinth import LabyrinthSpec
+
+
+def _near_hole(spec: LabyrinthSpec) -> tuple[np.ndarray, np.ndarray, int]:
+    """A point on the path 12–20 mm from a hole's centre (marble clear of walls), that hole and the
+    point's segment."""
+    path = spec.path
+    for s in np.arange(0.0, path.length, 0.002):
+        k = min(int(np.searchsorted(path.cumulative, s, side="right")) - 1, path.n_segments - 1)
+        p = path.starts[k] + (s - path.cumulative[k]) / path.lengths[k] * path.vectors[k]
+        for hole in np.asarray(spec.holes):
+            if 0.012 < np.linalg.norm(p - hole) < 0.020 and spec.clearance(p) > spec.marble_radius + 0.001:
+                return p, hole, k
+    raise AssertionError("no path point near a hole")
+
+
+def test_score_ranks_a_sequence_into_a_hole_below_one_that_stays_clear():
+    spec = LabyrinthSpec.layout("easy")
+    config = LabyrinthMPCConfig(n_samples=2, horizon=40)
+    expert = LabyrinthMPC(spec, config, rng=np.random.default_rng(0))
+    xy, hole, segment = _near_hole(spec)
+    expert.sim.reset(xy)
+    state = expert.sim.get_state()
+    direction = (hole - xy) / np.linalg.norm(hole - xy)
+    into = np.tile([-direction[1], direction[0]], (40, 1))  # tilt so that gravity pulls towards the hole
+    still = np.zeros((40, 2))
+    states = expert.sim.rollout(state, expert.tilt_deltas(np.stack([into, still])))
+    positions, _ = expert.sim.layout.board_frame(states)
+    assert spec.over_hole(positions[0, :, 0, :2]).any()  # constructed right: one falls in
+    assert not spec.over_hole(positions[1, :, 0, :2]).any()  # the other does not
+    progress = float(spec.path.project(xy, np.array(segment))[0])
+    scores = expert.score(states, segment, progress)
+    assert scores[0] < scores[1] - config.hole_penalty / 2
+
+
+@pytest.mark.parametrize("action_type", ["continuous", "discrete"])
+@pytest.mark.parametrize("sampling", ["hold", "uniform"])
+def test_actions_are_in_the_envs_action_space(action_type, sampling):
+    env = LabyrinthEnv("easy", action_type=action_type)
+    config = LabyrinthMPCConfig(n_samples=4, horizon=6, hold_min=2, hold_max=3, sampling=sampling)
+    expert = LabyrinthMPC.for_env(env, config, rng=np.random.default_rng(1))
+    sequences = expert.sample_sequences()
+    assert sequences.shape[:2] == (4, 6)
+    _, info = env.reset(seed=0)
+    for _ in range(3):
+        action = expert.act(env.unwrapped.sim.get_state(), info["segment"])
+        assert env.action_space.contains(action)
+        _, _, _, _, info = env.step(action)
+    assert expert.act(env.unwrapped.sim.get_state()) in env.action_space  # the segment followed by the expert
+
+
+def test_hold_sampling_uses_the_rate_levels_in_runs():
+    expert = LabyrinthMPC(
+        LabyrinthSpec.layout("easy"),
+        LabyrinthMPCConfig(n_samples=50, horizon=12, hold_min=4, hold_max=4, rate_levels=3),
+        rng=np.random.default_rng(2),
+    )
+    sequences = expert.sample_sequences()
+    assert set(np.unique(sequences)) <= {-1.0, 0.0, 1.0}
+    np.testing.assert_array_equal(sequences[:, 0], sequences[:, 3])  # one run of 4 steps
+    assert np.any(sequences[:, 3] != sequences[:, 4])
+
+
+def test_same_seed_same_actions():
+    env = LabyrinthEnv("easy")
+    config = LabyrinthMPCConfig(n_samples=6, horizon=8)
+    state = (env.reset(seed=3), env.unwrapped.sim.get_state())[1]
+    actions = [LabyrinthMPC.for_env(env, config, rng=np.random.default_rng(4)).act(state, 0) for _ in range(2)]
+    np.testing.assert_array_equal(actions[0], actions[1])
+
+
+def test_expert_outprogresses_a_random_policy_on_the_easy_board():
+    """100 steps (1.8 s) each from the same start: the expert (K=8, H=20) gets well along the path;
+    uniformly random tilt rates barely leave the start, or fall."""
+    env = LabyrinthEnv("easy")
+    expert = LabyrinthMPC.for_env(env, LabyrinthMPCConfig(n_samples=8, horizon=20), rng=np.random.default_rng(0))
+    result = run_labyrinth_expert_episode(env, expert, seed=0, max_steps=100)
+    assert result["failure"] in (None, "time") and result["steps"] == 100
+    rng = np.random.default_rng(0)
+    _, info = env.reset(seed=0)
+    start = info["progress"]
+    for _ in range(100):
+        _, _, terminated, _, info = env.step(rng.uniform(-1.0, 1.0, 2).astype(np.float32))
+        if terminated:
+            break
+    random_progress = info["progress"] - start
+    assert result["progress"] - start > random_progress + 0.15, (result, random_progress)
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "allowed"),
+    [
+        ("n_samples", 0, "positive integer"),
+        ("horizon", 2.5, "positive integer"),
+        ("sampling", "gauss", "hold, uniform"),
+        ("hold_max", 1, "hold_min"),
+        ("rate_levels", 1, ">= 2"),
+        ("keep_best", "yes", "True or False"),
+        ("hole_penalty", -1.0, ">= 0"),
+        ("hole_margin", math.nan, ">= 0"),
+        ("off_path_penalty", math.inf, ">= 0"),
+        ("path_weight", -0.5, ">= 0"),
+        ("nthread", 0, "positive integer"),
+    ],
+)
+def test_bad_settings_raise_value_error_naming_the_field(field, value, allowed):
+    with pytest.raises(ValueError, match=rf"LabyrinthMPCConfig\.{field}.*{allowed}"):
+        LabyrinthMPCConfig(**{field: value})
+
+
+def test_bad_arguments():
+    spec = LabyrinthSpec.layout("easy")
+    with pytest.raises(TypeError, match="rng"):
+        LabyrinthMPC(spec, rng=0)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="action_type"):
+        LabyrinthMPC(spec, rng=np.random.default_rng(0), action_type="analog")
+    expert = LabyrinthMPC(spec, LabyrinthMPCConfig(n_samples=2, horizon=2), rng=np.random.default_rng(0))
+    with pytest.raises(ValueError, match="state"):
+        expert.act(np.zeros(3))
+    expert.sim.reset(spec.start)
+    with pytest.raises(ValueError, match="segment"):
+        expert.act(expert.sim.get_state(), segment=10_000)
