@@ -21,7 +21,7 @@ Episodes run on ``--workers`` spawned processes (default 2), each single-threade
 what it measured (its row says ``complete: false``).
 
 Usage: ``python benchmarks/bench_expert_labyrinth.py [--layouts easy medium hard] [--episodes 20]
-[-K 32 -H 30 --sampling hold --hold-min 5 --hold-max 15 --rate-levels 5 --hole-margin 0 --path-weight 5]
+[-K 16 -H 30 --sampling hold --hold-min 5 --hold-max 15 --rate-levels 5 --hole-margin 0 --path-weight 5]
 [--action-type continuous] [--workers 2] [--seed 0] [--no-progress]``.
 """
 
