@@ -161,9 +161,10 @@ def save(path: Path, key: str, row: dict[str, Any]) -> None:
     """Merge ``row`` under ``key`` into the results file (others' rows kept), under a lock file so
     that several runs (a sweep's settings side by side) can share one results file."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path.with_suffix(".lock"), "w") as lock:
+    with open(path, "a+") as lock:  # the results file itself is the lock (created empty if new)
         fcntl.flock(lock, fcntl.LOCK_EX)
-        data = json.loads(path.read_text()) if path.exists() else {}
+        text = path.read_text()
+        data = json.loads(text) if text.strip() else {}
         data.setdefault("references", {"cyberrunner_hard_s": CYBERRUNNER_RECORD_S, "human_hard_s": HUMAN_RECORD_S})
         data.setdefault("rows", {})[key] = row
         path.write_text(json.dumps(data, indent=1) + "\n")
