@@ -1,4 +1,4 @@
-"""The MPC expert on CyberRunner's labyrinth (issue 26): success and completion time per layout.
+"""The MPC expert on CyberRunner's labyrinth: success and completion time per layout.
 
 Runs :class:`~bimgame.expert.labyrinth_mpc.LabyrinthMPC` (the default
 :class:`~bimgame.expert.labyrinth_mpc.LabyrinthMPCConfig` unless flags change it) on

@@ -123,7 +123,7 @@ def test_rim_holds_the_marble_in_a_corner_at_max_tilt(hard):
 def test_marble_stays_in_the_corridors_under_moderate_random_tilting(hard):
     """Random tilt changes of up to 0.5° per action (27°/s at 55 Hz) in the hard layout: the marble
     never sinks more than 2.5 mm into a wall or the rim, and never leaves the floor by more than
-    2 mm (faster tilting can throw it over walls: see the phase-2 notes)."""
+    2 mm (faster tilting can throw it over walls: see LabyrinthEnv's tilt-rate cap)."""
     rng = np.random.default_rng(1)
     sim = LabyrinthSim(hard, control_hz=55.0)
     sim.reset(hard.start)

@@ -1,4 +1,4 @@
-"""Random-shooting MPC on CyberRunner's labyrinth (issue 26), with the simulator as its model.
+"""Random-shooting MPC on CyberRunner's labyrinth, with the simulator as its model.
 
 At every step, from the true physics state, the expert samples K sequences of H actions, rolls all
 of them out with :meth:`~bimgame.sim.labyrinth_physics.LabyrinthSim.rollout` (``mujoco.rollout``),

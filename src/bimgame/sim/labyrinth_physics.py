@@ -24,7 +24,8 @@ at 150 Hz for 30 Hz actions, 3 substeps at 165 Hz for 55 Hz.
 Tilt rate. The board's floor moves at (tilt rate × distance from the pivot), so fast tilting throws
 the marble: random changes of up to 2° per 55 Hz action (110°/s) raised its bottom up to 18 mm off
 the floor, above the 15 mm walls, while 0.5° per action (27°/s) kept it within 1.4 mm. The real motors' rate
-limit is not published as an angle rate; an env should bound the tilt rate (phase 2).
+limit is not published as an angle rate; an env should bound the tilt rate
+(:class:`~bimgame.envs.labyrinth_env.LabyrinthEnv` caps it at 30°/s).
 
 Determinism. The solver's warm start is cleared at the start of every action step, so a step is a
 pure function of the physics state ``(time, qpos, qvel, act)`` (:meth:`LabyrinthSim.get_state`):
