@@ -180,7 +180,7 @@ def test_a_config_json_of_the_flat_version_loads_into_the_expected_parts():
     added = {"action_type": "discrete"}
     settings_added = {**added, "maze_encoding": False, "num_mazes": None, "start_maze": 0}
     assert config.to_dict() == {**stored["a3c"], **settings_added}
-    assert json.loads(json.dumps(network_for(config).config.to_dict())) == {**stored["net"], **added}
+    assert json.loads(json.dumps(network_for(config).config.to_dict())) == {**stored["net"], **added, "maze_size": 0}
 
 
 # ------------------------------------------------------------------------------ each part's checks
