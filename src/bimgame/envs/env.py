@@ -14,6 +14,7 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
+from bimgame.envs.actions import ACTION_TYPES, DISCRETE_TILTS, action_to_tilt_delta
 from bimgame.envs.mazes import EnvMazes, maze_encoding
 from bimgame.envs.observe import OBS_MODES, Observer
 from bimgame.envs.randomization import EpisodeRandomizer, Randomization, observation_space
@@ -26,42 +27,14 @@ from bimgame.util.settings import is_integer, is_real
 
 __all__ = ["BallInMazeEnv", "ACTION_TYPES", "DISCRETE_TILTS", "NO_ACTION", "sample_start", "action_to_tilt_delta"]
 
-ACTION_TYPES = ("discrete", "continuous")
-
-
-#: Discrete actions as (sign about x, sign about y) of one tilt step.
-DISCRETE_TILTS = np.array([[0, 0], [1, 0], [-1, 0], [0, 1], [0, -1]], dtype=np.float64)
-ACTION_MEANINGS = ("noop", "tilt +x", "tilt -x", "tilt +y", "tilt -y")
 #: The "previous action" before an episode's first step (not a valid action): what the networks'
 #: previous-action input and the datasets' ``prev_actions`` hold at step 0.
 NO_ACTION = -1
 #: The keys ``reset(options=...)`` takes, for error messages.
 RESET_OPTIONS = "'marble_xy', 'sim_state', 'maze' (with num_mazes)"
-#: What the discrete actions mean, for error messages.
-ACTIONS_HELP = ", ".join(f"{i}={m}" for i, m in enumerate(ACTION_MEANINGS))
 _FAST_INTS = (int, np.int64, np.int32)
 #: Largest ``render_size``: the raster draws up to this size; MuJoCo's offscreen buffer is 640 pixels.
 MAX_RENDER_SIZE = {"raster": 2048, "mujoco": 640}
-
-
-def action_to_tilt_delta(action: Any, action_type: str, tilt_step: float) -> np.ndarray:
-    """Tilt change (rad, shape (2,)) commanded by one action; raises ``ValueError`` on bad input."""
-    if action_type == "discrete":
-        try:
-            index = int(action)
-            ok = index == action and 0 <= index < 5 and not isinstance(action, (bool, np.bool_))
-        except (TypeError, ValueError, OverflowError):
-            ok = False
-        if not ok:
-            raise ValueError(f"invalid action {action!r}: discrete actions are integers 0..4 ({ACTIONS_HELP})")
-        return DISCRETE_TILTS[index] * tilt_step
-    array = np.asarray(action, dtype=np.float64)
-    if array.shape != (2,) or not np.all(np.isfinite(array)) or np.any(np.abs(array) > 1.0):
-        raise ValueError(
-            f"invalid action {action!r}: continuous actions are 2 finite numbers in "
-            "[-1, 1] (tilt change about x and y, in units of the tilt step)"
-        )
-    return array * tilt_step
 
 
 class BallInMazeEnv(gym.Env):

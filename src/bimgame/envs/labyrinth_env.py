@@ -18,6 +18,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from bimgame.envs.actions import action_to_tilt_delta
 from bimgame.sim.labyrinth import LabyrinthSpec, PathStep, WaypointPath
 from bimgame.sim.labyrinth_layouts import LAYOUT_NAMES
 from bimgame.sim.labyrinth_physics import LabyrinthSim
@@ -56,9 +57,6 @@ PATH_SPACING = 60 * 0.0002
 CYBERRUNNER_TILT_NORM = math.radians(10.0)
 #: CyberRunner's marble-centred crop: 64 × 64 pixels at 1 mm per pixel (``measurements.py``).
 CROP_SIZE, CROP_PIXEL = 64, 1e-3
-#: Discrete actions as (sign about x, sign about y) of one tilt-rate step.
-DISCRETE_TILTS = np.array([[0, 0], [1, 0], [-1, 0], [0, 1], [0, -1]], dtype=np.float64)
-ACTIONS_HELP = "0=noop, 1=tilt +x, 2=tilt -x, 3=tilt +y, 4=tilt -y"
 
 
 def labyrinth_max_episode_steps(control_hz: float) -> int:
@@ -246,7 +244,6 @@ class LabyrinthEnv(gym.Env):
         self.tracker = ScalarPathProgress(board)  # PathProgress's rule, scalar: the per-step fast path
         #: Tilt change (rad) of one full-rate action.
         self.tilt_step = self.max_tilt_rate / self.control_hz
-        self._discrete_deltas = [DISCRETE_TILTS[i] * self.tilt_step for i in range(5)]
         if action_type == "discrete":
             self.action_space: spaces.Space = spaces.Discrete(5)
         else:
@@ -324,7 +321,7 @@ class LabyrinthEnv(gym.Env):
                 raise RuntimeError("call reset() before step()")
             raise RuntimeError("the episode has ended (terminated); call reset() before step()")
         sim = self.sim
-        sim.step(self._tilt_delta(action))
+        sim.step(action_to_tilt_delta(action, self.action_type, self.tilt_step))
         self._kinematics = sim.layout.board_frame_one(sim.data.qpos, sim.data.qvel)[0]
         step = self._last = self.tracker.update(self._kinematics[:2])
         failed = step.over_hole or (self.end_off_path and step.off_path)
@@ -349,28 +346,6 @@ class LabyrinthEnv(gym.Env):
         self.sim.close()
 
     # ------------------------------------------------------------------ helpers
-    def _tilt_delta(self, action: Any) -> np.ndarray:
-        """Tilt change (rad, (2,)) of one action; ``ValueError`` naming what is allowed otherwise."""
-        if self.action_type == "discrete":
-            try:
-                index = int(action)
-                ok = index == action and 0 <= index < 5 and not isinstance(action, (bool, np.bool_))
-            except (TypeError, ValueError, OverflowError):
-                ok = False
-            if not ok:
-                raise ValueError(f"invalid action {action!r}: discrete actions are integers 0..4 ({ACTIONS_HELP})")
-            return self._discrete_deltas[index]
-        try:
-            array = np.asarray(action, dtype=np.float64)
-        except (TypeError, ValueError):
-            array = np.full(0, np.nan)
-        if array.shape != (2,) or not np.all(np.isfinite(array)) or np.any(np.abs(array) > 1.0):
-            raise ValueError(
-                f"invalid action {action!r}: continuous actions are 2 finite numbers in [-1, 1] "
-                "(tilt rate about x and y as a fraction of max_tilt_rate_deg)"
-            )
-        return array * self.tilt_step
-
     def _observe(self) -> Any:
         x, y, vx, vy = self._kinematics
         if self.obs_mode == "pixels":

@@ -46,7 +46,8 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
-from bimgame.envs.env import ACTIONS_HELP, DISCRETE_TILTS, BallInMazeEnv
+from bimgame.envs.actions import ACTIONS_HELP, DISCRETE_TILTS
+from bimgame.envs.env import BallInMazeEnv
 from bimgame.envs.mazes import EnvMazes, maze_encoding, maze_raster
 from bimgame.envs.observe import Observer
 from bimgame.envs.randomization import EpisodeRandomizer

@@ -54,7 +54,8 @@ from typing import Any
 
 import numpy as np
 
-from bimgame.envs.labyrinth_env import DISCRETE_TILTS, LABYRINTH_ACTION_TYPES, LabyrinthEnv
+from bimgame.envs.actions import DISCRETE_TILTS
+from bimgame.envs.labyrinth_env import LABYRINTH_ACTION_TYPES, LabyrinthEnv
 from bimgame.sim.labyrinth import LabyrinthSpec, WaypointPath
 from bimgame.sim.labyrinth_physics import LabyrinthSim
 from bimgame.sim.labyrinth_tracker import ScalarPathProgress

@@ -10,7 +10,7 @@ import math
 import mujoco
 import numpy as np
 
-__all__ = ["StateLayout", "STATE_SPEC"]
+__all__ = ["StateLayout", "STATE_SPEC", "read_state", "write_state"]
 
 STATE_SPEC = mujoco.mjtState.mjSTATE_FULLPHYSICS
 
@@ -93,3 +93,24 @@ def _to_board(x, y, z, ca, sa, cb, sb) -> np.ndarray:
     xb = cb * x - sb * z1
     zb = sb * x + cb * z1
     return np.stack([xb, y1, zb], axis=-1)
+
+
+def read_state(model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:
+    """The full physics state (time, qpos, qvel, act) of ``data`` as a float64 vector: what the
+    simulators' ``get_state`` returns."""
+    state = np.empty(mujoco.mj_stateSize(model, STATE_SPEC))
+    mujoco.mj_getState(model, data, state, STATE_SPEC)
+    return state
+
+
+def write_state(model: mujoco.MjModel, data: mujoco.MjData, state: np.ndarray, source: str) -> None:
+    """Restore a state from :func:`read_state` (``source`` names where such states come from, for the
+    error) and recompute what follows from it; stepping from it is bit-for-bit reproducible."""
+    size = mujoco.mj_stateSize(model, STATE_SPEC)
+    state = np.asarray(state, dtype=np.float64)
+    if state.shape != (size,) or not np.all(np.isfinite(state)):
+        raise ValueError(
+            f"state must be a finite float vector of length {size} (from {source}), got shape {state.shape}"
+        )
+    mujoco.mj_setState(model, data, state, STATE_SPEC)
+    mujoco.mj_forward(model, data)

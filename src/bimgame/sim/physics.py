@@ -42,7 +42,7 @@ import mujoco
 import numpy as np
 from mujoco import rollout as mj_rollout
 
-from bimgame.sim.layout import STATE_SPEC, StateLayout
+from bimgame.sim.layout import StateLayout, read_state, write_state
 from bimgame.sim.maze import Friction, MazeSpec
 from bimgame.sim.mjcf import PARKED_HALF_SIZE, PARKED_Z, PHYSICS_HZ, build_mjcf, contact_condim, slotted_boxes
 from bimgame.sim.placement import finite_array
@@ -143,20 +143,11 @@ class MazeSim:
 
     def get_state(self) -> np.ndarray:
         """The full physics state (time, qpos, qvel, act) as a float64 vector."""
-        state = np.empty(self.layout.size)
-        mujoco.mj_getState(self.model, self.data, state, STATE_SPEC)
-        return state
+        return read_state(self.model, self.data)
 
     def set_state(self, state: np.ndarray) -> None:
         """Restore a state from :meth:`get_state`; stepping from it is bit-for-bit reproducible."""
-        state = np.asarray(state, dtype=np.float64)
-        if state.shape != (self.layout.size,) or not np.all(np.isfinite(state)):
-            raise ValueError(
-                f"state must be a finite float vector of length {self.layout.size} "
-                f"(from MazeSim.get_state), got shape {state.shape}"
-            )
-        mujoco.mj_setState(self.model, self.data, state, STATE_SPEC)
-        mujoco.mj_forward(self.model, self.data)
+        write_state(self.model, self.data, state, "MazeSim.get_state")
 
     def reset(self, marble_xy: np.ndarray, tilt: Sequence[float] = (0.0, 0.0)) -> None:
         """Put marbles at rest at board-frame positions ``marble_xy`` (n, 2) — not checked against the
