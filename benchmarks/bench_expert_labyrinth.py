@@ -32,11 +32,8 @@ import dataclasses
 import fcntl
 import json
 import math
-import multiprocessing
 import os
 import time
-from collections.abc import Iterator
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
 from typing import Any
 
@@ -45,9 +42,9 @@ import numpy as np
 from bimgame.envs.labyrinth_env import LabyrinthEnv
 from bimgame.expert.labyrinth_mpc import LabyrinthMPC, LabyrinthMPCConfig, run_labyrinth_expert_episode
 from bimgame.sim.labyrinth_layouts import LAYOUT_NAMES
+from bimgame.util.processes import results_as_they_finish
 
 RESULTS = Path(__file__).parent / "results" / "expert_labyrinth.json"
-THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMEXPR_NUM_THREADS")
 #: CyberRunner's time on the hard layout and the human record it beat (s; Bi & D'Andrea 2023).
 CYBERRUNNER_RECORD_S, HUMAN_RECORD_S = 14.48, 15.41
 
@@ -67,11 +64,6 @@ def episode_seed(run_seed: int, layout: str, episode: int) -> int:
     return int(np.random.SeedSequence(words).generate_state(1, dtype=np.uint32)[0])
 
 
-def _worker_started() -> None:
-    for name in THREAD_VARS:
-        os.environ[name] = "1"
-
-
 def run_job(job: Job) -> dict[str, Any]:
     """One expert episode and its wall-clock cost."""
     start = time.perf_counter()
@@ -88,28 +80,6 @@ def run_job(job: Job) -> dict[str, Any]:
         "wall_s": round(seconds, 1),
         "ms_per_decision": round(1e3 * seconds / max(result["steps"], 1), 1),
     }
-
-
-def run_jobs(jobs: list[Job], workers: int) -> Iterator[dict[str, Any]]:
-    """Results of ``jobs`` as they finish, on ``workers`` spawned single-threaded processes."""
-    if workers == 1:
-        _worker_started()
-        for job in jobs:
-            yield run_job(job)
-        return
-    os.environ.update({name: "1" for name in THREAD_VARS})  # inherited by the spawned workers
-    context = multiprocessing.get_context("spawn")
-    pool = ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=context, initializer=_worker_started)
-    try:
-        pending = {pool.submit(run_job, job) for job in jobs}
-        while pending:
-            finished, pending = wait(pending, return_when=FIRST_COMPLETED)
-            for future in finished:
-                yield future.result()
-    except BaseException:
-        pool.shutdown(wait=False, cancel_futures=True)
-        raise
-    pool.shutdown(wait=True)
 
 
 def wilson_interval(successes: int, n: int, z: float = 1.959964) -> tuple[float, float]:
@@ -219,7 +189,7 @@ def main(argv: list[str] | None = None) -> None:
     with ProgressBar(
         f"labyrinth expert, {', '.join(args.layouts)}", len(jobs), enabled=not args.no_progress, eta=True
     ) as bar:
-        for record in run_jobs(jobs, args.workers):
+        for record in results_as_they_finish(run_job, jobs, args.workers):
             layout = record["layout"]
             records[layout].append(record)
             loads.append(os.getloadavg()[0])

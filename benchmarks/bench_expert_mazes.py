@@ -38,12 +38,8 @@ import argparse
 import dataclasses
 import json
 import math
-import multiprocessing
-import os
 import sys
 import time
-from collections.abc import Iterator
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
 from typing import Any
 
@@ -53,10 +49,10 @@ from bimgame.expert.mpc import MPCConfig, run_expert_episode
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.maze_sets import maze_number
 from bimgame.sim.tasks import Task, parse_task
+from bimgame.util.processes import results_as_they_finish
 
 RESULTS = Path(__file__).parent / "results" / "expert_mazes.json"
 TASKS = ("STG1", "STG2", "STG3", "STG4", "FULL")
-THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMEXPR_NUM_THREADS")
 #: Maze sources: held-out random test mazes, or MERL's maze (``maze=None``).
 SOURCES = ("test", "merl")
 
@@ -89,16 +85,6 @@ def gates_deg(spec: MazeSpec | None) -> list[list[tuple[float, float]]]:
     return [
         [(round(math.degrees(g.angle), 1), round(math.degrees(g.width), 1)) for g in wall.gates] for wall in spec.walls
     ]
-
-
-def _worker_started() -> None:
-    """One thread per worker: numerics libraries (the environment variables set before the spawn
-    cover them) and torch, if anything imported it."""
-    for name in THREAD_VARS:
-        os.environ[name] = "1"
-    torch = sys.modules.get("torch")
-    if torch is not None:
-        torch.set_num_threads(1)
 
 
 def run_job(job: Job) -> dict[str, Any]:
@@ -160,35 +146,6 @@ def derived(record: dict[str, Any], task: str, limit: int) -> dict[str, Any]:
         "final_angle_deg": record["final_angle_deg"] if length == record["length"] else None,
         "seconds": seconds,
     }
-
-
-def run_jobs(jobs: list[Job], workers: int) -> Iterator[dict[str, Any]]:
-    """Results of ``jobs`` as they finish, on ``workers`` spawned single-threaded processes."""
-    if workers == 1:
-        _worker_started()
-        for job in jobs:
-            yield run_job(job)
-        return
-    saved = {name: os.environ.get(name) for name in THREAD_VARS}
-    os.environ.update({name: "1" for name in THREAD_VARS})  # inherited by the spawned workers
-    context = multiprocessing.get_context("spawn")
-    pool = ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=context, initializer=_worker_started)
-    try:
-        pending = {pool.submit(run_job, job) for job in jobs}
-        while pending:
-            finished, pending = wait(pending, return_when=FIRST_COMPLETED)
-            for future in finished:
-                yield future.result()
-    except BaseException:
-        pool.shutdown(wait=False, cancel_futures=True)
-        raise
-    finally:
-        for name, value in saved.items():
-            if value is None:
-                os.environ.pop(name, None)
-            else:
-                os.environ[name] = value
-    pool.shutdown(wait=True)
 
 
 def wilson_interval(successes: int, n: int, z: float = 1.959964) -> tuple[float, float]:
@@ -346,7 +303,7 @@ def main() -> None:
     with ProgressBar(
         f"expert, {len(indices)} mazes", len(jobs), enabled=not args.no_progress, eta=True, info="success -"
     ) as bar:
-        for record in run_jobs(jobs, args.workers):
+        for record in results_as_they_finish(run_job, jobs, args.workers):
             tasks = groups[record["task"]]
             for task in tasks:
                 done[(record["source"], task)].append(derived(record, task, limits[task]))

@@ -78,3 +78,18 @@ def test_a_multiprocessing_child_exits_when_its_parent_is_killed(tmp_path):
     finally:
         if child is not None:
             procfs.kill_left(dict([child]))
+
+
+def test_results_as_they_finish_runs_every_job_once_on_single_threaded_workers(monkeypatch):
+    """Every job's result comes back once, on spawned workers or in this process, and the caller's
+    thread variables are as they were afterwards."""
+    import math
+    import os
+
+    from bimgame.util.processes import results_as_they_finish
+
+    monkeypatch.setenv("OMP_NUM_THREADS", "7")
+    jobs = [1.0, 4.0, 9.0, 16.0]
+    assert sorted(results_as_they_finish(math.sqrt, jobs, workers=2)) == [1.0, 2.0, 3.0, 4.0]
+    assert os.environ["OMP_NUM_THREADS"] == "7"
+    assert list(results_as_they_finish(math.sqrt, jobs, workers=1)) == [1.0, 2.0, 3.0, 4.0]
