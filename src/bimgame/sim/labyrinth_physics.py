@@ -49,20 +49,18 @@ from mujoco import rollout as mj_rollout
 from bimgame.sim.labyrinth import LabyrinthSpec
 from bimgame.sim.layout import StateLayout, read_state, write_state
 from bimgame.sim.mjcf import (
-    BOARD_INERTIA,
-    BOARD_MASS,
     CONTACT_SOLIMP,
     CONTACT_SOLREF,
     FLOOR_THICKNESS,
-    GIMBAL_INERTIA,
     PHYSICS_HZ,
-    SERVO_OMEGA,
     STATIC_FRICTION_SOLIMP,
     contact_condim,
+    hinged_board_mjcf,
+    servo_mjcf,
 )
 from bimgame.sim.placement import finite_array
 
-__all__ = ["LabyrinthSim", "labyrinth_mjcf", "servo_mjcf", "substeps_for", "CONTROL_RATES"]
+__all__ = ["LabyrinthSim", "labyrinth_mjcf", "substeps_for", "CONTROL_RATES"]
 
 _CONTROL_SPEC = int(mujoco.mjtState.mjSTATE_CTRL)
 
@@ -79,24 +77,6 @@ def substeps_for(control_hz: float) -> int:
             f"control_hz must be a number in (0, {PHYSICS_HZ:g}] Hz (e.g. {CONTROL_RATES}), got {control_hz!r}"
         )
     return max(1, math.ceil(PHYSICS_HZ / control_hz - 1e-9))
-
-
-def servo_mjcf(max_tilt: float) -> str:
-    """The ``<actuator>`` block of the two hinges: per axis an integrator position servo (its
-    activation is the target tilt, limited to ``±max_tilt``) and a velocity servo, critically
-    damped at :data:`~bimgame.sim.mjcf.SERVO_OMEGA` for the board's inertia about that hinge."""
-    inertia_x = BOARD_INERTIA[0] + GIMBAL_INERTIA
-    inertia_y = BOARD_INERTIA[1]
-    lines = []
-    for axis, inertia in (("x", inertia_x), ("y", inertia_y)):
-        kp, kv = inertia * SERVO_OMEGA**2, 2 * inertia * SERVO_OMEGA
-        lines.append(
-            f'<general name="servo_{axis}" joint="tilt_{axis}" dyntype="integrator" gaintype="fixed" '
-            f'gainprm="{kp:.9g}" biastype="affine" biasprm="0 {-kp:.9g} 0" actlimited="true" '
-            f'actrange="{-max_tilt:.12g} {max_tilt:.12g}"/>'
-        )
-        lines.append(f'<velocity name="rate_{axis}" joint="tilt_{axis}" kv="{kv:.9g}"/>')
-    return "<actuator>\n    " + "\n    ".join(lines) + "\n  </actuator>"
 
 
 def _box(name: str, centre: tuple[float, float, float], half: tuple[float, float, float], cls: str) -> str:
@@ -134,8 +114,6 @@ def labyrinth_mjcf(spec: LabyrinthSpec, physics_hz: float = PHYSICS_HZ) -> str:
         f'solref="{CONTACT_SOLREF}" solimp="{CONTACT_SOLIMP}"'
     )
     pairs = [f'<pair geom1="marble" geom2="{g.split(chr(34))[1]}" {pair_attrs}/>' for g in geoms]
-    board_inertia = " ".join(str(v) for v in BOARD_INERTIA)
-    newline = "\n        "
     return f"""<mujoco model="bimgame_labyrinth_{spec.name}">
   <compiler angle="radian" autolimits="true"/>
   <option timestep="{1.0 / physics_hz:.12g}" integrator="implicitfast" cone="elliptic"/>
@@ -145,15 +123,7 @@ def labyrinth_mjcf(spec: LabyrinthSpec, physics_hz: float = PHYSICS_HZ) -> str:
   </default>
   <worldbody>
     <light pos="0 0 0.6" dir="0 0 -1" directional="true"/>
-    <body name="gimbal">
-      <joint name="tilt_x" type="hinge" axis="1 0 0"/>
-      <inertial pos="0 0 0" mass="0.001" diaginertia="{GIMBAL_INERTIA} {GIMBAL_INERTIA} {GIMBAL_INERTIA}"/>
-      <body name="board">
-        <joint name="tilt_y" type="hinge" axis="0 1 0"/>
-        <inertial pos="0 0 0" mass="{BOARD_MASS}" diaginertia="{board_inertia}"/>
-        {newline.join(geoms)}
-      </body>
-    </body>
+    {hinged_board_mjcf(geoms)}
     <body name="marble" pos="0 0 {spec.marble_radius:.9g}">
       <joint name="marble" type="free" frictionloss="{f.static:.9g}" solimpfriction="{STATIC_FRICTION_SOLIMP}"/>
       <geom name="marble" type="sphere" size="{spec.marble_radius:.9g}" mass="{spec.marble_mass:.9g}"

@@ -9,7 +9,17 @@ import math
 
 from bimgame.sim.maze import Friction, MazeSpec
 
-__all__ = ["build_mjcf", "contact_condim", "slotted_boxes", "wall_boxes", "wall_slots", "PHYSICS_HZ", "PARKED_Z"]
+__all__ = [
+    "build_mjcf",
+    "contact_condim",
+    "hinged_board_mjcf",
+    "servo_mjcf",
+    "slotted_boxes",
+    "wall_boxes",
+    "wall_slots",
+    "PHYSICS_HZ",
+    "PARKED_Z",
+]
 
 PHYSICS_HZ = 150.0
 
@@ -194,6 +204,39 @@ def contact_condim(friction: Friction) -> int:
     return 3
 
 
+def hinged_board_mjcf(board_geoms: list[str]) -> str:
+    """The ``<body>`` elements of the board on two nested hinges (``tilt_x`` about the world x axis,
+    then ``tilt_y`` about the board's y axis), carrying ``board_geoms``: what every puzzle's board is
+    mounted on (:mod:`bimgame.sim.physics` describes the model)."""
+    board_inertia = f"{BOARD_INERTIA[0]} {BOARD_INERTIA[1]} {BOARD_INERTIA[2]}"
+    geoms = "\n        ".join(board_geoms)
+    return f"""<body name="gimbal">
+      <joint name="tilt_x" type="hinge" axis="1 0 0"/>
+      <inertial pos="0 0 0" mass="0.001" diaginertia="{GIMBAL_INERTIA} {GIMBAL_INERTIA} {GIMBAL_INERTIA}"/>
+      <body name="board">
+        <joint name="tilt_y" type="hinge" axis="0 1 0"/>
+        <inertial pos="0 0 0" mass="{BOARD_MASS}" diaginertia="{board_inertia}"/>
+        {geoms}
+      </body>
+    </body>"""
+
+
+def servo_mjcf(max_tilt: float) -> str:
+    """The ``<actuator>`` block of the two hinges: per axis an integrator position servo (its
+    activation is the target tilt, limited to ``±max_tilt``) and a velocity servo with the same
+    control as feed-forward, critically damped at :data:`SERVO_OMEGA` for the inertia about that hinge."""
+    lines = []
+    for axis, inertia in (("x", BOARD_INERTIA[0] + GIMBAL_INERTIA), ("y", BOARD_INERTIA[1])):
+        kp, kv = inertia * SERVO_OMEGA**2, 2 * inertia * SERVO_OMEGA
+        lines.append(
+            f'<general name="servo_{axis}" joint="tilt_{axis}" dyntype="integrator" gaintype="fixed" '
+            f'gainprm="{kp:.9g}" biastype="affine" biasprm="0 {-kp:.9g} 0" actlimited="true" '
+            f'actrange="{-max_tilt:.12g} {max_tilt:.12g}"/>'
+        )
+        lines.append(f'<velocity name="rate_{axis}" joint="tilt_{axis}" kv="{kv:.9g}"/>')
+    return "<actuator>\n    " + "\n    ".join(lines) + "\n  </actuator>"
+
+
 def build_mjcf(
     spec: MazeSpec, n_marbles: int = 1, physics_hz: float = PHYSICS_HZ, wall_slots: tuple[int, ...] | None = None
 ) -> str:
@@ -210,10 +253,6 @@ def build_mjcf(
         raise ValueError(f"n_marbles must be an integer >= 1, got {n_marbles!r}")
     h = spec.wall_height
     f = spec.friction
-    kp_x = (BOARD_INERTIA[0] + GIMBAL_INERTIA) * SERVO_OMEGA**2
-    kp_y = BOARD_INERTIA[1] * SERVO_OMEGA**2
-    kv_x = 2 * (BOARD_INERTIA[0] + GIMBAL_INERTIA) * SERVO_OMEGA
-    kv_y = 2 * BOARD_INERTIA[1] * SERVO_OMEGA
     walls = []
     if wall_slots is None:
         arcs = [(w.inner_radius, w.outer_radius, w.solid_arcs(), f"wall{k}") for k, w in enumerate(spec.walls)]
@@ -228,6 +267,10 @@ def build_mjcf(
             for i, box in enumerate(_arc_boxes(inner, outer, a0, a1, spec.arc_tolerance)):
                 walls.append(_box_geom(f"{name}_{j}_{i}", box, h))
     half = spec.rim_radius + spec.rim_thickness
+    floor = (
+        f'<geom name="floor" type="box" size="{half:.9g} {half:.9g} {FLOOR_THICKNESS / 2:.9g}" '
+        f'pos="0 0 {-FLOOR_THICKNESS / 2:.9g}" contype="0" conaffinity="0" rgba="0.2 0.3 0.25 1"/>'
+    )
     board_geoms = ["floor"] + [w.split('"')[1] for w in walls]
     pair_attrs = (
         f'condim="{contact_condim(spec.friction)}" '
@@ -248,7 +291,6 @@ def build_mjcf(
             f'solimpfriction="{STATIC_FRICTION_SOLIMP}"/>'
             f'<geom name="marble{i}" class="marble"/></body>'
         )
-    board_inertia = f"{BOARD_INERTIA[0]} {BOARD_INERTIA[1]} {BOARD_INERTIA[2]}"
     return f"""<mujoco model="bimgame">
   <compiler angle="radian" autolimits="true"/>
   <option timestep="{1.0 / physics_hz:.12g}" integrator="implicitfast" cone="elliptic"/>
@@ -264,31 +306,12 @@ def build_mjcf(
   </default>
   <worldbody>
     <light pos="0 0 0.6" dir="0 0 -1" directional="true"/>
-    <body name="gimbal">
-      <joint name="tilt_x" type="hinge" axis="1 0 0"/>
-      <inertial pos="0 0 0" mass="0.001" diaginertia="{GIMBAL_INERTIA} {GIMBAL_INERTIA} {GIMBAL_INERTIA}"/>
-      <body name="board">
-        <joint name="tilt_y" type="hinge" axis="0 1 0"/>
-        <inertial pos="0 0 0" mass="{BOARD_MASS}" diaginertia="{board_inertia}"/>
-        <geom name="floor" type="box" size="{half:.9g} {half:.9g} {FLOOR_THICKNESS / 2:.9g}"
-              pos="0 0 {-FLOOR_THICKNESS / 2:.9g}" contype="0" conaffinity="0" rgba="0.2 0.3 0.25 1"/>
-        {chr(10).join("        " + w for w in walls)}
-      </body>
-    </body>
+    {hinged_board_mjcf([floor, *walls])}
     {"".join(marbles)}
   </worldbody>
   <contact>
     {chr(10).join("    " + p for p in pairs)}
   </contact>
-  <actuator>
-    <general name="servo_x" joint="tilt_x" dyntype="integrator" gaintype="fixed" gainprm="{kp_x:.9g}"
-             biastype="affine" biasprm="0 {-kp_x:.9g} 0" actlimited="true"
-             actrange="{-spec.max_tilt:.12g} {spec.max_tilt:.12g}"/>
-    <velocity name="rate_x" joint="tilt_x" kv="{kv_x:.9g}"/>
-    <general name="servo_y" joint="tilt_y" dyntype="integrator" gaintype="fixed" gainprm="{kp_y:.9g}"
-             biastype="affine" biasprm="0 {-kp_y:.9g} 0" actlimited="true"
-             actrange="{-spec.max_tilt:.12g} {spec.max_tilt:.12g}"/>
-    <velocity name="rate_y" joint="tilt_y" kv="{kv_y:.9g}"/>
-  </actuator>
+  {servo_mjcf(spec.max_tilt)}
 </mujoco>
 """
