@@ -5,7 +5,11 @@ test session, lazily, by the first test that asks for them."""
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import os
+from pathlib import Path
+from typing import Callable
 
 # The suite runs as two xdist workers on two cores: one intra-op thread per process, subprocesses
 # included (set before torch starts its thread pool). A second thread spins against the other
@@ -14,6 +18,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import pytest  # noqa: E402
 import torch  # noqa: E402
+from filelock import FileLock  # noqa: E402
 
 from bimgame.expert.datasets import generate_dataset  # noqa: E402
 from bimgame.learn.pretrain import PretrainResult, pretrain  # noqa: E402
@@ -36,12 +41,41 @@ def one_torch_thread():
         yield
 
 
+def _once_per_session(tmp_path_factory, name: str, build: Callable[[Path], str]) -> str:
+    """``build(directory)``'s JSON text, computed by the first xdist worker that asks and read from
+    disk by the others: each session fixture below took a minute or more per worker, and every
+    worker built its own copy. The lock and the result live in the session's common temporary
+    directory (the parent of each worker's own)."""
+    root = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        root = root.parent
+    done = root / f"{name}.json"
+    with FileLock(str(root / f"{name}.lock")):
+        if not done.is_file():
+            text = build(root / name)
+            done.write_text(text)
+        return done.read_text()
+
+
+def _result_json(result: PretrainResult) -> str:
+    return json.dumps({**dataclasses.asdict(result), "run_dir": str(result.run_dir)})
+
+
+def _result_from_json(text: str) -> PretrainResult:
+    fields = json.loads(text)
+    return PretrainResult(**{**fields, "run_dir": Path(fields["run_dir"])})
+
+
 @pytest.fixture(scope="session")
-def stg1_dataset(tmp_path_factory):
+def stg1_dataset(tmp_path_factory) -> Path:
     """A finished MPC-expert dataset directory of STG1 episodes (state and pixels readable with
     :func:`bimgame.expert.datasets.iterate_sequences`); seeded, so the same in every session."""
-    out = tmp_path_factory.mktemp("stg1-expert") / "data"
-    return generate_dataset(out, "STG1", STG1_DATASET_EPISODES, seed=STG1_DATASET_SEED, workers=2, progress=False)
+    def build(directory: Path) -> str:
+        data = generate_dataset(directory / "data", "STG1", STG1_DATASET_EPISODES, seed=STG1_DATASET_SEED,
+                                workers=2, progress=False)
+        return json.dumps(str(data))
+
+    return Path(json.loads(_once_per_session(tmp_path_factory, "stg1-expert", build)))
 
 
 @pytest.fixture(scope="session")
@@ -50,8 +84,12 @@ def pretrained_stg1(stg1_dataset, tmp_path_factory) -> PretrainResult:
     epochs without a better held-out loss), measured over 40 greedy and sampled episodes."""
     config = PretrainConfig(task="STG1", obs="state", target="policy", epochs=30, patience=3, eval_episodes=40,
                             seed=0)
-    with torch_threads(1):
-        return pretrain(config, stg1_dataset, tmp_path_factory.mktemp("pretrained") / "policy", progress=False)
+
+    def build(directory: Path) -> str:
+        with torch_threads(1):
+            return _result_json(pretrain(config, stg1_dataset, directory / "policy", progress=False))
+
+    return _result_from_json(_once_per_session(tmp_path_factory, "pretrained-policy", build))
 
 
 @pytest.fixture(scope="session")
@@ -61,5 +99,9 @@ def value_stg1(stg1_dataset, tmp_path_factory) -> PretrainResult:
     stops while still underfitting on a dataset this small."""
     config = PretrainConfig(task="STG1", obs="state", target="value", epochs=100, patience=10, batch_frames=64,
                             seed=0)
-    with torch_threads(1):
-        return pretrain(config, stg1_dataset, tmp_path_factory.mktemp("pretrained") / "value", progress=False)
+
+    def build(directory: Path) -> str:
+        with torch_threads(1):
+            return _result_json(pretrain(config, stg1_dataset, directory / "value", progress=False))
+
+    return _result_from_json(_once_per_session(tmp_path_factory, "pretrained-value", build))
