@@ -2,20 +2,26 @@
 
 Figures are made with :func:`subplots`, matplotlib's object-oriented ``Figure`` rather than pyplot:
 no GUI backend is chosen or changed, so drawing works with no display (servers, CI, spawned workers)
-and importing bimgame never switches the backend of a user's notebook."""
+and importing bimgame never switches the backend of a user's notebook.
+
+matplotlib is imported when a figure is first made, not with this module: the learners' spawned
+worker processes import the run-logging modules that use this one but never draw, and matplotlib
+was about a second of each worker's start (1.7 s on a loaded machine)."""
 
 from __future__ import annotations
 
 import io
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from matplotlib.figure import Figure
 from PIL import Image
 
 from bimgame.util.files import atomic_write_bytes
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 __all__ = ["subplots", "save_png", "write_gif"]
 
@@ -23,6 +29,8 @@ __all__ = ["subplots", "save_png", "write_gif"]
 def subplots(nrows: int = 1, ncols: int = 1, **options: Any) -> tuple[Figure, Any]:
     """``(figure, axes)`` like ``pyplot.subplots`` (``figsize``, ``constrained_layout`` … go to the
     figure, ``sharex``, ``squeeze`` … to its axes), without pyplot."""
+    from matplotlib.figure import Figure  # lazily: see the module docstring
+
     figure_keys = {"figsize", "dpi", "constrained_layout", "layout", "facecolor"}
     figure = Figure(**{k: v for k, v in options.items() if k in figure_keys})
     axes = figure.subplots(nrows, ncols, **{k: v for k, v in options.items() if k not in figure_keys})
