@@ -16,7 +16,8 @@ benchmarks/results/generalization.json) and ``--figure`` (default docs/mazes/gen
 train and test success against N, one panel per learner, CoinRun's figure.
 
 Usage: python benchmarks/bench_generalization.py [--task STG1] [--obs state] [--steps 300000]
-       [--seeds 3] [--num-mazes 1 10 100 1000 0] [--learners ppo a3c] [--jobs 2] [--out runs/generalization]
+       [--seeds 3] [--num-mazes 1 10 100 1000 0] [--learners ppo a3c] [--maze-frame board|marble] [--jobs 2]
+       [--out runs/generalization]
        [--score-unfinished]   (score the last checkpoints of runs stopped early, e.g. for time)
 """
 
@@ -36,6 +37,7 @@ from bimgame.experiments.statistics import mean_interval
 from bimgame.learn.a3c import A3CConfig, train
 from bimgame.learn.actor import evaluate_network
 from bimgame.learn.common import load_run_network
+from bimgame.learn.encoders import MAZE_FRAMES
 from bimgame.learn.ppo import PPOConfig, train_ppo
 from bimgame.learn.runs import torch_threads
 from bimgame.util.files import atomic_write_bytes, read_json
@@ -53,12 +55,16 @@ def _label(num_mazes: int) -> str:
     return "unlimited" if num_mazes == 0 else str(num_mazes)
 
 
-def _train(learner: str, run_dir: Path, *, task: str, obs: str, steps: int, seed: int, num_mazes: int) -> float:
+def _train(
+    learner: str, run_dir: Path, *, task: str, obs: str, steps: int, seed: int, num_mazes: int, maze_frame: str
+) -> float:
     """Train one run unless ``run_dir`` holds a finished one; the wall-clock seconds it took (0: reused)."""
     summary = read_json(run_dir / "summary.json")
     if summary is not None and summary.get("stopped") == "finished":
         return 0.0
     common = dict(task=task, obs=obs, steps=steps, seed=seed, eval_every=0, eval_episodes=20, num_mazes=num_mazes)
+    if maze_frame != "board":  # runs stored before the setting are board-frame runs
+        common["maze_frame"] = maze_frame
     start = time.perf_counter()
     if learner == "a3c":
         train(A3CConfig.from_flat(common, workers=2, envs_per_worker=16), run_dir, progress=False)
@@ -110,7 +116,14 @@ def _run(
         seconds = 0.0
         if not args.score_unfinished:
             seconds = _train(
-                learner, run_dir, task=args.task, obs=args.obs, steps=args.steps, seed=seed, num_mazes=num_mazes
+                learner,
+                run_dir,
+                task=args.task,
+                obs=args.obs,
+                steps=args.steps,
+                seed=seed,
+                num_mazes=num_mazes,
+                maze_frame=args.maze_frame,
             )
         return (seconds, *_score(run_dir, num_mazes, args.episodes))
 
@@ -171,6 +184,12 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="train nothing: score each run's last checkpoint (runs stopped early; steps_scored says where)",
     )
+    parser.add_argument(
+        "--maze-frame",
+        default="board",
+        choices=MAZE_FRAMES,
+        help="the frame the state network reads the maze encoding in (default board; see NetworkSettings.maze_frame)",
+    )
     parser.add_argument("--jobs", type=int, default=1, help="runs trained at once, one process each (default 1)")
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "generalization")
     parser.add_argument("--results", type=Path, default=ROOT / "benchmarks" / "results" / "generalization.json")
@@ -191,8 +210,14 @@ def main(argv: list[str] | None = None) -> int:
         "wall_seconds": {},
         "steps_scored": {},
     }
+    frame = "" if args.maze_frame == "board" else f"-{args.maze_frame}"
     jobs = [
-        (learner, num_mazes, seed, args.out / f"{learner}-{args.task}-{args.obs}-n{_label(num_mazes)}" / f"seed{seed}")
+        (
+            learner,
+            num_mazes,
+            seed,
+            args.out / f"{learner}-{args.task}-{args.obs}-n{_label(num_mazes)}{frame}" / f"seed{seed}",
+        )
         for learner in args.learners
         for num_mazes in args.num_mazes
         for seed in range(args.seeds)
@@ -219,6 +244,7 @@ def main(argv: list[str] | None = None) -> int:
             per_seed = [done[run_dir] for ln, n, _, run_dir in jobs if ln == learner and n == num_mazes]
             rows[_label(num_mazes)] = _aggregate(per_seed, rng)
         results["learners"][learner] = rows
+    results["maze_frame"] = args.maze_frame
     title = f"{args.task} from {args.obs}, {args.steps:,} steps, {args.seeds} seeds; {args.episodes} episodes per point"
     figure = _plot(results, args.figure, title)
     atomic_write_bytes(args.results, json.dumps(results, indent=2).encode())

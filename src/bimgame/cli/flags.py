@@ -39,6 +39,7 @@ from bimgame.experiments.budgets import ALGORITHMS
 from bimgame.expert.mpc import PLANNING_REWARDS, SAMPLINGS
 from bimgame.learn.a3c import OPTIMIZERS, START_CURRICULA
 from bimgame.learn.devices import DEVICES
+from bimgame.learn.encoders import MAZE_FRAMES
 from bimgame.learn.learner_settings import FINETUNE_PRESETS
 from bimgame.learn.nets import PRECISIONS
 from bimgame.learn.supervised import TARGETS
@@ -69,6 +70,7 @@ FIELD_CHOICES: dict[str, tuple[str, ...]] = {
     "finetune": tuple(FINETUNE_PRESETS),
     "start_curriculum": START_CURRICULA,
     "precision": PRECISIONS,
+    "maze_frame": MAZE_FRAMES,
     "device": DEVICES,
     "randomize": tuple(RANDOMIZATION_PRESETS),
 }

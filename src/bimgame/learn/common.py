@@ -21,6 +21,7 @@ from bimgame.envs.mazes import maze_encoding_size
 from bimgame.envs.observe import OBS_MODES
 from bimgame.learn.actor import evaluate_network
 from bimgame.learn.checkpoints import load_weights
+from bimgame.learn.encoders import MAZE_FRAMES
 from bimgame.learn.learner_settings import MAX_STEPS, FlatSettings, ScheduleSettings, check_at_most
 from bimgame.learn.nets import (
     PRECISIONS,
@@ -110,6 +111,10 @@ class NetworkSettings:
     """State observations end with the maze's encoding (each wall's openness at 32 angles, see
     :mod:`bimgame.envs.mazes`): what the envs of a run on many mazes (``num_mazes``) observe. Set
     by ``num_mazes``; pixels show the maze instead."""
+    maze_frame: str = "board"
+    """With ``maze_encoding``: the network reads the encoding as observed (``board``) or turned to start
+    at the marble's angle (``marble``), where the gates nearest the marble are always in the same
+    inputs (:func:`~bimgame.learn.encoders.marble_frame`)."""
 
     def __post_init__(self) -> None:
         owner = type(self).__name__
@@ -146,6 +151,10 @@ class NetworkSettings:
         check_action_type(owner, self.action_type)
         if self.maze_encoding and pixels:
             raise ValueError(f"{owner}.maze_encoding applies to state observations only (pixels show the maze)")
+        if self.maze_frame not in MAZE_FRAMES:
+            raise ValueError(f"{owner}.maze_frame must be one of {MAZE_FRAMES}, got {self.maze_frame!r}")
+        if self.maze_frame != "board" and pixels:
+            raise ValueError(f"{owner}.maze_frame applies to state observations only (pixels show the maze)")
 
     @property
     def privileged(self) -> bool:
@@ -202,6 +211,7 @@ class NetworkSettings:
             tilt_input=self.tilt_input,
             action_type=self.action_type,
             maze_size=maze_encoding_size(maze) if self.maze_encoding else 0,
+            maze_frame=self.maze_frame,
             **privileged,
         )
         return net_config, {"obs_scale": obs_scale, **inputs}
@@ -406,6 +416,11 @@ class LearnerSettings(FlatSettings):
                 raise ValueError(
                     f"{owner}: network.maze_encoding without num_mazes (the encoding is of the episodes' mazes)"
                 )
+        if isinstance(network, NetworkSettings) and self.num_mazes is None and network.maze_frame != "board":
+            raise ValueError(
+                f"{owner}: network.maze_frame {network.maze_frame!r} without num_mazes (it turns the encoding of "
+                f"the episodes' mazes, which runs on MERL's maze alone do not observe)"
+            )
 
     @property
     def maze_options(self) -> dict[str, Any]:

@@ -5,7 +5,8 @@ features (N, F).
   with each convolution's spatial soft-argmax keypoints (:class:`SpatialSoftArgmax`) as more FC
   inputs, an empty-maze background subtracted from each frame, and bfloat16 autocast;
 - :class:`MLPEncoder` — two tanh layers on state vectors brought to order 1 by fixed divisors, a
-  maze encoding entering the first layer through zero-initialised weights of its own.
+  maze encoding entering the first layer through zero-initialised weights of its own, in the
+  board's frame or turned into the marble's (:func:`marble_frame`).
 
 The fixed inputs (``background``, ``scale``) are buffers: :func:`bimgame.learn.nets.build_network`
 sets them, checkpoints carry them.
@@ -13,10 +14,16 @@ sets them, checkpoints carry them.
 
 from __future__ import annotations
 
+import math
+
 import torch
 from torch import nn
 
-__all__ = ["SpatialSoftArgmax", "ConvEncoder", "MLPEncoder"]
+__all__ = ["MAZE_FRAMES", "SpatialSoftArgmax", "ConvEncoder", "MLPEncoder", "marble_frame"]
+
+#: Frames a state network reads the maze encoding in: as observed (``board``: bin 0 at board angle
+#: -π) or turned so that it starts at the marble's angle (``marble``; see :func:`marble_frame`).
+MAZE_FRAMES = ("board", "marble")
 
 
 class SpatialSoftArgmax(nn.Module):
@@ -115,13 +122,16 @@ class MLPEncoder(nn.Module):
     scale: torch.Tensor
     """(D,) the divisors that bring each state component to order 1 (ones unless set)."""
 
-    def __init__(self, dim: int, features: int, maze_size: int = 0):
+    def __init__(self, dim: int, features: int, maze_size: int = 0, maze_frame: str = "board"):
         super().__init__()
         if not 0 <= maze_size < dim:
             raise ValueError(
                 f"MLPEncoder: maze_size must be in 0..{dim - 1} (the input has {dim} values), got {maze_size}"
             )
+        if maze_frame not in MAZE_FRAMES:
+            raise ValueError(f"MLPEncoder: unknown maze_frame {maze_frame!r}; allowed: {', '.join(MAZE_FRAMES)}")
         self.maze_size = maze_size
+        self.maze_frame = maze_frame
         self.register_buffer("scale", torch.ones(dim))
         self.net = nn.Sequential(
             nn.Linear(dim - maze_size, features), nn.Tanh(), nn.Linear(features, features), nn.Tanh()
@@ -133,5 +143,35 @@ class MLPEncoder(nn.Module):
         if self.maze_weight is None:
             return self.net(scaled)
         state, maze = scaled[..., : -self.maze_size], scaled[..., -self.maze_size :]
+        if self.maze_frame == "marble":
+            maze = marble_frame(maze, torch.atan2(obs[..., 1].float(), obs[..., 0].float()))
         first = self.net[0](state) + nn.functional.linear(maze, self.maze_weight)
         return self.net[1:](first)
+
+
+#: Angular bins per wall of the maze encoding (:data:`bimgame.envs.mazes.MAZE_ENCODING_ANGLES`;
+#: a number here so that the networks do not import the envs).
+ENCODING_BINS = 32
+
+
+def marble_frame(encoding: torch.Tensor, angle: torch.Tensor) -> torch.Tensor:
+    """The maze encoding (…, W·32) turned into the marble's frame: bin ``k`` of each wall then covers
+    the angles ``[θ - π + kΔ, θ - π + (k + 1)Δ)`` around the marble's angle ``θ`` (…) instead of
+    ``[-π + kΔ, …)``, read from the board-frame bins by linear interpolation (the bins are a ring).
+
+    Why: in the board's frame, where the marble stands in the encoding depends on its angle, so a
+    policy must learn the product of position and encoding to find the gate nearest to the marble;
+    in the marble's frame the nearest gates are always in the same bins (those around 16), and a
+    linear read-out of the encoding says which way round they are."""
+    bins = ENCODING_BINS
+    shape = encoding.shape
+    walls = encoding.reshape(-1, shape[-1] // bins, bins)
+    # θ - π is board bin θ/Δ (bin 0 starts at -π), so ego bin k reads board bin k + θ/Δ.
+    shift = angle.reshape(-1, 1) / (2 * math.pi / bins)
+    position = torch.arange(bins, dtype=walls.dtype, device=walls.device) + shift
+    low = torch.floor(position)
+    weight = (position - low).unsqueeze(1)
+    low_index = low.long().remainder(bins).unsqueeze(1).expand_as(walls)
+    high_index = (low_index + 1).remainder(bins)
+    turned = walls.gather(2, low_index) * (1 - weight) + walls.gather(2, high_index) * weight
+    return turned.reshape(shape)

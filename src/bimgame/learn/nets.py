@@ -29,14 +29,10 @@ paper's network with the tilt input):
 - ``precision="bf16"``: the encoder (convolutions and FC layer, most of the compute) runs under
   bfloat16 autocast and returns float32 features; the LSTM and heads stay float32.
 
-Two entry points, one set of weights:
-
-- :meth:`RecurrentActorCritic.step` — one time step for a batch of environments (acting: an
-  ``LSTMCell`` call, fast at batch 1);
-- :meth:`RecurrentActorCritic.unroll` — a whole segment (T, B): the encoder runs once on all T·B
-  observations (one large convolution instead of T small ones), then the LSTM cell runs over time,
-  zeroing its state wherever an episode starts. This is what the learners backpropagate through.
-  The observation encoders are in :mod:`bimgame.learn.encoders`.
+Two entry points, one set of weights: :meth:`RecurrentActorCritic.step`, one time step for a batch
+of environments (acting), and :meth:`RecurrentActorCritic.unroll`, a whole segment (T, B) that the
+learners backpropagate through: the encoder (:mod:`bimgame.learn.encoders`) runs once on all T·B
+observations, then the LSTM cell runs over time, zeroing its state wherever an episode starts.
 """
 
 from __future__ import annotations
@@ -49,7 +45,7 @@ import torch
 from torch import nn
 
 from bimgame.envs.env import NO_ACTION
-from bimgame.learn.encoders import ConvEncoder, MLPEncoder
+from bimgame.learn.encoders import MAZE_FRAMES, ConvEncoder, MLPEncoder
 from bimgame.learn.policy_heads import LOG_STD_INIT, ActionDistribution, action_head, check_action_type
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.render import MazeRenderer
@@ -125,6 +121,8 @@ class NetConfig:
     maze_size: int = 0
     """MLP only: the observation's last ``maze_size`` values are a maze encoding with weights of their own
     (:class:`~bimgame.learn.encoders.MLPEncoder`); 0: none (or, stored before this setting, plain inputs)."""
+    maze_frame: str = "board"
+    """With ``maze_size``: read the encoding as observed or turned to the marble's angle (``MAZE_FRAMES``)."""
     action_type: str = "discrete"
     """``discrete`` (``n_actions`` logits, the paper's) or ``continuous`` (a Gaussian over the env's
     2 tilt changes; see :mod:`bimgame.learn.policy_heads`). Stored settings without it are discrete."""
@@ -145,6 +143,9 @@ class NetConfig:
         check_action_type("NetConfig", self.action_type)
         if self.maze_size and (self.encoder != "mlp" or not 0 < self.maze_size < shape[0]):
             raise ValueError(f"NetConfig.maze_size needs the mlp encoder and < {shape[0]} values, got {self.maze_size}")
+        if self.maze_frame not in MAZE_FRAMES or (self.maze_frame != "board" and not self.maze_size):
+            raise ValueError(f"NetConfig.maze_frame must be one of {MAZE_FRAMES} (not board: with maze_size), "
+                             f"got {self.maze_frame!r}")
         if self.precision not in PRECISIONS:
             raise ValueError(f"NetConfig.precision must be one of {PRECISIONS}, got {self.precision!r}")
         if self.privileged_size < 0 or (self.privileged_size and (self.privileged_size - 2) % 5):
@@ -206,7 +207,7 @@ def make_encoder(config: NetConfig) -> ConvEncoder | MLPEncoder:
             bf16=config.precision == "bf16",
         )
     (dim,) = config.obs_shape
-    return MLPEncoder(dim, config.features, config.maze_size)
+    return MLPEncoder(dim, config.features, config.maze_size, config.maze_frame)
 
 
 class RecurrentActorCritic(nn.Module):
