@@ -5,6 +5,9 @@ Measured, single process, one thread (``OMP_NUM_THREADS=1``), the raw env (no Gy
 - ``LabyrinthEnv`` on each layout (easy, medium, hard), ``obs_mode`` state and pixels (84×84),
   55 Hz (its default: 3 physics substeps per action), continuous random actions;
 - ``BallInMazeEnv`` on STG1 (30 Hz, 5 substeps), state and pixels, discrete random actions;
+- the batched vector envs the learners step, ``--vector-envs`` (32) boards each, one thread, same-step
+  autoreset, state observations: ``LabyrinthVectorEnv`` on the hard layout (continuous random
+  actions) beside ``BallInMazeVectorEnv`` on STG1 (discrete), in env steps/s (boards × vector steps);
 - the labyrinth's physics alone (``LabyrinthSim.step``) and its path-progress rule alone
   (``PathProgress.update``, batched numpy, and ``ScalarPathProgress.update``, the env's scalar
   fast path) on the hard layout: where the env's time goes.
@@ -14,8 +17,9 @@ times, interleaved with the others so that a drift of the machine's speed hits a
 median is reported. The machine may be shared with other jobs: ``os.getloadavg()`` is recorded
 before and after. The issue's goal is a labyrinth within 0.8 of the circular maze's steps/s.
 
-Usage: ``python benchmarks/bench_labyrinth.py [--steps N] [--repeats R]``; writes
-``benchmarks/results/labyrinth_env.json``.
+Usage: ``python benchmarks/bench_labyrinth.py [--steps N] [--vector-steps M] [--vector-envs B] [--repeats R]``;
+writes ``benchmarks/results/labyrinth_env.json``. The vector rows compare with the circular maze's
+vector row (``ratio_to_circular_maze``) and with the same single env (``ratio_to_single_env``).
 """
 
 from __future__ import annotations
@@ -34,6 +38,8 @@ import numpy as np
 
 from bimgame.envs.env import BallInMazeEnv
 from bimgame.envs.labyrinth_env import LabyrinthEnv
+from bimgame.envs.labyrinth_vector import LabyrinthVectorEnv
+from bimgame.envs.vector import BallInMazeVectorEnv
 from bimgame.sim.labyrinth import LabyrinthSpec, PathProgress
 from bimgame.sim.labyrinth_physics import LabyrinthSim
 from bimgame.sim.labyrinth_tracker import ScalarPathProgress
@@ -56,6 +62,23 @@ def env_rate(make: Callable[[], object], steps: int, seed: int = 0) -> Callable[
             if terminated or truncated:
                 env.reset()  # type: ignore[attr-defined]
         return steps / (time.perf_counter() - start)
+
+    return run
+
+
+def vector_rate(make: Callable[[], object], steps: int, seed: int = 0) -> Callable[[], float]:
+    """A timer of ``steps`` random steps of a fresh vector env from ``make`` (env steps/s: boards ×
+    vector steps; finished episodes reset inside the step)."""
+    env = make()
+
+    def run() -> float:
+        env.action_space.seed(seed)  # type: ignore[attr-defined]
+        env.reset(seed=seed)  # type: ignore[attr-defined]
+        actions = [env.action_space.sample() for _ in range(steps)]  # type: ignore[attr-defined]
+        start = time.perf_counter()
+        for action in actions:
+            env.step(action)  # type: ignore[attr-defined]
+        return steps * env.num_envs / (time.perf_counter() - start)  # type: ignore[attr-defined]
 
     return run
 
@@ -96,6 +119,8 @@ def path_rate(steps: int, scalar: bool) -> Callable[[], float]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--steps", type=int, default=1500, help="steps per timing")
+    parser.add_argument("--vector-steps", type=int, default=150, help="vector steps per timing of the vector envs")
+    parser.add_argument("--vector-envs", type=int, default=32, help="boards of each vector env")
     parser.add_argument("--repeats", type=int, default=3, help="timings per configuration (median reported)")
     args = parser.parse_args()
     load_before = os.getloadavg()
@@ -109,6 +134,15 @@ def main() -> None:
         timers[f"circular maze STG1, {obs_mode}"] = env_rate(
             lambda obs_mode=obs_mode: BallInMazeEnv("STG1", obs_mode=obs_mode), args.steps
         )
+    b = args.vector_envs
+    vector_name = f"labyrinth hard, vector ×{b}, state"
+    timers[vector_name] = vector_rate(
+        lambda: LabyrinthVectorEnv(b, "hard", nthread=1, autoreset_mode="same_step"), args.vector_steps
+    )
+    timers[f"circular maze STG1, vector ×{b}, state"] = vector_rate(
+        lambda: BallInMazeVectorEnv(b, task="STG1", obs_mode="state", nthread=1, autoreset_mode="same_step"),
+        args.vector_steps,
+    )
     timers["labyrinth hard, physics only (LabyrinthSim.step)"] = sim_rate(args.steps)
     timers["labyrinth hard, path rule only (PathProgress.update, numpy)"] = path_rate(args.steps, False)
     timers["labyrinth hard, path rule only (ScalarPathProgress.update, the env's)"] = path_rate(args.steps, True)
@@ -120,10 +154,14 @@ def main() -> None:
     results = {}
     for name, rate in rates.items():
         mode = "pixels" if name.endswith("pixels") else "state"
+        vector = ", vector ×" in name
         compared = name.startswith("labyrinth") and "only" not in name
-        reference = rates[f"circular maze STG1, {mode}"] if compared else None
+        reference = rates[f"circular maze STG1, {f'vector ×{b}, ' if vector else ''}{mode}"] if compared else None
         ratio = None if reference is None else rate / reference
         results[name] = {"steps_per_s": rate, "ratio_to_circular_maze": ratio, "samples": samples[name]}
+        if vector:  # the batched env against its own single env
+            single = rates["labyrinth hard, state" if name.startswith("labyrinth") else "circular maze STG1, state"]
+            results[name]["ratio_to_single_env"] = rate / single
         print(f"{name:72s} {rate:9.0f} steps/s" + ("" if ratio is None else f"   ×{ratio:.2f} of the circular maze's"))
     load_after = os.getloadavg()
     print(f"load average before {load_before}, after {load_after} ({os.cpu_count()} CPUs)")
@@ -134,11 +172,14 @@ def main() -> None:
         "mujoco": mujoco.__version__,
         "time": time.strftime("%Y-%m-%dT%H:%M:%S"),
         "steps": args.steps,
+        "vector_steps": args.vector_steps,
+        "vector_envs": args.vector_envs,
         "repeats": args.repeats,
         "omp_num_threads": os.environ.get("OMP_NUM_THREADS"),
         "loadavg_before": load_before,
         "loadavg_after": load_after,
-        "note": "raw envs, one thread; labyrinth at 55 Hz (3 substeps), circular maze at 30 Hz (5 substeps)",
+        "note": "raw envs, one thread; labyrinth at 55 Hz (3 substeps), circular maze at 30 Hz (5 substeps); "
+        "vector rows in env steps/s (boards x vector steps), same-step autoreset",
         "results": results,
     }
     RESULTS.parent.mkdir(parents=True, exist_ok=True)

@@ -64,13 +64,15 @@ def labyrinth_max_episode_steps(control_hz: float) -> int:
     return round(LABYRINTH_EPISODE_SECONDS * control_hz)
 
 
-def path_points_ahead(path: WaypointPath, progress: float, n: int = PATH_AHEAD, spacing: float = PATH_SPACING):
+def path_points_ahead(
+    path: WaypointPath, progress: float | np.ndarray, n: int = PATH_AHEAD, spacing: float = PATH_SPACING
+):
     """The ``n`` path points at arc lengths ``progress + k * spacing`` (k = 0 … n-1; clamped at the
-    goal), (n, 2) m."""
-    s = np.clip(progress + spacing * np.arange(n), 0.0, path.length)
+    goal), (n, 2) m; for an array of progresses (B,), (B, n, 2) (the batched env's)."""
+    s = np.clip(np.asarray(progress)[..., None] + spacing * np.arange(n), 0.0, path.length)
     k = np.clip(np.searchsorted(path.cumulative, s, side="right") - 1, 0, path.n_segments - 1)
     t = (s - path.cumulative[k]) / path.lengths[k]
-    return path.starts[k] + t[:, None] * path.vectors[k]
+    return path.starts[k] + t[..., None] * path.vectors[k]
 
 
 def _finite(name: str, value: Any, low: float = -math.inf, high: float = math.inf) -> float:

@@ -160,7 +160,7 @@ class LabyrinthSim:
         self.max_tilt = self.spec.max_tilt
         self._runner: mj_rollout.Rollout | None = None
         self._runner_threads = 0
-        self._rollout_data: mujoco.MjData | None = None
+        self._rollout_datas: list[mujoco.MjData] = []  # one per rollout thread, kept with the runner
 
     # ------------------------------------------------------------------ state
     @property
@@ -217,7 +217,8 @@ class LabyrinthSim:
         """Roll out K open-loop sequences of H actions from one physics state with ``mujoco.rollout``.
 
         Args:
-            state: (state_size,) the start (:meth:`get_state`); the sim's own data is left untouched.
+            state: (state_size,) the start (:meth:`get_state`), or (K, state_size) one start per row
+                (what a batched env steps); the sim's own data is left untouched.
             controls: (K, H, 2) commanded tilt change per action (rad), what :meth:`step` takes (the
                 env's action times its tilt step), or (H, 2) for one sequence.
             nthread: MuJoCo's rollout threads over the K rows (1: the calling thread, the right choice
@@ -230,13 +231,15 @@ class LabyrinthSim:
         start = np.asarray(state, dtype=np.float64)
         deltas = np.asarray(controls, dtype=np.float64)
         deltas = deltas[None] if deltas.ndim == 2 else deltas
-        if start.shape != (self.layout.size,) or not np.all(np.isfinite(start)):
+        if start.ndim not in (1, 2) or start.shape[-1] != self.layout.size or not np.all(np.isfinite(start)):
             raise ValueError(
-                f"state must be a finite float vector of length {self.layout.size} (LabyrinthSim.get_state), "
-                f"got shape {start.shape}"
+                f"state must be a finite float vector of length {self.layout.size} (LabyrinthSim.get_state) or "
+                f"(K, {self.layout.size}) of them, got shape {start.shape}"
             )
         if deltas.ndim != 3 or deltas.shape[-1] != 2 or not np.all(np.isfinite(deltas)):
             raise ValueError(f"controls must be finite tilt changes (rad) of shape (K, H, 2), got shape {deltas.shape}")
+        if start.ndim == 2 and start.shape[0] != deltas.shape[0]:
+            raise ValueError(f"{start.shape[0]} start states for {deltas.shape[0]} control sequences: give one per row")
         if not (isinstance(nthread, (int, np.integer)) and not isinstance(nthread, bool) and nthread >= 1):
             raise ValueError(f"nthread must be a positive integer, got {nthread!r}")
         k, horizon = deltas.shape[:2]
@@ -246,11 +249,10 @@ class LabyrinthSim:
                 self._runner.close()
             self._runner = mj_rollout.Rollout(nthread=0 if nthread == 1 else nthread)
             self._runner_threads = nthread
-            self._rollout_data = mujoco.MjData(self.model)
-        assert self._rollout_data is not None
-        datas = [self._rollout_data] + [mujoco.MjData(self.model) for _ in range(nthread - 1)]
+            self._rollout_datas = [mujoco.MjData(self.model) for _ in range(nthread)]
+        datas = self._rollout_datas
         out = np.empty((k, horizon, self.layout.size))
-        current = np.ascontiguousarray(np.broadcast_to(start, (k, self.layout.size)))
+        current = np.array(np.broadcast_to(start, (k, self.layout.size)))  # a copy: the caller's stays
         warmstart = np.zeros((k, self.model.nv))
         control = np.empty((k, self.substeps, self.model.nu))
         states_out = np.empty((k, self.substeps, self.layout.size))
