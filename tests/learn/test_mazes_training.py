@@ -32,7 +32,8 @@ def test_num_mazes_sets_the_maze_encoding_and_the_network_reads_it():
     assert config.network.maze_encoding and config.maze_options == {"num_mazes": 10, "start_maze": 5}
     net = config.network.build_policy(0)
     assert net.config.obs_shape == (7 + 4 * MAZE_ENCODING_ANGLES,)
-    assert torch.all(net.encoder.scale[7:] == 1.0)  # the encoding is in [0, 1] already
+    # The encoding (128 values in [0, 1]) enters divided by √128, so its pathway learns at a state input's pace.
+    assert torch.allclose(net.encoder.scale[7:], torch.tensor(float(np.sqrt(4 * MAZE_ENCODING_ANGLES))))
     assert not PPOConfig.from_flat(TINY).network.maze_encoding
     assert not PPOConfig.from_flat(TINY, obs="pixels", num_mazes=3).network.maze_encoding  # pixels show it
     with pytest.raises(ValueError, match="maze_encoding without num_mazes"):

@@ -89,7 +89,7 @@ def test_pretraining_on_mazes_reads_the_encoding_and_measures_held_out_accuracy(
     assert stored["network"]["maze_encoding"] and stored["pretrain"]["maze_encoding"]
     net, run, _ = load_run_network(pi_s.run_dir)
     assert net.config.obs_shape == (ENCODED,) and run.network.maze_encoding
-    assert torch.all(net.encoder.scale[7:] == 1.0)
+    assert torch.allclose(net.encoder.scale[7:], torch.tensor(float(np.sqrt(ENCODED - 7))))
 
     # The held-out accuracy is the kept weights' on episodes it never trained on, as when acting.
     config = PretrainConfig.from_dict(stored["pretrain"])

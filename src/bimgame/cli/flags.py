@@ -130,6 +130,7 @@ def add_settings_flags(
     helps: dict[str, str] | None = None,
     aliases: dict[str, tuple[str, ...]] | None = None,
     default_text: str | None = None,
+    choices: dict[str, tuple[str, ...]] | None = None,
 ) -> None:
     """Add a flag for each field of the settings dataclass ``cls`` in ``names`` to ``parser`` (a
     parser or one of its argument groups, :func:`add_flag_groups`).
@@ -141,13 +142,16 @@ def add_settings_flags(
     for a switch whose default is True, the name of the switch that turns it off).
     ``helps``: help texts that replace the docstring. ``aliases``: more option strings (``{"horizon": ("-H",)}``).
     A tuple field takes one or more values (``--tasks STG1 STG2``). ``default_text``: what the help
-    says the default is, when it is not the value in ``defaults`` (e.g. "the budget's").
+    says the default is, when it is not the value in ``defaults`` (e.g. "the budget's"). ``choices``:
+    allowed values that replace :data:`FIELD_CHOICES`'s for this verb (``bimgame train --task`` also
+    takes the labyrinth's tasks).
     """
     fields = {f.name: f for f in dataclasses.fields(cls)}
     hints = typing.get_type_hints(cls)
     docs = field_docs(cls)
     defaults = defaults if defaults is not None else cls()
     types, flags, helps, aliases = types or {}, flags or {}, helps or {}, aliases or {}
+    choices = {**FIELD_CHOICES, **(choices or {})}
     for name in names:
         if name not in fields:
             raise ValueError(f"{cls.__name__} has no setting {name!r}; it has {sorted(fields)}")
@@ -179,7 +183,7 @@ def add_settings_flags(
             dest=name,
             default=initial,
             help=f"{_value_text(field)} (default{shown})".strip(),
-            **_value_options(cls, field, types),
+            **_value_options(cls, field, types, choices),
         )
 
 
@@ -237,15 +241,17 @@ def _add_switch(parser: Any, field: _Field, initial: Any, *, two_way: bool, keep
         parser.add_argument(flag, dest=field.name, action="store_const", const=False, default=initial, help=off)
 
 
-def _value_options(cls: type, field: _Field, types: dict[str, Callable[[str], Any]]) -> dict[str, Any]:
+def _value_options(
+    cls: type, field: _Field, types: dict[str, Callable[[str], Any]], choices: Mapping[str, tuple[str, ...]]
+) -> dict[str, Any]:
     """``nargs``, ``metavar``, ``choices`` and ``type`` of a setting that takes a value."""
     options: dict[str, Any] = {}
     kind = field.kind
     if typing.get_origin(kind) is tuple:
         options.update(nargs="+", metavar=field.name.rstrip("s").upper())
         kind = typing.get_args(kind)[0]
-    if field.name in FIELD_CHOICES:
-        options["choices"] = FIELD_CHOICES[field.name]
+    if field.name in choices:
+        options["choices"] = choices[field.name]
         options["type"] = str.upper if field.name in _UPPER else str
     elif field.name in types:
         options["type"] = types[field.name]

@@ -14,9 +14,12 @@ from rich.table import Table
 
 from bimgame.cli.argtypes import TASK_NAMES, add_task_argument, check_output_file, positive_int, run_group
 from bimgame.envs.observe import OBS_MODES
+from bimgame.envs.puzzles import puzzle
 from bimgame.envs.randomization import RANDOMIZATION_PRESETS, randomization_preset
 from bimgame.experiments.protocol import MAZE_FORMS, PROTOCOL_EPISODES, MazeChoice, measure_references, score
 from bimgame.experiments.robustness import robustness_rows, write_robustness
+from bimgame.learn.common import read_run
+from bimgame.learn.runs import CONFIG
 from bimgame.util.files import write_json
 
 __all__ = ["add_score_arguments", "run_score", "maze_choice", "add_robustness_arguments", "run_robustness"]
@@ -79,6 +82,24 @@ def _pair(value: float | None, interval: list[float] | None, percent: bool = Fal
     return f"{shown(value)} [{shown(interval[0])}, {shown(interval[1])}]" if interval else shown(value)
 
 
+def _refuse_labyrinth_run(policy: str) -> None:
+    """Refuse a bimgame run on the labyrinth: the benchmark protocol (its tasks, mazes and reference
+    scores) is the circular maze's. ``bimgame evaluate`` evaluates such a run."""
+    path = Path(policy)
+    run_dir = path.parent if path.is_file() else path
+    if not (run_dir / CONFIG).is_file():
+        return
+    try:
+        task = read_run(run_dir).task
+    except ValueError:
+        return  # not a run this verb reads either: score() says what it is not
+    if not puzzle(task).is_maze:
+        raise ValueError(
+            f"{policy} is a run on {task}: bimgame score runs the circular maze's benchmark protocol (its tasks, "
+            f"mazes and reference scores) only; evaluate it with: bimgame evaluate {policy}"
+        )
+
+
 def run_score(args: argparse.Namespace) -> int:
     console = Console()
     if args.measure_references:
@@ -92,6 +113,7 @@ def run_score(args: argparse.Namespace) -> int:
     if args.policy is None:
         raise ValueError("POLICY is required (or --measure-references)")
     check_output_file(args.out, "--out", "score.json")
+    _refuse_labyrinth_run(args.policy)
     summary = score(
         args.policy,
         args.task,

@@ -13,14 +13,14 @@ from rich.table import Table
 from bimgame.cli.argtypes import check_output_file, episode_count, positive_float, seed, step_count, step_count_or_zero
 from bimgame.cli.flags import add_flag_groups, add_grouped_settings_flags, given_settings, plain
 from bimgame.cli.train_ppo import PPO_GROUP, add_ppo_arguments, train_ppo_from_args
+from bimgame.envs.puzzles import TASK_NAMES, puzzle
 from bimgame.envs.shaping import DEFAULT_GEODESIC_COEF
 from bimgame.learn.a3c import A3CConfig, resolve_config, train
 from bimgame.learn.actor import evaluate_network
 from bimgame.learn.common import NetworkSettings, load_run_network
-from bimgame.learn.learner_settings import DEFAULT_FINETUNE
+from bimgame.learn.learner_settings import DEFAULT_FINETUNE, refuse_maze_only
 from bimgame.learn.rewards import RewardSettings, env_wrapper_for, resolve_reward_settings
 from bimgame.learn.run_dir import TrainingError, TrainResult
-from bimgame.sim.tasks import parse_task
 from bimgame.util.files import write_json
 from bimgame.util.images import write_gif
 from bimgame.util.settings import field_docs
@@ -123,6 +123,7 @@ def add_train_arguments(parser: argparse.ArgumentParser) -> None:
             default_none=True,
             types=_A3C_TYPES,
             helps={"steps": "environment steps to train for, all workers together, e.g. 5M"},
+            choices={"task": TASK_NAMES},  # the maze's tasks and the labyrinth's
         )
     docs = field_docs(RewardSettings)
     reward = groups["environment"].add_argument
@@ -183,6 +184,8 @@ def _train_a3c(args: argparse.Namespace) -> tuple[TrainResult, int]:
         args.run_dir,
         resume=args.resume,
     )
+    shaping = {"value_reward": reward.value_reward is not None, "geodesic_coef": reward.geodesic_coef is not None}
+    refuse_maze_only("RewardSettings", config.task, shaping)
     wrapper = env_wrapper_for(reward, obs=config.network.obs, gamma=config.optimization.gamma)
     schedule = config.schedule
     shaped = reward.describe()
@@ -218,10 +221,15 @@ def run_evaluate(args: argparse.Namespace) -> int:
     check_output_file(args.out, "--out", "eval.json")  # before the evaluation, not after it
     check_output_file(args.gif, "--gif", "episode.gif")
     if args.task is not None:
-        parse_task(args.task)
+        puzzle(args.task)
     net, run, step = load_run_network(args.run_dir)
     run_dir = run.run_dir
-    task = parse_task(args.task or run.task).value
+    task = puzzle(args.task or run.task).task
+    if puzzle(task).family != puzzle(run.task).family:
+        raise ValueError(
+            f"--task {task}: {run_dir} was trained on {run.task} (the {puzzle(run.task).family}); its network "
+            f"reads that puzzle's observations, not the {puzzle(task).family}'s"
+        )
     limit = run.time_limit if task == run.task else None
     obs_mode = run.network.obs
     result = evaluate_network(

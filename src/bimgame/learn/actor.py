@@ -18,17 +18,29 @@ from typing import Any
 import numpy as np
 import torch
 
-from bimgame.envs.vector import BallInMazeVectorEnv
+from bimgame.envs.puzzles import puzzle
 from bimgame.learn.nets import LSTMState, RecurrentActorCritic
 from bimgame.sim.maze import MazeSpec
-from bimgame.sim.tasks import parse_task
 
-__all__ = ["RecurrentActor", "EvalResult", "evaluate_network", "tilt_input"]
+__all__ = ["RecurrentActor", "EvalResult", "evaluate_network", "tilt_input", "episode_successes"]
 
 
 def tilt_input(info: dict[str, Any], max_tilt: float) -> torch.Tensor:
     """The board tilt from an env info dict, in units of the maximum tilt, as (B, 2) float32."""
     return torch.as_tensor(np.asarray(info["tilt"], dtype=np.float32) / np.float32(max_tilt))
+
+
+def episode_successes(info: dict[str, Any], terminated: np.ndarray) -> np.ndarray:
+    """(B,) bool: whether each episode that ended at this step reached its goal (read where ``done``).
+    An env that reports ``info["success"]`` says so itself — the labyrinth, whose episodes also
+    terminate by failing (a hole, leaving the path) — in the finished step's info: ``final_info``
+    under same-step autoreset (the info beside it is the next episode's). Otherwise (the maze, whose
+    episodes terminate only at the goal) a termination is a success."""
+    final = info.get("final_info")
+    source = final if isinstance(final, dict) and "success" in final else info
+    if "success" not in source:
+        return np.asarray(terminated, dtype=bool)
+    return np.asarray(source["success"], dtype=bool) & np.asarray(terminated, dtype=bool)
 
 
 class RecurrentActor:
@@ -148,20 +160,24 @@ def evaluate_network(
     :class:`~bimgame.envs.randomization.Randomization`) evaluates on domain-randomised boards. The
     env has the network's kind of action (``net.config.action_type``). ``mazes``: env arguments of
     many mazes (``num_mazes``, ``start_maze``, ``maze_split``; see :class:`~bimgame.envs.env.BallInMazeEnv`),
-    each episode's maze drawn from ``seed`` too, or episode ``k`` on maze ``maze_numbers[k]`` of that set."""
-    kwargs: dict[str, Any] = {
-        "task": task,
-        "obs_mode": obs_mode,
-        "randomize": randomize,
-        "action_type": net.config.action_type,
-    }
+    each episode's maze drawn from ``seed`` too, or episode ``k`` on maze ``maze_numbers[k]`` of that set.
+    ``task`` may be the labyrinth's (:mod:`bimgame.envs.puzzles`; the maze's options must then be None);
+    an episode succeeds when it reaches the goal (:func:`episode_successes`), not when it falls."""
+    kwargs: dict[str, Any] = {"randomize": randomize}
     if maze is not None:
         kwargs["maze"] = maze
     kwargs.update(mazes or {})
     if record:
         kwargs.update(render_mode="rgb_array", render_size=render_size)
-    limit = max_episode_steps or parse_task(task).time_limit
-    env = BallInMazeVectorEnv(episodes, max_episode_steps=limit, nthread=1, autoreset_mode="same_step", **kwargs)
+    env = puzzle(task).vector_env(
+        episodes,
+        obs_mode=obs_mode,
+        action_type=net.config.action_type,
+        max_episode_steps=max_episode_steps or None,
+        nthread=1,
+        autoreset_mode="same_step",
+        **kwargs,
+    )
     generator = torch.Generator().manual_seed(int(seed))
     actor = RecurrentActor(net, episodes, generator=generator, greedy=greedy)
     obs, info = env.reset(seed=int(seed), options=None if maze_numbers is None else {"maze": list(maze_numbers)})
@@ -181,8 +197,9 @@ def evaluate_network(
             returns += reward
             lengths += 1
             done = terminated | truncated
+            successes = episode_successes(info, terminated)
             for i in np.flatnonzero(done & ~finished):
-                result.successes[i] = bool(terminated[i])
+                result.successes[i] = bool(successes[i])
                 result.lengths[i] = int(lengths[i])
                 result.returns[i] = float(returns[i])
             finished |= done

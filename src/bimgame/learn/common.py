@@ -19,10 +19,11 @@ import numpy as np
 
 from bimgame.envs.mazes import maze_encoding_size
 from bimgame.envs.observe import OBS_MODES
+from bimgame.envs.puzzles import UNTRAINED_OBS, PuzzleSpec, puzzle, puzzle_task_setting, state_obs_scale
 from bimgame.learn.actor import evaluate_network
 from bimgame.learn.checkpoints import load_weights
 from bimgame.learn.encoders import MAZE_FRAMES
-from bimgame.learn.learner_settings import MAX_STEPS, FlatSettings, ScheduleSettings, check_at_most
+from bimgame.learn.learner_settings import MAX_STEPS, FlatSettings, ScheduleSettings, check_at_most, check_puzzle
 from bimgame.learn.nets import (
     PRECISIONS,
     NetConfig,
@@ -31,12 +32,10 @@ from bimgame.learn.nets import (
     build_network,
     build_value_network,
     maze_background,
-    state_obs_scale,
 )
 from bimgame.learn.policy_heads import check_action_type
 from bimgame.learn.runs import CONFIG, KIND_A3C, KIND_VALUE, read_run_config
 from bimgame.sim.maze import MazeSpec
-from bimgame.sim.tasks import Task, parse_task, task_setting
 from bimgame.util.seeding import episode_seed
 from bimgame.util.settings import from_dict, require_int
 
@@ -65,6 +64,8 @@ MAX_SEED = 2**32 - 1
 #: The largest LSTM or encoder size (the paper's is 256): larger is a typo that would fail only when
 #: the weights no longer fit in memory.
 MAX_NETWORK_SIZE = 4096
+#: The network settings that are True or False.
+_SWITCHES = ("tilt_input", "keypoints", "subtract_background", "aux_heads", "asymmetric_critic", "maze_encoding")
 
 
 def check_seed(owner: str, value: Any) -> None:
@@ -118,6 +119,8 @@ class NetworkSettings:
 
     def __post_init__(self) -> None:
         owner = type(self).__name__
+        if self.obs in UNTRAINED_OBS:
+            raise ValueError(f"{owner}.obs {self.obs!r}: {UNTRAINED_OBS[self.obs]}")
         if self.obs not in OBS_MODES:
             raise ValueError(f"{owner}.obs must be one of {OBS_MODES}, got {self.obs!r}")
         default_size = 256 if self.obs == "pixels" else 128
@@ -136,14 +139,7 @@ class NetworkSettings:
             object.__setattr__(self, "aux_heads", pixels)
         if self.precision is None:
             object.__setattr__(self, "precision", "bf16" if pixels and native_bf16() else "fp32")
-        for name in (
-            "tilt_input",
-            "keypoints",
-            "subtract_background",
-            "aux_heads",
-            "asymmetric_critic",
-            "maze_encoding",
-        ):
+        for name in _SWITCHES:
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"{owner}.{name} must be True or False, got {getattr(self, name)!r}")
         if self.precision not in PRECISIONS:
@@ -169,9 +165,10 @@ class NetworkSettings:
         """Just the network settings (of a learner's settings, which inherit them)."""
         return network_settings_of(dataclasses.asdict(self))
 
-    def net_config(self, maze: MazeSpec | None = None) -> tuple[NetConfig, dict[str, Any]]:
+    def net_config(self, maze: PuzzleSpec | None = None) -> tuple[NetConfig, dict[str, Any]]:
         """The network sizes and the fixed inputs to build it with (``obs_scale`` or ``background``,
-        keyword arguments of :func:`~bimgame.learn.nets.build_network`)."""
+        keyword arguments of :func:`~bimgame.learn.nets.build_network`) on the board ``maze`` (a task's
+        :attr:`~bimgame.envs.puzzles.Puzzle.spec`: the maze's or the labyrinth's; None: MERL's maze)."""
         maze = maze or MazeSpec.merl()
         features, hidden, precision = self.features, self.hidden, self.precision
         # __post_init__ replaced None by the defaults.
@@ -181,11 +178,9 @@ class NetworkSettings:
         # every weight moves about as far per update, so their sum moves the first layer ~25× as fast
         # as one state input does (read in the marble's frame, PPO's policy lost its entropy in the
         # first 40k steps). Divided by √128 the encoding's pathway moves at about a state input's pace.
-        encoding = maze_encoding_size(maze)
+        encoding = maze_encoding_size(maze) if isinstance(maze, MazeSpec) and self.maze_encoding else 0
         obs_scale = (
-            np.concatenate([scale, np.full(encoding, np.sqrt(encoding), dtype=np.float32)])
-            if self.maze_encoding
-            else scale
+            np.concatenate([scale, np.full(encoding, np.sqrt(encoding), dtype=np.float32)]) if encoding else scale
         )
         privileged: dict[str, Any] = (
             {"privileged_size": len(scale), "aux_heads": self.aux_heads, "asymmetric_critic": self.asymmetric_critic}
@@ -206,7 +201,8 @@ class NetworkSettings:
                 precision=precision,
                 **privileged,
             )
-            return net_config, {"background": maze_background(maze) if self.subtract_background else None, **inputs}
+            background = maze_background(maze) if self.subtract_background and isinstance(maze, MazeSpec) else None
+            return net_config, {"background": background, **inputs}
         net_config = NetConfig(
             encoder="mlp",
             obs_shape=(len(obs_scale),),
@@ -214,18 +210,18 @@ class NetworkSettings:
             hidden=hidden,
             tilt_input=self.tilt_input,
             action_type=self.action_type,
-            maze_size=maze_encoding_size(maze) if self.maze_encoding else 0,
+            maze_size=encoding,
             maze_frame=self.maze_frame,
             **privileged,
         )
         return net_config, {"obs_scale": obs_scale, **inputs}
 
-    def build_policy(self, seed: int, maze: MazeSpec | None = None) -> RecurrentActorCritic:
+    def build_policy(self, seed: int, maze: PuzzleSpec | None = None) -> RecurrentActorCritic:
         """A fresh actor-critic, initialised from ``seed``."""
         net_config, inputs = self.net_config(maze)
         return build_network(net_config, seed=seed, **inputs)
 
-    def build_value(self, seed: int, maze: MazeSpec | None = None) -> ValueNetwork:
+    def build_value(self, seed: int, maze: PuzzleSpec | None = None) -> ValueNetwork:
         """A fresh value-only network V̂ with the same encoder, initialised from ``seed``."""
         net_config, inputs = self.net_config(maze)
         return build_value_network(net_config, seed=seed, **inputs)
@@ -283,7 +279,7 @@ def read_run(source: str | Path) -> RunInfo:
     stored = read_run_config(run_dir)
     kind = stored.get("kind", KIND_A3C)
     block = stored.get("a3c")
-    stored_task: Any  # as config.json has it; parse_task checks it
+    stored_task: Any  # as config.json has it; puzzle() checks it
     try:
         if isinstance(block, dict):  # A3C runs, and pre-training/DAgger runs of the earlier layout
             stored_task, network, seed = block.get("task"), network_settings_of(block), block.get("seed", 0)
@@ -294,7 +290,7 @@ def read_run(source: str | Path) -> RunInfo:
             limit = stored.get("max_episode_steps")
         else:
             raise ValueError("it names no task and network ('a3c', or 'task' and 'network')")
-        task = parse_task(stored_task).value
+        task = puzzle(stored_task).task
         if not (isinstance(seed, int) and not isinstance(seed, bool) and 0 <= seed <= MAX_SEED):
             raise ValueError(f"seed must be an integer from 0 to {MAX_SEED}, got {seed!r}")
         if limit is not None and not (isinstance(limit, int) and not isinstance(limit, bool) and limit >= 1):
@@ -307,7 +303,7 @@ def read_run(source: str | Path) -> RunInfo:
         task=task,
         network=network,
         seed=int(seed),
-        time_limit=int(limit or Task(task).time_limit),
+        time_limit=int(limit or puzzle(task).time_limit),
         config=stored,
     )
 
@@ -348,7 +344,7 @@ def load_run_network(source: str | Path) -> tuple[RecurrentActorCritic, RunInfo,
     run = read_run(run_dir)
     if run.kind == KIND_VALUE:
         raise ValueError(f"{run.run_dir} holds a value function (V̂), not a policy; use it with --value-reward")
-    net = run.network.build_policy(run.seed)
+    net = run.network.build_policy(run.seed, puzzle(run.task).spec)
     step = load_weights(net, source)
     return net, run, step
 
@@ -387,12 +383,13 @@ class LearnerSettings(FlatSettings):
     seed and the time limit, checked here once; a subclass adds its parts (and settings of its own)."""
 
     task: str = "STG1"
-    """FULL, STG1 … STG4."""
+    """FULL, STG1 … STG4 (the circular maze's), or LABYRINTH-EASY, -MEDIUM, -HARD (CyberRunner's
+    labyrinth: :mod:`bimgame.envs.puzzles`)."""
     seed: int = 0
     """Seeds everything the run draws: the network's initial weights, the environments, the sampling
     and the evaluations."""
     max_episode_steps: int | None = None
-    """Time limit; None uses the task's (STG1 300, STG2 500, STG3 750, STG4/FULL 1000)."""
+    """Time limit; None uses the task's (STG1 300, STG2 500, STG3 750, STG4/FULL 1000, labyrinth 3000)."""
     num_mazes: int | None = None
     """Train on random mazes (:mod:`bimgame.sim.maze_sets`): this many training mazes from number
     ``start_maze`` on, one drawn per episode; 0: unlimited (a new maze every episode). None: MERL's
@@ -403,12 +400,15 @@ class LearnerSettings(FlatSettings):
 
     def __post_init__(self) -> None:
         owner = type(self).__name__
-        object.__setattr__(self, "task", task_setting(owner, self.task))
+        object.__setattr__(self, "task", puzzle_task_setting(owner, self.task))
         check_seed(owner, self.seed)  # numpy's seed sequences take no negative seeds, torch none of 2**64
         require_int(owner, "max_episode_steps", self.max_episode_steps, 1, optional=True)
         check_at_most(owner, "max_episode_steps", self.max_episode_steps, MAX_STEPS, "1e12 environment steps")
         require_int(owner, "num_mazes", self.num_mazes, 0, optional=True)
         require_int(owner, "start_maze", self.start_maze, 0)
+        check_puzzle(
+            owner, self.task, getattr(self, "network", None), num_mazes=self.num_mazes, start_maze=self.start_maze
+        )
         if self.num_mazes is None and self.start_maze:
             raise ValueError(f"{owner}.start_maze {self.start_maze} needs num_mazes (the training mazes' count)")
         self.check_parts()
@@ -435,7 +435,7 @@ class LearnerSettings(FlatSettings):
 
     @property
     def time_limit(self) -> int:
-        return self.max_episode_steps or Task(self.task).time_limit
+        return self.max_episode_steps or puzzle(self.task).time_limit
 
 
 class EvaluatedRun(Protocol):

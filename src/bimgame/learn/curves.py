@@ -25,8 +25,8 @@ from typing import Any
 
 import numpy as np
 
+from bimgame.envs.puzzles import puzzle
 from bimgame.learn.runs import CONFIG, read_run_config
-from bimgame.sim.tasks import parse_task
 from bimgame.util.files import read_json
 from bimgame.util.images import save_png, subplots
 
@@ -76,7 +76,7 @@ def episode_span(episodes: dict[str, np.ndarray], config: dict[str, Any] | None 
     a3c = (config or {}).get("a3c")
     if not isinstance(a3c, dict) or not all(a3c.get(k) for k in ("task", "workers", "envs_per_worker")):
         return max(longest, 0.0)
-    limit = a3c.get("max_episode_steps") or parse_task(a3c["task"]).time_limit
+    limit = a3c.get("max_episode_steps") or puzzle(a3c["task"]).time_limit
     nominal = (limit + (a3c.get("n_steps") or 0)) * a3c["workers"] * a3c["envs_per_worker"]
     return float(max(longest, nominal))
 

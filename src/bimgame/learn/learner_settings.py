@@ -12,6 +12,12 @@ same checks and messages. :class:`FlatSettings` is what a composed settings clas
 setting has one *flat name* across its parts (``lr``, ``hidden``, ``kl_coef``), the name of its
 command-line flag (``--kl-coef``) and of its key in a run's ``config.json``; the settings are built
 from flat names and written as flat names, so that every ``config.json`` any version wrote still loads.
+
+A learner's task is the circular maze's or CyberRunner's labyrinth's (:mod:`bimgame.envs.puzzles`):
+:func:`check_puzzle` and :func:`refuse_maze_only` refuse, by name, what only the maze has (random
+mazes, start curricula, domain randomisation, expert data, reward shaping) and the networks the
+labyrinth cannot train yet; :func:`policy_network` builds a run's network for its task's board and
+:func:`check_init_puzzle` refuses ``--init`` from the other puzzle's network.
 """
 
 from __future__ import annotations
@@ -19,8 +25,12 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Iterator, Mapping
+from pathlib import Path
 from typing import Any, ClassVar, Literal, Self, get_args
 
+from bimgame.envs.puzzles import puzzle
+from bimgame.learn.nets import RecurrentActorCritic
+from bimgame.learn.runs import CONFIG, read_run_config
 from bimgame.util.settings import require_int
 
 __all__ = [
@@ -37,6 +47,11 @@ __all__ = [
     "FinetuneSettings",
     "CurriculumSettings",
     "FlatSettings",
+    "MAZE_ONLY",
+    "refuse_maze_only",
+    "check_puzzle",
+    "policy_network",
+    "check_init_puzzle",
 ]
 
 #: The most environment steps a run (or a checkpoint or evaluation interval) may count: 10¹², about
@@ -78,6 +93,81 @@ StartCurriculum = Literal["demo", "reverse"]
 #: Where training episodes start: ``none`` (the task's own starts: no curriculum part), ``demo``
 #: (demonstration starts, from ``expert_data``) or ``reverse`` (reverse curriculum, no expert).
 START_CURRICULA: tuple[str, ...] = ("none", *get_args(StartCurriculum))
+
+
+#: Why each maze-only setting (flat names, and the reward-shaping flags' destinations) does not apply
+#: to the labyrinth's tasks (:func:`refuse_maze_only`).
+MAZE_ONLY = {
+    "num_mazes": "random mazes are circular mazes (bimgame.sim.maze_sets)",
+    "start_maze": "random mazes are circular mazes (bimgame.sim.maze_sets)",
+    "start_curriculum": "start curricula start episodes from states of the maze (the MPC expert's, or grown "
+    "from the maze's goal)",
+    "randomize": "domain randomisation varies the maze's physics and camera (bimgame.envs.randomization)",
+    "expert_data": "the expert's datasets are MPC episodes on the maze",
+    "value_reward": "V̂ is a value function of the maze's observations",
+    "geodesic_coef": "geodesic shaping follows the maze's distance to its centre",
+}
+
+
+def refuse_maze_only(owner: str, task: str, settings: Mapping[str, bool]) -> None:
+    """Raise ``ValueError`` naming the first of ``settings`` (flat name → whether it is set) that is set
+    when ``task`` is not the circular maze's, and why it applies to the maze only (:data:`MAZE_ONLY`)."""
+    if puzzle(task).is_maze:
+        return
+    for name, on in settings.items():
+        if on:
+            raise ValueError(f"{owner}.{name} applies to the circular maze's tasks only, not {task}: {MAZE_ONLY[name]}")
+
+
+def check_puzzle(owner: str, task: str, network: Any, *, num_mazes: int | None, start_maze: int) -> None:
+    """Refuse what the labyrinth's ``task`` cannot train with: the maze's random mazes
+    (:func:`refuse_maze_only`), and a network (:class:`~bimgame.learn.common.NetworkSettings`) it
+    cannot train yet — pixels (the conv network's auxiliary heads and empty-frame background are the
+    maze's), auxiliary heads (they predict the maze's state layout) and the maze's encoding."""
+    if puzzle(task).is_maze:
+        return
+    refuse_maze_only(owner, task, {"num_mazes": num_mazes is not None, "start_maze": bool(start_maze)})
+    if getattr(network, "obs", "state") != "state":
+        raise ValueError(
+            f"{owner}: obs {network.obs!r} on {task} is not wired yet (the pixel network's auxiliary heads and "
+            f"background subtraction are made for the circular maze's 84×84 frames and state); use obs='state'"
+        )
+    if getattr(network, "aux_heads", False):
+        raise ValueError(
+            f"{owner}.aux_heads on {task}: the auxiliary heads predict the circular maze's state layout (marble, "
+            f"channel), not the labyrinth's; leave them off (asymmetric_critic reads the labyrinth's state)"
+        )
+    if getattr(network, "maze_encoding", False):
+        raise ValueError(f"{owner}.maze_encoding on {task}: the encoding is of a circular maze's walls")
+
+
+def policy_network(config: Any) -> RecurrentActorCritic:
+    """A learner's fresh network, initialised from its settings' ``seed``, of its ``network`` settings
+    for its ``task``'s board (:attr:`~bimgame.envs.puzzles.Puzzle.spec`: the labyrinth's state has 17
+    values, the maze's 7)."""
+    network: RecurrentActorCritic = config.network.build_policy(config.seed, puzzle(config.task).spec)
+    return network
+
+
+def check_init_puzzle(init: str | Path | None, task: str) -> None:
+    """Refuse ``--init`` from a run on the other puzzle than ``task``'s: its network reads the other's
+    observations (a bare checkpoint file names no task: its weights' shapes are checked when loaded)."""
+    source = Path(init) if init is not None else None
+    run_dir = None if source is None else source.parent if source.is_file() else source
+    if run_dir is None or not (run_dir / CONFIG).is_file():
+        return
+    stored = read_run_config(run_dir)
+    block = stored.get("a3c")
+    try:
+        theirs = puzzle((block if isinstance(block, dict) else stored).get("task", ""))
+    except ValueError:
+        return  # no task, or an unknown one: reading the run (read_run) says so
+    ours = puzzle(task)
+    if theirs.family != ours.family:
+        raise ValueError(
+            f"--init: the network of {init} was trained on {theirs.task} (the {theirs.family}) and reads its "
+            f"observations; this run's task {ours.task} is the {ours.family}'s: start it from scratch"
+        )
 
 
 def check_choice(owner: str, name: str, value: Any, allowed: tuple[str, ...], *, optional: bool = False) -> None:

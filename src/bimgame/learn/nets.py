@@ -45,6 +45,7 @@ import torch
 from torch import nn
 
 from bimgame.envs.env import NO_ACTION
+from bimgame.envs.puzzles import maze_obs_scale as state_obs_scale
 from bimgame.learn.encoders import MAZE_FRAMES, ConvEncoder, MLPEncoder
 from bimgame.learn.policy_heads import LOG_STD_INIT, ActionDistribution, action_head, check_action_type
 from bimgame.sim.maze import MazeSpec
@@ -144,8 +145,10 @@ class NetConfig:
         if self.maze_size and (self.encoder != "mlp" or not 0 < self.maze_size < shape[0]):
             raise ValueError(f"NetConfig.maze_size needs the mlp encoder and < {shape[0]} values, got {self.maze_size}")
         if self.maze_frame not in MAZE_FRAMES or (self.maze_frame != "board" and not self.maze_size):
-            raise ValueError(f"NetConfig.maze_frame must be one of {MAZE_FRAMES} (not board: with maze_size), "
-                             f"got {self.maze_frame!r}")
+            raise ValueError(
+                f"NetConfig.maze_frame must be one of {MAZE_FRAMES} (not board: with maze_size), "
+                f"got {self.maze_frame!r}"
+            )
         if self.precision not in PRECISIONS:
             raise ValueError(f"NetConfig.precision must be one of {PRECISIONS}, got {self.precision!r}")
         if self.privileged_size < 0 or (self.privileged_size and (self.privileged_size - 2) % 5):
@@ -163,14 +166,6 @@ class NetConfig:
     @classmethod
     def from_dict(cls, values: dict) -> NetConfig:
         return from_dict(cls, values, "network settings")
-
-
-def state_obs_scale(spec: MazeSpec, n_marbles: int = 1) -> np.ndarray:
-    """Divisors that bring a state observation (see :class:`~bimgame.envs.observe.Observer`) to order 1:
-    positions by the rim radius, velocities by 0.5 m/s (about the fastest reachable), tilts by the
-    maximum tilt, channels by the outermost channel."""
-    per_marble = [spec.rim_radius, spec.rim_radius, 0.5, 0.5] * n_marbles
-    return np.array(per_marble + [spec.max_tilt] * 2 + [max(1, spec.outermost_channel)] * n_marbles, dtype=np.float32)
 
 
 def frame_visible(privileged_size: int) -> list[int]:

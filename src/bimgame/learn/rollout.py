@@ -25,8 +25,8 @@ from typing import Any, Protocol
 import numpy as np
 import torch
 
-from bimgame.envs.vector import BallInMazeVectorEnv
-from bimgame.learn.actor import RecurrentActor, tilt_input
+from bimgame.envs.puzzles import PuzzleVectorEnv, puzzle
+from bimgame.learn.actor import RecurrentActor, episode_successes, tilt_input
 from bimgame.learn.nets import LSTMState, RecurrentActorCritic, Unrolled
 from bimgame.learn.starts import TRUE_START
 
@@ -201,14 +201,14 @@ def training_env(
     privileged: bool,
     action_type: str = "discrete",
     **options: Any,
-) -> BallInMazeVectorEnv:
-    """The batched env a learner's :class:`RolloutCollector` steps: one MuJoCo thread per process
-    (the learners' processes share the cores), and same-step autoreset, whose ``final_obs`` the
-    collector's time-limit bootstrap reads; its actions are the network's ``action_type``.
-    ``options`` go to the env (a start sampler, randomisation)."""
-    return BallInMazeVectorEnv(
+) -> PuzzleVectorEnv:
+    """The batched env a learner's :class:`RolloutCollector` steps, of ``task``'s puzzle (the maze's
+    or the labyrinth's: :mod:`bimgame.envs.puzzles`): one MuJoCo thread per process (the learners'
+    processes share the cores), and same-step autoreset, whose ``final_obs`` the collector's
+    time-limit bootstrap reads; its actions are the network's ``action_type``. ``options`` go to the
+    env (the maze's start sampler, randomisation: on the labyrinth they must be None)."""
+    return puzzle(task).vector_env(
         num_envs,
-        task=task,
         obs_mode=obs,
         nthread=1,
         max_episode_steps=time_limit,
@@ -257,7 +257,8 @@ class FinishedEpisode:
     """The task's own reward summed over the episode (not a shaped one)."""
     length: int
     success: bool
-    """The episode terminated (reached the task's goal) rather than hit its time limit."""
+    """The episode reached the task's goal (:func:`~bimgame.learn.actor.episode_successes`): not its
+    time limit, nor a labyrinth's hole or leaving its path."""
     true_start: bool
     """It started where the task starts (not a start curriculum's start)."""
 
@@ -275,7 +276,7 @@ class FinishedEpisode:
 
 def _check_action_type(env: Any, net: RecurrentActorCritic) -> None:
     """Refuse an env whose actions are not the network's kind (``training_env(action_type=...)``)."""
-    template = getattr(env, "template", None)  # a BallInMazeVectorEnv's single env
+    template = getattr(env, "template", None)  # the vector env's single env (either puzzle's)
     env_type, net_type = getattr(template, "action_type", None), net.config.action_type
     if env_type is not None and env_type != net_type:
         raise ValueError(
@@ -304,8 +305,8 @@ class StartCurriculum(Protocol):
 class RolloutCollector:
     """Steps ``env`` (a batched vector env, possibly wrapped) with ``actor`` and returns segments.
 
-    ``base_env`` is the unwrapped :class:`~bimgame.envs.vector.BallInMazeVectorEnv` (its maze and
-    start tags); ``curriculum`` the start curriculum it samples starts from, told each episode's
+    ``base_env`` is the unwrapped env of :func:`training_env` (its board's ``max_tilt``, as ``maze``,
+    and its start tags); ``curriculum`` the start curriculum it samples starts from, told each episode's
     outcome; ``on_episode`` receives every finished episode as it ends; ``global_step`` reads the
     run's step count (shared by all workers) for the episodes' end steps. ``tilt_input`` and
     ``privileged`` say whether the segments keep the tilt and the simulator's state."""
@@ -424,8 +425,9 @@ class RolloutCollector:
         # Learning curves show the task's own reward, also when a wrapper shapes it.
         self.episode_return += np.asarray(self.info.get("task_reward", reward), dtype=np.float64)
         self.episode_length += 1
+        successes = episode_successes(self.info, terminated)
         for i in np.flatnonzero(done):
-            self._book(int(i), bool(terminated[i]), start_tags)
+            self._book(int(i), bool(successes[i]), start_tags)
         self.episode_return[done] = 0.0
         self.episode_length[done] = 0
         self.episode_start[done] = step_at_start

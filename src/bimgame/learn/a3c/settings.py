@@ -18,6 +18,7 @@ from bimgame.learn.learner_settings import (
     check_at_most,
     check_choice,
     check_number,
+    refuse_maze_only,
 )
 from bimgame.learn.policy_heads import require_discrete
 from bimgame.util.settings import require_int
@@ -141,6 +142,8 @@ class A3CConfig(LearnerSettings):
             object.__setattr__(self, "finetuning", None)
         # A3C's loss, fine-tuning terms and teacher are those of a categorical policy.
         require_discrete("A3C", self.network.action_type, "use --algo ppo")
+        maze_only = {"randomize": self.randomize is not None, "expert_data": self.expert_data is not None}
+        refuse_maze_only("A3CConfig", self.task, {**maze_only, "start_curriculum": self.curriculum is not None})
         self._check_expert_data()
         self._check_pixel_settings()
 

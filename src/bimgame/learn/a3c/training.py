@@ -20,7 +20,7 @@ from bimgame.learn.common import run_evaluation
 from bimgame.learn.curves import plot_run
 from bimgame.learn.episode_monitor import Monitor
 from bimgame.learn.init_network import check_init_network, init_settings_for
-from bimgame.learn.learner_settings import DEFAULT_FINETUNE, FINETUNE_PRESETS
+from bimgame.learn.learner_settings import DEFAULT_FINETUNE, FINETUNE_PRESETS, check_init_puzzle
 from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.learn.run_dir import TEACHER, RunDirectory, TrainingError, TrainResult, stored_run_config
 from bimgame.learn.runs import CHECKPOINT, KIND_A3C, SUMMARY, read_run_settings, torch_threads
@@ -42,6 +42,7 @@ def resolve_config(
         stored_run_config(run_dir, KIND_A3C)
         return read_run_settings(run_dir, "a3c", lambda stored: A3CConfig.from_dict({**stored, **given}))
     if init is not None:
+        check_init_puzzle(init, given.get("task", A3CConfig.task))  # before its network settings are taken
         given = {**init_settings_for(init, given.get("num_mazes")), **finetune_settings(given.get("finetune")), **given}
     return A3CConfig.from_dict(given)
 
@@ -132,6 +133,7 @@ def _train(
             "pass --init (or set kl_coef to 0)"
         )
     if not resume:
+        check_init_puzzle(init, config.task)
         check_init_network(init, config.network)  # before the run directory: a refused start writes nothing
     with RunDirectory(run_dir, KIND_A3C, resume=resume) as run:
         start = _resumed(config, run, shared) if resume else _started(config, run, shared, init, extra_config)

@@ -10,13 +10,13 @@ from typing import Any
 
 import torch
 
+from bimgame.envs.puzzles import PuzzleSpec, puzzle
 from bimgame.envs.vector import BallInMazeVectorEnv
 from bimgame.learn.a3c.settings import A3CConfig
 from bimgame.learn.finetune import LossWeights, RunningScale
 from bimgame.learn.loss_terms import LossTerm
 from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.learn.rollout import Segment, advantages_and_targets, unroll
-from bimgame.sim.maze import MazeSpec
 
 __all__ = [
     "EnvWrapper",
@@ -32,9 +32,10 @@ __all__ = [
 EnvWrapper = Callable[[BallInMazeVectorEnv], Any]
 
 
-def network_for(config: A3CConfig, maze: MazeSpec | None = None) -> RecurrentActorCritic:
-    """A fresh network for ``config``'s run, initialised from its seed."""
-    return config.network.build_policy(config.seed, maze)
+def network_for(config: A3CConfig, maze: PuzzleSpec | None = None) -> RecurrentActorCritic:
+    """A fresh network for ``config``'s run, initialised from its seed, on the board ``maze`` (None: its
+    task's, :attr:`~bimgame.envs.puzzles.Puzzle.spec`: MERL's maze, or the labyrinth's layout)."""
+    return config.network.build_policy(config.seed, maze if maze is not None else puzzle(config.task).spec)
 
 
 def make_optimizer(config: A3CConfig, net: RecurrentActorCritic) -> torch.optim.Optimizer:

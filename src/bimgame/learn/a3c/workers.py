@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from bimgame.envs.puzzles import PuzzleSpec, PuzzleVectorEnv
 from bimgame.envs.randomization import RANDOMIZATION_PRESETS
 from bimgame.envs.vector import BallInMazeVectorEnv
 from bimgame.learn.a3c.settings import A3CConfig
@@ -54,7 +55,7 @@ def _start_sampler(config: A3CConfig) -> DemoStartCurriculum | ReverseCurriculum
     return ReverseCurriculum(config.task, high=curriculum.curriculum_threshold, pool_size=32)
 
 
-def _make_env(config: A3CConfig, num_envs: int, **kwargs: Any) -> BallInMazeVectorEnv:
+def _make_env(config: A3CConfig, num_envs: int, **kwargs: Any) -> PuzzleVectorEnv:
     randomize = None if config.randomize is None else RANDOMIZATION_PRESETS[config.randomize]
     return training_env(
         num_envs,
@@ -139,7 +140,7 @@ class _WorkerUpdate:
     once at the start: its loss terms (KL to π^s, behaviour cloning), advantage scaling, adapting
     entropy coefficient and frame augmentation."""
 
-    def __init__(self, config: A3CConfig, rank: int, run: RunShared, local: RecurrentActorCritic, maze: MazeSpec):
+    def __init__(self, config: A3CConfig, rank: int, run: RunShared, local: RecurrentActorCritic, maze: PuzzleSpec):
         settings, finetuning = config.optimization, config.finetuning
         self.config, self.local = config, local
         self.optimizer = _shared_optimizer(config, run)
@@ -199,7 +200,10 @@ def _collector(rank: int, run: RunShared, torch_seed: int) -> tuple[RolloutColle
     config = run.config
     curriculum = _start_sampler(config)
     base_env = _make_env(config, config.schedule.envs_per_worker, start_sampler=curriculum)
-    env = run.env_wrapper(base_env) if run.env_wrapper is not None else base_env
+    env: Any = base_env
+    if run.env_wrapper is not None:
+        assert isinstance(base_env, BallInMazeVectorEnv)  # reward shaping is the maze's (the CLI refuses it)
+        env = run.env_wrapper(base_env)
     local = network_for(config, base_env.maze)
     actor = RecurrentActor(local, config.schedule.envs_per_worker, generator=torch.Generator().manual_seed(torch_seed))
 
@@ -231,7 +235,7 @@ def _shared_optimizer(config: A3CConfig, run: RunShared) -> torch.optim.Optimize
     return optimizer
 
 
-def _loss_terms(config: A3CConfig, rank: int, run: RunShared, maze: MazeSpec) -> list[LossTerm]:
+def _loss_terms(config: A3CConfig, rank: int, run: RunShared, maze: PuzzleSpec) -> list[LossTerm]:
     """The run's optional loss terms, in the order they are added to the loss: the KL to π^s when the
     run has a teacher, behaviour cloning when ``bc_coef`` > 0."""
     terms: list[LossTerm] = []
@@ -244,6 +248,7 @@ def _loss_terms(config: A3CConfig, rank: int, run: RunShared, maze: MazeSpec) ->
         terms.append(TeacherKL(teacher, finetuning.kl_decay_steps))
     if finetuning is not None and finetuning.bc_coef > 0:
         assert config.expert_data is not None  # A3CConfig refuses behaviour cloning without one
+        assert isinstance(maze, MazeSpec)  # and expert data on the labyrinth
         gamma = config.optimization.gamma
         demos = DemoWindows.from_dataset(config.expert_data, config.task, config.network.obs, gamma, maze)
         rng = np.random.default_rng(np.random.SeedSequence([config.seed, rank, run.start_step, 1]))

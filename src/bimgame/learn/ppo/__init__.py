@@ -27,6 +27,11 @@ Modules: :mod:`~bimgame.learn.ppo.settings` (:class:`PPOConfig` and its parts),
 :mod:`~bimgame.learn.ppo.parallel` (the worker processes) and :mod:`~bimgame.learn.ppo.training`
 (:func:`train_ppo`: the run directory, logs, checkpoints, resume).
 
+Tasks: the circular maze's and CyberRunner's labyrinth's (``LABYRINTH-EASY`` …, state observations;
+:mod:`bimgame.envs.puzzles`). An episode's success is the env's own where it reports one (a labyrinth
+episode also ends in a hole). The network's actions are discrete unless ``action_type="continuous"``
+(CyberRunner's own actions are continuous), and the env is built with the network's.
+
 Not yet: A3C's critic warm-up, actor ramp, behaviour cloning, start curricula and reward shaping.
 """
 

@@ -18,6 +18,7 @@ import torch
 
 from bimgame.learn.actor import RecurrentActor
 from bimgame.learn.finetune import Teacher
+from bimgame.learn.learner_settings import policy_network
 from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.learn.ppo.settings import PPOConfig
 from bimgame.learn.ppo.update import GradientAverage, KLTarget, ppo_update
@@ -131,6 +132,6 @@ def _teacher(config: PPOConfig, weights: dict[str, torch.Tensor] | None) -> Teac
     """π^s following this rank's environments, for a KL term (None when the run has none)."""
     if weights is None or config.finetuning is None:
         return None
-    net = config.network.build_policy(config.seed)
+    net = policy_network(config)
     net.load_state_dict(weights)
     return Teacher(net, config.schedule.envs_per_worker, config.finetuning.kl_temperature)

@@ -42,6 +42,7 @@ from typing import Any
 import torch
 import torch.distributed as dist
 
+from bimgame.learn.learner_settings import policy_network
 from bimgame.learn.ppo.learner import RankLearner, adam
 from bimgame.learn.ppo.settings import PPOConfig
 from bimgame.learn.ppo.update import GradientAverage
@@ -83,7 +84,7 @@ def _worker_main(start: _WorkerStart, commands: Any, messages: Any) -> None:
     try:
         config = PPOConfig.from_dict(start.config)
         _join(start.rendezvous, start.rank, config.schedule.workers)
-        net = config.network.build_policy(config.seed)
+        net = policy_network(config)
         net.load_state_dict(start.model)
         optimizer = adam(net, config)
         optimizer.load_state_dict(start.optimizer)

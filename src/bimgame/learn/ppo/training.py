@@ -27,6 +27,7 @@ from bimgame.learn.curves import plot_run
 from bimgame.learn.devices import resolve_device
 from bimgame.learn.episode_monitor import Monitor
 from bimgame.learn.init_network import check_init_network, init_settings_for
+from bimgame.learn.learner_settings import check_init_puzzle, policy_network
 from bimgame.learn.metric_logs import MetricLog
 from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.learn.ppo.learner import RankLearner, adam
@@ -74,6 +75,7 @@ def resolve_ppo_config(
             raise ValueError(f"{Path(run_dir) / 'config.json'} holds no PPO settings ('ppo')")
         return PPOConfig.from_flat({**stored, **given})
     if init is not None:
+        check_init_puzzle(init, given.get("task", PPOConfig.task))  # before its network settings are taken
         given = {**init_settings_for(init, given.get("num_mazes")), **given}
     return PPOConfig.from_flat(given)
 
@@ -93,14 +95,15 @@ def train_ppo(
     is kept)."""
     if resume and init is not None:
         raise ValueError("--init with --resume: a resumed run continues from its own checkpoint")
-    check_init_network(init, config.network)  # before the run directory: a refused start writes nothing
+    check_init_puzzle(init, config.task)  # before the run directory: a refused start writes nothing
+    check_init_network(init, config.network)
     # With worker processes every rank has one core's share: one thread each.
     threads = 1 if config.schedule.workers > 1 else None
     device = resolve_device(config.device)
     if device.type != "cpu" and config.schedule.workers > 1:
         raise ValueError(f"device {config.device!r} ({device}) takes one process (workers 1)")
     with torch_threads(threads), RunDirectory(run_dir, KIND_PPO, resume=resume) as run:
-        net = config.network.build_policy(config.seed)
+        net = policy_network(config)
         learning = learning_copy(net, device)
         optimizer = adam(learning if learning is not None else net, config)
         start = _resumed(config, run, net, optimizer) if resume else _started(config, run, net, init)

@@ -1,0 +1,181 @@
+"""The learners on CyberRunner's labyrinth (bimgame.envs.puzzles): the tasks and what they map to, the
+settings that accept them and those that refuse them by name, a tiny PPO run from the command line
+(run directory, resume, evaluate) and a tiny A3C run, and success counted from the env's own ``success`` — a marble in a
+hole terminates its episode but is no success."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+import bimgame.envs.labyrinth_env as labyrinth_env
+from bimgame.cli.main import main
+from bimgame.envs.puzzles import LABYRINTH, MAZE, TASK_NAMES, puzzle, state_obs_scale, vector_env
+from bimgame.envs.vector import BallInMazeVectorEnv
+from bimgame.learn.a3c import A3CConfig, train
+from bimgame.learn.actor import RecurrentActor, episode_successes, evaluate_network
+from bimgame.learn.common import NetworkSettings, load_run_network
+from bimgame.learn.learner_settings import check_init_puzzle, policy_network
+from bimgame.learn.ppo import PPOConfig
+from bimgame.learn.rollout import RolloutCollector, training_env
+from bimgame.sim.labyrinth import LabyrinthSpec
+from bimgame.sim.maze import MazeSpec
+from bimgame.sim.tasks import Task
+
+LAB = dict(task="LABYRINTH-EASY", obs="state", hidden=16, features=16, envs_per_worker=4, n_steps=32,
+           eval_every=0, eval_episodes=2, max_episode_steps=100)
+CLI = ["--obs", "state", "--hidden", "16", "--features", "16", "--envs-per-worker", "4", "--n-steps", "32",
+       "--eval-every", "0", "--eval-episodes", "2", "--max-episode-steps", "100", "--no-progress"]
+#: On the easy board with a hole 32.5 mm west of the start, on the path, discrete action 4 (tilt −1
+#: step about y) rolls the marble into it within 20 steps.
+INTO_THE_HOLE = 4
+
+
+def test_every_task_maps_to_its_puzzle_case_insensitively():
+    assert TASK_NAMES == ("FULL", "STG1", "STG2", "STG3", "STG4", "LABYRINTH-EASY", "LABYRINTH-MEDIUM",
+                          "LABYRINTH-HARD")
+    for task in Task:
+        found = puzzle(task.value.lower())
+        assert (found.task, found.family, found.time_limit) == (task.value, MAZE, task.time_limit)
+        assert found.spec == MazeSpec.merl()
+    hard = puzzle("Labyrinth-Hard")
+    assert (hard.task, hard.family, hard.layout, hard.time_limit) == ("LABYRINTH-HARD", LABYRINTH, "hard", 3000)
+    with pytest.raises(ValueError, match=r"unknown task 'LABYRINTH_EASY'; allowed: FULL, STG1, .*LABYRINTH-HARD$"):
+        puzzle("LABYRINTH_EASY")
+    # The maze's divisors: rim radius, 0.5 m/s, maximum tilt, outermost channel; the labyrinth's bring
+    # its 17 values to order 1.
+    merl = MazeSpec.merl()
+    np.testing.assert_allclose(
+        state_obs_scale(merl),
+        [merl.rim_radius, merl.rim_radius, 0.5, 0.5, merl.max_tilt, merl.max_tilt, merl.outermost_channel],
+        rtol=1e-6,
+    )
+    scale = puzzle("LABYRINTH-EASY").state_obs_scale()
+    assert scale.shape == (17,) and np.all(scale > 0)
+    np.testing.assert_allclose(scale[:7], [0.138, 0.1155, 0.5, 0.5, np.radians(10), np.radians(10), 1.0], rtol=1e-6)
+    env = vector_env("labyrinth-easy", 2, obs_mode="state", action_type="discrete", randomize=None, start_sampler=None)
+    obs, _ = env.reset(seed=0)
+    assert np.all(np.abs(obs / scale) <= 2.0) and env.max_episode_steps == 3000
+    with pytest.raises(ValueError, match=r"num_mazes, randomize: the circular maze's options, not the labyrinth's"):
+        vector_env("LABYRINTH-EASY", 2, obs_mode="state", action_type="discrete", randomize=object(), num_mazes=3)
+    assert isinstance(training_env(2, task="STG1", obs="state", time_limit=10, privileged=False), BallInMazeVectorEnv)
+
+
+def test_settings_accept_the_labyrinth_and_refuse_the_mazes_settings_by_name():
+    config = PPOConfig.from_flat(LAB, task="labyrinth-medium", action_type="continuous", asymmetric_critic=True)
+    assert config.task == "LABYRINTH-MEDIUM" and config.time_limit == 100
+    assert PPOConfig.from_flat(LAB, max_episode_steps=None).time_limit == 3000
+    net = policy_network(config)
+    assert net.config.obs_shape == (17,) and net.config.privileged_size == 17
+    assert torch.equal(net.encoder.scale, torch.as_tensor(puzzle("LABYRINTH-MEDIUM").state_obs_scale()))
+    assert A3CConfig.from_flat(LAB).task == "LABYRINTH-EASY"
+    refused = {
+        "num_mazes": r"PPOConfig\.num_mazes applies to the circular maze's tasks only, not LABYRINTH-EASY: random",
+        "start_maze": r"PPOConfig\.start_maze applies to the circular maze's tasks only",
+        "obs": r"PPOConfig: obs 'pixels' on LABYRINTH-EASY is not wired yet .*use obs='state'",
+        "aux_heads": r"PPOConfig\.aux_heads on LABYRINTH-EASY: the auxiliary heads predict the circular maze's",
+    }
+    values = {"num_mazes": 4, "start_maze": 2, "obs": "pixels", "aux_heads": True}
+    for name, message in refused.items():
+        with pytest.raises(ValueError, match=message):
+            PPOConfig.from_flat(LAB, **{name: values[name]})
+    with pytest.raises(ValueError, match=r"NetworkSettings\.obs 'cyberrunner': .* needs a Dict encoder, not built yet"):
+        NetworkSettings(obs="cyberrunner")
+    for name, value, why in (("randomize", "physics", "domain randomisation"), ("expert_data", "data", "datasets"),
+                             ("start_curriculum", "reverse", "start curricula")):
+        with pytest.raises(ValueError, match=rf"A3CConfig\.{name} applies to the circular maze's tasks only.*{why}"):
+            A3CConfig.from_flat(LAB, **{name: value})
+    with pytest.raises(ValueError, match=r"PPOConfig\.task: unknown task 'labyrinth'; allowed: FULL, .*LABYRINTH-EASY"):
+        PPOConfig.from_flat(LAB, task="labyrinth")
+
+
+def test_ppo_trains_resumes_and_evaluates_on_the_labyrinth_from_the_command_line(tmp_path, capsys):
+    run_dir = tmp_path / "run"
+    assert main(["train", "--algo", "ppo", "--task", "labyrinth-easy", "--run-dir", str(run_dir), "--steps", "256",
+                 *CLI]) == 0
+    assert "done: 256 steps" in capsys.readouterr().out
+    stored = json.loads((run_dir / "config.json").read_text())
+    assert stored["task"] == stored["ppo"]["task"] == "LABYRINTH-EASY" and stored["net"]["obs_shape"] == [17]
+    assert {"checkpoint.pt", "episodes.csv", "updates.csv", "eval.csv", "summary.json"} <= {
+        p.name for p in run_dir.iterdir()}
+    assert main(["train", "--algo", "ppo", "--run-dir", str(run_dir), "--resume", "--steps", "384",
+                 "--no-progress"]) == 0
+    assert "done: 384 steps" in capsys.readouterr().out
+    net, run, step = load_run_network(run_dir)
+    assert (run.task, run.time_limit, step, net.config.obs_shape) == ("LABYRINTH-EASY", 100, 384, (17,))
+    assert main(["evaluate", str(run_dir), "--episodes", "2"]) == 0
+    capsys.readouterr()
+    # What the maze's verbs cannot do with it, and the maze's reward shaping, are refused by name.
+    assert main(["evaluate", str(run_dir), "--task", "STG1"]) == 2
+    assert "was trained on LABYRINTH-EASY (the labyrinth)" in capsys.readouterr().err
+    assert main(["score", str(run_dir)]) == 2
+    assert "bimgame score runs the circular maze's benchmark protocol" in capsys.readouterr().err
+    assert main(["train", "--task", "LABYRINTH-EASY", "--run-dir", str(tmp_path / "g"), "--geodesic-reward", *CLI]) == 2
+    assert "RewardSettings.geodesic_coef applies to the circular maze's tasks only" in capsys.readouterr().err
+    # A network of one puzzle starts no run on the other: its observations differ.
+    with pytest.raises(ValueError, match=r"--init: the network of .* was trained on LABYRINTH-EASY \(the labyrinth\)"):
+        check_init_puzzle(run_dir, "STG1")
+    assert main(["train", "--algo", "ppo", "--task", "STG1", "--init", str(run_dir), "--run-dir",
+                 str(tmp_path / "m"), *CLI]) == 2
+    assert "start it from scratch" in capsys.readouterr().err and not (tmp_path / "m").exists()
+    check_init_puzzle(run_dir, "LABYRINTH-HARD")  # the same puzzle: its network fits
+    with pytest.raises(SystemExit):  # other verbs keep the maze's tasks
+        main(["pretrain", "--task", "LABYRINTH-EASY", "--run-dir", str(tmp_path / "p")])
+    assert "invalid choice: 'LABYRINTH-EASY'" in capsys.readouterr().err
+
+
+def test_a3c_trains_on_the_labyrinth_too(tmp_path):
+    config = A3CConfig.from_flat(LAB, steps=256, workers=1, n_steps=16, max_episode_steps=50)
+    result = train(config, tmp_path / "a3c", progress=False)
+    assert result.steps >= 256 and result.final_eval is not None
+    net, run, _ = load_run_network(tmp_path / "a3c")
+    assert (run.task, net.config.obs_shape, net.config.action_type) == ("LABYRINTH-EASY", (17,), "discrete")
+
+
+class _HoleyBoard(LabyrinthSpec):
+    """The easy board with one more hole on the path, 32.5 mm west of the start."""
+
+    @classmethod
+    def layout(cls, name, **overrides):
+        board = LabyrinthSpec.layout(name, **overrides)
+        return board.replace(holes=board.holes + ((-0.03, 0.1065),))
+
+
+def _into_the_hole(config: PPOConfig):
+    """The run's network, acting (greedily, and almost always when sampling) with :data:`INTO_THE_HOLE`."""
+    net = policy_network(config)
+    with torch.no_grad():
+        net.policy.weight.zero_()
+        net.policy.bias.copy_(torch.tensor([0.0, 0.0, 0.0, 0.0, 12.0]))
+    return net
+
+
+def test_an_episode_that_ends_in_a_hole_is_no_success(monkeypatch):
+    monkeypatch.setattr(labyrinth_env, "LabyrinthSpec", _HoleyBoard)
+    config = PPOConfig.from_flat(LAB)
+    net = _into_the_hole(config)
+    result = evaluate_network(net, task=config.task, obs_mode="state", episodes=3, seed=0, max_episode_steps=100)
+    assert result.lengths == [20, 20, 20]  # terminated, long before the time limit
+    assert result.successes == [False, False, False]
+    # The collector books them as failures too.
+    env = training_env(4, task=config.task, obs="state", time_limit=100, privileged=False)
+    booked = []
+    collector = RolloutCollector(env, env, RecurrentActor(net, 4, generator=torch.Generator().manual_seed(0)),
+                                 gamma=0.99, on_episode=booked.append)
+    collector.reset(0, 0)
+    segment = collector.collect(24, 0)
+    assert len(booked) == 4 and segment.ends.any()
+    assert all(not episode.success and episode.length < 100 for episode in booked)
+
+
+def test_success_is_the_envs_own_where_it_reports_one_else_a_termination():
+    terminated = np.array([True, True, False])
+    # The maze reports no "success": a termination is its goal, as before.
+    assert episode_successes({"is_success": np.array([False] * 3)}, terminated).tolist() == [True, True, False]
+    # Same-step autoreset: the finished step's info says which episodes succeeded.
+    info = {"success": np.zeros(3, dtype=bool), "final_info": {"success": np.array([True, False, False])}}
+    assert episode_successes(info, terminated).tolist() == [True, False, False]
+    assert episode_successes({"success": np.array([False, True, True])}, terminated).tolist() == [False, True, False]
