@@ -11,7 +11,7 @@ import pytest
 
 from bimgame.cli.flags import FIELD_CHOICES, add_settings_flags, given_settings
 from bimgame.cli.main import build_parser
-from bimgame.envs.observe import OBS_MODES
+from bimgame.envs.puzzles import NETWORK_OBS
 from bimgame.learn.a3c import A3CConfig
 
 
@@ -189,7 +189,7 @@ def test_unknown_field_is_named():
 def test_choice_fields_are_restricted_and_tasks_case_insensitive(capsys):
     parser = argparse.ArgumentParser()
     add_settings_flags(parser, Choosy, ["obs", "task"])
-    assert tuple(_action(parser, "obs").choices) == OBS_MODES == FIELD_CHOICES["obs"]
+    assert tuple(_action(parser, "obs").choices) == NETWORK_OBS == FIELD_CHOICES["obs"]
     args = parser.parse_args(["--obs", "state", "--task", "stg2"])
     assert (args.obs, args.task) == ("state", "STG2")
     with pytest.raises(SystemExit):

@@ -17,7 +17,7 @@ from bimgame.envs.puzzles import LABYRINTH, MAZE, TASK_NAMES, puzzle, state_obs_
 from bimgame.envs.vector import BallInMazeVectorEnv
 from bimgame.learn.a3c import A3CConfig, train
 from bimgame.learn.actor import RecurrentActor, episode_successes, evaluate_network
-from bimgame.learn.common import NetworkSettings, load_run_network
+from bimgame.learn.common import load_run_network
 from bimgame.learn.learner_settings import check_init_puzzle, policy_network
 from bimgame.learn.ppo import PPOConfig
 from bimgame.learn.rollout import RolloutCollector, training_env
@@ -82,8 +82,7 @@ def test_settings_accept_the_labyrinth_and_refuse_the_mazes_settings_by_name():
     for name, message in refused.items():
         with pytest.raises(ValueError, match=message):
             PPOConfig.from_flat(LAB, **{name: values[name]})
-    with pytest.raises(ValueError, match=r"NetworkSettings\.obs 'cyberrunner': .* needs a Dict encoder, not built yet"):
-        NetworkSettings(obs="cyberrunner")
+    assert PPOConfig.from_flat(LAB, obs="cyberrunner").network.obs == "cyberrunner"  # test_cyberrunner_encoder.py
     for name, value, why in (("randomize", "physics", "domain randomisation"), ("expert_data", "data", "datasets"),
                              ("start_curriculum", "reverse", "start curricula")):
         with pytest.raises(ValueError, match=rf"A3CConfig\.{name} applies to the circular maze's tasks only.*{why}"):

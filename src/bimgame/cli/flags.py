@@ -34,6 +34,7 @@ from typing import Any
 from bimgame.cli.argtypes import TASK_NAMES, non_negative_float, non_negative_int, positive_float, positive_int
 from bimgame.envs.env import ACTION_TYPES
 from bimgame.envs.observe import OBS_MODES
+from bimgame.envs.puzzles import NETWORK_OBS
 from bimgame.envs.randomization import RANDOMIZATION_PRESETS
 from bimgame.experiments.budgets import ALGORITHMS
 from bimgame.expert.mpc import PLANNING_REWARDS, SAMPLINGS
@@ -60,7 +61,7 @@ __all__ = [
 FIELD_CHOICES: dict[str, tuple[str, ...]] = {
     "task": TASK_NAMES,
     "tasks": TASK_NAMES,
-    "obs": OBS_MODES,
+    "obs": NETWORK_OBS,
     "action_type": ACTION_TYPES,
     "optimizer": OPTIMIZERS,
     "target": TARGETS,

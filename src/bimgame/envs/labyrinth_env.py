@@ -34,10 +34,14 @@ __all__ = [
     "LABYRINTH_EPISODE_SECONDS",
     "labyrinth_max_episode_steps",
     "path_points_ahead",
+    "CYBERRUNNER_PARTS",
+    "CYBERRUNNER_FLAT_SIZE",
+    "flatten_cyberrunner",
+    "unflatten_cyberrunner",
 ]
 
 LABYRINTH_ACTION_TYPES = ("continuous", "discrete")
-LABYRINTH_OBS_MODES = ("state", "pixels", "cyberrunner")
+LABYRINTH_OBS_MODES = ("state", "pixels", "cyberrunner", "cyberrunner_flat")
 #: Action rates (Hz): CyberRunner's camera and control (55) and MERL's maze's (30).
 LABYRINTH_CONTROL_RATES = (30, 55)
 #: Episode time limit (s): CyberRunner's 3000 steps at 55 Hz (``env.py``: ``self.steps == 3000``).
@@ -57,6 +61,37 @@ PATH_SPACING = 60 * 0.0002
 CYBERRUNNER_TILT_NORM = math.radians(10.0)
 #: CyberRunner's marble-centred crop: 64 × 64 pixels at 1 mm per pixel (``measurements.py``).
 CROP_SIZE, CROP_PIXEL = 64, 1e-3
+#: CyberRunner's observation, part by part: each key of the ``Dict`` and its shape, in the order of its
+#: flat form (``obs_mode="cyberrunner_flat"``, :func:`flatten_cyberrunner`).
+CYBERRUNNER_PARTS = (("image", (1, CROP_SIZE, CROP_SIZE)), ("states", (4,)), ("goal", (2 * PATH_AHEAD,)))
+#: Length of the flat form: 64 · 64 crop pixels, 4 states, 10 goal values (4110).
+CYBERRUNNER_FLAT_SIZE = sum(math.prod(shape) for _, shape in CYBERRUNNER_PARTS)
+
+
+def flatten_cyberrunner(obs: dict[str, np.ndarray]) -> np.ndarray:
+    """CyberRunner's ``Dict`` observation as one float32 vector (…, 4110) — one board's, or a batch's
+    (…, the leading axes of each part): the crop's 64 × 64 pixels row by row, their values as the
+    ``uint8`` image has them (0–255; a network scales them), then ``"states"`` (4), then ``"goal"``
+    (10). Exact: float32 holds every uint8 and float32 value, so :func:`unflatten_cyberrunner`
+    gives the ``Dict`` back bit for bit."""
+    batch = np.shape(obs["states"])[:-1]
+    parts = [np.asarray(obs[key]).reshape(*batch, -1) for key, _ in CYBERRUNNER_PARTS]
+    return np.concatenate(parts, axis=-1, dtype=np.float32)
+
+
+def unflatten_cyberrunner(flat: np.ndarray) -> dict[str, np.ndarray]:
+    """The ``Dict`` observation of :func:`flatten_cyberrunner`'s vector(s) (…, 4110): ``"image"``
+    (…, 1, 64, 64) uint8, ``"states"`` (…, 4) and ``"goal"`` (…, 10) float32."""
+    flat = np.asarray(flat, dtype=np.float32)
+    if flat.shape[-1:] != (CYBERRUNNER_FLAT_SIZE,):
+        raise ValueError(f"a flat CyberRunner observation has {CYBERRUNNER_FLAT_SIZE} values, got shape {flat.shape}")
+    parts, start = {}, 0
+    for key, shape in CYBERRUNNER_PARTS:
+        size = math.prod(shape)
+        part = flat[..., start : start + size].reshape(*flat.shape[:-1], *shape)
+        parts[key] = part.astype(np.uint8) if key == "image" else part
+        start += size
+    return parts
 
 
 def labyrinth_max_episode_steps(control_hz: float) -> int:
@@ -127,6 +162,9 @@ class LabyrinthEnv(gym.Env):
     and y / 0.231 m from the board's lower-left corner (CyberRunner's normalisation, our axes'
     signs); ``"goal"`` ``Box((10,), float32)``: the relative path of ``"state"``, its k-th point
     divided by k × 12 mm (k = 1 … 5), as CyberRunner's.
+    ``obs_mode="cyberrunner_flat"``: the same observation as one ``Box((4110,), float32)`` vector (what
+    a learner's network reads, one tensor per step): the crop's 4096 pixels row by row (0–255), then
+    ``"states"``, then ``"goal"`` (:func:`flatten_cyberrunner`; :func:`unflatten_cyberrunner` inverts it).
 
     ## Rewards
 
@@ -254,7 +292,7 @@ class LabyrinthEnv(gym.Env):
         self._render_raster: LabyrinthRaster | None = None
         if obs_mode == "pixels":
             self._raster = LabyrinthRaster(board, board_grid(board, self.obs_size), path_width=path_width)
-        elif obs_mode == "cyberrunner":
+        elif obs_mode in ("cyberrunner", "cyberrunner_flat"):
             self._raster = LabyrinthRaster(board, sheet_grid(board, CROP_PIXEL), path_width=path_width)
         self._path_width = path_width
         self.observation_space = self._observation_space()
@@ -279,6 +317,11 @@ class LabyrinthEnv(gym.Env):
         hx, hy = self.board.board_size[0] / 2, self.board.board_size[1] / 2
         if self.obs_mode == "pixels":
             return spaces.Box(0, 255, shape=(1, self.obs_size, self.obs_size), dtype=np.uint8)
+        if self.obs_mode == "cyberrunner_flat":
+            crop = CROP_SIZE * CROP_SIZE
+            low = np.concatenate([np.zeros(crop), np.full(CYBERRUNNER_FLAT_SIZE - crop, -np.inf)])
+            high = np.concatenate([np.full(crop, 255.0), np.full(CYBERRUNNER_FLAT_SIZE - crop, np.inf)])
+            return spaces.Box(low.astype(np.float32), high.astype(np.float32), dtype=np.float32)
         if self.obs_mode == "cyberrunner":
             return spaces.Dict(
                 image=spaces.Box(0, 255, (1, CROP_SIZE, CROP_SIZE), np.uint8),
@@ -363,11 +406,12 @@ class LabyrinthEnv(gym.Env):
         assert self._raster is not None
         w, h = self.board.board_size
         states = [tilt[0] / CYBERRUNNER_TILT_NORM, tilt[1] / CYBERRUNNER_TILT_NORM, (x + w / 2) / w, (y + h / 2) / h]
-        return {
+        obs = {
             "image": self._raster.crop(np.array([x, y]), CROP_SIZE)[None],
             "states": np.asarray(states, dtype=np.float32),
             "goal": (np.array(relative) / self._goal_norm).astype(np.float32),
         }
+        return flatten_cyberrunner(obs) if self.obs_mode == "cyberrunner_flat" else obs
 
     def _info(self, step: PathStep, success: bool) -> dict[str, Any]:
         return {

@@ -55,6 +55,7 @@ from bimgame.envs.labyrinth_env import (
     PATH_AHEAD,
     PATH_SPACING,
     LabyrinthEnv,
+    flatten_cyberrunner,
     labyrinth_max_episode_steps,
     path_points_ahead,
 )
@@ -73,7 +74,8 @@ class LabyrinthVectorEnv(gym.vector.VectorEnv):
     Args:
         num_envs: number of boards.
         layout: "easy", "medium" or "hard" (CyberRunner's boards).
-        obs_mode: "state", "pixels" or "cyberrunner" (see :class:`LabyrinthEnv`).
+        obs_mode: "state", "pixels", "cyberrunner" or "cyberrunner_flat" (see :class:`LabyrinthEnv`; the
+            flat form is (N, 4110) float32, :func:`~bimgame.envs.labyrinth_env.flatten_cyberrunner`).
         action_type: "continuous" (tilt rates in [-1, 1]², shape (N, 2)) or "discrete" (N integers 0..4).
         control_hz: 55 (CyberRunner's) or 30.
         max_episode_steps: time limit (truncation), as ``TimeLimit`` applies it; None: the registered
@@ -351,11 +353,12 @@ class LabyrinthVectorEnv(gym.vector.VectorEnv):
         tilt = self._states[:, self.sim.layout.tilt] / CYBERRUNNER_TILT_NORM
         position = np.stack([(xy[:, 0] + w / 2) / w, (xy[:, 1] + h / 2) / h], axis=1)
         relative = (ahead - xy[:, None, :]).reshape(self.num_envs, -1)
-        return {
+        obs = {
             "image": np.stack([raster.crop(p, CROP_SIZE)[None] for p in xy]),
             "states": np.concatenate([tilt, position], axis=1).astype(np.float32),
             "goal": (relative / self._goal_norm).astype(np.float32),
         }
+        return flatten_cyberrunner(obs) if self.obs_mode == "cyberrunner_flat" else obs
 
     def _observe_and_info(self, reward: np.ndarray) -> tuple[Any, dict[str, Any]]:
         """The current observations and infos (every key with its ``_key`` mask); ``reward`` is the

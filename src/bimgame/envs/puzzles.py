@@ -14,6 +14,14 @@ Task names are case-insensitive, as :func:`~bimgame.sim.tasks.parse_task`'s are:
 spec (what the collector reads ``max_tilt`` from), the state observation's divisors (a state
 network's ``obs_scale``) and its batched env (:meth:`Puzzle.vector_env`, what the learners step and
 evaluate on).
+
+A learner's network reads one of :data:`NETWORK_OBS`: the maze's ``pixels`` and ``state`` (the
+labyrinth has both too), and ``cyberrunner``, CyberRunner's observation of the labyrinth (a 64×64
+crop centred on the marble, its tilt and position, the path ahead), which :meth:`Puzzle.vector_env`
+steps in its flat form (``obs_mode="cyberrunner_flat"``: one float32 vector per board, the crop then
+the vector parts, :func:`~bimgame.envs.labyrinth_env.flatten_cyberrunner`), since the learners move
+one tensor per step; the network splits it again (:class:`~bimgame.learn.encoders.CyberRunnerEncoder`).
+The maze has no such observation: it is refused there by name.
 """
 
 from __future__ import annotations
@@ -27,6 +35,7 @@ import numpy as np
 
 from bimgame.envs.labyrinth_env import PATH_AHEAD, PATH_SPACING, LabyrinthEnv, labyrinth_max_episode_steps
 from bimgame.envs.labyrinth_vector import LabyrinthVectorEnv
+from bimgame.envs.observe import OBS_MODES
 from bimgame.envs.vector import BallInMazeVectorEnv
 from bimgame.sim.labyrinth import LabyrinthSpec
 from bimgame.sim.maze import MazeSpec
@@ -47,7 +56,9 @@ __all__ = [
     "state_obs_scale",
     "vector_env",
     "LABYRINTH_SPEED_SCALE",
-    "UNTRAINED_OBS",
+    "NETWORK_OBS",
+    "LABYRINTH_OBS",
+    "check_obs",
 ]
 
 #: The puzzles' names (:attr:`Puzzle.family`).
@@ -67,11 +78,11 @@ PuzzleVectorEnv = BallInMazeVectorEnv | LabyrinthVectorEnv
 #: path): 99th percentiles of the speed 0.45 (easy), 0.42 (medium), 0.34 m/s (hard), maxima 0.57,
 #: 0.52, 0.41 m/s; a marble rolling from rest down 10 cm at the full 10° tilt reaches ≈ 0.49 m/s.
 LABYRINTH_SPEED_SCALE = 0.5
-#: Observation modes no learner's network reads yet, and why (the learners' settings refuse them).
-UNTRAINED_OBS = {
-    "cyberrunner": "CyberRunner's Dict observation of the labyrinth (a 64×64 crop, 4 states, the path ahead) "
-    "needs a Dict encoder, not built yet; use obs='state'",
-}
+#: Observations only the labyrinth has, and what :meth:`Puzzle.vector_env` steps for each: a learner's
+#: ``cyberrunner`` in its flat form; the env's own modes of it as they are.
+LABYRINTH_OBS = {"cyberrunner": "cyberrunner_flat", "cyberrunner_flat": "cyberrunner_flat"}
+#: The observations a learner's network reads (``NetworkSettings.obs``): the maze's, then CyberRunner's.
+NETWORK_OBS = (*OBS_MODES, "cyberrunner")
 #: The keyword arguments of :class:`LabyrinthEnv` a labyrinth env takes besides the vector env's own.
 _LABYRINTH_OPTIONS = frozenset(inspect.signature(LabyrinthEnv.__init__).parameters) - {"self", "layout"}
 
@@ -174,8 +185,11 @@ class Puzzle:
         task's :attr:`time_limit`. ``options``: the env's other keyword arguments; on the labyrinth
         those of :class:`LabyrinthEnv` (``render_mode``, ``render_size``, ``start_noise`` …), while a
         maze-only option (``randomize``, ``start_sampler``, ``maze``, ``num_mazes`` …) is refused by
-        name unless it is None (``ValueError``)."""
+        name unless it is None (``ValueError``). ``obs_mode`` ``cyberrunner`` (a learner's, the
+        labyrinth's only) is stepped as ``cyberrunner_flat``: one float32 vector per board (the
+        ``Dict`` form is :class:`LabyrinthVectorEnv`'s own ``obs_mode="cyberrunner"``)."""
         limit = self.time_limit if max_episode_steps is None else max_episode_steps
+        check_obs("obs_mode", self.task, obs_mode)
         if self.is_maze:
             return BallInMazeVectorEnv(
                 num_envs,
@@ -200,7 +214,7 @@ class Puzzle:
         return LabyrinthVectorEnv(
             num_envs,
             self.layout,
-            obs_mode=obs_mode,
+            obs_mode=LABYRINTH_OBS.get(obs_mode, obs_mode),
             action_type=action_type,
             max_episode_steps=limit,
             nthread=nthread,
@@ -231,6 +245,17 @@ def puzzle_task_setting(owner: str, task: str | Task) -> str:
         return puzzle(task).task
     except ValueError as error:
         raise ValueError(f"{owner}.task: {error}") from None
+
+
+def check_obs(owner: str, task: str | Task, obs: str) -> None:
+    """Refuse, naming ``owner`` (a setting, ``PPOConfig.network.obs``), CyberRunner's observation on a
+    task of the circular maze (``ValueError``); other observations are checked where they are used."""
+    found = puzzle(task)
+    if found.is_maze and obs in LABYRINTH_OBS:
+        raise ValueError(
+            f"{owner} {obs!r} is CyberRunner's observation of the labyrinth (a crop centred on the marble, the "
+            f"path ahead); task {found.task} is the circular maze's, whose observations are {', '.join(OBS_MODES)}"
+        )
 
 
 def vector_env(task: str | Task, num_envs: int, **arguments: Any) -> PuzzleVectorEnv:

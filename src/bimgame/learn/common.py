@@ -18,10 +18,10 @@ from typing import Any, ClassVar, Protocol, Self
 import numpy as np
 
 from bimgame.envs.mazes import maze_encoding_size
-from bimgame.envs.observe import OBS_MODES
-from bimgame.envs.puzzles import UNTRAINED_OBS, PuzzleSpec, puzzle, puzzle_task_setting, state_obs_scale
+from bimgame.envs.puzzles import NETWORK_OBS, PuzzleSpec, puzzle, puzzle_task_setting, state_obs_scale
 from bimgame.learn.actor import evaluate_network
 from bimgame.learn.checkpoints import load_weights
+from bimgame.learn.cyberrunner import check_cyberrunner_network, cyberrunner_net_config
 from bimgame.learn.encoders import MAZE_FRAMES
 from bimgame.learn.learner_settings import MAX_STEPS, FlatSettings, ScheduleSettings, check_at_most, check_puzzle
 from bimgame.learn.nets import (
@@ -81,11 +81,12 @@ class NetworkSettings:
     and inputs. A3C, pre-training and DAgger build their networks from these."""
 
     obs: str = "pixels"
-    """Observation: ``pixels`` (84×84, the paper's Conv-Conv-FC-LSTM) or ``state`` (MLP-LSTM)."""
+    """Observation: ``pixels`` (84×84, the paper's Conv-Conv-FC-LSTM), ``state`` (MLP-LSTM) or, on the
+    labyrinth only, ``cyberrunner`` (CyberRunner's crop around the marble: :mod:`bimgame.learn.cyberrunner`)."""
     hidden: int | None = None
-    """LSTM size; None: 256 for pixels (the paper's), 128 for state observations."""
+    """LSTM size; None: 256 for pixels (the paper's) and cyberrunner, 128 for state observations."""
     features: int | None = None
-    """Encoder output size; None: 256 for pixels (the paper's FC 256), 128 for state observations."""
+    """Encoder output size; None: 256 for pixels (the paper's FC 256) and cyberrunner, 128 for state."""
     tilt_input: bool = True
     """Feed the board tilt to the LSTM (see :mod:`bimgame.learn.nets`). False: no tilt input to the LSTM,
     the paper's exact input."""
@@ -102,9 +103,9 @@ class NetworkSettings:
     """The value head also reads the simulator's state (training only; a departure from the paper,
     whose critic sees what the actor sees). Off by default: it did not help (``docs/pixels/README.md``)."""
     precision: str | None = None
-    """Pixels: the encoder's compute, ``fp32`` or ``bf16`` (bfloat16 autocast). None: ``bf16`` for
-    pixels on a CPU with native bfloat16 arithmetic (AVX512-BF16 or AMX; ≈ 1.5× faster there),
-    else ``fp32``."""
+    """Pixels and cyberrunner: the encoder's compute, ``fp32`` or ``bf16`` (bfloat16 autocast). None:
+    ``bf16`` for pixels on a CPU with native bfloat16 arithmetic (AVX512-BF16 or AMX; ≈ 1.5× faster
+    there), else ``fp32``."""
     action_type: str = "discrete"
     """The policy's actions: ``discrete`` (the paper's 5: no-op, ±1 tilt step about x or y) or
     ``continuous`` (a Gaussian over the tilt change about x and y, in [-1, 1] tilt steps; PPO only)."""
@@ -119,11 +120,9 @@ class NetworkSettings:
 
     def __post_init__(self) -> None:
         owner = type(self).__name__
-        if self.obs in UNTRAINED_OBS:
-            raise ValueError(f"{owner}.obs {self.obs!r}: {UNTRAINED_OBS[self.obs]}")
-        if self.obs not in OBS_MODES:
-            raise ValueError(f"{owner}.obs must be one of {OBS_MODES}, got {self.obs!r}")
-        default_size = 256 if self.obs == "pixels" else 128
+        if self.obs not in NETWORK_OBS:
+            raise ValueError(f"{owner}.obs must be one of {NETWORK_OBS}, got {self.obs!r}")
+        default_size = 128 if self.obs == "state" else 256
         for name in ("hidden", "features"):
             value = getattr(self, name)
             if value is None:
@@ -145,6 +144,7 @@ class NetworkSettings:
         if self.precision not in PRECISIONS:
             raise ValueError(f"{owner}.precision must be one of {PRECISIONS}, got {self.precision!r}")
         check_action_type(owner, self.action_type)
+        check_cyberrunner_network(owner, self)
         if self.maze_encoding and pixels:
             raise ValueError(f"{owner}.maze_encoding applies to state observations only (pixels show the maze)")
         if self.maze_frame not in MAZE_FRAMES:
@@ -188,6 +188,8 @@ class NetworkSettings:
             else {}
         )
         inputs: dict[str, Any] = {"privileged_scale": scale} if self.privileged else {}
+        if self.obs == "cyberrunner":
+            return cyberrunner_net_config(self, maze, privileged), inputs
         if self.obs == "pixels":
             net_config = NetConfig(
                 encoder="conv",

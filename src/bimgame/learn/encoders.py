@@ -6,7 +6,11 @@ features (N, F).
   inputs, an empty-maze background subtracted from each frame, and bfloat16 autocast;
 - :class:`MLPEncoder` — two tanh layers on state vectors brought to order 1 by fixed divisors, a
   maze encoding entering the first layer through zero-initialised weights of its own, in the
-  board's frame or turned into the marble's (:func:`marble_frame`).
+  board's frame or turned into the marble's (:func:`marble_frame`);
+- :class:`CyberRunnerEncoder` — CyberRunner's observation of the labyrinth in its flat form
+  (:func:`~bimgame.envs.labyrinth_env.flatten_cyberrunner`): the marble-centred 64×64 crop through the
+  paper's two convolutions, the vector parts (tilt, position, path ahead) through a tanh layer, both
+  into one FC layer.
 
 The fixed inputs (``background``, ``scale``) are buffers: :func:`bimgame.learn.nets.build_network`
 sets them, checkpoints carry them.
@@ -19,7 +23,9 @@ import math
 import torch
 from torch import nn
 
-__all__ = ["MAZE_FRAMES", "SpatialSoftArgmax", "ConvEncoder", "MLPEncoder", "marble_frame"]
+from bimgame.envs.labyrinth_env import CROP_SIZE
+
+__all__ = ["MAZE_FRAMES", "SpatialSoftArgmax", "ConvEncoder", "MLPEncoder", "CyberRunnerEncoder", "marble_frame"]
 
 #: Frames a state network reads the maze encoding in: as observed (``board``: bin 0 at board angle
 #: -π) or turned so that it starts at the marble's angle (``marble``; see :func:`marble_frame`).
@@ -175,3 +181,71 @@ def marble_frame(encoding: torch.Tensor, angle: torch.Tensor) -> torch.Tensor:
     high_index = (low_index + 1).remainder(bins)
     turned = walls.gather(2, low_index) * (1 - weight) + walls.gather(2, high_index) * weight
     return turned.reshape(shape)
+
+
+class CyberRunnerEncoder(nn.Module):
+    """CyberRunner's flat observations (N, D) → features (N, F): the first ``crop_size``² values are
+    the marble-centred crop (0–255, row by row), the other D − ``crop_size``² the vector parts
+    (tilt / 10°, position / board size, the path ahead / k·12 mm: already of order 1), as
+    :func:`~bimgame.envs.labyrinth_env.flatten_cyberrunner` lays them out.
+
+    - crop: /255, then the A3C paper's Conv 16×8×8 stride 4 - ReLU - Conv 32×4×4 stride 2 - ReLU
+      (``conv_channels``); on 64×64 they leave 32 × 6 × 6 = 1152 values, each seeing 40 × 40 mm of
+      the 64 mm window (a 12 mm marble, walls and holes around it);
+    - vector parts: Linear(D − crop², ``vector_width``) - tanh (the state network's first layer);
+    - both concatenated into Linear(1152 + ``vector_width``, F) - LayerNorm - ReLU (the conv
+      network's FC layer, whose LayerNorm keeps the features' spread up: :class:`ConvEncoder`).
+
+    CyberRunner's DreamerV3 read the crop (colour, 64×64×3) with its own CNN and the vector with an
+    MLP; this is the same split at the size of the paper's A3C network. ``bf16`` runs the encoder
+    under bfloat16 autocast (float32 features out)."""
+
+    def __init__(
+        self,
+        dim: int,
+        conv_channels: tuple[int, int],
+        features: int,
+        *,
+        crop_size: int = CROP_SIZE,
+        vector_width: int = 64,
+        bf16: bool = False,
+    ):
+        super().__init__()
+        pixels = crop_size * crop_size
+        if not (crop_size >= 16 and dim > pixels):
+            raise ValueError(
+                f"CyberRunnerEncoder: the input must hold a crop of {crop_size}×{crop_size} >= 16×16 pixels and "
+                f"at least one vector value, got {dim} values"
+            )
+        self.crop_size, self.vector_size = crop_size, dim - pixels
+        c1, c2 = conv_channels
+        self.conv1 = nn.Conv2d(1, c1, 8, stride=4)
+        self.conv2 = nn.Conv2d(c1, c2, 4, stride=2)
+        with torch.no_grad():
+            flat = self.conv2(self.conv1(torch.zeros(1, 1, crop_size, crop_size)))[0].numel()
+        self.vector = nn.Sequential(nn.Linear(self.vector_size, vector_width), nn.Tanh())
+        linear = nn.Linear(flat + vector_width, features)
+        self.fc = nn.Sequential(linear, nn.LayerNorm(features), nn.ReLU())
+        self.bf16 = bf16
+        for layer in (self.conv1, self.conv2, linear):
+            nn.init.orthogonal_(layer.weight, gain=nn.init.calculate_gain("relu"))
+            if layer.bias is not None:
+                nn.init.zeros_(layer.bias)
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        if not self.bf16:
+            return self._features(obs)
+        with torch.autocast(obs.device.type, dtype=torch.bfloat16):
+            return self._features(obs).float()
+
+    def split(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The crops (N, 1, S, S) and vector parts (N, V) of flat observations (N, D)."""
+        obs = obs.float()
+        pixels = self.crop_size * self.crop_size
+        crop = obs[..., :pixels].reshape(-1, 1, self.crop_size, self.crop_size)
+        return crop, obs[..., pixels:].reshape(-1, self.vector_size)
+
+    def _features(self, obs: torch.Tensor) -> torch.Tensor:
+        crop, vector = self.split(obs)
+        a2 = torch.relu(self.conv2(torch.relu(self.conv1(crop * (1.0 / 255.0)))))
+        return self.fc(torch.cat([a2.flatten(1), self.vector(vector)], dim=-1))

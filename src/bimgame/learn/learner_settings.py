@@ -28,7 +28,7 @@ from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any, ClassVar, Literal, Self, get_args
 
-from bimgame.envs.puzzles import puzzle
+from bimgame.envs.puzzles import check_obs, puzzle
 from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.learn.runs import CONFIG, read_run_config
 from bimgame.util.settings import require_int
@@ -120,17 +120,20 @@ def refuse_maze_only(owner: str, task: str, settings: Mapping[str, bool]) -> Non
 
 
 def check_puzzle(owner: str, task: str, network: Any, *, num_mazes: int | None, start_maze: int) -> None:
-    """Refuse what the labyrinth's ``task`` cannot train with: the maze's random mazes
-    (:func:`refuse_maze_only`), and a network (:class:`~bimgame.learn.common.NetworkSettings`) it
-    cannot train yet — pixels (the conv network's auxiliary heads and empty-frame background are the
-    maze's), auxiliary heads (they predict the maze's state layout) and the maze's encoding."""
+    """Refuse CyberRunner's observation on the maze's ``task`` (:func:`~bimgame.envs.puzzles.check_obs`),
+    and what the labyrinth's ``task`` cannot train with: the maze's random mazes (:func:`refuse_maze_only`),
+    and a network (:class:`~bimgame.learn.common.NetworkSettings`) it cannot train yet — pixels (the
+    conv network's auxiliary heads and empty-frame background are the maze's), auxiliary heads (they
+    predict the maze's state layout) and the maze's encoding."""
     if puzzle(task).is_maze:
+        check_obs(f"{owner}.network.obs", task, getattr(network, "obs", ""))
         return
     refuse_maze_only(owner, task, {"num_mazes": num_mazes is not None, "start_maze": bool(start_maze)})
-    if getattr(network, "obs", "state") != "state":
+    if getattr(network, "obs", "state") not in ("state", "cyberrunner"):
         raise ValueError(
             f"{owner}: obs {network.obs!r} on {task} is not wired yet (the pixel network's auxiliary heads and "
-            f"background subtraction are made for the circular maze's 84×84 frames and state); use obs='state'"
+            f"background subtraction are made for the circular maze's 84×84 frames and state); use obs='state' "
+            f"or 'cyberrunner'"
         )
     if getattr(network, "aux_heads", False):
         raise ValueError(

@@ -1,5 +1,5 @@
-"""Recurrent actor-critic networks: the paper's Conv-Conv-FC-LSTM on pixels and an MLP-LSTM on
-state observations.
+"""Recurrent actor-critic networks: the paper's Conv-Conv-FC-LSTM on pixels, an MLP-LSTM on state
+observations, and a Conv+MLP-LSTM on CyberRunner's observations of the labyrinth.
 
 Both share one recurrent core (:class:`RecurrentActorCritic`): an observation encoder, then an LSTM
 cell that also receives the previous action (one-hot; all zeros at an episode's first step), the
@@ -46,7 +46,7 @@ from torch import nn
 
 from bimgame.envs.env import NO_ACTION
 from bimgame.envs.puzzles import maze_obs_scale as state_obs_scale
-from bimgame.learn.encoders import MAZE_FRAMES, ConvEncoder, MLPEncoder
+from bimgame.learn.encoders import MAZE_FRAMES, ConvEncoder, CyberRunnerEncoder, MLPEncoder
 from bimgame.learn.policy_heads import LOG_STD_INIT, ActionDistribution, action_head, check_action_type
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.render import MazeRenderer
@@ -71,7 +71,7 @@ __all__ = [
 
 #: The discrete action set of the env (noop, ±x, ±y).
 N_ACTIONS = 5
-ENCODERS = ("conv", "mlp")
+ENCODERS = ("conv", "mlp", "cyberrunner")
 #: The encoder's compute precision: float32, or bfloat16 autocast (CPUs with AVX512-BF16 / AMX run it
 #: ≈ 1.5× faster; see benchmarks/bench_a3c.py).
 PRECISIONS = ("fp32", "bf16")
@@ -90,9 +90,9 @@ class NetConfig:
     BiMGame paper used: Conv 16×8×8 stride 4, Conv 32×4×4 stride 2, FC 256, LSTM 256."""
 
     encoder: str = "conv"
-    """``conv`` (pixels, the paper's) or ``mlp`` (state observations)."""
+    """``conv`` (pixels, the paper's), ``mlp`` (state observations) or ``cyberrunner`` (:class:`CyberRunnerEncoder`)."""
     obs_shape: tuple[int, ...] = (1, 84, 84)
-    """One observation's shape: (channels, height, width) for conv, (features,) for mlp."""
+    """One observation's shape: (channels, height, width) for conv, (features,) for mlp and cyberrunner."""
     conv_channels: tuple[int, int] = (16, 32)
     features: int = 256
     """Width of the FC layer after the convolutions, and of the two MLP layers."""
@@ -111,7 +111,7 @@ class NetConfig:
     expected image position of its activation; Levine et al. 2016), so the marble's position is
     one linear map away from the features instead of something the FC layer must discover."""
     precision: str = "fp32"
-    """Conv encoder's compute: ``fp32`` or ``bf16`` (bfloat16 autocast, float32 features out)."""
+    """Conv and cyberrunner encoders' compute: ``fp32`` or ``bf16`` (bfloat16 autocast, float32 features out)."""
     privileged_size: int = 0
     """Length of the privileged state vector (the state observation) the auxiliary heads predict and
     an asymmetric critic reads; 0: none (neither option is available)."""
@@ -136,8 +136,8 @@ class NetConfig:
         object.__setattr__(self, "conv_channels", tuple(int(c) for c in self.conv_channels))
         if self.encoder == "conv" and (len(shape) != 3 or min(shape[1:]) < 16):
             raise ValueError(f"conv encoder needs obs_shape (channels, height, width) with sides >= 16, got {shape}")
-        if self.encoder == "mlp" and len(shape) != 1:
-            raise ValueError(f"mlp encoder needs obs_shape (features,), got {shape}")
+        if self.encoder != "conv" and len(shape) != 1:
+            raise ValueError(f"{self.encoder} encoder needs obs_shape (features,), got {shape}")
         for name in ("features", "hidden", "n_actions"):
             if getattr(self, name) < 1:
                 raise ValueError(f"NetConfig.{name} must be >= 1, got {getattr(self, name)}")
@@ -191,15 +191,18 @@ class Unrolled(NamedTuple):
     """(T, B, H) the LSTM's output."""
 
 
-def make_encoder(config: NetConfig) -> ConvEncoder | MLPEncoder:
+def make_encoder(config: NetConfig) -> ConvEncoder | MLPEncoder | CyberRunnerEncoder:
     """The observation encoder ``config`` describes (see :mod:`bimgame.learn.encoders`)."""
+    bf16 = config.precision == "bf16"
+    if config.encoder == "cyberrunner":
+        return CyberRunnerEncoder(config.obs_shape[0], config.conv_channels, config.features, bf16=bf16)
     if config.encoder == "conv":
         return ConvEncoder(
             config.obs_shape,
             config.conv_channels,
             config.features,
             keypoints=config.keypoints,
-            bf16=config.precision == "bf16",
+            bf16=bf16,
         )
     (dim,) = config.obs_shape
     return MLPEncoder(dim, config.features, config.maze_size, config.maze_frame)
