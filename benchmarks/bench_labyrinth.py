@@ -49,8 +49,11 @@ RESULTS = Path(__file__).parent / "results" / "labyrinth_env.json"
 
 
 def env_rate(make: Callable[[], object], steps: int, seed: int = 0) -> Callable[[], float]:
-    """A timer of ``steps`` random steps of a fresh env from ``make`` (steps/s)."""
+    """A timer of ``steps`` random steps of a fresh env from ``make``, in env steps/s: a vector env's
+    step counts each of its boards (finished episodes reset inside its step), a single env's
+    finished episode is reset between steps."""
     env = make()
+    boards = getattr(env, "num_envs", None)
 
     def run() -> float:
         env.action_space.seed(seed)  # type: ignore[attr-defined]
@@ -59,26 +62,9 @@ def env_rate(make: Callable[[], object], steps: int, seed: int = 0) -> Callable[
         start = time.perf_counter()
         for action in actions:
             _, _, terminated, truncated, _ = env.step(action)  # type: ignore[attr-defined]
-            if terminated or truncated:
+            if boards is None and (terminated or truncated):
                 env.reset()  # type: ignore[attr-defined]
-        return steps / (time.perf_counter() - start)
-
-    return run
-
-
-def vector_rate(make: Callable[[], object], steps: int, seed: int = 0) -> Callable[[], float]:
-    """A timer of ``steps`` random steps of a fresh vector env from ``make`` (env steps/s: boards ×
-    vector steps; finished episodes reset inside the step)."""
-    env = make()
-
-    def run() -> float:
-        env.action_space.seed(seed)  # type: ignore[attr-defined]
-        env.reset(seed=seed)  # type: ignore[attr-defined]
-        actions = [env.action_space.sample() for _ in range(steps)]  # type: ignore[attr-defined]
-        start = time.perf_counter()
-        for action in actions:
-            env.step(action)  # type: ignore[attr-defined]
-        return steps * env.num_envs / (time.perf_counter() - start)  # type: ignore[attr-defined]
+        return steps * (boards or 1) / (time.perf_counter() - start)
 
     return run
 
@@ -136,10 +122,10 @@ def main() -> None:
         )
     b = args.vector_envs
     vector_name = f"labyrinth hard, vector ×{b}, state"
-    timers[vector_name] = vector_rate(
+    timers[vector_name] = env_rate(
         lambda: LabyrinthVectorEnv(b, "hard", nthread=1, autoreset_mode="same_step"), args.vector_steps
     )
-    timers[f"circular maze STG1, vector ×{b}, state"] = vector_rate(
+    timers[f"circular maze STG1, vector ×{b}, state"] = env_rate(
         lambda: BallInMazeVectorEnv(b, task="STG1", obs_mode="state", nthread=1, autoreset_mode="same_step"),
         args.vector_steps,
     )

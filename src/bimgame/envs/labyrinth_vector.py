@@ -44,11 +44,10 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
-from bimgame.envs.actions import ACTIONS_HELP, DISCRETE_TILTS
+from bimgame.envs.actions import actions_to_tilt_deltas, sub_env_generators
 from bimgame.envs.labyrinth_env import (
     CROP_SIZE,
     CYBERRUNNER_TILT_NORM,
@@ -179,21 +178,8 @@ class LabyrinthVectorEnv(gym.vector.VectorEnv):
         first reset, else the boards' generators go on). ``options``: at most one of
         ``"marble_xy"`` (N, 2) m and ``"sim_state"`` (N, state_size), each board's start, as the
         single env's options of the same names."""
-        if seed is None:
-            seeds: list[int | None] = [None] * self.num_envs
-        elif is_integer(seed):
-            seeds = [int(seed) + i for i in range(self.num_envs)]  # type: ignore[arg-type]
-        else:
-            seeds = list(seed)  # type: ignore[arg-type]
-            if len(seeds) != self.num_envs:
-                raise ValueError(f"seed list must have {self.num_envs} entries (one per env), got {len(seeds)}")
         starts = self._check_options(options)
-        if not self._rngs:
-            self._rngs = [seeding.np_random(s)[0] for s in seeds]
-        else:
-            self._rngs = [
-                seeding.np_random(s)[0] if s is not None else r for s, r in zip(seeds, self._rngs, strict=True)
-            ]
+        self._rngs = sub_env_generators(seed, self.num_envs, self._rngs)
         self._reset_envs(np.ones(self.num_envs, dtype=bool), starts)
         self._autoreset[:] = False
         self._has_reset = True
@@ -203,7 +189,7 @@ class LabyrinthVectorEnv(gym.vector.VectorEnv):
         """Step every board by its action: one ``mujoco.rollout`` call, then the rules, batched."""
         if not self._has_reset:
             raise RuntimeError("call reset() before step()")
-        deltas = self._tilt_deltas(actions)
+        deltas = actions_to_tilt_deltas(actions, self.num_envs, self.action_type, self.template.tilt_step)
         resetting = self._autoreset.copy()
         stepping = ~resetting
         n = self.num_envs
@@ -248,33 +234,6 @@ class LabyrinthVectorEnv(gym.vector.VectorEnv):
         self.template.close()
 
     # ------------------------------------------------------------------ stepping helpers
-    def _tilt_deltas(self, actions: Any) -> np.ndarray:
-        """(N, 2) tilt changes (rad) of the actions, checked as the single env checks one action
-        (:func:`~bimgame.envs.actions.action_to_tilt_delta`), vectorised."""
-        step = self.template.tilt_step
-        if self.action_type == "discrete":
-            array = np.asarray(actions)
-            valid = (
-                array.shape == (self.num_envs,)
-                and np.issubdtype(array.dtype, np.integer)
-                and bool(np.all((array >= 0) & (array < 5)))
-            )
-            if not valid:
-                raise ValueError(
-                    f"invalid actions {actions!r}: discrete actions are {self.num_envs} integers 0..4 ({ACTIONS_HELP})"
-                )
-            return DISCRETE_TILTS[array] * step
-        try:
-            array = np.asarray(actions, dtype=np.float64)
-        except (TypeError, ValueError):  # e.g. strings: not numbers at all
-            array = np.full(0, np.nan)
-        if array.shape != (self.num_envs, 2) or not np.all(np.isfinite(array)) or np.any(np.abs(array) > 1.0):
-            raise ValueError(
-                f"invalid actions {actions!r}: continuous actions are shape ({self.num_envs}, 2), finite numbers in "
-                "[-1, 1] (tilt change about x and y, in units of the tilt step)"
-            )
-        return array * step
-
     def _rules(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Path progress, holes, goal, reward and termination of boards ``idx`` after their physics
         step: :meth:`LabyrinthEnv.step`'s rules, operation for operation, on arrays."""

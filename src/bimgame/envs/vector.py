@@ -42,11 +42,10 @@ from typing import Any, Protocol
 
 import gymnasium as gym
 import numpy as np
-from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
-from bimgame.envs.actions import ACTIONS_HELP, DISCRETE_TILTS
+from bimgame.envs.actions import actions_to_tilt_deltas, sub_env_generators
 from bimgame.envs.env import BallInMazeEnv
 from bimgame.envs.mazes import EnvMazes, maze_encoding, maze_raster
 from bimgame.envs.observe import Observer
@@ -201,21 +200,8 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
 
     # ------------------------------------------------------------------ API
     def reset(self, *, seed: int | list[int | None] | None = None, options: dict | None = None):
-        if seed is None:
-            seeds: list[int | None] = [None] * self.num_envs
-        elif isinstance(seed, (int, np.integer)):
-            seeds = [int(seed) + i for i in range(self.num_envs)]
-        else:
-            seeds = list(seed)
-            if len(seeds) != self.num_envs:
-                raise ValueError(f"seed list must have {self.num_envs} entries, got {len(seeds)}")
         first_mazes = self._first_mazes(options)
-        if not self._rngs:
-            self._rngs = [seeding.np_random(s)[0] for s in seeds]
-        else:
-            self._rngs = [
-                seeding.np_random(s)[0] if s is not None else rng for s, rng in zip(seeds, self._rngs, strict=True)
-            ]
+        self._rngs = sub_env_generators(seed, self.num_envs, self._rngs)
         self._reset_envs(np.ones(self.num_envs, dtype=bool), first_mazes)
         self._autoreset[:] = False
         self._has_reset = True
@@ -226,7 +212,7 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
     def step(self, actions):
         if not self._has_reset:
             raise RuntimeError("call reset() before step()")
-        deltas = self._tilt_deltas(actions)
+        deltas = actions_to_tilt_deltas(actions, self.num_envs, self.template.action_type, self.maze.tilt_step)
         resetting = self._autoreset.copy()
         stepping = ~resetting
         reward = np.zeros(self.num_envs)
@@ -287,27 +273,6 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
         self.template.close()
 
     # ------------------------------------------------------------------ helpers
-    def _tilt_deltas(self, actions) -> np.ndarray:
-        step = self.maze.tilt_step
-        if self.template.action_type == "discrete":
-            array = np.asarray(actions)
-            valid = (
-                array.shape == (self.num_envs,)
-                and np.issubdtype(array.dtype, np.integer)
-                and np.all((array >= 0) & (array < 5))
-            )
-            if not valid:
-                raise ValueError(
-                    f"invalid actions {actions!r}: expected {self.num_envs} integers in 0..4 ({ACTIONS_HELP})"
-                )
-            return DISCRETE_TILTS[array] * step
-        array = np.asarray(actions, dtype=np.float64)
-        if array.shape != (self.num_envs, 2) or not np.all(np.isfinite(array)) or np.any(np.abs(array) > 1):
-            raise ValueError(
-                f"invalid actions: expected shape ({self.num_envs}, 2), finite, in [-1, 1]; got {actions!r}"
-            )
-        return array * step
-
     def _rollout(self, idx: np.ndarray, deltas: np.ndarray) -> None:
         """Step envs ``idx`` by ``deltas``, with their episodes' actuation and physics when randomised
         (then a model each)."""

@@ -51,7 +51,30 @@ class SpatialSoftArgmax(nn.Module):
         return (weights @ self.grid).reshape(n, 2 * c)
 
 
-class ConvEncoder(nn.Module):
+def _relu_init(*layers: nn.Conv2d | nn.Linear) -> None:
+    """Orthogonal weights with ReLU's gain and zero biases: the image encoders' layers."""
+    for layer in layers:
+        nn.init.orthogonal_(layer.weight, gain=nn.init.calculate_gain("relu"))
+        if layer.bias is not None:  # all have one; a convolution's is typed optional
+            nn.init.zeros_(layer.bias)
+
+
+class _ImageEncoder(nn.Module):
+    """An encoder whose ``_features`` may run under bfloat16 autocast (``bf16``; float32 features out)."""
+
+    bf16: bool
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        if not self.bf16:
+            return self._features(obs)
+        with torch.autocast(obs.device.type, dtype=torch.bfloat16):
+            return self._features(obs).float()
+
+    def _features(self, obs: torch.Tensor) -> torch.Tensor:
+        raise NotImplementedError
+
+
+class ConvEncoder(_ImageEncoder):
     """uint8 frames (N, C, H, W) → features (N, F): Conv-ReLU-Conv-ReLU-FC-ReLU, optionally with
     the convolutions' spatial soft-argmax keypoints as more FC inputs.
 
@@ -91,16 +114,7 @@ class ConvEncoder(nn.Module):
         self.fc = nn.Sequential(linear, nn.LayerNorm(features), nn.ReLU())
         self.register_buffer("background", torch.zeros(obs_shape))
         self.bf16 = bf16
-        for layer in (self.conv1, self.conv2, linear):
-            nn.init.orthogonal_(layer.weight, gain=nn.init.calculate_gain("relu"))
-            if layer.bias is not None:  # all three have one; a convolution's is typed optional
-                nn.init.zeros_(layer.bias)
-
-    def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        if not self.bf16:
-            return self._features(obs)
-        with torch.autocast(obs.device.type, dtype=torch.bfloat16):
-            return self._features(obs).float()
+        _relu_init(self.conv1, self.conv2, linear)
 
     def _features(self, obs: torch.Tensor) -> torch.Tensor:
         a1 = self.conv1((obs.float() - self.background) * (1.0 / 255.0))
@@ -183,7 +197,7 @@ def marble_frame(encoding: torch.Tensor, angle: torch.Tensor) -> torch.Tensor:
     return turned.reshape(shape)
 
 
-class CyberRunnerEncoder(nn.Module):
+class CyberRunnerEncoder(_ImageEncoder):
     """CyberRunner's flat observations (N, D) → features (N, F): the first ``crop_size``² values are
     the marble-centred crop (0–255, row by row), the other D − ``crop_size``² the vector parts
     (tilt / 10°, position / board size, the path ahead / k·12 mm: already of order 1), as
@@ -227,16 +241,7 @@ class CyberRunnerEncoder(nn.Module):
         linear = nn.Linear(flat + vector_width, features)
         self.fc = nn.Sequential(linear, nn.LayerNorm(features), nn.ReLU())
         self.bf16 = bf16
-        for layer in (self.conv1, self.conv2, linear):
-            nn.init.orthogonal_(layer.weight, gain=nn.init.calculate_gain("relu"))
-            if layer.bias is not None:
-                nn.init.zeros_(layer.bias)
-
-    def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        if not self.bf16:
-            return self._features(obs)
-        with torch.autocast(obs.device.type, dtype=torch.bfloat16):
-            return self._features(obs).float()
+        _relu_init(self.conv1, self.conv2, linear)
 
     def split(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """The crops (N, 1, S, S) and vector parts (N, V) of flat observations (N, D)."""
