@@ -58,6 +58,7 @@ from bimgame.envs.labyrinth_env import (
     labyrinth_max_episode_steps,
     path_points_ahead,
 )
+from bimgame.envs.vector import StartSampler, check_start_sampler, sampled_start
 from bimgame.sim.labyrinth_render import LabyrinthRaster, board_grid
 from bimgame.util.settings import is_integer
 
@@ -85,6 +86,11 @@ class LabyrinthVectorEnv(gym.vector.VectorEnv):
         autoreset_mode: ``SAME_STEP`` (default) or ``NEXT_STEP`` (an ``AutoresetMode`` or its value).
         state_info: also report ``infos["state"]``, the state observation, whatever ``obs_mode`` is
             (privileged information for an asymmetric critic or auxiliary losses).
+        start_sampler: where episodes start (a :class:`~bimgame.envs.vector.StartSampler`, e.g.
+            :class:`~bimgame.learn.path_starts.PathStartCurriculum`), called at every reset of every
+            board, the first ``reset()`` without options and each autoreset, with the board's index
+            and its own generator; its state is a ``LabyrinthSim.get_state()`` vector, None the
+            layout's own start (drawn as without a sampler). None (default): the layout's start.
         **env_kwargs: the other keyword arguments of :class:`LabyrinthEnv` (``start_noise``,
             ``progress_scale``, ``end_off_path``, ``board``, …), checked by it.
 
@@ -92,7 +98,8 @@ class LabyrinthVectorEnv(gym.vector.VectorEnv):
         template: a :class:`LabyrinthEnv` built with the same arguments: its spaces, action type, sim.
         board: the :class:`~bimgame.sim.labyrinth.LabyrinthSpec`; ``maze`` is the same object (the
             name the collector reads ``max_tilt`` from).
-        start_tags: int64 zeros (N,): the labyrinth has no start curriculum; kept for the collector.
+        start_tags: int64 (N,), the tag ``start_sampler`` gave each board's current episode (0
+            without a sampler); read it before ``step()``, as :class:`~bimgame.envs.vector.BallInMazeVectorEnv`'s.
     """
 
     # Gymnasium's API: a class attribute, replaced per instance (with the instance's autoreset mode).
@@ -114,6 +121,7 @@ class LabyrinthVectorEnv(gym.vector.VectorEnv):
         nthread: int = 1,
         autoreset_mode: AutoresetMode | str = AutoresetMode.SAME_STEP,
         state_info: bool = False,
+        start_sampler: StartSampler | None = None,
         **env_kwargs: Any,
     ):
         if not (is_integer(num_envs) and num_envs >= 1):
@@ -143,6 +151,7 @@ class LabyrinthVectorEnv(gym.vector.VectorEnv):
         self.num_envs = int(num_envs)
         self.nthread = int(nthread)
         self.state_info = state_info
+        self.start_sampler = check_start_sampler(start_sampler)
         self.max_episode_steps = (
             labyrinth_max_episode_steps(self.template.control_hz) if max_episode_steps is None else max_episode_steps
         )
@@ -276,7 +285,7 @@ class LabyrinthVectorEnv(gym.vector.VectorEnv):
         env, sim = self.template, self.sim
         for i in np.flatnonzero(mask):
             if starts is None:
-                sim.reset(np.asarray(self.board.start) + self._rngs[i].uniform(-env.start_noise, env.start_noise, 2))
+                self._start(int(i))
             else:
                 name, rows = starts
                 try:
@@ -290,6 +299,21 @@ class LabyrinthVectorEnv(gym.vector.VectorEnv):
             self._segment[i], self._progress[i] = step.segment, step.progress
             self._off_path[i], self._over_hole[i], self._success[i] = step.off_path, step.over_hole, False
             self._elapsed[i] = 0
+
+    def _start(self, i: int) -> None:
+        """Board ``i``'s sim at the start of a new episode: the sampler's state (its tag kept), or the
+        layout's start with its noise drawn from the board's generator."""
+        sampled = None
+        if self.start_sampler is not None:
+            sampled, self.start_tags[i] = sampled_start(self.start_sampler, i, self._rngs[i])
+        if sampled is None:
+            noise = self.template.start_noise
+            self.sim.reset(np.asarray(self.board.start) + self._rngs[i].uniform(-noise, noise, 2))
+            return
+        try:
+            self.sim.set_state(sampled)
+        except (TypeError, ValueError) as error:
+            raise ValueError(f"the start_sampler's state for board {i} (tag {self.start_tags[i]}): {error}") from None
 
     # ------------------------------------------------------------------ observations
     def _state_obs(self, ahead: np.ndarray) -> np.ndarray:

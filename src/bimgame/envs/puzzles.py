@@ -83,8 +83,11 @@ LABYRINTH_SPEED_SCALE = 0.5
 LABYRINTH_OBS = {"cyberrunner": "cyberrunner_flat", "cyberrunner_flat": "cyberrunner_flat"}
 #: The observations a learner's network reads (``NetworkSettings.obs``): the maze's, then CyberRunner's.
 NETWORK_OBS = (*OBS_MODES, "cyberrunner")
-#: The keyword arguments of :class:`LabyrinthEnv` a labyrinth env takes besides the vector env's own.
-_LABYRINTH_OPTIONS = frozenset(inspect.signature(LabyrinthEnv.__init__).parameters) - {"self", "layout"}
+#: The keyword arguments a labyrinth vector env takes besides the ones every puzzle's takes: those of
+#: :class:`LabyrinthEnv` and the start curriculum's sampler.
+_LABYRINTH_OPTIONS = (frozenset(inspect.signature(LabyrinthEnv.__init__).parameters) - {"self", "layout"}) | {
+    "start_sampler"
+}
 
 
 @functools.cache
@@ -183,8 +186,8 @@ class Puzzle:
     ) -> PuzzleVectorEnv:
         """``num_envs`` environments of the task stepped as one batch. ``max_episode_steps`` None: the
         task's :attr:`time_limit`. ``options``: the env's other keyword arguments; on the labyrinth
-        those of :class:`LabyrinthEnv` (``render_mode``, ``render_size``, ``start_noise`` …), while a
-        maze-only option (``randomize``, ``start_sampler``, ``maze``, ``num_mazes`` …) is refused by
+        those of :class:`LabyrinthEnv` (``render_mode``, ``render_size``, ``start_noise`` …) and
+        ``start_sampler``, while a maze-only option (``randomize``, ``maze``, ``num_mazes`` …) is refused by
         name unless it is None (``ValueError``). ``obs_mode`` ``cyberrunner`` (a learner's, the
         labyrinth's only) is stepped as ``cyberrunner_flat``: one float32 vector per board (the
         ``Dict`` form is :class:`LabyrinthVectorEnv`'s own ``obs_mode="cyberrunner"``)."""

@@ -56,7 +56,7 @@ from bimgame.sim.placement import check_sim_state, sample_start
 from bimgame.sim.tasks import TaskState, initial_task_state, task_step
 from bimgame.util.settings import is_integer
 
-__all__ = ["BallInMazeVectorEnv", "StartSampler"]
+__all__ = ["BallInMazeVectorEnv", "StartSampler", "check_start_sampler", "sampled_start"]
 
 
 class StartSampler(Protocol):
@@ -70,6 +70,27 @@ class StartSampler(Protocol):
         choice from ``rng``, the env's own generator (seeded by ``reset(seed=…)``), so the same seed
         gives the same starts."""
         ...
+
+
+def check_start_sampler(sampler: StartSampler | None) -> StartSampler | None:
+    """``sampler`` itself if it is None or callable (a vector env's ``start_sampler=``), else ``ValueError``."""
+    if sampler is not None and not callable(sampler):
+        raise ValueError(
+            f"start_sampler must be None or a callable (index, rng) -> (state or None, tag), got {sampler!r}"
+        )
+    return sampler
+
+
+def sampled_start(sampler: StartSampler, index: int, rng: np.random.Generator) -> tuple[Any, int]:
+    """``sampler``'s start for env ``index``: ``(state or None, tag)``, its form checked (the state's
+    contents are the env's to check)."""
+    result = sampler(index, rng)
+    if not (isinstance(result, tuple) and len(result) == 2 and is_integer(result[1])):
+        raise ValueError(
+            f"start_sampler must return (state or None, integer tag); for env {index} it returned {result!r}"
+        )
+    state, tag = result
+    return state, int(tag)
 
 
 class BallInMazeVectorEnv(gym.vector.VectorEnv):
@@ -134,11 +155,7 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
             nthread = 1 if num_envs < 32 else max(1, min(2, os.cpu_count() or 1))
         if not (is_integer(nthread) and nthread >= 1):
             raise ValueError(f"nthread must be an integer >= 1, got {nthread!r}")
-        if start_sampler is not None and not callable(start_sampler):
-            raise ValueError(
-                f"start_sampler must be None or a callable (index, rng) -> (state or None, tag), got {start_sampler!r}"
-            )
-        self.start_sampler = start_sampler
+        self.start_sampler = check_start_sampler(start_sampler)
         if not isinstance(state_info, bool):
             raise ValueError(f"state_info must be True or False, got {state_info!r}")
         self.state_info = state_info
@@ -352,16 +369,11 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
 
     def _sampled_start(self, index: int, sampler: StartSampler) -> tuple[tuple[np.ndarray, np.ndarray] | None, int]:
         """The sampler's start for env ``index``: ``((state, marble_xy) or None, tag)``, checked."""
-        result = sampler(index, self._rngs[index])
-        if not (isinstance(result, tuple) and len(result) == 2 and is_integer(result[1])):
-            raise ValueError(
-                f"start_sampler must return (state or None, integer tag); for env {index} it returned {result!r}"
-            )
-        state, tag = result
+        state, tag = sampled_start(sampler, index, self._rngs[index])
         if state is None:
-            return None, int(tag)
-        name = f"the start_sampler's state for env {index} (tag {int(tag)})"
-        return check_sim_state(self._env_mazes[index], self.sim.layout, state, name), int(tag)
+            return None, tag
+        name = f"the start_sampler's state for env {index} (tag {tag})"
+        return check_sim_state(self._env_mazes[index], self.sim.layout, state, name), tag
 
     def _observe_and_info(
         self, positions: np.ndarray, velocities: np.ndarray, crossings: np.ndarray, success: np.ndarray

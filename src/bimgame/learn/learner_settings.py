@@ -49,6 +49,8 @@ __all__ = [
     "FlatSettings",
     "MAZE_ONLY",
     "refuse_maze_only",
+    "check_expert_data",
+    "check_start_curriculum",
     "check_puzzle",
     "policy_network",
     "check_init_puzzle",
@@ -100,8 +102,8 @@ START_CURRICULA: tuple[str, ...] = ("none", *get_args(StartCurriculum))
 MAZE_ONLY = {
     "num_mazes": "random mazes are circular mazes (bimgame.sim.maze_sets)",
     "start_maze": "random mazes are circular mazes (bimgame.sim.maze_sets)",
-    "start_curriculum": "start curricula start episodes from states of the maze (the MPC expert's, or grown "
-    "from the maze's goal)",
+    "start_curriculum='demo'": "demonstration starts are states of the MPC expert's episodes on the maze "
+    "(on the labyrinth use start_curriculum='reverse': starts along its printed path)",
     "randomize": "domain randomisation varies the maze's physics and camera (bimgame.envs.randomization)",
     "expert_data": "the expert's datasets are MPC episodes on the maze",
     "value_reward": "V̂ is a value function of the maze's observations",
@@ -117,6 +119,24 @@ def refuse_maze_only(owner: str, task: str, settings: Mapping[str, bool]) -> Non
     for name, on in settings.items():
         if on:
             raise ValueError(f"{owner}.{name} applies to the circular maze's tasks only, not {task}: {MAZE_ONLY[name]}")
+
+
+def check_expert_data(owner: str, expert_data: str | None, readers: Mapping[str, bool]) -> None:
+    """Raise ``ValueError`` naming the first of ``readers`` (what reads the expert's dataset → whether
+    it is on) that is on without ``expert_data``."""
+    needed = [name for name, on in readers.items() if on]
+    if needed and expert_data is None:
+        raise ValueError(f"{owner}.{needed[0]} needs expert_data (an expert dataset directory)")
+
+
+def check_start_curriculum(
+    owner: str, task: str, curriculum: CurriculumSettings | None, expert_data: str | None
+) -> None:
+    """A start curriculum the task can run: demonstration starts read ``expert_data`` and exist on the
+    maze only; the reverse curriculum runs on both puzzles (the labyrinth's along its printed path)."""
+    demo = curriculum is not None and curriculum.start_curriculum == "demo"
+    refuse_maze_only(owner, task, {"expert_data": expert_data is not None, "start_curriculum='demo'": demo})
+    check_expert_data(owner, expert_data, {"start_curriculum='demo'": demo})
 
 
 def check_puzzle(owner: str, task: str, network: Any, *, num_mazes: int | None, start_maze: int) -> None:

@@ -24,7 +24,6 @@ drawn from the generator the env passes in, so a seeded env gives the same start
 
 from __future__ import annotations
 
-import collections
 import math
 from collections.abc import Sequence
 from pathlib import Path
@@ -34,6 +33,7 @@ import numpy as np
 
 from bimgame.envs.env import DISCRETE_TILTS
 from bimgame.expert.datasets import load_dataset
+from bimgame.learn.start_stages import BackwardStages
 from bimgame.sim.layout import StateLayout
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.physics import MazeSim
@@ -172,11 +172,9 @@ class DemoStartCurriculum:
             )
         self.n_marbles = layout.n_marbles
         longest = max(len(d) for d in self._demos)
-        self.backs = [self.first_back]  # D_k of each demonstration stage
-        while self.backs[-1] < longest:
-            self.backs.append(math.ceil(self.backs[-1] * self.growth))
-        self.stage = 0
-        self._results: collections.deque[bool] = collections.deque(maxlen=self.window)
+        self.stages = BackwardStages(
+            owner, self.first_back, self.growth, longest, threshold=self.threshold, window=self.window, whole=True
+        )
 
     @classmethod
     def from_dataset(
@@ -201,7 +199,17 @@ class DemoStartCurriculum:
     @property
     def finished(self) -> bool:
         """Whether the final stage is reached: every start is a true start."""
-        return self.stage >= len(self.backs)
+        return self.stages.finished
+
+    @property
+    def stage(self) -> int:
+        """The current stage's index (``len(backs)`` once finished)."""
+        return self.stages.stage
+
+    @property
+    def backs(self) -> list[int]:
+        """``D_k`` of each stage (steps before a demonstration's goal)."""
+        return [int(back) for back in self.stages.backs]
 
     @property
     def demos(self) -> int:
@@ -217,28 +225,21 @@ class DemoStartCurriculum:
         if self.finished or rng.random() < self.true_share:
             return None, TRUE_START
         demo = self._demos[int(rng.integers(len(self._demos)))]
-        back = min(int(rng.integers(1, self.backs[self.stage] + 1)), len(demo))
+        back = min(int(rng.integers(1, int(self.stages.back) + 1)), len(demo))
         return demo[len(demo) - back].copy(), self.stage
 
     def record(self, tag: int, success: bool) -> None:
         """Count a finished episode: only those of the current stage move the curriculum on."""
-        tag = _check_tag("DemoStartCurriculum", tag)
-        if self.finished or tag != self.stage:
-            return
-        self._results.append(bool(success))
-        if len(self._results) == self.window and sum(self._results) >= self.threshold * self.window:
-            self.stage += 1
-            self._results.clear()
+        self.stages.record(_check_tag("DemoStartCurriculum", tag), success)
 
     def status(self) -> dict[str, float]:
         """The stage, how far back (steps) its starts go, the share of true starts and the success
         rate of the current stage's window so far."""
-        longest = max(len(d) for d in self._demos)
         return {
             "curriculum_stage": float(self.stage),
-            "curriculum_steps_back": float(longest if self.finished else min(self.backs[self.stage], longest)),
+            "curriculum_steps_back": float(self.stages.back),
             "true_start_share": 1.0 if self.finished else self.true_share,
-            "curriculum_window_success": sum(self._results) / len(self._results) if self._results else 0.0,
+            "curriculum_window_success": self.stages.window_success,
         }
 
 

@@ -22,6 +22,7 @@ from bimgame.learn.a3c.update import EnvWrapper, make_optimizer, shared_optimize
 from bimgame.learn.a3c.workers import RunShared, _evaluator, _worker
 from bimgame.learn.checkpoints import save_checkpoint
 from bimgame.learn.common import EVAL_COLUMNS
+from bimgame.learn.curricula import CURRICULUM_COLUMNS, CURRICULUM_SCALARS
 from bimgame.learn.episode_monitor import Monitor
 from bimgame.learn.metric_logs import MetricLog
 from bimgame.learn.nets import RecurrentActorCritic
@@ -55,14 +56,7 @@ TABLES = {
         "kl_weight",
         "bc_weight",
         "entropy_coef",
-        "curriculum_stage",
-        "curriculum_steps_back",
-        "curriculum_pool",
-        "curriculum_good",
-        "curriculum_mastered",
-        "curriculum_start_distance",
-        "curriculum_window_success",
-        "true_start_share",
+        *CURRICULUM_COLUMNS,
     ],
     "eval": list(EVAL_COLUMNS),
 }
@@ -81,9 +75,7 @@ _UPDATE_SCALARS = (
     "kl_weight",
     "bc_weight",
     "entropy_coef",
-    "curriculum_stage",
-    "curriculum_steps_back",
-    "curriculum_start_distance",
+    *CURRICULUM_SCALARS,
 )
 
 

@@ -17,7 +17,9 @@ from bimgame.learn.learner_settings import (
     ScheduleSettings,
     check_at_most,
     check_choice,
+    check_expert_data,
     check_number,
+    check_start_curriculum,
     refuse_maze_only,
 )
 from bimgame.learn.policy_heads import require_discrete
@@ -142,23 +144,11 @@ class A3CConfig(LearnerSettings):
             object.__setattr__(self, "finetuning", None)
         # A3C's loss, fine-tuning terms and teacher are those of a categorical policy.
         require_discrete("A3C", self.network.action_type, "use --algo ppo")
-        maze_only = {"randomize": self.randomize is not None, "expert_data": self.expert_data is not None}
-        refuse_maze_only("A3CConfig", self.task, {**maze_only, "start_curriculum": self.curriculum is not None})
-        self._check_expert_data()
+        refuse_maze_only("A3CConfig", self.task, {"randomize": self.randomize is not None})
+        check_start_curriculum("A3CConfig", self.task, self.curriculum, self.expert_data)
+        bc = self.finetuning is not None and self.finetuning.bc_coef > 0
+        check_expert_data("A3CConfig", self.expert_data, {"bc_coef": bc})  # behaviour cloning reads it too
         self._check_pixel_settings()
-
-    def _check_expert_data(self) -> None:
-        """Behaviour cloning and demonstration starts read the expert's dataset."""
-        needs_data = [
-            name
-            for name, on in (
-                ("bc_coef", self.finetuning is not None and self.finetuning.bc_coef > 0),
-                ("start_curriculum='demo'", self.curriculum is not None and self.curriculum.start_curriculum == "demo"),
-            )
-            if on
-        ]
-        if needs_data and self.expert_data is None:
-            raise ValueError(f"A3CConfig.{needs_data[0]} needs expert_data (an expert dataset directory)")
 
     def _check_pixel_settings(self) -> None:
         """Settings that only mean something for pixels: randomising the camera, shifting frames."""

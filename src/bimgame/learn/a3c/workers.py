@@ -23,11 +23,11 @@ from bimgame.learn.a3c.update import EnvWrapper, apply_update, make_optimizer, n
 from bimgame.learn.actor import RecurrentActor
 from bimgame.learn.augment import random_shift
 from bimgame.learn.common import run_evaluation
+from bimgame.learn.curricula import start_curriculum
 from bimgame.learn.finetune import DemoWindows, EntropyTarget, LossWeights, RunningScale, Teacher, loss_weights
 from bimgame.learn.loss_terms import BehaviourCloning, LossTerm, TeacherKL
 from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.learn.rollout import FinishedEpisode, NonFiniteReward, RolloutCollector, Segment, training_env
-from bimgame.learn.starts import DemoStartCurriculum, ReverseCurriculum
 from bimgame.sim.maze import MazeSpec
 from bimgame.util.processes import exit_when_parent_dies
 
@@ -37,22 +37,6 @@ def _worker_seeds(config: A3CConfig, rank: int, start_step: int) -> tuple[int, i
     sequence = np.random.SeedSequence([config.seed, rank, start_step])
     env_seed, torch_seed = sequence.generate_state(2)
     return int(env_seed), int(torch_seed)
-
-
-def _start_sampler(config: A3CConfig) -> DemoStartCurriculum | ReverseCurriculum | None:
-    """The start curriculum of a worker's training episodes (None: the task's own starts), for the
-    maze the workers' envs are built with (MERL's)."""
-    curriculum = config.curriculum
-    if curriculum is None:
-        return None
-    if curriculum.start_curriculum == "demo":
-        assert config.expert_data is not None  # A3CConfig refuses a demo curriculum without one
-        return DemoStartCurriculum.from_dataset(
-            config.expert_data, config.task, threshold=curriculum.curriculum_threshold
-        )
-    # A pool of 32 starts (not the class's 100): each start is tried 3 times before the pool grows,
-    # and a failed STG3 episode lasts 750 steps, so 100 starts held one pool for ≈ 230k steps.
-    return ReverseCurriculum(config.task, high=curriculum.curriculum_threshold, pool_size=32)
 
 
 def _make_env(config: A3CConfig, num_envs: int, **kwargs: Any) -> PuzzleVectorEnv:
@@ -198,7 +182,7 @@ def _collector(rank: int, run: RunShared, torch_seed: int) -> tuple[RolloutColle
     """A worker's rollout collector (its envs, start curriculum and sampling actor) and the local
     network it acts with, which each update loads the shared weights into."""
     config = run.config
-    curriculum = _start_sampler(config)
+    curriculum = start_curriculum(config.task, config.curriculum, config.expert_data)
     base_env = _make_env(config, config.schedule.envs_per_worker, start_sampler=curriculum)
     env: Any = base_env
     if run.env_wrapper is not None:

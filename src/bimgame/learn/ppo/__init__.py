@@ -32,7 +32,10 @@ Tasks: the circular maze's and CyberRunner's labyrinth's (``LABYRINTH-EASY`` …
 episode also ends in a hole). The network's actions are discrete unless ``action_type="continuous"``
 (CyberRunner's own actions are continuous), and the env is built with the network's.
 
-Not yet: A3C's critic warm-up, actor ramp, behaviour cloning, start curricula and reward shaping.
+Start curricula are A3C's (:mod:`bimgame.learn.curricula`: ``demo`` and ``reverse`` on the maze,
+``reverse`` along the printed path on the labyrinth), each rank its own; a resumed run starts its
+curriculum again from the first stage. Not yet: A3C's critic warm-up, actor ramp, behaviour cloning
+and reward shaping.
 """
 
 from bimgame.learn.ppo.settings import PPOConfig, PPOFinetuneSettings, PPOOptimizationSettings

@@ -17,6 +17,7 @@ import numpy as np
 import torch
 
 from bimgame.learn.actor import RecurrentActor
+from bimgame.learn.curricula import start_curriculum
 from bimgame.learn.finetune import Teacher
 from bimgame.learn.learner_settings import policy_network
 from bimgame.learn.nets import RecurrentActorCritic
@@ -69,6 +70,7 @@ class RankLearner:
         env_seed, act_seed, batch_seed = rank_seeds(config.seed, step, rank)
         self.batches = torch.Generator().manual_seed(batch_seed)
         envs = config.schedule.envs_per_worker
+        curriculum = start_curriculum(config.task, config.curriculum, config.expert_data)
         env = training_env(
             envs,
             task=config.task,
@@ -76,6 +78,7 @@ class RankLearner:
             time_limit=config.time_limit,
             privileged=config.network.privileged,
             action_type=config.network.action_type,
+            start_sampler=curriculum,
             **config.maze_options,
         )
         actor = RecurrentActor(net, envs, generator=torch.Generator().manual_seed(act_seed))
@@ -88,6 +91,7 @@ class RankLearner:
             privileged=config.network.privileged,
             on_episode=on_episode,
             global_step=global_step,
+            curriculum=curriculum,
         )
         self.collector.reset(env_seed, step)
 
@@ -114,6 +118,11 @@ class RankLearner:
                 f"Lower --lr or --max-grad-norm. The last checkpoint is kept."
             )
         return parts
+
+    def curriculum_status(self) -> dict[str, float]:
+        """This rank's start curriculum's status (empty without one): what the update's log row adds."""
+        curriculum = self.collector.curriculum
+        return curriculum.status() if curriculum is not None else {}
 
     def _kl_to_teacher(self, segment: Segment, step: int) -> KLTarget | None:
         """π^s's log-probabilities over the segment and the KL weight at ``step`` (None without a

@@ -8,11 +8,18 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import ClassVar
+from typing import Any, ClassVar
 
 from bimgame.learn.common import LearnerSettings, NetworkSettings
 from bimgame.learn.devices import DEVICES, Device
-from bimgame.learn.learner_settings import ScheduleSettings, check_at_most, check_choice, check_number
+from bimgame.learn.learner_settings import (
+    CurriculumSettings,
+    ScheduleSettings,
+    check_at_most,
+    check_choice,
+    check_number,
+    check_start_curriculum,
+)
 from bimgame.util.settings import require_int
 
 __all__ = ["PPOOptimizationSettings", "PPOFinetuneSettings", "PPOConfig"]
@@ -136,14 +143,21 @@ class PPOConfig(LearnerSettings):
     stepping ``envs_per_worker`` environments, their gradients averaged (:mod:`bimgame.learn.ppo.parallel`)."""
     finetuning: PPOFinetuneSettings | None = None
     """The KL to π^s while fine-tuning from ``--init``; None: no term (also with ``--init``)."""
+    expert_data: str | None = None
+    """Expert dataset directory (``bimgame generate``) for demonstration starts (``start_curriculum='demo'``)."""
+    curriculum: CurriculumSettings | None = None
+    """Start curriculum of the training episodes (:mod:`bimgame.learn.curricula`; on the labyrinth
+    ``reverse``, along its printed path); None: the task's own starts."""
 
     PARTS: ClassVar[dict[str, type]] = {
         "network": NetworkSettings,
         "optimization": PPOOptimizationSettings,
         "schedule": ScheduleSettings,
         "finetuning": PPOFinetuneSettings,
+        "curriculum": CurriculumSettings,
     }
-    OPTIONAL_PARTS: ClassVar[frozenset[str]] = frozenset({"finetuning"})
+    OPTIONAL_PARTS: ClassVar[frozenset[str]] = frozenset({"finetuning", "curriculum"})
+    NONE_VALUES: ClassVar[dict[str, Any]] = {"start_curriculum": "none"}
     SETTINGS_NAME: ClassVar[str] = "PPO settings"
     # What a resumed run may change without changing what is being learned.
     RESUMABLE_CHANGES: ClassVar[tuple[str, ...]] = (
@@ -159,6 +173,7 @@ class PPOConfig(LearnerSettings):
         super().__post_init__()
         owner = type(self).__name__
         check_choice(owner, "device", self.device, DEVICES)
+        check_start_curriculum(owner, self.task, self.curriculum, self.expert_data)
         if self.device == "cuda" and self.schedule.workers > 1:
             raise ValueError(
                 f"{owner}: device 'cuda' takes one process (workers 1; a GPU learner is fed by its own "

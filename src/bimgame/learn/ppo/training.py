@@ -23,6 +23,7 @@ import torch
 
 from bimgame.learn.checkpoints import apply_weights, load_checkpoint, load_init_weights, save_checkpoint
 from bimgame.learn.common import EVAL_COLUMNS, run_evaluation
+from bimgame.learn.curricula import CURRICULUM_COLUMNS, CURRICULUM_SCALARS
 from bimgame.learn.curves import plot_run
 from bimgame.learn.devices import resolve_device
 from bimgame.learn.episode_monitor import Monitor
@@ -57,10 +58,20 @@ TABLES = {
         "recent_success",
         "recent_return",
         "recent_length",
+        *CURRICULUM_COLUMNS,
     ],
     "eval": list(EVAL_COLUMNS),
 }
-_UPDATE_SCALARS = ("sps", "policy_loss", "value_loss", "entropy", "approx_kl", "clip_fraction", "recent_success")
+_UPDATE_SCALARS = (
+    "sps",
+    "policy_loss",
+    "value_loss",
+    "entropy",
+    "approx_kl",
+    "clip_fraction",
+    "recent_success",
+    *CURRICULUM_SCALARS,
+)
 
 
 def resolve_ppo_config(
@@ -266,7 +277,7 @@ class _Session:
         if self.step - self.log_step >= config.schedule.log_every:  # the update's losses, every log_every steps
             self.log_step = self.step
             timing = {"sps": self.monitor.sps(self.step), "seconds": time.monotonic() - self.started}
-            row = {**parts, **self.monitor.recent(), **timing}
+            row = {**parts, **self.monitor.recent(), **timing, **learner.curriculum_status()}
             self.log.write("updates", self.step, row, scalars=_UPDATE_SCALARS)
         if config.schedule.eval_every and self.step - self.eval_step >= config.schedule.eval_every:
             self.eval_step = self.step

@@ -1,0 +1,161 @@
+"""A start curriculum for the labyrinth: training episodes start on the printed path near the goal,
+moving back along it as the policy learns.
+
+CyberRunner's reward pays for progress along the path and nothing for time, and a policy that
+has not yet reached the goal from the layout's start meets the goal bonus only by chance: PPO from
+the start learned to collect the first ≈ 19 cm and lose the marble there (1M steps, 0% success).
+Starting near the goal and moving back (Backplay, Resnick et al., 2018; Salimans & Chen, 2018: the
+maze's :class:`~bimgame.learn.starts.DemoStartCurriculum`) needs no expert on the labyrinth: the
+printed path is itself a demonstration of where the marble goes. It is the labyrinth's ``reverse``
+curriculum: grown backwards from the goal without expert data, as the maze's
+:class:`~bimgame.learn.starts.ReverseCurriculum` grows its starts by random walks.
+
+Starts are points of the path every ``spacing`` metres, the marble at rest on a level board, kept
+where the marble is clear of every wall and the rim, at least a marble radius outside every hole's
+rim, outside the goal, and where the progress rule places the marble on the path at that arc
+length. Stage ``k`` starts an episode at one of those within ``D_k`` metres (of path) of the goal,
+uniformly (:class:`~bimgame.learn.start_stages.BackwardStages`: ``D_0 = first_back``, grown by
+``growth`` once ``window`` episodes of the stage succeeded at ``threshold``); a share
+``true_share`` of the episodes starts from the layout's own start (tag :data:`TRUE_START`). Evaluations
+always use the layout's own start.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from bimgame.envs.labyrinth_env import path_points_ahead
+from bimgame.learn.start_stages import BackwardStages
+from bimgame.sim.labyrinth import LabyrinthSpec, PathProgress
+from bimgame.sim.labyrinth_physics import LabyrinthSim
+
+__all__ = ["TRUE_START", "PathStartCurriculum"]
+
+#: The tag of an episode started from the layout's own start (the maze curricula's tag).
+TRUE_START = -1
+#: How closely the progress rule must place a start at its own arc length (m).
+_ARC_TOLERANCE = 1e-3
+
+
+def _check(owner: str, name: str, value: object, low: float, high: float, *, low_open: bool) -> float:
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    ok = ok and (value > low if low_open else value >= low) and value <= high  # type: ignore[operator]
+    if not ok:
+        bracket = "(" if low_open else "["
+        raise ValueError(f"{owner}.{name} must be a number in {bracket}{low:g}, {high:g}], got {value!r}")
+    return float(value)  # type: ignore[arg-type]
+
+
+class PathStartCurriculum:
+    """Starts along the labyrinth's printed path, moved back from the goal stage by stage (module
+    docstring). A :class:`~bimgame.envs.vector.StartSampler` for
+    ``LabyrinthVectorEnv(start_sampler=…)``, with ``record`` and ``status`` as the maze's curricula.
+
+    Args:
+        spec: the labyrinth's board.
+        first_back: ``D_0``, metres of path before the goal (> 0).
+        growth: ``D_{k+1} / D_k`` (> 1).
+        threshold: the stage's success rate over ``window`` episodes that ends it, in (0, 1].
+        window: episodes of a stage that rate is taken over.
+        true_share: share of episodes from the layout's own start, in [0, 1].
+        spacing: metres of path between neighbouring starts (> 0).
+    """
+
+    def __init__(
+        self,
+        spec: LabyrinthSpec,
+        *,
+        first_back: float = 0.10,
+        growth: float = 1.5,
+        threshold: float = 0.8,
+        window: int = 100,
+        true_share: float = 0.1,
+        spacing: float = 0.005,
+    ):
+        owner = type(self).__name__
+        if not isinstance(spec, LabyrinthSpec):
+            raise TypeError(f"{owner}: spec must be a LabyrinthSpec, got {type(spec).__name__}")
+        self.spec = spec
+        length = spec.path.length
+        first_back = _check(owner, "first_back", first_back, 0.0, length, low_open=True)
+        growth = _check(owner, "growth", growth, 1.0, 100.0, low_open=True)
+        threshold = _check(owner, "threshold", threshold, 0.0, 1.0, low_open=True)
+        self.true_share = _check(owner, "true_share", true_share, 0.0, 1.0, low_open=False)
+        spacing = _check(owner, "spacing", spacing, 0.0, length, low_open=True)
+        if not (isinstance(window, int) and not isinstance(window, bool) and window >= 1):
+            raise ValueError(f"{owner}.window must be an integer >= 1, got {window!r}")
+        self.arcs, xy = self._start_points(spacing)
+        self.back_of = length - self.arcs  # metres of path from each start to the goal
+        self.states = self._at_rest(xy)
+        self.stages = BackwardStages(
+            owner, first_back, growth, float(self.back_of.max()), threshold=threshold, window=window
+        )
+
+    def _start_points(self, spacing: float) -> tuple[np.ndarray, np.ndarray]:
+        """Arc lengths (K,) and points (K, 2) of the path where a marble may start (module docstring)."""
+        spec, path = self.spec, self.spec.path
+        arcs = np.arange(0.0, path.length, spacing)
+        xy = path_points_ahead(path, arcs, n=1)[:, 0]
+        clear = spec.clearance(xy) >= spec.marble_radius + 1e-9
+        holes = np.asarray(spec.holes, dtype=np.float64).reshape(-1, 2)
+        hole_distance = np.linalg.norm(xy[:, None] - holes[None], axis=-1).min(axis=1) if len(holes) else np.inf
+        outside_holes = hole_distance >= spec.hole_radius + spec.marble_radius
+        outside_goal = np.linalg.norm(xy - np.asarray(spec.waypoints[-1]), axis=1) > spec.goal_radius
+        tracker = PathProgress(spec)
+        on_path = np.array(
+            [abs(tracker.reset(p).progress - a) <= _ARC_TOLERANCE for p, a in zip(xy, arcs, strict=True)]
+        )
+        keep = clear & outside_holes & outside_goal & on_path
+        if not keep.any():
+            raise ValueError(f"{type(self).__name__}: no point of the path is clear for a start")
+        return arcs[keep], xy[keep]
+
+    def _at_rest(self, xy: np.ndarray) -> np.ndarray:
+        """The physics state (``LabyrinthSim.get_state()``) of the marble at rest at each point, the
+        board level: what ``reset(options={"sim_state": …})`` restores."""
+        sim = LabyrinthSim(self.spec)
+        try:
+            states = []
+            for point in xy:
+                sim.reset(point)
+                states.append(sim.get_state())
+        finally:
+            sim.close()
+        return np.stack(states)
+
+    # ------------------------------------------------------------------ sampler
+    @property
+    def finished(self) -> bool:
+        """Whether the final stage is reached: every start is the layout's own."""
+        return self.stages.finished
+
+    @property
+    def stage(self) -> int:
+        return self.stages.stage
+
+    def __call__(self, index: int, rng: np.random.Generator) -> tuple[np.ndarray | None, int]:
+        """The start of env ``index``'s next episode: ``(sim_state, stage)``, or ``(None, TRUE_START)``."""
+        if self.finished or rng.random() < self.true_share:
+            return None, TRUE_START
+        within = np.flatnonzero(self.back_of <= self.stages.back)
+        if not len(within):  # D_0 shorter than the gap between the goal and the nearest start
+            within = np.array([int(np.argmin(self.back_of))])
+        return self.states[within[int(rng.integers(len(within)))]].copy(), self.stage
+
+    def record(self, tag: int, success: bool) -> None:
+        """Count a finished episode (tag: the stage it started in; :data:`TRUE_START` is not counted)."""
+        if not (isinstance(tag, (int, np.integer)) and not isinstance(tag, bool)):
+            raise ValueError(f"{type(self).__name__}.record: tag must be an integer (a stage, or -1), got {tag!r}")
+        self.stages.record(int(tag), success)
+
+    def status(self) -> dict[str, float]:
+        """The stage, how far back (m of path) its starts reach, the share of the layout's own starts
+        and the success rate of the current stage's window so far."""
+        return {
+            "curriculum_stage": float(self.stage),
+            "curriculum_start_distance": float(self.stages.back),
+            "true_start_share": 1.0 if self.finished else self.true_share,
+            "curriculum_window_success": self.stages.window_success,
+        }

@@ -1,0 +1,82 @@
+"""The stage schedule of a backward start curriculum: how far from the goal episodes may start, and
+when that distance grows.
+
+Backplay (Resnick et al., 2018) and Salimans & Chen (2018) start episodes a short way before the goal
+and move the starts back once the policy succeeds from there. Stage k lets a start lie up to ``D_k``
+back (``D_0 = first_back``, ``D_{k+1} = D_k · growth``, rounded up for whole steps); once the last
+``window`` episodes started in the current stage succeeded at a rate of at least ``threshold``, the
+next stage begins. After the stage whose ``D_k`` reaches ``longest`` comes the final one, where every
+start is the task's own (:attr:`BackwardStages.finished`).
+
+The maze's demonstration curriculum counts ``D_k`` in steps of an expert episode
+(:class:`~bimgame.learn.starts.DemoStartCurriculum`), the labyrinth's in metres of the printed path
+(:class:`~bimgame.learn.path_starts.PathStartCurriculum`); both keep this one schedule.
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+
+__all__ = ["BackwardStages"]
+
+
+class BackwardStages:
+    """Stages ``D_0 < D_1 < …`` up to ``longest`` and the success window that moves them on.
+
+    Args:
+        owner: the curriculum's name, for error messages.
+        first_back: ``D_0`` (> 0).
+        growth: factor from one stage's ``D_k`` to the next (> 1).
+        longest: the farthest a start can lie back; the stage reaching it is the last before the
+            final one.
+        threshold: success rate over ``window`` episodes of the current stage that ends it, in (0, 1].
+        window: episodes the rate is taken over (>= 1).
+        whole: round each ``D_k`` up to a whole number (steps).
+    """
+
+    def __init__(
+        self,
+        owner: str,
+        first_back: float,
+        growth: float,
+        longest: float,
+        *,
+        threshold: float,
+        window: int,
+        whole: bool = False,
+    ):
+        if not (math.isfinite(first_back) and first_back > 0 and math.isfinite(longest) and longest > 0):
+            raise ValueError(f"{owner}: first_back and the longest distance must be finite and > 0")
+        self.owner, self.growth, self.longest = owner, float(growth), float(longest)
+        self.threshold, self.window = float(threshold), int(window)
+        self.backs: list[float] = [first_back]
+        while self.backs[-1] < longest:
+            grown = self.backs[-1] * growth
+            self.backs.append(math.ceil(grown) if whole else grown)
+        self.stage = 0
+        self._results: collections.deque[bool] = collections.deque(maxlen=self.window)
+
+    @property
+    def finished(self) -> bool:
+        """Whether the final stage is reached: every start is a true start."""
+        return self.stage >= len(self.backs)
+
+    @property
+    def back(self) -> float:
+        """How far back the current stage's starts may lie (``longest`` once finished)."""
+        return self.longest if self.finished else min(self.backs[self.stage], self.longest)
+
+    @property
+    def window_success(self) -> float:
+        """Success rate of the current stage's episodes so far (0 before any)."""
+        return sum(self._results) / len(self._results) if self._results else 0.0
+
+    def record(self, stage: int, success: bool) -> None:
+        """Count a finished episode started in ``stage``: only the current stage's move it on."""
+        if self.finished or stage != self.stage:
+            return
+        self._results.append(bool(success))
+        if len(self._results) == self.window and sum(self._results) >= self.threshold * self.window:
+            self.stage += 1
+            self._results.clear()

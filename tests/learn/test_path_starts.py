@@ -1,0 +1,150 @@
+"""Tests of the labyrinth's start curriculum (bimgame.learn.path_starts): its starts are at rest on
+the printed path, clear of walls, holes and the goal, within the stage's distance of the goal; the
+stages move with success; it is seeded; vector envs start from its states; the learners' settings
+and PPO use it."""
+
+from __future__ import annotations
+
+import csv
+import math
+
+import numpy as np
+import pytest
+
+from bimgame.envs.labyrinth_vector import LabyrinthVectorEnv
+from bimgame.learn.curricula import start_curriculum
+from bimgame.learn.learner_settings import CurriculumSettings
+from bimgame.learn.path_starts import TRUE_START, PathStartCurriculum
+from bimgame.sim.labyrinth import LabyrinthSpec
+from bimgame.sim.labyrinth_physics import LabyrinthSim
+
+
+@pytest.fixture(scope="module")
+def easy() -> PathStartCurriculum:
+    return PathStartCurriculum(LabyrinthSpec.layout("easy"), true_share=0.0, window=4, threshold=0.75)
+
+
+@pytest.mark.parametrize("layout", ["easy", "medium", "hard"])
+def test_starts_are_at_rest_on_the_path_clear_of_walls_holes_and_goal(layout):
+    curriculum = PathStartCurriculum(LabyrinthSpec.layout(layout))
+    spec = curriculum.spec
+    sim = LabyrinthSim(spec)
+    length = spec.path.length
+    assert len(curriculum.arcs) > 0.8 * length / 0.005  # most of the path is usable
+    assert np.all(np.diff(curriculum.arcs) > 0)
+    for state, arc in zip(curriculum.states, curriculum.arcs, strict=True):
+        sim.set_state(state)
+        x, y, vx, vy = sim.layout.board_frame_one(sim.data.qpos, sim.data.qvel)[0]
+        assert (vx, vy) == (0.0, 0.0)
+        assert float(spec.clearance([x, y])) >= spec.marble_radius - 1e-9
+        holes = np.asarray(spec.holes)
+        assert np.linalg.norm(holes - [x, y], axis=1).min() >= spec.hole_radius + spec.marble_radius
+        assert math.dist((x, y), spec.waypoints[-1]) > spec.goal_radius
+        assert 0 <= length - arc <= length
+    sim.close()
+
+
+def test_stage_starts_lie_within_its_distance_of_the_goal_and_move_back_with_success(easy):
+    curriculum = PathStartCurriculum(LabyrinthSpec.layout("easy"), true_share=0.0, window=4, threshold=0.75)
+    rng = np.random.default_rng(0)
+    by_state = {state.tobytes(): back for state, back in zip(curriculum.states, curriculum.back_of, strict=True)}
+    backs = []
+    for _ in range(200):
+        state, tag = curriculum(0, rng)
+        assert tag == 0 and state is not None
+        backs.append(by_state[state.tobytes()])
+    assert max(backs) <= 0.10 and min(backs) < 0.03 and len(set(backs)) > 10  # uniform over the last 10 cm
+    for _ in range(4):
+        curriculum.record(0, True)
+    assert curriculum.stage == 1 and curriculum.status()["curriculum_start_distance"] == pytest.approx(0.15)
+    farther = [by_state[curriculum(0, rng)[0].tobytes()] for _ in range(200)]
+    assert 0.10 < max(farther) <= 0.15
+    while not curriculum.finished:
+        for _ in range(4):
+            curriculum.record(curriculum.stage, True)
+    assert curriculum(0, rng) == (None, TRUE_START) and curriculum.status()["true_start_share"] == 1.0
+
+
+def test_true_share_and_the_same_seed_gives_the_same_starts():
+    curriculum = PathStartCurriculum(LabyrinthSpec.layout("medium"), true_share=0.3)
+    draws = [curriculum(0, np.random.default_rng(5)) for _ in range(2)]
+    assert draws[0][1] == draws[1][1]
+    rng_a, rng_b = np.random.default_rng(9), np.random.default_rng(9)
+    tags = []
+    for _ in range(300):
+        (a, tag_a), (b, tag_b) = curriculum(0, rng_a), curriculum(0, rng_b)
+        assert tag_a == tag_b and (a is None) == (b is None) and (a is None or np.array_equal(a, b))
+        tags.append(tag_a)
+    assert 0.2 < tags.count(TRUE_START) / len(tags) < 0.4
+
+
+def test_settings_are_refused_by_name():
+    spec = LabyrinthSpec.layout("easy")
+    for name, value, allowed in [("first_back", 0.0, r"\(0, "), ("growth", 1.0, r"\(1, 100\]"),
+                                 ("threshold", 1.5, r"\(0, 1\]"), ("true_share", -0.1, r"\[0, 1\]"),
+                                 ("spacing", math.nan, r"\(0, ")]:
+        with pytest.raises(ValueError, match=rf"PathStartCurriculum\.{name} must be a number in {allowed}"):
+            PathStartCurriculum(spec, **{name: value})
+    with pytest.raises(ValueError, match=r"PathStartCurriculum\.window must be an integer >= 1, got 0"):
+        PathStartCurriculum(spec, window=0)
+    with pytest.raises(TypeError, match="spec must be a LabyrinthSpec"):
+        PathStartCurriculum("easy")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match=r"record: tag must be an integer"):
+        PathStartCurriculum(spec).record("0", True)  # type: ignore[arg-type]
+
+
+def test_vector_envs_start_from_its_states_and_keep_its_tags(easy):
+    env = LabyrinthVectorEnv(3, "easy", obs_mode="state", start_sampler=easy)
+    obs, _ = env.reset(seed=1)
+    progress = obs[:, 6] * env.path.length
+    assert np.all(env.start_tags == easy.stage)
+    assert np.all(env.path.length - progress <= easy.stages.back + 1e-6)  # the tracker places them near the goal
+    # A marble started 10 cm before the goal and held still on a level board earns no progress yet.
+    _, reward, terminated, truncated, _ = env.step(np.zeros((3, 2), dtype=np.float32))
+    assert not terminated.any() and np.allclose(reward, 0.0, atol=1e-3)
+    env.close()
+
+
+def test_a_start_samplers_wrong_returns_are_refused_by_name():
+    env = LabyrinthVectorEnv(2, "easy", obs_mode="state", start_sampler=lambda i, rng: (np.zeros(3), 0))
+    with pytest.raises(ValueError, match=r"the start_sampler's state for board 0 \(tag 0\): state must be a finite"):
+        env.reset(seed=0)
+    env = LabyrinthVectorEnv(2, "easy", obs_mode="state", start_sampler=lambda i, rng: "start")
+    with pytest.raises(ValueError, match=r"start_sampler must return \(state or None, integer tag\)"):
+        env.reset(seed=0)
+    with pytest.raises(ValueError, match=r"start_sampler must be None or a callable"):
+        LabyrinthVectorEnv(2, "easy", start_sampler=3)  # type: ignore[arg-type]
+
+
+def test_a_sampler_giving_the_layouts_start_changes_nothing_but_the_tags():
+    plain = LabyrinthVectorEnv(3, "hard", obs_mode="state")
+    tagged = LabyrinthVectorEnv(3, "hard", obs_mode="state", start_sampler=lambda i, rng: (None, 7))
+    a, _ = plain.reset(seed=4)
+    b, _ = tagged.reset(seed=4)
+    assert np.array_equal(a, b) and np.all(tagged.start_tags == 7) and np.all(plain.start_tags == 0)
+
+
+def test_learners_build_it_for_the_labyrinths_reverse_curriculum_only():
+    reverse = start_curriculum("LABYRINTH-HARD", CurriculumSettings("reverse", 0.6))
+    assert isinstance(reverse, PathStartCurriculum) and reverse.stages.threshold == 0.6
+    assert start_curriculum("LABYRINTH-HARD", None) is None
+    with pytest.raises(ValueError, match="the labyrinth has 'reverse' only"):
+        start_curriculum("LABYRINTH-EASY", CurriculumSettings("demo"), "data")
+
+
+def test_ppo_trains_with_it_on_the_labyrinth_and_logs_its_stage(tmp_path):
+    from bimgame.cli.main import main
+
+    run_dir = tmp_path / "run"
+    assert main(["train", "--algo", "ppo", "--task", "LABYRINTH-EASY", "--obs", "state", "--action-type",
+                 "continuous", "--start-curriculum", "reverse", "--curriculum-threshold", "0.5", "--steps", "4096",
+                 "--n-steps", "64", "--envs-per-worker", "8", "--log-every", "512", "--eval-episodes", "1",
+                 "--run-dir", str(run_dir), "--no-progress"]) == 0
+    with open(run_dir / "episodes.csv", newline="") as handle:
+        episodes = list(csv.DictReader(handle))
+    curriculum = [row for row in episodes if row["true_start"] == "False"]
+    assert len(curriculum) > len(episodes) / 2  # 90% of the starts are the curriculum's
+    with open(run_dir / "updates.csv", newline="") as handle:
+        updates = list(csv.DictReader(handle))
+    assert updates and all(row["curriculum_stage"] != "" for row in updates)
+    assert float(updates[-1]["curriculum_start_distance"]) >= 0.10
