@@ -1,0 +1,236 @@
+"""Learning CyberRunner's labyrinth: PPO with CyberRunner's continuous actions, trained from the
+layout's start (``none``) and with the start curriculum along the printed path (``reverse``,
+:class:`~bimgame.learn.path_starts.PathStartCurriculum`), the same step budget for each, several seeds.
+
+Each run's final network is scored from the layout's own start, greedily and sampling, on
+``--episodes`` episodes; completion times are the successful episodes' lengths at 55 Hz, against
+CyberRunner's 14.48 s and the human record 15.41 s (hard layout). Across seeds: means with
+percentile-bootstrap 95% intervals (seeds resampled); per seed numbers are in the JSON. Runs are kept
+in ``--out`` (a rerun reuses finished runs and their scores).
+
+Writes ``--results`` (default benchmarks/results/labyrinth_learning.json) and ``--figure`` (default
+docs/labyrinth/learning.png): success from the layout's start during training (training episodes,
+the curriculum's excluded) and the curriculum's reach (metres of path before the goal) against steps.
+
+Usage: python benchmarks/bench_labyrinth_learning.py [--layout easy] [--obs state|cyberrunner]
+       [--steps 1000000] [--seeds 3] [--curricula reverse none] [--jobs 3] [--episodes 100]
+       [--out runs/labyrinth-learning]
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import multiprocessing
+import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bimgame.envs.puzzles import puzzle
+from bimgame.experiments.statistics import mean_interval
+from bimgame.learn.actor import evaluate_network
+from bimgame.learn.common import load_run_network
+from bimgame.learn.ppo import PPOConfig, train_ppo
+from bimgame.learn.runs import torch_threads
+from bimgame.util.files import atomic_write_bytes, read_json
+from bimgame.util.images import save_png, subplots
+
+ROOT = Path(__file__).resolve().parents[1]
+CURRICULA = ("reverse", "none")
+MODES = ("greedy", "sampled")
+#: The labyrinth's control rate (Hz): an episode's length in steps over it is its time in seconds.
+CONTROL_HZ = 55.0
+#: CyberRunner's best time and the human record on the hard layout (s), Bi & D'Andrea 2023.
+CYBERRUNNER_SECONDS, HUMAN_RECORD_SECONDS = 14.48, 15.41
+#: Evaluation seed of the scores (the same start noise for every run).
+SCORE_SEED = 12345
+#: Steps per point of the training curves.
+CURVE_BIN = 25_000
+
+
+def _train(run_dir: Path, *, layout: str, obs: str, steps: int, seed: int, curriculum: str) -> float:
+    """Train one run unless ``run_dir`` holds a finished one; the wall-clock seconds it took (0: reused)."""
+    summary = read_json(run_dir / "summary.json")
+    if summary is not None and summary.get("stopped") == "finished":
+        return 0.0
+    config = PPOConfig.from_flat(
+        dict(
+            task=f"LABYRINTH-{layout.upper()}",
+            obs=obs,
+            action_type="continuous",
+            steps=steps,
+            seed=seed,
+            eval_every=0,
+            eval_episodes=20,
+            start_curriculum=curriculum,
+        )
+    )
+    start = time.perf_counter()
+    train_ppo(config, run_dir, progress=False)
+    return time.perf_counter() - start
+
+
+def _score(run_dir: Path, episodes: int) -> dict[str, Any]:
+    """Success and completion times of the run's final network from the layout's own start."""
+    scores_file = run_dir / "labyrinth_scores.json"
+    net, run, step = load_run_network(run_dir)
+    cached = read_json(scores_file)
+    if cached is not None and cached.get("episodes") == episodes and cached.get("step") == step:
+        return cached
+    scores: dict[str, Any] = {"episodes": episodes, "step": step}
+    for mode in MODES:
+        result = evaluate_network(
+            net,
+            task=run.task,
+            obs_mode=run.network.obs,
+            episodes=episodes,
+            seed=SCORE_SEED,
+            greedy=mode == "greedy",
+            max_episode_steps=run.time_limit,
+        )
+        times = [length / CONTROL_HZ for length, ok in zip(result.lengths, result.successes, strict=True) if ok]
+        scores[f"{mode}_success"] = result.success_rate
+        scores[f"{mode}_median_seconds"] = float(np.median(times)) if times else None
+        scores[f"{mode}_mean_return"] = float(np.mean(result.returns))
+    atomic_write_bytes(scores_file, json.dumps(scores, indent=2).encode())
+    return scores
+
+
+def _job(run_dir: Path, curriculum: str, seed: int, args: argparse.Namespace) -> tuple[float, dict[str, Any]]:
+    """Train and score one run with one torch thread: a job of ``--jobs``."""
+    with torch_threads(1):
+        seconds = _train(run_dir, layout=args.layout, obs=args.obs, steps=args.steps, seed=seed, curriculum=curriculum)
+        return seconds, _score(run_dir, args.episodes)
+
+
+def _curve(run_dir: Path, steps: int) -> dict[str, list[float]]:
+    """Per ``CURVE_BIN`` steps: the success rate of training episodes from the layout's own start,
+    and the curriculum's reach (m of path before the goal; NaN without a curriculum)."""
+    edges = np.arange(CURVE_BIN, steps + CURVE_BIN, CURVE_BIN)
+    with (run_dir / "episodes.csv").open(newline="") as handle:
+        episodes = [row for row in csv.DictReader(handle) if row["true_start"] != "False"]
+    ends = np.array([float(row["step"]) for row in episodes])
+    wins = np.array([row["success"] == "True" for row in episodes])
+    success = [
+        float(wins[(ends > e - CURVE_BIN) & (ends <= e)].mean())
+        if ((ends > e - CURVE_BIN) & (ends <= e)).any()
+        else float("nan")
+        for e in edges
+    ]
+    with (run_dir / "updates.csv").open(newline="") as handle:
+        updates = list(csv.DictReader(handle))
+    reach = []
+    for edge in edges:
+        rows = [row for row in updates if float(row["step"]) <= edge and row.get("curriculum_start_distance")]
+        reach.append(float(rows[-1]["curriculum_start_distance"]) if rows else float("nan"))
+    return {"step": edges.tolist(), "success": success, "curriculum_reach": reach}
+
+
+def _aggregate(per_seed: list[dict[str, Any]], rng: np.random.Generator) -> dict[str, Any]:
+    """Means over seeds with bootstrap intervals; median times pooled over the seeds that finished."""
+    out: dict[str, Any] = {}
+    for key in ("greedy_success", "sampled_success", "greedy_mean_return", "sampled_mean_return"):
+        array = np.array([scores[key] for scores in per_seed])
+        low, high = mean_interval(array, rng=rng)
+        out[key] = {"mean": float(array.mean()), "interval": [low, high], "per_seed": array.tolist()}
+    for mode in MODES:
+        out[f"{mode}_median_seconds_per_seed"] = [scores[f"{mode}_median_seconds"] for scores in per_seed]
+    return out
+
+
+def _plot(results: dict[str, Any], path: Path, title: str) -> Path:
+    fig, (left, right) = subplots(1, 2, figsize=(11, 4), layout="constrained")
+    colours = {"reverse": "tab:blue", "none": "tab:gray"}
+    for curriculum, entry in results["curricula"].items():
+        for k, curve in enumerate(entry["curves"]):
+            label = curriculum if k == 0 else None
+            left.plot(
+                np.array(curve["step"]) / 1e3,
+                100 * np.array(curve["success"]),
+                color=colours[curriculum],
+                alpha=0.8,
+                label=label,
+            )
+            if curriculum != "none":
+                right.plot(
+                    np.array(curve["step"]) / 1e3,
+                    curve["curriculum_reach"],
+                    color=colours[curriculum],
+                    alpha=0.8,
+                    label=label,
+                )
+    left.set(xlabel="steps (k)", ylabel="success from the layout's start (%)", ylim=(-3, 103))
+    right.set(xlabel="steps (k)", ylabel="curriculum's reach (m of path before the goal)")
+    right.axhline(results["path_length"], color="k", linestyle=":", label="whole path")
+    for axis in (left, right):
+        axis.grid(alpha=0.3)
+        axis.legend(fontsize=8)
+    left.set_title(title, fontsize=10)
+    return save_png(fig, path, dpi=110)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--layout", choices=("easy", "medium", "hard"), default="easy")
+    parser.add_argument("--obs", choices=("state", "cyberrunner"), default="state")
+    parser.add_argument("--steps", type=int, default=1_000_000)
+    parser.add_argument("--seeds", type=int, default=3)
+    parser.add_argument("--curricula", nargs="+", choices=CURRICULA, default=list(CURRICULA))
+    parser.add_argument("--episodes", type=int, default=100, help="scoring episodes per mode (default 100)")
+    parser.add_argument("--jobs", type=int, default=3, help="runs trained at once, one thread each (default 3)")
+    parser.add_argument("--out", type=Path, default=ROOT / "runs" / "labyrinth-learning")
+    parser.add_argument("--results", type=Path, default=ROOT / "benchmarks" / "results" / "labyrinth_learning.json")
+    parser.add_argument("--figure", type=Path, default=ROOT / "docs" / "labyrinth" / "learning.png")
+    args = parser.parse_args(argv)
+    jobs = {
+        (curriculum, seed): args.out / f"{args.layout}-{args.obs}-{curriculum}" / f"seed{seed}"
+        for curriculum in args.curricula
+        for seed in range(args.seeds)
+    }
+    done: dict[tuple[str, int], tuple[float, dict[str, Any]]] = {}
+    context = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=args.jobs, mp_context=context) as pool:
+        futures = {pool.submit(_job, run_dir, c, s, args): (c, s) for (c, s), run_dir in jobs.items()}
+        for future in as_completed(futures):
+            key = futures[future]
+            done[key] = future.result()
+            scores = done[key][1]
+            print(
+                f"{key[0]} seed {key[1]}: greedy {scores['greedy_success']:.0%}  "
+                f"sampled {scores['sampled_success']:.0%}"
+                f"  median time sampled {scores['sampled_median_seconds']}  ({done[key][0] / 60:.1f} min)",
+                flush=True,
+            )
+    rng = np.random.default_rng(0)
+    results: dict[str, Any] = {
+        "layout": args.layout,
+        "obs": args.obs,
+        "action_type": "continuous",
+        "steps": args.steps,
+        "seeds": args.seeds,
+        "episodes": args.episodes,
+        "path_length": puzzle(f"LABYRINTH-{args.layout.upper()}").spec.path.length,
+        "reference_seconds": {"cyberrunner": CYBERRUNNER_SECONDS, "human_record": HUMAN_RECORD_SECONDS},
+        "curricula": {},
+    }
+    for curriculum in args.curricula:
+        seeds = range(args.seeds)
+        per_seed = [done[(curriculum, s)][1] for s in seeds]
+        results["curricula"][curriculum] = {
+            **_aggregate(per_seed, rng),
+            "train_minutes": [done[(curriculum, s)][0] / 60 for s in seeds],
+            "curves": [_curve(jobs[(curriculum, s)], args.steps) for s in seeds],
+        }
+    args.results.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(args.results, json.dumps(results, indent=2).encode())
+    title = f"PPO on the {args.layout} labyrinth from {args.obs}, {args.steps:,} steps, {args.seeds} seeds"
+    print(f"wrote {args.results} and {_plot(results, args.figure, title)}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
