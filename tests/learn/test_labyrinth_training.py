@@ -177,9 +177,10 @@ def test_an_episode_that_ends_in_a_hole_is_no_success(monkeypatch):
 
 def test_success_is_the_envs_own_where_it_reports_one_else_a_termination():
     terminated = np.array([True, True, False])
-    # The maze reports no "success": a termination is its goal, as before.
-    assert episode_successes({"is_success": np.array([False] * 3)}, terminated).tolist() == [True, True, False]
-    # Same-step autoreset: the finished step's info says which episodes succeeded.
-    info = {"success": np.zeros(3, dtype=bool), "final_info": {"success": np.array([True, False, False])}}
+    # Same-step autoreset: the finished step's info says which episodes succeeded (the info beside it
+    # is the next episode's).
+    info = {"is_success": np.zeros(3, dtype=bool), "final_info": {"is_success": np.array([True, False, False])}}
     assert episode_successes(info, terminated).tolist() == [True, False, False]
-    assert episode_successes({"success": np.array([False, True, True])}, terminated).tolist() == [False, True, False]
+    assert episode_successes({"is_success": np.array([False, True, True])}, terminated).tolist() == [False, True, False]
+    # An env that reports nothing: a termination is its goal.
+    assert episode_successes({}, terminated).tolist() == [True, True, False]

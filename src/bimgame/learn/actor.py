@@ -31,16 +31,17 @@ def tilt_input(info: dict[str, Any], max_tilt: float) -> torch.Tensor:
 
 
 def episode_successes(info: dict[str, Any], terminated: np.ndarray) -> np.ndarray:
-    """(B,) bool: whether each episode that ended at this step reached its goal (read where ``done``).
-    An env that reports ``info["success"]`` says so itself — the labyrinth, whose episodes also
-    terminate by failing (a hole, leaving the path) — in the finished step's info: ``final_info``
-    under same-step autoreset (the info beside it is the next episode's). Otherwise (the maze, whose
-    episodes terminate only at the goal) a termination is a success."""
+    """(B,) bool: whether each episode that ended at this step reached its goal (read where ``done``):
+    the env's own ``info["is_success"]`` (Gymnasium's key; both puzzles report it) of the finished
+    step — ``final_info`` under same-step autoreset, where the info beside it is the next episode's —
+    and a termination. A labyrinth episode also terminates by failing (a hole, leaving the path); a
+    maze episode terminates only at its goal. An env that reports no ``is_success`` counts every
+    termination as a success."""
     final = info.get("final_info")
-    source = final if isinstance(final, dict) and "success" in final else info
-    if "success" not in source:
+    source = final if isinstance(final, dict) and "is_success" in final else info
+    if "is_success" not in source:
         return np.asarray(terminated, dtype=bool)
-    return np.asarray(source["success"], dtype=bool) & np.asarray(terminated, dtype=bool)
+    return np.asarray(source["is_success"], dtype=bool) & np.asarray(terminated, dtype=bool)
 
 
 class RecurrentActor:
