@@ -1,7 +1,8 @@
 """The learners on CyberRunner's labyrinth (bimgame.envs.puzzles): the tasks and what they map to, the
 settings that accept them and those that refuse them by name, a tiny PPO run from the command line
 (run directory, resume, evaluate) and a tiny A3C run, and success counted from the env's own ``success`` — a marble in a
-hole terminates its episode but is no success."""
+hole terminates its episode but is no success; and both learners from the labyrinth's pixels (its own
+84×84 frames and empty board), with only what is made for the maze's state layout refused."""
 
 from __future__ import annotations
 
@@ -16,12 +17,14 @@ from bimgame.cli.main import main
 from bimgame.envs.puzzles import LABYRINTH, MAZE, TASK_NAMES, puzzle, state_obs_scale, vector_env
 from bimgame.envs.vector import BallInMazeVectorEnv
 from bimgame.learn.a3c import A3CConfig, train
-from bimgame.learn.actor import RecurrentActor, episode_successes, evaluate_network
-from bimgame.learn.common import load_run_network
+from bimgame.learn.actor import RecurrentActor, episode_successes, evaluate_network, tilt_input
+from bimgame.learn.common import NetworkSettings, load_run_network
 from bimgame.learn.learner_settings import check_init_puzzle, policy_network
+from bimgame.learn.pixel_network import empty_board_frame
 from bimgame.learn.ppo import PPOConfig
 from bimgame.learn.rollout import RolloutCollector, training_env
 from bimgame.sim.labyrinth import LabyrinthSpec
+from bimgame.sim.labyrinth_render import board_grid
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.tasks import Task
 
@@ -75,13 +78,15 @@ def test_settings_accept_the_labyrinth_and_refuse_the_mazes_settings_by_name():
     refused = {
         "num_mazes": r"PPOConfig\.num_mazes applies to the circular maze's tasks only, not LABYRINTH-EASY: random",
         "start_maze": r"PPOConfig\.start_maze applies to the circular maze's tasks only",
-        "obs": r"PPOConfig: obs 'pixels' on LABYRINTH-EASY is not wired yet .*use obs='state'",
         "aux_heads": r"PPOConfig\.aux_heads on LABYRINTH-EASY: the auxiliary heads predict the circular maze's",
     }
-    values = {"num_mazes": 4, "start_maze": 2, "obs": "pixels", "aux_heads": True}
+    values = {"num_mazes": 4, "start_maze": 2, "aux_heads": True}
     for name, message in refused.items():
         with pytest.raises(ValueError, match=message):
             PPOConfig.from_flat(LAB, **{name: values[name]})
+    # Pixels run on the labyrinth's own frames, their auxiliary heads off there by default (see the
+    # pixel tests below).
+    assert PPOConfig.from_flat(LAB, obs="pixels").network.aux_heads is False
     assert PPOConfig.from_flat(LAB, obs="cyberrunner").network.obs == "cyberrunner"  # test_cyberrunner_encoder.py
     for name, value, why in (("randomize", "physics", "domain randomisation"), ("expert_data", "data", "datasets")):
         with pytest.raises(ValueError, match=rf"A3CConfig\.{name} applies to the circular maze's tasks only.*{why}"):
@@ -184,3 +189,97 @@ def test_success_is_the_envs_own_where_it_reports_one_else_a_termination():
     assert episode_successes({"is_success": np.array([False, True, True])}, terminated).tolist() == [False, True, False]
     # An env that reports nothing: a termination is its goal.
     assert episode_successes({}, terminated).tolist() == [True, True, False]
+
+
+#: The flags of a tiny run from the labyrinth's pixels (the learner's --n-steps and --steps apart).
+PIXELS = ["--task", "LABYRINTH-EASY", "--obs", "pixels", "--hidden", "16", "--features", "16", "--envs-per-worker",
+          "4", "--eval-every", "0", "--eval-episodes", "2", "--max-episode-steps", "50", "--no-progress"]
+
+
+def test_the_pixel_network_reads_the_labyrinths_frames_and_subtracts_its_empty_board():
+    config = PPOConfig.from_flat(LAB, obs="pixels", action_type="continuous", subtract_background=True,
+                                 asymmetric_critic=True, keypoints=True, precision="bf16")
+    net = policy_network(config)
+    env = training_env(3, task=config.task, obs="pixels", time_limit=100, privileged=True, action_type="continuous")
+    obs, info = env.reset(seed=0)
+    assert env.single_observation_space.shape == net.config.obs_shape == (1, 84, 84) and obs.dtype == np.uint8
+    assert info["state"].shape == (3, net.config.privileged_size) == (3, 17)
+    # The background is the labyrinth's empty board: a frame differs from it only at its marble (≈ 3.5 px wide).
+    spec = puzzle(config.task).spec
+    background = net.encoder.background.numpy()
+    np.testing.assert_array_equal(background, empty_board_frame(spec))
+    grid = board_grid(spec, 84)
+    for frame, state in zip(obs, info["state"], strict=True):
+        rows, cols = np.nonzero(frame[0] != background[0])
+        col, row = grid.to_pixel(state[:2])
+        assert 4 <= len(rows) <= 25 and np.all(np.hypot(cols - col, rows - row) < 3.0)
+    assert not np.array_equal(background, empty_board_frame(puzzle("LABYRINTH-HARD").spec))  # its holes, walls
+    # One step acting: the bf16 conv encoder with keypoints, the tilt input, a critic reading the 17 values.
+    with torch.no_grad():
+        mean, values, _ = net.step(torch.as_tensor(obs), torch.zeros(3, 2), torch.zeros(3),
+                                   tilt_input(info, env.maze.max_tilt), net.initial_state(3),
+                                   privileged=torch.as_tensor(info["state"]))
+    assert mean.shape == (3, 2) and values.shape == (3,) and torch.isfinite(values).all()
+
+
+def test_ppo_trains_resumes_and_evaluates_on_the_labyrinth_from_pixels(tmp_path, capsys):
+    run_dir = tmp_path / "run"
+    assert main(["train", "--algo", "ppo", "--action-type", "continuous", "--subtract-background",
+                 "--asymmetric-critic", "--n-steps", "32", "--run-dir", str(run_dir), "--steps", "256", *PIXELS]) == 0
+    assert "done: 256 steps" in capsys.readouterr().out
+    stored = json.loads((run_dir / "config.json").read_text())
+    assert stored["net"]["obs_shape"] == [1, 84, 84] and stored["net"]["privileged_size"] == 17
+    assert stored["ppo"]["aux_heads"] is False and stored["net"]["subtract_background"] is True
+    assert main(["train", "--algo", "ppo", "--run-dir", str(run_dir), "--resume", "--steps", "384",
+                 "--no-progress"]) == 0
+    assert "done: 384 steps" in capsys.readouterr().out
+    net, run, step = load_run_network(run_dir)
+    assert (run.network.obs, step, net.config.obs_shape, net.config.action_type) == (
+        "pixels", 384, (1, 84, 84), "continuous")
+    fresh = policy_network(PPOConfig.from_flat(stored["ppo"]))
+    assert not torch.equal(net.encoder.conv1.weight, fresh.encoder.conv1.weight)  # it learned
+    assert torch.equal(net.encoder.background, fresh.encoder.background)
+    out = tmp_path / "eval.json"
+    assert main(["evaluate", str(run_dir), "--episodes", "2", "--out", str(out)]) == 0
+    result = json.loads(out.read_text())
+    assert result["task"] == "LABYRINTH-EASY" and len(result["lengths"]) == 2
+    assert all(1 <= length <= 50 for length in result["lengths"])
+
+
+def test_a3c_trains_and_evaluates_on_the_labyrinth_from_pixels(tmp_path, capsys):
+    run_dir = tmp_path / "a3c"
+    # One worker; frames shifted by up to 2 px (the rim leaves 2.2 px around the marble).
+    assert main(["train", "--workers", "1", "--n-steps", "16", "--augment-shift", "2", "--run-dir", str(run_dir),
+                 "--steps", "128", *PIXELS]) == 0
+    assert "done: 128 steps" in capsys.readouterr().out
+    net, run, step = load_run_network(run_dir)
+    assert (run.task, run.network.obs, run.network.aux_heads, net.config.obs_shape, net.config.action_type) == (
+        "LABYRINTH-EASY", "pixels", False, (1, 84, 84), "discrete")
+    assert step >= 128
+    out = tmp_path / "eval.json"
+    assert main(["evaluate", str(run_dir), "--episodes", "2", "--sample", "--out", str(out)]) == 0
+    result = json.loads(out.read_text())
+    assert (result["task"], result["mode"], len(result["lengths"])) == ("LABYRINTH-EASY", "sampled", 2)
+
+
+def test_the_labyrinth_refuses_by_name_only_what_its_pixels_cannot_train_with(tmp_path, capsys):
+    for config in (PPOConfig, A3CConfig):
+        owner = config.__name__
+        with pytest.raises(ValueError, match=rf"{owner}\.aux_heads on LABYRINTH-EASY: .*leave them off "
+                                             r"\(aux_heads=False"):
+            config.from_flat(LAB, obs="pixels", aux_heads=True)
+        with pytest.raises(ValueError, match=rf"{owner}\.maze_encoding on LABYRINTH-EASY: the encoding is of a "
+                                             r"circular maze's walls; leave it off \(maze_encoding=False\)"):
+            config.from_flat(LAB, maze_encoding=True)
+        # The rest of the pixel network runs on the labyrinth.
+        network = config.from_flat(LAB, obs="pixels", subtract_background=True, keypoints=True, tilt_input=False,
+                                   asymmetric_critic=True, precision="fp32").network
+        assert (network.aux_heads, network.subtract_background, network.keypoints) == (False, True, True)
+    # Settings built whole keep NetworkSettings' pixel default (heads on): refused the same way.
+    with pytest.raises(ValueError, match=r"PPOConfig\.aux_heads on LABYRINTH-HARD"):
+        PPOConfig(task="LABYRINTH-HARD", network=NetworkSettings(obs="pixels"))
+    # The maze's pixels keep their heads by default.
+    assert PPOConfig.from_flat(LAB, task="STG1", obs="pixels").network.aux_heads is True
+    # The command line refuses them before writing anything.
+    assert main(["train", "--algo", "ppo", "--aux-heads", "--run-dir", str(tmp_path / "r"), *PIXELS]) == 2
+    assert "aux_heads on LABYRINTH-EASY" in capsys.readouterr().err and not (tmp_path / "r").exists()

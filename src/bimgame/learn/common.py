@@ -31,8 +31,8 @@ from bimgame.learn.nets import (
     ValueNetwork,
     build_network,
     build_value_network,
-    maze_background,
 )
+from bimgame.learn.pixel_network import pixel_net_config
 from bimgame.learn.policy_heads import check_action_type
 from bimgame.learn.runs import CONFIG, KIND_A3C, KIND_VALUE, read_run_config
 from bimgame.sim.maze import MazeSpec
@@ -93,12 +93,15 @@ class NetworkSettings:
     keypoints: bool = False
     """Pixels: add spatial soft-argmax keypoints to the conv encoder (see :mod:`bimgame.learn.nets`)."""
     subtract_background: bool = False
-    """Pixels: subtract the empty-maze frame before the convolutions (see :mod:`bimgame.learn.nets`)."""
+    """Pixels: subtract the empty board's frame (the maze's or the labyrinth's:
+    :mod:`bimgame.learn.pixel_network`) before the convolutions (see :mod:`bimgame.learn.nets`)."""
     aux_heads: bool | None = None
     """Train auxiliary heads that predict the simulator's state (marble position, velocity, channel,
     tilt) from the network's features; the policy still acts from its observations alone (see
     :mod:`bimgame.learn.nets`). None: on for pixels (what makes pixels learn at all; measured in
-    ``docs/pixels/README.md``), off for state observations (the state is the observation)."""
+    ``docs/pixels/README.md``), off for state observations (the state is the observation) and, in a
+    learner's settings, on the labyrinth (the heads read the maze's state layout:
+    :func:`~bimgame.learn.learner_settings.puzzle_defaults`)."""
     asymmetric_critic: bool = False
     """The value head also reads the simulator's state (training only; a departure from the paper,
     whose critic sees what the actor sees). Off by default: it did not help (``docs/pixels/README.md``)."""
@@ -191,19 +194,7 @@ class NetworkSettings:
         if self.obs == "cyberrunner":
             return cyberrunner_net_config(self, maze, privileged), inputs
         if self.obs == "pixels":
-            net_config = NetConfig(
-                encoder="conv",
-                obs_shape=(1, 84, 84),
-                features=features,
-                hidden=hidden,
-                tilt_input=self.tilt_input,
-                action_type=self.action_type,
-                keypoints=self.keypoints,
-                subtract_background=self.subtract_background,
-                precision=precision,
-                **privileged,
-            )
-            background = maze_background(maze) if self.subtract_background and isinstance(maze, MazeSpec) else None
+            net_config, background = pixel_net_config(self, maze, privileged)
             return net_config, {"background": background, **inputs}
         net_config = NetConfig(
             encoder="mlp",

@@ -23,7 +23,7 @@ __all__ = ["NOT_CYBERRUNNER", "check_cyberrunner_network", "cyberrunner_net_conf
 #: The network switches that do not apply to CyberRunner's observations, and why.
 NOT_CYBERRUNNER = {
     "keypoints": "the CyberRunner encoder has no keypoints (pixels only)",
-    "subtract_background": "the background is the circular maze's empty 84×84 frame (pixels only)",
+    "subtract_background": "it subtracts the empty board from a whole-board 84×84 frame (pixels only)",
     "aux_heads": "the auxiliary heads predict the circular maze's state layout (asymmetric_critic reads the "
     "labyrinth's state)",
     "maze_encoding": "the encoding is of a circular maze's walls",

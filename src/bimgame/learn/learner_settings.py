@@ -15,8 +15,9 @@ from flat names and written as flat names, so that every ``config.json`` any ver
 
 A learner's task is the circular maze's or CyberRunner's labyrinth's (:mod:`bimgame.envs.puzzles`):
 :func:`check_puzzle` and :func:`refuse_maze_only` refuse, by name, what only the maze has (random
-mazes, start curricula, domain randomisation, expert data, reward shaping) and the networks the
-labyrinth cannot train yet; :func:`policy_network` builds a run's network for its task's board and
+mazes, start curricula, domain randomisation, expert data, reward shaping) and the network parts
+made for the maze's state layout (off by default on the labyrinth: :func:`puzzle_defaults`);
+:func:`policy_network` builds a run's network for its task's board and
 :func:`check_init_puzzle` refuses ``--init`` from the other puzzle's network.
 """
 
@@ -52,6 +53,7 @@ __all__ = [
     "check_expert_data",
     "check_start_curriculum",
     "check_puzzle",
+    "puzzle_defaults",
     "policy_network",
     "check_init_puzzle",
 ]
@@ -141,27 +143,43 @@ def check_start_curriculum(
 
 def check_puzzle(owner: str, task: str, network: Any, *, num_mazes: int | None, start_maze: int) -> None:
     """Refuse CyberRunner's observation on the maze's ``task`` (:func:`~bimgame.envs.puzzles.check_obs`),
-    and what the labyrinth's ``task`` cannot train with: the maze's random mazes (:func:`refuse_maze_only`),
-    and a network (:class:`~bimgame.learn.common.NetworkSettings`) it cannot train yet — pixels (the
-    conv network's auxiliary heads and empty-frame background are the maze's), auxiliary heads (they
-    predict the maze's state layout) and the maze's encoding."""
+    and what the labyrinth's ``task`` cannot train with: the maze's random mazes (:func:`refuse_maze_only`)
+    and the parts of a network (:class:`~bimgame.learn.common.NetworkSettings`) made for the maze's state
+    layout — auxiliary heads (they predict the maze's marble and channel; off by default on the labyrinth:
+    :func:`puzzle_defaults`) and the maze's encoding. Every observation runs on the labyrinth: ``state``,
+    ``pixels`` (its own 84×84 frames and empty-board background: :mod:`bimgame.learn.pixel_network`; an
+    asymmetric critic reads its 17 state values) and ``cyberrunner``."""
     if puzzle(task).is_maze:
         check_obs(f"{owner}.network.obs", task, getattr(network, "obs", ""))
         return
     refuse_maze_only(owner, task, {"num_mazes": num_mazes is not None, "start_maze": bool(start_maze)})
-    if getattr(network, "obs", "state") not in ("state", "cyberrunner"):
-        raise ValueError(
-            f"{owner}: obs {network.obs!r} on {task} is not wired yet (the pixel network's auxiliary heads and "
-            f"background subtraction are made for the circular maze's 84×84 frames and state); use obs='state' "
-            f"or 'cyberrunner'"
-        )
     if getattr(network, "aux_heads", False):
         raise ValueError(
             f"{owner}.aux_heads on {task}: the auxiliary heads predict the circular maze's state layout (marble, "
-            f"channel), not the labyrinth's; leave them off (asymmetric_critic reads the labyrinth's state)"
+            f"channel), not the labyrinth's; leave them off (aux_heads=False, --no-aux-heads; asymmetric_critic "
+            f"reads the labyrinth's state)"
         )
     if getattr(network, "maze_encoding", False):
-        raise ValueError(f"{owner}.maze_encoding on {task}: the encoding is of a circular maze's walls")
+        raise ValueError(
+            f"{owner}.maze_encoding on {task}: the encoding is of a circular maze's walls; leave it off "
+            f"(maze_encoding=False)"
+        )
+
+
+def puzzle_defaults(values: Mapping[str, Any], default_task: str) -> dict[str, Any]:
+    """The flat settings ``values`` with the defaults that depend on the task's puzzle filled in (the task
+    is ``values["task"]``, else ``default_task``): on the labyrinth, ``aux_heads`` not given (None) is
+    False — :class:`~bimgame.learn.common.NetworkSettings` turns it on for pixels, but its heads predict the
+    circular maze's state layout (:func:`check_puzzle` refuses them there), so a pixel run on the labyrinth
+    needs no ``--no-aux-heads``. An unknown task is left for the settings' own check to name."""
+    filled = dict(values)
+    try:
+        labyrinth = not puzzle(filled.get("task", default_task)).is_maze
+    except ValueError:
+        return filled
+    if labyrinth and filled.get("aux_heads") is None:
+        filled["aux_heads"] = False
+    return filled
 
 
 def policy_network(config: Any) -> RecurrentActorCritic:
@@ -373,6 +391,8 @@ class FlatSettings:
         unknown = sorted(set(given) - set(cls.flat_names()))
         if unknown:
             raise ValueError(f"unknown {cls.SETTINGS_NAME} {unknown}; allowed: {sorted(cls.flat_names())}")
+        if {"task", "aux_heads"} <= set(cls.flat_names()):
+            given = puzzle_defaults(given, getattr(cls, "task", ""))  # a dataclass's class attribute: its default
         arguments: dict[str, Any] = {name: given[name] for name in cls.own_names() if name in given}
         for field, part in cls.PARTS.items():
             names = [f.name for f in dataclasses.fields(part)]
