@@ -100,3 +100,25 @@ def test_a_run_trained_on_mazes_scores_on_held_out_and_its_own_mazes(tmp_path):
     assert results["train:3"]["notes"] == []
     assert len(results["merl"]["notes"]) == 1 and "MERL's maze's encoding" in results["merl"]["notes"][0]
     assert all(r["episodes"] == 2 and 0.0 <= r["success_rate"] <= 1.0 for r in results.values())
+
+
+def test_the_labyrinth_refuses_the_mazes_flags_and_runs_of_the_other_puzzle_by_name(tmp_path, capsys):
+    """On a labyrinth task, --mazes and --measure-references (the circular maze's) are refused by name,
+    as is a run trained on the circular maze; CyberRunner's observation is refused on the maze."""
+    from bimgame.learn.ppo import PPOConfig, train_ppo
+
+    base = ["score", "random", "--task", "LABYRINTH-EASY", "--episodes", "1", "--no-progress"]
+    assert main([*base, "--mazes", "test"]) == 2
+    assert "--mazes test: the circular maze's random mazes" in capsys.readouterr().err
+    assert main([*base, "--measure-references", "--out", str(tmp_path / "refs.json")]) == 2
+    assert "--measure-references measures the circular maze's" in capsys.readouterr().err
+    assert main(["score", "random", "--obs", "cyberrunner", "--episodes", "1", "--no-progress"]) == 2
+    assert "'cyberrunner' is CyberRunner's observation of the labyrinth" in capsys.readouterr().err
+    run = tmp_path / "maze-run"
+    config = PPOConfig.from_flat({"task": "STG1", "obs": "state", "hidden": 16, "features": 16, "steps": 64,
+                                  "envs_per_worker": 4, "n_steps": 16, "eval_every": 0, "eval_episodes": 1})
+    train_ppo(config, run, progress=False)
+    assert main(["score", str(run), "--task", "LABYRINTH-HARD", "--episodes", "1", "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "is a run on STG1 (the circular maze), but --task LABYRINTH-HARD is the labyrinth's" in err
+    assert "--task STG1" in err

@@ -1,6 +1,9 @@
 """``bimgame score``: any policy scored with the benchmark protocol (:mod:`bimgame.experiments.protocol`),
 on MERL's maze or on numbered random mazes (``--mazes``), printed as a table and written as JSON;
-``--measure-references`` measures the random and expert references of the normalised score anew."""
+``--measure-references`` measures the random and expert references of the normalised score anew. On a
+labyrinth task (``--task LABYRINTH-…``) it runs the labyrinth's protocol instead
+(:mod:`bimgame.experiments.labyrinth_protocol`: success, completion time against CyberRunner's and the
+human record)."""
 
 from __future__ import annotations
 
@@ -10,12 +13,20 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from bimgame.cli.argtypes import TASK_NAMES, add_task_argument, check_output_file, positive_int, run_group
-from bimgame.envs.observe import OBS_MODES
-from bimgame.envs.puzzles import puzzle
+from bimgame.envs.puzzles import NETWORK_OBS, check_obs, puzzle
+from bimgame.envs.puzzles import TASK_NAMES as PUZZLE_TASKS
 from bimgame.envs.randomization import RANDOMIZATION_PRESETS, randomization_preset
+from bimgame.experiments.labyrinth_protocol import (
+    CYBERRUNNER_RECORD_S,
+    HUMAN_RECORD_S,
+    LABYRINTH_POLICIES,
+    LABYRINTH_PROTOCOL_EPISODES,
+    score_labyrinth,
+)
 from bimgame.experiments.protocol import MAZE_FORMS, PROTOCOL_EPISODES, MazeChoice, measure_references, score
 from bimgame.experiments.robustness import robustness_rows, write_robustness
 from bimgame.learn.common import read_run
@@ -41,15 +52,31 @@ def add_score_arguments(parser: argparse.ArgumentParser) -> None:
         nargs="?",
         metavar="POLICY",
         help="random | noop | geodesic | expert | a bimgame run directory or checkpoint | an SB3 model .zip | "
-        "module:callable (observation -> action)",
+        f"module:callable (observation -> action); on the labyrinth: {' | '.join(LABYRINTH_POLICIES)} | a bimgame "
+        "run directory or checkpoint trained on --task",
     )
-    add_task_argument(parser, "STG1", help="(default STG1)")
-    add("--obs", choices=OBS_MODES, default="state", help="observations the policy gets (default state)")
+    add(
+        "--task",
+        choices=PUZZLE_TASKS,
+        default="STG1",
+        type=str.upper,
+        help="(default STG1) a task of the circular maze (its benchmark protocol) or of CyberRunner's labyrinth "
+        "(LABYRINTH-EASY, -MEDIUM, -HARD: the labyrinth's protocol, success and completion time against "
+        f"CyberRunner's {CYBERRUNNER_RECORD_S} s and the human record {HUMAN_RECORD_S} s on the hard layout)",
+    )
+    add(
+        "--obs",
+        choices=NETWORK_OBS,
+        default=None,
+        help="observations the policy gets (default state; on the labyrinth: a network's own, which --obs must "
+        "match; built-in policies read none)",
+    )
     add(
         "--episodes",
         type=positive_int,
-        default=PROTOCOL_EPISODES,
-        help=f"episodes of the protocol (default {PROTOCOL_EPISODES}; scores are comparable only at the default)",
+        default=None,
+        help=f"episodes of the protocol (default {PROTOCOL_EPISODES} on the maze, {LABYRINTH_PROTOCOL_EPISODES} on "
+        "the labyrinth; scores are comparable only at the default)",
     )
     add(
         "--mazes",
@@ -82,43 +109,120 @@ def _pair(value: float | None, interval: list[float] | None, percent: bool = Fal
     return f"{shown(value)} [{shown(interval[0])}, {shown(interval[1])}]" if interval else shown(value)
 
 
-def _refuse_labyrinth_run(policy: str) -> None:
-    """Refuse a bimgame run on the labyrinth: the benchmark protocol (its tasks, mazes and reference
-    scores) is the circular maze's. ``bimgame evaluate`` evaluates such a run."""
+def _refuse_other_puzzles_run(policy: str, task: str) -> None:
+    """Refuse a bimgame run trained on the other puzzle than ``task``'s (its network reads that
+    puzzle's observations), naming the run's task: a labyrinth run is scored on its labyrinth task, a
+    maze run on the maze's tasks. Anything else is left to the protocol to refuse."""
     path = Path(policy)
     run_dir = path.parent if path.is_file() else path
     if not (run_dir / CONFIG).is_file():
         return
     try:
-        task = read_run(run_dir).task
+        trained = read_run(run_dir).task
     except ValueError:
-        return  # not a run this verb reads either: score() says what it is not
-    if not puzzle(task).is_maze:
+        return  # not a run this verb reads either: the protocol says what it is not
+    if puzzle(trained).is_maze == puzzle(task).is_maze:
+        return
+    if puzzle(task).is_maze:
         raise ValueError(
-            f"{policy} is a run on {task}: bimgame score runs the circular maze's benchmark protocol (its tasks, "
-            f"mazes and reference scores) only; evaluate it with: bimgame evaluate {policy}"
+            f"{policy} is a run on {trained} (the labyrinth), but --task {task} is the circular maze's, and "
+            f"bimgame score runs the circular maze's benchmark protocol on the maze's tasks only; score the run "
+            f"with --task {trained}"
         )
+    raise ValueError(
+        f"{policy} is a run on {trained} (the circular maze), but --task {task} is the labyrinth's: its network "
+        f"reads the maze's observations; score it with --task {trained} (or another of the maze's tasks)"
+    )
+
+
+def _refuse_maze_flags(args: argparse.Namespace) -> None:
+    """Refuse, by name, the flags of the circular maze's protocol on a labyrinth task."""
+    if args.mazes != "merl":
+        raise ValueError(
+            f"--mazes {args.mazes}: the circular maze's random mazes; the labyrinth's protocol plays the layout "
+            f"of --task {args.task} (leave --mazes out, or use a maze task: {', '.join(TASK_NAMES)})"
+        )
+    if args.measure_references:
+        raise ValueError(
+            f"--measure-references measures the circular maze's normalised-score references; --task {args.task} "
+            f"is the labyrinth's, whose protocol compares completion times with CyberRunner's {CYBERRUNNER_RECORD_S} s "
+            f"and the human record {HUMAN_RECORD_S} s instead (use a maze task: {', '.join(TASK_NAMES)})"
+        )
+
+
+def _run_labyrinth_score(args: argparse.Namespace, console: Console) -> int:
+    """``bimgame score`` on a labyrinth task: :func:`score_labyrinth`, a table, ``--out`` JSON."""
+    _refuse_maze_flags(args)
+    if args.policy is None:
+        raise ValueError(
+            f"POLICY is required: {', '.join(LABYRINTH_POLICIES)}, or a bimgame run trained on {args.task}"
+        )
+    check_output_file(args.out, "--out", "score.json")
+    _refuse_other_puzzles_run(args.policy, args.task)
+    summary = score_labyrinth(
+        args.policy,
+        args.task,
+        episodes=args.episodes or LABYRINTH_PROTOCOL_EPISODES,
+        sampled=args.sampled,
+        progress=not args.no_progress,
+        obs=args.obs,
+    )
+    how = f"{summary['mode']}, {summary['obs']}" if summary["mode"] else "built-in"
+    table = Table(title=f"{args.policy} ({how}) on {summary['task']}, {summary['episodes']} protocol episodes")
+    vs = f"vs CyberRunner {CYBERRUNNER_RECORD_S} s / human {HUMAN_RECORD_S} s"
+    for column in ("success [95% CI]", escape("median time (s) [quartiles]"), "mean return", vs):
+        table.add_column(column, justify="right")
+    times = summary["completion_time_s"]
+    median = "–"
+    if times["median"] is not None:
+        median = f"{times['median']:.2f} [{times['q25']:.2f}, {times['q75']:.2f}]"
+    versus = "– (no success)"
+    if summary["best_over_cyberrunner"] is not None:
+        ratios = f"{summary['best_over_cyberrunner']:.2f}× / {summary['best_over_human']:.2f}×"
+        versus = f"best {times['best']:.2f} s: {ratios}"
+    elif times["best"] is not None:
+        versus = f"best {times['best']:.2f} s (the records are the hard layout's)"
+    table.add_row(
+        _pair(summary["success_rate"], summary["success_rate_ci"], percent=True),
+        median,
+        _pair(summary["mean_return"], summary["mean_return_ci"]),
+        versus,
+    )
+    console.print(table)
+    ended = summary["ended_by"]
+    console.print(
+        f"mean progress reached: {100 * summary['mean_progress_fraction']:.1f}% of the path; episodes ended at the "
+        f"goal {ended['goal']}, in a hole or off the path {ended['fall']}, at the time limit {ended['time']}"
+    )
+    if args.out is not None:
+        console.print(f"wrote {write_json(args.out, summary)}")
+    return 0
 
 
 def run_score(args: argparse.Namespace) -> int:
     console = Console()
+    if not puzzle(args.task).is_maze:
+        return _run_labyrinth_score(args, console)
+    episodes = args.episodes or PROTOCOL_EPISODES
+    obs = args.obs or "state"
+    check_obs("--obs", args.task, obs)
     if args.measure_references:
         if args.out is None:
             raise ValueError("--measure-references needs --out FILE for the measured references")
         references = measure_references(
-            list(TASK_NAMES), episodes=args.episodes, progress=not args.no_progress, mazes=args.mazes
+            list(TASK_NAMES), episodes=episodes, progress=not args.no_progress, mazes=args.mazes
         )
         console.print(f"wrote {write_json(args.out, references)}")
         return 0
     if args.policy is None:
         raise ValueError("POLICY is required (or --measure-references)")
     check_output_file(args.out, "--out", "score.json")
-    _refuse_labyrinth_run(args.policy)
+    _refuse_other_puzzles_run(args.policy, args.task)
     summary = score(
         args.policy,
         args.task,
-        obs=args.obs,
-        episodes=args.episodes,
+        obs=obs,
+        episodes=episodes,
         sampled=args.sampled,
         progress=not args.no_progress,
         mazes=args.mazes,

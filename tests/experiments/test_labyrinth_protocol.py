@@ -1,0 +1,148 @@
+"""The labyrinth's scoring protocol (bimgame.experiments.labyrinth_protocol): fixed starts and
+deterministic numbers, the built-in policies (noop, random, the MPC expert), progress reached read
+from the return, a tiny trained PPO run scored through ``bimgame score``, and refusals that name the
+problem."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from bimgame.cli.main import main
+from bimgame.envs.labyrinth_env import LabyrinthEnv
+from bimgame.experiments.labyrinth_protocol import (
+    CYBERRUNNER_RECORD_S,
+    HUMAN_RECORD_S,
+    LABYRINTH_PROTOCOL_SEED,
+    score_labyrinth,
+    start_progress,
+    summarise_labyrinth,
+)
+from bimgame.learn.actor import EvalResult
+
+#: A tiny PPO run on the easy layout (as tests/learn/test_labyrinth_training.py trains them).
+TINY_PPO = ["--obs", "state", "--action-type", "continuous", "--steps", "256", "--hidden", "16", "--features", "16",
+            "--envs-per-worker", "4", "--n-steps", "32", "--eval-every", "0", "--eval-episodes", "2",
+            "--max-episode-steps", "100", "--no-progress"]
+
+
+@pytest.fixture(scope="module")
+def easy_run(tmp_path_factory):
+    """A PPO run trained for 256 steps on LABYRINTH-EASY from state, continuous actions."""
+    run = tmp_path_factory.mktemp("labyrinth") / "ppo-easy"
+    assert main(["train", "--algo", "ppo", "--task", "LABYRINTH-EASY", "--run-dir", str(run), *TINY_PPO]) == 0
+    return run
+
+
+def _without_seconds(summary):
+    return {k: v for k, v in summary.items() if k != "seconds"}
+
+
+def test_the_same_seed_gives_the_same_result_and_noop_and_random_do_not_solve_the_hard_layout():
+    first = score_labyrinth("random", "labyrinth-hard", episodes=6, progress=False)
+    again = score_labyrinth("random", "LABYRINTH-HARD", episodes=6, progress=False)
+    assert _without_seconds(first) == _without_seconds(again)
+    assert first["protocol_seed"] == LABYRINTH_PROTOCOL_SEED and first["task"] == "LABYRINTH-HARD"
+    assert first["time_limit_steps"] == 3000 and first["control_hz"] == 55 and first["mode"] is None
+    assert first["success_rate"] <= 1 / 6  # random tilting rarely reaches the goal (0 of 6 here)
+    assert first["ended_by"]["fall"] >= 1 and sum(first["ended_by"].values()) == 6
+    other = score_labyrinth("random", "LABYRINTH-HARD", episodes=6, seed=7, progress=False)
+    assert other["returns"] != first["returns"]  # other starts, other draws
+    # noop: the board stays flat and the marble at its start until the time limit.
+    noop = score_labyrinth("noop", "LABYRINTH-HARD", episodes=3, progress=False)
+    assert noop["success_rate"] == 0.0 and noop["success_rate_ci"] == [0.0, 0.0]
+    assert noop["lengths"] == [3000] * 3 and noop["ended_by"] == {"goal": 0, "fall": 0, "time": 3}
+    starts = start_progress("LABYRINTH-HARD", [LABYRINTH_PROTOCOL_SEED + i for i in range(3)])
+    length = LabyrinthEnv("hard").path.length
+    np.testing.assert_allclose(np.multiply(noop["progress_fractions"], length), starts, atol=1e-4)
+    assert noop["completion_time_s"] == {"best": None, "q25": None, "median": None, "q75": None}
+    assert noop["best_over_cyberrunner"] is None
+    assert noop["references"]["cyberrunner_s"] == CYBERRUNNER_RECORD_S == 14.48 and HUMAN_RECORD_S == 15.41
+
+
+def test_progress_reached_is_the_envs_progress_after_the_last_step_that_did_not_fail():
+    """Random episodes played here (random tilt rates held for 20 steps), their info's progress kept:
+    the summary's progress, read from the return, is the same, for falls (the progress before the
+    failing step) and for time-outs."""
+    env = LabyrinthEnv("easy")
+    seeds, limit = [3, 4, 5, 6], 400
+    result, expected = EvalResult([], [], []), []
+    for seed in seeds:
+        rng = np.random.default_rng(seed)
+        _, info = env.reset(seed=seed)
+        total, length, kept = 0.0, limit, info["progress_fraction"]
+        for step in range(1, limit + 1):
+            if step % 20 == 1:
+                action = rng.uniform(-1, 1, 2).astype(np.float32)
+            _, reward, terminated, _, info = env.step(action)
+            total += reward
+            if terminated:
+                length = step
+                break
+            kept = info["progress_fraction"]
+        result.successes.append(False)
+        result.lengths.append(length)
+        result.returns.append(total)
+        expected.append(kept)
+    summary = summarise_labyrinth(result, "LABYRINTH-EASY", seeds, time_limit=limit)
+    assert summary["ended_by"]["fall"] >= 1 and summary["ended_by"]["time"] >= 1  # both kinds of end
+    np.testing.assert_allclose(summary["progress_fractions"], expected, atol=1e-9)
+    assert summary["mean_progress_fraction"] == pytest.approx(np.mean(expected))
+
+
+def test_the_expert_solves_the_easy_layout():
+    """One episode (≈ 470 decisions of ≈ 70 ms: ≈ 30 s on a loaded 2-core machine)."""
+    summary = score_labyrinth("expert", "LABYRINTH-EASY", episodes=1, progress=False)
+    assert summary["successes"] == [True] and summary["ended_by"] == {"goal": 1, "fall": 0, "time": 0}
+    times = summary["completion_time_s"]
+    assert 5.0 < times["best"] == times["median"] < 15.0 and times["best"] == summary["lengths"][0] / 55
+    assert summary["mean_progress_fraction"] > 0.98
+    assert summary["best_over_cyberrunner"] is None  # the references are the hard layout's
+
+
+def test_a_tiny_ppo_run_scores_through_the_command_line(easy_run, tmp_path, capsys):
+    out = tmp_path / "score.json"
+    argv = ["score", str(easy_run / "checkpoint.pt"), "--task", "labyrinth-easy", "--episodes", "2", "--out",
+            str(out), "--no-progress"]
+    assert main(argv) == 0
+    printed = capsys.readouterr().out
+    assert "CyberRunner" in printed and "mean progress reached" in printed  # the table, its line below
+    result = json.loads(out.read_text())
+    assert result["policy"] == str(easy_run / "checkpoint.pt") and result["task"] == "LABYRINTH-EASY"
+    assert (result["mode"], result["obs"], result["action_type"], result["step"]) == ("greedy", "state", "continuous",
+                                                                                     256)
+    assert result["episodes"] == 2 and len(result["lengths"]) == 2 and 0.0 <= result["success_rate"] <= 1.0
+    assert all(0 < n <= 3000 for n in result["lengths"])  # the protocol's limit, not the run's 100 steps
+    assert 0.0 <= result["mean_progress_fraction"] <= 1.0 and result["median_over_human"] is None
+
+
+def test_refusals_name_the_problem(easy_run, tmp_path, capsys):
+    # A run is scored on the task it was trained on.
+    assert main(["score", str(easy_run), "--task", "LABYRINTH-HARD", "--episodes", "1", "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "is a run trained on LABYRINTH-EASY, not LABYRINTH-HARD" in err and "--task LABYRINTH-EASY" in err
+    assert main(["score", str(easy_run), "--task", "STG1", "--episodes", "1", "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "is a run on LABYRINTH-EASY (the labyrinth), but --task STG1 is the circular maze's" in err
+    assert main(["score", str(easy_run), "--task", "LABYRINTH-EASY", "--obs", "pixels", "--no-progress"]) == 2
+    assert "trained on state observations, not pixels; score it with --obs state" in capsys.readouterr().err
+    # What the labyrinth's protocol does not play, each with the allowed policies.
+    (tmp_path / "model.zip").write_bytes(b"")
+    for policy, why in (
+        ("geodesic", "follows the circular maze's channels"),
+        (str(tmp_path / "model.zip"), "Stable-Baselines3 models are scored on the circular maze only"),
+        ("os:getcwd", "module:callable policies are scored on the circular maze only"),
+        (str(tmp_path / "missing"), "no such built-in policy, file or directory"),
+    ):
+        with pytest.raises(ValueError, match=f"{why}.*; allowed: random, noop, expert, or a bimgame run directory"):
+            score_labyrinth(policy, "LABYRINTH-EASY", episodes=1, progress=False)
+    with pytest.raises(ValueError, match=r"task STG1 is the circular maze's; .* LABYRINTH-EASY, LABYRINTH-MEDIUM"):
+        score_labyrinth("random", "stg1", episodes=1)
+    with pytest.raises(ValueError, match="unknown task 'LABYRINTH_EASY'; allowed: FULL, STG1"):
+        score_labyrinth("random", "LABYRINTH_EASY", episodes=1)
+    with pytest.raises(ValueError, match=r"score_labyrinth\.episodes must be an integer >= 1, got 0"):
+        score_labyrinth("random", "LABYRINTH-EASY", episodes=0)
+    with pytest.raises(ValueError, match=r"score_labyrinth\.seed must be an integer from 0"):
+        score_labyrinth("random", "LABYRINTH-EASY", episodes=1, seed=-1)
