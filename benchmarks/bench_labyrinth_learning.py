@@ -14,7 +14,7 @@ the curriculum's excluded) and the curriculum's reach (metres of path before the
 
 Usage: python benchmarks/bench_labyrinth_learning.py [--layout easy] [--obs state|cyberrunner]
        [--steps 1000000] [--seeds 3] [--curricula reverse none] [--jobs 3] [--episodes 100]
-       [--out runs/labyrinth-learning]
+       [--out runs/labyrinth-learning] [--set NAME=VALUE ...]   (other PPO settings, e.g. entropy_coef=0)
 """
 
 from __future__ import annotations
@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from bench_learners import _settings
 
 from bimgame.envs.puzzles import puzzle
 from bimgame.experiments.statistics import mean_interval
@@ -52,7 +53,9 @@ SCORE_SEED = 12345
 CURVE_BIN = 25_000
 
 
-def _train(run_dir: Path, *, layout: str, obs: str, steps: int, seed: int, curriculum: str) -> float:
+def _train(
+    run_dir: Path, *, layout: str, obs: str, steps: int, seed: int, curriculum: str, settings: dict[str, Any]
+) -> float:
     """Train one run unless ``run_dir`` holds a finished one; the wall-clock seconds it took (0: reused)."""
     summary = read_json(run_dir / "summary.json")
     if summary is not None and summary.get("stopped") == "finished":
@@ -67,6 +70,7 @@ def _train(run_dir: Path, *, layout: str, obs: str, steps: int, seed: int, curri
             eval_every=0,
             eval_episodes=20,
             start_curriculum=curriculum,
+            **settings,
         )
     )
     start = time.perf_counter()
@@ -103,7 +107,15 @@ def _score(run_dir: Path, episodes: int) -> dict[str, Any]:
 def _job(run_dir: Path, curriculum: str, seed: int, args: argparse.Namespace) -> tuple[float, dict[str, Any]]:
     """Train and score one run with one torch thread: a job of ``--jobs``."""
     with torch_threads(1):
-        seconds = _train(run_dir, layout=args.layout, obs=args.obs, steps=args.steps, seed=seed, curriculum=curriculum)
+        seconds = _train(
+            run_dir,
+            layout=args.layout,
+            obs=args.obs,
+            steps=args.steps,
+            seed=seed,
+            curriculum=curriculum,
+            settings=args.settings,
+        )
         return seconds, _score(run_dir, args.episodes)
 
 
@@ -185,9 +197,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "labyrinth-learning")
     parser.add_argument("--results", type=Path, default=ROOT / "benchmarks" / "results" / "labyrinth_learning.json")
     parser.add_argument("--figure", type=Path, default=ROOT / "docs" / "labyrinth" / "learning.png")
+    parser.add_argument("--set", nargs="+", default=[], metavar="NAME=VALUE", help="other PPO settings")
     args = parser.parse_args(argv)
+    args.settings = _settings(args.set, parser)
+    suffix = "".join(f"-{key.replace('_', '-')}{value}" for key, value in sorted(args.settings.items()))
     jobs = {
-        (curriculum, seed): args.out / f"{args.layout}-{args.obs}-{curriculum}" / f"seed{seed}"
+        (curriculum, seed): args.out / f"{args.layout}-{args.obs}-{curriculum}{suffix}" / f"seed{seed}"
         for curriculum in args.curricula
         for seed in range(args.seeds)
     }
@@ -215,6 +230,7 @@ def main(argv: list[str] | None = None) -> int:
         "episodes": args.episodes,
         "path_length": puzzle(f"LABYRINTH-{args.layout.upper()}").spec.path.length,
         "reference_seconds": {"cyberrunner": CYBERRUNNER_SECONDS, "human_record": HUMAN_RECORD_SECONDS},
+        "settings": args.settings,
         "curricula": {},
     }
     for curriculum in args.curricula:
@@ -227,7 +243,8 @@ def main(argv: list[str] | None = None) -> int:
         }
     args.results.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(args.results, json.dumps(results, indent=2).encode())
-    title = f"PPO on the {args.layout} labyrinth from {args.obs}, {args.steps:,} steps, {args.seeds} seeds"
+    shown = "".join(f", {key} {value}" for key, value in sorted(args.settings.items()))
+    title = f"PPO on the {args.layout} labyrinth from {args.obs}{shown}, {args.steps:,} steps, {args.seeds} seeds"
     print(f"wrote {args.results} and {_plot(results, args.figure, title)}")
     return 0
 
