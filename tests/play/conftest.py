@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 from bimgame.envs.env import BallInMazeEnv
+from bimgame.envs.puzzles import puzzle
 from bimgame.learn.checkpoints import save_checkpoint
 from bimgame.learn.common import NetworkSettings
 from bimgame.learn.runs import (
@@ -20,10 +21,11 @@ from bimgame.util.seeding import episode_seed
 
 
 def _policy_run(run: Path, settings: NetworkSettings, task: str) -> Path:
-    """A pre-trained-policy run directory with untrained weights: what ``bimgame pretrain`` writes."""
+    """A pre-trained-policy run directory with untrained weights: what ``bimgame pretrain`` writes
+    (the network built for ``task``'s board)."""
     run.mkdir()
     with torch_threads(1):
-        net = settings.build_policy(0)
+        net = settings.build_policy(0, puzzle(task).spec)
     save_checkpoint(run / CHECKPOINT, model=net.state_dict(), step=0, epoch=0, kind=KIND_POLICY)
     (run / CONFIG).write_text(json.dumps({"kind": KIND_POLICY, "task": task, "seed": 0,
                                           "network": settings.to_dict()}))
@@ -62,3 +64,18 @@ def tiny_pixel_agent_run(tmp_path_factory):
     """Like :func:`tiny_agent_run`, with a pixel network (its observations are rendered from the state)."""
     return _policy_run(tmp_path_factory.mktemp("pixel-agent") / "run",
                        NetworkSettings(obs="pixels", hidden=8, features=8, precision="fp32"), "STG2")
+
+
+@pytest.fixture(scope="session")
+def labyrinth_runs(tmp_path_factory):
+    """Tiny untrained policy runs on LABYRINTH-HARD, by (observation, action type): a continuous state
+    network (what PPO trains there), a discrete pixel one and a continuous CyberRunner one."""
+    root = tmp_path_factory.mktemp("labyrinth-agents")
+    kinds = [("state", "continuous"), ("pixels", "discrete"), ("cyberrunner", "continuous")]
+    return {
+        (obs, action): _policy_run(root / f"{obs}-{action}",
+                                   NetworkSettings(obs=obs, hidden=8, features=8, precision="fp32", action_type=action,
+                                                   aux_heads=False),
+                                   "LABYRINTH-HARD")
+        for obs, action in kinds
+    }

@@ -297,3 +297,33 @@ def test_agent_plays_in_the_page_and_h_takes_over(browser, tmp_path, tiny_agent_
         assert server.stop(signal.SIGINT) == 0, server.log.read_text()
     finally:
         server.ensure_stopped()
+
+
+def test_the_labyrinth_in_the_page_the_expert_plays_and_keys_take_over(browser, tmp_path):
+    """``--task LABYRINTH-HARD --agent expert``: the page shows the labyrinth, its path progress and tilt
+    (no gauge, no greedy switch for the expert); H hands the board to the keys, and left then down from
+    the start drops the marble into a hole, which the end screen says."""
+    server = Server(tmp_path, "--task", "LABYRINTH-HARD", "--agent", "expert")
+    try:
+        page = open_page(browser, server.url)
+        wait_for(page, "s.puzzle === 'labyrinth' && s.controller === 'agent' && s.step >= 10 && s.progress > 0",
+                 "the expert playing the labyrinth")
+        assert page.text_content("#title") == "Labyrinth" and "MPC expert" in page.text_content("#controller")
+        assert page.is_visible("#progress-row") and page.text_content("#progress").endswith("%")
+        assert page.is_visible("#tilt-row") and not page.is_visible("#greedy-label")
+        assert not page.is_visible("#gauge-note")
+        page.keyboard.press("h")
+        wait_for(page, "s.controller === 'human'", "H: the person in control")
+        page.keyboard.press("r")
+        wait_for(page, "s.phase === 'ready' && s.step === 0", "a new episode waiting for a key")
+        page.keyboard.down("ArrowLeft")
+        wait_for(page, "s.step >= 30 && s.action === 'left' && s.tilt_deg[1] < -5", "ArrowLeft tilting about -y")
+        page.keyboard.down("ArrowDown")  # the latest key counts
+        wait_for(page, "s.phase === 'over'", "the episode's end")
+        page.keyboard.up("ArrowDown")
+        page.keyboard.up("ArrowLeft")
+        assert state(page)["last"]["reason"] == "hole", state(page)["last"]
+        assert "hole" in page.text_content("#overlay")
+        assert server.stop(signal.SIGINT) == 0, server.log.read_text()
+    finally:
+        server.ensure_stopped()

@@ -1,4 +1,5 @@
-"""``bimgame play``: play the maze in a browser, watch a trained agent, record human episodes."""
+"""``bimgame play``: play the circular maze or the labyrinth in a browser, watch a trained agent or
+the MPC expert, record human episodes (the maze's)."""
 
 from __future__ import annotations
 
@@ -8,17 +9,14 @@ import logging
 import sys
 from pathlib import Path
 
-from bimgame.cli.argtypes import (
-    add_max_steps_argument,
-    add_task_argument,
-    non_negative_int,
-    seed,
-)
+from bimgame.cli.argtypes import add_max_steps_argument, non_negative_int, seed
+from bimgame.envs.puzzles import TASK_NAMES
 from bimgame.learn.common import read_run
 from bimgame.learn.runs import torch_threads
+from bimgame.play.agent import is_expert
 from bimgame.play.recording import HumanRecording
 from bimgame.play.server import serve
-from bimgame.play.session import PlaySession
+from bimgame.play.session import PlaySession, refuse_unsupported
 
 __all__ = ["add_parsers", "run_play"]
 
@@ -26,7 +24,14 @@ __all__ = ["add_parsers", "run_play"]
 def add_parsers(verbs: argparse._SubParsersAction) -> None:
     """Add the ``play`` verb to the command line's sub-parsers."""
     parser = verbs.add_parser("play", help="play in a browser: arrow keys tilt the board; record, or watch an agent")
-    add_task_argument(parser, None, help="the task (default: the agent's task with --agent, else FULL)")
+    parser.add_argument(
+        "--task",
+        choices=TASK_NAMES,
+        default=None,
+        type=str.upper,
+        help="a task of the circular maze or of CyberRunner's labyrinth (LABYRINTH-EASY, -MEDIUM, -HARD) "
+        "(default: the agent's task with --agent RUN, else FULL)",
+    )
     add_max_steps_argument(parser)
     parser.add_argument(
         "--record",
@@ -34,14 +39,15 @@ def add_parsers(verbs: argparse._SubParsersAction) -> None:
         default=None,
         metavar="DIR",
         help="record your episodes into DIR as a Minari dataset like bimgame generate's "
-        "(marked source: human); an earlier recording in DIR is appended to",
+        "(marked source: human; the circular maze's tasks only); an earlier recording in DIR is appended to",
     )
     parser.add_argument(
         "--agent",
-        type=Path,
+        type=str,
         default=None,
         metavar="RUN",
-        help="a trained run (A3C or pre-trained policy) that plays while you watch; H takes over",
+        help="a trained run (A3C, PPO or pre-trained policy) of the task's puzzle, or 'expert' (the puzzle's "
+        "MPC expert; a run directory named so: ./expert), that plays while you watch; H takes over",
     )
     parser.add_argument("--sampled", action="store_true", help="the agent samples its actions (default: greedy)")
     parser.add_argument(
@@ -65,7 +71,9 @@ def run_play(args: argparse.Namespace) -> int:
             "into the recording (there is no password)",
             file=sys.stderr,
         )
-    task = args.task or (read_run(args.agent).task if args.agent is not None else "FULL")
+    run_agent = args.agent is not None and not is_expert(args.agent)
+    task = args.task or (read_run(args.agent).task if run_agent else "FULL")
+    refuse_unsupported(task, recording=args.record is not None)  # before a recording directory is made
     recording = None
     if args.record is not None:
         recording = HumanRecording(args.record, task, max_steps=args.max_steps, seed=args.seed)
@@ -98,8 +106,7 @@ def run_play(args: argparse.Namespace) -> int:
 def _ready(url: str, session: PlaySession) -> None:
     who = f"; {session.agent.description} plays, H takes over" if session.agent is not None else ""
     print(
-        f"bimgame play: {session.task.value} (limit {session.max_steps} steps){who} — open {url} in a browser "
-        "(Ctrl-C stops)",
+        f"bimgame play: {session.task} (limit {session.max_steps} steps){who} — open {url} in a browser (Ctrl-C stops)",
         flush=True,
     )
 

@@ -2,11 +2,15 @@
 
 The page sends the names of the keys a person holds (:data:`KEY_NAMES`), never actions: the one
 mapping from keys to the env's discrete actions is :data:`KEY_ACTIONS`, here. "up" moves the marble
-up on the screen: the screen shows the board from above with +y up and +x to the right
-(:class:`~bimgame.sim.render.MazeRenderer`), and a discrete action tilts the board about its x or
-y axis (:data:`~bimgame.envs.env.ACTION_MEANINGS`): tilting +x raises the board's +y edge, so the
-marble rolls towards -y (down on the screen); tilting +y lowers the +x edge, so it rolls towards +x
-(right). A test steps the env with each key's action and checks the direction.
+up on the screen: the screen shows the board from above with +y up and +x to the right (the maze's
+:class:`~bimgame.sim.render.MazeRenderer`, the labyrinth's raster north up), and a discrete action
+tilts the board about its x or y axis (:data:`~bimgame.envs.actions.ACTION_MEANINGS`): tilting +x
+raises the board's +y edge, so the marble rolls towards -y (down on the screen); tilting +y lowers
+the +x edge, so it rolls towards +x (right). Both puzzles' discrete actions mean the same: 0 the
+no-op, 1/2 a tilt step +/- about x, 3/4 about y (:data:`~bimgame.envs.actions.DISCRETE_TILTS`), on
+the same two nested hinges (the maze's step is 1° per 1/30 s action, the labyrinth's 30°/s over a
+1/55 s action), so one mapping serves both; tests step each env with each key's action and check
+the direction.
 
 A held key repeats its action every step; with no key held the action is the no-op. With several
 keys held (by one person, or by people in several tabs), the most recently pressed one counts —
@@ -17,6 +21,11 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Hashable, Iterable
+from typing import Any
+
+import numpy as np
+
+from bimgame.envs.actions import DISCRETE_TILTS
 
 __all__ = ["KEY_ACTIONS", "KEY_NAMES", "NOOP", "HeldKeys", "action_name"]
 
@@ -34,12 +43,21 @@ NOOP = KEY_ACTIONS["noop"]
 MAX_HELD = 8
 
 
-def action_name(action: int) -> str:
-    """The key name of a discrete action (``"up"`` for 2)."""
+def action_name(action: Any) -> str:
+    """The key name of a discrete action (``"up"`` for 2), or of a continuous one that is a key's tilt
+    (``DISCRETE_TILTS[2]`` is "up" too); another continuous action as its two rates, ``"(+0.25, -1.00)"``."""
+    if np.ndim(action) == 1 and np.shape(action) == (2,):
+        rates = np.asarray(action, dtype=np.float64)
+        for name, value in KEY_ACTIONS.items():
+            if np.array_equal(rates, DISCRETE_TILTS[value]):
+                return name
+        return f"({rates[0]:+.2f}, {rates[1]:+.2f})"
     for name, value in KEY_ACTIONS.items():
         if value == action:
             return name
-    raise ValueError(f"invalid action {action!r}: discrete actions are integers 0..4")
+    raise ValueError(
+        f"invalid action {action!r}: discrete actions are integers 0..4, continuous ones 2 numbers in [-1, 1]"
+    )
 
 
 class HeldKeys:

@@ -8,11 +8,12 @@ Client → server: text frames, each one JSON object with a ``type``:
 - ``{"type": "control", "who": "human" | "agent"}`` — who plays (H toggles; needs ``--agent``).
 - ``{"type": "greedy", "value": true | false}`` — the agent's most likely action, or sampled.
 
-Server → client: a JSON ``hello`` when the client connects (task, limits, keys, agent, recording,
-the number of clients), then for every tick a JSON ``state`` (:meth:`PlaySession.snapshot`) followed
-by a binary frame (a JPEG of the board with its tilt gauge); ``{"type": "error", "message": …}``
-answers a message that is not understood (not JSON, not an object, unknown type, unknown key or
-field, wrong value, too long, binary) — the message is then ignored and nothing else changes;
+Server → client: a JSON ``hello`` when the client connects (task, puzzle, limits, tick rate, keys,
+agent, recording, the number of clients), then for every tick a JSON ``state``
+(:meth:`PlaySession.snapshot`) followed by a binary frame (a JPEG of the board: the maze with its
+tilt gauge, or the labyrinth); ``{"type": "error", "message": …}`` answers a message that is not
+understood (not JSON, not an object, unknown type, unknown key or field, wrong value, too long,
+binary) — the message is then ignored and nothing else changes;
 ``{"type": "bye", "message": …}`` before the server closes the socket when it stops.
 """
 

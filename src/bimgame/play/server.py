@@ -1,9 +1,11 @@
-"""The web server of ``bimgame play`` (aiohttp): the page, its websocket and the 30 Hz game loop.
+"""The web server of ``bimgame play`` (aiohttp): the page, its websocket and the game loop.
 
-One :class:`~bimgame.play.session.PlaySession` per server, stepped by one asyncio task 30 times a
-second in the event loop's thread — the websocket handlers run in the same thread, so the session
-needs no locks. Each tick the session's state (JSON) and its frame (a JPEG, encoded only when the
-board changed) go to every connected client through a sender task of its own that always sends the
+One :class:`~bimgame.play.session.PlaySession` per server, stepped by one asyncio task at the
+session's :attr:`~bimgame.play.session.PlaySession.tick_hz` (30 times a second on the maze, 55 on
+the labyrinth; slower when a tick takes longer, e.g. while the MPC expert plans) in the event
+loop's thread — the websocket handlers run in the same thread, so the session needs no locks.
+Each tick the session's state (JSON) and its frame (a JPEG, encoded only when the board changed)
+go to every connected client through a sender task of its own that always sends the
 latest tick and skips those it had no time for: a slow or stalled client never delays the game or
 the others.
 
@@ -43,7 +45,7 @@ from PIL import Image
 
 from bimgame.play.controls import KEY_ACTIONS
 from bimgame.play.protocol import MAX_MESSAGE_CHARS, apply_message
-from bimgame.play.session import TICK_HZ, PlaySession
+from bimgame.play.session import PlaySession
 
 __all__ = ["PlayServer", "serve", "encode_jpeg"]
 
@@ -100,10 +102,12 @@ class _Client:
 
 
 class PlayServer:
-    """Serves ``session`` on ``host``:``port`` (0: any free port) while started."""
+    """Serves ``session`` on ``host``:``port`` (0: any free port) while started, ``hz`` ticks a second
+    (None: the session's :attr:`~bimgame.play.session.PlaySession.tick_hz`)."""
 
-    def __init__(self, session: PlaySession, *, host: str = "127.0.0.1", port: int = 8765, hz: float = TICK_HZ):
-        self.session, self.host, self.port, self.hz = session, host, port, hz
+    def __init__(self, session: PlaySession, *, host: str = "127.0.0.1", port: int = 8765, hz: float | None = None):
+        self.session, self.host, self.port = session, host, port
+        self.hz = float(session.tick_hz if hz is None else hz)
         self.clients: dict[int, _Client] = {}
         self._ids = itertools.count(1)
         self._static = {
@@ -113,7 +117,7 @@ class PlayServer:
         self._loop_task: asyncio.Task | None = None
         self._frame_key: tuple | None = None
         self._frame: bytes = b""
-        self._tick_times: collections.deque[float] = collections.deque(maxlen=TICK_HZ + 1)
+        self._tick_times: collections.deque[float] = collections.deque(maxlen=round(self.hz) + 1)
         self.url = ""
         self._loopback_only = _host_name(host) in LOOPBACK_NAMES
 
@@ -262,7 +266,8 @@ class PlayServer:
         s = self.session
         return {
             "type": "hello",
-            "task": s.task.value,
+            "task": s.task,
+            "puzzle": s.board.puzzle,
             "max_steps": s.max_steps,
             "hz": self.hz,
             "keys": KEY_ACTIONS,

@@ -1,17 +1,25 @@
 """The game of ``bimgame play`` as a state machine, independent of the web: one env, the keys people
-hold, an optional agent, the recording. The server calls :meth:`PlaySession.tick` 30 times a second
-and draws :meth:`PlaySession.frame`; tests call the same methods directly.
+hold, an optional agent, the recording. The server calls :meth:`PlaySession.tick` :attr:`PlaySession.tick_hz`
+times a second (30 on the maze, 55 on the labyrinth: each puzzle's action rate, so play runs in real
+time) and draws :meth:`PlaySession.frame`; tests call the same methods directly.
+
+**Puzzles.** MERL's circular maze (``FULL``, ``STG1`` … ``STG4``) or CyberRunner's labyrinth
+(``LABYRINTH-EASY``, ``-MEDIUM``, ``-HARD``), behind one interface (:mod:`bimgame.play.boards`). A
+labyrinth episode also ends when the marble falls into a hole or leaves the path (a failure), and
+the page's state then carries the marble's progress along the path. Recording people's episodes is
+the maze's alone (:func:`refuse_unsupported`).
 
 **Phases.** An episode begins ``ready``: the marble at rest on its start, nothing moving, until a
 person presses a key (so a page left open records nothing) — or at once when the agent plays.
-``running``: every tick is one env step (1/30 s of simulated time) with the action of the latest
-held key, the no-op when none is held, or the agent's action. ``over``: the goal was reached
-(``success``) or the time limit hit; the final frame stays for :attr:`over_ticks` ticks (1.5 s),
-then the next episode begins ``ready``. ``reset`` (R) ends the current episode at once.
+``running``: every tick is one env step with the action of the latest held key, the no-op when none
+is held, or the agent's action. ``over``: the episode ended (``success`` at the goal; on the
+labyrinth a hole or leaving the path; the time limit); the final frame stays for :attr:`over_ticks`
+ticks, then the next episode begins ``ready``. ``reset`` (R) ends the current episode at once.
 
 **Control.** ``human`` or ``agent`` (only with an agent), switchable at any time, mid-episode too.
-The agent follows the episode while the person plays (:mod:`bimgame.play.agent`). People in
-several browser tabs share the one game: the latest pressed key of anyone counts.
+A trained agent follows the episode while the person plays (:mod:`bimgame.play.agent`); the MPC
+expert (``agent="expert"``) plans only when it plays. People in several browser tabs share the one
+game: the latest pressed key of anyone counts.
 
 **Recording** (with a :class:`~bimgame.play.recording.HumanRecording`): only steps a person
 controlled, see :mod:`bimgame.play.recording` for when an episode is written. Episode ``k`` of a
@@ -29,31 +37,49 @@ from typing import Any
 
 import numpy as np
 
-from bimgame.envs.env import BallInMazeEnv
+from bimgame.envs.puzzles import puzzle
 from bimgame.learn.common import read_run
-from bimgame.play.agent import AgentPlayer
+from bimgame.play.agent import AgentPlayer, ExpertPlayer, Player, is_expert
+from bimgame.play.boards import MAZE_TICK_HZ, Board, MazeBoard, open_board
 from bimgame.play.controls import KEY_NAMES, HeldKeys, action_name
 from bimgame.play.recording import EpisodeBuilder, HumanRecording
-from bimgame.sim.tasks import Task, parse_task
+from bimgame.sim.tasks import Task
 from bimgame.util.seeding import episode_seed
 
-__all__ = ["PlaySession", "PHASES", "CONTROLLERS", "TICK_HZ"]
+__all__ = ["PlaySession", "PHASES", "CONTROLLERS", "TICK_HZ", "refuse_unsupported"]
 
 log = logging.getLogger("bimgame.play")
 
 PHASES = ("ready", "running", "over")
 CONTROLLERS = ("human", "agent")
-#: Ticks per second: one env step per tick while running (the env's 30 Hz actions in real time).
-TICK_HZ = 30
+#: Ticks per second on the maze: one env step per tick while running (the env's 30 Hz actions in real
+#: time); the labyrinth's session ticks at its env's 55 Hz (:attr:`PlaySession.tick_hz`).
+TICK_HZ = MAZE_TICK_HZ
 #: Episodes kept in :attr:`PlaySession.history`.
 HISTORY = 10
 
 
+def refuse_unsupported(task: str | Task, *, recording: bool) -> None:
+    """Refuse by name what ``bimgame play`` cannot do on ``task``'s puzzle (``ValueError``): recording
+    people's episodes (``--record``) on the labyrinth — a recording is a dataset of the maze's layout
+    (``bimgame generate``'s: the maze's state observations, physics states and channels)."""
+    found = puzzle(task)
+    if recording and not found.is_maze:
+        maze_tasks = ", ".join(t.value for t in Task)
+        raise ValueError(
+            f"--record: recording your episodes works on the circular maze's tasks only ({maze_tasks}): the "
+            f"dataset is the maze's (bimgame generate's layout); on {found.task} you can play with the keys, "
+            "watch --agent expert (the labyrinth's MPC) or --agent RUN (a run trained on the labyrinth), "
+            "without --record"
+        )
+
+
 class PlaySession:
-    """One game: ``task`` (default: the agent's task, else FULL) with ``max_steps`` per episode (default:
-    the task's limit), starts seeded from ``seed``; ``agent``: a run directory or checkpoint to load
-    an :class:`~bimgame.play.agent.AgentPlayer` from (it then starts in control); ``recording``: an
-    open :class:`~bimgame.play.recording.HumanRecording` for the person's episodes."""
+    """One game: ``task`` (either puzzle's; default: the agent's task, else FULL) with ``max_steps`` per
+    episode (default: the task's limit), starts seeded from ``seed``; ``agent``: a run directory or
+    checkpoint to load an :class:`~bimgame.play.agent.AgentPlayer` from, or ``"expert"`` for the
+    puzzle's MPC expert (it then starts in control); ``recording``: an open
+    :class:`~bimgame.play.recording.HumanRecording` for the person's episodes (the maze's only)."""
 
     phase: str
     """"ready" (waiting for the first key), "running" or "over" (the end screen)."""
@@ -69,27 +95,31 @@ class PlaySession:
         greedy: bool = True,
         recording: HumanRecording | None = None,
         render_size: int = 480,
-        over_ticks: int = 45,
+        over_ticks: int | None = None,
     ):
         if max_steps is not None and not (isinstance(max_steps, int) and max_steps >= 1):
             raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
         if task is None:
-            task = read_run(agent).task if agent is not None else "FULL"
-        self.task = parse_task(task)
-        self.env = BallInMazeEnv(self.task, obs_mode="state", render_mode="rgb_array", render_size=render_size)
-        try:
-            self.agent = (
-                AgentPlayer(agent, self.env.maze, self.env.sim.layout, greedy=greedy, seed=seed)
-                if agent is not None
-                else None
+            task = read_run(agent).task if agent is not None and not is_expert(agent) else "FULL"
+        found = puzzle(task)
+        refuse_unsupported(found.task, recording=recording is not None)
+        if is_expert(agent) and not greedy:
+            raise ValueError(
+                "--sampled: the MPC expert plans its best action and has no sampled mode (for --agent RUN)"
             )
-        except BaseException:
-            self.env.close()
-            raise
-        self.max_steps = int(max_steps or self.task.time_limit)
+        #: The task's canonical name (``STG1``, ``LABYRINTH-HARD``).
+        self.task = found.task
+        self.agent: Player | None = None
+        self.board = self._open(agent, greedy=greedy, seed=seed, render_size=render_size)
+        #: The env stepped: a :class:`~bimgame.envs.env.BallInMazeEnv` or a
+        #: :class:`~bimgame.envs.labyrinth_env.LabyrinthEnv`.
+        self.env = self.board.env
+        #: Ticks (env steps) per second: the puzzle's action rate.
+        self.tick_hz = float(self.board.tick_hz)
+        self.max_steps = int(max_steps or found.time_limit)
         self.seed = int(seed)
         self.recording = recording
-        self.over_ticks = int(over_ticks)
+        self.over_ticks = round(1.5 * self.tick_hz) if over_ticks is None else int(over_ticks)
         self.keys = HeldKeys()
         self.controller = "agent" if self.agent is not None else "human"
         self.history: list[dict[str, Any]] = []
@@ -98,6 +128,34 @@ class PlaySession:
         self._builder: EpisodeBuilder | None = None
         self._closed = False
         self._new_episode()
+
+    def _open(self, agent: str | Path | None, *, greedy: bool, seed: int, render_size: int) -> Board:
+        """The board, and :attr:`agent`: on the labyrinth a trained agent is loaded first, since the
+        env observes and acts as its network does; the expert is matched to the env."""
+        is_maze = puzzle(self.task).is_maze
+        run = None
+        if agent is not None and not is_expert(agent) and not is_maze:
+            run = AgentPlayer(agent, puzzle(self.task).spec, task=self.task, greedy=greedy, seed=seed)
+        options: dict[str, Any] = {}
+        if run is not None:
+            options = {"obs_mode": run.env_obs_mode, "action_type": run.action_type}
+        elif is_expert(agent):
+            options = {"action_type": "continuous"}  # the labyrinth expert's measured setting (the maze's is discrete)
+        board = open_board(self.task, render_size=render_size, **options)
+        try:
+            if run is not None:
+                self.agent = run
+            elif is_expert(agent):
+                self.agent = ExpertPlayer(board)
+            elif agent is not None:
+                assert isinstance(board, MazeBoard)
+                self.agent = AgentPlayer(
+                    agent, board.spec, board.env.sim.layout, task=self.task, greedy=greedy, seed=seed
+                )
+        except BaseException:
+            board.close()
+            raise
+        return board
 
     # ----------------------------------------------------------------- inputs
     def set_keys(self, client: Hashable, names: Iterable[str]) -> None:
@@ -117,7 +175,7 @@ class PlaySession:
     def reset(self) -> None:
         """End the current episode (recording the person's steps, if any) and begin the next."""
         if self.phase == "running":
-            self._end("reset", terminated=False)
+            self._end("reset", terminated=False, success=False)
         self._new_episode()
 
     def set_controller(self, who: str) -> None:
@@ -126,7 +184,7 @@ class PlaySession:
         if who not in CONTROLLERS:
             raise ValueError(f"unknown controller {who!r}; allowed: {', '.join(CONTROLLERS)}")
         if who == "agent" and self.agent is None:
-            raise ValueError("no agent to hand control to: start bimgame play with --agent RUN")
+            raise ValueError("no agent to hand control to: start bimgame play with --agent RUN or --agent expert")
         if who == self.controller:
             return
         if who == "agent":
@@ -136,7 +194,7 @@ class PlaySession:
     def set_greedy(self, greedy: bool) -> None:
         if self.agent is None:
             raise ValueError("no agent playing: start bimgame play with --agent RUN")
-        self.agent.greedy = bool(greedy)
+        self.agent.set_greedy(bool(greedy))
 
     # ----------------------------------------------------------------- time
     def tick(self) -> bool:
@@ -162,26 +220,33 @@ class PlaySession:
         if self.phase == "running":
             self._save_builder(terminated=False, reason="server stopped")
         self._closed = True
-        self.env.close()
+        if self.agent is not None:
+            self.agent.close()
+        self.board.close()
 
     # ----------------------------------------------------------------- views
     def frame(self) -> np.ndarray:
-        """The current colour frame (render_size² × 3 uint8) with the tilt gauge."""
-        return self.env.render()
+        """The current colour frame (render_size² × 3 uint8): the maze with its tilt gauge, or the labyrinth."""
+        return self.board.frame()
 
     @property
     def marble_xy(self) -> tuple[float, float]:
         """The marble's position on the board (m; +x right, +y up on the screen)."""
-        return float(self._obs[0]), float(self._obs[1])
+        return self.board.marble_xy
 
     def snapshot(self) -> dict[str, Any]:
-        """What the page shows, as JSON-ready values."""
+        """What the page shows, as JSON-ready values (``progress``: the labyrinth's fraction of its
+        path; None on the maze)."""
         recording = None
         if self.recording is not None:
             recording = {**self.recording.status, "session_error": self.recording_error}
+        agent = None
+        if self.agent is not None:
+            agent = {"name": self.agent.description, "greedy": self.agent.greedy}
         return {
             "type": "state",
-            "task": self.task.value,
+            "task": self.task,
+            "puzzle": self.board.puzzle,
             "phase": self.phase,
             "episode": self.episode,
             "step": self.steps,
@@ -192,8 +257,9 @@ class PlaySession:
             "action": action_name(self.last_action),
             "key": self.keys.latest(),
             "marble": list(self.marble_xy),
-            "tilt_deg": [float(v) for v in np.degrees(self.env.sim.tilt)],
-            "agent": None if self.agent is None else {"name": self.agent.description, "greedy": self.agent.greedy},
+            "tilt_deg": [float(v) for v in np.degrees(self.board.tilt)],
+            **self.board.status(),
+            "agent": agent,
             "recording": recording,
             "recorded_steps": 0 if self._builder is None else self._builder.steps,
             "last": self.history[-1] if self.history else None,
@@ -203,47 +269,50 @@ class PlaySession:
     def _new_episode(self) -> None:
         self.episode += 1
         self.episode_seed = episode_seed(self.seed, self.episode)
-        self._obs, info = self.env.reset(seed=self.episode_seed)
-        self._sim_state = self.env.sim.get_state()
-        self._channel = np.asarray(info["channel"])
+        self.board.reset(self.episode_seed)
         self.steps, self.score, self.success = 0, 0.0, False
-        self.last_action = 0
+        self.last_action: Any = 0
+        self.last_reward = 0.0
         self.phase = "ready"
         self._start = False
         self._builder = None
         if self.agent is not None:
-            self.agent.start_episode()
+            self.agent.start_episode(self.episode_seed)
 
     def _step(self) -> None:
         human = self.controller == "human"
+        board = self.board
         agent_action = None
-        if self.agent is not None:  # the agent follows every step, whoever plays
-            agent_action = self.agent.act(self._obs, self._sim_state, self._channel, self.env.sim.tilt)
-        action = self.keys.action() if human else agent_action
+        if self.agent is not None and (self.agent.follows_every_step or not human):
+            agent_action = self.agent.act(board.moment())  # a network follows every step, whoever plays
+        action = board.key_action(self.keys.action()) if human else agent_action
         assert action is not None, "the agent has control only in a session that has one"
-        if human and self.recording is not None and self._builder is None:
+        recording = human and self.recording is not None and isinstance(board, MazeBoard)
+        if recording and self._builder is None:
+            assert isinstance(board, MazeBoard)
             self._builder = EpisodeBuilder(
                 seed=self.episode_seed,
                 start_step=self.steps,
-                obs=self._obs,
-                sim_state=self._sim_state,
-                channel=self._channel,
+                obs=board.obs,
+                sim_state=board.sim_state,
+                channel=board.channel,
             )
-        obs, reward, terminated, _, info = self.env.step(action)
+        result = board.step(action)
         self.steps += 1
-        self.score += float(reward)
-        truncated = not terminated and self.steps >= self.max_steps
-        self._obs, self._sim_state, self._channel = obs, self.env.sim.get_state(), np.asarray(info["channel"])
-        self.last_action = action
+        self.score += result.reward
+        truncated = not result.terminated and self.steps >= self.max_steps
+        self.last_action, self.last_reward = action, result.reward
         if self.agent is not None:
-            self.agent.observe(action, float(reward), terminated or truncated)
-        if human and self._builder is not None:
-            self._builder.add(action, reward, obs, self._sim_state, self._channel)
-        if terminated or truncated:
-            self.success = bool(terminated)
-            self._end("goal" if terminated else "time limit", terminated=bool(terminated))
+            self.agent.observe(action, result.reward, result.terminated or truncated)
+        if recording and self._builder is not None:
+            assert isinstance(board, MazeBoard)
+            self._builder.add(action, result.reward, board.obs, board.sim_state, board.channel)
+        if result.terminated or truncated:
+            self.success = result.success
+            reason = result.reason if result.terminated and result.reason else "time limit"
+            self._end(reason, terminated=result.terminated, success=result.success)
 
-    def _end(self, reason: str, *, terminated: bool) -> None:
+    def _end(self, reason: str, *, terminated: bool, success: bool) -> None:
         recorded = self._save_builder(terminated=terminated, reason=reason)
         self.history = (
             self.history
@@ -251,7 +320,7 @@ class PlaySession:
                 {
                     "episode": self.episode,
                     "reason": reason,
-                    "success": terminated,
+                    "success": success,
                     "steps": self.steps,
                     "score": self.score,
                     "recorded": recorded,

@@ -62,7 +62,7 @@ document.addEventListener("keydown", (event) => {
     send({ type: "reset" });
   } else if (!event.repeat && event.code === "KeyH") {
     toggleControl();
-  } else if (!event.repeat && event.code === "KeyG" && play.state && play.state.agent) {
+  } else if (!event.repeat && event.code === "KeyG" && play.state && play.state.agent && play.state.agent.greedy !== null) {
     setGreedy(!play.state.agent.greedy);
   }
 });
@@ -99,6 +99,9 @@ function drawFrame(data) {
   });
 }
 
+// Why an episode ended, as the end screen says it (the labyrinth's marble also falls or strays).
+const ENDINGS = { hole: "into a hole!", "off the path": "off the path", "time limit": "time is up" };
+
 function overlayText(s) {
   if (!play.connected) return stopped ? "the server stopped" : "connecting…";
   if (s.phase === "ready") {
@@ -106,9 +109,17 @@ function overlayText(s) {
   }
   if (s.phase === "over") {
     if (s.last && s.last.reason === "goal") return `success! score ${s.score}`;
-    return "time is up";
+    return (s.last && ENDINGS[s.last.reason]) || "time is up";
   }
   return "";
+}
+
+function showHello(h) {
+  play.hello = h;
+  const labyrinth = h.puzzle === "labyrinth";
+  $("title").textContent = labyrinth ? "Labyrinth" : "Ball-in-Maze";
+  document.title = `bimgame play — ${labyrinth ? "CyberRunner's labyrinth" : "Ball-in-Maze"}`;
+  $("gauge-note").hidden = labyrinth;  // the labyrinth's frame has no tilt gauge: the panel shows the tilt
 }
 
 function showState(s) {
@@ -118,17 +129,26 @@ function showState(s) {
   $("step").textContent = `${s.step} / ${s.max_steps}`;
   $("success").textContent = s.success ? "yes" : "no";
   $("success").className = s.success ? "ok" : "";
-  $("controller").textContent = s.controller === "agent" ? `agent (${s.agent.greedy ? "greedy" : "sampled"})` : "you";
+  const expert = s.agent && s.agent.greedy === null;  // the MPC expert: no greedy/sampled switch
+  $("controller").textContent = s.controller !== "agent" ? "you"
+    : expert ? "agent (MPC expert)" : `agent (${s.agent.greedy ? "greedy" : "sampled"})`;
+  const labyrinth = s.puzzle === "labyrinth";
+  $("progress-row").hidden = !labyrinth;
+  $("tilt-row").hidden = !labyrinth;
+  if (labyrinth) {
+    $("progress").textContent = `${(100 * s.progress).toFixed(1)} %`;
+    $("tilt").textContent = `x ${s.tilt_deg[0].toFixed(1)}°, y ${s.tilt_deg[1].toFixed(1)}°`;
+  }
   $("action").textContent = s.action;
   $("fps").textContent = `${play.fps.toFixed(1)} (server ${s.server_hz.toFixed(1)} Hz)`;
   $("clients").textContent = String(s.clients);
   $("overlay").textContent = overlayText(s);
   const control = $("control");
   control.hidden = !s.agent;
-  $("greedy-label").hidden = !s.agent;
+  $("greedy-label").hidden = !s.agent || expert;
   if (s.agent) {
     control.textContent = s.controller === "agent" ? "Take over (H)" : "Give to the agent (H)";
-    $("greedy").checked = s.agent.greedy;
+    if (!expert) $("greedy").checked = s.agent.greedy;
   }
   const rec = s.recording;
   $("recording").hidden = !rec;
@@ -155,7 +175,7 @@ function connect() {
     if (typeof event.data !== "string") { drawFrame(event.data); return; }
     const message = JSON.parse(event.data);
     if (message.type === "state") showState(message);
-    else if (message.type === "hello") play.hello = message;
+    else if (message.type === "hello") showHello(message);
     else if (message.type === "error") {
       play.errors.push(message.message);
       $("error").textContent = `server: ${message.message}`;
