@@ -3,7 +3,9 @@ layout's start (``none``) and with the start curriculum along the printed path (
 :class:`~bimgame.learn.path_starts.PathStartCurriculum`), the same step budget for each, several seeds.
 
 Each run's final network is scored from the layout's own start, greedily and sampling, on
-``--episodes`` episodes; completion times are the successful episodes' lengths at 55 Hz, against
+``--episodes`` episodes with the labyrinth's scoring protocol
+(:func:`~bimgame.experiments.labyrinth_protocol.score_labyrinth`); completion times are the
+successful episodes' lengths at 55 Hz, against
 CyberRunner's 14.48 s and the human record 15.41 s (hard layout). Across seeds: means with
 percentile-bootstrap 95% intervals (seeds resampled); per seed numbers are in the JSON. Runs are kept
 in ``--out`` (a rerun reuses finished runs and their scores).
@@ -32,9 +34,10 @@ import numpy as np
 from bench_learners import _settings
 
 from bimgame.envs.puzzles import puzzle
+from bimgame.experiments.labyrinth_protocol import CYBERRUNNER_RECORD_S, HUMAN_RECORD_S, score_labyrinth
 from bimgame.experiments.statistics import mean_interval
-from bimgame.learn.actor import evaluate_network
-from bimgame.learn.common import load_run_network
+from bimgame.learn.checkpoints import load_checkpoint
+from bimgame.learn.common import read_run
 from bimgame.learn.ppo import PPOConfig, train_ppo
 from bimgame.learn.runs import torch_threads
 from bimgame.util.files import atomic_write_bytes, read_json
@@ -43,10 +46,6 @@ from bimgame.util.images import save_png, subplots
 ROOT = Path(__file__).resolve().parents[1]
 CURRICULA = ("reverse", "none")
 MODES = ("greedy", "sampled")
-#: The labyrinth's control rate (Hz): an episode's length in steps over it is its time in seconds.
-CONTROL_HZ = 55.0
-#: CyberRunner's best time and the human record on the hard layout (s), Bi & D'Andrea 2023.
-CYBERRUNNER_SECONDS, HUMAN_RECORD_SECONDS = 14.48, 15.41
 #: Evaluation seed of the scores (the same start noise for every run).
 SCORE_SEED = 12345
 #: Steps per point of the training curves.
@@ -79,27 +78,23 @@ def _train(
 
 
 def _score(run_dir: Path, episodes: int) -> dict[str, Any]:
-    """Success and completion times of the run's final network from the layout's own start."""
+    """Success, median completion time and mean return of the run's final network from the layout's
+    own start, greedy and sampled: the labyrinth's scoring protocol (:func:`score_labyrinth`) on
+    ``episodes`` episodes from :data:`SCORE_SEED`; cached in the run directory per checkpoint step."""
     scores_file = run_dir / "labyrinth_scores.json"
-    net, run, step = load_run_network(run_dir)
+    step = load_checkpoint(run_dir)["step"]
     cached = read_json(scores_file)
     if cached is not None and cached.get("episodes") == episodes and cached.get("step") == step:
         return cached
     scores: dict[str, Any] = {"episodes": episodes, "step": step}
+    task = read_run(run_dir).task
     for mode in MODES:
-        result = evaluate_network(
-            net,
-            task=run.task,
-            obs_mode=run.network.obs,
-            episodes=episodes,
-            seed=SCORE_SEED,
-            greedy=mode == "greedy",
-            max_episode_steps=run.time_limit,
+        summary = score_labyrinth(
+            run_dir, task, episodes=episodes, sampled=mode == "sampled", seed=SCORE_SEED, progress=False
         )
-        times = [length / CONTROL_HZ for length, ok in zip(result.lengths, result.successes, strict=True) if ok]
-        scores[f"{mode}_success"] = result.success_rate
-        scores[f"{mode}_median_seconds"] = float(np.median(times)) if times else None
-        scores[f"{mode}_mean_return"] = float(np.mean(result.returns))
+        scores[f"{mode}_success"] = summary["success_rate"]
+        scores[f"{mode}_median_seconds"] = summary["completion_time_s"]["median"]
+        scores[f"{mode}_mean_return"] = summary["mean_return"]
     atomic_write_bytes(scores_file, json.dumps(scores, indent=2).encode())
     return scores
 
@@ -229,7 +224,7 @@ def main(argv: list[str] | None = None) -> int:
         "seeds": args.seeds,
         "episodes": args.episodes,
         "path_length": puzzle(f"LABYRINTH-{args.layout.upper()}").spec.path.length,
-        "reference_seconds": {"cyberrunner": CYBERRUNNER_SECONDS, "human_record": HUMAN_RECORD_SECONDS},
+        "reference_seconds": {"cyberrunner": CYBERRUNNER_RECORD_S, "human_record": HUMAN_RECORD_S},
         "settings": args.settings,
         "curricula": {},
     }

@@ -85,7 +85,6 @@ def test_equals_single_envs_step_by_step_across_episode_ends(layout, action_type
                 assert not info["_final_obs"][i]
             np.testing.assert_array_equal(obs[i], o)
         np.testing.assert_array_equal(info["task_reward"], reward)
-        np.testing.assert_array_equal(info["success"], info["is_success"])
     assert ends["terminated"] > 0 and ends["truncated"] > 0, ends
 
 
@@ -148,7 +147,7 @@ def test_a_marble_over_a_hole_terminates_and_resets_in_the_same_step():
     assert reward[1] == 0.0 and info["_final_obs"].tolist() == [False, True, False, False]
     final = info["final_obs"][1]
     assert np.hypot(*(final[:2] - hole)) < 1e-3  # the last observation: the marble at the hole
-    assert info["final_info"]["over_hole"][1] and not info["final_info"]["success"][1]
+    assert info["final_info"]["over_hole"][1] and not info["final_info"]["is_success"][1]
     # ... and the env already shows its next episode: the marble near the start, progress from 0.
     assert np.abs(obs[1, :2] - vec.board.start).max() <= vec.template.start_noise + 1e-4
     assert not info["over_hole"][1] and info["progress"][1] < 0.01
@@ -311,7 +310,7 @@ def test_reaching_the_goal_pays_the_bonus_and_terminates_with_success():
     _, expected, term, _, expected_info = single.step(0)
     assert terminated.tolist() == [True, False] and term and expected_info["is_success"]
     assert reward[0] == expected and reward[0] > vec.template.goal_bonus - 0.01  # + a tiny progress
-    assert info["final_info"]["success"].tolist() == [True, False] and not info["success"][0]
+    assert info["final_info"]["is_success"].tolist() == [True, False] and not info["is_success"][0]
 
 
 def test_render_draws_every_board():

@@ -34,6 +34,7 @@ __all__ = [
     "LABYRINTH_EPISODE_SECONDS",
     "labyrinth_max_episode_steps",
     "path_points_ahead",
+    "PATH_WIDTH",
     "CYBERRUNNER_PARTS",
     "CYBERRUNNER_FLAT_SIZE",
     "flatten_cyberrunner",
@@ -59,6 +60,8 @@ PATH_SPACING = 60 * 0.0002
 #: CyberRunner normalises its observed tilt by 10° and the marble's position (from the board's
 #: lower-left corner) by the board's size (``env.py``: ``norm_max``).
 CYBERRUNNER_TILT_NORM = math.radians(10.0)
+#: Width (m) of the printed path line drawn in pixel observations (``path_width``'s default).
+PATH_WIDTH = 0.002
 #: CyberRunner's marble-centred crop: 64 × 64 pixels at 1 mm per pixel (``measurements.py``).
 CROP_SIZE, CROP_PIXEL = 64, 1e-3
 #: CyberRunner's observation, part by part: each key of the ``Dict`` and its shape, in the order of its
@@ -234,7 +237,7 @@ class LabyrinthEnv(gym.Env):
         fail_reward: float = FAIL_REWARD,
         end_off_path: bool = True,
         start_noise: float = 0.002,
-        path_width: float = 0.002,
+        path_width: float = PATH_WIDTH,
         board: LabyrinthSpec | None = None,
     ):
         if board is None:

@@ -31,9 +31,9 @@ Autoreset: ``SAME_STEP`` (the default, what the learners use) resets a finished 
 step that ended it, ``infos["final_obs"]`` / ``infos["final_info"]`` holding the finished step's
 observation and info (masked by ``infos["_final_obs"]``); ``NEXT_STEP`` resets it at the next step
 (Gymnasium's default). Infos hold the single env's keys as (N, …) arrays — ``is_success``,
-``progress``, ``progress_fraction``, ``segment``, ``over_hole``, ``off_path``, ``tilt`` (rad) — plus
-``success`` (the same as ``is_success``: a labyrinth episode also terminates by failing, so
-termination is not success), ``task_reward`` (the step's reward) and, with ``state_info=True``,
+``progress``, ``progress_fraction``, ``segment``, ``over_hole``, ``off_path``, ``tilt`` (rad; a
+labyrinth episode also terminates by failing, so only ``is_success`` says it reached the goal) — plus
+``task_reward`` (the step's reward) and, with ``state_info=True``,
 ``state``, the state observation (17,) whatever ``obs_mode`` is; every key has Gymnasium's ``_key``
 mask.
 """
@@ -349,7 +349,6 @@ class LabyrinthVectorEnv(gym.vector.VectorEnv):
         ahead = path_points_ahead(self.path, self._progress)
         values: dict[str, Any] = {
             "is_success": self._success.copy(),
-            "success": self._success.copy(),
             "progress": self._progress.copy(),
             "progress_fraction": self._progress / self.path.length,
             "segment": self._segment.copy(),

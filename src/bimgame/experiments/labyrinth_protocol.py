@@ -199,13 +199,22 @@ def _play_network(
 def start_progress(task: str, starts: list[int]) -> list[float]:
     """The marble's progress (m along the path) at the start of each episode, ``reset(seed=s)`` for
     each start seed ``s``: what :func:`summarise_labyrinth` counts progress reached from."""
-    layout = puzzle(_labyrinth_task(task)).layout
-    assert layout is not None  # a labyrinth task has its layout
-    env = LabyrinthEnv(layout)
+    env = _protocol_env(task)
     try:
-        return [float(env.reset(seed=s)[1]["progress"]) for s in starts]
+        return _start_progress(env, starts)
     finally:
         env.close()
+
+
+def _protocol_env(task: str) -> LabyrinthEnv:
+    """The protocol's env of labyrinth ``task`` (its layout, default settings)."""
+    layout = puzzle(_labyrinth_task(task)).layout
+    assert layout is not None  # a labyrinth task has its layout
+    return LabyrinthEnv(layout)
+
+
+def _start_progress(env: LabyrinthEnv, starts: list[int]) -> list[float]:
+    return [float(env.reset(seed=s)[1]["progress"]) for s in starts]
 
 
 def _quantile(values: np.ndarray, q: float) -> float | None:
@@ -222,16 +231,17 @@ def summarise_labyrinth(result: EvalResult, task: str, starts: list[int], *, tim
     task = _labyrinth_task(task)
     layout = puzzle(task).layout
     assert layout is not None  # a labyrinth task has its layout
-    env = LabyrinthEnv(layout)  # the protocol's env: its reward constants, path and rate
+    env = _protocol_env(task)  # its reward constants, path, rate and the episodes' start progress
     try:
         scale, bonus, length, hz = env.progress_scale, env.goal_bonus, env.path.length, env.control_hz
+        start = np.asarray(_start_progress(env, starts))
     finally:
         env.close()
     successes = np.asarray(result.successes, dtype=np.float64)
     returns = np.asarray(result.returns, dtype=np.float64)
     lengths = np.asarray(result.lengths, dtype=np.int64)
     solved = successes.astype(bool)
-    reached = (np.asarray(start_progress(task, starts)) + (returns - bonus * successes) / scale) / length
+    reached = (start + (returns - bonus * successes) / scale) / length
     times = lengths[solved] / hz
     rng = np.random.default_rng(_BOOTSTRAP_SEED)
     best, median = (float(times.min()) if len(times) else None), _quantile(times, 50)

@@ -22,33 +22,20 @@ always use the layout's own start.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from bimgame.envs.labyrinth_env import path_points_ahead
-from bimgame.learn.start_stages import BackwardStages
+from bimgame.learn.start_stages import TRUE_START, BackwardStages, StagedStarts, check_int, check_real
 from bimgame.sim.labyrinth import LabyrinthSpec, PathProgress
 from bimgame.sim.labyrinth_physics import LabyrinthSim
 
 __all__ = ["TRUE_START", "PathStartCurriculum"]
 
-#: The tag of an episode started from the layout's own start (the maze curricula's tag).
-TRUE_START = -1
 #: How closely the progress rule must place a start at its own arc length (m).
 _ARC_TOLERANCE = 1e-3
 
 
-def _check(owner: str, name: str, value: object, low: float, high: float, *, low_open: bool) -> float:
-    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-    ok = ok and (value > low if low_open else value >= low) and value <= high  # type: ignore[operator]
-    if not ok:
-        bracket = "(" if low_open else "["
-        raise ValueError(f"{owner}.{name} must be a number in {bracket}{low:g}, {high:g}], got {value!r}")
-    return float(value)  # type: ignore[arg-type]
-
-
-class PathStartCurriculum:
+class PathStartCurriculum(StagedStarts):
     """Starts along the labyrinth's printed path, moved back from the goal stage by stage (module
     docstring). A :class:`~bimgame.envs.vector.StartSampler` for
     ``LabyrinthVectorEnv(start_sampler=…)``, with ``record`` and ``status`` as the maze's curricula.
@@ -79,13 +66,12 @@ class PathStartCurriculum:
             raise TypeError(f"{owner}: spec must be a LabyrinthSpec, got {type(spec).__name__}")
         self.spec = spec
         length = spec.path.length
-        first_back = _check(owner, "first_back", first_back, 0.0, length, low_open=True)
-        growth = _check(owner, "growth", growth, 1.0, 100.0, low_open=True)
-        threshold = _check(owner, "threshold", threshold, 0.0, 1.0, low_open=True)
-        self.true_share = _check(owner, "true_share", true_share, 0.0, 1.0, low_open=False)
-        spacing = _check(owner, "spacing", spacing, 0.0, length, low_open=True)
-        if not (isinstance(window, int) and not isinstance(window, bool) and window >= 1):
-            raise ValueError(f"{owner}.window must be an integer >= 1, got {window!r}")
+        first_back = check_real(owner, "first_back", first_back, 0.0, length, open_low=True)
+        growth = check_real(owner, "growth", growth, 1.0, 100.0, open_low=True)
+        threshold = check_real(owner, "threshold", threshold, 0.0, 1.0, open_low=True)
+        self.true_share = check_real(owner, "true_share", true_share, 0.0, 1.0)
+        spacing = check_real(owner, "spacing", spacing, 0.0, length, open_low=True)
+        window = check_int(owner, "window", window, 1)
         self.arcs, xy = self._start_points(spacing)
         self.back_of = length - self.arcs  # metres of path from each start to the goal
         self.states = self._at_rest(xy)
@@ -126,36 +112,16 @@ class PathStartCurriculum:
         return np.stack(states)
 
     # ------------------------------------------------------------------ sampler
-    @property
-    def finished(self) -> bool:
-        """Whether the final stage is reached: every start is the layout's own."""
-        return self.stages.finished
-
-    @property
-    def stage(self) -> int:
-        return self.stages.stage
-
     def __call__(self, index: int, rng: np.random.Generator) -> tuple[np.ndarray | None, int]:
         """The start of env ``index``'s next episode: ``(sim_state, stage)``, or ``(None, TRUE_START)``."""
-        if self.finished or rng.random() < self.true_share:
+        if self.true_start(rng):
             return None, TRUE_START
         within = np.flatnonzero(self.back_of <= self.stages.back)
         if not len(within):  # D_0 shorter than the gap between the goal and the nearest start
             within = np.array([int(np.argmin(self.back_of))])
         return self.states[within[int(rng.integers(len(within)))]].copy(), self.stage
 
-    def record(self, tag: int, success: bool) -> None:
-        """Count a finished episode (tag: the stage it started in; :data:`TRUE_START` is not counted)."""
-        if not (isinstance(tag, (int, np.integer)) and not isinstance(tag, bool)):
-            raise ValueError(f"{type(self).__name__}.record: tag must be an integer (a stage, or -1), got {tag!r}")
-        self.stages.record(int(tag), success)
-
     def status(self) -> dict[str, float]:
         """The stage, how far back (m of path) its starts reach, the share of the layout's own starts
         and the success rate of the current stage's window so far."""
-        return {
-            "curriculum_stage": float(self.stage),
-            "curriculum_start_distance": float(self.stages.back),
-            "true_start_share": 1.0 if self.finished else self.true_share,
-            "curriculum_window_success": self.stages.window_success,
-        }
+        return {**self.stage_status(), "curriculum_start_distance": float(self.stages.back)}

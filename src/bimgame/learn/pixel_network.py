@@ -13,12 +13,11 @@ subtracted, only the marble remains.
 
 from __future__ import annotations
 
-import inspect
 from typing import Any
 
 import numpy as np
 
-from bimgame.envs.labyrinth_env import LabyrinthEnv
+from bimgame.envs.labyrinth_env import PATH_WIDTH
 from bimgame.envs.puzzles import PuzzleSpec
 from bimgame.learn.nets import NetConfig, maze_background
 from bimgame.sim.labyrinth import LabyrinthSpec
@@ -28,9 +27,6 @@ __all__ = ["PIXEL_SIZE", "empty_board_frame", "pixel_net_config"]
 
 #: The side of a pixel observation, both puzzles' (the envs' ``obs_size`` default, the paper's 84).
 PIXEL_SIZE = 84
-#: The printed path's width (m) the labyrinth's pixel observations draw: :class:`LabyrinthEnv`'s default,
-#: which the learners' envs keep.
-_PATH_WIDTH: float = inspect.signature(LabyrinthEnv.__init__).parameters["path_width"].default
 
 
 def empty_board_frame(spec: PuzzleSpec, size: int = PIXEL_SIZE) -> np.ndarray:
@@ -38,7 +34,7 @@ def empty_board_frame(spec: PuzzleSpec, size: int = PIXEL_SIZE) -> np.ndarray:
     maze's (:func:`~bimgame.learn.nets.maze_background`) or the labyrinth's (its raster's static picture:
     floor, printed path, holes, walls, rim and the outside around them)."""
     if isinstance(spec, LabyrinthSpec):
-        return np.array(LabyrinthRaster(spec, board_grid(spec, size), path_width=_PATH_WIDTH).background[None])
+        return np.array(LabyrinthRaster(spec, board_grid(spec, size), path_width=PATH_WIDTH).background[None])
     return maze_background(spec, size)
 
 

@@ -28,7 +28,7 @@ import torch
 from bimgame.envs.puzzles import PuzzleVectorEnv, puzzle
 from bimgame.learn.actor import RecurrentActor, episode_successes, tilt_input
 from bimgame.learn.nets import LSTMState, RecurrentActorCritic, Unrolled
-from bimgame.learn.starts import TRUE_START
+from bimgame.learn.start_stages import TRUE_START
 
 __all__ = [
     "Segment",
@@ -425,9 +425,10 @@ class RolloutCollector:
         # Learning curves show the task's own reward, also when a wrapper shapes it.
         self.episode_return += np.asarray(self.info.get("task_reward", reward), dtype=np.float64)
         self.episode_length += 1
-        successes = episode_successes(self.info, terminated)
-        for i in np.flatnonzero(done):
-            self._book(int(i), bool(successes[i]), start_tags)
+        if done.any():  # (most steps end no episode)
+            successes = episode_successes(self.info, terminated)
+            for i in np.flatnonzero(done):
+                self._book(int(i), bool(successes[i]), start_tags)
         self.episode_return[done] = 0.0
         self.episode_length[done] = 0
         self.episode_start[done] = step_at_start

@@ -10,15 +10,55 @@ start is the task's own (:attr:`BackwardStages.finished`).
 
 The maze's demonstration curriculum counts ``D_k`` in steps of an expert episode
 (:class:`~bimgame.learn.starts.DemoStartCurriculum`), the labyrinth's in metres of the printed path
-(:class:`~bimgame.learn.path_starts.PathStartCurriculum`); both keep this one schedule.
+(:class:`~bimgame.learn.path_starts.PathStartCurriculum`); both keep this one schedule, and
+:class:`StagedStarts` is what such a curriculum does besides choosing its starts: the share of true
+starts, the tags, ``record`` and the common part of ``status``. Every start curriculum checks its
+settings and tags with :func:`check_int`, :func:`check_real` and :func:`check_tag`.
 """
 
 from __future__ import annotations
 
 import collections
 import math
+from typing import Any
 
-__all__ = ["BackwardStages"]
+import numpy as np
+
+from bimgame.util.settings import is_integer, is_real
+
+__all__ = ["TRUE_START", "check_int", "check_real", "check_tag", "BackwardStages", "StagedStarts"]
+
+#: The tag of an episode started from the task's own start distribution (a sampler returned None).
+TRUE_START = -1
+
+
+def check_int(owner: str, name: str, value: Any, minimum: int) -> int:
+    """``value`` as an int if it is an integer >= ``minimum``, else ``ValueError`` naming ``owner.name``."""
+    if not (is_integer(value) and value >= minimum):
+        raise ValueError(f"{owner}.{name} must be an integer >= {minimum}, got {value!r}")
+    return int(value)
+
+
+def check_real(
+    owner: str, name: str, value: Any, low: float, high: float, *, open_low: bool = False, allowed: str = ""
+) -> float:
+    """``value`` as a float if it is a finite number in [low, high] (or (low, high] with ``open_low``),
+    else ``ValueError`` naming ``owner.name`` and ``allowed`` (default: the interval)."""
+    inside = is_real(value) and math.isfinite(value) and (value > low if open_low else value >= low) and value <= high
+    if not inside:
+        bracket = "(" if open_low else "["
+        shown = allowed or f"a number in {bracket}{low:g}, {high:g}]"
+        raise ValueError(f"{owner}.{name} must be {shown}, got {value!r}")
+    return float(value)
+
+
+def check_tag(owner: str, tag: Any) -> int:
+    """A start tag given to ``owner.record`` as an int, else ``ValueError``."""
+    if not is_integer(tag):
+        raise ValueError(
+            f"{owner}.record: tag must be an integer (a start tag, {TRUE_START} for a true start), got {tag!r}"
+        )
+    return int(tag)
 
 
 class BackwardStages:
@@ -80,3 +120,40 @@ class BackwardStages:
         if len(self._results) == self.window and sum(self._results) >= self.threshold * self.window:
             self.stage += 1
             self._results.clear()
+
+
+class StagedStarts:
+    """A start curriculum of :class:`BackwardStages`: a subclass sets ``stages`` and ``true_share``
+    and chooses the start of each stage; this class draws the true starts, tags episodes by stage,
+    records their outcomes and reports the status every staged curriculum has."""
+
+    stages: BackwardStages
+    true_share: float
+
+    @property
+    def finished(self) -> bool:
+        """Whether the final stage is reached: every start is a true start."""
+        return self.stages.finished
+
+    @property
+    def stage(self) -> int:
+        """The current stage's index (``len(stages.backs)`` once finished)."""
+        return self.stages.stage
+
+    def true_start(self, rng: np.random.Generator) -> bool:
+        """Whether the next episode starts from the task's own starts (once finished, always; else
+        with probability ``true_share``, one draw from ``rng``)."""
+        return self.finished or rng.random() < self.true_share
+
+    def record(self, tag: int, success: bool) -> None:
+        """Count a finished episode (tag: the stage it started in): only the current stage's move the
+        curriculum on; :data:`TRUE_START` episodes are not counted."""
+        self.stages.record(check_tag(type(self).__name__, tag), success)
+
+    def stage_status(self) -> dict[str, float]:
+        """The stage, the share of true starts and the success rate of the current stage's window."""
+        return {
+            "curriculum_stage": float(self.stage),
+            "true_start_share": 1.0 if self.finished else self.true_share,
+            "curriculum_window_success": self.stages.window_success,
+        }

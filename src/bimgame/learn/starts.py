@@ -33,43 +33,14 @@ import numpy as np
 
 from bimgame.envs.env import DISCRETE_TILTS
 from bimgame.expert.datasets import load_dataset
-from bimgame.learn.start_stages import BackwardStages
+from bimgame.learn.start_stages import TRUE_START, BackwardStages, StagedStarts, check_int, check_real, check_tag
 from bimgame.sim.layout import StateLayout
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.physics import MazeSim
 from bimgame.sim.placement import check_marble_xy, check_sim_state
 from bimgame.sim.tasks import Task, parse_task
-from bimgame.util.settings import is_integer, is_real
 
 __all__ = ["TRUE_START", "DemoStartCurriculum", "ReverseCurriculum"]
-
-#: The tag of an episode started from the task's own start distribution.
-TRUE_START = -1
-
-
-def _check_int(owner: str, name: str, value: Any, minimum: int) -> int:
-    if not (is_integer(value) and value >= minimum):
-        raise ValueError(f"{owner}.{name} must be an integer >= {minimum}, got {value!r}")
-    return int(value)
-
-
-def _check_real(
-    owner: str, name: str, value: Any, low: float, high: float, *, open_low: bool = False, allowed: str = ""
-) -> float:
-    inside = is_real(value) and math.isfinite(value) and (value > low if open_low else value >= low) and value <= high
-    if not inside:
-        bracket = "(" if open_low else "["
-        shown = allowed or f"a number in {bracket}{low:g}, {high:g}]"
-        raise ValueError(f"{owner}.{name} must be {shown}, got {value!r}")
-    return float(value)
-
-
-def _check_tag(owner: str, tag: Any) -> int:
-    if not is_integer(tag):
-        raise ValueError(
-            f"{owner}.record: tag must be an integer (a start tag, {TRUE_START} for a true start), got {tag!r}"
-        )
-    return int(tag)
 
 
 def _layout(maze: MazeSpec, n_marbles: int) -> StateLayout:
@@ -80,7 +51,7 @@ def _layout(maze: MazeSpec, n_marbles: int) -> StateLayout:
     return layout
 
 
-class DemoStartCurriculum:
+class DemoStartCurriculum(StagedStarts):
     """Starts from expert demonstrations, moved back from the goal stage by stage (Backplay).
 
     Each demonstration is cut at ``t_goal``, the first step at which every marble is at the task's
@@ -122,11 +93,11 @@ class DemoStartCurriculum:
         owner = "DemoStartCurriculum"
         self.maze = maze if maze is not None else MazeSpec.merl()
         self.task = parse_task(task, self.maze)
-        self.first_back = _check_int(owner, "first_back", first_back, 1)
-        self.growth = _check_real(owner, "growth", growth, 1.0, math.inf, open_low=True, allowed="a finite number > 1")
-        self.threshold = _check_real(owner, "threshold", threshold, 0.0, 1.0, open_low=True)
-        self.window = _check_int(owner, "window", window, 1)
-        self.true_share = _check_real(owner, "true_share", true_share, 0.0, 1.0)
+        self.first_back = check_int(owner, "first_back", first_back, 1)
+        self.growth = check_real(owner, "growth", growth, 1.0, math.inf, open_low=True, allowed="a finite number > 1")
+        self.threshold = check_real(owner, "threshold", threshold, 0.0, 1.0, open_low=True)
+        self.window = check_int(owner, "window", window, 1)
+        self.true_share = check_real(owner, "true_share", true_share, 0.0, 1.0)
         goal = self.task.goal_channel(self.maze)
         self._demos: list[np.ndarray] = []  # per usable demonstration, its states before t_goal
         layout: StateLayout | None = None
@@ -197,16 +168,6 @@ class DemoStartCurriculum:
 
     # ------------------------------------------------------------------ sampler
     @property
-    def finished(self) -> bool:
-        """Whether the final stage is reached: every start is a true start."""
-        return self.stages.finished
-
-    @property
-    def stage(self) -> int:
-        """The current stage's index (``len(backs)`` once finished)."""
-        return self.stages.stage
-
-    @property
     def backs(self) -> list[int]:
         """``D_k`` of each stage (steps before a demonstration's goal)."""
         return [int(back) for back in self.stages.backs]
@@ -222,25 +183,16 @@ class DemoStartCurriculum:
 
     def __call__(self, index: int, rng: np.random.Generator) -> tuple[np.ndarray | None, int]:
         """The start of env ``index``'s next episode: ``(state, stage)``, or ``(None, TRUE_START)``."""
-        if self.finished or rng.random() < self.true_share:
+        if self.true_start(rng):
             return None, TRUE_START
         demo = self._demos[int(rng.integers(len(self._demos)))]
         back = min(int(rng.integers(1, int(self.stages.back) + 1)), len(demo))
         return demo[len(demo) - back].copy(), self.stage
 
-    def record(self, tag: int, success: bool) -> None:
-        """Count a finished episode: only those of the current stage move the curriculum on."""
-        self.stages.record(_check_tag("DemoStartCurriculum", tag), success)
-
     def status(self) -> dict[str, float]:
         """The stage, how far back (steps) its starts go, the share of true starts and the success
         rate of the current stage's window so far."""
-        return {
-            "curriculum_stage": float(self.stage),
-            "curriculum_steps_back": float(self.stages.back),
-            "true_start_share": 1.0 if self.finished else self.true_share,
-            "curriculum_window_success": self.stages.window_success,
-        }
+        return {**self.stage_status(), "curriculum_steps_back": float(self.stages.back)}
 
 
 class ReverseCurriculum:
@@ -285,15 +237,15 @@ class ReverseCurriculum:
         owner = "ReverseCurriculum"
         self.maze = maze if maze is not None else MazeSpec.merl()
         self.task = parse_task(task, self.maze)
-        self.walk_steps = _check_int(owner, "walk_steps", walk_steps, 1)
-        self.pool_size = _check_int(owner, "pool_size", pool_size, 1)
-        self.min_tries = _check_int(owner, "min_tries", min_tries, 1)
-        self.low = _check_real(owner, "low", low, 0.0, 1.0)
-        self.high = _check_real(owner, "high", high, 0.0, 1.0)
+        self.walk_steps = check_int(owner, "walk_steps", walk_steps, 1)
+        self.pool_size = check_int(owner, "pool_size", pool_size, 1)
+        self.min_tries = check_int(owner, "min_tries", min_tries, 1)
+        self.low = check_real(owner, "low", low, 0.0, 1.0)
+        self.high = check_real(owner, "high", high, 0.0, 1.0)
         if self.low > self.high:
             raise ValueError(f"{owner}.low ({low!r}) must not exceed {owner}.high ({high!r})")
-        self.true_share = _check_real(owner, "true_share", true_share, 0.0, 1.0)
-        self.replay_share = _check_real(owner, "replay_share", replay_share, 0.0, 1.0)
+        self.true_share = check_real(owner, "true_share", true_share, 0.0, 1.0)
+        self.replay_share = check_real(owner, "replay_share", replay_share, 0.0, 1.0)
         if self.true_share + self.replay_share > 1.0:
             raise ValueError(
                 f"{owner}.true_share + replay_share must be at most 1, got {true_share!r} + {replay_share!r}"
@@ -348,7 +300,7 @@ class ReverseCurriculum:
 
     def record(self, tag: int, success: bool) -> None:
         """Count a finished episode of start ``tag`` (:data:`TRUE_START` episodes are not counted)."""
-        tag = _check_tag("ReverseCurriculum", tag)
+        tag = check_tag("ReverseCurriculum", tag)
         if tag == TRUE_START:
             return
         if not 0 <= tag < len(self._states):

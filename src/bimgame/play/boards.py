@@ -62,10 +62,30 @@ class StepResult:
     """Why the episode terminated: "goal", "hole", "off the path"; None while it goes on."""
 
 
-class MazeBoard:
+class _EnvBoard:
+    """What both boards do the same way with their env (``self.env``: its sim's tilt, its render)."""
+
+    env: BallInMazeEnv | LabyrinthEnv
+
+    @property
+    def tilt(self) -> np.ndarray:
+        return self.env.sim.tilt
+
+    def frame(self) -> np.ndarray:
+        """The env's colour frame (the maze's with its tilt gauge; the labyrinth's from above, north up,
+        without one: the page shows the tilt)."""
+        frame: np.ndarray = self.env.render()
+        return frame
+
+    def close(self) -> None:
+        self.env.close()
+
+
+class MazeBoard(_EnvBoard):
     """MERL's maze ``task`` (its canonical name) in a state-observation env rendering ``render_size``² frames."""
 
     puzzle = "maze"
+    env: BallInMazeEnv
     tick_hz = MAZE_TICK_HZ
     action_type = "discrete"
 
@@ -74,16 +94,15 @@ class MazeBoard:
         self.env = BallInMazeEnv(task, obs_mode="state", render_mode="rgb_array", render_size=render_size)
         self.spec = self.env.maze
         self.obs: np.ndarray = np.zeros(0, dtype=np.float32)
-        self.sim_state: np.ndarray = self.env.sim.get_state()
         self.channel: np.ndarray = np.zeros(1, dtype=np.int64)
 
     def reset(self, seed: int) -> None:
         self.obs, info = self.env.reset(seed=seed)
-        self.sim_state, self.channel = self.env.sim.get_state(), np.asarray(info["channel"])
+        self.channel = np.asarray(info["channel"])
 
     def step(self, action: Any) -> StepResult:
         self.obs, reward, terminated, _, info = self.env.step(action)
-        self.sim_state, self.channel = self.env.sim.get_state(), np.asarray(info["channel"])
+        self.channel = np.asarray(info["channel"])
         return StepResult(float(reward), bool(terminated), bool(terminated), "goal" if terminated else None)
 
     def key_action(self, action: int) -> Any:
@@ -94,30 +113,25 @@ class MazeBoard:
         return Moment(self.obs, self.sim_state, self.env.sim.tilt, channel=self.channel)
 
     @property
-    def marble_xy(self) -> tuple[float, float]:
-        return float(self.obs[0]), float(self.obs[1])
+    def sim_state(self) -> np.ndarray:
+        """The physics state now (read when an agent plans or a recording stores it, not every step)."""
+        return self.env.sim.get_state()
 
     @property
-    def tilt(self) -> np.ndarray:
-        return self.env.sim.tilt
-
-    def frame(self) -> np.ndarray:
-        """The colour frame with the maze's tilt gauge."""
-        return self.env.render()
+    def marble_xy(self) -> tuple[float, float]:
+        return float(self.obs[0]), float(self.obs[1])
 
     def status(self) -> dict[str, Any]:
         """Puzzle-specific fields of the page's state: none on the maze."""
         return {"progress": None}
 
-    def close(self) -> None:
-        self.env.close()
 
-
-class LabyrinthBoard:
+class LabyrinthBoard(_EnvBoard):
     """The labyrinth of ``task`` (its canonical name), observed in ``obs_mode`` and acted on with
     ``action_type`` actions at 55 Hz, rendering ``render_size``² frames."""
 
     puzzle = "labyrinth"
+    env: LabyrinthEnv
 
     def __init__(self, task: str, *, obs_mode: str = "state", action_type: str = "discrete", render_size: int = 480):
         layout = puzzle(task).layout
@@ -158,20 +172,9 @@ class LabyrinthBoard:
         x, y = self.env.sim.marble_xy()
         return float(x), float(y)
 
-    @property
-    def tilt(self) -> np.ndarray:
-        return self.env.sim.tilt
-
-    def frame(self) -> np.ndarray:
-        """The colour frame of the board from above, north up (no tilt gauge: the page shows the tilt)."""
-        return self.env.render()
-
     def status(self) -> dict[str, Any]:
         """The marble's progress along the printed path, as a fraction of its length."""
         return {"progress": float(self.info["progress_fraction"])}
-
-    def close(self) -> None:
-        self.env.close()
 
 
 Board = MazeBoard | LabyrinthBoard
