@@ -56,6 +56,17 @@ def test_from_steps_derives_the_inputs_and_targets_and_files_round_trip():
             np.testing.assert_array_equal(getattr(before, name), getattr(after, name))
 
 
+def test_continuous_actions_stay_float_with_zero_previous_action_at_the_first_step():
+    actions = np.array([[0.5, -1.0], [1.0, 0.25], [0.0, 0.0]])
+    episode = Episode.from_steps(obs=np.zeros((3, 17), np.float32), actions=actions, rewards=[0.1, 0.2, 0.0],
+                                 tilt=np.zeros((3, 2)), gamma=0.5)
+    assert episode.actions.dtype == np.float32 and episode.prev_actions.dtype == np.float32
+    np.testing.assert_array_equal(episode.actions, actions.astype(np.float32))
+    np.testing.assert_array_equal(episode.prev_actions, [[0.0, 0.0], [0.5, -1.0], [1.0, 0.25]])
+    restored = Episode.split(Episode.concatenate([episode, episode]))
+    np.testing.assert_array_equal(restored[1].prev_actions, episode.prev_actions)
+
+
 def test_relabel_cuts_a_full_episode_at_each_tasks_goal_with_its_rewards():
     # Outermost channel 4 → 3 → back out to 4 → 3 → 2 → 2 → 1 → 0 (the centre).
     full = _episode([4, 4, 3, 4, 3, 2, 2, 1, 0])

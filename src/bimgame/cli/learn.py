@@ -10,9 +10,11 @@ from pathlib import Path
 
 from bimgame.cli.argtypes import episode_count, episode_count_or_zero, seed
 from bimgame.cli.flags import add_flag_groups, add_grouped_settings_flags, given_settings
+from bimgame.expert.datasets import dataset_manifest
 from bimgame.learn.common import NetworkSettings
 from bimgame.learn.dagger import DAggerConfig, dagger, resolve_dagger_config
-from bimgame.learn.pretrain import pretrain
+from bimgame.learn.learner_settings import puzzle_defaults
+from bimgame.learn.pretrain import dataset_action_type, pretrain
 from bimgame.learn.supervised import PretrainConfig
 from bimgame.util.files import FileWriteError
 
@@ -32,6 +34,7 @@ __all__ = [
 PRETRAIN_FLAGS = (
     "task",
     "obs",
+    "action_type",
     "epochs",
     "patience",
     "lr",
@@ -146,11 +149,21 @@ def add_pretrain_arguments(parser: argparse.ArgumentParser) -> None:
         help="train the value-only network V̂ for --value-reward instead of the policy π^s",
     )
     add_grouped_settings_flags(parser, groups, PretrainConfig, PRETRAIN_FLAGS, PRETRAIN_PLACEMENT, types=_TYPES)
+    parser.set_defaults(action_type=None)  # not given: the dataset's (pretrain_config_from)
     groups["logging"].add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
 def pretrain_config_from(args: argparse.Namespace) -> PretrainConfig:
+    """The pre-training settings of the flags: an ``--action-type`` not given is the dataset's (the
+    maze expert's discrete actions, or a labyrinth dataset's own); the labyrinth's network defaults
+    (no auxiliary heads) on its tasks."""
     values = {name: getattr(args, name) for name in PRETRAIN_FLAGS}
+    if values["action_type"] is None:
+        try:
+            values["action_type"] = dataset_action_type(dataset_manifest(args.data))
+        except (ValueError, OSError):
+            values["action_type"] = "discrete"  # pretrain() names what is wrong with the dataset
+    values = puzzle_defaults(values, default_task="FULL")
     return PretrainConfig(**values, target="value" if args.value_only else "policy")
 
 
@@ -167,7 +180,8 @@ def run_pretrain(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return 130
-    accuracy = "" if math.isnan(result.val_accuracy) else f"held-out accuracy {result.val_accuracy:.1%} (chance 20%), "
+    chance = "chance 20%" if config.action_type == "discrete" else "each tilt change within 0.25 of the expert's"
+    accuracy = "" if math.isnan(result.val_accuracy) else f"held-out accuracy {result.val_accuracy:.1%} ({chance}), "
     print(
         f"done in {result.seconds:.0f} s: best epoch {result.best_epoch} of {result.epochs_run}, {accuracy}"
         f"value RMSE {result.val_value_rmse:.3f}"
@@ -182,7 +196,11 @@ def run_pretrain(args: argparse.Namespace) -> int:
         )
     use = "--value-reward" if config.target == "value" else "--init"
     mazes = "".join(f" --{name.replace('_', '-')} {value}" for name, value in result.mazes.items())
-    print(f"use it with: bimgame train --task {config.task} --obs {config.obs}{mazes} {use} {args.out} --run-dir RUN")
+    learner = " --algo ppo --action-type continuous" if config.action_type == "continuous" else ""
+    print(
+        f"use it with: bimgame train{learner} --task {config.task} --obs {config.obs}{mazes} {use} {args.out} "
+        "--run-dir RUN"
+    )
     return 0
 
 

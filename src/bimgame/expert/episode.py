@@ -54,12 +54,15 @@ class Episode:
     """(T, …) the observation each action was taken in: (T, 7·n…) float32 state or (T, 1, 84, 84)
     uint8 pixels."""
     actions: np.ndarray
-    """(T,) int64: the actions to learn — the expert's (for DAgger: the expert's labels, which may
-    differ from what was executed)."""
+    """The actions to learn — the expert's (for DAgger: the expert's labels, which may differ from
+    what was executed): (T,) int64 discrete actions, or (T, 2) float32 continuous tilt changes (the
+    labyrinth's expert, :mod:`bimgame.expert.labyrinth_datasets`)."""
     rewards: np.ndarray
     """(T,) float32: the task's reward after each step."""
     prev_actions: np.ndarray
-    """(T,) int64: the action executed before each step, :data:`~bimgame.envs.env.NO_ACTION` at t=0."""
+    """The action executed before each step, as ``actions``: :data:`~bimgame.envs.env.NO_ACTION` at
+    t=0 (discrete), zeros (continuous: what a continuous network is fed at an episode's first step,
+    :class:`~bimgame.learn.policy_heads.ContinuousActions`)."""
     prev_rewards: np.ndarray
     """(T,) float32: the reward before each step, 0 at t=0."""
     returns: np.ndarray
@@ -68,7 +71,7 @@ class Episode:
     tilt: np.ndarray
     """(T, 2) float32: the board tilt (rad) when each action was taken."""
     executed: np.ndarray
-    """(T,) int64: the actions executed (equal to ``actions`` for expert data)."""
+    """The actions executed, as ``actions`` (equal to them for expert data)."""
     channels: np.ndarray | None = None
     """(T+1, n) int64: each marble's channel before and after every step (what another task's rewards
     are computed from, see :func:`relabel`); None where not recorded."""
@@ -100,15 +103,18 @@ class Episode:
         state_obs: np.ndarray | None = None,
     ) -> Episode:
         """The record of an episode from what happened at each step; ``executed`` defaults to
-        ``actions``."""
-        actions = np.asarray(actions, dtype=np.int64)
-        executed = actions if executed is None else np.asarray(executed, dtype=np.int64)
+        ``actions``. Integer actions are discrete ((T,) int64); floating-point ones continuous
+        ((T, 2) float32)."""
+        continuous = np.issubdtype(np.asarray(actions).dtype, np.floating)
+        dtype = np.float32 if continuous else np.int64
+        actions = np.asarray(actions, dtype=dtype)
+        executed = actions if executed is None else np.asarray(executed, dtype=dtype)
         rewards = np.asarray(rewards, dtype=np.float64)
         return cls(
             obs=np.asarray(obs),
             actions=actions,
             rewards=rewards.astype(np.float32),
-            prev_actions=previous_values(executed, NO_ACTION),
+            prev_actions=previous_values(executed, 0.0 if continuous else NO_ACTION),
             prev_rewards=previous_values(rewards.astype(np.float32), 0.0),
             returns=discounted_returns(rewards, gamma).astype(np.float32),
             tilt=np.asarray(tilt, dtype=np.float32),

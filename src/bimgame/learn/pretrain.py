@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from bimgame.envs.puzzles import LABYRINTH, PuzzleSpec, puzzle
 from bimgame.expert.datasets import dataset_manifest, dataset_mazes, iterate_sequences, load_dataset
 from bimgame.expert.episode import Episode, relabel
 from bimgame.learn.checkpoints import load_weights, save_checkpoint
@@ -59,6 +60,8 @@ __all__ = [
     "evaluate_policy",
     "data_source",
     "settings_for_dataset",
+    "check_dataset_task",
+    "dataset_action_type",
 ]
 _TABLE = [
     "train_loss",
@@ -84,10 +87,16 @@ def load_sequences(
     progress: bool = False,
 ) -> list[Episode]:
     """Every episode of a dataset directory, relabelled for ``task`` (see
-    :func:`~bimgame.expert.episode.relabel`)."""
+    :func:`~bimgame.expert.episode.relabel`); a labyrinth dataset's episodes as they are (its task is
+    the dataset's own, see :func:`check_dataset_task`)."""
+    manifest = dataset_manifest(data_dir)
+    check_dataset_task(manifest, task, data_dir)
+    if manifest.get("puzzle") == LABYRINTH:
+        from bimgame.expert.labyrinth_datasets import load_labyrinth_sequences  # TODO top-level once it exists
+
+        return load_labyrinth_sequences(data_dir, obs=obs, gamma=gamma, progress=progress)
     spec = spec or MazeSpec.merl()
     task = parse_task(task, spec)
-    manifest = dataset_manifest(data_dir)
     data_task = parse_task(manifest["task"], spec)
     if task.walls_to_pass(spec) > data_task.walls_to_pass(spec):
         raise ValueError(
@@ -102,6 +111,26 @@ def load_sequences(
             sequences.append(relabel(sequence, task, gamma, spec))
             bar.update(advance=1)
     return sequences
+
+
+def check_dataset_task(manifest: dict[str, Any], task: str | Task, data_dir: str | Path) -> None:
+    """Refuse to learn ``task`` from a dataset of the other puzzle, or a labyrinth task from another
+    layout's dataset (a layout's episodes are not relabelled), naming both."""
+    data_task = str(manifest["task"])
+    wanted = puzzle(task)
+    labyrinth_data = manifest.get("puzzle") == LABYRINTH
+    if labyrinth_data == wanted.is_maze or (labyrinth_data and data_task != wanted.task):
+        raise ValueError(
+            f"the dataset in {data_dir} holds {data_task} episodes, which cannot teach {wanted.task}: "
+            f"use a dataset of {wanted.task}"
+            + (" (bimgame generate --task " + wanted.task + ")" if not wanted.is_maze else "")
+        )
+
+
+def dataset_action_type(manifest: dict[str, Any]) -> str:
+    """The kind of the actions a dataset holds: the maze expert's and human play are discrete; a
+    labyrinth dataset names its own (``action_type``)."""
+    return str(manifest.get("action_type", "discrete"))
 
 
 def _frames(sequences: list[Episode], indices: np.ndarray, max_tilt: float) -> dict[str, torch.Tensor]:
@@ -164,7 +193,7 @@ class PretrainResult:
     what ``bimgame train --init`` with this π^s trains on."""
 
 
-def build_model(config: PretrainConfig, maze: MazeSpec | None = None) -> RecurrentActorCritic | ValueNetwork:
+def build_model(config: PretrainConfig, maze: PuzzleSpec | None = None) -> RecurrentActorCritic | ValueNetwork:
     """The untrained network of ``config.target``, shaped as A3C's for the same observations."""
     if config.target == "policy":
         return config.build_policy(config.seed, maze)
@@ -205,11 +234,20 @@ def _pretrain(
 ) -> PretrainResult:
     """:func:`pretrain` in the run directory ``run``, already held: read the data, write the settings,
     train with early stopping, keep the best held-out weights, evaluate π^s, write the summary."""
-    maze = MazeSpec.merl()
+    manifest = dataset_manifest(data_dir)
+    check_dataset_task(manifest, config.task, data_dir)
+    if dataset_action_type(manifest) != config.action_type:
+        raise ValueError(
+            f"PretrainConfig.action_type {config.action_type!r}: the dataset in {data_dir} holds "
+            f"{dataset_action_type(manifest)} actions; set action_type={dataset_action_type(manifest)!r}"
+        )
+    maze = puzzle(config.task).spec
+    if config.target == "value" and not isinstance(maze, MazeSpec):
+        raise ValueError("PretrainConfig.target 'value': V̂ shapes the circular maze's rewards only; use 'policy'")
     mazes = dataset_mazes(data_dir)
     config = settings_for_dataset(config, mazes, data_dir)
     if sequences is None:
-        sequences = load_sequences(data_dir, config.task, config.obs, config.gamma, maze, progress=progress)
+        sequences = load_sequences(data_dir, config.task, config.obs, config.gamma, progress=progress)
     rng = np.random.default_rng(config.seed)
     train_idx, val_idx = split_episodes(len(sequences), config.val_fraction, rng)
     net = build_model(config, maze)

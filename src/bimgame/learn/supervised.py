@@ -21,14 +21,12 @@ from typing import ClassVar
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 
 from bimgame.envs.env import NO_ACTION
+from bimgame.envs.puzzles import puzzle, puzzle_task_setting
 from bimgame.expert.episode import Episode
 from bimgame.learn.common import NetworkSettings, check_seed
 from bimgame.learn.nets import RecurrentActorCritic
-from bimgame.learn.policy_heads import require_discrete
-from bimgame.sim.tasks import Task, task_setting
 from bimgame.util.settings import require_int
 
 __all__ = [
@@ -90,12 +88,7 @@ class PretrainConfig(NetworkSettings):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        object.__setattr__(self, "task", task_setting("PretrainConfig", self.task))
-        require_discrete(
-            "pre-training (and DAgger)",
-            self.action_type,
-            "the expert's actions are discrete; continuous actions train with bimgame train --algo ppo",
-        )
+        object.__setattr__(self, "task", puzzle_task_setting("PretrainConfig", self.task))
         if self.target not in TARGETS:
             raise ValueError(f"PretrainConfig.target must be one of {TARGETS}, got {self.target!r}")
         for name in ("epochs", "patience", "batch_episodes", "batch_frames", "bptt"):
@@ -125,7 +118,7 @@ class PretrainConfig(NetworkSettings):
     @property
     def time_limit(self) -> int:
         """The task's time limit (evaluations of the learned policy use it)."""
-        return Task(self.task).time_limit
+        return puzzle(self.task).time_limit
 
     SETTINGS_NAME: ClassVar[str] = "pre-training settings"
 
@@ -142,14 +135,17 @@ def split_episodes(count: int, val_fraction: float, rng: np.random.Generator) ->
 
 def padded_batch(sequences: list[Episode], max_tilt: float, steps: int | None = None) -> dict[str, torch.Tensor]:
     """Episodes side by side, (T, B, …), padded at the end to the longest (or to ``steps``); ``mask``
-    marks real steps. ``privileged`` holds the state observations when every episode has them."""
+    marks real steps. ``privileged`` holds the state observations when every episode has them.
+    Actions keep the episodes' kind: (T, B) int64 discrete or (T, B, 2) float32 continuous."""
     steps = max(len(s) for s in sequences) if steps is None else steps
     batch = len(sequences)
     obs_shape = sequences[0].obs.shape[1:]
     obs = np.zeros((steps, batch, *obs_shape), dtype=sequences[0].obs.dtype)
+    actions = sequences[0].actions
+    continuous = np.issubdtype(actions.dtype, np.floating)
     out: dict[str, np.ndarray] = {
-        "actions": np.zeros((steps, batch), np.int64),
-        "prev_action": np.full((steps, batch), NO_ACTION, np.int64),
+        "actions": np.zeros((steps, batch, *actions.shape[1:]), actions.dtype),
+        "prev_action": np.full((steps, batch, *actions.shape[1:]), 0 if continuous else NO_ACTION, actions.dtype),
         "prev_reward": np.zeros((steps, batch), np.float32),
         "tilt": np.zeros((steps, batch, 2), np.float32),
         "returns": np.zeros((steps, batch), np.float32),
@@ -187,10 +183,11 @@ def policy_loss_terms(
     optimizer: torch.optim.Optimizer | None = None,
 ) -> dict[str, float]:
     """The pre-training loss over a padded batch of episodes, chunk by chunk (truncated BPTT);
-    with ``optimizer``, one update per chunk. Returns sums over real steps: ``ce``, ``value_se``
-    (squared value error), ``correct`` (argmax = expert), ``count``, and for a network with
-    auxiliary heads ``aux`` (their loss, which is added with weight ``config.aux_coef``)."""
-    steps, width = batch["actions"].shape
+    with ``optimizer``, one update per chunk. Returns sums over real steps: ``ce`` (−log π of the
+    expert's action), ``value_se`` (squared value error), ``correct`` (greedy action = expert's, see
+    :func:`_agrees`), ``count``, and for a network with auxiliary heads ``aux`` (their loss, which
+    is added with weight ``config.aux_coef``)."""
+    steps, width = batch["mask"].shape
     state = net.initial_state(width)
     totals = {"ce": 0.0, "value_se": 0.0, "correct": 0.0, "count": 0.0, "aux": 0.0}
     tilt_on = net.config.tilt_input
@@ -221,9 +218,8 @@ def policy_loss_terms(
         state = type(state)(out.state.h.detach(), out.state.c.detach())
         weights = mask.float()
         count = weights.sum()
-        ce = F.cross_entropy(
-            logits.reshape(-1, logits.shape[-1]), batch["actions"][sl].reshape(-1), reduction="none"
-        ).reshape(mask.shape)
+        policy = net.distribution(logits)
+        ce = -policy.log_prob(batch["actions"][sl])
         value_se = (values - batch["returns"][sl]).pow(2)
         data_loss = ((ce + config.value_coef * 0.5 * value_se) * weights).sum() / count
         if net.config.aux_heads:
@@ -239,9 +235,22 @@ def policy_loss_terms(
             optimizer.step()
         totals["ce"] += float((ce.detach() * weights).sum())
         totals["value_se"] += float((value_se.detach() * weights).sum())
-        totals["correct"] += float(((logits.argmax(-1) == batch["actions"][sl]).float() * weights).sum())
+        totals["correct"] += float((_agrees(policy.greedy(), batch["actions"][sl]) * weights).sum())
         totals["count"] += float(count)
     return totals
+
+
+#: A continuous action "agrees" with the expert's when each tilt change is within this of it: half the
+#: spacing of the labyrinth expert's 5 rate levels (:class:`~bimgame.expert.labyrinth_mpc.LabyrinthMPCConfig`).
+CONTINUOUS_AGREEMENT = 0.25
+
+
+def _agrees(greedy: torch.Tensor, expert: torch.Tensor) -> torch.Tensor:
+    """1 where the network's greedy action is the expert's (discrete: the same action; continuous:
+    every component within :data:`CONTINUOUS_AGREEMENT`), else 0 — the accuracy's numerator."""
+    if expert.is_floating_point():
+        return ((greedy - expert).abs() <= CONTINUOUS_AGREEMENT).all(-1).float()
+    return (greedy == expert).float()
 
 
 def summarise(totals: dict[str, float], value_coef: float, policy: bool) -> dict[str, float]:

@@ -8,10 +8,13 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
+from bimgame.envs.puzzles import puzzle
 from bimgame.expert.mpc import MPCConfig
+from bimgame.learn.policy_heads import require_discrete
 from bimgame.learn.run_dir import stored_run_config
 from bimgame.learn.runs import KIND_DAGGER, read_run_settings
 from bimgame.learn.supervised import PretrainConfig
+from bimgame.sim.tasks import Task
 from bimgame.util.settings import from_dict, require_int
 
 __all__ = ["DAggerConfig", "resolve_dagger_config"]
@@ -54,6 +57,12 @@ class DAggerConfig:
         """Refuse settings DAgger cannot run with, naming the setting."""
         if self.learner.target != "policy":
             raise ValueError("DAggerConfig.learner must train a policy (target='policy')")
+        if not puzzle(self.learner.task).is_maze:
+            raise ValueError(
+                f"DAgger runs on the circular maze's tasks only (its expert is the maze's MPC), got "
+                f"{self.learner.task!r}; allowed: {', '.join(task.value for task in Task)}"
+            )
+        require_discrete("DAgger", self.learner.action_type, "the maze expert's labels are discrete actions")
         if self.learner.aux_heads or self.learner.asymmetric_critic:
             raise ValueError(
                 "DAggerConfig.learner must have aux_heads=False and asymmetric_critic=False: DAgger "
