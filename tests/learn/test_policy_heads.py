@@ -102,3 +102,29 @@ def test_unknown_action_types_and_discrete_only_users_name_the_allowed_values():
     require_discrete("A3C", "discrete", "use --algo ppo")  # nothing to refuse
     with pytest.raises(ValueError, match=r"A3C supports action_type 'discrete' only; got 'continuous' \(use --algo ppo\)"):
         require_discrete("A3C", "continuous", "use --algo ppo")
+
+
+def test_teacher_kl_matches_torch_for_both_kinds_and_is_zero_for_the_teacher_itself():
+    g = torch.Generator().manual_seed(4)
+    # Continuous: KL(N_t ‖ N) against torch.distributions, per state summed over the two axes.
+    head = ContinuousActions()
+    mean_t, mean = torch.randn(5, 3, 2, generator=g), torch.randn(5, 3, 2, generator=g)
+    log_std_t, log_std = torch.tensor([-0.4, 0.2]), torch.tensor([0.1, -0.6])
+    frozen = head.frozen(mean_t, log_std_t, 1.0)
+    expected = torch.distributions.kl_divergence(
+        torch.distributions.Normal(mean_t, log_std_t.exp()), torch.distributions.Normal(mean, log_std.exp())
+    ).sum(-1)
+    torch.testing.assert_close(head.kl_from(frozen, mean, log_std), expected)
+    assert head.kl_from(frozen, mean_t, log_std_t).abs().max() < 1e-6
+    # A cooler teacher: the same mean, the deviation times the temperature.
+    cool = head.frozen(mean_t, log_std_t, 0.5)
+    torch.testing.assert_close(cool[..., 2:], (log_std_t + math.log(0.5)).expand(5, 3, 2))
+    # Discrete: Σ p_t (log p_t − log p).
+    discrete = DiscreteActions(5)
+    logits_t, logits = torch.randn(4, 5, generator=g), torch.randn(4, 5, generator=g)
+    expected = torch.distributions.kl_divergence(
+        torch.distributions.Categorical(logits=logits_t), torch.distributions.Categorical(logits=logits)
+    )
+    torch.testing.assert_close(discrete.kl_from(discrete.frozen(logits_t, None, 1.0), logits, None), expected)
+    with pytest.raises(ValueError, match="log standard deviation"):
+        head.frozen(mean_t, None, 1.0)

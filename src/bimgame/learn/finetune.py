@@ -45,7 +45,6 @@ from bimgame.expert.datasets import iterate_sequences
 from bimgame.expert.episode import Episode, relabel
 from bimgame.learn.learner_settings import FinetuneSettings
 from bimgame.learn.nets import LSTMState, RecurrentActorCritic
-from bimgame.learn.policy_heads import require_discrete
 from bimgame.learn.rollout import Segment
 from bimgame.learn.supervised import padded_batch
 from bimgame.sim.maze import MazeSpec
@@ -55,6 +54,7 @@ __all__ = [
     "loss_weights",
     "Teacher",
     "kl_to_teacher",
+    "policy_kl",
     "RunningScale",
     "EntropyTarget",
     "DemoWindows",
@@ -110,7 +110,6 @@ class Teacher:
     distribution is the one π^s would have had in the learner's situation."""
 
     def __init__(self, net: RecurrentActorCritic, batch: int, temperature: float = 1.0):
-        require_discrete("the fine-tuning teacher (KL to π^s)", net.config.action_type, "π^s is a discrete policy")
         self.net = net.eval()
         self.temperature = temperature
         for param in self.net.parameters():
@@ -119,9 +118,12 @@ class Teacher:
 
     @torch.no_grad()
     def follow(self, segment: Segment) -> torch.Tensor:
-        """Log-probabilities (T, B, A) of the teacher over a segment's T acting steps (the segment
-        holds T+1 observations, the last being the bootstrap one), of its logits divided by the
-        temperature (below 1: a sharper teacher, towards its greedy action); advances its state."""
+        """The teacher's π over a segment's T acting steps (the segment holds T+1 observations, the
+        last being the bootstrap one), (T, B, P) as its action head freezes it
+        (:meth:`~bimgame.learn.policy_heads.ActionHead.frozen`): discrete, the log-probabilities of its
+        logits divided by the temperature (below 1: a sharper teacher, towards its greedy action);
+        continuous, its Gaussian's mean and log standard deviation, the deviation times the
+        temperature. Advances its state."""
         steps = segment.steps
         tilt = segment.tilt
         logits, _, self.state = self.net.unroll(
@@ -132,7 +134,14 @@ class Teacher:
             self.state,
             segment.starts[:steps],
         )
-        return torch.log_softmax(logits / self.temperature, dim=-1)
+        return self.net.action_head.frozen(logits, self.net.log_std, self.temperature)
+
+
+def policy_kl(net: RecurrentActorCritic, teacher: torch.Tensor, output: torch.Tensor) -> torch.Tensor:
+    """Mean over steps of KL(π^s ‖ π) for either kind of action: ``teacher`` from
+    :meth:`Teacher.follow`, ``output`` the learner's policy-head output on the same steps (with its
+    ``log_std``, continuous). Discrete, it equals :func:`kl_to_teacher` of the log-softmax."""
+    return net.action_head.kl_from(teacher, output, net.log_std).mean()
 
 
 def kl_to_teacher(teacher_log_probs: torch.Tensor, log_probs: torch.Tensor) -> torch.Tensor:

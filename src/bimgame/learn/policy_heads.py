@@ -159,6 +159,17 @@ class ActionHead(Protocol):
         """π from the policy head's output (…, output_size) and, continuous, the learned log std."""
         ...
 
+    def frozen(self, output: torch.Tensor, log_std: torch.Tensor | None, temperature: float) -> torch.Tensor:
+        """A teacher's π as one tensor (…, P) that :meth:`kl_from` compares a learner with: the
+        log-probabilities of the logits divided by ``temperature``, or the Gaussian's mean and log
+        standard deviation with the standard deviation times ``temperature`` (below 1: a sharper π)."""
+        ...
+
+    def kl_from(self, frozen: torch.Tensor, output: torch.Tensor, log_std: torch.Tensor | None) -> torch.Tensor:
+        """KL(teacher ‖ π) per state (…,): the teacher as :meth:`frozen` gives it, π as
+        :meth:`distribution` takes it. Zero when π is the teacher (at temperature 1)."""
+        ...
+
 
 class DiscreteActions:
     """The env's ``n`` discrete actions (see the module notes)."""
@@ -183,6 +194,12 @@ class DiscreteActions:
     def distribution(self, output: torch.Tensor, log_std: torch.Tensor | None) -> ActionDistribution:
         return Categorical(output)
 
+    def frozen(self, output: torch.Tensor, log_std: torch.Tensor | None, temperature: float) -> torch.Tensor:
+        return torch.log_softmax(output / temperature, dim=-1)
+
+    def kl_from(self, frozen: torch.Tensor, output: torch.Tensor, log_std: torch.Tensor | None) -> torch.Tensor:
+        return (frozen.exp() * (frozen - torch.log_softmax(output, dim=-1))).sum(-1)
+
 
 class ContinuousActions:
     """The env's continuous tilt changes, 2 numbers in [-1, 1] (see the module notes)."""
@@ -206,9 +223,25 @@ class ContinuousActions:
         return actions.clamp(-1.0, 1.0)
 
     def distribution(self, output: torch.Tensor, log_std: torch.Tensor | None) -> ActionDistribution:
-        if log_std is None:
-            raise ValueError("a Gaussian policy needs its log standard deviation (RecurrentActorCritic.log_std)")
-        return DiagonalGaussian(output, log_std)
+        return DiagonalGaussian(output, _required(log_std))
+
+    def frozen(self, output: torch.Tensor, log_std: torch.Tensor | None, temperature: float) -> torch.Tensor:
+        scaled = (_required(log_std) + math.log(temperature)).expand_as(output)
+        return torch.cat([output, scaled], dim=-1)
+
+    def kl_from(self, frozen: torch.Tensor, output: torch.Tensor, log_std: torch.Tensor | None) -> torch.Tensor:
+        # Closed form for diagonal Gaussians: Σ_d log(σ/σ_t) + (σ_t² + (μ_t − μ)²) / (2σ²) − ½.
+        mean_t, log_std_t = frozen.split(CONTINUOUS_ACTION_SIZE, dim=-1)
+        log_std = _required(log_std).expand_as(output)
+        ratio = (log_std_t - log_std).exp().pow(2) + ((mean_t - output) * torch.exp(-log_std)).pow(2)
+        return (log_std - log_std_t + 0.5 * ratio - 0.5).sum(-1)
+
+
+def _required(log_std: torch.Tensor | None) -> torch.Tensor:
+    """A Gaussian policy's log standard deviations, which a continuous network must have."""
+    if log_std is None:
+        raise ValueError("a Gaussian policy needs its log standard deviation (RecurrentActorCritic.log_std)")
+    return log_std
 
 
 def check_action_type(owner: str, value: object) -> None:

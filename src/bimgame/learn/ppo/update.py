@@ -14,7 +14,7 @@ from typing import NamedTuple
 import torch
 import torch.distributed as dist
 
-from bimgame.learn.finetune import kl_to_teacher
+from bimgame.learn.finetune import policy_kl
 from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.learn.ppo.settings import PPOOptimizationSettings
 from bimgame.learn.rollout import Segment, advantages_and_targets, in_sequences, sequence_start_states, unroll
@@ -50,8 +50,9 @@ class GradientAverage:
 
 
 class KLTarget(NamedTuple):
-    """π^s's part of a fine-tuning update: its log-probabilities over the rollout (T, B, A) and the
-    weight of KL(π^s ‖ π) in the loss."""
+    """π^s's part of a fine-tuning update: its π over the rollout (T, B, P) as its action head freezes
+    it (:meth:`~bimgame.learn.policy_heads.ActionHead.frozen`: log-probabilities, or a Gaussian's
+    mean and log standard deviation) and the weight of KL(π^s ‖ π) in the loss."""
 
     log_probs: torch.Tensor
     weight: float
@@ -159,7 +160,7 @@ def ppo_minibatch_loss(
         parts.update(aux_parts)
         loss = loss + settings.aux_coef * aux
     if targets.teacher_log_probs is not None:
-        kl = kl_to_teacher(targets.teacher_log_probs, torch.log_softmax(out.logits[:-1], dim=-1))
+        kl = policy_kl(net, targets.teacher_log_probs, out.logits[:-1])
         parts["kl"] = kl.item()
         if targets.kl_weight > 0:
             loss = loss + targets.kl_weight * kl
