@@ -17,6 +17,7 @@ the curriculum's excluded) and the curriculum's reach (metres of path before the
 Usage: python benchmarks/bench_labyrinth_learning.py [--layout easy] [--obs state|cyberrunner]
        [--steps 1000000] [--seeds 3] [--curricula reverse none] [--jobs 3] [--episodes 100]
        [--out runs/labyrinth-learning] [--set NAME=VALUE ...]   (other PPO settings, e.g. entropy_coef=0)
+       [--init PI_S]   (every run starts from a pre-trained π^s: bimgame pretrain on a labyrinth dataset)
 """
 
 from __future__ import annotations
@@ -53,7 +54,15 @@ CURVE_BIN = 25_000
 
 
 def _train(
-    run_dir: Path, *, layout: str, obs: str, steps: int, seed: int, curriculum: str, settings: dict[str, Any]
+    run_dir: Path,
+    *,
+    layout: str,
+    obs: str,
+    steps: int,
+    seed: int,
+    curriculum: str,
+    settings: dict[str, Any],
+    init: Path | None = None,
 ) -> float:
     """Train one run unless ``run_dir`` holds a finished one; the wall-clock seconds it took (0: reused)."""
     summary = read_json(run_dir / "summary.json")
@@ -73,7 +82,7 @@ def _train(
         )
     )
     start = time.perf_counter()
-    train_ppo(config, run_dir, progress=False)
+    train_ppo(config, run_dir, init=init, progress=False)
     return time.perf_counter() - start
 
 
@@ -110,6 +119,7 @@ def _job(run_dir: Path, curriculum: str, seed: int, args: argparse.Namespace) ->
             seed=seed,
             curriculum=curriculum,
             settings=args.settings,
+            init=args.init,
         )
         return seconds, _score(run_dir, args.episodes)
 
@@ -193,9 +203,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--results", type=Path, default=ROOT / "benchmarks" / "results" / "labyrinth_learning.json")
     parser.add_argument("--figure", type=Path, default=ROOT / "docs" / "labyrinth" / "learning.png")
     parser.add_argument("--set", nargs="+", default=[], metavar="NAME=VALUE", help="other PPO settings")
+    parser.add_argument("--init", type=Path, default=None, help="start every run from this π^s (bimgame pretrain)")
     args = parser.parse_args(argv)
     args.settings = _settings(args.set, parser)
+    if args.init is not None:
+        args.init = args.init.absolute()
     suffix = "".join(f"-{key.replace('_', '-')}{value}" for key, value in sorted(args.settings.items()))
+    suffix += "-init" if args.init is not None else ""
     jobs = {
         (curriculum, seed): args.out / f"{args.layout}-{args.obs}-{curriculum}{suffix}" / f"seed{seed}"
         for curriculum in args.curricula
@@ -226,6 +240,7 @@ def main(argv: list[str] | None = None) -> int:
         "path_length": puzzle(f"LABYRINTH-{args.layout.upper()}").spec.path.length,
         "reference_seconds": {"cyberrunner": CYBERRUNNER_RECORD_S, "human_record": HUMAN_RECORD_S},
         "settings": args.settings,
+        "init": None if args.init is None else {"run": str(args.init), "scores": _score(args.init, args.episodes)},
         "curricula": {},
     }
     for curriculum in args.curricula:
@@ -239,6 +254,7 @@ def main(argv: list[str] | None = None) -> int:
     args.results.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(args.results, json.dumps(results, indent=2).encode())
     shown = "".join(f", {key} {value}" for key, value in sorted(args.settings.items()))
+    shown += ", from π^s" if args.init is not None else ""
     title = f"PPO on the {args.layout} labyrinth from {args.obs}{shown}, {args.steps:,} steps, {args.seeds} seeds"
     print(f"wrote {args.results} and {_plot(results, args.figure, title)}")
     return 0

@@ -1,5 +1,6 @@
 """Command-line verbs of the MPC expert: ``bimgame expert-eval`` (success rate, trajectory lengths and
-their histogram) and ``bimgame generate`` (expert trajectories as a Minari dataset)."""
+their histogram) and ``bimgame generate`` (expert trajectories as a Minari dataset, on the circular
+maze's tasks or CyberRunner's labyrinth's, ``--task LABYRINTH-EASY|MEDIUM|HARD``)."""
 
 from __future__ import annotations
 
@@ -18,19 +19,29 @@ from bimgame.cli.argtypes import (
     non_negative_int,
     positive_int,
 )
-from bimgame.cli.flags import add_settings_flags
+from bimgame.cli.flags import add_settings_flags, given_settings
+from bimgame.envs.labyrinth_env import LABYRINTH_ACTION_TYPES, LABYRINTH_CONTROL_RATES
+from bimgame.envs.puzzles import TASK_NAMES as PUZZLE_TASKS
+from bimgame.envs.puzzles import puzzle
 from bimgame.expert.datasets import MINARI_DIR, dataset_summary, generate_dataset
 from bimgame.expert.evaluation import evaluate_expert, plot_length_histogram, summarise, write_results
+from bimgame.expert.labyrinth_datasets import generate_labyrinth_dataset
+from bimgame.expert.labyrinth_mpc import LabyrinthMPCConfig
 from bimgame.expert.mpc import MPCConfig
 from bimgame.util.files import DiskFullError
 
 #: The expert's settings with a flag (the hold lengths and threads keep their defaults).
 MPC_FLAGS = ("n_samples", "horizon", "sampling", "reward")
+#: Those that ``bimgame generate`` also sets for the labyrinth's expert (:class:`LabyrinthMPCConfig`).
+LABYRINTH_MPC_FLAGS = ("n_samples", "horizon", "sampling")
+#: The flag of each MPC setting whose name is not ``--field-name``.
+_MPC_FLAG_NAMES = {"reward": "--planning-reward"}
 
 __all__ = [
     "add_parsers",
     "add_mpc_arguments",
     "mpc_config_from",
+    "labyrinth_mpc_config_from",
     "add_generate_arguments",
     "run_generate",
     "run_expert_eval",
@@ -53,31 +64,64 @@ def add_parsers(verbs: argparse._SubParsersAction) -> None:
 
     generate = verbs.add_parser("generate", help="write expert trajectories as a Minari dataset")
     add_generate_arguments(generate)
-    add_mpc_arguments(generate)
+    add_mpc_arguments(generate, labyrinth=True)
     generate.set_defaults(run=run_generate)
 
 
-def add_mpc_arguments(parser: argparse.ArgumentParser) -> None:
-    """The MPC expert's flags (shared by expert-eval and generate), in a group of their own."""
+def add_mpc_arguments(parser: argparse.ArgumentParser, *, labyrinth: bool = False) -> None:
+    """The MPC expert's flags (shared by expert-eval and generate), in a group of their own.
+    ``labyrinth``: the verb also runs the labyrinth's expert, which takes :data:`LABYRINTH_MPC_FLAGS`
+    with defaults of its own: every flag then defaults to None (not given), its help naming both
+    defaults, and :func:`mpc_config_from` / :func:`labyrinth_mpc_config_from` fill in each expert's."""
     group = parser.add_argument_group("MPC expert", "the random-shooting planner's samples, horizon and reward")
-    add_settings_flags(
-        group,
-        MPCConfig,
-        MPC_FLAGS,
-        flags={"reward": "--planning-reward"},
-        aliases={"n_samples": ("-K",), "horizon": ("-H",)},
-    )
+    aliases: dict[str, tuple[str, ...]] = {"n_samples": ("-K",), "horizon": ("-H",)}
+    if not labyrinth:
+        add_settings_flags(group, MPCConfig, MPC_FLAGS, flags=_MPC_FLAG_NAMES, aliases=aliases)
+        return
+    maze, board = MPCConfig(), LabyrinthMPCConfig()
+    for name in MPC_FLAGS:
+        ours, theirs = getattr(maze, name), getattr(board, name, None)
+        if name not in LABYRINTH_MPC_FLAGS:
+            shown = f" {ours}; the maze's only"
+        else:
+            shown = f" {ours}" if ours == theirs else f" {ours} on the maze, {theirs} on the labyrinth"
+        add_settings_flags(
+            group, MPCConfig, [name], default_none=True, default_text=shown, flags=_MPC_FLAG_NAMES, aliases=aliases
+        )
 
 
 def mpc_config_from(args: argparse.Namespace) -> MPCConfig:
-    """The expert's settings from the flags of :func:`add_mpc_arguments`."""
-    return MPCConfig(**{name: getattr(args, name) for name in MPC_FLAGS})
+    """The maze expert's settings from the flags of :func:`add_mpc_arguments` (its defaults for
+    those not given)."""
+    return MPCConfig(**given_settings(args, MPCConfig, MPC_FLAGS))
+
+
+def labyrinth_mpc_config_from(args: argparse.Namespace) -> LabyrinthMPCConfig:
+    """The labyrinth expert's settings from the flags of :func:`add_mpc_arguments` (``labyrinth=True``),
+    its own defaults for those not given; a maze-only setting given is refused naming its flag."""
+    given = given_settings(args, MPCConfig, MPC_FLAGS)
+    refused = [
+        _MPC_FLAG_NAMES.get(name, "--" + name.replace("_", "-")) for name in given if name not in LABYRINTH_MPC_FLAGS
+    ]
+    if refused:
+        raise ValueError(
+            f"{', '.join(refused)}: the circular maze's expert setting, not the labyrinth's (task {args.task}); "
+            f"the labyrinth's expert takes {', '.join('--' + n.replace('_', '-') for n in LABYRINTH_MPC_FLAGS)}"
+        )
+    return LabyrinthMPCConfig(**{name: value for name, value in given.items() if name in LABYRINTH_MPC_FLAGS})
 
 
 def add_generate_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """Add the ``bimgame generate`` options to ``parser`` (a sub-parser; the MPC expert's own flags
     are :func:`add_mpc_arguments`, shared with ``expert-eval``); returns it."""
-    add_task_argument(parser, "FULL")
+    parser.add_argument(
+        "--task",
+        choices=PUZZLE_TASKS,
+        default="FULL",
+        type=str.upper,
+        help="(default FULL) a task of the circular maze or of CyberRunner's labyrinth (LABYRINTH-EASY, -MEDIUM, "
+        "-HARD: the labyrinth's MPC expert, bimgame.expert.labyrinth_datasets)",
+    )
     parser.add_argument("--episodes", type=positive_int, default=500)
     parser.add_argument(
         "--out", type=Path, required=True, help="the run's directory (new, empty, or this run's to resume it)"
@@ -98,12 +142,38 @@ def add_generate_arguments(parser: argparse.ArgumentParser) -> argparse.Argument
     parser.add_argument(
         "--start-maze", type=non_negative_int, default=0, help="the first training maze's number (with --num-mazes)"
     )
+    labyrinth = parser.add_argument_group("labyrinth", "only with a labyrinth task")
+    labyrinth.add_argument(
+        "--action-type",
+        choices=LABYRINTH_ACTION_TYPES,
+        default=None,
+        help="the labyrinth's actions: continuous tilt rates (default, CyberRunner's) or discrete (0..4)",
+    )
+    labyrinth.add_argument(
+        "--control-hz",
+        type=int,
+        choices=LABYRINTH_CONTROL_RATES,
+        default=None,
+        help="the labyrinth's action rate in Hz (default 55, CyberRunner's)",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     return parser
 
 
 def run_generate(args: argparse.Namespace) -> int:
     """``bimgame generate``: generate (or resume, or verify) a dataset and print a summary."""
+    if not puzzle(args.task).is_maze:
+        return _run_labyrinth_generate(args)
+    labyrinth_only = [
+        flag
+        for flag, value in (("--action-type", args.action_type), ("--control-hz", args.control_hz))
+        if value is not None
+    ]
+    if labyrinth_only:
+        raise ValueError(
+            f"{', '.join(labyrinth_only)}: the labyrinth's option{'s' if len(labyrinth_only) > 1 else ''}, not the "
+            f"circular maze's (task {args.task}, whose expert plays discrete actions at 30 Hz)"
+        )
     start = time.perf_counter()
     try:
         out = generate_dataset(
@@ -123,13 +193,67 @@ def run_generate(args: argparse.Namespace) -> int:
     except ImportError as error:
         print(f"bimgame generate: error: {error}", file=sys.stderr)
         return 2
-    seconds = time.perf_counter() - start
-    summary = dataset_summary(out)
     mazes = (
         ""
         if args.num_mazes is None
         else f" on training mazes {args.start_maze}..{args.start_maze + args.num_mazes - 1}"
     )
+    _print_summary(out, mazes, time.perf_counter() - start)
+    print(
+        f"load with bimgame.expert.datasets.load_dataset({str(out)!r}), or minari.load_dataset("
+        f"{dataset_summary(out)['dataset_id']!r}) with MINARI_DATASETS_PATH={out / MINARI_DIR}"
+    )
+    return 0
+
+
+def _run_labyrinth_generate(args: argparse.Namespace) -> int:
+    """``bimgame generate`` on a labyrinth task: :func:`generate_labyrinth_dataset`; the circular
+    maze's options are refused by name."""
+    maze_only = [
+        flag
+        for flag, given in (
+            ("--num-mazes", args.num_mazes is not None),
+            ("--start-maze", args.start_maze != 0),
+        )
+        if given
+    ]
+    if maze_only:
+        raise ValueError(
+            f"{', '.join(maze_only)}: the circular maze's random mazes; the labyrinth plays the layout of "
+            f"--task {args.task} (leave {' and '.join(maze_only)} out)"
+        )
+    config = labyrinth_mpc_config_from(args)
+    start = time.perf_counter()
+    try:
+        out = generate_labyrinth_dataset(
+            args.out,
+            args.task,
+            args.episodes,
+            seed=args.seed,
+            action_type=args.action_type or "continuous",
+            control_hz=args.control_hz or 55,
+            config=config,
+            workers=args.workers,
+            backend=args.backend,
+            ray_address=args.ray_address,
+            progress=not args.no_progress,
+            max_steps=args.max_steps,
+        )
+    except ImportError as error:
+        print(f"bimgame generate: error: {error}", file=sys.stderr)
+        return 2
+    _print_summary(out, "", time.perf_counter() - start)
+    print(
+        f"load with bimgame.expert.labyrinth_datasets.load_labyrinth_sequences({str(out)!r}, gamma=...) or "
+        f"load_labyrinth_dataset, or minari.load_dataset({dataset_summary(out)['dataset_id']!r}) with "
+        f"MINARI_DATASETS_PATH={out / MINARI_DIR}"
+    )
+    return 0
+
+
+def _print_summary(out: Path, mazes: str, seconds: float) -> None:
+    """A finished dataset's counts and disk use."""
+    summary = dataset_summary(out)
     print(
         f"{summary['dataset_id']} in {out}: {summary['episodes']} episodes{mazes}, {summary['steps']} steps, "
         f"success {summary['success_rate']:.0%}, mean length {summary['mean_length']:.1f}, "
@@ -141,11 +265,6 @@ def run_generate(args: argparse.Namespace) -> int:
         f"{_megabytes(summary['bytes_episode_files'])} "
         f"({summary['bytes_per_1000_steps_episode_files'] / 1e3:.0f} kB per 1000 steps)"
     )
-    print(
-        f"load with bimgame.expert.datasets.load_dataset({str(out)!r}), or minari.load_dataset("
-        f"{summary['dataset_id']!r}) with MINARI_DATASETS_PATH={out / MINARI_DIR}"
-    )
-    return 0
 
 
 def run_expert_eval(args: argparse.Namespace) -> int:

@@ -10,6 +10,7 @@ from pathlib import Path
 
 from bimgame.cli.argtypes import episode_count, episode_count_or_zero, seed
 from bimgame.cli.flags import add_flag_groups, add_grouped_settings_flags, given_settings
+from bimgame.envs.puzzles import TASK_NAMES
 from bimgame.expert.datasets import dataset_manifest
 from bimgame.learn.common import NetworkSettings
 from bimgame.learn.dagger import DAggerConfig, dagger, resolve_dagger_config
@@ -148,7 +149,15 @@ def add_pretrain_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="train the value-only network V̂ for --value-reward instead of the policy π^s",
     )
-    add_grouped_settings_flags(parser, groups, PretrainConfig, PRETRAIN_FLAGS, PRETRAIN_PLACEMENT, types=_TYPES)
+    add_grouped_settings_flags(
+        parser,
+        groups,
+        PretrainConfig,
+        PRETRAIN_FLAGS,
+        PRETRAIN_PLACEMENT,
+        types=_TYPES,
+        choices={"task": TASK_NAMES},  # the maze's tasks and the labyrinth's
+    )
     parser.set_defaults(action_type=None)  # not given: the dataset's (pretrain_config_from)
     groups["logging"].add_argument("--no-progress", action="store_true", help="no progress bar")
 

@@ -393,18 +393,41 @@ class LabyrinthEnv(gym.Env):
     def close(self):
         self.sim.close()
 
+    def observe_state(self, sim_state: np.ndarray, progress: float) -> Any:
+        """The observation (of this env's ``obs_mode``) that :meth:`reset` or :meth:`step` returns in
+        physics state ``sim_state`` (from ``env.sim.get_state()``) with the marble at ``progress``
+        (m along the path, ``info["progress"]``): what re-renders another observation of a recorded
+        episode (:mod:`bimgame.expert.labyrinth_datasets`). Leaves the env's own state untouched."""
+        state = np.asarray(sim_state, dtype=np.float64)
+        if state.shape != (self.sim.state_size,) or not np.all(np.isfinite(state)):
+            raise ValueError(
+                f"sim_state must be a finite float vector of length {self.sim.state_size} "
+                f"(LabyrinthSim.get_state), got shape {state.shape}"
+            )
+        if not (is_real(progress) and math.isfinite(progress)):
+            raise ValueError(f"progress must be a finite number (m along the path), got {progress!r}")
+        # The flat state is (time, qpos, qvel, act): the same numbers the env reads from the sim's data.
+        nq, nv = self.sim.model.nq, self.sim.model.nv
+        qpos, qvel = state[1 : 1 + nq], state[1 + nq : 1 + nq + nv]
+        kinematics = self.sim.layout.board_frame_one(qpos, qvel)[0]
+        return self._observation(kinematics, qpos[:2], float(progress))
+
     # ------------------------------------------------------------------ helpers
     def _observe(self) -> Any:
-        x, y, vx, vy = self._kinematics
+        assert self._last is not None
+        return self._observation(self._kinematics, self.sim.data.qpos[:2], self._last.progress)
+
+    def _observation(self, kinematics: tuple[float, float, float, float], tilt: np.ndarray, progress: float) -> Any:
+        """The observation of the marble's board-frame ``kinematics`` (x, y, vx, vy), the board's
+        ``tilt`` (rad) and the marble's path ``progress`` (m)."""
+        x, y, vx, vy = kinematics
         if self.obs_mode == "pixels":
             assert self._raster is not None
             return self._raster.gray(np.array([x, y]))[None]
-        tilt = self.sim.data.qpos[:2]
-        assert self._last is not None
-        ahead = self.tracker.points_ahead(self._last.progress, PATH_AHEAD, PATH_SPACING)
+        ahead = self.tracker.points_ahead(progress, PATH_AHEAD, PATH_SPACING)
         relative = [v for px, py in ahead for v in (px - x, py - y)]
         if self.obs_mode == "state":
-            head = [x, y, vx, vy, tilt[0], tilt[1], self._last.progress / self.path.length]
+            head = [x, y, vx, vy, tilt[0], tilt[1], progress / self.path.length]
             return np.array(head + relative, dtype=np.float32)
         assert self._raster is not None
         w, h = self.board.board_size

@@ -67,8 +67,9 @@ MANIFEST_KEYS = (
 )
 
 
-def prepare_out_dir(out_dir: Path, manifest: dict) -> None:
-    """Create ``out_dir`` with its manifest, or check it is this run's; never touch anything else."""
+def prepare_out_dir(out_dir: Path, manifest: dict, keys: tuple[str, ...] = MANIFEST_KEYS) -> None:
+    """Create ``out_dir`` with its manifest, or check it is this run's (the same ``keys``: those that
+    decide the episodes' content, the maze expert's by default); never touch anything else."""
     if out_dir.exists() and not out_dir.is_dir():
         raise NotADirectoryError(f"out_dir {out_dir} exists and is not a directory")
     manifest_path = out_dir / MANIFEST_NAME
@@ -76,7 +77,7 @@ def prepare_out_dir(out_dir: Path, manifest: dict) -> None:
         existing = read_manifest(out_dir, error=FileExistsError)
         differences = [
             f"{key}: {existing.get(key)!r} there, {manifest.get(key)!r} now"
-            for key in MANIFEST_KEYS
+            for key in keys
             if existing.get(key) != manifest.get(key)
         ]
         if differences:
@@ -149,14 +150,17 @@ def remove_stale_temporaries(out_dir: Path, prefixes: tuple[str, ...] = (BUILD_P
         path.unlink(missing_ok=True)
 
 
-def episode_totals(episodes: int, read: Callable[[int], dict[str, np.ndarray]]) -> dict[str, Any]:
+def episode_totals(
+    episodes: int, read: Callable[[int], dict[str, np.ndarray]], keys: tuple[str, ...] | None = None
+) -> dict[str, Any]:
     """Steps, successes and the content hash of episode files 0 … ``episodes``−1 (``read(index)``
-    gives a file's checked arrays): what the COMPLETE marker records."""
+    gives a file's checked arrays, ``keys`` the hashed ones: None for the maze expert's): what the
+    COMPLETE marker records."""
     content = hashlib.sha256()
     totals = {"steps": 0, "successes": 0}
     for index in range(episodes):
         data = read(index)
-        hash_arrays(content, data)
+        hash_arrays(content, data, keys)
         totals["steps"] += len(data["actions"])
         totals["successes"] += bool(data["success"])
     return {**totals, "content_sha256": content.hexdigest()}

@@ -2,7 +2,8 @@
 :mod:`bimgame.expert.datasets`).
 
 Each finished episode is one ``.npz`` file (:func:`episode_bytes`, read back checked by
-:func:`read_episode`); an episode of a dataset on many mazes also holds ``maze``, its maze number
+:func:`read_episode`; another puzzle's datasets name their own arrays, ``keys``, and read the file
+with :func:`load_episode_arrays`); an episode of a dataset on many mazes also holds ``maze``, its maze number
 (:func:`episode_maze`), which the Minari dataset keeps as the episode's reset options
 (``{"maze": number}``, next to its ``seed``) and as ``infos["maze"]``.
 
@@ -45,6 +46,7 @@ __all__ = [
     "episode_path",
     "episode_bytes",
     "read_episode",
+    "load_episode_arrays",
     "hash_arrays",
     "run_build_process",
     "episode_buffer",
@@ -91,9 +93,21 @@ def episode_maze(manifest: dict, index: int) -> int | None:
     return int(manifest["start_maze"]) + index % int(num_mazes)
 
 
-def episode_bytes(index: int, episode: dict[str, np.ndarray | np.generic]) -> bytes:
+def _keys(data: Any, keys: tuple[str, ...] | None) -> tuple[str, ...]:
+    """The arrays of an episode file: ``keys``, or None for the maze expert's (with the maze number
+    where there is one)."""
+    if keys is not None:
+        return keys
+    return (*EPISODE_KEYS, MAZE_KEY) if MAZE_KEY in data else EPISODE_KEYS
+
+
+def episode_bytes(
+    index: int, episode: dict[str, np.ndarray | np.generic], keys: tuple[str, ...] | None = None
+) -> bytes:
+    """The ``.npz`` file of episode ``index``: its arrays ``keys`` (None: the maze expert's,
+    :data:`EPISODE_KEYS`) and the index, none of them pickled."""
     buffer = io.BytesIO()
-    keys = (*EPISODE_KEYS, MAZE_KEY) if MAZE_KEY in episode else EPISODE_KEYS
+    keys = _keys(episode, keys)
     arrays: dict[str, Any] = {key: episode[key] for key in keys}  # not savez's allow_pickle
     np.savez(buffer, index=np.int64(index), **arrays)
     return buffer.getvalue()
@@ -106,14 +120,7 @@ def read_episode(
     ``expected_seed`` None accepts the file's own seed (a human recording's episodes have no seed
     derived from the run's). ``expected_maze``: the maze number the file's episode must have been
     played on (:func:`episode_maze`); None: MERL's maze, the file names none."""
-    try:
-        with open(path, "rb") as handle, np.load(handle, allow_pickle=False) as archive:
-            data = {key: archive[key] for key in archive.files}
-    except Exception as exc:  # noqa: BLE001 - zipfile.BadZipFile, EOFError, ValueError, OSError …
-        raise DatasetError(f"episode file {path} is unreadable ({type(exc).__name__}: {exc})") from None
-    missing = [key for key in (*EPISODE_KEYS, "index") if key not in data]
-    if missing:
-        raise DatasetError(f"episode file {path} lacks {', '.join(missing)}")
+    data = load_episode_arrays(path, EPISODE_KEYS)
     if int(data["index"]) != index or (expected_seed is not None and int(data["seed"]) != expected_seed):
         raise DatasetError(
             f"episode file {path} holds episode {int(data['index'])} with seed "
@@ -139,14 +146,29 @@ def read_episode(
     return data
 
 
+def load_episode_arrays(path: Path, keys: tuple[str, ...]) -> dict[str, np.ndarray]:
+    """Every array of the episode file ``path`` (nothing unpickled); DatasetError if the file cannot
+    be read or lacks one of ``keys`` or the ``index``."""
+    try:
+        with open(path, "rb") as handle, np.load(handle, allow_pickle=False) as archive:
+            data = {key: archive[key] for key in archive.files}
+    except Exception as exc:  # noqa: BLE001 - zipfile.BadZipFile, EOFError, ValueError, OSError …
+        raise DatasetError(f"episode file {path} is unreadable ({type(exc).__name__}: {exc})") from None
+    missing = [key for key in (*keys, "index") if key not in data]
+    if missing:
+        raise DatasetError(f"episode file {path} lacks {', '.join(missing)}")
+    return data
+
+
 def _maze_name(number: int | None) -> str:
     return "MERL's maze" if number is None else f"maze {number}"
 
 
-def hash_arrays(digest, data: dict[str, np.ndarray]) -> None:
-    """Feed an episode's arrays (names, dtypes, shapes, bytes) to a hash: identical episodes hash
-    identically however their files were written (the maze number too, where there is one)."""
-    for key in (*EPISODE_KEYS, MAZE_KEY) if MAZE_KEY in data else EPISODE_KEYS:
+def hash_arrays(digest, data: dict[str, np.ndarray], keys: tuple[str, ...] | None = None) -> None:
+    """Feed an episode's arrays ``keys`` (None: the maze expert's, with the maze number where there
+    is one) — names, dtypes, shapes, bytes — to a hash: identical episodes hash identically however
+    their files were written."""
+    for key in _keys(data, keys):
         array = np.ascontiguousarray(data[key])
         digest.update(f"{key}:{array.dtype.str}:{array.shape};".encode())
         digest.update(array.tobytes())
@@ -274,22 +296,29 @@ def write_minari(
     algorithm_name: str,
     description: str,
     author: str | None = None,
+    buffer: Callable[[int, dict[str, np.ndarray]], EpisodeBuffer] = episode_buffer,
+    env_kwargs: dict[str, Any] | None = None,
 ) -> None:
     """Write the Minari dataset of episodes 0 … ``episodes``−1 (``read(index)`` gives each file's
-    arrays) into the datasets root ``MINARI_DATASETS_PATH``, ``chunk`` episodes per write; the
-    environment, its time limit, its mazes and the reference scores come from ``manifest``."""
-    kwargs: dict[str, Any] = {"obs_mode": "state"}
-    if manifest["max_steps"] is not None:
-        kwargs["max_episode_steps"] = manifest["max_steps"]
-    if manifest.get("num_mazes") is not None:  # the env a dataset on many mazes was played in
-        kwargs.update(num_mazes=manifest["num_mazes"], start_maze=manifest["start_maze"])
+    arrays, ``buffer(index, arrays)`` their Minari buffer: the maze expert's by default) into the
+    datasets root ``MINARI_DATASETS_PATH``, ``chunk`` episodes per write; the environment
+    (``gym.make(manifest["env_id"], **env_kwargs)``; None: the maze's state env with the manifest's
+    time limit and mazes) and the reference scores come from ``manifest``."""
+    if env_kwargs is not None:
+        kwargs = dict(env_kwargs)
+    else:
+        kwargs = {"obs_mode": "state"}
+        if manifest["max_steps"] is not None:
+            kwargs["max_episode_steps"] = manifest["max_steps"]
+        if manifest.get("num_mazes") is not None:  # the env a dataset on many mazes was played in
+            kwargs.update(num_mazes=manifest["num_mazes"], start_maze=manifest["start_maze"])
     env = gym.make(manifest["env_id"], **kwargs)
     if env.spec is None:  # gym.make always sets it
         raise RuntimeError(f"gym.make({manifest['env_id']!r}) made an env without a spec")
     env.spec.to_json()  # raises if the spec cannot be stored
 
     def buffers(indices: Iterable[int]) -> list[EpisodeBuffer]:
-        return [episode_buffer(index, read(index)) for index in indices]
+        return [buffer(index, read(index)) for index in indices]
 
     try:
         with warnings.catch_warnings():
@@ -331,9 +360,13 @@ def write_expert_minari(out_dir: Path, manifest: dict, episodes: int, chunk: int
 def _reference_scores(manifest: dict) -> dict[str, float]:
     """Minari's ``ref_min_score``/``ref_max_score``: the task's random and expert reference returns
     (:mod:`bimgame.expert.references`), so that ``minari.get_normalized_score`` gives bimgame's
-    normalised score; none for a run with its own time limit (the references use the task's) or on
-    random mazes (they are MERL's maze's)."""
-    comparable = manifest.get("max_steps") is None and manifest.get("num_mazes") is None
+    normalised score; none for a run with its own time limit (the references use the task's), on
+    random mazes (they are MERL's maze's) or on another puzzle (they are the maze's tasks')."""
+    comparable = (
+        manifest.get("max_steps") is None
+        and manifest.get("num_mazes") is None
+        and manifest.get("puzzle", "maze") == "maze"
+    )
     pair = references_for(manifest["task"]) if comparable else None
     return {} if pair is None else {"ref_min_score": pair[0], "ref_max_score": pair[1]}
 

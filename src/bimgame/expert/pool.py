@@ -1,12 +1,13 @@
 """Many MPC expert episodes at once, on local worker processes or Ray tasks, and the progress bar
 (episodes done, success so far) shown while they run. Dataset generation
-(:mod:`bimgame.expert.datasets`) and expert evaluation (:mod:`bimgame.expert.evaluation`) both run
-their episodes through here.
+(:mod:`bimgame.expert.datasets`, :mod:`bimgame.expert.labyrinth_datasets`) and expert evaluation
+(:mod:`bimgame.expert.evaluation`) run their episodes through here.
 
-Episode ``i`` of a run is ``run_expert_episode(task, episode_seed(seed, i), config)`` (on maze
-``mazes[i]`` when the caller gives mazes): it depends on the run seed, its index and its maze only,
-so results do not depend on the backend, the number of workers or the order in which episodes
-finish.
+:func:`run_jobs` runs any picklable episode function, one call per episode; :func:`expert_episodes`
+runs the circular maze's expert with it. Episode ``i`` of a maze run is
+``run_expert_episode(task, episode_seed(seed, i), config)`` (on maze ``mazes[i]`` when the caller
+gives mazes): it depends on the run seed, its index and its maze only, so results do not depend on
+the backend, the number of workers or the order in which episodes finish.
 
 Local workers end when their parent dies (:func:`bimgame.util.processes.exit_when_parent_dies`).
 """
@@ -18,7 +19,7 @@ import dataclasses
 import multiprocessing
 import os
 import time
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any
@@ -30,7 +31,16 @@ from bimgame.util.progress import ProgressBar
 from bimgame.util.seeding import episode_seed
 from bimgame.util.settings import is_integer
 
-__all__ = ["BACKENDS", "MAIN_GUARD", "expert_episodes", "episode_progress", "environment", "import_ray"]
+__all__ = [
+    "BACKENDS",
+    "MAIN_GUARD",
+    "EpisodeOutcome",
+    "run_jobs",
+    "expert_episodes",
+    "episode_progress",
+    "environment",
+    "import_ray",
+]
 
 BACKENDS = ("local", "ray")
 _THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMEXPR_NUM_THREADS")
@@ -84,20 +94,50 @@ def expert_episodes(
     this process. ``backend="ray"`` runs Ray tasks of one CPU each, on ``ray_address`` or a local
     Ray started with ``num_cpus=workers`` (an already initialised Ray is used as is).
     """
-    if not (is_integer(workers) and workers >= 1):
-        raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
-    if backend not in BACKENDS:
-        raise ValueError(f"unknown backend {backend!r}; allowed: {', '.join(BACKENDS)}")
+    _check_backend(workers, backend)
     if mazes is not None:
         missing = [index for index in indices if index not in mazes]
         if missing:
             raise ValueError(f"mazes names no maze for episodes {missing[:5]}: give one for each of indices")
-    jobs = [(index, None if mazes is None else int(mazes[index])) for index in indices]
     config = dataclasses.replace(config, nthread=1)
+    arguments = [
+        (task, index, seed, config, max_steps, randomize, None if mazes is None else int(mazes[index]))
+        for index in indices
+    ]
+    yield from run_jobs(_episode_job, arguments, workers=workers, backend=backend, ray_address=ray_address)
+
+
+def run_jobs(
+    job: Callable[..., EpisodeOutcome],
+    arguments: Sequence[tuple[Any, ...]],
+    *,
+    workers: int = 1,
+    backend: str = "local",
+    ray_address: str | None = None,
+) -> Iterator[EpisodeOutcome]:
+    """``job(*args)`` for every ``args`` of ``arguments``, yielded as they finish: one episode each,
+    returned as (episode index, its arrays, seconds). ``job`` must be a module-level function and
+    its arguments picklable (they travel to other processes).
+
+    ``backend="local"`` runs ``workers`` processes, started with "spawn" (fresh interpreters, no
+    fork of a process with threads) with one numerics thread each (``OMP_NUM_THREADS=1`` …) — a
+    script calling this with workers > 1 needs the ``if __name__ == "__main__":`` guard; 1 runs the
+    jobs in this process, in order. ``backend="ray"`` runs Ray tasks of one CPU each, on
+    ``ray_address`` or a local Ray started with ``num_cpus=workers`` (an already initialised Ray is
+    used as is). A job's result must not depend on where it ran: then neither does a run's.
+    """
+    _check_backend(workers, backend)
     if backend == "ray":
-        yield from _ray_episodes(task, jobs, seed, config, max_steps, workers, ray_address, randomize)
+        yield from _ray_episodes(job, arguments, workers, ray_address)
     else:
-        yield from _local_episodes(task, jobs, seed, config, max_steps, workers, randomize)
+        yield from _local_episodes(job, arguments, workers)
+
+
+def _check_backend(workers: Any, backend: Any) -> None:
+    if not (is_integer(workers) and workers >= 1):
+        raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
+    if backend not in BACKENDS:
+        raise ValueError(f"unknown backend {backend!r}; allowed: {', '.join(BACKENDS)}")
 
 
 @contextlib.contextmanager
@@ -115,30 +155,18 @@ def environment(**values: str) -> Iterator[None]:
                 os.environ[key] = value
 
 
-#: The episodes a backend runs: (episode index, its maze number or None for the default maze).
-Jobs = list[tuple[int, int | None]]
-
-
 def _local_episodes(
-    task: str,
-    todo: Jobs,
-    seed: int,
-    config: MPCConfig,
-    max_steps: int | None,
-    workers: int,
-    randomize: Randomization | None,
+    job: Callable[..., EpisodeOutcome], todo: Sequence[tuple[Any, ...]], workers: int
 ) -> Iterator[EpisodeOutcome]:
     if workers == 1 or len(todo) == 1:
-        for index, maze in todo:
-            yield _episode_job(task, index, seed, config, max_steps, randomize, maze)
+        for arguments in todo:
+            yield job(*arguments)
         return
     context = multiprocessing.get_context("spawn")
     with environment(**{name: "1" for name in _THREAD_VARS}):
         pool = ProcessPoolExecutor(max_workers=min(workers, len(todo)), mp_context=context, initializer=_worker_started)
         try:
-            pending = {
-                pool.submit(_episode_job, task, index, seed, config, max_steps, randomize, maze) for index, maze in todo
-            }
+            pending = {pool.submit(job, *arguments) for arguments in todo}
             while pending:
                 finished, pending = wait(pending, return_when=FIRST_COMPLETED)
                 for future in finished:
@@ -171,14 +199,7 @@ def import_ray():
 
 
 def _ray_episodes(
-    task: str,
-    todo: Jobs,
-    seed: int,
-    config: MPCConfig,
-    max_steps: int | None,
-    workers: int,
-    ray_address: str | None,
-    randomize: Randomization | None,
+    job: Callable[..., EpisodeOutcome], todo: Sequence[tuple[Any, ...]], workers: int, ray_address: str | None
 ) -> Iterator[EpisodeOutcome]:
     ray = import_ray()
     started = False
@@ -189,8 +210,8 @@ def _ray_episodes(
             ray.init(address=ray_address)
         started = True
     try:
-        job = ray.remote(num_cpus=1)(_episode_job)
-        pending = [job.remote(task, index, seed, config, max_steps, randomize, maze) for index, maze in todo]
+        remote = ray.remote(num_cpus=1)(job)
+        pending = [remote.remote(*arguments) for arguments in todo]
         try:
             while pending:
                 finished, pending = ray.wait(pending, num_returns=1)

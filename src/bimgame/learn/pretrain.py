@@ -39,6 +39,7 @@ import torch
 from bimgame.envs.puzzles import LABYRINTH, PuzzleSpec, puzzle
 from bimgame.expert.datasets import dataset_manifest, dataset_mazes, iterate_sequences, load_dataset
 from bimgame.expert.episode import Episode, relabel
+from bimgame.expert.labyrinth_datasets import load_labyrinth_sequences
 from bimgame.learn.checkpoints import load_weights, save_checkpoint
 from bimgame.learn.common import evaluate_greedy_and_sampled
 from bimgame.learn.metric_logs import MetricLog
@@ -92,8 +93,6 @@ def load_sequences(
     manifest = dataset_manifest(data_dir)
     check_dataset_task(manifest, task, data_dir)
     if manifest.get("puzzle") == LABYRINTH:
-        from bimgame.expert.labyrinth_datasets import load_labyrinth_sequences  # TODO top-level once it exists
-
         return load_labyrinth_sequences(data_dir, obs=obs, gamma=gamma, progress=progress)
     spec = spec or MazeSpec.merl()
     task = parse_task(task, spec)

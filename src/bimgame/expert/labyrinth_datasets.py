@@ -1,0 +1,430 @@
+"""Expert trajectories on CyberRunner's labyrinth as `Minari <https://minari.farama.org>`_ datasets:
+parallel, resumable generation, and whole episodes for pre-training a policy (behaviour cloning).
+
+The labyrinth's counterpart of :mod:`bimgame.expert.datasets` (the circular maze's), with the same
+directory and guarantees::
+
+    generation.json                  what is generated: puzzle "labyrinth", task, layout, action type,
+                                     control rate, run seed, episodes, MPC config, versions
+    episodes/episode_000000.npz …    one file per finished episode, written atomically (the
+                                     resumable source: a restart skips the episodes already here)
+    minari/                          a Minari datasets root (point MINARI_DATASETS_PATH here)
+      bimgame/labyrinth-easy-expert-v0/data/{metadata.json, main_data.hdf5}
+    COMPLETE                         written last: counts, a content hash and every file's SHA-256
+
+Episode ``i`` is the labyrinth's MPC expert (:class:`~bimgame.expert.labyrinth_mpc.LabyrinthMPC`) on
+a state-observation :class:`~bimgame.envs.labyrinth_env.LabyrinthEnv` from
+``reset(seed=episode_seed(seed, i))``, its generator seeded with the same number: the dataset does
+not depend on the number of workers, the backend or how often the run was interrupted. What an
+episode file holds is :mod:`bimgame.expert.labyrinth_episodes`'s; the Minari dataset holds the same
+per episode: ``observations`` (T+1, 17), ``actions`` ((T, 2) float32 or (T,) int64), ``rewards``,
+``terminations``, ``truncations``, and infos ``sim_state``, ``tilt``, ``segment``, ``progress`` (T+1
+each). A rerun with other arguments on an existing directory is refused naming them; a lock keeps
+two runs from writing one directory; a full disk stops the run with
+:class:`~bimgame.util.files.DiskFullError`, losing no finished episode.
+
+:func:`load_labyrinth_sequences` gives the episodes as :class:`~bimgame.expert.episode.Episode`
+records with state observations, or pixels or CyberRunner's observation re-rendered exactly from the
+stored physics states and path progress (:meth:`LabyrinthEnv.observe_state`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import multiprocessing
+import os
+import shutil
+import tempfile
+import warnings
+from pathlib import Path
+from typing import Any
+
+import minari
+import numpy as np
+
+import bimgame
+from bimgame.envs.labyrinth_env import LABYRINTH_ACTION_TYPES, LABYRINTH_CONTROL_RATES, LabyrinthEnv
+from bimgame.envs.puzzles import LABYRINTH, LABYRINTH_TASKS
+from bimgame.expert.dataset_files import (
+    BUILD_PREFIX,
+    FORMAT_NAME,
+    FORMAT_VERSION,
+    LOCK_NAME,
+    MARKER_NAME,
+    MINARI_DIR,
+    data_path,
+    episode_totals,
+    prepare_out_dir,
+    read_manifest,
+    remove_stale_temporaries,
+    verify_marker,
+)
+from bimgame.expert.datasets import dataset_summary, load_dataset, write_marker
+from bimgame.expert.episode import Episode
+from bimgame.expert.labyrinth_episodes import (
+    EPISODE_KEYS,
+    LABYRINTH_WRITER,
+    episode_time_limit,
+    labyrinth_episode_job,
+    read_labyrinth_episode,
+)
+from bimgame.expert.labyrinth_mpc import LabyrinthMPCConfig
+from bimgame.expert.minari_build import EPISODES_DIR, DatasetError, episode_bytes, episode_path, run_build_process
+from bimgame.expert.pool import BACKENDS, MAIN_GUARD, episode_progress, import_ray, run_jobs
+from bimgame.util.files import atomic_write_bytes, exclusive_lock, reporting_full_disk
+from bimgame.util.progress import ProgressBar
+from bimgame.util.seeding import episode_seed
+from bimgame.util.settings import is_integer
+
+__all__ = [
+    "generate_labyrinth_dataset",
+    "load_labyrinth_sequences",
+    "load_labyrinth_dataset",
+    "labyrinth_dataset_manifest",
+    "labyrinth_dataset_summary",
+    "labyrinth_dataset_id",
+    "LABYRINTH_MANIFEST_KEYS",
+    "SEQUENCE_OBS",
+]
+
+#: The manifest fields that decide the episodes' content: a resumed run must match them.
+LABYRINTH_MANIFEST_KEYS = (
+    "format_version",
+    "puzzle",
+    "task",
+    "action_type",
+    "control_hz",
+    "episodes",
+    "seed",
+    "max_steps",
+    "mpc_config",
+    "bimgame_version",
+)
+#: The observations :func:`load_labyrinth_sequences` gives: the stored state observations, or one
+#: re-rendered by the env's observation mode of that name; ``cyberrunner`` (a learner's name for it,
+#: :data:`~bimgame.envs.puzzles.LABYRINTH_OBS`) is the flat form, as the learners' envs step it.
+SEQUENCE_OBS = {
+    "state": "state",
+    "pixels": "pixels",
+    "cyberrunner": "cyberrunner_flat",
+    "cyberrunner_flat": "cyberrunner_flat",
+}
+# Episodes handed to Minari per write (bounds memory for large datasets).
+_BUILD_CHUNK = 64
+# The expert's default settings (frozen: one instance serves every call).
+_DEFAULT_CONFIG = LabyrinthMPCConfig()
+
+
+# ---------------------------------------------------------------------------------- generation
+def labyrinth_dataset_id(task: str, action_type: str = "continuous", control_hz: int = 55) -> str:
+    """The Minari dataset id of the expert's episodes on a labyrinth task, e.g.
+    ``bimgame/labyrinth-easy-expert-v0`` (continuous actions at 55 Hz, CyberRunner's);
+    ``-discrete`` and ``-30hz`` mark the other action type and rate."""
+    name = _labyrinth_task(task).lower()
+    name += "-discrete" if action_type == "discrete" else ""
+    name += "" if control_hz == 55 else f"-{control_hz}hz"
+    return f"bimgame/{name}-expert-v0"
+
+
+def generate_labyrinth_dataset(
+    out_dir: str | Path,
+    task: str = "LABYRINTH-EASY",
+    episodes: int = 100,
+    *,
+    seed: int = 0,
+    action_type: str = "continuous",
+    control_hz: int = 55,
+    config: LabyrinthMPCConfig = _DEFAULT_CONFIG,
+    workers: int | None = None,
+    backend: str = "local",
+    ray_address: str | None = None,
+    progress: bool = True,
+    max_steps: int | None = None,
+) -> Path:
+    """Generate ``episodes`` expert episodes on the labyrinth ``task`` into ``out_dir`` and build the
+    Minari dataset from them; returns ``out_dir`` (absolute).
+
+    Resumable: every finished episode is saved at once; run again with the same arguments after an
+    interruption and only the missing (or damaged) episodes are generated; a finished dataset is
+    verified and returned as is. Different arguments on an existing run, or a directory holding
+    anything else, raise an error naming them and change nothing.
+
+    Args:
+        out_dir: the run's directory (created; must be new, empty or this run's).
+        task: LABYRINTH-EASY, LABYRINTH-MEDIUM or LABYRINTH-HARD (any case).
+        episodes: number of episodes; episode ``i`` starts from ``reset(seed=episode_seed(seed, i))``.
+        seed: the run seed (a non-negative integer).
+        action_type: "continuous" (tilt-rate fractions, CyberRunner's) or "discrete" (0..4).
+        control_hz: action rate, 55 (CyberRunner's) or 30 Hz.
+        config: the expert's settings (``nthread`` is forced to 1: each worker plans on one thread;
+            it does not change the actions).
+        workers: parallel episodes (default ``os.cpu_count()``): local processes started with
+            "spawn" (a script calling this needs the ``if __name__ == "__main__":`` guard), or the
+            CPUs Ray starts locally; 1 runs the episodes in this process.
+        backend: ``"local"`` (a process pool) or ``"ray"`` (Ray tasks; this process writes every file).
+        ray_address: a Ray cluster to join (with ``backend="ray"``); None starts Ray locally.
+        progress: show a progress bar (episodes done, success so far, ETA) on stderr.
+        max_steps: time limit per episode (default: CyberRunner's 54.5 s, 3000 steps at 55 Hz).
+
+    Raises:
+        DiskFullError: (an ``OSError``) the disk filled up; the message names the file. Every
+            episode saved before stays; run again with the same arguments once there is room.
+    """
+    if getattr(multiprocessing.current_process(), "_inheriting", False):
+        raise RuntimeError(f"generate_labyrinth_dataset was called while a worker process was starting; {MAIN_GUARD}")
+    out_dir = Path(out_dir).absolute()  # Minari joins relative dataset paths onto its root
+    task = _labyrinth_task(task)
+    _check_int("episodes", episodes, minimum=1)
+    _check_int("seed", seed, minimum=0)
+    if action_type not in LABYRINTH_ACTION_TYPES:
+        raise ValueError(f"unknown action_type {action_type!r}; allowed: {', '.join(LABYRINTH_ACTION_TYPES)}")
+    if isinstance(control_hz, bool) or control_hz not in LABYRINTH_CONTROL_RATES:
+        raise ValueError(f"control_hz must be one of {LABYRINTH_CONTROL_RATES} (Hz), got {control_hz!r}")
+    if not isinstance(config, LabyrinthMPCConfig):
+        raise TypeError(f"config must be a LabyrinthMPCConfig, got {type(config).__name__}")
+    if workers is None:
+        workers = os.cpu_count() or 1
+    _check_int("workers", workers, minimum=1)
+    if backend not in BACKENDS:
+        raise ValueError(f"unknown backend {backend!r}; allowed: {', '.join(BACKENDS)}")
+    if ray_address is not None and backend != "ray":
+        raise ValueError(f"ray_address is only used with backend='ray' (got backend={backend!r})")
+    if max_steps is not None:
+        _check_int("max_steps", max_steps, minimum=1)
+    if not isinstance(progress, bool):
+        raise TypeError(f"progress must be True or False, got {progress!r}")
+    if backend == "ray":
+        import_ray()  # fail before touching the disk
+    config = dataclasses.replace(config, nthread=1)
+    manifest = _manifest(task, action_type, int(control_hz), int(episodes), int(seed), config, max_steps)
+    with reporting_full_disk(None, lambda: _resume_advice(out_dir, episodes), default_path=out_dir):
+        _generate(out_dir, manifest, config, progress, int(workers), backend, ray_address)
+    return out_dir
+
+
+def _manifest(
+    task: str, action_type: str, control_hz: int, episodes: int, seed: int, config: LabyrinthMPCConfig, max_steps: Any
+) -> dict[str, Any]:
+    layout = LABYRINTH_TASKS[task]
+    return {
+        "format": FORMAT_NAME,
+        "format_version": FORMAT_VERSION,
+        "puzzle": LABYRINTH,
+        "task": task,
+        "layout": layout,
+        "action_type": action_type,
+        "control_hz": control_hz,
+        "episodes": episodes,
+        "seed": seed,
+        "max_steps": None if max_steps is None else int(max_steps),
+        "time_limit": episode_time_limit(control_hz, max_steps),
+        "mpc_config": dataclasses.asdict(config),
+        "bimgame_version": bimgame.__version__,
+        "dataset_id": labyrinth_dataset_id(task, action_type, control_hz),
+        "env_id": f"BiMGame/Labyrinth-{layout.capitalize()}-v0",
+        "minari_version": minari.__version__,
+    }
+
+
+def _generate(
+    out_dir: Path,
+    manifest: dict[str, Any],
+    config: LabyrinthMPCConfig,
+    progress: bool,
+    workers: int,
+    backend: str,
+    ray_address: str | None,
+) -> None:
+    episodes = manifest["episodes"]
+    prepare_out_dir(out_dir, manifest, LABYRINTH_MANIFEST_KEYS)
+    with exclusive_lock(out_dir / LOCK_NAME, f"another process is generating into {out_dir}; wait for it to finish"):
+        marker_path = out_dir / MARKER_NAME
+        if marker_path.exists():
+            try:
+                verify_marker(out_dir, manifest, hashes=True)
+                return
+            except DatasetError as error:  # repair: regenerate what is damaged, rebuild
+                warnings.warn(f"{out_dir}: {error}; repairing", stacklevel=3)
+                marker_path.unlink()
+        remove_stale_temporaries(out_dir)
+        (out_dir / EPISODES_DIR).mkdir(exist_ok=True)
+        done_success, todo = _saved_episodes(out_dir, manifest)
+        if todo:
+            arguments = [
+                (manifest["layout"], manifest["action_type"], manifest["control_hz"], index, manifest["seed"], config,
+                 manifest["max_steps"])
+                for index in todo
+            ]  # fmt: skip
+            with episode_progress(
+                progress, f"expert on {manifest['task']}", episodes, len(done_success), sum(done_success)
+            ) as update:
+                for index, episode, _ in run_jobs(
+                    labyrinth_episode_job, arguments, workers=workers, backend=backend, ray_address=ray_address
+                ):
+                    path = episode_path(out_dir, index)
+                    with reporting_full_disk(path, lambda: _resume_advice(out_dir, episodes)):
+                        atomic_write_bytes(path, episode_bytes(index, episode, EPISODE_KEYS))
+                    update(bool(episode["success"]))
+        _build_minari(out_dir, manifest)
+
+
+def _saved_episodes(out_dir: Path, manifest: dict[str, Any]) -> tuple[list[bool], list[int]]:
+    """The success of each episode already saved intact, and the indices still to generate (a
+    damaged file is generated again, with a warning)."""
+    done_success: list[bool] = []
+    todo: list[int] = []
+    for index in range(manifest["episodes"]):
+        path = episode_path(out_dir, index)
+        if path.exists():
+            try:
+                done_success.append(bool(_read(out_dir, manifest, index)["success"]))
+                continue
+            except DatasetError as error:
+                warnings.warn(f"{error}; generating episode {index} again", stacklevel=4)
+        todo.append(index)
+    return done_success, todo
+
+
+def _read(out_dir: Path, manifest: dict[str, Any], index: int) -> dict[str, np.ndarray]:
+    """Episode ``index``'s file in ``out_dir``, checked against the run's manifest."""
+    return read_labyrinth_episode(
+        episode_path(out_dir, index), index, episode_seed(manifest["seed"], index), manifest["action_type"]
+    )
+
+
+def _resume_advice(out_dir: Path, episodes: int) -> str:
+    saved = sum(episode_path(out_dir, i).exists() for i in range(episodes))
+    return f"rerun the same command to resume ({saved} of {episodes} episodes are saved)"
+
+
+def _build_minari(out_dir: Path, manifest: dict[str, Any]) -> None:
+    """Build the Minari dataset from the episode files in a temporary datasets root (in a child
+    process, :func:`~bimgame.expert.minari_build.run_build_process`), move it into place, then write
+    the COMPLETE marker (the last step)."""
+    episodes = manifest["episodes"]
+    totals = episode_totals(episodes, lambda index: _read(out_dir, manifest, index), EPISODE_KEYS)
+    build_root = Path(tempfile.mkdtemp(prefix=BUILD_PREFIX, dir=out_dir))
+    try:
+        with reporting_full_disk(data_path(out_dir, manifest["dataset_id"]) / "main_data.hdf5"):
+            run_build_process(out_dir, manifest, build_root, _BUILD_CHUNK, writer=LABYRINTH_WRITER)
+        final = out_dir / MINARI_DIR
+        if final.exists():  # an earlier build of this run that never got its marker
+            shutil.rmtree(final)
+        os.replace(build_root, final)
+    finally:
+        shutil.rmtree(build_root, ignore_errors=True)
+    with reporting_full_disk(out_dir / MARKER_NAME):
+        write_marker(out_dir, manifest["dataset_id"], episodes, totals)
+
+
+# ------------------------------------------------------------------------------------- loading
+def labyrinth_dataset_manifest(data_dir: str | Path) -> dict[str, Any]:
+    """What a labyrinth dataset directory holds (its ``generation.json``); DatasetError if it is no
+    dataset directory or a dataset of the circular maze."""
+    data_dir = Path(data_dir).absolute()
+    if not data_dir.is_dir():
+        raise DatasetError(f"dataset directory {data_dir} does not exist or is not a directory")
+    manifest = read_manifest(data_dir)
+    if manifest.get("puzzle") != LABYRINTH:
+        raise DatasetError(
+            f"{data_dir} holds a dataset of the circular maze (task {manifest.get('task')}), not of the labyrinth; "
+            "read it with bimgame.expert.datasets"
+        )
+    return manifest
+
+
+def load_labyrinth_dataset(data_dir: str | Path, *, verify: bool = True) -> minari.MinariDataset:
+    """A finished labyrinth dataset as a ``minari.MinariDataset``, after the checks of
+    :func:`bimgame.expert.datasets.load_dataset` (the marker, every file's size and, with ``verify``,
+    SHA-256)."""
+    labyrinth_dataset_manifest(data_dir)
+    return load_dataset(data_dir, verify=verify)
+
+
+def labyrinth_dataset_summary(data_dir: str | Path) -> dict[str, Any]:
+    """Counts and disk use of a finished labyrinth dataset (:func:`bimgame.expert.datasets.dataset_summary`:
+    episodes, steps, success rate, mean length, bytes) with its task, action type and control rate."""
+    manifest = labyrinth_dataset_manifest(data_dir)
+    fields = ("task", "layout", "action_type", "control_hz", "time_limit")
+    return {**{key: manifest[key] for key in fields}, **dataset_summary(data_dir)}
+
+
+def load_labyrinth_sequences(
+    data_dir: str | Path, *, obs: str = "state", gamma: float, progress: bool = False
+) -> list[Episode]:
+    """Every episode of a finished labyrinth dataset as an :class:`~bimgame.expert.episode.Episode`
+    (what pre-training learns from), after checking the COMPLETE marker and every file's SHA-256.
+
+    ``obs`` (:data:`SEQUENCE_OBS`): ``"state"``, the stored (T, 17) float32 observations;
+    ``"pixels"`` (T, 1, 84, 84) uint8 or ``"cyberrunner"``/``"cyberrunner_flat"`` (T, 4110) float32,
+    re-rendered from each step's physics state and path progress by the env's own observation code
+    (:meth:`LabyrinthEnv.observe_state`: equal to what the env returned). ``actions`` are the
+    executed ones ((T, 2) float32 continuous, (T,) int64 discrete), ``tilt`` the board's tilt (rad)
+    at each action, ``state_obs`` the state observations whatever ``obs`` is, ``returns`` discounted
+    by ``gamma``, ``id`` the episode's index. ``progress``: a progress bar while reading.
+    """
+    if obs not in SEQUENCE_OBS:
+        raise ValueError(f"unknown obs {obs!r}; allowed: {', '.join(SEQUENCE_OBS)}")
+    if not (isinstance(gamma, (int, float)) and not isinstance(gamma, bool) and 0.0 <= gamma <= 1.0):
+        raise ValueError(f"gamma must be a number in [0, 1], got {gamma!r}")
+    data_dir = Path(data_dir).absolute()
+    manifest = labyrinth_dataset_manifest(data_dir)
+    verify_marker(data_dir, manifest, hashes=True)
+    renderer = None
+    if obs != "state":
+        renderer = LabyrinthEnv(
+            manifest["layout"],
+            action_type=manifest["action_type"],
+            control_hz=manifest["control_hz"],
+            obs_mode=SEQUENCE_OBS[obs],
+        )
+    sequences = []
+    try:
+        with ProgressBar(f"reading {obs} episodes", manifest["episodes"], enabled=progress, transient=True) as bar:
+            for index in range(manifest["episodes"]):
+                sequences.append(_sequence(_read(data_dir, manifest, index), index, gamma, renderer))
+                bar.update(advance=1)
+    finally:
+        if renderer is not None:
+            renderer.close()
+    return sequences
+
+
+def _sequence(data: dict[str, np.ndarray], index: int, gamma: float, renderer: LabyrinthEnv | None) -> Episode:
+    """One episode file's arrays as an :class:`Episode`: the observation before each action, from
+    the file (state) or rendered by ``renderer``."""
+    steps = len(data["actions"])
+    states = data["observations"][:steps]
+    if renderer is None:
+        frames = states
+    else:
+        pairs = zip(data["sim_states"][:steps], data["progress"][:steps], strict=True)
+        frames = np.stack([renderer.observe_state(state, float(progress)) for state, progress in pairs])
+    return Episode.from_steps(
+        obs=frames,
+        actions=data["actions"],
+        rewards=data["rewards"],
+        tilt=data["tilt"][:steps],
+        gamma=gamma,
+        terminated=bool(data["terminations"][-1]),
+        truncated=bool(data["truncations"][-1]),
+        id=index,
+        state_obs=states,
+    )
+
+
+# ------------------------------------------------------------------------------------- checks
+def _labyrinth_task(task: Any) -> str:
+    """The canonical name of a labyrinth task (any case); ValueError naming the allowed ones."""
+    name = task.upper() if isinstance(task, str) else ""
+    if name not in LABYRINTH_TASKS:
+        raise ValueError(
+            f"unknown labyrinth task {task!r}; allowed: {', '.join(LABYRINTH_TASKS)} "
+            "(the circular maze's tasks: bimgame.expert.datasets.generate_dataset)"
+        )
+    return name
+
+
+def _check_int(name: str, value: Any, *, minimum: int) -> None:
+    if not (is_integer(value) and value >= minimum):
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
