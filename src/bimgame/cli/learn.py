@@ -156,18 +156,19 @@ def add_pretrain_arguments(parser: argparse.ArgumentParser) -> None:
         PRETRAIN_FLAGS,
         PRETRAIN_PLACEMENT,
         types=_TYPES,
+        default_none=True,  # what is not given takes its default for the observations (e.g. sizes)
         choices={"task": TASK_NAMES},  # the maze's tasks and the labyrinth's
     )
-    parser.set_defaults(action_type=None)  # not given: the dataset's (pretrain_config_from)
     groups["logging"].add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
 def pretrain_config_from(args: argparse.Namespace) -> PretrainConfig:
-    """The pre-training settings of the flags: an ``--action-type`` not given is the dataset's (the
-    maze expert's discrete actions, or a labyrinth dataset's own); the labyrinth's network defaults
-    (no auxiliary heads) on its tasks."""
-    values = {name: getattr(args, name) for name in PRETRAIN_FLAGS}
-    if values["action_type"] is None:
+    """The pre-training settings of the flags given; those not given take their defaults for the
+    observations (as ``bimgame train``'s: 128 units for state, 256 for pixels), an ``--action-type``
+    not given is the dataset's (the maze expert's discrete actions, or a labyrinth dataset's own), and
+    the labyrinth's tasks their network defaults (no auxiliary heads)."""
+    values = {name: getattr(args, name) for name in PRETRAIN_FLAGS if getattr(args, name) is not None}
+    if "action_type" not in values:
         try:
             values["action_type"] = dataset_action_type(dataset_manifest(args.data))
         except (ValueError, OSError):
