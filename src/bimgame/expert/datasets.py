@@ -42,7 +42,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import multiprocessing
 import os
 import shutil
 import tempfile
@@ -85,14 +84,13 @@ from bimgame.expert.minari_build import (
     run_build_process,
 )
 from bimgame.expert.mpc import MPCConfig
-from bimgame.expert.pool import BACKENDS, MAIN_GUARD, episode_progress, expert_episodes, import_ray
+from bimgame.expert.pool import BACKENDS, check_generation, episode_progress, expert_episodes
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.maze_sets import maze_number
 from bimgame.sim.physics import MazeSim
 from bimgame.sim.tasks import Task, parse_task
 from bimgame.util.files import atomic_write_bytes, exclusive_lock, file_sha256, reporting_full_disk
 from bimgame.util.seeding import episode_seed
-from bimgame.util.settings import is_integer
 
 __all__ = [
     "DatasetError",
@@ -176,27 +174,20 @@ def generate_dataset(
         DiskFullError: (an ``OSError``) the disk filled up; the message names the file. Every
             episode saved before stays; run again with the same arguments once there is room.
     """
-    if getattr(multiprocessing.current_process(), "_inheriting", False):
-        raise RuntimeError(f"generate_dataset was called while a worker process was starting; {MAIN_GUARD}")
     out_dir = Path(out_dir).absolute()  # Minari joins relative dataset paths onto its root
     task_enum = parse_task(task)
-    _check_int("episodes", episodes, minimum=1)
-    _check_int("seed", seed, minimum=0)
+    workers = check_generation(
+        "generate_dataset",
+        episodes=episodes,
+        seed=seed,
+        workers=workers,
+        backend=backend,
+        ray_address=ray_address,
+        max_steps=max_steps,
+        progress=progress,
+    )
     if not isinstance(config, MPCConfig):
         raise TypeError(f"config must be an MPCConfig, got {type(config).__name__}")
-    if workers is None:
-        workers = os.cpu_count() or 1
-    _check_int("workers", workers, minimum=1)
-    if backend not in BACKENDS:
-        raise ValueError(f"unknown backend {backend!r}; allowed: {', '.join(BACKENDS)}")
-    if ray_address is not None and backend != "ray":
-        raise ValueError(f"ray_address is only used with backend='ray' (got backend={backend!r})")
-    if max_steps is not None:
-        _check_int("max_steps", max_steps, minimum=1)
-    if not isinstance(progress, bool):
-        raise TypeError(f"progress must be True or False, got {progress!r}")
-    if backend == "ray":
-        import_ray()  # fail before touching the disk
     mazes = maze_fields(num_mazes, start_maze)
     config = dataclasses.replace(config, nthread=1)
     manifest = {**_manifest(task_enum, int(episodes), int(seed), config, max_steps), **mazes}
@@ -485,8 +476,3 @@ def _pixel_observer(n_marbles: int) -> Observer:
     layout = sim.layout
     sim.close()
     return Observer(maze, n_marbles, "pixels", layout=layout, board=maze)
-
-
-def _check_int(name: str, value: Any, *, minimum: int) -> None:
-    if not (is_integer(value) and value >= minimum):
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")

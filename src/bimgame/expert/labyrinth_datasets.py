@@ -31,7 +31,6 @@ stored physics states and path progress (:meth:`LabyrinthEnv.observe_state`).
 from __future__ import annotations
 
 import dataclasses
-import multiprocessing
 import os
 import shutil
 import tempfile
@@ -70,11 +69,10 @@ from bimgame.expert.labyrinth_episodes import (
 )
 from bimgame.expert.labyrinth_mpc import LabyrinthMPCConfig
 from bimgame.expert.minari_build import EPISODES_DIR, DatasetError, episode_bytes, episode_path, run_build_process
-from bimgame.expert.pool import BACKENDS, MAIN_GUARD, episode_progress, import_ray, run_jobs
+from bimgame.expert.pool import check_generation, episode_progress, run_jobs
 from bimgame.util.files import atomic_write_bytes, exclusive_lock, reporting_full_disk
 from bimgame.util.progress import ProgressBar
 from bimgame.util.seeding import episode_seed
-from bimgame.util.settings import is_integer
 
 __all__ = [
     "generate_labyrinth_dataset",
@@ -170,31 +168,24 @@ def generate_labyrinth_dataset(
         DiskFullError: (an ``OSError``) the disk filled up; the message names the file. Every
             episode saved before stays; run again with the same arguments once there is room.
     """
-    if getattr(multiprocessing.current_process(), "_inheriting", False):
-        raise RuntimeError(f"generate_labyrinth_dataset was called while a worker process was starting; {MAIN_GUARD}")
     out_dir = Path(out_dir).absolute()  # Minari joins relative dataset paths onto its root
     task = _labyrinth_task(task)
-    _check_int("episodes", episodes, minimum=1)
-    _check_int("seed", seed, minimum=0)
+    workers = check_generation(
+        "generate_labyrinth_dataset",
+        episodes=episodes,
+        seed=seed,
+        workers=workers,
+        backend=backend,
+        ray_address=ray_address,
+        max_steps=max_steps,
+        progress=progress,
+    )
     if action_type not in LABYRINTH_ACTION_TYPES:
         raise ValueError(f"unknown action_type {action_type!r}; allowed: {', '.join(LABYRINTH_ACTION_TYPES)}")
     if isinstance(control_hz, bool) or control_hz not in LABYRINTH_CONTROL_RATES:
         raise ValueError(f"control_hz must be one of {LABYRINTH_CONTROL_RATES} (Hz), got {control_hz!r}")
     if not isinstance(config, LabyrinthMPCConfig):
         raise TypeError(f"config must be a LabyrinthMPCConfig, got {type(config).__name__}")
-    if workers is None:
-        workers = os.cpu_count() or 1
-    _check_int("workers", workers, minimum=1)
-    if backend not in BACKENDS:
-        raise ValueError(f"unknown backend {backend!r}; allowed: {', '.join(BACKENDS)}")
-    if ray_address is not None and backend != "ray":
-        raise ValueError(f"ray_address is only used with backend='ray' (got backend={backend!r})")
-    if max_steps is not None:
-        _check_int("max_steps", max_steps, minimum=1)
-    if not isinstance(progress, bool):
-        raise TypeError(f"progress must be True or False, got {progress!r}")
-    if backend == "ray":
-        import_ray()  # fail before touching the disk
     config = dataclasses.replace(config, nthread=1)
     manifest = _manifest(task, action_type, int(control_hz), int(episodes), int(seed), config, max_steps)
     with reporting_full_disk(None, lambda: _resume_advice(out_dir, episodes), default_path=out_dir):
@@ -423,8 +414,3 @@ def _labyrinth_task(task: Any) -> str:
             "(the circular maze's tasks: bimgame.expert.datasets.generate_dataset)"
         )
     return name
-
-
-def _check_int(name: str, value: Any, *, minimum: int) -> None:
-    if not (is_integer(value) and value >= minimum):
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")

@@ -32,6 +32,7 @@ from bimgame.util.seeding import episode_seed
 from bimgame.util.settings import is_integer
 
 __all__ = [
+    "check_generation",
     "BACKENDS",
     "MAIN_GUARD",
     "EpisodeOutcome",
@@ -247,3 +248,42 @@ def episode_progress(
             bar.update(advance=1, info=info())
 
         yield update
+
+
+def check_generation(
+    caller: str,
+    *,
+    episodes: Any,
+    seed: Any,
+    workers: Any,
+    backend: Any,
+    ray_address: Any,
+    max_steps: Any,
+    progress: Any,
+) -> int:
+    """Refuse, naming the value and what is allowed, the run options every dataset generation
+    (either puzzle's) takes, before anything touches the disk; returns the number of workers (None:
+    ``os.cpu_count()``). ``caller`` names the function for the spawn-guard error, and Ray is imported
+    now when it is the backend so that a missing install fails first."""
+    if getattr(multiprocessing.current_process(), "_inheriting", False):
+        raise RuntimeError(f"{caller} was called while a worker process was starting; {MAIN_GUARD}")
+    _check_count("episodes", episodes, minimum=1)
+    _check_count("seed", seed, minimum=0)
+    workers = (os.cpu_count() or 1) if workers is None else workers
+    _check_count("workers", workers, minimum=1)
+    if backend not in BACKENDS:
+        raise ValueError(f"unknown backend {backend!r}; allowed: {', '.join(BACKENDS)}")
+    if ray_address is not None and backend != "ray":
+        raise ValueError(f"ray_address is only used with backend='ray' (got backend={backend!r})")
+    if max_steps is not None:
+        _check_count("max_steps", max_steps, minimum=1)
+    if not isinstance(progress, bool):
+        raise TypeError(f"progress must be True or False, got {progress!r}")
+    if backend == "ray":
+        import_ray()
+    return int(workers)
+
+
+def _check_count(name: str, value: Any, *, minimum: int) -> None:
+    if not (is_integer(value) and value >= minimum):
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
