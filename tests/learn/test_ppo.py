@@ -19,6 +19,7 @@ from bimgame.learn.ppo import PPOConfig, PPOOptimizationSettings, ppo_minibatch_
 from bimgame.learn.ppo.update import rollout_targets
 from bimgame.learn.rollout import RolloutCollector, sequence_start_states, unroll
 from bimgame.learn.runs import KIND_PPO
+from bimgame.learn.dagger import DAggerConfig
 from bimgame.learn.supervised import PretrainConfig
 
 TINY = dict(task="STG1", obs="state", hidden=16, features=16, envs_per_worker=4, n_steps=16, minibatches=2,
@@ -228,8 +229,8 @@ def test_a_continuous_run_writes_its_directory_and_evaluates(tmp_path):
     # The discrete learners and a discrete network refuse it by name.
     with pytest.raises(ValueError, match=r"A3C supports action_type 'discrete' only; got 'continuous' \(use --algo ppo\)"):
         A3CConfig.from_flat(task="STG1", obs="state", action_type="continuous")
-    with pytest.raises(ValueError, match=r"pre-training \(and DAgger\) supports action_type 'discrete' only"):
-        PretrainConfig(obs="state", action_type="continuous")
+    with pytest.raises(ValueError, match=r"DAgger supports action_type 'discrete' only"):
+        DAggerConfig(learner=PretrainConfig(task="STG1", obs="state", action_type="continuous"))
     with pytest.raises(CheckpointError, match="one network has continuous actions, the other discrete"):
         load_init_weights(PPOConfig.from_flat(TINY).network.build_policy(0), tmp_path / "run")
 
