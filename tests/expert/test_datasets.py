@@ -22,6 +22,7 @@ import pytest
 from minari import EpisodeData
 
 import bimgame.expert.datasets as data
+import bimgame.expert.generation as generation
 import bimgame.expert.pool as parallel
 from bimgame.cli.expert import add_generate_arguments
 from bimgame.cli.main import main
@@ -107,7 +108,7 @@ def test_pixels_rendered_from_stored_states_equal_the_envs_own(reference):
 
 
 def test_same_dataset_whatever_the_number_of_workers(reference, tmp_path, monkeypatch):
-    monkeypatch.setattr(data, "_BUILD_CHUNK", 2)  # also: Minari built in several writes
+    monkeypatch.setattr(generation, "BUILD_CHUNK", 2)  # also: Minari built in several writes
     assert_same_dataset(reference, generate_dataset(tmp_path / "two", workers=2, **ARGS))
 
 
@@ -372,14 +373,14 @@ def _fill_disk_at(where: str, out, tmp_path, monkeypatch):
         monkeypatch.setattr(h5py.Group, "create_dataset", h5py.Group.create_dataset)  # restored afterwards
         exec(FULL_HDF5.format(n=5), {})  # and the same in this process
         return out / "minari" / DATASET_ID / "data" / "main_data.hdf5"
-    real = data.atomic_write_bytes
+    real = generation.atomic_write_bytes
     target = {"episode file": out / "episodes" / "episode_000001.npz", "marker": out / "COMPLETE"}[where]
 
     def full_disk(path, payload):
         if Path(path) == target:
             raise OSError(errno.ENOSPC, "No space left on device")
         return real(path, payload)
-    monkeypatch.setattr(data, "atomic_write_bytes", full_disk)
+    monkeypatch.setattr(generation, "atomic_write_bytes", full_disk)
     return target
 
 

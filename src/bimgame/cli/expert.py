@@ -223,6 +223,7 @@ def _run_labyrinth_generate(args: argparse.Namespace) -> int:
             f"--task {args.task} (leave {' and '.join(maze_only)} out)"
         )
     config = labyrinth_mpc_config_from(args)
+    given = {name: getattr(args, name) for name in ("action_type", "control_hz") if getattr(args, name) is not None}
     start = time.perf_counter()
     try:
         out = generate_labyrinth_dataset(
@@ -230,8 +231,7 @@ def _run_labyrinth_generate(args: argparse.Namespace) -> int:
             args.task,
             args.episodes,
             seed=args.seed,
-            action_type=args.action_type or "continuous",
-            control_hz=args.control_hz or 55,
+            **given,  # the rest: generate_labyrinth_dataset's defaults (CyberRunner's)
             config=config,
             workers=args.workers,
             backend=args.backend,

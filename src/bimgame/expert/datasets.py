@@ -41,11 +41,7 @@ episode's reset seed is Minari's episode metadata ``seed``.
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
-import shutil
-import tempfile
-import warnings
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -58,7 +54,6 @@ import bimgame
 from bimgame.envs.mazes import maze_encoding_size
 from bimgame.envs.observe import Observer
 from bimgame.expert.dataset_files import (
-    BUILD_PREFIX,
     FORMAT_NAME,
     FORMAT_VERSION,
     LOCK_NAME,
@@ -68,28 +63,23 @@ from bimgame.expert.dataset_files import (
     data_path,
     episode_totals,
     maze_fields,
-    prepare_out_dir,
     read_manifest,
-    remove_stale_temporaries,
     verify_marker,
 )
 from bimgame.expert.episode import Episode
+from bimgame.expert.generation import EpisodeFormat, run_generation, write_marker
 from bimgame.expert.minari_build import (
-    EPISODES_DIR,
     DatasetError,
-    episode_bytes,
     episode_maze,
     episode_path,
     read_episode,
-    run_build_process,
 )
 from bimgame.expert.mpc import MPCConfig
-from bimgame.expert.pool import BACKENDS, check_generation, episode_progress, expert_episodes
+from bimgame.expert.pool import BACKENDS, EpisodeOutcome, check_generation, expert_episodes
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.maze_sets import maze_number
 from bimgame.sim.physics import MazeSim
 from bimgame.sim.tasks import Task, parse_task
-from bimgame.util.files import atomic_write_bytes, exclusive_lock, file_sha256, reporting_full_disk
 from bimgame.util.seeding import episode_seed
 
 __all__ = [
@@ -111,9 +101,6 @@ __all__ = [
     "MARKER_NAME",
     "LOCK_NAME",
 ]
-
-# Episodes handed to Minari per write (bounds memory for large datasets).
-_BUILD_CHUNK = 64
 
 
 # ---------------------------------------------------------------------------------- generation
@@ -192,8 +179,7 @@ def generate_dataset(
     config = dataclasses.replace(config, nthread=1)
     manifest = {**_manifest(task_enum, int(episodes), int(seed), config, max_steps), **mazes}
 
-    with reporting_full_disk(None, lambda: _resume_advice(out_dir, episodes), default_path=out_dir):
-        _generate(out_dir, manifest, config, progress, workers, backend, ray_address)
+    _generate(out_dir, manifest, config, progress, workers, backend, ray_address)
     return out_dir
 
 
@@ -206,61 +192,29 @@ def _generate(
     backend: str,
     ray_address: str | None,
 ) -> None:
-    task, episodes, seed, max_steps = manifest["task"], manifest["episodes"], manifest["seed"], manifest["max_steps"]
-    prepare_out_dir(out_dir, manifest)
-    with _locked(out_dir):
-        marker_path = out_dir / MARKER_NAME
-        if marker_path.exists():
-            try:
-                verify_marker(out_dir, manifest, hashes=True)
-                return
-            except DatasetError as error:  # repair: regenerate what is damaged, rebuild
-                warnings.warn(f"{out_dir}: {error}; repairing", stacklevel=3)
-                marker_path.unlink()
-        remove_stale_temporaries(out_dir)
+    """The maze expert's run on :func:`~bimgame.expert.generation.run_generation`'s protocol:
+    episode ``i`` played on its maze (:func:`episode_maze`) and read back checked against it."""
+    task, seed, max_steps = manifest["task"], manifest["seed"], manifest["max_steps"]
 
-        episodes_dir = out_dir / EPISODES_DIR
-        episodes_dir.mkdir(exist_ok=True)
-        done_success: list[bool] = []
-        todo: list[int] = []
-        for index in range(episodes):
-            path = episode_path(out_dir, index)
-            if path.exists():
-                try:
-                    saved = read_episode(path, index, episode_seed(seed, index), episode_maze(manifest, index))
-                    done_success.append(bool(saved["success"]))
-                    continue
-                except DatasetError as error:
-                    warnings.warn(f"{error}; generating episode {index} again", stacklevel=3)
-            todo.append(index)
+    def read(index: int) -> dict[str, np.ndarray]:
+        path = episode_path(out_dir, index)
+        return read_episode(path, index, episode_seed(seed, index), episode_maze(manifest, index))
 
+    def play(todo: list[int]) -> Iterator[EpisodeOutcome]:
         mazes = {i: number for i in todo if (number := episode_maze(manifest, i)) is not None} or None
-        if todo:
-            with episode_progress(
-                progress, f"expert on {task}", episodes, len(done_success), sum(done_success)
-            ) as update:
-                for index, episode, _ in expert_episodes(
-                    task,
-                    todo,
-                    seed,
-                    config,
-                    max_steps=max_steps,
-                    workers=workers,
-                    backend=backend,
-                    ray_address=ray_address,
-                    mazes=mazes,
-                ):
-                    path = episode_path(out_dir, index)
-                    with reporting_full_disk(path, lambda: _resume_advice(out_dir, episodes)):
-                        atomic_write_bytes(path, episode_bytes(index, episode))
-                    update(bool(episode["success"]))
+        return expert_episodes(
+            task,
+            todo,
+            seed,
+            config,
+            max_steps=max_steps,
+            workers=workers,
+            backend=backend,
+            ray_address=ray_address,
+            mazes=mazes,
+        )
 
-        _build_minari(out_dir, manifest)
-
-
-def _resume_advice(out_dir: Path, episodes: int) -> str:
-    saved = sum(episode_path(out_dir, i).exists() for i in range(episodes))
-    return f"rerun the same command to resume ({saved} of {episodes} episodes are saved)"
+    run_generation(out_dir, manifest, EpisodeFormat(), read=read, play=play, progress=progress)
 
 
 def _manifest(task: Task, episodes: int, seed: int, config: MPCConfig, max_steps: int | None) -> dict:
@@ -277,59 +231,6 @@ def _manifest(task: Task, episodes: int, seed: int, config: MPCConfig, max_steps
         "env_id": f"BiMGame/{task.value}-v0",
         "minari_version": minari.__version__,
     }
-
-
-def _locked(out_dir: Path):
-    """Hold an exclusive lock on ``out_dir`` (released by the OS even if the process is killed)."""
-    return exclusive_lock(out_dir / LOCK_NAME, f"another process is generating into {out_dir}; wait for it to finish")
-
-
-# ------------------------------------------------------------------------------ Minari building
-def _build_minari(out_dir: Path, manifest: dict) -> None:
-    """Build the Minari dataset from the episode files in a temporary datasets root (in a child
-    process), move it into place, then write the COMPLETE marker (the last step)."""
-    episodes, seed = manifest["episodes"], manifest["seed"]
-    totals = episode_totals(
-        episodes,
-        lambda index: read_episode(
-            episode_path(out_dir, index), index, episode_seed(seed, index), episode_maze(manifest, index)
-        ),
-    )
-
-    build_root = Path(tempfile.mkdtemp(prefix=BUILD_PREFIX, dir=out_dir))
-    try:
-        with reporting_full_disk(data_path(out_dir, manifest["dataset_id"]) / "main_data.hdf5"):
-            run_build_process(out_dir, manifest, build_root, _BUILD_CHUNK)
-        final = out_dir / MINARI_DIR
-        if final.exists():  # an earlier build of this run that never got its marker
-            shutil.rmtree(final)
-        os.replace(build_root, final)
-    finally:
-        shutil.rmtree(build_root, ignore_errors=True)
-
-    with reporting_full_disk(out_dir / MARKER_NAME):
-        write_marker(out_dir, manifest["dataset_id"], episodes, totals)
-
-
-def write_marker(out_dir: Path, dataset_id: str, episodes: int, totals: dict[str, Any]) -> None:
-    """Write the COMPLETE marker — the last step of a build: the counts and content hash of
-    :func:`episode_totals`, and every episode and Minari file's size and SHA-256."""
-    files = {}
-    for path in [episode_path(out_dir, i) for i in range(episodes)] + sorted(
-        p for p in (out_dir / MINARI_DIR).rglob("*") if p.is_file()
-    ):
-        files[path.relative_to(out_dir).as_posix()] = {"size": path.stat().st_size, "sha256": file_sha256(path)}
-    marker = {
-        "format": FORMAT_NAME,
-        "format_version": FORMAT_VERSION,
-        "dataset_id": dataset_id,
-        "episodes": episodes,
-        "steps": totals["steps"],
-        "successes": totals["successes"],
-        "content_sha256": totals["content_sha256"],
-        "files": files,
-    }
-    atomic_write_bytes(out_dir / MARKER_NAME, (json.dumps(marker, indent=1) + "\n").encode())
 
 
 # ------------------------------------------------------------------------------------- loading

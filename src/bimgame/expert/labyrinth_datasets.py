@@ -31,10 +31,8 @@ stored physics states and path progress (:meth:`LabyrinthEnv.observe_state`).
 from __future__ import annotations
 
 import dataclasses
-import os
-import shutil
-import tempfile
-import warnings
+import functools
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -45,21 +43,14 @@ import bimgame
 from bimgame.envs.labyrinth_env import LABYRINTH_ACTION_TYPES, LABYRINTH_CONTROL_RATES, LabyrinthEnv
 from bimgame.envs.puzzles import LABYRINTH, LABYRINTH_TASKS
 from bimgame.expert.dataset_files import (
-    BUILD_PREFIX,
     FORMAT_NAME,
     FORMAT_VERSION,
-    LOCK_NAME,
-    MARKER_NAME,
-    MINARI_DIR,
-    data_path,
-    episode_totals,
-    prepare_out_dir,
     read_manifest,
-    remove_stale_temporaries,
     verify_marker,
 )
-from bimgame.expert.datasets import dataset_summary, load_dataset, write_marker
+from bimgame.expert.datasets import dataset_summary, load_dataset
 from bimgame.expert.episode import Episode
+from bimgame.expert.generation import EpisodeFormat, run_generation
 from bimgame.expert.labyrinth_episodes import (
     EPISODE_KEYS,
     LABYRINTH_WRITER,
@@ -68,9 +59,8 @@ from bimgame.expert.labyrinth_episodes import (
     read_labyrinth_episode,
 )
 from bimgame.expert.labyrinth_mpc import LabyrinthMPCConfig
-from bimgame.expert.minari_build import EPISODES_DIR, DatasetError, episode_bytes, episode_path, run_build_process
-from bimgame.expert.pool import check_generation, episode_progress, run_jobs
-from bimgame.util.files import atomic_write_bytes, exclusive_lock, reporting_full_disk
+from bimgame.expert.minari_build import DatasetError, episode_path
+from bimgame.expert.pool import EpisodeOutcome, check_generation, run_jobs
 from bimgame.util.progress import ProgressBar
 from bimgame.util.seeding import episode_seed
 
@@ -107,8 +97,10 @@ SEQUENCE_OBS = {
     "cyberrunner": "cyberrunner_flat",
     "cyberrunner_flat": "cyberrunner_flat",
 }
-# Episodes handed to Minari per write (bounds memory for large datasets).
-_BUILD_CHUNK = 64
+#: What a labyrinth run stores (:func:`~bimgame.expert.generation.run_generation`).
+LABYRINTH_FORMAT = EpisodeFormat(
+    manifest_keys=LABYRINTH_MANIFEST_KEYS, episode_keys=EPISODE_KEYS, writer=LABYRINTH_WRITER
+)
 # The expert's default settings (frozen: one instance serves every call).
 _DEFAULT_CONFIG = LabyrinthMPCConfig()
 
@@ -188,8 +180,7 @@ def generate_labyrinth_dataset(
         raise TypeError(f"config must be a LabyrinthMPCConfig, got {type(config).__name__}")
     config = dataclasses.replace(config, nthread=1)
     manifest = _manifest(task, action_type, int(control_hz), int(episodes), int(seed), config, max_steps)
-    with reporting_full_disk(None, lambda: _resume_advice(out_dir, episodes), default_path=out_dir):
-        _generate(out_dir, manifest, config, progress, int(workers), backend, ray_address)
+    _generate(out_dir, manifest, config, progress, int(workers), backend, ray_address)
     return out_dir
 
 
@@ -226,54 +217,18 @@ def _generate(
     backend: str,
     ray_address: str | None,
 ) -> None:
-    episodes = manifest["episodes"]
-    prepare_out_dir(out_dir, manifest, LABYRINTH_MANIFEST_KEYS)
-    with exclusive_lock(out_dir / LOCK_NAME, f"another process is generating into {out_dir}; wait for it to finish"):
-        marker_path = out_dir / MARKER_NAME
-        if marker_path.exists():
-            try:
-                verify_marker(out_dir, manifest, hashes=True)
-                return
-            except DatasetError as error:  # repair: regenerate what is damaged, rebuild
-                warnings.warn(f"{out_dir}: {error}; repairing", stacklevel=3)
-                marker_path.unlink()
-        remove_stale_temporaries(out_dir)
-        (out_dir / EPISODES_DIR).mkdir(exist_ok=True)
-        done_success, todo = _saved_episodes(out_dir, manifest)
-        if todo:
-            arguments = [
-                (manifest["layout"], manifest["action_type"], manifest["control_hz"], index, manifest["seed"], config,
-                 manifest["max_steps"])
-                for index in todo
-            ]  # fmt: skip
-            with episode_progress(
-                progress, f"expert on {manifest['task']}", episodes, len(done_success), sum(done_success)
-            ) as update:
-                for index, episode, _ in run_jobs(
-                    labyrinth_episode_job, arguments, workers=workers, backend=backend, ray_address=ray_address
-                ):
-                    path = episode_path(out_dir, index)
-                    with reporting_full_disk(path, lambda: _resume_advice(out_dir, episodes)):
-                        atomic_write_bytes(path, episode_bytes(index, episode, EPISODE_KEYS))
-                    update(bool(episode["success"]))
-        _build_minari(out_dir, manifest)
+    """The labyrinth expert's run on :func:`~bimgame.expert.generation.run_generation`'s protocol."""
 
+    def play(todo: list[int]) -> Iterator[EpisodeOutcome]:
+        arguments = [
+            (manifest["layout"], manifest["action_type"], manifest["control_hz"], index, manifest["seed"], config,
+             manifest["max_steps"])
+            for index in todo
+        ]  # fmt: skip
+        return run_jobs(labyrinth_episode_job, arguments, workers=workers, backend=backend, ray_address=ray_address)
 
-def _saved_episodes(out_dir: Path, manifest: dict[str, Any]) -> tuple[list[bool], list[int]]:
-    """The success of each episode already saved intact, and the indices still to generate (a
-    damaged file is generated again, with a warning)."""
-    done_success: list[bool] = []
-    todo: list[int] = []
-    for index in range(manifest["episodes"]):
-        path = episode_path(out_dir, index)
-        if path.exists():
-            try:
-                done_success.append(bool(_read(out_dir, manifest, index)["success"]))
-                continue
-            except DatasetError as error:
-                warnings.warn(f"{error}; generating episode {index} again", stacklevel=4)
-        todo.append(index)
-    return done_success, todo
+    read = functools.partial(_read, out_dir, manifest)
+    run_generation(out_dir, manifest, LABYRINTH_FORMAT, read=read, play=play, progress=progress)
 
 
 def _read(out_dir: Path, manifest: dict[str, Any], index: int) -> dict[str, np.ndarray]:
@@ -281,31 +236,6 @@ def _read(out_dir: Path, manifest: dict[str, Any], index: int) -> dict[str, np.n
     return read_labyrinth_episode(
         episode_path(out_dir, index), index, episode_seed(manifest["seed"], index), manifest["action_type"]
     )
-
-
-def _resume_advice(out_dir: Path, episodes: int) -> str:
-    saved = sum(episode_path(out_dir, i).exists() for i in range(episodes))
-    return f"rerun the same command to resume ({saved} of {episodes} episodes are saved)"
-
-
-def _build_minari(out_dir: Path, manifest: dict[str, Any]) -> None:
-    """Build the Minari dataset from the episode files in a temporary datasets root (in a child
-    process, :func:`~bimgame.expert.minari_build.run_build_process`), move it into place, then write
-    the COMPLETE marker (the last step)."""
-    episodes = manifest["episodes"]
-    totals = episode_totals(episodes, lambda index: _read(out_dir, manifest, index), EPISODE_KEYS)
-    build_root = Path(tempfile.mkdtemp(prefix=BUILD_PREFIX, dir=out_dir))
-    try:
-        with reporting_full_disk(data_path(out_dir, manifest["dataset_id"]) / "main_data.hdf5"):
-            run_build_process(out_dir, manifest, build_root, _BUILD_CHUNK, writer=LABYRINTH_WRITER)
-        final = out_dir / MINARI_DIR
-        if final.exists():  # an earlier build of this run that never got its marker
-            shutil.rmtree(final)
-        os.replace(build_root, final)
-    finally:
-        shutil.rmtree(build_root, ignore_errors=True)
-    with reporting_full_disk(out_dir / MARKER_NAME):
-        write_marker(out_dir, manifest["dataset_id"], episodes, totals)
 
 
 # ------------------------------------------------------------------------------------- loading

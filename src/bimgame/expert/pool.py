@@ -270,9 +270,7 @@ def check_generation(
     _check_count("episodes", episodes, minimum=1)
     _check_count("seed", seed, minimum=0)
     workers = (os.cpu_count() or 1) if workers is None else workers
-    _check_count("workers", workers, minimum=1)
-    if backend not in BACKENDS:
-        raise ValueError(f"unknown backend {backend!r}; allowed: {', '.join(BACKENDS)}")
+    _check_backend(workers, backend)
     if ray_address is not None and backend != "ray":
         raise ValueError(f"ray_address is only used with backend='ray' (got backend={backend!r})")
     if max_steps is not None:

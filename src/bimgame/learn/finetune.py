@@ -45,6 +45,7 @@ from bimgame.expert.datasets import iterate_sequences
 from bimgame.expert.episode import Episode, relabel
 from bimgame.learn.learner_settings import FinetuneSettings
 from bimgame.learn.nets import LSTMState, RecurrentActorCritic
+from bimgame.learn.policy_heads import categorical_kl
 from bimgame.learn.rollout import Segment
 from bimgame.learn.supervised import padded_batch
 from bimgame.sim.maze import MazeSpec
@@ -147,7 +148,7 @@ def policy_kl(net: RecurrentActorCritic, teacher: torch.Tensor, output: torch.Te
 def kl_to_teacher(teacher_log_probs: torch.Tensor, log_probs: torch.Tensor) -> torch.Tensor:
     """Mean over steps of KL(π^s ‖ π) = Σ_a π^s(a) (log π^s(a) − log π(a)); zero when π = π^s.
     Its gradient is that of the cross-entropy to the teacher's distribution (kickstarting)."""
-    return (teacher_log_probs.exp() * (teacher_log_probs - log_probs)).sum(-1).mean()
+    return categorical_kl(teacher_log_probs, log_probs).mean()
 
 
 class RunningScale:

@@ -49,6 +49,7 @@ __all__ = [
     "DiscreteActions",
     "ContinuousActions",
     "action_head",
+    "categorical_kl",
     "check_action_type",
     "require_discrete",
 ]
@@ -198,7 +199,7 @@ class DiscreteActions:
         return torch.log_softmax(output / temperature, dim=-1)
 
     def kl_from(self, frozen: torch.Tensor, output: torch.Tensor, log_std: torch.Tensor | None) -> torch.Tensor:
-        return (frozen.exp() * (frozen - torch.log_softmax(output, dim=-1))).sum(-1)
+        return categorical_kl(frozen, torch.log_softmax(output, dim=-1))
 
 
 class ContinuousActions:
@@ -235,6 +236,12 @@ class ContinuousActions:
         log_std = _required(log_std).expand_as(output)
         ratio = (log_std_t - log_std).exp().pow(2) + ((mean_t - output) * torch.exp(-log_std)).pow(2)
         return (log_std - log_std_t + 0.5 * ratio - 0.5).sum(-1)
+
+
+def categorical_kl(teacher_log_probs: torch.Tensor, log_probs: torch.Tensor) -> torch.Tensor:
+    """KL(teacher ‖ π) = Σ_a π_t(a) (log π_t(a) − log π(a)) per state (…,), from both
+    distributions' log-probabilities (…, A)."""
+    return (teacher_log_probs.exp() * (teacher_log_probs - log_probs)).sum(-1)
 
 
 def _required(log_std: torch.Tensor | None) -> torch.Tensor:

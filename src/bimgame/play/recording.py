@@ -44,7 +44,7 @@ import minari
 import numpy as np
 
 import bimgame
-from bimgame.expert.datasets import (
+from bimgame.expert.dataset_files import (
     BUILD_PREFIX,
     FORMAT_NAME,
     FORMAT_VERSION,
@@ -52,12 +52,11 @@ from bimgame.expert.datasets import (
     MANIFEST_NAME,
     MARKER_NAME,
     MINARI_DIR,
-    DatasetError,
-    dataset_id_for,
     episode_totals,
     remove_stale_temporaries,
-    write_marker,
 )
+from bimgame.expert.datasets import DatasetError, dataset_id_for
+from bimgame.expert.generation import write_marker
 from bimgame.expert.minari_build import episode_path
 from bimgame.play.minari_human import read_human_episode, run_build_process
 from bimgame.sim.tasks import Task, parse_task

@@ -106,7 +106,7 @@ class RankLearner:
         kl = self._kl_to_teacher(segment, step)
         if self.learning is not self.net:
             segment = segment.to(self.device)
-            kl = None if kl is None else KLTarget(kl.log_probs.to(self.device), kl.weight)
+            kl = None if kl is None else KLTarget(kl.policy.to(self.device), kl.weight)
         parts = ppo_update(
             self.learning, self.optimizer, segment, self.config.optimization, self.batches, average=self.average, kl=kl
         )

@@ -54,7 +54,7 @@ class KLTarget(NamedTuple):
     it (:meth:`~bimgame.learn.policy_heads.ActionHead.frozen`: log-probabilities, or a Gaussian's
     mean and log standard deviation) and the weight of KL(π^s ‖ π) in the loss."""
 
-    log_probs: torch.Tensor
+    policy: torch.Tensor
     weight: float
 
 
@@ -68,11 +68,11 @@ class RolloutTargets:
     returns: torch.Tensor
     values: torch.Tensor
     log_probs: torch.Tensor
-    teacher_log_probs: torch.Tensor | None = None
+    teacher_policy: torch.Tensor | None = None
     kl_weight: float = 0.0
 
     def _map(self, change: Callable[[torch.Tensor], torch.Tensor]) -> RolloutTargets:
-        teacher = self.teacher_log_probs
+        teacher = self.teacher_policy
         return RolloutTargets(
             change(self.advantages),
             change(self.returns),
@@ -111,7 +111,7 @@ def rollout_targets(
     )
     targets = RolloutTargets(advantages, returns, values, segment.log_probs)
     if kl is not None:
-        targets.teacher_log_probs, targets.kl_weight = kl.log_probs, kl.weight
+        targets.teacher_policy, targets.kl_weight = kl.policy, kl.weight
     if length == segment.steps:
         return segment, targets
     return segment.sequences(length, states), targets.sequences(length)
@@ -159,8 +159,8 @@ def ppo_minibatch_loss(
         aux, aux_parts = net.aux_loss(out.features, out.hidden, segment.privileged)
         parts.update(aux_parts)
         loss = loss + settings.aux_coef * aux
-    if targets.teacher_log_probs is not None:
-        kl = policy_kl(net, targets.teacher_log_probs, out.logits[:-1])
+    if targets.teacher_policy is not None:
+        kl = policy_kl(net, targets.teacher_policy, out.logits[:-1])
         parts["kl"] = kl.item()
         if targets.kl_weight > 0:
             loss = loss + targets.kl_weight * kl
