@@ -88,14 +88,18 @@ def test_settings_accept_the_labyrinth_and_refuse_the_mazes_settings_by_name():
     # pixel tests below).
     assert PPOConfig.from_flat(LAB, obs="pixels").network.aux_heads is False
     assert PPOConfig.from_flat(LAB, obs="cyberrunner").network.obs == "cyberrunner"  # test_cyberrunner_encoder.py
-    for name, value, why in (("randomize", "physics", "domain randomisation"), ("expert_data", "data", "datasets")):
+    for name, value, why in (("randomize", "physics", "domain randomisation"),
+                             ("expert_data", "data", "only demonstration starts .* read the expert's datasets")):
         with pytest.raises(ValueError, match=rf"A3CConfig\.{name} applies to the circular maze's tasks only.*{why}"):
             A3CConfig.from_flat(LAB, **{name: value})
-    # Demonstration starts are the maze's expert's; the reverse curriculum runs along the labyrinth's path.
+    with pytest.raises(ValueError, match=r"A3CConfig\.bc_coef applies to the circular maze's tasks only.*pre-train"):
+        A3CConfig.from_flat(LAB, start_curriculum="demo", expert_data="data", bc_coef=0.1)
+    # Both start curricula run on the labyrinth: demonstration starts from its expert's data, the reverse
+    # curriculum along its path.
     for config in (A3CConfig, PPOConfig):
-        with pytest.raises(ValueError, match=rf"{config.__name__}\.start_curriculum='demo' applies to the circular "
-                                             r"maze's tasks only.*use start_curriculum='reverse'"):
+        with pytest.raises(ValueError, match=rf"{config.__name__}\.start_curriculum='demo' needs expert_data"):
             config.from_flat(LAB, start_curriculum="demo")
+        assert config.from_flat(LAB, start_curriculum="demo", expert_data="data").expert_data == "data"
         assert config.from_flat(LAB, start_curriculum="reverse").curriculum.start_curriculum == "reverse"
     with pytest.raises(ValueError, match=r"PPOConfig\.task: unknown task 'labyrinth'; allowed: FULL, .*LABYRINTH-EASY"):
         PPOConfig.from_flat(LAB, task="labyrinth")

@@ -12,9 +12,10 @@ import numpy as np
 import pytest
 
 from bimgame.envs.labyrinth_vector import LabyrinthVectorEnv
+from bimgame.expert.labyrinth_datasets import generate_labyrinth_dataset, load_labyrinth_demonstrations
 from bimgame.learn.curricula import start_curriculum
 from bimgame.learn.learner_settings import CurriculumSettings
-from bimgame.learn.path_starts import TRUE_START, PathStartCurriculum
+from bimgame.learn.path_starts import TRUE_START, DemoPathStarts, PathStartCurriculum
 from bimgame.sim.labyrinth import LabyrinthSpec
 from bimgame.sim.labyrinth_physics import LabyrinthSim
 
@@ -124,12 +125,12 @@ def test_a_sampler_giving_the_layouts_start_changes_nothing_but_the_tags():
     assert np.array_equal(a, b) and np.all(tagged.start_tags == 7) and np.all(plain.start_tags == 0)
 
 
-def test_learners_build_it_for_the_labyrinths_reverse_curriculum_only():
+def test_learners_build_it_for_the_labyrinths_reverse_curriculum():
     reverse = start_curriculum("LABYRINTH-HARD", CurriculumSettings("reverse", 0.6))
     assert isinstance(reverse, PathStartCurriculum) and reverse.stages.threshold == 0.6
     assert start_curriculum("LABYRINTH-HARD", None) is None
-    with pytest.raises(ValueError, match="the labyrinth has 'reverse' only"):
-        start_curriculum("LABYRINTH-EASY", CurriculumSettings("demo"), "data")
+    with pytest.raises(ValueError, match="start_curriculum 'demo' needs expert_data"):
+        start_curriculum("LABYRINTH-EASY", CurriculumSettings("demo"))
 
 
 def test_ppo_trains_with_it_on_the_labyrinth_and_logs_its_stage(tmp_path):
@@ -148,3 +149,92 @@ def test_ppo_trains_with_it_on_the_labyrinth_and_logs_its_stage(tmp_path):
         updates = list(csv.DictReader(handle))
     assert updates and all(row["curriculum_stage"] != "" for row in updates)
     assert float(updates[-1]["curriculum_start_distance"]) >= 0.10
+
+
+# ------------------------------------------------------------------------ demonstration starts
+@pytest.fixture(scope="module")
+def easy_demo(tmp_path_factory):
+    """One successful expert episode on the easy layout (the default expert: ≈ 460 steps, 10-20 s)."""
+    return generate_labyrinth_dataset(tmp_path_factory.mktemp("lab") / "data", "LABYRINTH-EASY", 1, seed=0,
+                                      workers=1, progress=False)
+
+
+def _moving_demonstration(spec: LabyrinthSpec) -> tuple[np.ndarray, np.ndarray]:
+    """A made-up demonstration: the path curriculum's rest states with a velocity of 5 cm/s added,
+    and their arc lengths as the progress (the last state, after the last step, never a start)."""
+    rest = PathStartCurriculum(spec)
+    sim = LabyrinthSim(spec)
+    states = []
+    for state in rest.states:
+        sim.set_state(state)
+        sim.data.qvel[2] = 0.05  # the marble's free joint follows the two hinges: a marble in motion
+        states.append(sim.get_state())
+    moving = sim.layout.board_frame(np.array(states))[1]
+    sim.close()
+    assert np.all(np.abs(moving[..., 0]) > 0.01)
+    return np.array(states), rest.arcs.copy()
+
+
+def test_demonstration_starts_are_the_experts_states_within_the_stages_distance():
+    spec = LabyrinthSpec.layout("easy")
+    states, arcs = _moving_demonstration(spec)
+    shifted = arcs.copy()
+    shifted[::2] += 0.05  # every other state recorded 5 cm ahead of where the progress rule places it
+    curriculum = DemoPathStarts(spec, [(states, shifted)], true_share=0.0, window=4, threshold=0.75)
+    # The last state (after the last step) and the misplaced ones are no starts.
+    assert len(curriculum.states) == len(states[1:-1:2])
+    np.testing.assert_array_equal(curriculum.states, states[1:-1:2])
+    np.testing.assert_allclose(curriculum.back_of, spec.path.length - arcs[1:-1:2])
+    rng = np.random.default_rng(0)
+    by_state = {s.tobytes(): b for s, b in zip(curriculum.states, curriculum.back_of, strict=True)}
+    backs = [by_state[curriculum(0, rng)[0].tobytes()] for _ in range(100)]
+    assert max(backs) <= 0.10 and len(set(backs)) > 3
+    for _ in range(4):
+        curriculum.record(0, True)
+    assert curriculum.status()["curriculum_start_distance"] == pytest.approx(0.15)
+    env = LabyrinthVectorEnv(2, "easy", obs_mode="state", start_sampler=curriculum)
+    env.reset(seed=0)
+    assert np.all(env.start_tags == curriculum.stage)
+    env.close()
+
+
+def test_demonstration_starts_refuse_what_they_cannot_use(easy_demo, tmp_path):
+    spec = LabyrinthSpec.layout("easy")
+    states, arcs = _moving_demonstration(spec)
+    with pytest.raises(ValueError, match=r"demonstration 0 must give sim_states \(T\+1, 20\) and progress \(T\+1,\)"):
+        DemoPathStarts(spec, [(states[:, :5], arcs)])
+    with pytest.raises(ValueError, match="demonstration 0 must give"):
+        DemoPathStarts(spec, [(states, arcs[:-1])])
+    bad = states.copy()
+    bad[3, 0] = np.nan
+    with pytest.raises(ValueError, match="demonstration 0 has values that are not finite"):
+        DemoPathStarts(spec, [(bad, arcs)])
+    with pytest.raises(ValueError, match="gives no start"):
+        DemoPathStarts(spec, [])
+    with pytest.raises(ValueError, match=r"DemoPathStarts\.threshold must be a number in \(0, 1\]"):
+        DemoPathStarts(spec, [(states, arcs)], threshold=0.0)
+    with pytest.raises(ValueError, match="holds LABYRINTH-EASY episodes; demonstration starts for LABYRINTH-HARD"):
+        DemoPathStarts.from_dataset(easy_demo, "LABYRINTH-HARD")
+
+
+def test_learners_start_from_the_experts_dataset_on_the_labyrinth(easy_demo, tmp_path):
+    task, demonstrations = load_labyrinth_demonstrations(easy_demo)
+    assert task == "LABYRINTH-EASY" and len(demonstrations) == 1
+    sim_states, progress = demonstrations[0]
+    assert progress[0] < 0.01 and progress[-1] == pytest.approx(LabyrinthSpec.layout("easy").path.length, abs=0.05)
+    curriculum = start_curriculum("LABYRINTH-EASY", CurriculumSettings("demo", 0.6), easy_demo)
+    assert isinstance(curriculum, DemoPathStarts) and curriculum.stages.threshold == 0.6
+    assert len(curriculum.states) > 0.9 * (len(sim_states) - 1)  # nearly every state before a step
+    from bimgame.cli.main import main
+
+    run_dir = tmp_path / "run"
+    assert main(["train", "--algo", "ppo", "--task", "LABYRINTH-EASY", "--obs", "state", "--action-type",
+                 "continuous", "--start-curriculum", "demo", "--expert-data", str(easy_demo), "--steps", "2048",
+                 "--n-steps", "64", "--envs-per-worker", "8", "--log-every", "512", "--eval-episodes", "1",
+                 "--no-progress", "--run-dir", str(run_dir)]) == 0
+    with open(run_dir / "updates.csv", newline="") as handle:
+        rows = list(csv.DictReader(handle))
+    assert rows and all(float(row["curriculum_start_distance"]) >= 0.10 for row in rows)
+    with open(run_dir / "episodes.csv", newline="") as handle:
+        episodes = list(csv.DictReader(handle))
+    assert any(row["true_start"] == "False" for row in episodes)  # episodes started from the demonstration

@@ -81,12 +81,14 @@ def test_behaviour_cloning_learns_a_continuous_state_dependent_expert():
     assert torch.all(net.log_std.detach() < log_std_before)  # the expert is deterministic: π sharpens
 
 
-def test_pretraining_settings_take_labyrinth_tasks_and_continuous_actions_dagger_does_not():
+def test_pretraining_settings_take_labyrinth_tasks_and_continuous_actions_dagger_on_the_labyrinth_only():
     assert _config().time_limit == puzzle(LABYRINTH).time_limit
     with pytest.raises(ValueError, match=r"PretrainConfig\.task"):
         _config(task="LABYRINTH-IMPOSSIBLE")
-    with pytest.raises(ValueError, match=r"DAgger runs on the circular maze's tasks only.*allowed: FULL"):
-        DAggerConfig(learner=_config(action_type="discrete"))
+    # DAgger's learner on the labyrinth takes either kind of action (its expert labels both) ...
+    for action_type in ("discrete", "continuous"):
+        assert DAggerConfig(learner=_config(action_type=action_type, aux_heads=False)).learner.task == LABYRINTH
+    # ... and on the maze discrete ones only, the maze expert's.
     with pytest.raises(ValueError, match="DAgger supports action_type 'discrete' only"):
         DAggerConfig(learner=PretrainConfig(task="STG1", action_type="continuous", aux_heads=False,
                                             asymmetric_critic=False))

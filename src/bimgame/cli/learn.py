@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import math
 import sys
 from pathlib import Path
@@ -63,6 +62,7 @@ PRETRAIN_FLAGS = (
 DAGGER_LEARNER_FLAGS = (
     "task",
     "obs",
+    "action_type",
     "lr",
     "hidden",
     "features",
@@ -74,6 +74,7 @@ DAGGER_LEARNER_FLAGS = (
 )
 #: DAgger's own settings with a flag (``expert`` is the default MPC expert).
 DAGGER_FLAGS = (
+    "expert_data",
     "iterations",
     "episodes_per_iteration",
     "beta0",
@@ -121,7 +122,7 @@ DAGGER_GROUPS = (
 )
 #: The group of each DAgger setting with a flag (its own and its learner's).
 DAGGER_PLACEMENT: dict[str, tuple[str, ...]] = {
-    "run": ("task",),
+    "run": ("task", "expert_data"),
     "network": NetworkSettings.field_names(),
     "logging": ("eval_episodes",),
     "DAgger": (
@@ -223,9 +224,15 @@ def add_dagger_arguments(parser: argparse.ArgumentParser) -> None:
     add("--run-dir", type=Path, required=True, help="directory for the weights, aggregated data and logs")
     add("--resume", action="store_true", help="continue after the run's last finished iteration")
     add("--init", type=Path, default=None, help="start the learner from these weights (e.g. bimgame pretrain's)")
-    defaults = DAggerConfig()
     add_grouped_settings_flags(
-        parser, groups, PretrainConfig, DAGGER_LEARNER_FLAGS, DAGGER_PLACEMENT, defaults=defaults.learner, types=_TYPES
+        parser,
+        groups,
+        PretrainConfig,
+        DAGGER_LEARNER_FLAGS,
+        DAGGER_PLACEMENT,
+        types=_TYPES,
+        default_none=True,  # what is not given takes its default for the observations (e.g. sizes)
+        choices={"task": TASK_NAMES},  # the maze's tasks and the labyrinth's
     )
     resumable = DAggerConfig.RESUMABLE_CHANGES
     add_grouped_settings_flags(
@@ -249,10 +256,23 @@ def add_dagger_arguments(parser: argparse.ArgumentParser) -> None:
     groups["logging"].add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
+def dagger_learner_from(args: argparse.Namespace) -> PretrainConfig:
+    """DAgger's learner of the flags given: those not given take their defaults for the observations
+    (128 units for state, 256 for pixels) on task STG1 unless ``--task`` says otherwise, with no
+    auxiliary heads nor asymmetric critic; an ``--action-type`` not given is ``--expert-data``'s, else
+    discrete."""
+    values = {name: getattr(args, name) for name in DAGGER_LEARNER_FLAGS if getattr(args, name) is not None}
+    if "action_type" not in values and args.expert_data is not None:
+        try:
+            values["action_type"] = dataset_action_type(dataset_manifest(args.expert_data))
+        except (ValueError, OSError):
+            pass  # dagger() names what is wrong with the dataset
+    values = {"task": DAggerConfig().learner.task, **values}
+    return PretrainConfig(**values, aux_heads=False, asymmetric_critic=False)
+
+
 def run_dagger(args: argparse.Namespace) -> int:
-    learner = dataclasses.replace(
-        DAggerConfig().learner, **{name: getattr(args, name) for name in DAGGER_LEARNER_FLAGS}
-    )
+    learner = dagger_learner_from(args)
     given = given_settings(args, DAggerConfig, DAGGER_FLAGS)
     config = resolve_dagger_config(learner, given, args.run_dir, resume=args.resume)
     print(

@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from bimgame.envs.env import BallInMazeEnv
 from bimgame.envs.labyrinth_env import PATH_AHEAD, PATH_SPACING, LabyrinthEnv, labyrinth_max_episode_steps
 from bimgame.envs.labyrinth_vector import LabyrinthVectorEnv
 from bimgame.envs.observe import OBS_MODES
@@ -171,6 +172,16 @@ class Puzzle:
     def state_obs_scale(self) -> np.ndarray:
         """The state observation's divisors on this puzzle's board (:func:`state_obs_scale`)."""
         return state_obs_scale(self.spec)
+
+    def env(self, *, obs_mode: str, action_type: str) -> BallInMazeEnv | LabyrinthEnv:
+        """One environment of the task, without a time limit (its user counts steps): what a loop that
+        reads each board's physics state steps, such as DAgger's expert-labelled rollouts. ``obs_mode``
+        ``cyberrunner`` is stepped as ``cyberrunner_flat``, as in :meth:`vector_env`."""
+        check_obs("obs_mode", self.task, obs_mode)
+        if self.is_maze:
+            return BallInMazeEnv(self.task, obs_mode=obs_mode, action_type=action_type)
+        assert self.layout is not None
+        return LabyrinthEnv(self.layout, obs_mode=LABYRINTH_OBS.get(obs_mode, obs_mode), action_type=action_type)
 
     def vector_env(
         self,

@@ -67,6 +67,7 @@ from bimgame.util.seeding import episode_seed
 __all__ = [
     "generate_labyrinth_dataset",
     "load_labyrinth_sequences",
+    "load_labyrinth_demonstrations",
     "load_labyrinth_dataset",
     "labyrinth_dataset_manifest",
     "labyrinth_dataset_summary",
@@ -309,6 +310,22 @@ def load_labyrinth_sequences(
         if renderer is not None:
             renderer.close()
     return sequences
+
+
+def load_labyrinth_demonstrations(data_dir: str | Path) -> tuple[str, list[tuple[np.ndarray, np.ndarray]]]:
+    """The task of a finished labyrinth dataset and, per episode that reached the goal, its physics
+    states and path progress (m) before every step and after the last: ``(sim_states (T+1, S),
+    progress (T+1,))``, what demonstration starts are made of
+    (:class:`~bimgame.learn.path_starts.DemoPathStarts`). Every file is verified first."""
+    data_dir = Path(data_dir).absolute()
+    manifest = labyrinth_dataset_manifest(data_dir)
+    verify_marker(data_dir, manifest, hashes=True)
+    demonstrations = []
+    for index in range(manifest["episodes"]):
+        data = _read(data_dir, manifest, index)
+        if bool(data["success"]):
+            demonstrations.append((data["sim_states"], data["progress"]))
+    return str(manifest["task"]), demonstrations
 
 
 def _sequence(data: dict[str, np.ndarray], index: int, gamma: float, renderer: LabyrinthEnv | None) -> Episode:

@@ -1,7 +1,9 @@
 """The start curriculum a learner's settings ask for, on either puzzle, and the columns its status is
 logged under: one place for A3C's workers and PPO's ranks.
 
-- ``demo`` (the maze): :class:`~bimgame.learn.starts.DemoStartCurriculum`, the expert's states.
+- ``demo``: the expert's states, on the maze by steps of its episodes
+  (:class:`~bimgame.learn.starts.DemoStartCurriculum`), on the labyrinth by metres of its path
+  (:class:`~bimgame.learn.path_starts.DemoPathStarts`).
 - ``reverse``: without expert data, grown back from the goal — on the maze by random walks
   (:class:`~bimgame.learn.starts.ReverseCurriculum`), on the labyrinth along its printed path
   (:class:`~bimgame.learn.path_starts.PathStartCurriculum`).
@@ -13,14 +15,14 @@ from pathlib import Path
 
 from bimgame.envs.puzzles import puzzle
 from bimgame.learn.learner_settings import CurriculumSettings
-from bimgame.learn.path_starts import PathStartCurriculum
+from bimgame.learn.path_starts import DemoPathStarts, PathStartCurriculum
 from bimgame.learn.starts import DemoStartCurriculum, ReverseCurriculum
 from bimgame.sim.labyrinth import LabyrinthSpec
 
 __all__ = ["StartCurriculumSampler", "CURRICULUM_COLUMNS", "CURRICULUM_SCALARS", "start_curriculum"]
 
 #: What :func:`start_curriculum` returns: a start sampler with ``record`` and ``status``.
-StartCurriculumSampler = DemoStartCurriculum | ReverseCurriculum | PathStartCurriculum
+StartCurriculumSampler = DemoStartCurriculum | ReverseCurriculum | PathStartCurriculum | DemoPathStarts
 #: Every key a curriculum's ``status()`` may report: the learners' ``updates`` log columns.
 CURRICULUM_COLUMNS = (
     "curriculum_stage",
@@ -46,15 +48,15 @@ def start_curriculum(
         return None
     threshold = curriculum.curriculum_threshold
     spec = puzzle(task).spec
+    if curriculum.start_curriculum == "demo" and expert_data is None:
+        raise ValueError("start_curriculum 'demo' needs expert_data (an expert dataset directory)")
     if isinstance(spec, LabyrinthSpec):
-        if curriculum.start_curriculum != "reverse":
-            raise ValueError(
-                f"start_curriculum {curriculum.start_curriculum!r} on {task}: the labyrinth has 'reverse' only"
-            )
+        if curriculum.start_curriculum == "demo":
+            assert expert_data is not None
+            return DemoPathStarts.from_dataset(expert_data, task, threshold=threshold)
         return PathStartCurriculum(spec, threshold=threshold)
     if curriculum.start_curriculum == "demo":
-        if expert_data is None:
-            raise ValueError("start_curriculum 'demo' needs expert_data (an expert dataset directory)")
+        assert expert_data is not None
         return DemoStartCurriculum.from_dataset(expert_data, task, threshold=threshold)
     # A pool of 32 starts (not the class's 100): each start is tried 3 times before the pool grows,
     # and a failed STG3 episode lasts 750 steps, so 100 starts held one pool for ≈ 230k steps.

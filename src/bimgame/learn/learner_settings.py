@@ -104,10 +104,10 @@ START_CURRICULA: tuple[str, ...] = ("none", *get_args(StartCurriculum))
 MAZE_ONLY = {
     "num_mazes": "random mazes are circular mazes (bimgame.sim.maze_sets)",
     "start_maze": "random mazes are circular mazes (bimgame.sim.maze_sets)",
-    "start_curriculum='demo'": "demonstration starts are states of the MPC expert's episodes on the maze "
-    "(on the labyrinth use start_curriculum='reverse': starts along its printed path)",
     "randomize": "domain randomisation varies the maze's physics and camera (bimgame.envs.randomization)",
-    "expert_data": "the expert's datasets are MPC episodes on the maze",
+    "expert_data": "on the labyrinth only demonstration starts (start_curriculum='demo') read the expert's datasets",
+    "bc_coef": "behaviour cloning reads windows of the maze expert's datasets (on the labyrinth pre-train π^s "
+    "with bimgame pretrain and start from it with --init)",
     "value_reward": "V̂ is a value function of the maze's observations",
     "geodesic_coef": "geodesic shaping follows the maze's distance to its centre",
 }
@@ -134,10 +134,10 @@ def check_expert_data(owner: str, expert_data: str | None, readers: Mapping[str,
 def check_start_curriculum(
     owner: str, task: str, curriculum: CurriculumSettings | None, expert_data: str | None
 ) -> None:
-    """A start curriculum the task can run: demonstration starts read ``expert_data`` and exist on the
-    maze only; the reverse curriculum runs on both puzzles (the labyrinth's along its printed path)."""
+    """A start curriculum the task can run: demonstration starts read ``expert_data`` (on the labyrinth
+    nothing else does); both curricula run on both puzzles (the labyrinth's along its printed path)."""
     demo = curriculum is not None and curriculum.start_curriculum == "demo"
-    refuse_maze_only(owner, task, {"expert_data": expert_data is not None, "start_curriculum='demo'": demo})
+    refuse_maze_only(owner, task, {"expert_data": expert_data is not None and not demo})
     check_expert_data(owner, expert_data, {"start_curriculum='demo'": demo})
 
 

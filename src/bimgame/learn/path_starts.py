@@ -18,24 +18,66 @@ uniformly (:class:`~bimgame.learn.start_stages.BackwardStages`: ``D_0 = first_ba
 ``growth`` once ``window`` episodes of the stage succeeded at ``threshold``); a share
 ``true_share`` of the episodes starts from the layout's own start (tag :data:`TRUE_START`). Evaluations
 always use the layout's own start.
+
+:class:`DemoPathStarts` is the labyrinth's ``demo`` curriculum: the same stages in metres of path, its
+starts the physics states of the expert's successful episodes (``bimgame generate --task LABYRINTH-…``)
+instead of the marble at rest. An expert state carries what a start at rest lacks: the marble's
+speed, the board's tilt, the way the expert entered a turn. The path curriculum at rest stalled 34 cm
+before the goal, where a marble at rest on a level board is not where any good run passes.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
 import numpy as np
 
 from bimgame.envs.labyrinth_env import path_points_ahead
+from bimgame.envs.puzzles import puzzle
+from bimgame.expert.labyrinth_datasets import load_labyrinth_demonstrations
 from bimgame.learn.start_stages import TRUE_START, BackwardStages, StagedStarts, check_int, check_real
 from bimgame.sim.labyrinth import LabyrinthSpec, PathProgress
 from bimgame.sim.labyrinth_physics import LabyrinthSim
 
-__all__ = ["TRUE_START", "PathStartCurriculum"]
+__all__ = ["TRUE_START", "PathStartCurriculum", "DemoPathStarts"]
 
 #: How closely the progress rule must place a start at its own arc length (m).
 _ARC_TOLERANCE = 1e-3
 
 
-class PathStartCurriculum(StagedStarts):
+class _StartsAlongThePath(StagedStarts):
+    """Starts that lie ``back_of`` metres of path before the goal, physics states in ``states``, drawn
+    uniformly among those within the current stage's distance: what both of the labyrinth's
+    curricula do once their starts are chosen."""
+
+    states: np.ndarray
+    back_of: np.ndarray
+
+    def __call__(self, index: int, rng: np.random.Generator) -> tuple[np.ndarray | None, int]:
+        """The start of env ``index``'s next episode: ``(sim_state, stage)``, or ``(None, TRUE_START)``."""
+        if self.true_start(rng):
+            return None, TRUE_START
+        within = np.flatnonzero(self.back_of <= self.stages.back)
+        if not len(within):  # D_0 shorter than the gap between the goal and the nearest start
+            within = np.array([int(np.argmin(self.back_of))])
+        return self.states[within[int(rng.integers(len(within)))]].copy(), self.stage
+
+    def status(self) -> dict[str, float]:
+        """The stage, how far back (m of path) its starts reach, the share of the layout's own starts
+        and the success rate of the current stage's window so far."""
+        return {**self.stage_status(), "curriculum_start_distance": float(self.stages.back)}
+
+
+def _placed_on_path(spec: LabyrinthSpec, xy: np.ndarray, arcs: np.ndarray) -> np.ndarray:
+    """Which points ``xy`` (K, 2) the env's progress rule, reset there, places at their arc lengths
+    ``arcs`` (K,) of the path: a start it would place elsewhere would pay for path it did not follow."""
+    tracker = PathProgress(spec)
+    return np.array([abs(tracker.reset(p).progress - a) <= _ARC_TOLERANCE for p, a in zip(xy, arcs, strict=True)])
+
+
+class PathStartCurriculum(_StartsAlongThePath):
     """Starts along the labyrinth's printed path, moved back from the goal stage by stage (module
     docstring). A :class:`~bimgame.envs.vector.StartSampler` for
     ``LabyrinthVectorEnv(start_sampler=…)``, with ``record`` and ``status`` as the maze's curricula.
@@ -89,11 +131,7 @@ class PathStartCurriculum(StagedStarts):
         hole_distance = np.linalg.norm(xy[:, None] - holes[None], axis=-1).min(axis=1) if len(holes) else np.inf
         outside_holes = hole_distance >= spec.hole_radius + spec.marble_radius
         outside_goal = np.linalg.norm(xy - np.asarray(spec.waypoints[-1]), axis=1) > spec.goal_radius
-        tracker = PathProgress(spec)
-        on_path = np.array(
-            [abs(tracker.reset(p).progress - a) <= _ARC_TOLERANCE for p, a in zip(xy, arcs, strict=True)]
-        )
-        keep = clear & outside_holes & outside_goal & on_path
+        keep = clear & outside_holes & outside_goal & _placed_on_path(spec, xy, arcs)
         if not keep.any():
             raise ValueError(f"{type(self).__name__}: no point of the path is clear for a start")
         return arcs[keep], xy[keep]
@@ -111,17 +149,96 @@ class PathStartCurriculum(StagedStarts):
             sim.close()
         return np.stack(states)
 
-    # ------------------------------------------------------------------ sampler
-    def __call__(self, index: int, rng: np.random.Generator) -> tuple[np.ndarray | None, int]:
-        """The start of env ``index``'s next episode: ``(sim_state, stage)``, or ``(None, TRUE_START)``."""
-        if self.true_start(rng):
-            return None, TRUE_START
-        within = np.flatnonzero(self.back_of <= self.stages.back)
-        if not len(within):  # D_0 shorter than the gap between the goal and the nearest start
-            within = np.array([int(np.argmin(self.back_of))])
-        return self.states[within[int(rng.integers(len(within)))]].copy(), self.stage
 
-    def status(self) -> dict[str, float]:
-        """The stage, how far back (m of path) its starts reach, the share of the layout's own starts
-        and the success rate of the current stage's window so far."""
-        return {**self.stage_status(), "curriculum_start_distance": float(self.stages.back)}
+class DemoPathStarts(_StartsAlongThePath):
+    """Starts from the expert's demonstrations on the labyrinth, moved back from the goal stage by stage
+    in metres of path (module docstring). A :class:`~bimgame.envs.vector.StartSampler` for
+    ``LabyrinthVectorEnv(start_sampler=…)``, with ``record`` and ``status`` as :class:`PathStartCurriculum`.
+
+    Every state before a step of a demonstration that reached the goal is a start, ``back_of`` being
+    the path still ahead of it by the recorded progress, except states the env's progress rule,
+    reset there, would place at another arc length (a marble in a turn's corner can be in sight of the
+    next segment before the expert's own tracker moved on to it).
+
+    Args:
+        spec: the labyrinth's board (the demonstrations' layout).
+        demonstrations: ``(sim_states (T+1, S), progress (T+1,))`` per successful demonstration:
+            ``LabyrinthSim.get_state()`` and the path progress (m) before every step and after the last.
+        first_back, growth, threshold, window, true_share: the schedule of :class:`PathStartCurriculum`.
+        source: what the demonstrations are, for error messages.
+    """
+
+    def __init__(
+        self,
+        spec: LabyrinthSpec,
+        demonstrations: Sequence[tuple[np.ndarray, np.ndarray]],
+        *,
+        first_back: float = 0.10,
+        growth: float = 1.5,
+        threshold: float = 0.8,
+        window: int = 100,
+        true_share: float = 0.1,
+        source: str = "the given demonstrations",
+    ):
+        owner = type(self).__name__
+        if not isinstance(spec, LabyrinthSpec):
+            raise TypeError(f"{owner}: spec must be a LabyrinthSpec, got {type(spec).__name__}")
+        self.spec = spec
+        length = spec.path.length
+        first_back = check_real(owner, "first_back", first_back, 0.0, length, open_low=True)
+        growth = check_real(owner, "growth", growth, 1.0, 100.0, open_low=True)
+        threshold = check_real(owner, "threshold", threshold, 0.0, 1.0, open_low=True)
+        self.true_share = check_real(owner, "true_share", true_share, 0.0, 1.0)
+        window = check_int(owner, "window", window, 1)
+        self.states, arcs = self._demo_states(demonstrations, source)
+        self.back_of = length - arcs
+        self.stages = BackwardStages(
+            owner, first_back, growth, float(self.back_of.max()), threshold=threshold, window=window
+        )
+
+    def _demo_states(
+        self, demonstrations: Sequence[tuple[np.ndarray, np.ndarray]], source: str
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The usable states (K, S) of the demonstrations before their last step, and their arc lengths (K,)."""
+        sim = LabyrinthSim(self.spec)
+        size = sim.state_size
+        try:
+            states, arcs = [], []
+            for k, (sim_states, progress) in enumerate(demonstrations):
+                sim_states = np.asarray(sim_states, dtype=np.float64)
+                progress = np.asarray(progress, dtype=np.float64)
+                if sim_states.ndim != 2 or sim_states.shape[1] != size or progress.shape != (len(sim_states),):
+                    raise ValueError(
+                        f"{source}: demonstration {k} must give sim_states (T+1, {size}) and progress (T+1,), "
+                        f"got shapes {sim_states.shape} and {progress.shape}"
+                    )
+                if not (np.isfinite(sim_states).all() and np.isfinite(progress).all()):
+                    raise ValueError(f"{source}: demonstration {k} has values that are not finite")
+                xy = sim.layout.board_frame(sim_states[:-1])[0][..., 0, :2]
+                keep = _placed_on_path(self.spec, xy, progress[:-1])
+                states.append(sim_states[:-1][keep])
+                arcs.append(progress[:-1][keep])
+        finally:
+            sim.close()
+        if not states or not sum(len(a) for a in arcs):
+            raise ValueError(
+                f"{type(self).__name__}: {source} gives no start (no demonstration that reached the goal); "
+                "generate one with bimgame generate --task LABYRINTH-…"
+            )
+        return np.concatenate(states), np.concatenate(arcs)
+
+    @classmethod
+    def from_dataset(cls, path: str | Path, task: str, **settings: Any) -> DemoPathStarts:
+        """The curriculum of a labyrinth expert dataset directory of ``task``'s layout (read with
+        :func:`~bimgame.expert.labyrinth_datasets.load_labyrinth_demonstrations`, which verifies it).
+        ``settings``: the constructor's keywords."""
+        data_task, demonstrations = load_labyrinth_demonstrations(path)
+        wanted = puzzle(task)
+        if data_task != wanted.task:
+            raise ValueError(
+                f"the dataset in {path} holds {data_task} episodes; demonstration starts for {wanted.task} need "
+                f"a dataset of {wanted.task} (bimgame generate --task {wanted.task})"
+            )
+        spec = wanted.spec
+        assert isinstance(spec, LabyrinthSpec)
+        return cls(spec, demonstrations, source=f"the dataset in {path}", **settings)

@@ -36,19 +36,18 @@ from typing import Any
 import numpy as np
 import torch
 
-from bimgame.envs.puzzles import LABYRINTH, PuzzleSpec, puzzle
-from bimgame.expert.datasets import dataset_manifest, dataset_mazes, iterate_sequences, load_dataset
-from bimgame.expert.episode import Episode, relabel
-from bimgame.expert.labyrinth_datasets import load_labyrinth_sequences
+from bimgame.envs.puzzles import PuzzleSpec, puzzle
+from bimgame.expert.datasets import dataset_manifest, dataset_mazes
+from bimgame.expert.episode import Episode
 from bimgame.learn.checkpoints import load_weights, save_checkpoint
 from bimgame.learn.common import evaluate_greedy_and_sampled
+from bimgame.learn.expert_data import check_dataset_task, dataset_action_type, load_sequences
 from bimgame.learn.metric_logs import MetricLog
 from bimgame.learn.nets import RecurrentActorCritic, ValueNetwork
 from bimgame.learn.run_dir import RunDirectory
 from bimgame.learn.runs import CHECKPOINT, KIND_POLICY, KIND_VALUE, torch_threads
 from bimgame.learn.supervised import PretrainConfig, l2_penalty, policy_batches, policy_epoch, split_episodes, summarise
 from bimgame.sim.maze import MazeSpec
-from bimgame.sim.tasks import Task, parse_task
 from bimgame.util.files import FileWriteError
 from bimgame.util.progress import ProgressBar
 from bimgame.util.signals import sigterm_as_interrupt
@@ -75,61 +74,6 @@ _TABLE = [
     "val_aux",
     "seconds",
 ]
-
-
-# ------------------------------------------------------------------------------------- data
-def load_sequences(
-    data_dir: str | Path,
-    task: str | Task,
-    obs: str,
-    gamma: float,
-    spec: MazeSpec | None = None,
-    *,
-    progress: bool = False,
-) -> list[Episode]:
-    """Every episode of a dataset directory, relabelled for ``task`` (see
-    :func:`~bimgame.expert.episode.relabel`); a labyrinth dataset's episodes as they are (its task is
-    the dataset's own, see :func:`check_dataset_task`)."""
-    manifest = dataset_manifest(data_dir)
-    check_dataset_task(manifest, task, data_dir)
-    if manifest.get("puzzle") == LABYRINTH:
-        return load_labyrinth_sequences(data_dir, obs=obs, gamma=gamma, progress=progress)
-    spec = spec or MazeSpec.merl()
-    task = parse_task(task, spec)
-    data_task = parse_task(manifest["task"], spec)
-    if task.walls_to_pass(spec) > data_task.walls_to_pass(spec):
-        raise ValueError(
-            f"the dataset in {data_dir} holds {data_task.value} episodes, which end before a "
-            f"{task.value} episode would; use a dataset of {task.value} or a harder task "
-            f"(FULL labels every task)"
-        )
-    dataset = load_dataset(data_dir)
-    sequences = []
-    with ProgressBar(f"reading {obs} episodes", dataset.total_episodes, enabled=progress, transient=True) as bar:
-        for sequence in iterate_sequences(dataset, obs=obs, gamma=gamma):
-            sequences.append(relabel(sequence, task, gamma, spec))
-            bar.update(advance=1)
-    return sequences
-
-
-def check_dataset_task(manifest: dict[str, Any], task: str | Task, data_dir: str | Path) -> None:
-    """Refuse to learn ``task`` from a dataset of the other puzzle, or a labyrinth task from another
-    layout's dataset (a layout's episodes are not relabelled), naming both."""
-    data_task = str(manifest["task"])
-    wanted = puzzle(task)
-    labyrinth_data = manifest.get("puzzle") == LABYRINTH
-    if labyrinth_data == wanted.is_maze or (labyrinth_data and data_task != wanted.task):
-        raise ValueError(
-            f"the dataset in {data_dir} holds {data_task} episodes, which cannot teach {wanted.task}: "
-            f"use a dataset of {wanted.task}"
-            + (" (bimgame generate --task " + wanted.task + ")" if not wanted.is_maze else "")
-        )
-
-
-def dataset_action_type(manifest: dict[str, Any]) -> str:
-    """The kind of the actions a dataset holds: the maze expert's and human play are discrete; a
-    labyrinth dataset names its own (``action_type``)."""
-    return str(manifest.get("action_type", "discrete"))
 
 
 def _frames(sequences: list[Episode], indices: np.ndarray, max_tilt: float) -> dict[str, torch.Tensor]:

@@ -145,8 +145,9 @@ class A3CConfig(LearnerSettings):
         # A3C's loss, fine-tuning terms and teacher are those of a categorical policy.
         require_discrete("A3C", self.network.action_type, "use --algo ppo")
         refuse_maze_only("A3CConfig", self.task, {"randomize": self.randomize is not None})
-        check_start_curriculum("A3CConfig", self.task, self.curriculum, self.expert_data)
         bc = self.finetuning is not None and self.finetuning.bc_coef > 0
+        refuse_maze_only("A3CConfig", self.task, {"bc_coef": bc})
+        check_start_curriculum("A3CConfig", self.task, self.curriculum, self.expert_data)
         check_expert_data("A3CConfig", self.expert_data, {"bc_coef": bc})  # behaviour cloning reads it too
         self._check_pixel_settings()
 

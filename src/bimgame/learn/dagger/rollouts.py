@@ -1,34 +1,42 @@
 """DAgger's rollouts (:mod:`bimgame.learn.dagger`): the learner's episodes, run side by side, each
 step labelled by the MPC expert in the true simulator state and executed as the expert's action
 with probability β, else the learner's.
+
+On either puzzle: the circular maze's :class:`~bimgame.expert.mpc.RandomShootingMPC` labels discrete
+actions; the labyrinth's :class:`~bimgame.expert.labyrinth_mpc.LabyrinthMPC` labels the learner's
+kind, continuous tilt rates or discrete, following the env's path segment.
 """
 
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import numpy as np
 import torch
 
 from bimgame.envs.env import BallInMazeEnv
+from bimgame.envs.labyrinth_env import LabyrinthEnv
+from bimgame.envs.puzzles import puzzle
 from bimgame.expert.episode import Episode
-from bimgame.expert.mpc import RandomShootingMPC
+from bimgame.expert.labyrinth_mpc import LabyrinthMPC, LabyrinthMPCConfig
+from bimgame.expert.mpc import MPCConfig, RandomShootingMPC
 from bimgame.learn.actor import RecurrentActor, tilt_input
 from bimgame.learn.dagger.settings import DAggerConfig
 from bimgame.learn.nets import RecurrentActorCritic
 
-__all__ = ["collect_episodes"]
+__all__ = ["collect_episodes", "make_expert", "expert_label"]
 
 
 @dataclasses.dataclass
 class _Record:
     """What one rollout recorded, step by step: what the learner saw, the expert's label, the action
-    executed and the reward it brought."""
+    executed and the reward it brought (actions: discrete ints or continuous (2,) arrays)."""
 
     obs: list[np.ndarray] = dataclasses.field(default_factory=list)
     tilt: list[np.ndarray] = dataclasses.field(default_factory=list)
-    actions: list[int] = dataclasses.field(default_factory=list)
-    executed: list[int] = dataclasses.field(default_factory=list)
+    actions: list[Any] = dataclasses.field(default_factory=list)
+    executed: list[Any] = dataclasses.field(default_factory=list)
     rewards: list[float] = dataclasses.field(default_factory=list)
 
     def as_episode(self, gamma: float) -> Episode:
@@ -43,58 +51,85 @@ class _Record:
         )
 
 
+Expert = RandomShootingMPC | LabyrinthMPC
+
+
+def make_expert(
+    env: BallInMazeEnv | LabyrinthEnv, config: MPCConfig | LabyrinthMPCConfig, rng: np.random.Generator, task: str
+) -> Expert:
+    """The MPC expert that labels ``env``'s states for ``task``: the labyrinth's, matched to the env
+    (board, rate, action type, reward), or the circular maze's for the task's goal."""
+    if isinstance(env, LabyrinthEnv):
+        assert isinstance(config, LabyrinthMPCConfig)
+        return LabyrinthMPC.for_env(env, config, rng=rng)
+    assert isinstance(config, MPCConfig)
+    return RandomShootingMPC(env.maze, config, rng=rng, task=task)
+
+
+def expert_label(expert: Expert, env: BallInMazeEnv | LabyrinthEnv, info: dict[str, Any]) -> Any:
+    """The expert's action in ``env``'s true physics state (``info``: the env's latest, whose path
+    segment the labyrinth's expert follows)."""
+    state = env.sim.get_state()
+    if isinstance(expert, LabyrinthMPC):
+        return expert.act(state, info["segment"])
+    return expert.act(state)
+
+
 @dataclasses.dataclass
 class _Rollouts:
     """The rollouts of one iteration while they run side by side: each one's environment, expert and
-    record, its latest observation and tilt, whether it still runs, and how many succeeded."""
+    record, its latest observation and info, whether it still runs, and how many succeeded."""
 
-    envs: list[BallInMazeEnv]
-    experts: list[RandomShootingMPC]
+    envs: list[BallInMazeEnv | LabyrinthEnv]
+    experts: list[Expert]
     observations: list[np.ndarray]
-    tilts: list[np.ndarray]
+    infos: list[dict[str, Any]]
     records: list[_Record]
     active: np.ndarray
     successes: int = 0
 
     @classmethod
-    def start(cls, envs: list[BallInMazeEnv], experts: list[RandomShootingMPC], env_seed: int) -> _Rollouts:
-        """Reset every environment (the ``i``-th with seed ``env_seed + i``)."""
-        observations, tilts = [], []
-        for i, env in enumerate(envs):
+    def start(cls, envs: list[BallInMazeEnv | LabyrinthEnv], experts: list[Expert], env_seed: int) -> _Rollouts:
+        """Reset every environment (the ``i``-th with seed ``env_seed + i``) and expert."""
+        observations, infos = [], []
+        for i, (env, expert) in enumerate(zip(envs, experts, strict=True)):
             obs, info = env.reset(seed=env_seed + i)
+            if isinstance(expert, LabyrinthMPC):
+                expert.reset()
             observations.append(obs)
-            tilts.append(info["tilt"])
+            infos.append(info)
         records = [_Record() for _ in envs]
-        return cls(envs, experts, observations, tilts, records, np.ones(len(envs), dtype=bool))
+        return cls(envs, experts, observations, infos, records, np.ones(len(envs), dtype=bool))
 
     def step(self, actor: RecurrentActor, mix: np.random.Generator, beta: float, max_tilt: float) -> None:
         """One step of every running rollout: the expert labels the state, and the expert's action
         (with probability ``beta``) or the learner's is executed. Finished rollouts keep stepping the
         actor on stale inputs; their records are closed."""
         obs_batch = np.stack(self.observations)
-        tilt_batch = tilt_input({"tilt": np.stack(self.tilts)}, max_tilt)
+        tilt_batch = tilt_input({"tilt": np.stack([info["tilt"] for info in self.infos])}, max_tilt)
         policy_actions, _, _ = actor.act(obs_batch, tilt_batch)
-        executed = policy_actions.clone()
+        executed = actor.executed(policy_actions).clone()
         rewards = np.zeros(len(self.envs))
         done = ~self.active.copy()
         for i in map(int, np.flatnonzero(self.active)):
-            label = self.experts[i].act(self.envs[i].sim.get_state())
-            action = label if mix.random() < beta else int(policy_actions[i])
-            executed[i] = action
+            label = expert_label(self.experts[i], self.envs[i], self.infos[i])
+            if mix.random() < beta:
+                executed[i] = torch.as_tensor(label, dtype=executed.dtype)
+            action = executed[i].numpy().copy() if executed.is_floating_point() else int(executed[i])
             rewards[i], done[i] = self._step_one(i, label, action)
         actor.observe(executed, rewards, done)
 
-    def _step_one(self, i: int, label: int, action: int) -> tuple[float, bool]:
+    def _step_one(self, i: int, label: Any, action: Any) -> tuple[float, bool]:
         """Record rollout ``i``'s step (``label``: the expert's action; ``action``: the one executed)
         and take it; returns its reward and whether the episode ended."""
         record = self.records[i]
         record.obs.append(self.observations[i])
-        record.tilt.append(self.tilts[i])
+        record.tilt.append(self.infos[i]["tilt"])
         record.actions.append(label)
         record.executed.append(action)
         obs, reward, terminated, _, info = self.envs[i].step(action)
         record.rewards.append(reward)
-        self.observations[i], self.tilts[i] = obs, info["tilt"]
+        self.observations[i], self.infos[i] = obs, info
         if terminated:
             self.active[i] = False
             self.successes += int(info["is_success"])
@@ -125,14 +160,15 @@ def collect_episodes(
     sequence = np.random.SeedSequence([seed])
     env_seed, torch_seed, mix_seed, *expert_seeds = sequence.generate_state(3 + config.episodes_per_iteration)
     count = config.episodes_per_iteration
-    envs = [BallInMazeEnv(learner.task, obs_mode=learner.obs) for _ in range(count)]
+    task = puzzle(learner.task)
+    envs = [task.env(obs_mode=learner.obs, action_type=learner.action_type) for _ in range(count)]
     experts = [
-        RandomShootingMPC(envs[0].maze, config.expert, rng=np.random.default_rng(int(s)), task=learner.task)
-        for s in expert_seeds
+        make_expert(env, config.planner, np.random.default_rng(int(s)), learner.task)
+        for env, s in zip(envs, expert_seeds, strict=True)
     ]
     mix = np.random.default_rng(int(mix_seed))
     actor = RecurrentActor(net, count, generator=torch.Generator().manual_seed(int(torch_seed)))
-    max_tilt = envs[0].maze.max_tilt
+    max_tilt = task.spec.max_tilt
     rollouts = _Rollouts.start(envs, experts, int(env_seed))
     steps = 0
     try:
@@ -147,6 +183,6 @@ def collect_episodes(
         "env_steps": labels,
         "labels": labels,
         "successes": rollouts.successes,
-        "expert_sim_steps": labels * config.expert.n_samples * config.expert.horizon,
+        "expert_sim_steps": labels * config.planner.n_samples * config.planner.horizon,
     }
     return episodes, costs

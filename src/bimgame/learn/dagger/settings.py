@@ -9,12 +9,12 @@ from pathlib import Path
 from typing import Any
 
 from bimgame.envs.puzzles import puzzle
+from bimgame.expert.labyrinth_mpc import LabyrinthMPCConfig
 from bimgame.expert.mpc import MPCConfig
 from bimgame.learn.policy_heads import require_discrete
 from bimgame.learn.run_dir import stored_run_config
 from bimgame.learn.runs import KIND_DAGGER, read_run_settings
 from bimgame.learn.supervised import PretrainConfig
-from bimgame.sim.tasks import Task
 from bimgame.util.settings import from_dict, require_int
 
 __all__ = ["DAggerConfig", "resolve_dagger_config"]
@@ -32,7 +32,13 @@ class DAggerConfig:
     """Settings of a DAgger run; the network and its loss are ``learner``'s (a
     :class:`~bimgame.learn.supervised.PretrainConfig`: task, observations, sizes, lr, L2, γ). The
     learner has no auxiliary heads nor asymmetric critic: it trains on its own rollouts, which record
-    no simulator states."""
+    no simulator states.
+
+    Either puzzle: on the circular maze the expert is :class:`~bimgame.expert.mpc.RandomShootingMPC`
+    (``expert`` an :class:`~bimgame.expert.mpc.MPCConfig`, discrete actions only); on the labyrinth
+    :class:`~bimgame.expert.labyrinth_mpc.LabyrinthMPC` (``expert`` a
+    :class:`~bimgame.expert.labyrinth_mpc.LabyrinthMPCConfig``), labelling in the learner's kind of
+    action, continuous or discrete. ``expert`` None: the puzzle's default expert."""
 
     learner: PretrainConfig = dataclasses.field(
         default_factory=lambda: PretrainConfig(task="STG1", aux_heads=False, asymmetric_critic=False)
@@ -47,7 +53,11 @@ class DAggerConfig:
     """β_i = beta0 · beta_decay^i."""
     epochs_per_iteration: int = 10
     """Passes over the aggregated dataset after each iteration."""
-    expert: MPCConfig = dataclasses.field(default_factory=MPCConfig)
+    expert: MPCConfig | LabyrinthMPCConfig | None = None
+    """The expert's settings; None: the task's puzzle's defaults (filled in when made)."""
+    expert_data: str | None = None
+    """An expert dataset directory (``bimgame generate``) of the task whose episodes start the
+    aggregated dataset D, before the first rollout: DAgger from the demonstrations π^s learned from."""
     max_episode_steps: int | None = None
     """Time limit of the rollouts; None: the task's."""
     eval_episodes: int = 20
@@ -57,12 +67,20 @@ class DAggerConfig:
         """Refuse settings DAgger cannot run with, naming the setting."""
         if self.learner.target != "policy":
             raise ValueError("DAggerConfig.learner must train a policy (target='policy')")
-        if not puzzle(self.learner.task).is_maze:
+        maze = puzzle(self.learner.task).is_maze
+        expert_type = MPCConfig if maze else LabyrinthMPCConfig
+        if self.expert is None:
+            object.__setattr__(self, "expert", expert_type())
+        elif not isinstance(self.expert, expert_type):
             raise ValueError(
-                f"DAgger runs on the circular maze's tasks only (its expert is the maze's MPC), got "
-                f"{self.learner.task!r}; allowed: {', '.join(task.value for task in Task)}"
+                f"DAggerConfig.expert on task {self.learner.task} must be {expert_type.__name__} (the "
+                f"{'circular maze' if maze else 'labyrinth'}'s expert settings) or None, "
+                f"got {type(self.expert).__name__}"
             )
-        require_discrete("DAgger", self.learner.action_type, "the maze expert's labels are discrete actions")
+        if maze:
+            require_discrete("DAgger", self.learner.action_type, "the maze expert's labels are discrete actions")
+        if self.expert_data is not None and not (isinstance(self.expert_data, str) and self.expert_data):
+            raise ValueError(f"DAggerConfig.expert_data must be a dataset directory or None, got {self.expert_data!r}")
         if self.learner.aux_heads or self.learner.asymmetric_critic:
             raise ValueError(
                 "DAggerConfig.learner must have aux_heads=False and asymmetric_critic=False: DAgger "
@@ -84,6 +102,12 @@ class DAggerConfig:
     #: What a resumed run may change.
     RESUMABLE_CHANGES = ("iterations", "eval_episodes")
 
+    @property
+    def planner(self) -> MPCConfig | LabyrinthMPCConfig:
+        """The expert's settings (``expert``, filled in with the puzzle's defaults when None)."""
+        assert self.expert is not None
+        return self.expert
+
     def beta(self, iteration: int) -> float:
         """β of ``iteration``: the probability that a rollout executes the expert's action."""
         return self.beta0 * self.beta_decay**iteration
@@ -103,8 +127,11 @@ class DAggerConfig:
         values = dict(values)
         if "learner" in values:
             values["learner"] = PretrainConfig.from_dict(values["learner"])
-        if "expert" in values:
-            values["expert"] = from_dict(MPCConfig, values["expert"], "MPC settings")
+        if values.get("expert") is not None:
+            learner = values.get("learner", cls().learner)
+            maze = puzzle(learner.task).is_maze
+            expert_type = MPCConfig if maze else LabyrinthMPCConfig
+            values["expert"] = from_dict(expert_type, values["expert"], "MPC settings")
         return from_dict(cls, values, "DAgger settings")
 
 

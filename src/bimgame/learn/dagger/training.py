@@ -5,14 +5,17 @@ Each iteration i:
 
 1. **Roll out** ``episodes_per_iteration`` episodes. At every step the expert is asked for its
    action in the true simulator state (:class:`~bimgame.expert.RandomShootingMPC` on
-   ``env.sim.get_state()``), and the executed action is the expert's with probability β_i and the
-   learner's (sampled from π) otherwise; β_i = ``beta0 · beta_decay^i`` (β_0 = 1: the first
+   ``env.sim.get_state()``; on the labyrinth :class:`~bimgame.expert.labyrinth_mpc.LabyrinthMPC`, in
+   the learner's kind of action), and the executed action is the expert's with probability β_i and
+   the learner's (sampled from π) otherwise; β_i = ``beta0 · beta_decay^i`` (β_0 = 1: the first
    iteration is plain behaviour cloning data).
 2. **Label** every visited state with the expert's action and **aggregate** the episodes into the
-   dataset D. The learner's inputs are what it saw while acting: the previous action it *executed*
-   and the reward it got, so training and acting see the same input distribution.
+   dataset D; with ``expert_data``, D starts from that expert dataset's episodes (the
+   demonstrations π^s was cloned from). The learner's inputs are what it saw while acting: the
+   previous action it *executed* and the reward it got, so training and acting see the same input
+   distribution.
 3. **Retrain** the same recurrent network on all of D with the pre-training loss
-   (:func:`bimgame.learn.supervised.policy_loss_terms`: cross-entropy of the expert's action, value
+   (:func:`bimgame.learn.supervised.policy_loss_terms`: −log π of the expert's action, value
    regression on the executed returns, L2).
 
 Costs are counted separately so that curves against A3C are honest: ``env_steps`` are the steps
@@ -44,16 +47,18 @@ from typing import Any
 
 import numpy as np
 
+from bimgame.envs.puzzles import puzzle
+from bimgame.expert.datasets import dataset_manifest
 from bimgame.expert.episode import Episode
 from bimgame.learn.checkpoints import apply_weights, load_checkpoint, load_init_weights, save_checkpoint
 from bimgame.learn.common import EVAL_COLUMNS, evaluate_greedy_and_sampled, evaluation_seed
 from bimgame.learn.dagger.rollouts import collect_episodes
 from bimgame.learn.dagger.settings import DAggerConfig
+from bimgame.learn.expert_data import check_dataset_task, dataset_action_type, load_sequences
 from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.learn.run_dir import DAGGER_STATE, RunDirectory
 from bimgame.learn.runs import CHECKPOINT, KIND_DAGGER, read_run_settings, torch_threads, write_run_json
 from bimgame.learn.supervised import train_policy_epochs
-from bimgame.sim.maze import MazeSpec
 from bimgame.util import files
 from bimgame.util.files import FileWriteError
 from bimgame.util.progress import ProgressBar
@@ -133,7 +138,7 @@ def _dagger(
     config: DAggerConfig, run_dir: Path | str, *, resume: bool, init: str | Path | None, progress: bool
 ) -> DAggerResult:
     """:func:`dagger` within the caller's torch threads: the run directory held, new or resumed."""
-    net = config.learner.build_policy(config.learner.seed)
+    net = config.learner.build_policy(config.learner.seed, puzzle(config.learner.task).spec)
     with RunDirectory(run_dir, KIND_DAGGER, resume=resume) as run:
         state = _resume_state(run.path, config, net) if resume else _new_state(net, init)
         try:
@@ -208,6 +213,7 @@ _FIXED_ON_RESUME = (
     "beta_decay",
     "epochs_per_iteration",
     "expert",
+    "expert_data",
     "max_episode_steps",
 )
 
@@ -290,7 +296,7 @@ def _iterations(
     commits it, and the first keeps a new run's files whatever happens later."""
     run_dir = run.path
     first_iteration = state["iteration"]
-    dataset: list[Episode] = []
+    dataset = _demonstrations(config, progress=progress)
     for i in range(state["iteration"]):
         dataset += _load_episodes(_data_path(run_dir, i))
     # The row at the checkpoint's step is the last finished iteration's (written before it): kept.
@@ -360,7 +366,8 @@ def _run_iteration(
     _save_episodes(_data_path(run_dir, iteration), episodes)
     dataset += episodes
     rng = np.random.default_rng(seed)
-    summary = train_policy_epochs(net, dataset, learner, config.epochs_per_iteration, rng, MazeSpec.merl().max_tilt)
+    max_tilt = puzzle(learner.task).spec.max_tilt
+    summary = train_policy_epochs(net, dataset, learner, config.epochs_per_iteration, rng, max_tilt)
     evaluation = (
         evaluate_greedy_and_sampled(
             net,
@@ -374,6 +381,22 @@ def _run_iteration(
         else None
     )
     return _Outcome(beta, costs, summary, evaluation)
+
+
+def _demonstrations(config: DAggerConfig, *, progress: bool) -> list[Episode]:
+    """The episodes of ``config.expert_data`` that start the aggregated dataset (none without it); a
+    dataset of another task, puzzle or kind of action is refused by name."""
+    if config.expert_data is None:
+        return []
+    learner = config.learner
+    manifest = dataset_manifest(config.expert_data)
+    check_dataset_task(manifest, learner.task, config.expert_data)
+    if dataset_action_type(manifest) != learner.action_type:
+        raise ValueError(
+            f"DAggerConfig.expert_data {config.expert_data} holds {dataset_action_type(manifest)} actions, the "
+            f"learner has {learner.action_type} ones: use a dataset generated with --action-type {learner.action_type}"
+        )
+    return load_sequences(config.expert_data, learner.task, learner.obs, learner.gamma, progress=progress)
 
 
 def _counts_after(state: dict[str, Any], costs: dict[str, int], iteration: int, seconds: float) -> dict[str, Any]:

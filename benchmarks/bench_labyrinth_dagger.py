@@ -1,0 +1,179 @@
+"""DAgger on CyberRunner's labyrinth: the labyrinth's MPC expert labels the learner's own states,
+the aggregated dataset starts from the expert's demonstrations, and the learner starts from π^s.
+
+Behaviour cloning alone (π^s from 100 expert episodes) falls at 9-11% of the easy layout's path:
+its small errors lead it to states the expert never visited. DAgger (Ross et al., 2011) asks the
+expert what to do in exactly those states. Each run: ``--iterations`` iterations of
+``--episodes-per-iteration`` rollouts (the expert's action executed with probability
+β_i = ``beta0 · beta_decay^i``), every visited state labelled, the network retrained on all the data
+(``--epochs-per-iteration`` passes). Several seeds with the same settings.
+
+Each run's final network is scored from the layout's own start, greedily and sampling, on
+``--episodes`` episodes with the labyrinth's scoring protocol (as ``bench_labyrinth_learning.py``);
+across seeds: means with percentile-bootstrap 95% intervals, per-seed numbers in the JSON. Costs are
+reported as DAgger counts them: environment steps of the rollouts, expert labels, and the simulator
+steps the expert spent planning them (K·H per label); the demonstrations' steps are counted apart.
+Runs are kept in ``--out``; a rerun resumes unfinished runs and reuses finished ones with their scores.
+
+Writes ``--results`` (default benchmarks/results/labyrinth_dagger.json) and ``--figure`` (default
+docs/labyrinth/dagger.png): the in-run evaluation's success and the mean path progress per iteration.
+
+Usage: python benchmarks/bench_labyrinth_dagger.py --expert-data DATA --init PI_S [--layout easy]
+       [--seeds 3] [--iterations 8] [--episodes-per-iteration 10] [--beta0 0.5] [--beta-decay 0.7]
+       [--epochs-per-iteration 5] [--max-episode-steps 1500] [--jobs 3] [--episodes 100]
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import multiprocessing
+import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from bench_labyrinth_learning import MODES, _aggregate, _score
+
+from bimgame.learn.dagger import DAggerConfig, dagger
+from bimgame.learn.runs import torch_threads
+from bimgame.learn.supervised import PretrainConfig
+from bimgame.util.files import atomic_write_bytes, read_json
+from bimgame.util.images import save_png, subplots
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _config(args: argparse.Namespace, seed: int) -> DAggerConfig:
+    """One seed's DAgger settings: the learner of π^s (state, 128 units, continuous) on the layout."""
+    learner = PretrainConfig(
+        task=f"LABYRINTH-{args.layout.upper()}",
+        obs="state",
+        action_type="continuous",
+        aux_heads=False,
+        asymmetric_critic=False,
+        seed=seed,
+    )
+    return DAggerConfig(
+        learner=learner,
+        expert_data=str(args.expert_data),
+        iterations=args.iterations,
+        episodes_per_iteration=args.episodes_per_iteration,
+        beta0=args.beta0,
+        beta_decay=args.beta_decay,
+        epochs_per_iteration=args.epochs_per_iteration,
+        max_episode_steps=args.max_episode_steps,
+        eval_episodes=args.eval_episodes,
+    )
+
+
+def _job(run_dir: Path, seed: int, args: argparse.Namespace) -> tuple[float, dict[str, Any]]:
+    """Run (or resume) and score one seed with one torch thread: a job of ``--jobs``."""
+    with torch_threads(1):
+        start = time.perf_counter()
+        state = read_json(run_dir / "dagger_state.json")
+        if state is None or state.get("iteration", 0) < args.iterations:
+            dagger(_config(args, seed), run_dir, resume=state is not None, init=args.init, progress=False)
+        return time.perf_counter() - start, _score(run_dir, args.episodes)
+
+
+def _curve(run_dir: Path) -> dict[str, list[float]]:
+    """Per iteration: the in-run evaluation's success and mean return, and the run's costs so far."""
+    with (run_dir / "dagger.csv").open(newline="") as handle:
+        rows = list(csv.DictReader(handle))
+    keys = ("iteration", "beta", "labels", "expert_sim_steps", "dataset_steps", "rollout_success_rate")
+    keys += tuple(f"{mode}_{what}" for mode in MODES for what in ("success_rate", "mean_return", "mean_length"))
+    return {key: [float(row[key]) for row in rows] for key in keys}
+
+
+def _plot(results: dict[str, Any], path: Path, title: str) -> Path:
+    fig, (left, right) = subplots(1, 2, figsize=(11, 4), layout="constrained")
+    colours = {"greedy": "tab:blue", "sampled": "tab:orange"}
+    for k, curve in enumerate(results["curves"]):
+        labels = np.array(curve["labels"]) / 1e3
+        for mode in MODES:
+            label = mode if k == 0 else None
+            left.plot(
+                labels, 100 * np.array(curve[f"{mode}_success_rate"]), "o-", color=colours[mode], alpha=0.7, label=label
+            )
+            right.plot(labels, curve[f"{mode}_mean_return"], "o-", color=colours[mode], alpha=0.7, label=label)
+    left.set(
+        xlabel="expert labels of the learner's states (k)", ylabel="success from the layout's start (%)", ylim=(-3, 103)
+    )
+    right.set(xlabel="expert labels of the learner's states (k)", ylabel="mean return (path progress × 1.25)")
+    for axis in (left, right):
+        axis.grid(alpha=0.3)
+        axis.legend(fontsize=8)
+    left.set_title(title, fontsize=9)
+    return save_png(fig, path, dpi=110)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--expert-data", type=Path, required=True, help="the layout's expert dataset")
+    parser.add_argument("--init", type=Path, default=None, help="start every run from this π^s (bimgame pretrain)")
+    parser.add_argument("--layout", choices=("easy", "medium", "hard"), default="easy")
+    parser.add_argument("--seeds", type=int, default=3)
+    parser.add_argument("--iterations", type=int, default=8)
+    parser.add_argument("--episodes-per-iteration", type=int, default=10)
+    parser.add_argument("--beta0", type=float, default=0.5)
+    parser.add_argument("--beta-decay", type=float, default=0.7)
+    parser.add_argument("--epochs-per-iteration", type=int, default=5)
+    parser.add_argument("--max-episode-steps", type=int, default=1500)
+    parser.add_argument("--eval-episodes", type=int, default=20, help="in-run evaluation episodes per iteration")
+    parser.add_argument("--episodes", type=int, default=100, help="scoring episodes per mode (default 100)")
+    parser.add_argument("--jobs", type=int, default=3, help="runs at once, one thread each (default 3)")
+    parser.add_argument("--out", type=Path, default=ROOT / "runs" / "labyrinth-dagger")
+    parser.add_argument("--results", type=Path, default=ROOT / "benchmarks" / "results" / "labyrinth_dagger.json")
+    parser.add_argument("--figure", type=Path, default=ROOT / "docs" / "labyrinth" / "dagger.png")
+    args = parser.parse_args(argv)
+    args.expert_data = args.expert_data.absolute()
+    if args.init is not None:
+        args.init = args.init.absolute()
+    jobs = {
+        seed: args.out / f"{args.layout}-state{'-init' if args.init else ''}" / f"seed{seed}"
+        for seed in range(args.seeds)
+    }
+    done: dict[int, tuple[float, dict[str, Any]]] = {}
+    context = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=args.jobs, mp_context=context) as pool:
+        futures = {pool.submit(_job, run_dir, seed, args): seed for seed, run_dir in jobs.items()}
+        for future in as_completed(futures):
+            seed = futures[future]
+            done[seed] = future.result()
+            scores = done[seed][1]
+            print(
+                f"seed {seed}: greedy {scores['greedy_success']:.0%}  sampled {scores['sampled_success']:.0%}  "
+                f"median time sampled {scores['sampled_median_seconds']}  ({done[seed][0] / 60:.1f} min)",
+                flush=True,
+            )
+    seeds = range(args.seeds)
+    per_seed = [done[s][1] for s in seeds]
+    states = [read_json(jobs[s] / "dagger_state.json") for s in seeds]
+    results: dict[str, Any] = {
+        "layout": args.layout,
+        "obs": "state",
+        "action_type": "continuous",
+        "seeds": args.seeds,
+        "episodes": args.episodes,
+        "settings": {k: v for k, v in _config(args, 0).to_dict().items() if k != "learner"},
+        "init": None if args.init is None else {"run": str(args.init), "scores": _score(args.init, args.episodes)},
+        **_aggregate(per_seed, np.random.default_rng(0)),
+        "costs_per_seed": states,
+        "minutes_per_seed": [done[s][0] / 60 for s in seeds],
+        "curves": [_curve(jobs[s]) for s in seeds],
+    }
+    args.results.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(args.results, json.dumps(results, indent=2).encode())
+    title = (
+        f"DAgger on the {args.layout} labyrinth (state, continuous){', from π^s' if args.init else ''}: "
+        f"{args.iterations} iterations × {args.episodes_per_iteration} rollouts, {args.seeds} seeds"
+    )
+    print(f"wrote {args.results} and {_plot(results, args.figure, title)}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,132 @@
+"""DAgger on the labyrinth: the labyrinth's MPC expert labels the learner's states in its kind of
+action (continuous tilt rates or discrete), the expert's demonstrations can start the aggregated
+dataset, and what does not fit (another layout's data, another kind of action, the maze's expert
+settings) is refused by name."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from bimgame.cli.main import main
+from bimgame.envs.labyrinth_env import LabyrinthEnv
+from bimgame.expert.labyrinth_datasets import generate_labyrinth_dataset
+from bimgame.expert.labyrinth_mpc import LabyrinthMPCConfig
+from bimgame.expert.mpc import MPCConfig
+from bimgame.learn import runs
+from bimgame.learn.dagger import DAggerConfig, collect_episodes, dagger
+from bimgame.learn.supervised import PretrainConfig
+
+TASK = "LABYRINTH-EASY"
+#: A cheap expert: the bookkeeping needs labels, not a good planner.
+CHEAP = LabyrinthMPCConfig(n_samples=6, horizon=10)
+LEARNER = dict(task=TASK, obs="state", hidden=32, features=32, bptt=20, batch_episodes=4, eval_episodes=0, seed=0,
+               aux_heads=False, asymmetric_critic=False)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _one_thread():
+    with runs.torch_threads(1):
+        yield
+
+
+@pytest.fixture(scope="module")
+def lab_data(tmp_path_factory):
+    """Four short continuous expert episodes (50 steps each) on the easy layout."""
+    return generate_labyrinth_dataset(tmp_path_factory.mktemp("lab") / "data", TASK, 4, seed=5, max_steps=50,
+                                      config=CHEAP, workers=1, progress=False)
+
+
+def _config(action_type: str = "continuous", **changes) -> DAggerConfig:
+    settings = dict(learner=PretrainConfig(**LEARNER, action_type=action_type), episodes_per_iteration=3,
+                    expert=CHEAP, max_episode_steps=30, iterations=1, epochs_per_iteration=1, eval_episodes=0)
+    return DAggerConfig(**{**settings, **changes})
+
+
+def test_the_labyrinth_expert_labels_every_state_and_beta_chooses_who_acts():
+    config = _config()
+    net = config.learner.build_policy(0, LabyrinthEnv("easy").board)
+    expert_run, costs = collect_episodes(net, config, beta=1.0, seed=3)
+    assert len(expert_run) == 3
+    assert costs["labels"] == costs["env_steps"] == sum(len(e) for e in expert_run)
+    assert costs["expert_sim_steps"] == costs["labels"] * CHEAP.n_samples * CHEAP.horizon
+    for episode in expert_run:
+        assert episode.actions.dtype == np.float32 and episode.actions.shape == (len(episode), 2)
+        assert np.all(np.abs(episode.actions) <= 1.0)
+        # β = 1: the expert's tilt changes are what was executed, and the recurrent input is the
+        # previous one (zero at the start).
+        np.testing.assert_array_equal(episode.executed, episode.actions)
+        np.testing.assert_array_equal(episode.prev_actions[0], [0.0, 0.0])
+        np.testing.assert_array_equal(episode.prev_actions[1:], episode.executed[:-1])
+        # The expert plans for path progress: the marble moves along the path in 30 steps.
+        assert episode.rewards.sum() > 0.0
+    again, _ = collect_episodes(net, config, beta=1.0, seed=3)
+    for a, b in zip(expert_run, again, strict=True):
+        np.testing.assert_array_equal(a.actions, b.actions)  # same seed, same labels
+
+    # β = 0: the learner's own (clipped) sampled actions are executed; the labels are still the expert's.
+    learner_run, _ = collect_episodes(net, config, beta=0.0, seed=3)
+    executed = np.concatenate([e.executed for e in learner_run])
+    labels = np.concatenate([e.actions for e in learner_run])
+    assert np.all(np.abs(executed) <= 1.0)
+    assert np.mean(np.abs(executed - labels) > 1e-6) > 0.9
+    # The expert's tilt rates come from its 5 levels per axis; an untrained Gaussian's do not.
+    assert set(np.round(np.unique(labels), 6)) <= {-1.0, -0.5, 0.0, 0.5, 1.0}
+
+
+def test_discrete_labyrinth_dagger_labels_discrete_actions():
+    config = _config("discrete", episodes_per_iteration=2)
+    net = config.learner.build_policy(0, LabyrinthEnv("easy").board)
+    episodes, _ = collect_episodes(net, config, beta=0.5, seed=1)
+    for episode in episodes:
+        assert episode.actions.dtype == np.int64
+        assert set(np.unique(episode.actions)) <= set(range(5))
+
+
+def test_demonstrations_start_the_aggregated_dataset(lab_data, tmp_path):
+    config = _config(expert_data=str(lab_data), beta0=0.0)
+    result = dagger(config, tmp_path / "run", progress=False)
+    with open(tmp_path / "run" / "dagger.csv", newline="") as handle:
+        row = next(csv.DictReader(handle))
+    demo_steps = 4 * 50  # four episodes cut at 50 steps (the cheap expert does not finish the board)
+    labels = int(row["labels"])
+    assert 3 <= labels <= 3 * 30
+    assert int(row["episodes"]) == 4 + 3
+    assert int(row["dataset_steps"]) == result.dataset_steps == demo_steps + labels
+    assert result.env_steps == labels  # the demonstrations cost no rollout steps of the run
+    stored = json.loads((tmp_path / "run" / "config.json").read_text())["dagger"]
+    assert DAggerConfig.from_dict(stored) == config  # the labyrinth expert's settings round-trip
+
+
+def test_what_does_not_fit_is_refused_by_name(lab_data, tmp_path):
+    with pytest.raises(ValueError, match=r"DAggerConfig\.expert on task LABYRINTH-EASY must be LabyrinthMPCConfig"):
+        _config(expert=MPCConfig())
+    with pytest.raises(ValueError, match=r"DAggerConfig\.expert on task STG1 must be MPCConfig"):
+        DAggerConfig(learner=PretrainConfig(task="STG1", obs="state"), expert=CHEAP)
+    with pytest.raises(ValueError, match="DAgger supports action_type 'discrete' only"):
+        DAggerConfig(learner=PretrainConfig(task="STG1", obs="state", action_type="continuous"))
+    assert isinstance(_config(expert=None).expert, LabyrinthMPCConfig)  # the puzzle's default expert
+    with pytest.raises(ValueError, match="holds continuous actions, the learner has discrete ones"):
+        dagger(_config("discrete", expert_data=str(lab_data)), tmp_path / "a", progress=False)
+    hard = _config(expert_data=str(lab_data))
+    hard = DAggerConfig(**{**hard.__dict__, "learner": PretrainConfig(**{**LEARNER, "task": "LABYRINTH-HARD"},
+                                                                      action_type="continuous")})
+    with pytest.raises(ValueError, match="holds LABYRINTH-EASY episodes, which cannot teach LABYRINTH-HARD"):
+        dagger(hard, tmp_path / "b", progress=False)
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
+def test_cli_dagger_on_the_labyrinth_takes_the_datasets_action_type(lab_data, tmp_path):
+    run_dir = tmp_path / "run"
+    assert main(["dagger", "--run-dir", str(run_dir), "--task", TASK, "--obs", "state", "--expert-data",
+                 str(lab_data), "--iterations", "1", "--episodes-per-iteration", "2", "--epochs-per-iteration", "1",
+                 "--max-episode-steps", "20", "--eval-episodes", "0", "--no-progress"]) == 0
+    stored = DAggerConfig.from_dict(json.loads((run_dir / "config.json").read_text())["dagger"])
+    assert (stored.learner.task, stored.learner.action_type, stored.learner.hidden) == (TASK, "continuous", 128)
+    assert stored.expert == LabyrinthMPCConfig() and stored.expert_data == str(lab_data)
+    weights = torch.load(run_dir / "checkpoint.pt", weights_only=True)["model"]
+    assert "log_std" in weights
