@@ -116,6 +116,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--init", type=Path, default=None, help="start every run from this π^s (bimgame pretrain)")
     parser.add_argument("--layout", choices=("easy", "medium", "hard"), default="easy")
     parser.add_argument("--seeds", type=int, default=3)
+    parser.add_argument("--first-seed", type=int, default=0, help="seeds first-seed .. first-seed + seeds - 1")
     parser.add_argument("--iterations", type=int, default=8)
     parser.add_argument("--episodes-per-iteration", type=int, default=10)
     parser.add_argument("--beta0", type=float, default=0.5)
@@ -134,7 +135,7 @@ def main(argv: list[str] | None = None) -> int:
         args.init = args.init.absolute()
     jobs = {
         seed: args.out / f"{args.layout}-state{'-init' if args.init else ''}" / f"seed{seed}"
-        for seed in range(args.seeds)
+        for seed in range(args.first_seed, args.first_seed + args.seeds)
     }
     done: dict[int, tuple[float, dict[str, Any]]] = {}
     context = multiprocessing.get_context("spawn")
@@ -149,14 +150,14 @@ def main(argv: list[str] | None = None) -> int:
                 f"median time sampled {scores['sampled_median_seconds']}  ({done[seed][0] / 60:.1f} min)",
                 flush=True,
             )
-    seeds = range(args.seeds)
+    seeds = list(jobs)
     per_seed = [done[s][1] for s in seeds]
     states = [read_json(jobs[s] / "dagger_state.json") for s in seeds]
     results: dict[str, Any] = {
         "layout": args.layout,
         "obs": "state",
         "action_type": "continuous",
-        "seeds": args.seeds,
+        "seeds": seeds,
         "episodes": args.episodes,
         "settings": {k: v for k, v in _config(args, 0).to_dict().items() if k != "learner"},
         "init": None if args.init is None else {"run": str(args.init), "scores": _score(args.init, args.episodes)},
@@ -169,7 +170,7 @@ def main(argv: list[str] | None = None) -> int:
     atomic_write_bytes(args.results, json.dumps(results, indent=2).encode())
     title = (
         f"DAgger on the {args.layout} labyrinth (state, continuous){', from π^s' if args.init else ''}: "
-        f"{args.iterations} iterations × {args.episodes_per_iteration} rollouts, {args.seeds} seeds"
+        f"{args.iterations} iterations × {args.episodes_per_iteration} rollouts, seeds {', '.join(map(str, jobs))}"
     )
     print(f"wrote {args.results} and {_plot(results, args.figure, title)}")
     return 0

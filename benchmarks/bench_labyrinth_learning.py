@@ -1,6 +1,8 @@
 """Learning CyberRunner's labyrinth: PPO with CyberRunner's continuous actions, trained from the
-layout's start (``none``) and with the start curriculum along the printed path (``reverse``,
-:class:`~bimgame.learn.path_starts.PathStartCurriculum`), the same step budget for each, several seeds.
+layout's start (``none``), with the start curriculum along the printed path (``reverse``,
+:class:`~bimgame.learn.path_starts.PathStartCurriculum`) and from the expert's states (``demo``,
+:class:`~bimgame.learn.path_starts.DemoPathStarts`, with ``--expert-data``), the same step budget for
+each, several seeds.
 
 Each run's final network is scored from the layout's own start, greedily and sampling, on
 ``--episodes`` episodes with the labyrinth's scoring protocol
@@ -18,6 +20,7 @@ Usage: python benchmarks/bench_labyrinth_learning.py [--layout easy] [--obs stat
        [--steps 1000000] [--seeds 3] [--curricula reverse none] [--jobs 3] [--episodes 100]
        [--out runs/labyrinth-learning] [--set NAME=VALUE ...]   (other PPO settings, e.g. entropy_coef=0)
        [--init PI_S]   (every run starts from a pre-trained π^s: bimgame pretrain on a labyrinth dataset)
+       [--expert-data DATA]   (the demo curriculum's expert dataset: bimgame generate --task LABYRINTH-…)
 """
 
 from __future__ import annotations
@@ -45,7 +48,7 @@ from bimgame.util.files import atomic_write_bytes, read_json
 from bimgame.util.images import save_png, subplots
 
 ROOT = Path(__file__).resolve().parents[1]
-CURRICULA = ("reverse", "none")
+CURRICULA = ("reverse", "none", "demo")
 MODES = ("greedy", "sampled")
 #: Evaluation seed of the scores (the same start noise for every run).
 SCORE_SEED = 12345
@@ -63,6 +66,7 @@ def _train(
     curriculum: str,
     settings: dict[str, Any],
     init: Path | None = None,
+    expert_data: Path | None = None,
 ) -> float:
     """Train one run unless ``run_dir`` holds a finished one; the wall-clock seconds it took (0: reused)."""
     summary = read_json(run_dir / "summary.json")
@@ -78,6 +82,7 @@ def _train(
             eval_every=0,
             eval_episodes=20,
             start_curriculum=curriculum,
+            **({"expert_data": str(expert_data)} if curriculum == "demo" else {}),
             **settings,
         )
     )
@@ -120,6 +125,7 @@ def _job(run_dir: Path, curriculum: str, seed: int, args: argparse.Namespace) ->
             curriculum=curriculum,
             settings=args.settings,
             init=args.init,
+            expert_data=args.expert_data,
         )
         return seconds, _score(run_dir, args.episodes)
 
@@ -161,7 +167,7 @@ def _aggregate(per_seed: list[dict[str, Any]], rng: np.random.Generator) -> dict
 
 def _plot(results: dict[str, Any], path: Path, title: str) -> Path:
     fig, (left, right) = subplots(1, 2, figsize=(11, 4), layout="constrained")
-    colours = {"reverse": "tab:blue", "none": "tab:gray"}
+    colours = {"reverse": "tab:blue", "none": "tab:gray", "demo": "tab:green"}
     for curriculum, entry in results["curricula"].items():
         for k, curve in enumerate(entry["curves"]):
             label = curriculum if k == 0 else None
@@ -204,7 +210,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--figure", type=Path, default=ROOT / "docs" / "labyrinth" / "learning.png")
     parser.add_argument("--set", nargs="+", default=[], metavar="NAME=VALUE", help="other PPO settings")
     parser.add_argument("--init", type=Path, default=None, help="start every run from this π^s (bimgame pretrain)")
+    parser.add_argument("--expert-data", type=Path, default=None, help="the layout's expert dataset (for demo)")
     args = parser.parse_args(argv)
+    if "demo" in args.curricula and args.expert_data is None:
+        parser.error("--curricula demo needs --expert-data (the layout's expert dataset: bimgame generate)")
+    if args.expert_data is not None:
+        args.expert_data = args.expert_data.absolute()
     args.settings = _settings(args.set, parser)
     if args.init is not None:
         args.init = args.init.absolute()

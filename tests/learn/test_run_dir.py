@@ -8,6 +8,7 @@ import contextlib
 import json
 import math
 import os
+import pickle
 import signal
 import subprocess
 import sys
@@ -90,6 +91,10 @@ def test_a_second_process_is_refused_naming_the_holders_pid_and_the_directory(tm
             with RunDirectory(run_dir, KIND_DAGGER):
                 pass
         assert isinstance(refused.value, OSError)  # the command line reports it as an error (exit 2)
+        # A worker process's refusal reaches its parent whole (process pools pickle exceptions).
+        copied = pickle.loads(pickle.dumps(refused.value))
+        assert (type(copied), str(copied), copied.pid, copied.directory) == (
+            RunDirectoryInUse, str(refused.value), holder.pid, run_dir)
     finally:
         holder.stdin.close()
         holder.wait(timeout=60)

@@ -16,6 +16,7 @@ them) never carry it, and the checks that refuse a directory with other content 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 from bimgame.util.locks import FileLock, LockHeld
 
@@ -36,6 +37,10 @@ class RunDirectoryInUse(BlockingIOError):
             f"{directory} is in use by {holder} (it holds {directory / LOCK}); wait for it to finish "
             f"or stop it, then run the command again. Nothing was changed."
         )
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        """Pickled with its own arguments: a worker process's refusal reaches its parent intact."""
+        return type(self), (self.directory, self.pid, self.host)
 
 
 class RunLock:

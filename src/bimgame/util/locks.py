@@ -21,6 +21,7 @@ import errno
 import os
 import socket
 from pathlib import Path
+from typing import Any
 
 try:
     import fcntl
@@ -40,6 +41,10 @@ class LockHeld(BlockingIOError):
     def __init__(self, path: Path, pid: int | None, host: str | None):
         self.path, self.pid, self.host = path, pid, host
         super().__init__(f"{path} is held by {self.holder}")
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        """Pickled with its own arguments: a worker process's refusal reaches its parent intact."""
+        return type(self), (self.path, self.pid, self.host)
 
     @property
     def holder(self) -> str:
