@@ -52,8 +52,34 @@ class _StartsAlongThePath(StagedStarts):
     uniformly among those within the current stage's distance: what both of the labyrinth's
     curricula do once their starts are chosen."""
 
+    spec: LabyrinthSpec
     states: np.ndarray
     back_of: np.ndarray
+
+    def _schedule(
+        self, spec: LabyrinthSpec, first_back: float, growth: float, threshold: float, window: int, true_share: float
+    ) -> tuple[float, float, float, int]:
+        """Check the board and the stage schedule's settings, naming this curriculum; keep the board and
+        the share of true starts, and return the rest for :meth:`_begin` (once the starts are known)."""
+        owner = type(self).__name__
+        if not isinstance(spec, LabyrinthSpec):
+            raise TypeError(f"{owner}: spec must be a LabyrinthSpec, got {type(spec).__name__}")
+        self.spec = spec
+        length = spec.path.length
+        self.true_share = check_real(owner, "true_share", true_share, 0.0, 1.0)
+        return (
+            check_real(owner, "first_back", first_back, 0.0, length, open_low=True),
+            check_real(owner, "growth", growth, 1.0, 100.0, open_low=True),
+            check_real(owner, "threshold", threshold, 0.0, 1.0, open_low=True),
+            check_int(owner, "window", window, 1),
+        )
+
+    def _begin(self, schedule: tuple[float, float, float, int]) -> None:
+        """The first stage, its schedule :meth:`_schedule`'s, reaching back to the farthest start."""
+        first_back, growth, threshold, window = schedule
+        self.stages = BackwardStages(
+            type(self).__name__, first_back, growth, float(self.back_of.max()), threshold=threshold, window=window
+        )
 
     def __call__(self, index: int, rng: np.random.Generator) -> tuple[np.ndarray | None, int]:
         """The start of env ``index``'s next episode: ``(sim_state, stage)``, or ``(None, TRUE_START)``."""
@@ -103,23 +129,13 @@ class PathStartCurriculum(_StartsAlongThePath):
         true_share: float = 0.1,
         spacing: float = 0.005,
     ):
-        owner = type(self).__name__
-        if not isinstance(spec, LabyrinthSpec):
-            raise TypeError(f"{owner}: spec must be a LabyrinthSpec, got {type(spec).__name__}")
-        self.spec = spec
+        schedule = self._schedule(spec, first_back, growth, threshold, window, true_share)
         length = spec.path.length
-        first_back = check_real(owner, "first_back", first_back, 0.0, length, open_low=True)
-        growth = check_real(owner, "growth", growth, 1.0, 100.0, open_low=True)
-        threshold = check_real(owner, "threshold", threshold, 0.0, 1.0, open_low=True)
-        self.true_share = check_real(owner, "true_share", true_share, 0.0, 1.0)
-        spacing = check_real(owner, "spacing", spacing, 0.0, length, open_low=True)
-        window = check_int(owner, "window", window, 1)
+        spacing = check_real(type(self).__name__, "spacing", spacing, 0.0, length, open_low=True)
         self.arcs, xy = self._start_points(spacing)
         self.back_of = length - self.arcs  # metres of path from each start to the goal
         self.states = self._at_rest(xy)
-        self.stages = BackwardStages(
-            owner, first_back, growth, float(self.back_of.max()), threshold=threshold, window=window
-        )
+        self._begin(schedule)
 
     def _start_points(self, spacing: float) -> tuple[np.ndarray, np.ndarray]:
         """Arc lengths (K,) and points (K, 2) of the path where a marble may start (module docstring)."""
@@ -180,21 +196,10 @@ class DemoPathStarts(_StartsAlongThePath):
         true_share: float = 0.1,
         source: str = "the given demonstrations",
     ):
-        owner = type(self).__name__
-        if not isinstance(spec, LabyrinthSpec):
-            raise TypeError(f"{owner}: spec must be a LabyrinthSpec, got {type(spec).__name__}")
-        self.spec = spec
-        length = spec.path.length
-        first_back = check_real(owner, "first_back", first_back, 0.0, length, open_low=True)
-        growth = check_real(owner, "growth", growth, 1.0, 100.0, open_low=True)
-        threshold = check_real(owner, "threshold", threshold, 0.0, 1.0, open_low=True)
-        self.true_share = check_real(owner, "true_share", true_share, 0.0, 1.0)
-        window = check_int(owner, "window", window, 1)
+        schedule = self._schedule(spec, first_back, growth, threshold, window, true_share)
         self.states, arcs = self._demo_states(demonstrations, source)
-        self.back_of = length - arcs
-        self.stages = BackwardStages(
-            owner, first_back, growth, float(self.back_of.max()), threshold=threshold, window=window
-        )
+        self.back_of = spec.path.length - arcs
+        self._begin(schedule)
 
     def _demo_states(
         self, demonstrations: Sequence[tuple[np.ndarray, np.ndarray]], source: str

@@ -55,6 +55,7 @@ from bimgame.learn.common import EVAL_COLUMNS, evaluate_greedy_and_sampled, eval
 from bimgame.learn.dagger.rollouts import collect_episodes
 from bimgame.learn.dagger.settings import DAggerConfig
 from bimgame.learn.expert_data import check_dataset_task, dataset_action_type, load_sequences
+from bimgame.learn.learner_settings import check_init_puzzle
 from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.learn.run_dir import DAGGER_STATE, RunDirectory
 from bimgame.learn.runs import CHECKPOINT, KIND_DAGGER, read_run_settings, torch_threads, write_run_json
@@ -138,6 +139,7 @@ def _dagger(
     config: DAggerConfig, run_dir: Path | str, *, resume: bool, init: str | Path | None, progress: bool
 ) -> DAggerResult:
     """:func:`dagger` within the caller's torch threads: the run directory held, new or resumed."""
+    check_init_puzzle(init, config.learner.task)
     net = config.learner.build_policy(config.learner.seed, puzzle(config.learner.task).spec)
     with RunDirectory(run_dir, KIND_DAGGER, resume=resume) as run:
         state = _resume_state(run.path, config, net) if resume else _new_state(net, init)
