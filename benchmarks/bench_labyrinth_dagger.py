@@ -76,7 +76,8 @@ def _job(run_dir: Path, seed: int, args: argparse.Namespace) -> tuple[float, dic
         state = read_json(run_dir / "dagger_state.json")
         if state is None or state.get("iteration", 0) < args.iterations:
             dagger(_config(args, seed), run_dir, resume=state is not None, init=args.init, progress=False)
-        return time.perf_counter() - start, _score(run_dir, args.episodes)
+        seconds = time.perf_counter() - start  # 0 for a finished run (its own time: dagger_state.json)
+        return seconds, _score(run_dir, args.episodes)
 
 
 def _curve(run_dir: Path) -> dict[str, list[float]]:
@@ -106,7 +107,7 @@ def _plot(results: dict[str, Any], path: Path, title: str) -> Path:
     for axis in (left, right):
         axis.grid(alpha=0.3)
         axis.legend(fontsize=8)
-    left.set_title(title, fontsize=9)
+    fig.suptitle(title, fontsize=10)
     return save_png(fig, path, dpi=110)
 
 
@@ -163,7 +164,6 @@ def main(argv: list[str] | None = None) -> int:
         "init": None if args.init is None else {"run": str(args.init), "scores": _score(args.init, args.episodes)},
         **_aggregate(per_seed, np.random.default_rng(0)),
         "costs_per_seed": states,
-        "minutes_per_seed": [done[s][0] / 60 for s in seeds],
         "curves": [_curve(jobs[s]) for s in seeds],
     }
     args.results.parent.mkdir(parents=True, exist_ok=True)
