@@ -6,6 +6,7 @@ import argparse
 import math
 import sys
 from pathlib import Path
+from typing import Any
 
 from bimgame.cli.argtypes import episode_count, episode_count_or_zero, seed
 from bimgame.cli.flags import add_flag_groups, add_grouped_settings_flags, given_settings
@@ -138,6 +139,20 @@ DAGGER_PLACEMENT: dict[str, tuple[str, ...]] = {
 }
 
 
+def _add_learner_flags(
+    parser: argparse.ArgumentParser,
+    groups: dict[str, Any],
+    names: tuple[str, ...],
+    placement: dict[str, tuple[str, ...]],
+) -> None:
+    """The flags of the learner's settings ``names`` (a :class:`PretrainConfig`'s), in ``placement``'s
+    groups: one not given takes its default for the observations (e.g. sizes), and ``--task`` takes
+    the maze's tasks and the labyrinth's."""
+    add_grouped_settings_flags(
+        parser, groups, PretrainConfig, names, placement, types=_TYPES, default_none=True, choices={"task": TASK_NAMES}
+    )
+
+
 def add_pretrain_arguments(parser: argparse.ArgumentParser) -> None:
     """``bimgame pretrain``: the dataset, the output and the pre-training settings, in the groups of
     :data:`PRETRAIN_GROUPS`."""
@@ -150,16 +165,7 @@ def add_pretrain_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="train the value-only network V̂ for --value-reward instead of the policy π^s",
     )
-    add_grouped_settings_flags(
-        parser,
-        groups,
-        PretrainConfig,
-        PRETRAIN_FLAGS,
-        PRETRAIN_PLACEMENT,
-        types=_TYPES,
-        default_none=True,  # what is not given takes its default for the observations (e.g. sizes)
-        choices={"task": TASK_NAMES},  # the maze's tasks and the labyrinth's
-    )
+    _add_learner_flags(parser, groups, PRETRAIN_FLAGS, PRETRAIN_PLACEMENT)
     groups["logging"].add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -224,16 +230,7 @@ def add_dagger_arguments(parser: argparse.ArgumentParser) -> None:
     add("--run-dir", type=Path, required=True, help="directory for the weights, aggregated data and logs")
     add("--resume", action="store_true", help="continue after the run's last finished iteration")
     add("--init", type=Path, default=None, help="start the learner from these weights (e.g. bimgame pretrain's)")
-    add_grouped_settings_flags(
-        parser,
-        groups,
-        PretrainConfig,
-        DAGGER_LEARNER_FLAGS,
-        DAGGER_PLACEMENT,
-        types=_TYPES,
-        default_none=True,  # what is not given takes its default for the observations (e.g. sizes)
-        choices={"task": TASK_NAMES},  # the maze's tasks and the labyrinth's
-    )
+    _add_learner_flags(parser, groups, DAGGER_LEARNER_FLAGS, DAGGER_PLACEMENT)
     resumable = DAggerConfig.RESUMABLE_CHANGES
     add_grouped_settings_flags(
         parser,
