@@ -169,18 +169,25 @@ def add_pretrain_arguments(parser: argparse.ArgumentParser) -> None:
     groups["logging"].add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
+def _with_dataset_action_type(values: dict[str, Any], data_dir: Path) -> dict[str, Any]:
+    """The learner settings ``values`` given on the command line, with ``action_type`` the dataset's
+    in ``data_dir`` when not given (discrete if the dataset cannot be read: the learner names what is
+    wrong with it)."""
+    if "action_type" in values:
+        return values
+    try:
+        return {**values, "action_type": dataset_action_type(dataset_manifest(data_dir))}
+    except (ValueError, OSError):
+        return {**values, "action_type": "discrete"}
+
+
 def pretrain_config_from(args: argparse.Namespace) -> PretrainConfig:
     """The pre-training settings of the flags given; those not given take their defaults for the
     observations (as ``bimgame train``'s: 128 units for state, 256 for pixels), an ``--action-type``
     not given is the dataset's (the maze expert's discrete actions, or a labyrinth dataset's own), and
     the labyrinth's tasks their network defaults (no auxiliary heads)."""
     values = {name: getattr(args, name) for name in PRETRAIN_FLAGS if getattr(args, name) is not None}
-    if "action_type" not in values:
-        try:
-            values["action_type"] = dataset_action_type(dataset_manifest(args.data))
-        except (ValueError, OSError):
-            values["action_type"] = "discrete"  # pretrain() names what is wrong with the dataset
-    values = puzzle_defaults(values, default_task="FULL")
+    values = puzzle_defaults(_with_dataset_action_type(values, args.data), default_task="FULL")
     return PretrainConfig(**values, target="value" if args.value_only else "policy")
 
 
@@ -259,11 +266,8 @@ def dagger_learner_from(args: argparse.Namespace) -> PretrainConfig:
     auxiliary heads nor asymmetric critic; an ``--action-type`` not given is ``--expert-data``'s, else
     discrete."""
     values = {name: getattr(args, name) for name in DAGGER_LEARNER_FLAGS if getattr(args, name) is not None}
-    if "action_type" not in values and args.expert_data is not None:
-        try:
-            values["action_type"] = dataset_action_type(dataset_manifest(args.expert_data))
-        except (ValueError, OSError):
-            pass  # dagger() names what is wrong with the dataset
+    if args.expert_data is not None:
+        values = _with_dataset_action_type(values, args.expert_data)
     values = {"task": DAggerConfig().learner.task, **values}
     return PretrainConfig(**values, aux_heads=False, asymmetric_critic=False)
 

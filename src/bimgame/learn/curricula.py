@@ -48,16 +48,14 @@ def start_curriculum(
         return None
     threshold = curriculum.curriculum_threshold
     spec = puzzle(task).spec
-    if curriculum.start_curriculum == "demo" and expert_data is None:
-        raise ValueError("start_curriculum 'demo' needs expert_data (an expert dataset directory)")
-    if isinstance(spec, LabyrinthSpec):
-        if curriculum.start_curriculum == "demo":
-            assert expert_data is not None
-            return DemoPathStarts.from_dataset(expert_data, task, threshold=threshold)
-        return PathStartCurriculum(spec, threshold=threshold)
+    labyrinth = isinstance(spec, LabyrinthSpec)
     if curriculum.start_curriculum == "demo":
-        assert expert_data is not None
-        return DemoStartCurriculum.from_dataset(expert_data, task, threshold=threshold)
+        if expert_data is None:
+            raise ValueError("start_curriculum 'demo' needs expert_data (an expert dataset directory)")
+        demo = DemoPathStarts if labyrinth else DemoStartCurriculum
+        return demo.from_dataset(expert_data, task, threshold=threshold)
+    if isinstance(spec, LabyrinthSpec):
+        return PathStartCurriculum(spec, threshold=threshold)
     # A pool of 32 starts (not the class's 100): each start is tried 3 times before the pool grows,
     # and a failed STG3 episode lasts 750 steps, so 100 starts held one pool for ≈ 230k steps.
     return ReverseCurriculum(task, high=threshold, pool_size=32)

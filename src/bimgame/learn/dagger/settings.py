@@ -27,6 +27,11 @@ _LARGEST = {
 }
 
 
+def _expert_type(task: str) -> type[MPCConfig] | type[LabyrinthMPCConfig]:
+    """The settings class of ``task``'s puzzle's expert."""
+    return MPCConfig if puzzle(task).is_maze else LabyrinthMPCConfig
+
+
 @dataclasses.dataclass(frozen=True)
 class DAggerConfig:
     """Settings of a DAgger run; the network and its loss are ``learner``'s (a
@@ -68,7 +73,7 @@ class DAggerConfig:
         if self.learner.target != "policy":
             raise ValueError("DAggerConfig.learner must train a policy (target='policy')")
         maze = puzzle(self.learner.task).is_maze
-        expert_type = MPCConfig if maze else LabyrinthMPCConfig
+        expert_type = _expert_type(self.learner.task)
         if self.expert is None:
             object.__setattr__(self, "expert", expert_type())
         elif not isinstance(self.expert, expert_type):
@@ -128,10 +133,8 @@ class DAggerConfig:
         if "learner" in values:
             values["learner"] = PretrainConfig.from_dict(values["learner"])
         if values.get("expert") is not None:
-            learner = values.get("learner", cls().learner)
-            maze = puzzle(learner.task).is_maze
-            expert_type = MPCConfig if maze else LabyrinthMPCConfig
-            values["expert"] = from_dict(expert_type, values["expert"], "MPC settings")
+            task = values.get("learner", cls().learner).task
+            values["expert"] = from_dict(_expert_type(task), values["expert"], "MPC settings")
         return from_dict(cls, values, "DAgger settings")
 
 
