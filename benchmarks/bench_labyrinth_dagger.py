@@ -9,8 +9,10 @@ expert what to do in exactly those states. Each run: ``--iterations`` iterations
 (``--epochs-per-iteration`` passes). Several seeds with the same settings.
 
 Each run's final network is scored from the layout's own start, greedily and sampling, on
-``--episodes`` episodes with the labyrinth's scoring protocol (as ``bench_labyrinth_learning.py``);
-across seeds: means with percentile-bootstrap 95% intervals, per-seed numbers in the JSON. Costs are
+``--episodes`` episodes with the labyrinth's scoring protocol (as ``bench_labyrinth_learning.py``),
+and so is its best iterate by the in-run evaluation (``best.pt``: chosen on the run's evaluation
+episodes, scored on the protocol's other episodes); across seeds: means with percentile-bootstrap 95%
+intervals, per-seed numbers in the JSON. Costs are
 reported as DAgger counts them: environment steps of the rollouts, expert labels, and the simulator
 steps the expert spent planning them (K·H per label); the demonstrations' steps are counted apart.
 Runs are kept in ``--out``; a rerun resumes unfinished runs and reuses finished ones with their scores.
@@ -19,6 +21,7 @@ Writes ``--results`` (default benchmarks/results/labyrinth_dagger.json) and ``--
 docs/labyrinth/dagger.png): the in-run evaluation's success and the mean path progress per iteration.
 
 Usage: python benchmarks/bench_labyrinth_dagger.py --expert-data DATA --init PI_S [--layout easy]
+       [--action-type continuous|discrete]
        [--seeds 3] [--iterations 8] [--episodes-per-iteration 10] [--beta0 0.5] [--beta-decay 0.7]
        [--epochs-per-iteration 5] [--max-episode-steps 1500] [--jobs 3] [--episodes 100]
 """
@@ -37,7 +40,7 @@ from typing import Any
 import numpy as np
 from bench_labyrinth_learning import MODES, _aggregate, _score
 
-from bimgame.learn.dagger import DAggerConfig, dagger
+from bimgame.learn.dagger import BEST, DAggerConfig, dagger
 from bimgame.learn.runs import torch_threads
 from bimgame.learn.supervised import PretrainConfig
 from bimgame.util.files import atomic_write_bytes, read_json
@@ -47,11 +50,11 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _config(args: argparse.Namespace, seed: int) -> DAggerConfig:
-    """One seed's DAgger settings: the learner of π^s (state, 128 units, continuous) on the layout."""
+    """One seed's DAgger settings: the learner of π^s (state, 128 units) on the layout."""
     learner = PretrainConfig(
         task=f"LABYRINTH-{args.layout.upper()}",
         obs="state",
-        action_type="continuous",
+        action_type=args.action_type,
         aux_heads=False,
         asymmetric_critic=False,
         seed=seed,
@@ -69,15 +72,21 @@ def _config(args: argparse.Namespace, seed: int) -> DAggerConfig:
     )
 
 
-def _job(run_dir: Path, seed: int, args: argparse.Namespace) -> tuple[float, dict[str, Any]]:
-    """Run (or resume) and score one seed with one torch thread: a job of ``--jobs``."""
+def _job(run_dir: Path, seed: int, args: argparse.Namespace) -> tuple[float, dict[str, Any], dict[str, Any]]:
+    """Run (or resume) and score one seed with one torch thread, its final network and its best
+    iterate: a job of ``--jobs``."""
     with torch_threads(1):
         start = time.perf_counter()
         state = read_json(run_dir / "dagger_state.json")
         if state is None or state.get("iteration", 0) < args.iterations:
             dagger(_config(args, seed), run_dir, resume=state is not None, init=args.init, progress=False)
         seconds = time.perf_counter() - start  # 0 for a finished run (its own time: dagger_state.json)
-        return seconds, _score(run_dir, args.episodes)
+        return seconds, _score(run_dir, args.episodes), _score(run_dir / BEST, args.episodes)
+
+
+def _kind(action_type: str) -> str:
+    """The run directories' mark of the action type (none for continuous: the first runs' names)."""
+    return "" if action_type == "continuous" else f"-{action_type}"
 
 
 def _curve(run_dir: Path) -> dict[str, list[float]]:
@@ -116,6 +125,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--expert-data", type=Path, required=True, help="the layout's expert dataset")
     parser.add_argument("--init", type=Path, default=None, help="start every run from this π^s (bimgame pretrain)")
     parser.add_argument("--layout", choices=("easy", "medium", "hard"), default="easy")
+    parser.add_argument("--action-type", choices=("continuous", "discrete"), default="continuous")
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--first-seed", type=int, default=0, help="seeds first-seed .. first-seed + seeds - 1")
     parser.add_argument("--iterations", type=int, default=8)
@@ -135,41 +145,47 @@ def main(argv: list[str] | None = None) -> int:
     if args.init is not None:
         args.init = args.init.absolute()
     jobs = {
-        seed: args.out / f"{args.layout}-state{'-init' if args.init else ''}" / f"seed{seed}"
+        seed: args.out / f"{args.layout}-state{_kind(args.action_type)}{'-init' if args.init else ''}" / f"seed{seed}"
         for seed in range(args.first_seed, args.first_seed + args.seeds)
     }
-    done: dict[int, tuple[float, dict[str, Any]]] = {}
+    done: dict[int, tuple[float, dict[str, Any], dict[str, Any]]] = {}
     context = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(max_workers=args.jobs, mp_context=context) as pool:
         futures = {pool.submit(_job, run_dir, seed, args): seed for seed, run_dir in jobs.items()}
         for future in as_completed(futures):
             seed = futures[future]
             done[seed] = future.result()
-            scores = done[seed][1]
-            print(
-                f"seed {seed}: greedy {scores['greedy_success']:.0%}  sampled {scores['sampled_success']:.0%}  "
-                f"median time sampled {scores['sampled_median_seconds']}  ({done[seed][0] / 60:.1f} min)",
-                flush=True,
-            )
+            for what, scores in (("last", done[seed][1]), ("best", done[seed][2])):
+                print(
+                    f"seed {seed} ({what}): greedy {scores['greedy_success']:.0%}  sampled "
+                    f"{scores['sampled_success']:.0%}  median time sampled {scores['sampled_median_seconds']}  "
+                    f"({done[seed][0] / 60:.1f} min)",
+                    flush=True,
+                )
     seeds = list(jobs)
     per_seed = [done[s][1] for s in seeds]
+    best_per_seed = [done[s][2] for s in seeds]
     states = [read_json(jobs[s] / "dagger_state.json") for s in seeds]
     results: dict[str, Any] = {
         "layout": args.layout,
         "obs": "state",
-        "action_type": "continuous",
+        "action_type": args.action_type,
         "seeds": seeds,
         "episodes": args.episodes,
         "settings": {k: v for k, v in _config(args, 0).to_dict().items() if k != "learner"},
         "init": None if args.init is None else {"run": str(args.init), "scores": _score(args.init, args.episodes)},
         **_aggregate(per_seed, np.random.default_rng(0)),
+        "best_iterate": {
+            "iteration_per_seed": [s["best"]["iteration"] for s in states],
+            **_aggregate(best_per_seed, np.random.default_rng(1)),
+        },
         "costs_per_seed": states,
         "curves": [_curve(jobs[s]) for s in seeds],
     }
     args.results.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(args.results, json.dumps(results, indent=2).encode())
     title = (
-        f"DAgger on the {args.layout} labyrinth (state, continuous){', from π^s' if args.init else ''}: "
+        f"DAgger on the {args.layout} labyrinth (state, {args.action_type}){', from π^s' if args.init else ''}: "
         f"{args.iterations} iterations × {args.episodes_per_iteration} rollouts, seeds {', '.join(map(str, jobs))}"
     )
     print(f"wrote {args.results} and {_plot(results, args.figure, title)}")

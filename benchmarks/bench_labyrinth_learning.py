@@ -91,12 +91,15 @@ def _train(
     return time.perf_counter() - start
 
 
-def _score(run_dir: Path, episodes: int) -> dict[str, Any]:
-    """Success, median completion time and mean return of the run's final network from the layout's
-    own start, greedy and sampled: the labyrinth's scoring protocol (:func:`score_labyrinth`) on
-    ``episodes`` episodes from :data:`SCORE_SEED`; cached in the run directory per checkpoint step."""
-    scores_file = run_dir / "labyrinth_scores.json"
-    step = load_checkpoint(run_dir)["step"]
+def _score(source: Path, episodes: int) -> dict[str, Any]:
+    """Success, median completion time and mean return of a run's network from the layout's own
+    start, greedy and sampled: the labyrinth's scoring protocol (:func:`score_labyrinth`) on
+    ``episodes`` episodes from :data:`SCORE_SEED`. ``source`` is the run directory (its final network)
+    or a checkpoint file in it (such as DAgger's ``best.pt``); cached in the run directory per source
+    and checkpoint step."""
+    run_dir = source.parent if source.is_file() else source
+    scores_file = run_dir / ("labyrinth_scores.json" if source.is_dir() else f"labyrinth_scores_{source.stem}.json")
+    step = load_checkpoint(source)["step"]
     cached = read_json(scores_file)
     if cached is not None and cached.get("episodes") == episodes and cached.get("step") == step:
         return cached
@@ -104,7 +107,7 @@ def _score(run_dir: Path, episodes: int) -> dict[str, Any]:
     task = read_run(run_dir).task
     for mode in MODES:
         summary = score_labyrinth(
-            run_dir, task, episodes=episodes, sampled=mode == "sampled", seed=SCORE_SEED, progress=False
+            source, task, episodes=episodes, sampled=mode == "sampled", seed=SCORE_SEED, progress=False
         )
         scores[f"{mode}_success"] = summary["success_rate"]
         scores[f"{mode}_median_seconds"] = summary["completion_time_s"]["median"]

@@ -23,7 +23,7 @@ from bimgame.expert.mpc import MPCConfig
 from bimgame.learn import checkpoints, runs
 from bimgame.learn.actor import evaluate_network
 from bimgame.learn.common import evaluate_greedy_and_sampled, evaluation_seed, load_run_network
-from bimgame.learn.dagger import KIND_DAGGER, DAggerConfig, collect_episodes, dagger, resolve_dagger_config
+from bimgame.learn.dagger import BEST, KIND_DAGGER, DAggerConfig, collect_episodes, dagger, resolve_dagger_config
 from bimgame.learn.supervised import PretrainConfig
 from bimgame.util.files import FileWriteError
 
@@ -284,6 +284,57 @@ def test_resumed_run_ends_identical_to_an_uninterrupted_one(small_runs, tmp_path
     again = dagger(SMALL, copy, resume=True, progress=False)
     assert (again.iterations, again.env_steps, again.dataset_steps) == (3, whole.env_steps, whole.dataset_steps)
     assert _csv_rows(copy / "dagger.csv") == _csv_rows(resumed / "dagger.csv")
+
+
+def _rank(row: dict[str, str]) -> list[float]:
+    """An iteration's rank as the run keeps its best (success, then return, over both modes)."""
+    return [float(row["greedy_success_rate"]) + float(row["sampled_success_rate"]),
+            float(row["greedy_mean_return"]) + float(row["sampled_mean_return"])]
+
+
+def test_the_best_iterate_by_the_in_run_evaluation_is_kept_with_its_weights(small_runs):
+    whole, stages = small_runs
+    rows = _csv_rows(whole.run_dir / "dagger.csv")
+    ranks = [_rank(row) for row in rows]
+    expected = ranks.index(max(ranks))  # the first of equals: a later one must rank strictly higher
+    assert whole.best is not None and whole.best["iteration"] == expected
+    payload = checkpoints.load_checkpoint(whole.run_dir / BEST)
+    assert payload["iteration"] == expected and payload["step"] == int(rows[expected]["step"])
+    # Its weights reproduce that iteration's in-run evaluation.
+    net, run, _ = load_run_network(whole.run_dir / BEST)
+    again = evaluate_greedy_and_sampled(net, task=run.task, obs=run.network.obs, episodes=SMALL.eval_episodes,
+                                        seed=evaluation_seed(run.seed), time_limit=run.time_limit)
+    for key in ("greedy_success_rate", "sampled_success_rate", "greedy_mean_return", "sampled_mean_return"):
+        assert again[key] == pytest.approx(float(rows[expected][key]), rel=1e-5, abs=1e-6), key
+    # The resumed run kept the same best iterate with the same weights.
+    assert stages[-1].best == whole.best
+    resumed = checkpoints.load_checkpoint(stages[-1].run_dir / BEST)["model"]
+    for key, value in payload["model"].items():
+        assert torch.equal(value, resumed[key]), key
+
+
+def test_a_kill_before_best_pt_was_written_is_repaired_on_resume(small_runs, tmp_path):
+    """The checkpoint records the last iteration as the best, but best.pt was not written yet: the
+    resumed run writes it from the checkpoint's weights (the last iteration's)."""
+    whole, _ = small_runs
+    run_dir = shutil.copytree(whole.run_dir, tmp_path / "run")
+    payload = checkpoints.load_checkpoint(run_dir / "checkpoint.pt")
+    last = SMALL.iterations - 1
+    payload["best"] = {"iteration": last, "step": payload["step"], "rank": [9.0, 9.0]}
+    checkpoints.save_checkpoint(run_dir / "checkpoint.pt", **{k: v for k, v in payload.items() if k != "format"})
+    (run_dir / BEST).unlink()
+    again = dagger(SMALL, run_dir, resume=True, progress=False)
+    assert again.iterations_run == 0 and again.best["iteration"] == last
+    repaired = checkpoints.load_checkpoint(run_dir / BEST)
+    assert repaired["iteration"] == last
+    for key, value in _weights(whole.run_dir).items():
+        assert torch.equal(value, repaired["model"][key]), key
+
+
+def test_a_run_without_in_run_evaluation_keeps_no_best(tmp_path):
+    config = dataclasses.replace(SMALL, iterations=1, eval_episodes=0)
+    result = dagger(config, tmp_path / "run", progress=False)
+    assert result.best is None and not (tmp_path / "run" / BEST).exists()
 
 
 # ------------------------------------------------------------------- against behaviour cloning

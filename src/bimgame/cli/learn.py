@@ -13,7 +13,7 @@ from bimgame.cli.flags import add_flag_groups, add_grouped_settings_flags, given
 from bimgame.envs.puzzles import TASK_NAMES
 from bimgame.expert.datasets import dataset_manifest
 from bimgame.learn.common import NetworkSettings
-from bimgame.learn.dagger import DAggerConfig, dagger, resolve_dagger_config
+from bimgame.learn.dagger import BEST, DAggerConfig, dagger, resolve_dagger_config
 from bimgame.learn.learner_settings import puzzle_defaults
 from bimgame.learn.pretrain import dataset_action_type, pretrain
 from bimgame.learn.supervised import PretrainConfig
@@ -310,4 +310,9 @@ def run_dagger(args: argparse.Namespace) -> int:
         f"done: {result.iterations} iterations in {result.seconds / 60:.1f} min; {result.env_steps:,} environment "
         f"steps, {result.expert_sim_steps:,} simulator steps of expert planning; {evaluation}"
     )
+    if result.best is not None:
+        print(
+            f"best iterate by the in-run evaluation: iteration {result.best['iteration']}, kept in "
+            f"{Path(args.run_dir) / BEST} (score it on fresh episodes: bimgame score {Path(args.run_dir) / BEST})"
+        )
     return 0

@@ -53,6 +53,7 @@ __all__ = [
     "LAYOUTS",
     "TEACHER",
     "DAGGER_STATE",
+    "DAGGER_BEST",
     "RunDirectory",
     "stored_run_config",
 ]
@@ -61,6 +62,8 @@ __all__ = [
 TEACHER = "teacher.pt"
 #: DAgger's counters after the last finished iteration (a readable copy of its checkpoint's).
 DAGGER_STATE = "dagger_state.json"
+#: DAgger's best iterate by its in-run evaluation (:mod:`bimgame.learn.dagger.best`).
+DAGGER_BEST = "best.pt"
 
 
 class TrainingError(RuntimeError):
@@ -107,7 +110,7 @@ class RunLayout:
 
 
 _A3C_FILES = (CONFIG, CHECKPOINT, SUMMARY, TEACHER, "curves.png")
-_DAGGER_FILES = (CONFIG, CHECKPOINT, DAGGER_STATE, "data")
+_DAGGER_FILES = (CONFIG, CHECKPOINT, DAGGER_STATE, DAGGER_BEST, "data")
 _PRETRAINING_FILES = (CONFIG, CHECKPOINT, SUMMARY)
 _PPO_FILES = (CONFIG, CHECKPOINT, SUMMARY, "curves.png", TEACHER)
 

@@ -29,7 +29,8 @@ continues after the last committed iteration, and refuses to start over when the
 finished iteration's data is missing. A new run goes into a new or empty directory only, and one
 that fails before its first iteration finished removes its files again; a run holds its directory's
 lock while it works (:class:`~bimgame.learn.run_dir.RunDirectory`). ``bimgame evaluate`` and
-``bimgame train --init`` accept the run.
+``bimgame train --init`` accept the run. With in-run evaluation the run also keeps the iteration
+that evaluated best in ``best.pt`` (:mod:`bimgame.learn.dagger.best`).
 
 The settings (:class:`~bimgame.learn.dagger.settings.DAggerConfig`) are in
 :mod:`bimgame.learn.dagger.settings` and the rollouts in :mod:`bimgame.learn.dagger.rollouts`; this
@@ -52,6 +53,7 @@ from bimgame.expert.datasets import dataset_manifest
 from bimgame.expert.episode import Episode
 from bimgame.learn.checkpoints import apply_weights, load_checkpoint, load_init_weights, save_checkpoint
 from bimgame.learn.common import EVAL_COLUMNS, evaluate_greedy_and_sampled, evaluation_seed
+from bimgame.learn.dagger.best import BEST, evaluation_rank, is_better, repair_best, save_best
 from bimgame.learn.dagger.rollouts import collect_episodes
 from bimgame.learn.dagger.settings import DAggerConfig
 from bimgame.learn.expert_data import check_dataset_task, dataset_action_type, load_sequences
@@ -119,6 +121,9 @@ class DAggerResult:
     dataset_steps: int
     final_eval: dict[str, float] | None
     seconds: float
+    best: dict[str, Any] | None = None
+    """The best iterate by the in-run evaluation (iteration, step, rank; its weights in ``best.pt``),
+    None without in-run evaluation (:mod:`bimgame.learn.dagger.best`)."""
 
 
 def dagger(
@@ -163,7 +168,7 @@ def _dagger(
 def _new_state(net: RecurrentActorCritic, init: str | Path | None) -> dict[str, Any]:
     """The state of a new run, its learner ``net`` started from ``init``'s weights if given."""
     load_init_weights(net, init)
-    return {"iteration": 0, "env_steps": 0, "expert_sim_steps": 0, "labels": 0, "seconds": 0.0}
+    return {"iteration": 0, "env_steps": 0, "expert_sim_steps": 0, "labels": 0, "seconds": 0.0, "best": None}
 
 
 def _start(
@@ -202,6 +207,7 @@ def _resume_state(run_dir: Path, config: DAggerConfig, net: RecurrentActorCritic
         state = _counts_of_state_file(run_dir, copy, payload["step"])
     _require_iteration_data(run_dir, state["iteration"])
     apply_weights(net, payload, run_dir / CHECKPOINT)
+    repair_best(run_dir / BEST, payload["model"], state["best"], state["iteration"])
     if copy != state:
         write_run_json(path, state)
     return state
@@ -232,8 +238,12 @@ def _require_same_settings(stored: DAggerConfig, config: DAggerConfig) -> None:
 
 
 def _counts(source: dict[str, Any]) -> dict[str, Any]:
-    """The run's state in ``source`` (a checkpoint or a state file): its counts and seconds."""
-    return {k: source[k] for k in _STATE_KEYS} | {"seconds": float(source.get("seconds", 0.0))}
+    """The run's state in ``source`` (a checkpoint or a state file): its counts, seconds and best
+    iterate (:mod:`bimgame.learn.dagger.best`; None in runs of earlier versions)."""
+    return {k: source[k] for k in _STATE_KEYS} | {
+        "seconds": float(source.get("seconds", 0.0)),
+        "best": source.get("best"),
+    }
 
 
 def _counts_of_state_file(run_dir: Path, copy: dict[str, Any] | None, checkpoint_step: int) -> dict[str, Any]:
@@ -315,13 +325,15 @@ def _iterations(
             for iteration in range(state["iteration"], config.iterations):
                 outcome = _run_iteration(config, run_dir, net, dataset, iteration)
                 final_eval = outcome.evaluation
-                done = _counts_after(state, outcome.costs, iteration, time.monotonic() - started)
+                done = _counts_after(state, outcome.costs, iteration, time.monotonic() - started, outcome.evaluation)
                 row = _log_row(config, iteration, outcome, dataset, done)
                 # The log row before the checkpoint, which commits the iteration (weights and counts):
                 # a run killed in between redoes the iteration from the weights before it, and the
                 # resumed log drops the orphaned row (rows after the checkpoint's step).
                 log.write("dagger", done["env_steps"], row, scalars=_SCALARS)
                 save_checkpoint(run_dir / CHECKPOINT, model=net.state_dict(), step=done["env_steps"], **done)
+                if done["best"] is not state["best"]:  # written after the commit (see dagger.best)
+                    save_best(run_dir / BEST, net.state_dict(), done["best"])
                 state.update(done)
                 run.keep()
                 write_run_json(run_dir / STATE, done)  # a copy of the counts for readers
@@ -342,6 +354,7 @@ def _iterations(
         sum(len(e) for e in dataset),
         final_eval,
         time.monotonic() - started,
+        state["best"],
     )
 
 
@@ -401,13 +414,22 @@ def _demonstrations(config: DAggerConfig, *, progress: bool) -> list[Episode]:
     return load_sequences(config.expert_data, learner.task, learner.obs, learner.gamma, progress=progress)
 
 
-def _counts_after(state: dict[str, Any], costs: dict[str, int], iteration: int, seconds: float) -> dict[str, Any]:
-    """The run's state once ``iteration`` (which cost ``costs``) has finished, ``seconds`` into the run."""
+def _counts_after(
+    state: dict[str, Any],
+    costs: dict[str, int],
+    iteration: int,
+    seconds: float,
+    evaluation: dict[str, float] | None,
+) -> dict[str, Any]:
+    """The run's state once ``iteration`` (which cost ``costs`` and evaluated as ``evaluation``) has
+    finished, ``seconds`` into the run; its best iterate is this one if it ranks higher."""
     done = dict(state)
     for key in ("env_steps", "expert_sim_steps", "labels"):
         done[key] += costs[key]
     done["iteration"] = iteration + 1
     done["seconds"] = seconds
+    if evaluation is not None and is_better(evaluation, state.get("best")):
+        done["best"] = {"iteration": iteration, "step": done["env_steps"], "rank": evaluation_rank(evaluation)}
     return done
 
 
