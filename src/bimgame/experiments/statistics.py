@@ -27,8 +27,14 @@ Its 95% interval is a stratified percentile bootstrap: each algorithm's seeds ar
 replacement on their own (seed k of two algorithms share nothing but the number), the ratio
 recomputed, and the 2.5% and 97.5% quantiles taken. Curve bands resample the seeds of one
 algorithm the same way. This is a few lines of numpy (:func:`stratified_bootstrap`) rather than
-rliable, which implements the same resampling but would add scipy, arch and seaborn to the
-dependencies for about thirty lines of code. Intervals need at least two seeds per group.
+rliable, which implements the same resampling but would add scipy, arch, statsmodels, pandas and
+seaborn to the dependencies (and rliable 1.2.0's arch fails to import beside pandas 3) for about
+thirty lines of code. Measured (``benchmarks/bench_rliable.py``,
+``benchmarks/results/rliable_comparison.json``): on all 126 per-seed results the benchmarks saved
+(3 seeds each), the mean's 95% interval here and rliable's stratified percentile bootstrap agree
+exactly, 50,000 resamples each; rliable's interquartile mean equals the mean for every one of them
+(with 3 runs it trims nothing). rliable gives the same statistics here, not better ones; its IQM and
+performance profiles pay off with many runs and tasks. Intervals need at least two seeds per group.
 """
 
 from __future__ import annotations
