@@ -54,7 +54,8 @@ def add_reproduce_arguments(parser: argparse.ArgumentParser) -> None:
         "pixels, 5 seeds, about a day), pixels (FULL/STG1/STG2 from pixels, 3 seeds, < 2 h), "
         "beyond (fine-tuning π^s without forgetting it: "
         "STG2/STG3/STG4/FULL, A3C, pre-train + A3C and the keep preset, 3 seeds, < 2 h) or ablation (each "
-        "fine-tuning method on STG3, 3 seeds, < 1 h). Default: the budget stored in --out, else quick",
+        "fine-tuning method on STG3, 3 seeds, < 1 h); smoke checks the whole pipeline in a few minutes (numbers "
+        "that mean nothing). Default: the budget stored in --out, else quick",
     )
     # The grid: Budget settings that change what is computed; not given: the budget's (as --budget).
     add_settings_flags(

@@ -354,7 +354,8 @@ _BEYOND_SETTINGS: dict[str, Any] = dict(
 #: day; ``pixels``, the paper's grid from pixels within two hours, with ``a3c+papernet`` beside the
 #: improved network; ``beyond`` and ``ablation``, fine-tuning π^s without forgetting it on
 #: STG2–FULL, and each fine-tuning method on its own on STG3 (:data:`_BEYOND_SETTINGS`). Why each has
-#: the sizes it has, and what it measured: ``docs/budgets.md``.
+#: the sizes it has, and what it measured: ``docs/budgets.md``. ``smoke`` checks the whole pipeline
+#: (dataset, π^s, V̂, A3C, DAgger, report) end to end in a few minutes; its numbers mean nothing.
 BUDGETS: dict[str, Budget] = {
     "quick": Budget(
         name="quick",
@@ -371,6 +372,25 @@ BUDGETS: dict[str, Budget] = {
         dataset=DatasetBudget(task="FULL", episodes=80, workers=2),
         pretrain=PretrainBudget(eval_episodes=50),
         dagger=DaggerBudget(iterations=4, episodes=6, epochs=10, eval_episodes=20),
+    ),
+    "smoke": Budget(
+        name="smoke",
+        tasks=("STG1",),
+        seeds=2,
+        obs="state",
+        network=NetworkBudget(hidden=16, features=16),
+        a3c=A3CBudget(
+            steps={t.value: 2_000 for t in Task},
+            workers=1,
+            envs_per_worker=4,
+            eval_every=0,
+            eval_episodes=2,
+            checkpoint_every=500,
+        ),
+        dataset=DatasetBudget(task="STG1", episodes=4, workers=1),
+        pretrain=PretrainBudget(epochs=2, patience=1, eval_episodes=2),
+        value=ValueBudget(epochs=2, patience=1),
+        dagger=DaggerBudget(iterations=1, episodes=2, epochs=1, eval_episodes=2),
     ),
     "paper": Budget(
         name="paper",
