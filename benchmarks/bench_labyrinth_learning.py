@@ -116,6 +116,12 @@ def _score(source: Path, episodes: int) -> dict[str, Any]:
     return scores
 
 
+def _init_for(init: Path | None, seed: int) -> Path | None:
+    """The weights seed ``seed`` starts from: ``--init`` with ``{seed}`` replaced by the seed (one
+    starting network per seed, e.g. each DAgger seed's ``best.pt``), or the same for every seed."""
+    return None if init is None else Path(str(init).replace("{seed}", str(seed)))
+
+
 def _job(run_dir: Path, curriculum: str, seed: int, args: argparse.Namespace) -> tuple[float, dict[str, Any]]:
     """Train and score one run with one torch thread: a job of ``--jobs``."""
     with torch_threads(1):
@@ -127,7 +133,7 @@ def _job(run_dir: Path, curriculum: str, seed: int, args: argparse.Namespace) ->
             seed=seed,
             curriculum=curriculum,
             settings=args.settings,
-            init=args.init,
+            init=_init_for(args.init, seed),
             expert_data=args.expert_data,
         )
         return seconds, _score(run_dir, args.episodes)
@@ -212,7 +218,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--results", type=Path, default=ROOT / "benchmarks" / "results" / "labyrinth_learning.json")
     parser.add_argument("--figure", type=Path, default=ROOT / "docs" / "labyrinth" / "learning.png")
     parser.add_argument("--set", nargs="+", default=[], metavar="NAME=VALUE", help="other PPO settings")
-    parser.add_argument("--init", type=Path, default=None, help="start every run from this π^s (bimgame pretrain)")
+    parser.add_argument(
+        "--init",
+        type=Path,
+        default=None,
+        help="start every run from this π^s (bimgame pretrain) or checkpoint; {seed} in it stands for the run's seed",
+    )
     parser.add_argument("--expert-data", type=Path, default=None, help="the layout's expert dataset (for demo)")
     args = parser.parse_args(argv)
     if "demo" in args.curricula and args.expert_data is None:
@@ -254,7 +265,14 @@ def main(argv: list[str] | None = None) -> int:
         "path_length": puzzle(f"LABYRINTH-{args.layout.upper()}").spec.path.length,
         "reference_seconds": {"cyberrunner": CYBERRUNNER_RECORD_S, "human_record": HUMAN_RECORD_S},
         "settings": args.settings,
-        "init": None if args.init is None else {"run": str(args.init), "scores": _score(args.init, args.episodes)},
+        "init": None
+        if args.init is None
+        else [
+            {"run": str(_init_for(args.init, s)), "scores": _score(_init_for(args.init, s), args.episodes)}
+            for s in range(args.seeds)
+        ]
+        if "{seed}" in str(args.init)
+        else {"run": str(args.init), "scores": _score(args.init, args.episodes)},
         "curricula": {},
     }
     for curriculum in args.curricula:
