@@ -22,22 +22,18 @@ from pathlib import Path
 
 import pytest
 
+from support.shell_examples import DEV_VERBS, is_placeholder
+
 from bimgame.cli.argtypes import run_group
 from bimgame.cli.main import build_parser
 
 ROOT = Path(__file__).resolve().parents[2]
 DOCUMENTS = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
-#: Words that stand for a value in the documentation's synopses (``--out DIR``, ``--seeds N``).
-PLACEHOLDERS = {"ARGS", "ADDR", "COEF", "DATA", "DIR", "G", "HEAD_IP", "J", "K", "LABEL", "MODEL", "N", "PNG",
-                "POLICY", "R", "RUN", "RUN_DIR", "T", "VERB"}
-#: What ``./dev VERB`` runs (see the ``dev`` script): the bimgame arguments it starts with.
-DEV_VERBS = {"bimgame": [], "demo": ["demo"], "reproduce": ["reproduce", "--out", "runs/reproduce-quick"]}
 #: Shell tokens that end a command (what follows is another command or a redirection).
 SHELL_ENDS = {"|", "||", "&&", ";", "&", ">", ">>", "2>&1"}
 ELLIPSIS = "..."
 _FENCE = re.compile(r"^\s*(```|~~~)")
 _INLINE = re.compile(r"`([^`]+)`")
-_PLACEHOLDER = re.compile(r"^([A-Z][A-Z0-9_]*)(?![a-z0-9])")
 
 
 @dataclass(frozen=True)
@@ -130,8 +126,7 @@ def variants(words: tuple[str, ...]) -> list[list[str]]:
 
 
 def _is_placeholder(word: str) -> bool:
-    match = _PLACEHOLDER.match(word)
-    return word == ELLIPSIS or (match is not None and match.group(1) in PLACEHOLDERS)
+    return word == ELLIPSIS or is_placeholder(word)
 
 
 def _is_flag(word: str) -> bool:

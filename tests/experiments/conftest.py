@@ -9,26 +9,15 @@ import numpy as np
 import pytest
 from support import logs
 
-from bimgame.experiments.budgets import (
-    A3CBudget,
-    Budget,
-    DaggerBudget,
-    DatasetBudget,
-    NetworkBudget,
-    PretrainBudget,
-    ValueBudget,
-)
+from bimgame.experiments.budgets import BUDGETS, Budget
 
-#: A reproduction small enough for a test: STG1, four expert episodes, 2,000 A3C steps on one
-#: worker, one DAgger iteration of two episodes, two seeds. Three algorithms cover every kind of
-#: piece: plain A3C, A3C from π^s with V̂'s reward (both pre-trainings), and DAgger.
-TINY = Budget(name="tiny", tasks=("STG1",), algorithms=("a3c", "pretrain+a3c+value", "dagger"), seeds=2,
-              obs="state", network=NetworkBudget(hidden=16, features=16),
-              a3c=A3CBudget(steps={"STG1": 2_000}, workers=1, envs_per_worker=4, eval_every=0, eval_episodes=2,
-                            checkpoint_every=400),
-              dataset=DatasetBudget(task="STG1", episodes=4, workers=1),
-              pretrain=PretrainBudget(epochs=2, patience=1, eval_episodes=2), value=ValueBudget(epochs=2, patience=1),
-              dagger=DaggerBudget(iterations=1, episodes=2, epochs=1, eval_episodes=2))
+#: A reproduction small enough for a test: the ``smoke`` preset's sizes (16-unit networks, 2,000 A3C
+#: steps on one worker, one DAgger iteration of two episodes, two seeds), narrowed to four STG1 expert
+#: episodes on one worker and three algorithms that cover every kind of piece: plain A3C, A3C from
+#: π^s with V̂'s reward (both pre-trainings), and DAgger.
+TINY = BUDGETS["smoke"].replace(name="tiny", algorithms=("a3c", "pretrain+a3c+value", "dagger"),
+                                a3c={"steps": {"STG1": 2_000}, "checkpoint_every": 400},
+                                dataset={"task": "STG1", "workers": 1})
 
 
 @pytest.fixture

@@ -29,7 +29,7 @@ ROOT = Path(__file__).resolve().parents[2]
 SHELL_FENCES = {"", "bash", "sh", "shell", "console"}
 #: The programs whose lines are examples.
 PROGRAMS = {"bimgame", "./dev", "python", "python3", "pip", "ray"}
-#: Words that stand for a value in a synopsis (as tests/cli/test_docs_commands.py reads them).
+#: Words that stand for a value in a synopsis (also how tests/cli/test_docs_commands.py reads them).
 PLACEHOLDERS = {"ARGS", "ADDR", "COEF", "DATA", "DIR", "G", "HEAD_IP", "J", "K", "LABEL", "MODEL", "N", "PNG",
                 "POLICY", "R", "RUN", "RUN_DIR", "T", "VERB"}
 #: What ``./dev VERB`` runs (see the ``dev`` script), for the verbs whose lines are run.
@@ -61,6 +61,7 @@ TINY: dict[str, dict[str, str]] = {
     "robustness": {"--episodes": "2", "--expert-seeds": "1", "--expert-episodes": "1"},
 }
 _FENCE = re.compile(r"^\s*(```|~~~)\s*([\w-]*)")
+_PLACEHOLDER = re.compile(r"^([A-Z][A-Z0-9_]*)(?![a-z0-9])")
 
 
 @dataclass(frozen=True)
@@ -139,13 +140,14 @@ def plan(example: ShellExample) -> Step:
         return Step(example, None, skip="joins a running Ray cluster")
     words = [w.replace("[", "").replace("]", "") for w in words[1:]]
     words = [w.split("|")[0] for w in words if w and w != "..."]
-    if any(_is_placeholder(w) for w in words):
+    if any(is_placeholder(w) for w in words):
         return Step(example, None, skip="a synopsis (placeholders); its flags are parsed by test_docs_commands")
     return Step(example, tuple(_tiny(words)), server=words[0] == "play")
 
 
-def _is_placeholder(word: str) -> bool:
-    match = re.match(r"^([A-Z][A-Z0-9_]*)(?![a-z0-9])", word)
+def is_placeholder(word: str) -> bool:
+    """Whether ``word`` stands for a value in a synopsis (``DIR``, ``RUN_DIR``, ``N``, ``LABEL=RUN`` …)."""
+    match = _PLACEHOLDER.match(word)
     return match is not None and match.group(1) in PLACEHOLDERS
 
 

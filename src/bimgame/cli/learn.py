@@ -311,8 +311,9 @@ def run_dagger(args: argparse.Namespace) -> int:
         f"steps, {result.expert_sim_steps:,} simulator steps of expert planning; {evaluation}"
     )
     if result.best is not None:
+        best = Path(args.run_dir) / BEST
         print(
-            f"best iterate by the in-run evaluation: iteration {result.best['iteration']}, kept in "
-            f"{Path(args.run_dir) / BEST} (score it on fresh episodes: bimgame score {Path(args.run_dir) / BEST})"
+            f"best iterate by the in-run evaluation: iteration {result.best['iteration']}, kept in {best} "
+            f"(score it on fresh episodes: bimgame score {best})"
         )
     return 0

@@ -428,7 +428,7 @@ def _counts_after(
         done[key] += costs[key]
     done["iteration"] = iteration + 1
     done["seconds"] = seconds
-    if evaluation is not None and is_better(evaluation, state.get("best")):
+    if evaluation is not None and is_better(evaluation, state["best"]):
         done["best"] = {"iteration": iteration, "step": done["env_steps"], "rank": evaluation_rank(evaluation)}
     return done
 
