@@ -68,10 +68,11 @@ def _train(
     init: Path | None = None,
     expert_data: Path | None = None,
 ) -> float:
-    """Train one run unless ``run_dir`` holds a finished one; the wall-clock seconds it took (0: reused)."""
+    """Train one run unless ``run_dir`` holds a finished one; the wall-clock seconds its training took
+    (a reused run's as its summary recorded them)."""
     summary = read_json(run_dir / "summary.json")
     if summary is not None and summary.get("stopped") == "finished":
-        return 0.0
+        return float(summary.get("seconds", 0.0))
     config = PPOConfig.from_flat(
         dict(
             task=f"LABYRINTH-{layout.upper()}",
@@ -175,7 +176,10 @@ def _aggregate(per_seed: list[dict[str, Any]], rng: np.random.Generator) -> dict
 
 
 def _plot(results: dict[str, Any], path: Path, title: str) -> Path:
-    fig, (left, right) = subplots(1, 2, figsize=(11, 4), layout="constrained")
+    """Success from the layout's start against steps and, when a run had a curriculum, its reach."""
+    with_reach = any(curriculum != "none" for curriculum in results["curricula"])
+    fig, axes = subplots(1, 2 if with_reach else 1, figsize=(11 if with_reach else 6.5, 4), layout="constrained")
+    left, right = (axes[0], axes[1]) if with_reach else (axes, None)
     colours = {"reverse": "tab:blue", "none": "tab:gray", "demo": "tab:green"}
     for curriculum, entry in results["curricula"].items():
         for k, curve in enumerate(entry["curves"]):
@@ -187,7 +191,7 @@ def _plot(results: dict[str, Any], path: Path, title: str) -> Path:
                 alpha=0.8,
                 label=label,
             )
-            if curriculum != "none":
+            if right is not None and curriculum != "none":
                 right.plot(
                     np.array(curve["step"]) / 1e3,
                     curve["curriculum_reach"],
@@ -196,12 +200,14 @@ def _plot(results: dict[str, Any], path: Path, title: str) -> Path:
                     label=label,
                 )
     left.set(xlabel="steps (k)", ylabel="success from the layout's start (%)", ylim=(-3, 103))
-    right.set(xlabel="steps (k)", ylabel="curriculum's reach (m of path before the goal)")
-    right.axhline(results["path_length"], color="k", linestyle=":", label="whole path")
+    if right is not None:
+        right.set(xlabel="steps (k)", ylabel="curriculum's reach (m of path before the goal)")
+        right.axhline(results["path_length"], color="k", linestyle=":", label="whole path")
     for axis in (left, right):
-        axis.grid(alpha=0.3)
-        axis.legend(fontsize=8)
-    left.set_title(title, fontsize=10)
+        if axis is not None:
+            axis.grid(alpha=0.3)
+            axis.legend(fontsize=8)
+    fig.suptitle(title, fontsize=9, wrap=True)
     return save_png(fig, path, dpi=110)
 
 
