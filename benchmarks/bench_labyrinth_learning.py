@@ -46,6 +46,7 @@ from bimgame.learn.ppo import PPOConfig, train_ppo
 from bimgame.learn.runs import torch_threads
 from bimgame.util.files import atomic_write_bytes, read_json
 from bimgame.util.images import save_png, subplots
+from bimgame.util.processes import exit_when_parent_dies
 
 ROOT = Path(__file__).resolve().parents[1]
 CURRICULA = ("reverse", "none", "demo")
@@ -248,7 +249,7 @@ def main(argv: list[str] | None = None) -> int:
     }
     done: dict[tuple[str, int], tuple[float, dict[str, Any]]] = {}
     context = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=args.jobs, mp_context=context) as pool:
+    with ProcessPoolExecutor(max_workers=args.jobs, mp_context=context, initializer=exit_when_parent_dies) as pool:
         futures = {pool.submit(_job, run_dir, c, s, args): (c, s) for (c, s), run_dir in jobs.items()}
         for future in as_completed(futures):
             key = futures[future]

@@ -21,6 +21,7 @@ printed "pre-trained every π^s".
 Usage: bimgame generate --task FULL --episodes 80 --out DATA
        python benchmarks/bench_ppo_finetune.py --data DATA [--tasks STG3 STG4] [--seeds 3] [--jobs 3]
        [--episodes 100] [--out runs/ppo-finetune] [--set NAME=VALUE ...] [--results FILE] [--figure FILE]
+       [--scores-dir docs/scores]   (the final networks' protocol scores, as bimgame score --out writes them)
 """
 
 from __future__ import annotations
@@ -45,8 +46,9 @@ from bimgame.learn.checkpoints import load_checkpoint
 from bimgame.learn.ppo import train_ppo
 from bimgame.learn.pretrain import pretrain
 from bimgame.learn.runs import torch_threads
-from bimgame.util.files import atomic_write_bytes, read_json
+from bimgame.util.files import atomic_write_bytes, read_json, write_json
 from bimgame.util.images import save_png, subplots
+from bimgame.util.processes import exit_when_parent_dies
 
 ROOT = Path(__file__).resolve().parents[1]
 BUDGET = BUDGETS["beyond"]
@@ -67,19 +69,37 @@ def _pretrained(out: Path, data: Path, task: str, seed: int) -> Path:
 
 def _scores(source: Path, task: str, episodes: int) -> dict[str, Any]:
     """Greedy and sampled success and mean return of ``source``'s final network on ``episodes``
-    protocol episodes; cached in ``source`` per checkpoint step."""
+    protocol episodes, with the protocol's whole summary per mode (what ``bimgame score --out``
+    writes); cached in ``source`` per checkpoint step."""
     cache = source / "protocol_scores.json"
     step = load_checkpoint(source / "checkpoint.pt")["step"] if (source / "checkpoint.pt").is_file() else 0
     cached = read_json(cache)
-    if cached is not None and cached.get("episodes") == episodes and cached.get("step") == step:
+    if (
+        cached is not None
+        and (cached.get("episodes"), cached.get("step")) == (episodes, step)
+        and "summaries" in cached
+    ):
         return cached
-    out: dict[str, Any] = {"episodes": episodes, "step": step}
+    out: dict[str, Any] = {"episodes": episodes, "step": step, "summaries": {}}
     for mode in MODES:
         summary = score(str(source), task, obs="state", episodes=episodes, sampled=mode == "sampled")
         out[f"{mode}_success"] = summary["success_rate"]
         out[f"{mode}_mean_return"] = summary["mean_return"]
+        out["summaries"][mode] = {"policy": str(source), **summary}
     atomic_write_bytes(cache, json.dumps(out, indent=2).encode())
     return out
+
+
+def _write_score_files(directory: Path, name: str, done: dict[tuple[str, int], dict[str, Any]]) -> list[Path]:
+    """Every final network's protocol summaries as the score pages' files:
+    ``TASK-state-NAME[-sampled]-seedS.json`` in ``directory``, one per run and mode."""
+    paths = []
+    for (task, seed), run in sorted(done.items()):
+        for mode in MODES:
+            infix = "-sampled" if mode == "sampled" else ""
+            path = directory / f"{task}-state-{name}{infix}-seed{seed}.json"
+            paths.append(write_json(path, run["final"]["summaries"][mode]))
+    return paths
 
 
 def _pretrain_job(task: str, seed: int, args: argparse.Namespace) -> Path:
@@ -182,6 +202,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--set", nargs="+", default=[], metavar="NAME=VALUE", help="PPO settings of this variant")
     parser.add_argument("--results", type=Path, default=None, help="default benchmarks/results/ppo_finetune[-SET].json")
     parser.add_argument("--figure", type=Path, default=None, help="default docs/ppo/finetune[-SET].png")
+    parser.add_argument(
+        "--scores-dir",
+        type=Path,
+        default=None,
+        help="also write the final networks' protocol scores here, one file per run and mode",
+    )
     args = parser.parse_args(argv)
     if not (args.data / "COMPLETE").is_file():
         parser.error(f"--data {args.data} is not a finished dataset (no COMPLETE marker): run bimgame generate")
@@ -194,7 +220,7 @@ def main(argv: list[str] | None = None) -> int:
     jobs = {(t, s): args.out / f"keep{suffix}" / t / f"seed{s}" for t in args.tasks for s in range(args.seeds)}
     done: dict[tuple[str, int], dict[str, Any]] = {}
     context = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=args.jobs, mp_context=context) as pool:
+    with ProcessPoolExecutor(max_workers=args.jobs, mp_context=context, initializer=exit_when_parent_dies) as pool:
         # Every π^s first: runs of two variants started together would otherwise pre-train one twice.
         list(pool.map(_pretrain_job, *zip(*[(t, s, args) for t, s in jobs], strict=True)))
         print("pre-trained every π^s", flush=True)
@@ -226,6 +252,9 @@ def main(argv: list[str] | None = None) -> int:
         results["tasks"][task] = {**_aggregate(runs, rng), "runs": runs}
     results_path.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(results_path, json.dumps(results, indent=2).encode())
+    if args.scores_dir is not None:
+        written = _write_score_files(args.scores_dir, f"pretrain-ppo-keep{suffix}", done)
+        print(f"wrote {len(written)} score files in {args.scores_dir}")
     shown = "".join(f", {key} {value}" for key, value in sorted(args.settings.items())) or ", keep's KL"
     title = f"PPO from π^s{shown}, {first.schedule.steps:,} steps, {args.seeds} seeds"
     print(f"wrote {results_path} and {_plot(results, figure_path, title)}")
