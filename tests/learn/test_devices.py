@@ -47,7 +47,7 @@ def test_an_update_on_a_learning_copy_gives_the_run_of_the_acting_network_learni
     train_ppo(config, tmp_path / "itself", progress=False)
     copies = []
 
-    def learning_copy(net, device):  # what a GPU run does, on the CPU: a separate copy learns
+    def learning_copy(net, device, separate=False):  # what a GPU run does, on the CPU: a separate copy learns
         copies.append(copy.deepcopy(net).to(device))
         return copies[-1]
 

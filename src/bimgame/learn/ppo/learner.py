@@ -7,11 +7,20 @@ of the network and of Adam. Rank 0 is the process that called :func:`~bimgame.le
 the gradients of each minibatch are averaged over the ranks before the step (decentralised
 distributed PPO, Wijmans et al. 2020), so the copies stay identical and the run is one PPO whose
 rollout holds every rank's environments. With one worker nothing is averaged.
+
+With ``policy_lag`` 1 (one rank) the update of a rollout runs in a second thread while the
+collector steps the environments for the next one with the weights from before that update: the
+acting network (``net``) and the learning copy are then two networks, and the new weights are
+copied to the acting one when both threads are done. Each thread has its own generators and
+touches only its own network, so the same seed gives the same run; logging, evaluation and
+checkpoints stay in the calling thread. A thread, not a process: PyTorch's kernels and MuJoCo's
+rollout release the GIL, and the segment and weights need no copying between address spaces.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor, wait
 
 import numpy as np
 import torch
@@ -64,7 +73,25 @@ class RankLearner:
         learning: RecurrentActorCritic | None = None,
     ):
         self.config, self.net, self.optimizer, self.average = config, net, optimizer, average
+        self.lag = config.optimization.policy_lag
+        if self.lag and learning is None:
+            raise ValueError("policy_lag 1 needs a learning copy of the network (see ppo.training.learning_copy)")
         self.learning = learning if learning is not None else net
+        # With a policy lag: the rollout collected ahead, and the thread its update runs in.
+        self._pending: Segment | None = None
+        # The update thread takes this thread's torch thread count: OpenMP's is per thread, and a new
+        # thread would start from the process's initial one (a different summation order).
+        self._updater = (
+            ThreadPoolExecutor(
+                1,
+                thread_name_prefix="bimgame-ppo-update",
+                initializer=torch.set_num_threads,
+                initargs=(torch.get_num_threads(),),
+            )
+            if self.lag
+            else None
+        )
+        self._ahead = 0  # steps the collector is ahead of the run's count (one rollout while collecting ahead)
         self.device = next(self.learning.parameters()).device
         self.teacher = _teacher(config, teacher)
         env_seed, act_seed, batch_seed = rank_seeds(config.seed, step, rank)
@@ -90,28 +117,66 @@ class RankLearner:
             tilt_input=config.network.tilt_input,
             privileged=config.network.privileged,
             on_episode=on_episode,
-            global_step=global_step,
+            global_step=lambda: global_step() + self._ahead,
             curriculum=curriculum,
         )
         self.collector.reset(env_seed, step)
 
-    def rollout_and_update(self, step: int) -> dict[str, float]:
+    def rollout_and_update(self, step: int, *, collect_next: bool = True) -> dict[str, float]:
         """Collect one rollout (the run at ``step``) and train on it; returns the update's averaged
-        losses and statistics. Raises :class:`TrainingError` for a non-finite reward, or a non-finite
-        loss or gradient on any rank (the update is then not applied on any rank)."""
+        losses and statistics. With ``policy_lag`` 1 the rollout trained on is the one collected
+        ahead during the previous call, and (unless ``collect_next`` is False: the run's last
+        update) the next one is collected while it trains. Raises :class:`TrainingError` for a
+        non-finite reward, or a non-finite loss or gradient on any rank (the update is then not
+        applied on any rank)."""
+        if not self.lag:
+            return self._update(self._collect(step), step)
+        segment = self._pending if self._pending is not None else self._collect(step)
+        self._pending = None
+        assert self._updater is not None  # made with the lag
+        update: Future[dict[str, float]] = self._updater.submit(self._train, segment, step)
         try:
-            segment = self.collector.collect(self.config.optimization.n_steps, step)
+            if collect_next:
+                self._ahead = self.config.steps_per_rollout
+                self._pending = self._collect(step + self._ahead)
+        except BaseException:
+            wait([update])  # an interruption or failure while collecting: let the update finish first
+            if update.exception() is None and update.result()["applied"]:
+                self.net.load_state_dict(self.learning.state_dict())  # the weights match Adam's statistics
+            raise
+        finally:
+            self._ahead = 0
+        return self._take_weights(update.result(), step)
+
+    def close(self) -> None:
+        """End the update thread (with a policy lag); the learner is not used afterwards."""
+        if self._updater is not None:
+            self._updater.shutdown(wait=True)
+
+    def _collect(self, step: int) -> Segment:
+        try:
+            return self.collector.collect(self.config.optimization.n_steps, step)
         except NonFiniteReward as error:
             raise TrainingError(f"non-finite reward from the env at step {error.step}: {error.rewards}") from error
+
+    def _update(self, segment: Segment, step: int) -> dict[str, float]:
+        """Train on ``segment`` and give the acting network the new weights."""
+        return self._take_weights(self._train(segment, step), step)
+
+    def _train(self, segment: Segment, step: int) -> dict[str, float]:
+        """PPO's update of the learning network on ``segment`` (with π^s's KL, if any)."""
         kl = self._kl_to_teacher(segment, step)
-        if self.learning is not self.net:
+        if self.device.type != "cpu":  # the learning copy is on another device
             segment = segment.to(self.device)
             kl = None if kl is None else KLTarget(kl.policy.to(self.device), kl.weight)
-        parts = ppo_update(
+        return ppo_update(
             self.learning, self.optimizer, segment, self.config.optimization, self.batches, average=self.average, kl=kl
         )
+
+    def _take_weights(self, parts: dict[str, float], step: int) -> dict[str, float]:
+        """The acting network takes the learning copy's weights; raises if the update was not applied."""
         if self.learning is not self.net:
-            self.net.load_state_dict(self.learning.state_dict())  # the acting copy takes the new weights
+            self.net.load_state_dict(self.learning.state_dict())
         if not parts.pop("applied"):
             raise TrainingError(
                 f"non-finite loss or gradient at step {step:,} ({parts}); the update was not applied. "

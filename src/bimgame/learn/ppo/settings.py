@@ -22,7 +22,11 @@ from bimgame.learn.learner_settings import (
 )
 from bimgame.util.settings import require_int
 
-__all__ = ["PPOOptimizationSettings", "PPOFinetuneSettings", "PPOConfig"]
+__all__ = ["POLICY_LAGS", "PPOOptimizationSettings", "PPOFinetuneSettings", "PPOConfig"]
+
+
+#: The policy lags PPO takes: 0 (synchronous) or 1 (rollout and update overlap).
+POLICY_LAGS = (0, 1)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -65,11 +69,19 @@ class PPOOptimizationSettings:
     """Normalise the advantages of each minibatch to zero mean and unit variance."""
     aux_coef: float = 1.0
     """Weight of the auxiliary heads' loss when the network has them (``aux_heads``)."""
+    policy_lag: int = 0
+    """0: collect a rollout, then update on it (PPO as published). 1: collect the next rollout while
+    updating on the last one, in a second thread, so that stepping the environments and the update
+    overlap on two cores: each rollout is then acted by the weights of one update before those it is
+    trained from, and the clipped ratio is taken against the policy that acted (APPO's one-update lag,
+    as in Sample Factory). One process only (``workers`` 1)."""
 
     def __post_init__(self) -> None:
         owner = type(self).__name__
         for name in ("n_steps", "epochs", "minibatches"):
             require_int(owner, name, getattr(self, name), 1)
+        if type(self.policy_lag) is not int or self.policy_lag not in POLICY_LAGS:
+            raise ValueError(f"{owner}.policy_lag must be one of {POLICY_LAGS}, got {self.policy_lag!r}")
         check_at_most(owner, "n_steps", self.n_steps, 10_000, "steps kept in memory per rollout")
         if self.sequence_length is not None:
             require_int(owner, "sequence_length", self.sequence_length, 1)
@@ -178,6 +190,11 @@ class PPOConfig(LearnerSettings):
             raise ValueError(
                 f"{owner}: device 'cuda' takes one process (workers 1; a GPU learner is fed by its own "
                 f"environments), got workers {self.schedule.workers!r}"
+            )
+        if self.optimization.policy_lag and self.schedule.workers > 1:
+            raise ValueError(
+                f"{owner}: policy_lag {self.optimization.policy_lag} overlaps one process's rollout and update "
+                f"(workers 1); with workers > 1 use policy_lag 0, got workers {self.schedule.workers!r}"
             )
         if self.optimization.minibatches > self.sequences_per_rollout:
             raise ValueError(

@@ -108,14 +108,15 @@ def train_ppo(
         raise ValueError("--init with --resume: a resumed run continues from its own checkpoint")
     check_init_puzzle(init, config.task)  # before the run directory: a refused start writes nothing
     check_init_network(init, config.network)
-    # With worker processes every rank has one core's share: one thread each.
-    threads = 1 if config.schedule.workers > 1 else None
+    # With worker processes every rank has one core's share: one thread each; with a policy lag the
+    # collecting and the updating thread have one core each.
+    threads = 1 if config.schedule.workers > 1 or config.optimization.policy_lag else None
     device = resolve_device(config.device)
     if device.type != "cpu" and config.schedule.workers > 1:
         raise ValueError(f"device {config.device!r} ({device}) takes one process (workers 1)")
     with torch_threads(threads), RunDirectory(run_dir, KIND_PPO, resume=resume) as run:
         net = policy_network(config)
-        learning = learning_copy(net, device)
+        learning = learning_copy(net, device, separate=bool(config.optimization.policy_lag))
         optimizer = adam(learning if learning is not None else net, config)
         start = _resumed(config, run, net, optimizer) if resume else _started(config, run, net, init)
         if learning is not None:
@@ -123,9 +124,12 @@ def train_ppo(
         return _Session(config, run, net, optimizer, start, learning).run(progress)
 
 
-def learning_copy(net: RecurrentActorCritic, device: torch.device) -> RecurrentActorCritic | None:
-    """The copy of ``net`` the update trains on ``device``, or None on the CPU (``net`` itself learns)."""
-    return None if device.type == "cpu" else copy.deepcopy(net).to(device)
+def learning_copy(
+    net: RecurrentActorCritic, device: torch.device, *, separate: bool = False
+) -> RecurrentActorCritic | None:
+    """The copy of ``net`` the update trains on ``device``, or None on the CPU (``net`` itself learns)
+    unless ``separate`` (a policy lag: the update trains while ``net`` acts)."""
+    return None if device.type == "cpu" and not separate else copy.deepcopy(net).to(device)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -256,11 +260,14 @@ class _Session:
                 teacher=self.teacher,
                 learning=self.learning,
             )
-            while self.step < config.schedule.steps:
-                self._rollout_and_update(learner, group)
-                success = self.monitor.recent()["recent_success"]
-                shown = "-" if math.isnan(success) else f"{success:.0%}"
-                bar.update(completed=self.step, info=f"{self.monitor.sps(self.step):,.0f} SPS  success {shown}")
+            try:
+                while self.step < config.schedule.steps:
+                    self._rollout_and_update(learner, group)
+                    success = self.monitor.recent()["recent_success"]
+                    shown = "-" if math.isnan(success) else f"{success:.0%}"
+                    bar.update(completed=self.step, info=f"{self.monitor.sps(self.step):,.0f} SPS  success {shown}")
+            finally:
+                learner.close()
             final_eval = {"step": self.step, **run_evaluation(self.net, config)}
         self.log.write("eval", self.step, final_eval, scalars=tuple(TABLES["eval"]))
         return final_eval
@@ -269,7 +276,8 @@ class _Session:
         config = self.config
         if group is not None:
             group.go(self.step)
-        parts = learner.rollout_and_update(self.step)
+        last = self.step + config.steps_per_rollout >= config.schedule.steps
+        parts = learner.rollout_and_update(self.step, collect_next=not last)
         if group is not None:
             for episode in group.episodes():
                 self._book(episode)
