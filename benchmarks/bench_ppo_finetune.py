@@ -98,7 +98,10 @@ def _write_score_files(directory: Path, name: str, done: dict[tuple[str, int], d
         for mode in MODES:
             infix = "-sampled" if mode == "sampled" else ""
             path = directory / f"{task}-state-{name}{infix}-seed{seed}.json"
-            paths.append(write_json(path, run["final"]["summaries"][mode]))
+            summary = run["final"]["summaries"][mode]
+            source = Path(summary["policy"])
+            shown = source.relative_to(ROOT) if source.is_relative_to(ROOT) else source
+            paths.append(write_json(path, {**summary, "policy": str(shown)}))
     return paths
 
 
