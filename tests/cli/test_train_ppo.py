@@ -35,6 +35,13 @@ def test_ppo_refuses_a3c_only_flags_and_reward_shaping_by_name(tmp_path, capsys)
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
 
 
+def test_a3c_refuses_ppos_own_flags_by_name_instead_of_ignoring_them(tmp_path, capsys):
+    assert main(["train", "--run-dir", str(tmp_path / "a3c"), "--clip", "0.1", "--policy-lag", "1", "--steps", "64",
+                 "--obs", "state", "--no-progress"]) == 2
+    assert "--clip, --policy-lag: PPO's own settings; add --algo ppo" in capsys.readouterr().err
+    assert not (tmp_path / "a3c").exists()
+
+
 def test_ppo_trains_continuous_actions_and_a3c_refuses_them(tmp_path, capsys):
     run_dir = tmp_path / "run"
     assert main(["train", "--algo", "ppo", "--action-type", "continuous", "--run-dir", str(run_dir), "--steps", "128",
@@ -43,7 +50,9 @@ def test_ppo_trains_continuous_actions_and_a3c_refuses_them(tmp_path, capsys):
     stored = PPOConfig.from_dict(json.loads((run_dir / "config.json").read_text())["ppo"])
     assert stored.network.action_type == "continuous"
     assert main(["evaluate", str(run_dir), "--episodes", "2"]) == 0
-    assert main(["train", "--run-dir", str(tmp_path / "a3c"), "--action-type", "continuous", *TINY]) == 2
+    at = TINY.index("--minibatches")
+    a3c_flags = TINY[:at] + TINY[at + 2 :]  # A3C has no minibatches
+    assert main(["train", "--run-dir", str(tmp_path / "a3c"), "--action-type", "continuous", *a3c_flags]) == 2
     assert "A3C supports action_type 'discrete' only; got 'continuous' (use --algo ppo)" in capsys.readouterr().err
     with pytest.raises(SystemExit):  # argparse refuses it, naming the choices
         main(["train", "--algo", "ppo", "--run-dir", str(tmp_path / "x"), "--action-type", "box", *TINY])

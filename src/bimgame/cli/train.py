@@ -12,7 +12,7 @@ from rich.table import Table
 
 from bimgame.cli.argtypes import check_output_file, episode_count, positive_float, seed, step_count, step_count_or_zero
 from bimgame.cli.flags import add_flag_groups, add_grouped_settings_flags, given_settings, plain
-from bimgame.cli.train_ppo import PPO_GROUP, add_ppo_arguments, train_ppo_from_args
+from bimgame.cli.train_ppo import PPO_GROUP, add_ppo_arguments, refuse_ppo_only_flags, train_ppo_from_args
 from bimgame.envs.puzzles import TASK_NAMES, puzzle
 from bimgame.envs.shaping import DEFAULT_GEODESIC_COEF
 from bimgame.learn.a3c import A3CConfig, resolve_config, train
@@ -176,6 +176,7 @@ def run_train(args: argparse.Namespace) -> int:
 def _train_a3c(args: argparse.Namespace) -> tuple[TrainResult, int]:
     """Resolve the A3C settings and reward shaping from the flags given and train; returns the run's
     outcome and its step budget."""
+    refuse_ppo_only_flags(args)
     config = resolve_config(
         given_settings(args, A3CConfig, A3CConfig.flat_names()), args.run_dir, resume=args.resume, init=args.init
     )

@@ -13,7 +13,7 @@ from bimgame.learn.a3c import A3CConfig
 from bimgame.learn.ppo import PPOConfig, PPOOptimizationSettings, resolve_ppo_config, train_ppo
 from bimgame.learn.run_dir import TrainResult
 
-__all__ = ["PPO_GROUP", "add_ppo_arguments", "train_ppo_from_args"]
+__all__ = ["PPO_GROUP", "add_ppo_arguments", "refuse_ppo_only_flags", "train_ppo_from_args"]
 
 _DEFAULTS = PPOOptimizationSettings()
 #: The help group of PPO's own settings: (title, description), the shared defaults read from the class.
@@ -44,6 +44,16 @@ def add_ppo_arguments(parser: argparse.ArgumentParser, groups: dict[str, argpars
             defaults=SimpleNamespace(**PPOConfig().to_dict()),
             default_none=True,
         )
+
+
+def refuse_ppo_only_flags(args: argparse.Namespace) -> None:
+    """Raise ``ValueError`` naming PPO's own flags given to an A3C run (``--clip``, ``--policy-lag`` …):
+    A3C would otherwise train without them, as if they had not been given."""
+    shared = set(A3CConfig.flat_names())
+    given = [name for name in PPOConfig.flat_names() if name not in shared and getattr(args, name, None) is not None]
+    if given:
+        flags = ", ".join("--" + name.replace("_", "-") for name in given)
+        raise ValueError(f"{flags}: PPO's own settings; add --algo ppo, or leave them out for A3C")
 
 
 def train_ppo_from_args(args: argparse.Namespace) -> tuple[TrainResult, int]:
