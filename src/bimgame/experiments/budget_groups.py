@@ -277,6 +277,8 @@ class PPOBudget:
     """Normalise each minibatch's advantages."""
     aux_coef: float = _PPO.aux_coef
     """Weight of the auxiliary heads' loss when the networks have them."""
+    policy_lag: int = _PPO.policy_lag
+    """1: each rollout is collected while the last one's update runs (one update of lag); 0: in turn."""
 
     def __post_init__(self) -> None:
         require_int(self.PATH, "envs_per_worker", self.envs_per_worker, 1)
