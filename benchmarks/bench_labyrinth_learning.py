@@ -124,6 +124,16 @@ def _init_for(init: Path | None, seed: int) -> Path | None:
     return None if init is None else Path(str(init).replace("{seed}", str(seed)))
 
 
+def _init_scores(args: argparse.Namespace) -> list[dict[str, Any]] | dict[str, Any] | None:
+    """The starting networks' own scores: one per seed when ``--init`` names one per seed
+    (``{seed}``), else the one every seed starts from (None without ``--init``)."""
+    if args.init is None:
+        return None
+    starts = [_init_for(args.init, seed) for seed in range(args.seeds)] if "{seed}" in str(args.init) else [args.init]
+    entries = [{"run": str(start), "scores": _score(start, args.episodes)} for start in starts]
+    return entries if "{seed}" in str(args.init) else entries[0]
+
+
 def _job(run_dir: Path, curriculum: str, seed: int, args: argparse.Namespace) -> tuple[float, dict[str, Any]]:
     """Train and score one run with one torch thread: a job of ``--jobs``."""
     with torch_threads(1):
@@ -272,14 +282,7 @@ def main(argv: list[str] | None = None) -> int:
         "path_length": puzzle(f"LABYRINTH-{args.layout.upper()}").spec.path.length,
         "reference_seconds": {"cyberrunner": CYBERRUNNER_RECORD_S, "human_record": HUMAN_RECORD_S},
         "settings": args.settings,
-        "init": None
-        if args.init is None
-        else [
-            {"run": str(_init_for(args.init, s)), "scores": _score(_init_for(args.init, s), args.episodes)}
-            for s in range(args.seeds)
-        ]
-        if "{seed}" in str(args.init)
-        else {"run": str(args.init), "scores": _score(args.init, args.episodes)},
+        "init": _init_scores(args),
         "curricula": {},
     }
     for curriculum in args.curricula:

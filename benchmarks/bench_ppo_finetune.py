@@ -27,7 +27,6 @@ Usage: bimgame generate --task FULL --episodes 80 --out DATA
 from __future__ import annotations
 
 import argparse
-import csv
 import dataclasses
 import json
 import multiprocessing
@@ -43,6 +42,7 @@ from bimgame.experiments.protocol import score
 from bimgame.experiments.runners import ppo_config_for, pretrain_config_for
 from bimgame.experiments.statistics import mean_interval
 from bimgame.learn.checkpoints import load_checkpoint
+from bimgame.learn.curves import read_table
 from bimgame.learn.ppo import train_ppo
 from bimgame.learn.pretrain import pretrain
 from bimgame.learn.runs import torch_threads
@@ -131,18 +131,14 @@ def _job(task: str, seed: int, args: argparse.Namespace, run_dir: Path) -> dict[
 
 def _evaluations(run_dir: Path) -> list[dict[str, float]]:
     """The run's in-run evaluations (step, greedy and sampled success), for the figure."""
-    path = run_dir / "eval.csv"
-    if not path.is_file():
+    table = read_table(run_dir / "eval.csv")
+    if not table:
         return []
-    with path.open(newline="") as handle:
-        return [
-            {
-                "step": float(row["step"]),
-                "greedy_success": float(row["greedy_success_rate"]),
-                "sampled_success": float(row["sampled_success_rate"]),
-            }
-            for row in csv.DictReader(handle)
-        ]
+    columns = zip(table["step"], table["greedy_success_rate"], table["sampled_success_rate"], strict=True)
+    return [
+        {"step": float(step), "greedy_success": float(greedy), "sampled_success": float(sampled)}
+        for step, greedy, sampled in columns
+    ]
 
 
 def _aggregate(per_seed: list[dict[str, Any]], rng: np.random.Generator) -> dict[str, Any]:

@@ -130,7 +130,7 @@ class RankLearner:
         non-finite reward, or a non-finite loss or gradient on any rank (the update is then not
         applied on any rank)."""
         if not self.lag:
-            return self._update(self._collect(step), step)
+            return self._take_weights(self._train(self._collect(step), step), step)
         segment = self._pending if self._pending is not None else self._collect(step)
         self._pending = None
         assert self._updater is not None  # made with the lag
@@ -158,10 +158,6 @@ class RankLearner:
             return self.collector.collect(self.config.optimization.n_steps, step)
         except NonFiniteReward as error:
             raise TrainingError(f"non-finite reward from the env at step {error.step}: {error.rewards}") from error
-
-    def _update(self, segment: Segment, step: int) -> dict[str, float]:
-        """Train on ``segment`` and give the acting network the new weights."""
-        return self._take_weights(self._train(segment, step), step)
 
     def _train(self, segment: Segment, step: int) -> dict[str, float]:
         """PPO's update of the learning network on ``segment`` (with π^s's KL, if any)."""
