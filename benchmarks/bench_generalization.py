@@ -9,6 +9,11 @@ seeds, and its final network is scored, greedily and sampling, on
 - **test**: episode k on held-out test maze k, k < ``--episodes`` (100 by default) — mazes no
   training set contains (their hashes are in the test partition).
 
+With ``--learners pretrain+ppo+keep`` and ``--pretrain-data DATA`` (an expert dataset on many training
+mazes: ``bimgame generate --num-mazes``), a π^s per seed is first pre-trained on DATA and scored on
+the same splits (the "pre-trained only" row), then PPO starts from it with the registry's
+``pretrain+ppo+keep`` settings (its KL to π^s) and ``--set``'s.
+
 The generalization gap is train − test success. Across seeds: means with percentile-bootstrap 95%
 intervals (seeds resampled); per seed numbers are in the JSON. Runs are kept in ``--out`` (a rerun
 reuses finished runs and their scores). Writes ``--results`` (default
@@ -16,7 +21,8 @@ benchmarks/results/generalization.json) and ``--figure`` (default docs/mazes/gen
 train and test success against N, one panel per learner, CoinRun's figure.
 
 Usage: python benchmarks/bench_generalization.py [--task STG1] [--obs state] [--steps 300000]
-       [--seeds 3] [--num-mazes 1 10 100 1000 0] [--learners ppo a3c] [--maze-frame board|marble] [--jobs 2]
+       [--seeds 3] [--num-mazes 1 10 100 1000 0] [--learners ppo a3c pretrain+ppo+keep]
+       [--pretrain-data DATA] [--set NAME=VALUE ...] [--maze-frame board|marble] [--jobs 2]
        [--out runs/generalization]
        [--score-unfinished]   (score the last checkpoints of runs stopped early, e.g. for time)
 """
@@ -32,19 +38,26 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from bench_learners import _settings
 
+from bimgame.experiments.methods import ppo_overrides
 from bimgame.experiments.statistics import mean_interval
 from bimgame.learn.a3c import A3CConfig, train
 from bimgame.learn.actor import evaluate_network
 from bimgame.learn.common import load_run_network
 from bimgame.learn.encoders import MAZE_FRAMES
-from bimgame.learn.ppo import PPOConfig, train_ppo
+from bimgame.learn.ppo import PPOConfig, resolve_ppo_config, train_ppo
+from bimgame.learn.pretrain import pretrain
 from bimgame.learn.runs import torch_threads
+from bimgame.learn.supervised import PretrainConfig
 from bimgame.util.files import atomic_write_bytes, read_json
 from bimgame.util.images import save_png, subplots
+from bimgame.util.processes import exit_when_parent_dies
 
 ROOT = Path(__file__).resolve().parents[1]
-LEARNERS = ("ppo", "a3c")
+#: ``pretrain+ppo+keep``: PPO from a π^s pre-trained on ``--pretrain-data`` (the registry's algorithm).
+PRETRAINED = "pretrain+ppo+keep"
+LEARNERS = ("ppo", "a3c", PRETRAINED)
 SPLITS = ("train", "test")
 MODES = ("greedy", "sampled")
 #: Evaluation seed of the scores (the same starts for every run).
@@ -55,10 +68,41 @@ def _label(num_mazes: int) -> str:
     return "unlimited" if num_mazes == 0 else str(num_mazes)
 
 
+def _pi_s_dir(args: argparse.Namespace, seed: int) -> Path:
+    """Where seed ``seed``'s π^s pre-trained on ``--pretrain-data`` is kept."""
+    return args.out / "pi-s" / f"{args.task}-{args.obs}-{args.pretrain_data.name}" / f"seed{seed}"
+
+
+def _pretrained(args: argparse.Namespace, seed: int) -> tuple[Path, dict[str, float]]:
+    """Seed ``seed``'s π^s (pre-trained on ``--pretrain-data`` unless already there, with one torch
+    thread) and its scores on the splits, π^s alone (the dataset's mazes are its training mazes)."""
+    path = _pi_s_dir(args, seed)
+    with torch_threads(1):
+        if not (path / "summary.json").is_file():
+            if path.exists():  # an unfinished pre-training cannot resume: start it again
+                raise SystemExit(f"{path} is an unfinished pre-training; remove it and run again")
+            config = PretrainConfig(target="policy", task=args.task, obs=args.obs, seed=seed, eval_episodes=0)
+            pretrain(config, args.pretrain_data, path, progress=False)
+        num_mazes = int((read_json(args.pretrain_data / "generation.json") or {}).get("num_mazes") or 0)
+        scores, _ = _score(path, num_mazes, args.episodes)
+    return path, scores
+
+
 def _train(
-    learner: str, run_dir: Path, *, task: str, obs: str, steps: int, seed: int, num_mazes: int, maze_frame: str
+    learner: str,
+    run_dir: Path,
+    *,
+    task: str,
+    obs: str,
+    steps: int,
+    seed: int,
+    num_mazes: int,
+    maze_frame: str,
+    settings: dict[str, object],
+    init: Path | None,
 ) -> float:
-    """Train one run unless ``run_dir`` holds a finished one; the wall-clock seconds it took (0: reused)."""
+    """Train one run unless ``run_dir`` holds a finished one; the wall-clock seconds it took (0: reused).
+    ``settings``: PPO settings beyond the defaults; ``init``: the π^s a ``pretrain+ppo+keep`` run starts from."""
     summary = read_json(run_dir / "summary.json")
     if summary is not None and summary.get("stopped") == "finished":
         return 0.0
@@ -66,10 +110,15 @@ def _train(
     if maze_frame != "board":  # runs stored before the setting are board-frame runs
         common["maze_frame"] = maze_frame
     start = time.perf_counter()
+    resume = (run_dir / "config.json").is_file()
     if learner == "a3c":
-        train(A3CConfig.from_flat(common, workers=2, envs_per_worker=16), run_dir, progress=False)
+        train(A3CConfig.from_flat(common, workers=2, envs_per_worker=16), run_dir, resume=resume, progress=False)
+    elif learner == PRETRAINED:
+        given = {**common, **ppo_overrides(PRETRAINED, steps, None), **settings}
+        config = resolve_ppo_config(given, run_dir, resume=resume, init=None if resume else init)
+        train_ppo(config, run_dir, resume=resume, init=None if resume else init, progress=False)
     else:
-        train_ppo(PPOConfig.from_flat(common), run_dir, progress=False)
+        train_ppo(PPOConfig.from_flat({**common, **settings}), run_dir, resume=resume, progress=False)
     return time.perf_counter() - start
 
 
@@ -124,6 +173,8 @@ def _run(
                 seed=seed,
                 num_mazes=num_mazes,
                 maze_frame=args.maze_frame,
+                settings=args.settings if learner != "a3c" else {},
+                init=_pi_s_dir(args, seed) if learner == PRETRAINED else None,
             )
         return (seconds, *_score(run_dir, num_mazes, args.episodes))
 
@@ -160,6 +211,10 @@ def _plot(results: dict[str, Any], path: Path, title: str) -> Path:
                 per_seed = [s["per_seed"] for s in stats]
                 for i, seeds in enumerate(per_seed):
                     axis.scatter([i] * len(seeds), 100 * np.array(seeds), s=8, color=colour, alpha=0.4)
+        if learner == PRETRAINED and "pi_s" in results:
+            for split, colour in (("train", "tab:blue"), ("test", "tab:red")):
+                level = 100 * results["pi_s"][f"{split}_sampled"]["mean"]
+                axis.axhline(level, color=colour, linestyle=":", linewidth=1, label=f"π^s alone, {split}, sampled")
         axis.set_xticks(x, labels)
         axis.set_xlabel("training mazes N")
         axis.set_ylabel("success (%)")
@@ -190,6 +245,13 @@ def main(argv: list[str] | None = None) -> int:
         choices=MAZE_FRAMES,
         help="the frame the state network reads the maze encoding in (default board; see NetworkSettings.maze_frame)",
     )
+    parser.add_argument(
+        "--pretrain-data",
+        type=Path,
+        default=None,
+        help=f"{PRETRAINED}'s expert dataset on many training mazes (bimgame generate --num-mazes N)",
+    )
+    parser.add_argument("--set", nargs="+", default=[], metavar="NAME=VALUE", help="PPO settings of the PPO runs")
     parser.add_argument("--jobs", type=int, default=1, help="runs trained at once, one process each (default 1)")
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "generalization")
     parser.add_argument("--results", type=Path, default=ROOT / "benchmarks" / "results" / "generalization.json")
@@ -199,6 +261,18 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--jobs takes a count >= 1, got {args.jobs}")
     if any(n < 0 for n in args.num_mazes):
         parser.error(f"--num-mazes takes counts >= 0 (0: unlimited), got {args.num_mazes}")
+    args.settings = _settings(args.set, parser)
+    if (PRETRAINED in args.learners) != (args.pretrain_data is not None):
+        parser.error(f"--learners {PRETRAINED} and --pretrain-data go together (π^s is pre-trained on that dataset)")
+    if args.pretrain_data is not None:
+        manifest = read_json(args.pretrain_data / "generation.json") or {}
+        if not (args.pretrain_data / "COMPLETE").is_file() or not manifest.get("num_mazes"):
+            parser.error(
+                f"--pretrain-data {args.pretrain_data} is not a finished dataset on many mazes "
+                "(COMPLETE and num_mazes in generation.json): bimgame generate --num-mazes N"
+            )
+        args.pretrain_data = args.pretrain_data.absolute()
+    args.out = args.out.absolute()
     rng = np.random.default_rng(0)
     results: dict[str, Any] = {
         "task": args.task,
@@ -211,20 +285,30 @@ def main(argv: list[str] | None = None) -> int:
         "steps_scored": {},
     }
     frame = "" if args.maze_frame == "board" else f"-{args.maze_frame}"
+    variant = "".join(f"-{key.replace('_', '-')}{value}" for key, value in sorted(args.settings.items()))
+    data = "" if args.pretrain_data is None else f"-{args.pretrain_data.name}"
+
+    def run_dir_of(learner: str, num_mazes: int, seed: int) -> Path:
+        suffix = frame + ("" if learner == "a3c" else variant) + (data if learner == PRETRAINED else "")
+        return args.out / f"{learner}-{args.task}-{args.obs}-n{_label(num_mazes)}{suffix}" / f"seed{seed}"
+
     jobs = [
-        (
-            learner,
-            num_mazes,
-            seed,
-            args.out / f"{learner}-{args.task}-{args.obs}-n{_label(num_mazes)}{frame}" / f"seed{seed}",
-        )
+        (learner, num_mazes, seed, run_dir_of(learner, num_mazes, seed))
         for learner in args.learners
         for num_mazes in args.num_mazes
         for seed in range(args.seeds)
     ]
     done: dict[Path, dict] = {}
+    context = multiprocessing.get_context("spawn")
+    if args.pretrain_data is not None:  # every π^s before any run that starts from it
+        with ProcessPoolExecutor(args.jobs, mp_context=context, initializer=exit_when_parent_dies) as pool:
+            pi_s = list(pool.map(_pretrained, [args] * args.seeds, range(args.seeds)))
+        for seed, (_, scores) in enumerate(pi_s):
+            shown = "  ".join(f"{k} {100 * v:3.0f}%" for k, v in scores.items())
+            print(f"π^s seed {seed}: {shown}", flush=True)
+        results["pi_s"] = {"data": str(args.pretrain_data), **_aggregate([s for _, s in pi_s], rng)}
     # Runs are independent: --jobs of them at once, each in its own process with one torch thread.
-    with ProcessPoolExecutor(args.jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
+    with ProcessPoolExecutor(args.jobs, mp_context=context, initializer=exit_when_parent_dies) as pool:
         futures = {
             pool.submit(_run, learner, run_dir, n, seed, args): (learner, n, seed, run_dir)
             for learner, n, seed, run_dir in jobs
@@ -245,6 +329,7 @@ def main(argv: list[str] | None = None) -> int:
             rows[_label(num_mazes)] = _aggregate(per_seed, rng)
         results["learners"][learner] = rows
     results["maze_frame"] = args.maze_frame
+    results["ppo_settings"] = args.settings
     title = f"{args.task} from {args.obs}, {args.steps:,} steps, {args.seeds} seeds; {args.episodes} episodes per point"
     figure = _plot(results, args.figure, title)
     atomic_write_bytes(args.results, json.dumps(results, indent=2).encode())
