@@ -12,7 +12,8 @@ seeds, and its final network is scored, greedily and sampling, on
 With ``--learners pretrain+ppo+keep`` and ``--pretrain-data DATA`` (an expert dataset on many training
 mazes: ``bimgame generate --num-mazes``), a π^s per seed is first pre-trained on DATA and scored on
 the same splits (the "pre-trained only" row), then PPO starts from it with the registry's
-``pretrain+ppo+keep`` settings (its KL to π^s) and ``--set``'s.
+``pretrain+ppo+keep`` settings (its KL to π^s) and ``--set``'s (PPO from random weights keeps its
+defaults).
 
 The generalization gap is train − test success. Across seeds: means with percentile-bootstrap 95%
 intervals (seeds resampled); per seed numbers are in the JSON. Runs are kept in ``--out`` (a rerun
@@ -102,7 +103,7 @@ def _train(
     init: Path | None,
 ) -> float:
     """Train one run unless ``run_dir`` holds a finished one; the wall-clock seconds it took (0: reused).
-    ``settings``: PPO settings beyond the defaults; ``init``: the π^s a ``pretrain+ppo+keep`` run starts from."""
+    ``settings``: PPO settings beyond the algorithm's; ``init``: the π^s a ``pretrain+ppo+keep`` run starts from."""
     summary = read_json(run_dir / "summary.json")
     if summary is not None and summary.get("stopped") == "finished":
         return 0.0
@@ -173,7 +174,7 @@ def _run(
                 seed=seed,
                 num_mazes=num_mazes,
                 maze_frame=args.maze_frame,
-                settings=args.settings if learner != "a3c" else {},
+                settings=args.settings if learner == PRETRAINED else {},
                 init=_pi_s_dir(args, seed) if learner == PRETRAINED else None,
             )
         return (seconds, *_score(run_dir, num_mazes, args.episodes))
@@ -251,7 +252,9 @@ def main(argv: list[str] | None = None) -> int:
         default=None,
         help=f"{PRETRAINED}'s expert dataset on many training mazes (bimgame generate --num-mazes N)",
     )
-    parser.add_argument("--set", nargs="+", default=[], metavar="NAME=VALUE", help="PPO settings of the PPO runs")
+    parser.add_argument(
+        "--set", nargs="+", default=[], metavar="NAME=VALUE", help=f"PPO settings of the {PRETRAINED} runs"
+    )
     parser.add_argument("--jobs", type=int, default=1, help="runs trained at once, one process each (default 1)")
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "generalization")
     parser.add_argument("--results", type=Path, default=ROOT / "benchmarks" / "results" / "generalization.json")
@@ -289,7 +292,7 @@ def main(argv: list[str] | None = None) -> int:
     data = "" if args.pretrain_data is None else f"-{args.pretrain_data.name}"
 
     def run_dir_of(learner: str, num_mazes: int, seed: int) -> Path:
-        suffix = frame + ("" if learner == "a3c" else variant) + (data if learner == PRETRAINED else "")
+        suffix = frame + (variant + data if learner == PRETRAINED else "")
         return args.out / f"{learner}-{args.task}-{args.obs}-n{_label(num_mazes)}{suffix}" / f"seed{seed}"
 
     jobs = [
