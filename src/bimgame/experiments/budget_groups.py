@@ -265,6 +265,8 @@ class PPOBudget:
     """λ of generalised advantage estimation."""
     lr: float = _PPO.lr
     """Adam's learning rate."""
+    lr_anneal: bool = _PPO.lr_anneal
+    """Decay the learning rate linearly to zero over the run's steps."""
     optimizer_eps: float = _PPO.optimizer_eps
     """Adam's epsilon."""
     entropy_coef: float = _PPO.entropy_coef

@@ -162,6 +162,8 @@ class RankLearner:
     def _train(self, segment: Segment, step: int) -> dict[str, float]:
         """PPO's update of the learning network on ``segment`` (with π^s's KL, if any)."""
         kl = self._kl_to_teacher(segment, step)
+        for group in self.optimizer.param_groups:
+            group["lr"] = self.config.optimization.lr_at(step, self.config.schedule.steps)
         if self.device.type != "cpu":  # the learning copy is on another device
             segment = segment.to(self.device)
             kl = None if kl is None else KLTarget(kl.policy.to(self.device), kl.weight)

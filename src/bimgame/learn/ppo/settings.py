@@ -57,6 +57,10 @@ class PPOOptimizationSettings:
     """λ of generalised advantage estimation."""
     lr: float = 2.5e-4
     """Adam's learning rate."""
+    lr_anneal: bool = False
+    """Decay the learning rate linearly from ``lr`` to zero over the run's steps (CleanRL's
+    ``anneal_lr``): each update takes ``lr`` × (1 − step / steps) at the step of its rollout, so a
+    resumed run continues the same schedule."""
     optimizer_eps: float = 1e-5
     """Adam's epsilon."""
     entropy_coef: float = 0.01
@@ -98,8 +102,15 @@ class PPOOptimizationSettings:
             check_number(owner, "value_clip", self.value_clip, 0.0, math.inf, low_open=True)
         for name in ("entropy_coef", "value_coef", "aux_coef"):
             check_number(owner, name, getattr(self, name), 0.0, math.inf)
-        if not isinstance(self.advantage_norm, bool):
-            raise ValueError(f"{owner}.advantage_norm must be True or False, got {self.advantage_norm!r}")
+        for name in ("advantage_norm", "lr_anneal"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"{owner}.{name} must be True or False, got {getattr(self, name)!r}")
+
+    def lr_at(self, step: int, steps: int) -> float:
+        """Adam's learning rate for the update of the rollout at ``step`` of a run of ``steps``."""
+        if not self.lr_anneal:
+            return self.lr
+        return self.lr * max(0.0, 1.0 - step / steps)
 
 
 @dataclasses.dataclass(frozen=True)
