@@ -31,7 +31,7 @@ import math
 
 import numpy as np
 
-from bimgame.sim.geodesic import wrap_angle
+from bimgame.sim.geodesic import wrap_angle_one
 from bimgame.sim.maze import Gate, MazeSpec, MazeSpecError, Wall
 
 __all__ = ["GateRules", "random_maze", "maze_hash", "rotate_maze"]
@@ -95,7 +95,7 @@ def _random_gates(wall: Wall, diameter: float, rules: GateRules, rng: np.random.
     start = float(rng.uniform(-math.pi, math.pi))
     gates = []
     for width, share in zip(widths, shares.tolist(), strict=True):
-        gates.append(Gate(float(wrap_angle(start + width / 2)), width))
+        gates.append(Gate(wrap_angle_one(start + width / 2), width))
         start += width + solid + share
     return tuple(gates)
 
@@ -119,7 +119,7 @@ def random_maze(rng: np.random.Generator, base: MazeSpec | None = None, rules: G
 def rotate_maze(spec: MazeSpec, angle: float) -> MazeSpec:
     """``spec`` turned by ``angle`` (rad, counter-clockwise): every gate's angle moved by it."""
     walls = tuple(
-        Wall(w.inner_radius, w.outer_radius, tuple(Gate(float(wrap_angle(g.angle + angle)), g.width) for g in w.gates))
+        Wall(w.inner_radius, w.outer_radius, tuple(Gate(wrap_angle_one(g.angle + angle), g.width) for g in w.gates))
         for w in spec.walls
     )
     return spec.replace(walls=walls)

@@ -23,9 +23,13 @@ import math
 
 import numpy as np
 
-from bimgame.sim.geodesic import annulus_path_length, geodesic_tables, wrap_angle
+from bimgame.sim.geodesic import annulus_path_length, geodesic_tables, wrap_angle, wrap_angle_one
 
 __all__ = ["Gate", "Wall", "MazeSpec", "Friction", "MazeSpecError"]
+
+
+#: Above this many (angle, gate) pairs :meth:`Wall.in_gate` loops over the gates (bounded temporaries).
+_IN_GATE_BLOCK = 1 << 16
 
 
 class MazeSpecError(ValueError):
@@ -76,24 +80,38 @@ class Wall:
         ``start`` in [-pi, pi) and ``end > start`` (it may exceed pi)."""
         if not self.gates:
             return [(-math.pi, math.pi)]
-        gates = sorted(self.gates, key=lambda g: float(wrap_angle(g.angle)))
+        gates = sorted(self.gates, key=lambda g: wrap_angle_one(g.angle))
         arcs = []
         for i, gate in enumerate(gates):
             nxt = gates[(i + 1) % len(gates)]
-            start = float(wrap_angle(gate.angle + gate.width / 2))
-            end = float(wrap_angle(nxt.angle - nxt.width / 2))
+            start = wrap_angle_one(gate.angle + gate.width / 2)
+            end = wrap_angle_one(nxt.angle - nxt.width / 2)
             while end <= start:
                 end += 2 * math.pi
             arcs.append((start, end))
         return arcs
 
     def in_gate(self, angle: np.ndarray | float) -> np.ndarray:
-        """Whether each angle (rad) lies inside one of the wall's gates."""
+        """Whether each angle (rad) lies inside one of the wall's gates (every gate in one pass)."""
         angle = np.asarray(angle, dtype=float)
-        inside = np.zeros(angle.shape, dtype=bool)
-        for gate in self.gates:
-            inside |= np.abs(wrap_angle(angle - gate.angle)) <= gate.width / 2
-        return inside
+        if not self.gates:
+            return np.zeros(angle.shape, dtype=bool)
+        centres, half_widths = self._gate_arrays
+        if angle.size * len(self.gates) > _IN_GATE_BLOCK:  # large: a gate at a time, no (…, gates) temporaries
+            inside = np.zeros(angle.shape, dtype=bool)
+            for centre, half_width in zip(centres.tolist(), half_widths.tolist(), strict=True):
+                inside |= np.abs(wrap_angle(angle - centre)) <= half_width
+            return inside
+        shape = (-1,) + (1,) * angle.ndim  # gates on the leading axis: long inner loops
+        return np.any(np.abs(wrap_angle(angle - centres.reshape(shape))) <= half_widths.reshape(shape), axis=0)
+
+    @functools.cached_property
+    def _gate_arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """The gates' centre angles and half widths (rad), for :meth:`in_gate`."""
+        return (
+            np.array([gate.angle for gate in self.gates], dtype=float),
+            np.array([gate.width / 2 for gate in self.gates], dtype=float),
+        )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -162,11 +180,11 @@ def _validate_gates(k: int, wall: Wall, diameter: float) -> None:
                 f"diameter ({diameter * 1e3:.2f} mm), i.e. width > {min_width:.2f}° "
                 "(and below 360°)"
             )
-    gates = sorted(wall.gates, key=lambda g: float(wrap_angle(g.angle)))
+    gates = sorted(wall.gates, key=lambda g: wrap_angle_one(g.angle))
     for a, b in zip(gates, gates[1:] + gates[:1], strict=True):
         if len(gates) == 1:
             break
-        gap = float(wrap_angle(b.angle - a.angle)) % (2 * math.pi)
+        gap = wrap_angle_one(b.angle - a.angle) % (2 * math.pi)
         if gap < (a.width + b.width) / 2:
             raise MazeSpecError(
                 f"walls[{k}]: gates at {math.degrees(a.angle):.1f}° and "

@@ -7,15 +7,20 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from bimgame.sim.maze import Friction, MazeSpec
 
 __all__ = [
     "build_mjcf",
+    "check_slot_counts",
     "contact_condim",
     "hinged_board_mjcf",
     "servo_mjcf",
     "slotted_boxes",
+    "wall_box_arrays",
     "wall_boxes",
+    "wall_pieces",
     "wall_slots",
     "PHYSICS_HZ",
     "PARKED_Z",
@@ -131,14 +136,83 @@ def _box_geom(name: str, box: Box, height: float, exact: bool = False) -> str:
 
 def wall_boxes(spec: MazeSpec) -> list[list[Box]]:
     """The pieces of each ring wall of ``spec`` (not the rim), in the order the model lists them."""
-    return [
-        [
-            box
-            for a0, a1 in wall.solid_arcs()
-            for box in _arc_boxes(wall.inner_radius, wall.outer_radius, a0, a1, spec.arc_tolerance)
-        ]
-        for wall in spec.walls
-    ]
+    return [[tuple(box) for box in pieces.tolist()] for pieces in wall_box_arrays(spec)]
+
+
+def _math_map(function, values: np.ndarray) -> np.ndarray:
+    """``function`` (from :mod:`math`) of each value: libm's results, which numpy's vectorised
+    transcendental functions need not match bit for bit (they differ for ``tan`` on AVX-512)."""
+    return np.fromiter(map(function, values.tolist()), dtype=np.float64, count=values.size)
+
+
+def wall_box_arrays(spec: MazeSpec) -> list[np.ndarray]:
+    """Per ring wall of ``spec``, its pieces as rows ``(cx, cy, half_length, half_depth, yaw)``: the
+    boxes of :func:`_arc_boxes` over the wall's solid arcs (:func:`wall_pieces`, split by wall)."""
+    boxes, counts = wall_pieces(spec)
+    return np.split(boxes, np.cumsum(counts)[:-1]) if counts else []
+
+
+def wall_pieces(spec: MazeSpec) -> tuple[np.ndarray, list[int]]:
+    """Every ring wall's pieces of ``spec``, wall 0's first, as rows ``(cx, cy, half_length,
+    half_depth, yaw)``, and each wall's number of pieces: what switching a model to a new maze needs
+    per episode, every arc of every wall in one vectorised pass.
+
+    Bit for bit :func:`_arc_boxes`' numbers (a test compares them over many mazes): the same IEEE
+    operations on the same operands, elementwise, and the transcendental functions from :mod:`math`
+    as there (numpy's vectorised ones need not match libm: ``tan`` differs on AVX-512).
+    """
+    tolerance = spec.arc_tolerance
+    arcs: list[tuple[float, ...]] = []  # per arc: start, end, start + delta_end, middle, n_mid, radii, first piece
+    counts, total = [], 0
+    for wall in spec.walls:
+        inner, outer = wall.inner_radius, wall.outer_radius
+        delta_max = 2 * math.acos(1.0 / (1.0 + 2 * tolerance / outer))
+        delta_end = min(delta_max, 2 * math.atan(2 * tolerance / (outer - inner)))
+        before = total
+        for start, end in wall.solid_arcs():
+            span = end - start
+            if span <= 2 * delta_end:  # one piece: n_mid = -1 makes its end the arc's end
+                middle, n_mid, pieces = 0.0, -1, 1
+            else:
+                middle = span - 2 * delta_end
+                n_mid = max(1, math.ceil(middle / delta_max))
+                pieces = n_mid + 2
+            arcs.append((start, end, start + delta_end, middle, n_mid, inner, outer, total, pieces))
+            total += pieces
+        counts.append(total - before)
+    if not arcs:
+        return np.zeros((0, 5)), counts
+    table = np.array(arcs)
+    rep = np.repeat(table[:, :8], table[:, 8].astype(np.int64), axis=0)
+    s, e, sd, m, n, r_in, r_out = rep[:, 0], rep[:, 1], rep[:, 2], rep[:, 3], rep[:, 4], rep[:, 5], rep[:, 6]
+    # The piece's index j in its arc; its edges are the arc's edges j and j + 1: the start, then
+    # start + delta_end + middle * i / n_mid (i = 0 … n_mid), then the end.
+    j = np.arange(total) - rep[:, 7]
+    a0 = np.where(j == 0, s, sd + m * (j - 1) / n)
+    a1 = np.where(j == n + 1, e, sd + m * j / n)
+    half = 0.5 * (a1 - a0)
+    c = _math_map(math.cos, half)
+    d_in = 2 * r_in / (1 + 1 / c)
+    d_out = 2 * r_out / (1 + 1 / c)
+    half_len = d_out * _math_map(math.tan, half)
+    mid = 0.5 * (a0 + a1)
+    rc = 0.5 * (d_in + d_out)
+    cos_mid, sin_mid = _math_map(math.cos, mid), _math_map(math.sin, mid)
+    cx, cy = rc * cos_mid, rc * sin_mid
+    # _trim_end_box: the arc's end pieces pulled back to the gate edge at mid-depth.
+    first, last = a0 == s, a1 == e
+    trim = first | last
+    t_edge = 0.5 * (r_in + r_out) * _math_map(math.sin, half)
+    lo = np.where(first, -t_edge, -half_len)
+    hi = np.where(last, t_edge, half_len)
+    shift = 0.5 * (hi + lo)
+    boxes = np.empty((total, 5))
+    boxes[:, 0] = np.where(trim, cx + shift * -sin_mid, cx)
+    boxes[:, 1] = np.where(trim, cy + shift * cos_mid, cy)
+    boxes[:, 2] = np.where(trim, 0.5 * (hi - lo), half_len)
+    boxes[:, 3] = 0.5 * (d_out - d_in)
+    boxes[:, 4] = mid
+    return boxes, counts
 
 
 def wall_slots(spec: MazeSpec, max_gates: int) -> tuple[int, ...]:
@@ -174,15 +248,20 @@ def _parked_geom(name: str) -> str:
 def slotted_boxes(spec: MazeSpec, slots: tuple[int, ...]) -> list[list[Box]]:
     """Each wall's pieces, refused if they do not fit in its slot count."""
     boxes = wall_boxes(spec)
-    if len(slots) != len(boxes):
-        raise ValueError(f"wall_slots has {len(slots)} counts for a maze of {len(boxes)} walls: give one per wall")
-    for k, (pieces, count) in enumerate(zip(boxes, slots, strict=True)):
-        if len(pieces) > count:
+    check_slot_counts([len(pieces) for pieces in boxes], slots)
+    return boxes
+
+
+def check_slot_counts(counts: list[int], slots: tuple[int, ...]) -> None:
+    """Refuse walls' piece ``counts`` that do not fit in the model's ``slots`` (one count per wall)."""
+    if len(slots) != len(counts):
+        raise ValueError(f"wall_slots has {len(slots)} counts for a maze of {len(counts)} walls: give one per wall")
+    for k, (pieces, count) in enumerate(zip(counts, slots, strict=True)):
+        if pieces > count:
             raise ValueError(
-                f"walls[{k}] of the new maze needs {len(pieces)} pieces, more than the {count} slots of the "
+                f"walls[{k}] of the new maze needs {pieces} pieces, more than the {count} slots of the "
                 "model: build it with wall_slots from mjcf.wall_slots(spec, max_gates) (the most gates a wall has)"
             )
-    return boxes
 
 
 MUJOCO_MIN_FRICTION = 1e-5  # mjMINMU: MuJoCo raises smaller friction coefficients to this

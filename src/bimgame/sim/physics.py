@@ -44,7 +44,15 @@ from mujoco import rollout as mj_rollout
 
 from bimgame.sim.layout import StateLayout, read_state, write_state
 from bimgame.sim.maze import Friction, MazeSpec
-from bimgame.sim.mjcf import PARKED_HALF_SIZE, PARKED_Z, PHYSICS_HZ, build_mjcf, contact_condim, slotted_boxes
+from bimgame.sim.mjcf import (
+    PARKED_HALF_SIZE,
+    PARKED_Z,
+    PHYSICS_HZ,
+    build_mjcf,
+    check_slot_counts,
+    contact_condim,
+    wall_pieces,
+)
 from bimgame.sim.placement import finite_array
 
 __all__ = ["MazeSim", "StateLayout", "PHYSICS_HZ", "CONTROL_HZ"]
@@ -54,21 +62,22 @@ CONTROL_SPEC = int(mujoco.mjtState.mjSTATE_CTRL)
 
 
 @functools.lru_cache(maxsize=4096)
-def _slot_geometry(spec: MazeSpec, slots: tuple[int, ...]) -> list[np.ndarray]:
-    """Per wall of ``spec``, its pieces as rows ``(x, y, z, quaternion (4), half sizes (3), bounding
-    radius)`` — what a slotted model built from ``spec`` holds (its numbers are written exactly) —
-    refused if they need more than ``slots`` (cached: a training set's mazes are computed once)."""
-    rows = []
-    for boxes in slotted_boxes(spec, slots):
-        cx, cy, half_length, half_depth, yaw = np.array(boxes, dtype=np.float64).reshape(-1, 5).T
-        z = np.full(len(boxes), spec.wall_height / 2)
-        sizes = np.stack([half_depth, half_length, z], axis=1)
-        zero = np.zeros(len(boxes))
-        quat = np.stack([np.cos(yaw / 2), zero, zero, np.sin(yaw / 2)], axis=1)
-        rows.append(
-            np.concatenate([np.stack([cx, cy, z], axis=1), quat, sizes, np.linalg.norm(sizes, axis=1)[:, None]], axis=1)
-        )
-    return rows
+def _slot_geometry(spec: MazeSpec, slots: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """Every wall's pieces of ``spec``, wall 0's first, as rows ``(x, y, z, quaternion (4), half sizes
+    (3), bounding radius)`` — what a slotted model built from ``spec`` holds (its numbers are written
+    exactly) — and each wall's number of pieces; refused if they need more than ``slots`` (cached: a
+    training set's mazes are computed once)."""
+    boxes, wall_counts = wall_pieces(spec)
+    check_slot_counts(wall_counts, slots)
+    counts = np.array(wall_counts, dtype=np.int64)
+    cx, cy, half_length, half_depth, yaw = boxes.T
+    z = np.full(len(cx), spec.wall_height / 2)
+    sizes = np.stack([half_depth, half_length, z], axis=1)
+    zero = np.zeros(len(cx))
+    quat = np.stack([np.cos(yaw / 2), zero, zero, np.sin(yaw / 2)], axis=1)
+    rows = np.concatenate([np.stack([cx, cy, z], axis=1), quat, sizes, np.linalg.norm(sizes, axis=1)[:, None]], axis=1)
+    rows.flags.writeable = False
+    return rows, counts
 
 
 def _check_same_board(current: MazeSpec, new: MazeSpec) -> None:
@@ -120,6 +129,7 @@ class MazeSim:
         self.substeps = substeps
         self.wall_slots = None if wall_slots is None else tuple(int(n) for n in wall_slots)
         self._slot_id_cache: list[np.ndarray] | None = None
+        self._slot_table_cache: tuple[np.ndarray, np.ndarray | slice, np.ndarray] | None = None
         self.model = mujoco.MjModel.from_xml_string(build_mjcf(self.spec, n_marbles, physics_hz, self.wall_slots))
         if self.wall_slots is not None:
             # A slot's frame is never the board's: a parked piece (identity rotation) is compiled as
@@ -221,19 +231,37 @@ class MazeSim:
             raise ValueError("set_walls needs a MazeSim built with wall_slots (mjcf.wall_slots(spec, max_gates))")
         _check_same_board(self.spec, spec)
         m = self.model if model is None else model
-        for ids, boxes in zip(self._slot_ids(), _slot_geometry(spec, self.wall_slots), strict=True):
-            used, parked = ids[: len(boxes)], ids[len(boxes) :]
-            if len(boxes):
-                m.geom_pos[used], m.geom_quat[used], m.geom_size[used] = boxes[:, 0:3], boxes[:, 3:7], boxes[:, 7:10]
-                m.geom_rbound[used] = boxes[:, 10]
-                m.geom_aabb[used, :3], m.geom_aabb[used, 3:] = 0.0, boxes[:, 7:10]
-            m.geom_pos[parked] = (0.0, 0.0, PARKED_Z)
-            m.geom_quat[parked] = (1.0, 0.0, 0.0, 0.0)
-            m.geom_size[parked] = PARKED_HALF_SIZE
-            m.geom_rbound[parked] = math.sqrt(3) * PARKED_HALF_SIZE
-            m.geom_aabb[parked] = (0.0, 0.0, 0.0, PARKED_HALF_SIZE, PARKED_HALF_SIZE, PARKED_HALF_SIZE)
+        rows, counts = _slot_geometry(spec, self.wall_slots)
+        if not self.wall_slots:  # a board without walls: nothing to switch
+            if model is None:
+                self.spec = spec
+            return
+        table, ids, slot_start = self._slot_table()
+        table = table.copy()  # parked everywhere, then each wall's first slots get its pieces
+        used = np.repeat(slot_start - (np.cumsum(counts) - counts), counts) + np.arange(len(rows))
+        table[used, :11] = rows
+        table[used, 11:14] = 0.0
+        table[used, 14:] = rows[:, 7:10]
+        m.geom_pos[ids], m.geom_quat[ids], m.geom_size[ids] = table[:, 0:3], table[:, 3:7], table[:, 7:10]
+        m.geom_rbound[ids], m.geom_aabb[ids] = table[:, 10], table[:, 11:]
         if model is None:
             self.spec = spec
+
+    def _slot_table(self) -> tuple[np.ndarray, np.ndarray | slice, np.ndarray]:
+        """Every slot parked, as rows ``(pos (3), quat (4), size (3), rbound, aabb (6))`` in the order of
+        the slots' geom ids (wall 0's first); those ids (a slice when consecutive); each wall's first
+        row (built once)."""
+        if self._slot_table_cache is None:
+            ids = np.concatenate(self._slot_ids())
+            h = PARKED_HALF_SIZE
+            parked = (0.0, 0.0, PARKED_Z, 1.0, 0.0, 0.0, 0.0, h, h, h, math.sqrt(3) * h, 0.0, 0.0, 0.0, h, h, h)
+            table = np.tile(np.array(parked), (len(ids), 1))
+            table.flags.writeable = False
+            consecutive = len(ids) > 0 and np.array_equal(ids, np.arange(ids[0], ids[0] + len(ids)))
+            index = slice(int(ids[0]), int(ids[0]) + len(ids)) if consecutive else ids
+            counts = np.array(self.wall_slots, dtype=np.int64)
+            self._slot_table_cache = (table, index, np.cumsum(counts) - counts)
+        return self._slot_table_cache
 
     def _slot_ids(self) -> list[np.ndarray]:
         """Per wall, the geom ids of its slots in order (looked up once)."""

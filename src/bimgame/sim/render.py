@@ -38,6 +38,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from bimgame.sim.maze import MazeSpec
+from bimgame.sim.render_rings import FLOOR_LABEL, GOAL_LABEL, WALL_LABEL, RingSamples
 
 __all__ = [
     "MazeRenderer",
@@ -83,7 +84,7 @@ LUT_STEPS: int = 32
 DEFAULT_RGB_SIZE: int = 480
 
 # Region labels of the background raster.
-_FLOOR, _GOAL, _WALL = 0, 1, 2
+_FLOOR, _GOAL, _WALL = FLOOR_LABEL, GOAL_LABEL, WALL_LABEL
 _GRAY_LEVELS = np.array([FLOOR, GOAL, WALL], dtype=np.float64)
 _RGB_LEVELS = np.array([FLOOR_RGB, GOAL_RGB, WALL_RGB], dtype=np.float64)
 
@@ -298,51 +299,6 @@ def _coverage(spec: MazeSpec, size: int, extent: float, supersample: int = SUPER
     return fractions
 
 
-@dataclasses.dataclass(frozen=True)
-class _RingSamples:
-    """The background sub-samples of the pixels a board's ring walls cross, so that the background
-    of another maze on the same board (other gates, same radii) is drawn by labelling only those:
-    ~1 ms instead of ~10 ms for all of :func:`_coverage` at 84 px."""
-
-    pixels: np.ndarray  # (P,) flat indices of the pixels that hold a sub-sample inside a wall's ring
-    labels: np.ndarray  # (P, s²) labels of those pixels' sub-samples, walls' rings left as floor
-    rings: tuple[tuple[np.ndarray, np.ndarray], ...]  # per wall: (sub-sample positions in the ring, their angles)
-
-    @classmethod
-    def build(cls, spec: MazeSpec, size: int, extent: float, supersample: int = SUPERSAMPLE) -> _RingSamples:
-        s = supersample
-        mpp = 2.0 * extent / size
-        sub = (np.arange(size * s) + 0.5) / s  # the sub-sample positions of _coverage
-        x, y = np.meshgrid(-extent + sub * mpp, extent - sub * mpp)
-        # Pixel-major: row p holds pixel p's s² sub-samples in _coverage's order.
-        x = x.reshape(size, s, size, s).transpose(0, 2, 1, 3).reshape(size * size, s * s)
-        y = y.reshape(size, s, size, s).transpose(0, 2, 1, 3).reshape(size * size, s * s)
-        r = np.hypot(x, y)
-        in_rings = [(r >= wall.inner_radius) & (r <= wall.outer_radius) for wall in spec.walls]
-        pixels = np.flatnonzero(np.any(np.logical_or.reduce(in_rings), axis=1))
-        labels = np.full((len(pixels), s * s), _FLOOR, dtype=np.int8)
-        rp = r[pixels]
-        labels[rp < (spec.walls[0].inner_radius if spec.walls else spec.rim_radius)] = _GOAL
-        labels[rp >= spec.rim_radius] = _WALL
-        rings = tuple(
-            (np.flatnonzero(ring[pixels]), np.arctan2(y[pixels], x[pixels]).reshape(-1)[np.flatnonzero(ring[pixels])])
-            for ring in in_rings
-        )
-        return cls(pixels, labels, rings)
-
-    def fractions(self, spec: MazeSpec, base: np.ndarray) -> np.ndarray:
-        """:func:`_coverage` of ``spec`` from ``base``, the coverage of any maze on the same board."""
-        labels = self.labels.copy()
-        flat = labels.reshape(-1)
-        for wall, (where, theta) in zip(spec.walls, self.rings, strict=True):
-            flat[where] = np.where(wall.in_gate(theta), _FLOOR, _WALL).astype(np.int8)
-        fractions = base.copy()
-        view = fractions.reshape(3, -1)
-        for label in (_FLOOR, _GOAL, _WALL):
-            view[label, self.pixels] = (labels == label).mean(axis=1)
-        return fractions
-
-
 def _blend_gray(flat_out: np.ndarray, flat: np.ndarray, uncovered: np.ndarray) -> None:
     """``flat_out[flat] = round(v * (1 - a) + MARBLE * a)`` with ``v = flat_out[flat]`` and
     ``uncovered = 1 - a``, computed as ``(v - MARBLE) * (1 - a) + MARBLE + 0.5`` truncated."""
@@ -373,10 +329,10 @@ class MazeRenderer:
         self._set_background(_coverage(spec, self.size, self.extent))
         self._grids: dict[int, _Grid] = {self.size: self._grid}
         self._rgb_backgrounds: dict[int, np.ndarray] = {}
-        self._rings: _RingSamples | None = None
+        self._rings: RingSamples | None = None
 
     def _set_background(self, fractions: np.ndarray) -> None:
-        self._fractions = fractions
+        self._fractions = fractions  # the coverage for_maze starts from (any maze's on the board)
         gray = np.rint(np.tensordot(_GRAY_LEVELS, fractions, axes=1))
         self._background = np.clip(gray, 0, 255).astype(np.uint8)
         self._background.flags.writeable = False
@@ -394,11 +350,17 @@ class MazeRenderer:
         ):
             raise ValueError("for_maze draws mazes of the same board: the same walls' radii, rim and marble")
         if self._rings is None:
-            self._rings = _RingSamples.build(self.spec, self.size, self.extent)
-        other = copy.copy(self)
+            self._rings = RingSamples.build(self.spec, self.size, self.extent, SUPERSAMPLE)
+        other = copy.copy(self)  # its _fractions stay this board's: for_maze redraws every ring pixel
         other.spec = spec
         other._rgb_backgrounds = {}
-        other._set_background(self._rings.fractions(spec, self._fractions))
+        # Only the ring pixels change. Their fractions are multiples of 1/s², so the grey levels'
+        # weighted sums are exact whatever the order: the pixels of _set_background on the whole image.
+        background = self._background.copy()
+        levels = _GRAY_LEVELS @ self._rings.ring_fractions(spec)
+        background.reshape(-1)[self._rings.pixels] = np.clip(np.rint(levels), 0, 255).astype(np.uint8)
+        background.flags.writeable = False
+        other._background = background
         return other
 
     # ------------------------------------------------------------------ geometry

@@ -1,0 +1,129 @@
+"""The background of another maze on a board, redrawn only where the board's ring walls are.
+
+Mazes of one board (:mod:`bimgame.sim.maze_sets`) share every radius and differ in their gates, so
+the antialiased background of :mod:`bimgame.sim.render` changes only in the pixels the ring walls
+cross. :class:`RingSamples` keeps those pixels' sub-samples, sorted by angle per wall, and the counts
+of each pixel's other sub-samples per label; a maze's background is then its gates' open sub-samples
+counted per pixel. Each gate labels only the sub-samples within a hair of its angular sector
+(:func:`open_samples`) with exactly :meth:`~bimgame.sim.maze.Wall.in_gate`'s test, so the pixels are
+those of ``MazeRenderer(spec, size)`` (a test compares them) at a fraction of the cost.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from bimgame.sim.geodesic import wrap_angle, wrap_angle_one
+from bimgame.sim.maze import MazeSpec, Wall
+
+__all__ = ["RingSamples", "open_samples", "FLOOR_LABEL", "GOAL_LABEL", "WALL_LABEL"]
+
+# Region labels of the background raster (render's _FLOOR, _GOAL, _WALL).
+FLOOR_LABEL, GOAL_LABEL, WALL_LABEL = 0, 1, 2
+#: Sub-samples within this angle (rad) of a gate's sector are tested exactly; farther ones cannot pass
+#: the test (its rounding errors are ~1e-15 rad for gates at angles within :data:`_NEAR_ANGLE`).
+_MARGIN = 1e-9
+#: Gates farther than this from [-pi, pi) (rad), or as wide as the circle, are tested on every sample.
+_NEAR_ANGLE = 4 * math.pi
+
+
+def open_samples(wall: Wall, theta_sorted: np.ndarray) -> np.ndarray:
+    """Indices into ``theta_sorted`` (ascending angles in [-pi, pi]) of the samples inside one of
+    ``wall``'s gates: ``wall.in_gate(theta_sorted)``'s true entries, tested only near each gate.
+
+    Each gate's candidates are the samples within ``_MARGIN`` of its sector (its centre wrapped to
+    [-pi, pi), the sector's parts beyond ±pi moved by a period), found by bisection; only those take
+    :meth:`~bimgame.sim.maze.Wall.in_gate`'s comparison, on the gate's own angle and half width.
+    """
+    centres, half_widths = [], []
+    for gate in wall.gates:
+        centres.append(gate.angle)
+        half_widths.append(gate.width / 2)
+    if not all(abs(c) <= _NEAR_ANGLE and 0 <= h < math.pi - 1e-6 for c, h in zip(centres, half_widths, strict=True)):
+        return np.flatnonzero(wall.in_gate(theta_sorted))  # unusual gates: every sample
+    bounds, owners = [], []  # candidate angle ranges, and the gate of each
+    for k, (c, h) in enumerate(zip(centres, half_widths, strict=True)):
+        lo, hi = wrap_angle_one(c) - h - _MARGIN, wrap_angle_one(c) + h + _MARGIN
+        bounds.append((max(lo, -math.pi), min(hi, math.pi)))
+        if lo < -math.pi:  # the sector's part past -pi, a period on
+            bounds.append((lo + 2 * math.pi, math.pi))
+        if hi > math.pi:
+            bounds.append((-math.pi, hi - 2 * math.pi))
+        owners += [k] * (len(bounds) - len(owners))
+    edges = np.array(bounds)
+    starts = np.searchsorted(theta_sorted, edges[:, 0], side="left")
+    sizes = np.maximum(np.searchsorted(theta_sorted, edges[:, 1], side="right") - starts, 0)
+    total = int(sizes.sum())
+    if total == 0:
+        return np.zeros(0, dtype=np.int64)
+    gate = np.repeat(np.array(owners), sizes)
+    candidates = np.arange(total) - np.repeat(np.cumsum(sizes) - sizes - starts, sizes)
+    centre = np.array(centres, dtype=float)[gate]
+    half_width = np.array(half_widths, dtype=float)[gate]
+    inside = np.abs(wrap_angle(theta_sorted[candidates] - centre)) <= half_width
+    opened = np.zeros(len(theta_sorted), dtype=bool)  # a sample on two touching gates' edges counts once
+    opened[candidates[inside]] = True
+    return np.flatnonzero(opened)
+
+
+@dataclasses.dataclass(frozen=True)
+class RingSamples:
+    """The background sub-samples of the pixels a board's ring walls cross, so that the background
+    of another maze on the same board (other gates, same radii) is drawn by labelling only those."""
+
+    pixels: np.ndarray  # (P,) flat indices of the pixels that hold a sub-sample inside a wall's ring
+    counts: np.ndarray  # (3, P) per label, each pixel's sub-samples outside the rings with that label
+    ring_counts: np.ndarray  # (P,) each pixel's sub-samples inside a ring
+    rings: tuple[tuple[np.ndarray, np.ndarray], ...]  # per wall: its ring's sub-samples' angles, ascending,
+    # and the row in ``pixels`` of each
+    samples_per_pixel: int
+
+    @classmethod
+    def build(cls, spec: MazeSpec, size: int, extent: float, supersample: int) -> RingSamples:
+        """The ring sub-samples of ``spec``'s board at ``size`` pixels, at the positions render's
+        ``_coverage`` samples (``extent``: half the image's width in metres)."""
+        s = supersample
+        mpp = 2.0 * extent / size
+        sub = (np.arange(size * s) + 0.5) / s  # the sub-sample positions of _coverage
+        x, y = np.meshgrid(-extent + sub * mpp, extent - sub * mpp)
+        # Pixel-major: row p holds pixel p's s² sub-samples in _coverage's order.
+        x = x.reshape(size, s, size, s).transpose(0, 2, 1, 3).reshape(size * size, s * s)
+        y = y.reshape(size, s, size, s).transpose(0, 2, 1, 3).reshape(size * size, s * s)
+        r = np.hypot(x, y)
+        in_rings = [(r >= wall.inner_radius) & (r <= wall.outer_radius) for wall in spec.walls]
+        any_ring = np.logical_or.reduce(in_rings)
+        pixels = np.flatnonzero(np.any(any_ring, axis=1))
+        labels = np.full((len(pixels), s * s), FLOOR_LABEL, dtype=np.int8)
+        rp = r[pixels]
+        labels[rp < (spec.walls[0].inner_radius if spec.walls else spec.rim_radius)] = GOAL_LABEL
+        labels[rp >= spec.rim_radius] = WALL_LABEL
+        outside = ~any_ring[pixels]
+        counts = np.stack([((labels == label) & outside).sum(axis=1) for label in (0, 1, 2)])
+        theta = np.arctan2(y[pixels], x[pixels])
+        rings = []
+        for ring in in_rings:
+            rows, columns = np.nonzero(ring[pixels])
+            angles = theta[rows, columns]
+            order = np.argsort(angles, kind="stable")
+            rings.append((angles[order], rows[order]))
+        return cls(pixels, counts, (~outside).sum(axis=1), tuple(rings), s * s)
+
+    def ring_fractions(self, spec: MazeSpec) -> np.ndarray:
+        """Each ring pixel's (:attr:`pixels`) fraction of floor, goal and wall sub-samples in ``spec``,
+        (3, P): its gates' open samples are floor, the rest of its ring wall; counts over
+        ``samples_per_pixel``, as render's mean of the labels gives them (multiples of 1/s², exact)."""
+        opened = [rows[open_samples(wall, angles)] for wall, (angles, rows) in zip(spec.walls, self.rings, strict=True)]
+        open_counts = np.bincount(np.concatenate(opened), minlength=len(self.pixels)) if opened else 0
+        counts = self.counts.copy()
+        counts[FLOOR_LABEL] += open_counts
+        counts[WALL_LABEL] += self.ring_counts - open_counts
+        return counts / self.samples_per_pixel
+
+    def fractions(self, spec: MazeSpec, base: np.ndarray) -> np.ndarray:
+        """render's ``_coverage`` of ``spec`` from ``base``, the coverage of any maze on the board."""
+        fractions = base.copy()
+        fractions.reshape(3, -1)[:, self.pixels] = self.ring_fractions(spec)
+        return fractions
