@@ -23,7 +23,7 @@ from bimgame.sim.maze_sets import is_test_hash, maze_number
 from bimgame.sim.mjcf import PARKED_HALF_SIZE, PARKED_Z, _arc_boxes, wall_box_arrays, wall_boxes, wall_slots
 from bimgame.sim.physics import MazeSim
 from bimgame.sim.render import MazeRenderer
-from bimgame.sim.render_rings import open_samples
+from bimgame.sim.render_rings import GateSamples, open_samples
 
 BASE = MazeSpec.merl()
 MANY_GATES = GateRules(min_gates=1, max_gates=8)
@@ -225,6 +225,11 @@ def test_open_samples_on_edge_gates():
     ]
     for wall in walls:
         assert _same_bits(open_samples(wall, samples), np.flatnonzero(_reference_in_gate(wall, samples)))
+    together = GateSamples.of([samples, samples[::3], samples] * 2).open_mask(tuple(walls) + (walls[0],))
+    expected = [
+        _reference_in_gate(w, a) for w, a in zip(walls + walls[:1], [samples, samples[::3], samples] * 2, strict=True)
+    ]
+    assert _same_bits(together, np.concatenate(expected))
 
 
 @pytest.mark.parametrize("size", [16, 64, 84, 97])

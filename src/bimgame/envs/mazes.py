@@ -17,11 +17,11 @@ from typing import Any
 import numpy as np
 
 from bimgame.sim.generate import GateRules
-from bimgame.sim.geodesic import wrap_angle
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.maze_sets import MAZE_SPLITS, MazeSet
 from bimgame.sim.mjcf import wall_slots
 from bimgame.sim.render import MazeRenderer
+from bimgame.sim.render_rings import GateSamples
 
 __all__ = ["MAZE_ENCODING_ANGLES", "EnvMazes", "maze_encoding", "maze_encoding_size", "maze_raster"]
 
@@ -44,31 +44,31 @@ def maze_encoding(spec: MazeSpec) -> np.ndarray:
     ``j`` covering board angles ``[-π + jΔ, -π + (j + 1)Δ)``: the fraction of the bin that is gate
     (0 solid … 1 open), float32, read-only. In the board frame, like the marble's position, so a
     policy can relate the two."""
-    # Every gate of every wall in one pass (walls padded with gates of half width -1, never open):
-    # the comparisons of Wall.in_gate, sample by sample (a test compares the two).
-    most = max((len(wall.gates) for wall in spec.walls), default=0)
-    centres = np.zeros((len(spec.walls), most, 1))
-    half_widths = np.full((len(spec.walls), most, 1), -1.0)
-    for k, wall in enumerate(spec.walls):
-        centres[k, : len(wall.gates), 0] = [gate.angle for gate in wall.gates]
-        half_widths[k, : len(wall.gates), 0] = [gate.width / 2 for gate in wall.gates]
-    inside = np.abs(wrap_angle(_ENCODING_SAMPLES - centres)) <= half_widths  # (walls, gates, samples)
-    open_samples = np.any(inside, axis=1).reshape(len(spec.walls), MAZE_ENCODING_ANGLES, _SAMPLES_PER_BIN)
-    encoding = open_samples.mean(axis=2).reshape(-1).astype(np.float32)
+    # Every gate of every wall in one pass, each sample compared as Wall.in_gate compares it but only
+    # near a gate (a test compares the two).
+    walls = len(spec.walls)
+    opened = _encoding_samples(walls).open_mask(spec.walls).reshape(walls, MAZE_ENCODING_ANGLES, _SAMPLES_PER_BIN)
+    encoding = opened.mean(axis=2).reshape(-1).astype(np.float32)
     encoding.flags.writeable = False
     return encoding
 
 
-def _encoding_samples() -> np.ndarray:
-    """The angles :func:`maze_encoding` samples, bin after bin: ``_SAMPLES_PER_BIN`` per bin."""
+@functools.lru_cache(maxsize=16)
+def _encoding_samples(walls: int) -> GateSamples:
+    """The angles :func:`maze_encoding` samples on each of ``walls`` walls (bin after bin,
+    ``_SAMPLES_PER_BIN`` per bin: ascending)."""
+    return GateSamples.of([_ENCODING_ANGLES] * walls)
+
+
+def _encoding_angles() -> np.ndarray:
+    """The angles :func:`maze_encoding` samples on a wall, bin after bin: ``_SAMPLES_PER_BIN`` per bin."""
     width = 2 * math.pi / MAZE_ENCODING_ANGLES
     offsets = (np.arange(_SAMPLES_PER_BIN) + 0.5) / _SAMPLES_PER_BIN * width
     angles = -math.pi + np.arange(MAZE_ENCODING_ANGLES)[:, None] * width + offsets[None, :]
-    angles.flags.writeable = False
     return angles.reshape(-1)
 
 
-_ENCODING_SAMPLES = _encoding_samples()
+_ENCODING_ANGLES = _encoding_angles()
 
 
 @functools.lru_cache(maxsize=_RASTER_CACHE)

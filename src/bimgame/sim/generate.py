@@ -26,6 +26,7 @@ could differ only if a rounded value fell exactly on a rounding boundary).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import math
 
@@ -75,11 +76,20 @@ def _gate_width(inner_radius: float, chord: float) -> float:
     return 2 * math.asin(min(1.0, chord / (2 * inner_radius)))
 
 
+@functools.lru_cache(maxsize=16)
+def _ones(count: int) -> np.ndarray:
+    """The Dirichlet's flat parameters for ``count`` gates (read-only, made once)."""
+    ones = np.ones(count)
+    ones.flags.writeable = False
+    return ones
+
+
 def _random_gates(wall: Wall, diameter: float, rules: GateRules, rng: np.random.Generator) -> tuple[Gate, ...]:
     """Gates for ``wall``: as many as the rules draw, fewer if the circle cannot hold them."""
     count = int(rng.integers(rules.min_gates, rules.max_gates + 1))
-    chords = diameter + rules.margin + rng.uniform(0.0, rules.extra_margin, size=count)
-    widths = [_gate_width(wall.inner_radius, float(c)) for c in chords]
+    least = diameter + rules.margin
+    chords = [least + extra for extra in rng.uniform(0.0, rules.extra_margin, size=count).tolist()]
+    widths = [_gate_width(wall.inner_radius, c) for c in chords]
     solid = rules.min_solid / wall.inner_radius
     free = 2 * math.pi - sum(widths) - count * solid
     while free < 0 and count > 1:  # too many gates for this wall: drop one (deterministic)
@@ -91,10 +101,10 @@ def _random_gates(wall: Wall, diameter: float, rules: GateRules, rng: np.random.
             f"wall at {wall.inner_radius * 1e3:.1f} mm cannot hold one gate of {math.degrees(widths[0]):.1f}° "
             f"with min_solid {rules.min_solid * 1e3:.1f} mm: lower GateRules.min_solid or margin"
         )
-    shares = rng.dirichlet(np.ones(count)) * free if count > 1 else np.array([free])
+    shares = [share * free for share in rng.dirichlet(_ones(count)).tolist()] if count > 1 else [free]
     start = float(rng.uniform(-math.pi, math.pi))
     gates = []
-    for width, share in zip(widths, shares.tolist(), strict=True):
+    for width, share in zip(widths, shares, strict=True):
         gates.append(Gate(wrap_angle_one(start + width / 2), width))
         start += width + solid + share
     return tuple(gates)
@@ -125,17 +135,23 @@ def rotate_maze(spec: MazeSpec, angle: float) -> MazeSpec:
     return spec.replace(walls=walls)
 
 
-def _gate_lists(spec: MazeSpec, turn: float) -> tuple[tuple[tuple[float, float], ...], ...]:
-    """Per wall, its gates turned by ``turn``, as sorted ``(angle in [0, 2π), width)`` rounded pairs."""
+def _rounded_gates(spec: MazeSpec) -> list[list[tuple[float, float]]]:
+    """Per wall, its gates' ``(angle, width rounded)``: what :func:`_turned_lists` turns."""
+    return [[(gate.angle, round(gate.width, _ANGLE_DIGITS)) for gate in wall.gates] for wall in spec.walls]
+
+
+def _turned_lists(gates: list[list[tuple[float, float]]], turn: float) -> tuple[tuple[tuple[float, float], ...], ...]:
+    """Per wall, its gates (:func:`_rounded_gates`: widths rounded once for every turn) turned by
+    ``turn``, as sorted ``(angle in [0, 2π), width)`` rounded pairs."""
+    two_pi = 2 * math.pi
+    full_turn = round(two_pi, _ANGLE_DIGITS)
     lists = []
-    for wall in spec.walls:
-        gates = []
-        for gate in wall.gates:
-            angle = round(float((gate.angle + turn) % (2 * math.pi)), _ANGLE_DIGITS)
-            gates.append(
-                (0.0 if angle >= round(2 * math.pi, _ANGLE_DIGITS) else angle, round(gate.width, _ANGLE_DIGITS))
-            )
-        lists.append(tuple(sorted(gates)))
+    for wall in gates:
+        turned = []
+        for angle, width in wall:
+            rounded = round(float((angle + turn) % two_pi), _ANGLE_DIGITS)
+            turned.append((0.0 if rounded >= full_turn else rounded, width))
+        lists.append(tuple(sorted(turned)))
     return tuple(lists)
 
 
@@ -145,7 +161,8 @@ def maze_hash(spec: MazeSpec) -> str:
         raise TypeError(f"spec must be a MazeSpec, got {type(spec).__name__}")
     if spec.walls:
         pivot = min(range(len(spec.walls)), key=lambda k: (len(spec.walls[k].gates), k))
-        canonical = min(_gate_lists(spec, -gate.angle) for gate in spec.walls[pivot].gates)
+        gates = _rounded_gates(spec)
+        canonical = min(_turned_lists(gates, -gate.angle) for gate in spec.walls[pivot].gates)
     else:
         canonical = ()
     radii = tuple((round(w.inner_radius, _LENGTH_DIGITS), round(w.outer_radius, _LENGTH_DIGITS)) for w in spec.walls)

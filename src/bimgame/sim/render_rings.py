@@ -5,8 +5,9 @@ the antialiased background of :mod:`bimgame.sim.render` changes only in the pixe
 cross. :class:`RingSamples` keeps those pixels' sub-samples, sorted by angle per wall, and the counts
 of each pixel's other sub-samples per label; a maze's background is then its gates' open sub-samples
 counted per pixel. Each gate labels only the sub-samples within a hair of its angular sector
-(:func:`open_samples`) with exactly :meth:`~bimgame.sim.maze.Wall.in_gate`'s test, so the pixels are
-those of ``MazeRenderer(spec, size)`` (a test compares them) at a fraction of the cost.
+(:class:`GateSamples`, also what :func:`~bimgame.envs.mazes.maze_encoding` samples) with exactly
+:meth:`~bimgame.sim.maze.Wall.in_gate`'s test, so the pixels are those of ``MazeRenderer(spec, size)``
+(a test compares them) at a fraction of the cost.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import numpy as np
 from bimgame.sim.geodesic import wrap_angle, wrap_angle_one
 from bimgame.sim.maze import MazeSpec, Wall
 
-__all__ = ["RingSamples", "open_samples", "FLOOR_LABEL", "GOAL_LABEL", "WALL_LABEL"]
+__all__ = ["GateSamples", "RingSamples", "open_samples", "FLOOR_LABEL", "GOAL_LABEL", "WALL_LABEL"]
 
 # Region labels of the background raster (render's _FLOOR, _GOAL, _WALL).
 FLOOR_LABEL, GOAL_LABEL, WALL_LABEL = 0, 1, 2
@@ -28,45 +29,78 @@ FLOOR_LABEL, GOAL_LABEL, WALL_LABEL = 0, 1, 2
 _MARGIN = 1e-9
 #: Gates farther than this from [-pi, pi) (rad), or as wide as the circle, are tested on every sample.
 _NEAR_ANGLE = 4 * math.pi
+#: :class:`GateSamples` keys wall ``k``'s angles (in [-pi, pi]) by ``angle + k * _KEY_PERIOD``.
+_KEY_PERIOD = 8.0
+
+
+@dataclasses.dataclass(frozen=True)
+class GateSamples:
+    """Sample angles of several walls, each wall's ascending in [-pi, pi], for :meth:`open_mask`:
+    wall ``k``'s keyed by ``angle + k * _KEY_PERIOD`` in one ascending array, so that one bisection
+    finds every gate's candidates."""
+
+    angles: np.ndarray  # (n,) every wall's samples, wall 0's first, each wall's ascending
+    keys: np.ndarray  # (n,) angles + k * _KEY_PERIOD: ascending
+    starts: np.ndarray  # (walls + 1,) where each wall's samples start, then n
+
+    @classmethod
+    def of(cls, per_wall: list[np.ndarray]) -> GateSamples:
+        """The samples of each wall (ascending angles in [-pi, pi]), wall 0's first."""
+        angles = np.concatenate(per_wall) if per_wall else np.zeros(0)
+        keys = np.concatenate([a + k * _KEY_PERIOD for k, a in enumerate(per_wall)]) if per_wall else np.zeros(0)
+        starts = np.cumsum([0] + [len(a) for a in per_wall])
+        for array in (angles, keys, starts):
+            array.flags.writeable = False
+        return cls(angles, keys, starts)
+
+    def open_mask(self, walls: tuple[Wall, ...]) -> np.ndarray:
+        """Whether each sample is inside one of its wall's gates: ``walls[k].in_gate`` on wall ``k``'s
+        samples, bit for bit, the comparison made only near each gate.
+
+        Each gate's candidates are the samples within ``_MARGIN`` of its sector (its centre wrapped
+        to [-pi, pi), the sector's parts beyond ±pi moved by a period), found by bisection; only they
+        take :meth:`~bimgame.sim.maze.Wall.in_gate`'s comparison, on the gate's angle and half width.
+        A wall with a gate far outside [-pi, pi) or as wide as a half circle tests every sample."""
+        opened = np.zeros(len(self.angles), dtype=bool)
+        bounds, owners, centres, half_widths = [], [], [], []
+        for k, wall in enumerate(walls):
+            gates = [(gate.angle, gate.width / 2) for gate in wall.gates]
+            if not all(abs(c) <= _NEAR_ANGLE and 0 <= h < math.pi - 1e-6 for c, h in gates):
+                segment = slice(int(self.starts[k]), int(self.starts[k + 1]))
+                opened[segment] = wall.in_gate(self.angles[segment])  # unusual gates: every sample
+                continue
+            offset = k * _KEY_PERIOD
+            for c, h in gates:
+                centre = wrap_angle_one(c)
+                lo, hi = centre - h - _MARGIN, centre + h + _MARGIN
+                bounds.append((offset + max(lo, -math.pi), offset + min(hi, math.pi)))
+                if lo < -math.pi:  # the sector's part past -pi, a period on
+                    bounds.append((offset + lo + 2 * math.pi, offset + math.pi))
+                if hi > math.pi:
+                    bounds.append((offset - math.pi, offset + hi - 2 * math.pi))
+                owners += [len(centres)] * (len(bounds) - len(owners))
+                centres.append(c)
+                half_widths.append(h)
+        if not bounds:
+            return opened
+        edges = np.array(bounds)
+        first = np.searchsorted(self.keys, edges[:, 0], side="left")
+        sizes = np.maximum(np.searchsorted(self.keys, edges[:, 1], side="right") - first, 0)
+        total = int(sizes.sum())
+        if total:
+            gate = np.repeat(np.array(owners), sizes)
+            candidates = np.arange(total) - np.repeat(np.cumsum(sizes) - sizes - first, sizes)
+            centre = np.array(centres, dtype=float)[gate]
+            half_width = np.array(half_widths, dtype=float)[gate]
+            inside = np.abs(wrap_angle(self.angles[candidates] - centre)) <= half_width
+            opened[candidates[inside]] = True  # a sample on two touching gates' edges: once
+        return opened
 
 
 def open_samples(wall: Wall, theta_sorted: np.ndarray) -> np.ndarray:
     """Indices into ``theta_sorted`` (ascending angles in [-pi, pi]) of the samples inside one of
-    ``wall``'s gates: ``wall.in_gate(theta_sorted)``'s true entries, tested only near each gate.
-
-    Each gate's candidates are the samples within ``_MARGIN`` of its sector (its centre wrapped to
-    [-pi, pi), the sector's parts beyond ±pi moved by a period), found by bisection; only those take
-    :meth:`~bimgame.sim.maze.Wall.in_gate`'s comparison, on the gate's own angle and half width.
-    """
-    centres, half_widths = [], []
-    for gate in wall.gates:
-        centres.append(gate.angle)
-        half_widths.append(gate.width / 2)
-    if not all(abs(c) <= _NEAR_ANGLE and 0 <= h < math.pi - 1e-6 for c, h in zip(centres, half_widths, strict=True)):
-        return np.flatnonzero(wall.in_gate(theta_sorted))  # unusual gates: every sample
-    bounds, owners = [], []  # candidate angle ranges, and the gate of each
-    for k, (c, h) in enumerate(zip(centres, half_widths, strict=True)):
-        lo, hi = wrap_angle_one(c) - h - _MARGIN, wrap_angle_one(c) + h + _MARGIN
-        bounds.append((max(lo, -math.pi), min(hi, math.pi)))
-        if lo < -math.pi:  # the sector's part past -pi, a period on
-            bounds.append((lo + 2 * math.pi, math.pi))
-        if hi > math.pi:
-            bounds.append((-math.pi, hi - 2 * math.pi))
-        owners += [k] * (len(bounds) - len(owners))
-    edges = np.array(bounds)
-    starts = np.searchsorted(theta_sorted, edges[:, 0], side="left")
-    sizes = np.maximum(np.searchsorted(theta_sorted, edges[:, 1], side="right") - starts, 0)
-    total = int(sizes.sum())
-    if total == 0:
-        return np.zeros(0, dtype=np.int64)
-    gate = np.repeat(np.array(owners), sizes)
-    candidates = np.arange(total) - np.repeat(np.cumsum(sizes) - sizes - starts, sizes)
-    centre = np.array(centres, dtype=float)[gate]
-    half_width = np.array(half_widths, dtype=float)[gate]
-    inside = np.abs(wrap_angle(theta_sorted[candidates] - centre)) <= half_width
-    opened = np.zeros(len(theta_sorted), dtype=bool)  # a sample on two touching gates' edges counts once
-    opened[candidates[inside]] = True
-    return np.flatnonzero(opened)
+    ``wall``'s gates: ``wall.in_gate(theta_sorted)``'s true entries (:meth:`GateSamples.open_mask`)."""
+    return np.flatnonzero(GateSamples.of([theta_sorted]).open_mask((wall,)))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -77,8 +111,8 @@ class RingSamples:
     pixels: np.ndarray  # (P,) flat indices of the pixels that hold a sub-sample inside a wall's ring
     counts: np.ndarray  # (3, P) per label, each pixel's sub-samples outside the rings with that label
     ring_counts: np.ndarray  # (P,) each pixel's sub-samples inside a ring
-    rings: tuple[tuple[np.ndarray, np.ndarray], ...]  # per wall: its ring's sub-samples' angles, ascending,
-    # and the row in ``pixels`` of each
+    rings: GateSamples  # every wall's ring sub-samples' angles, ascending per wall
+    rows: np.ndarray  # the row in ``pixels`` of each of those sub-samples
     samples_per_pixel: int
 
     @classmethod
@@ -103,20 +137,20 @@ class RingSamples:
         outside = ~any_ring[pixels]
         counts = np.stack([((labels == label) & outside).sum(axis=1) for label in (0, 1, 2)])
         theta = np.arctan2(y[pixels], x[pixels])
-        rings = []
+        angles, rows = [], []
         for ring in in_rings:
-            rows, columns = np.nonzero(ring[pixels])
-            angles = theta[rows, columns]
-            order = np.argsort(angles, kind="stable")
-            rings.append((angles[order], rows[order]))
-        return cls(pixels, counts, (~outside).sum(axis=1), tuple(rings), s * s)
+            ring_rows, columns = np.nonzero(ring[pixels])
+            order = np.argsort(theta[ring_rows, columns], kind="stable")
+            angles.append(theta[ring_rows, columns][order])
+            rows.append(ring_rows[order])
+        ring_rows = np.concatenate(rows) if rows else np.zeros(0, dtype=np.int64)
+        return cls(pixels, counts, (~outside).sum(axis=1), GateSamples.of(angles), ring_rows, s * s)
 
     def ring_fractions(self, spec: MazeSpec) -> np.ndarray:
         """Each ring pixel's (:attr:`pixels`) fraction of floor, goal and wall sub-samples in ``spec``,
         (3, P): its gates' open samples are floor, the rest of its ring wall; counts over
         ``samples_per_pixel``, as render's mean of the labels gives them (multiples of 1/s², exact)."""
-        opened = [rows[open_samples(wall, angles)] for wall, (angles, rows) in zip(spec.walls, self.rings, strict=True)]
-        open_counts = np.bincount(np.concatenate(opened), minlength=len(self.pixels)) if opened else 0
+        open_counts = np.bincount(self.rows[self.rings.open_mask(spec.walls)], minlength=len(self.pixels))
         counts = self.counts.copy()
         counts[FLOOR_LABEL] += open_counts
         counts[WALL_LABEL] += self.ring_counts - open_counts
