@@ -8,6 +8,9 @@ cached after the first use) and unlimited mazes (a new maze per episode: generat
 computed and, for pixels, its raster drawn), for state and pixel observations and 16 and 64 envs.
 Rates are relative to one maze in the same run (the machine's speed drifts). Also: the µs of one
 ``BallInMazeEnv.reset`` in each setting, and of ``MazeSim.set_walls`` against building a model.
+Every measurement starts with the per-process maze caches empty (:func:`clear_maze_caches`): the
+settings draw the same maze numbers from the same seeds, and an unlimited setting would otherwise find
+an earlier setting's mazes ready.
 
 The issue's goal: mazes change with at most 10% loss of the vector env's steps/s.
 
@@ -27,10 +30,11 @@ import mujoco
 from bench_env import best_of, vector_rate  # benchmarks/ is the script's directory, on sys.path
 
 from bimgame.envs.env import BallInMazeEnv
+from bimgame.envs.mazes import maze_encoding, maze_raster
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.maze_sets import maze_number
 from bimgame.sim.mjcf import wall_slots
-from bimgame.sim.physics import MazeSim
+from bimgame.sim.physics import MazeSim, _slot_geometry
 from bimgame.util.files import atomic_write_bytes
 
 RESULTS = Path(__file__).parent / "results" / "mazes.json"
@@ -38,14 +42,22 @@ RESULTS = Path(__file__).parent / "results" / "mazes.json"
 SETTINGS = (("one maze", None), ("100 mazes", 100), ("unlimited", 0))
 
 
+def clear_maze_caches() -> None:
+    """Forget the mazes built so far in this process: specs, wall pieces, encodings and pictures."""
+    for cache in (maze_number, _slot_geometry, maze_encoding, maze_raster):
+        cache.cache_clear()
+
+
 def maze_vector_rate(obs_mode: str, num_envs: int, steps: int, episode_steps: int, num_mazes: int | None) -> float:
     """Env steps/s of the vector env on STG2 with random actions, episodes cut at ``episode_steps``."""
+    clear_maze_caches()
     kwargs = {} if num_mazes is None else {"num_mazes": num_mazes}
     return vector_rate(obs_mode, num_envs, steps, 1, task="STG2", max_episode_steps=episode_steps, **kwargs)
 
 
 def reset_us(obs_mode: str, num_mazes: int | None, n: int = 200) -> float:
     """µs per ``BallInMazeEnv.reset`` (a new maze each time with ``num_mazes``)."""
+    clear_maze_caches()
     kwargs = {} if num_mazes is None else {"num_mazes": num_mazes}
     env = BallInMazeEnv("STG2", obs_mode=obs_mode, **kwargs)
     env.reset(seed=0)

@@ -33,7 +33,7 @@ TEST_SHARE_DENOMINATOR = 10
 #: Unlimited sets draw maze numbers below this (2³¹: numbers never repeat in practice).
 UNLIMITED_MAZE_NUMBERS = 2**31
 #: Maze numbers kept built (spec, geodesic tables) per process: a training set of up to this size
-#: is generated once; larger ones and unlimited sets regenerate evicted mazes (≈ 0.2 ms each).
+#: is generated once; larger ones and unlimited sets regenerate evicted mazes (≈ 0.1–0.2 ms each).
 CACHE_SIZE = 4096
 
 

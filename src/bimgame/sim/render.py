@@ -340,7 +340,8 @@ class MazeRenderer:
     def for_maze(self, spec: MazeSpec) -> MazeRenderer:
         """A renderer of ``spec``, a maze on this renderer's board (same radii and marble, other
         gates), at the same size: its background is redrawn only where the walls' rings are, the
-        same pixels as ``MazeRenderer(spec, size)`` (a test compares them) at a tenth of the cost."""
+        same pixels as ``MazeRenderer(spec, size)`` (a test compares them) at about a hundredth of the cost
+        (:class:`~bimgame.sim.render_rings.RingSamples`)."""
         if [(w.inner_radius, w.outer_radius) for w in spec.walls] != [
             (w.inner_radius, w.outer_radius) for w in self.spec.walls
         ] or (spec.rim_radius, spec.rim_thickness, spec.marble_radius) != (
