@@ -19,6 +19,7 @@ from bimgame.envs.mazes import MAZE_ENCODING_ANGLES, maze_encoding
 from bimgame.sim.generate import GateRules, maze_hash
 from bimgame.sim.geodesic import annulus_path_length, gate_distances, wrap_angle, wrap_angle_one
 from bimgame.sim.maze import Gate, MazeSpec, Wall
+from bimgame.sim.maze_rows import MazeRows
 from bimgame.sim.maze_sets import is_test_hash, maze_number
 from bimgame.sim.mjcf import PARKED_HALF_SIZE, PARKED_Z, _arc_boxes, wall_box_arrays, wall_boxes, wall_slots
 from bimgame.sim.physics import MazeSim
@@ -241,3 +242,16 @@ def test_redrawn_background_matches_a_full_raster(size):
         full = MazeRenderer(spec, size)
         assert _same_bits(board.for_maze(spec).background, full.background)
         assert _same_bits(derived.for_maze(spec).background, full.background)  # from another maze's renderer
+
+
+def test_maze_rows_from_a_new_maze_match_its_tables():
+    """MazeRows.set_row on a maze without geodesic tables yet (the gate distances only) fills the
+    row as from the maze's tables."""
+    fresh, cached = MazeRows(BASE, 2, 8), MazeRows(BASE, 2, 8)
+    for index in range(100):
+        new = maze_number.__wrapped__(index, "train", None, MANY_GATES if index % 2 else None)
+        fresh.set_row(index % 2, new)
+        new._geodesic_tables(0)
+        cached.set_row(index % 2, new)
+        for name in ("_gate_angle", "_gate_dist", "_gate_half_width"):
+            assert _same_bits(getattr(fresh, name), getattr(cached, name)), (index, name)

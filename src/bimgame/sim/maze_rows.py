@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bimgame.sim.geodesic import annulus_path_length, wrap_angle
+from bimgame.sim.geodesic import annulus_path_length, gate_distances, wrap_angle
 from bimgame.sim.maze import MazeSpec
 
 __all__ = ["MazeRows"]
@@ -38,15 +38,21 @@ class MazeRows:
 
     def set_row(self, row: int, spec: MazeSpec) -> None:
         """Row ``row`` shows ``spec`` (a maze on the board, with at most ``max_gates`` gates a wall)."""
-        tables = spec._geodesic_tables(0)
-        gates = tables["gate_angle"].shape[1]
+        gates = max((len(wall.gates) for wall in spec.walls), default=1)
         if gates > self._gate_angle.shape[2]:
             raise ValueError(f"a maze with {gates} gates on a wall, more than MazeRows' {self._gate_angle.shape[2]}")
         self._gate_angle[row] = 0.0
         self._gate_dist[row] = np.inf
         self._gate_half_width[row] = -1.0
-        self._gate_angle[row, :, :gates] = tables["gate_angle"]
-        self._gate_dist[row, :, :gates] = tables["gate_dist"]
+        tables = spec._tables["geodesic"].get(0)  # the spec's tables to the centre, if built already
+        if tables is not None:
+            self._gate_angle[row, :, :gates] = tables["gate_angle"]
+            self._gate_dist[row, :, :gates] = tables["gate_dist"]
+        else:  # only what the rows use of them (a new maze): its gates' angles and distances to the centre
+            portals = spec._gate_portals()
+            for k, (portal, distances) in enumerate(zip(portals, gate_distances(portals, 0), strict=True)):
+                self._gate_angle[row, k + 1, : len(distances)] = portal["angles"]
+                self._gate_dist[row, k + 1, : len(distances)] = distances
         for k, wall in enumerate(spec.walls):
             self._gate_half_width[row, k, : len(wall.gates)] = [gate.width / 2 for gate in wall.gates]
 
