@@ -365,7 +365,9 @@ class BallInMazeEnv(gym.Env):
             raise ValueError("switch_maze needs an env built with num_mazes")
         spec = self.mazes.maze(number)
         self.sim.set_walls(spec)
-        self.maze, self.maze_number, self._encoding = spec, number, maze_encoding(spec).tolist()  # once, not per step
+        self.maze, self.maze_number = spec, number
+        if self.obs_mode == "state":  # what state observations end with (once, not per step); pixels show the maze
+            self._encoding = maze_encoding(spec).tolist()
         self.observer.set_maze(spec)
 
     # ------------------------------------------------------------------ helpers
