@@ -17,6 +17,18 @@ from bimgame.sim.maze import MazeSpec
 __all__ = ["MazeRows"]
 
 
+def _centre_gates(spec: MazeSpec) -> list[tuple[list[float], np.ndarray]]:
+    """Per wall of ``spec``, its gates' angles and distances to the centre: the part of the maze's
+    geodesic tables to the centre that :class:`MazeRows` uses, computed as they are (once per maze, kept
+    with its other tables: a set's mazes come back)."""
+    cache = spec._tables
+    if "centre_gates" not in cache:
+        portals = spec._gate_portals()
+        distances = gate_distances(portals, 0)
+        cache["centre_gates"] = [(p["angles"], d) for p, d in zip(portals, distances, strict=True)]
+    return cache["centre_gates"]
+
+
 class MazeRows:
     """Per-row gate tables of ``rows`` mazes on ``base``'s board, each with at most ``max_gates``
     gates per wall, for :meth:`geodesic_distance` to the centre."""
@@ -48,10 +60,9 @@ class MazeRows:
         if tables is not None:
             self._gate_angle[row, :, :gates] = tables["gate_angle"]
             self._gate_dist[row, :, :gates] = tables["gate_dist"]
-        else:  # only what the rows use of them (a new maze): its gates' angles and distances to the centre
-            portals = spec._gate_portals()
-            for k, (portal, distances) in enumerate(zip(portals, gate_distances(portals, 0), strict=True)):
-                self._gate_angle[row, k + 1, : len(distances)] = portal["angles"]
+        else:  # only what the rows use of them: its gates' angles and distances to the centre (kept)
+            for k, (angles, distances) in enumerate(_centre_gates(spec)):
+                self._gate_angle[row, k + 1, : len(distances)] = angles
                 self._gate_dist[row, k + 1, : len(distances)] = distances
         for k, wall in enumerate(spec.walls):
             self._gate_half_width[row, k, : len(wall.gates)] = [gate.width / 2 for gate in wall.gates]
