@@ -121,10 +121,10 @@ def _pair_terms(radii: tuple[tuple[float, float], ...]) -> tuple[np.ndarray, ...
     sum, the obstacle radius and the tangent angles — each by its expression there, on numpy scalars
     (cached: they depend on the board only)."""
     terms = []
-    for (r1, _), (_, a) in zip(radii[1:], radii[:-1], strict=True):
-        a = np.asarray(a, dtype=float)
-        r1 = np.maximum(np.asarray(r1, dtype=float), a)
-        r2 = np.maximum(np.asarray(a, dtype=float), a)
+    for (inner, _), (_, outer) in zip(radii[1:], radii[:-1], strict=True):
+        a = np.asarray(outer, dtype=float)
+        r1 = np.maximum(np.asarray(inner, dtype=float), a)
+        r2 = np.maximum(np.asarray(outer, dtype=float), a)
         alpha1 = np.arccos(np.minimum(a / r1, 1.0))
         alpha2 = np.arccos(np.minimum(a / r2, 1.0))
         tangents = np.sqrt(np.maximum(r1**2 - a**2, 0.0)) + np.sqrt(np.maximum(r2**2 - a**2, 0.0))

@@ -62,7 +62,10 @@ class GateSamples:
         take :meth:`~bimgame.sim.maze.Wall.in_gate`'s comparison, on the gate's angle and half width.
         A wall with a gate far outside [-pi, pi) or as wide as a half circle tests every sample."""
         opened = np.zeros(len(self.angles), dtype=bool)
-        bounds, owners, centres, half_widths = [], [], [], []
+        bounds: list[tuple[float, float]] = []
+        owners: list[int] = []
+        centres: list[float] = []
+        half_widths: list[float] = []
         for k, wall in enumerate(walls):
             gates = [(gate.angle, gate.width / 2) for gate in wall.gates]
             if not all(abs(c) <= _NEAR_ANGLE and 0 <= h < math.pi - 1e-6 for c, h in gates):
