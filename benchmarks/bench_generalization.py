@@ -15,6 +15,10 @@ the same splits (the "pre-trained only" row), then PPO starts from it with the r
 ``pretrain+ppo+keep`` settings (its KL to π^s) and ``--set``'s (PPO from random weights keeps its
 defaults).
 
+``--geodesic-reward COEF`` trains every run on the task's reward plus COEF × the geodesic progress
+towards the centre per metre (:class:`~bimgame.learn.rewards.RewardSettings`; scores are always the
+task's success).
+
 The generalization gap is train − test success. Across seeds: means with percentile-bootstrap 95%
 intervals (seeds resampled); per seed numbers are in the JSON. Runs are kept in ``--out`` (a rerun
 reuses finished runs and their scores). Writes ``--results`` (default
@@ -23,7 +27,8 @@ train and test success against N, one panel per learner, CoinRun's figure.
 
 Usage: python benchmarks/bench_generalization.py [--task STG1] [--obs state] [--steps 300000]
        [--seeds 3] [--num-mazes 1 10 100 1000 0] [--learners ppo a3c pretrain+ppo+keep]
-       [--pretrain-data DATA] [--set NAME=VALUE ...] [--maze-frame board|marble] [--jobs 2]
+       [--pretrain-data DATA] [--set NAME=VALUE ...] [--maze-frame board|marble]
+       [--geodesic-reward COEF] [--jobs 2]
        [--out runs/generalization]
        [--score-unfinished]   (score the last checkpoints of runs stopped early, e.g. for time)
 """
@@ -49,6 +54,7 @@ from bimgame.learn.common import load_run_network
 from bimgame.learn.encoders import MAZE_FRAMES
 from bimgame.learn.ppo import PPOConfig, resolve_ppo_config, train_ppo
 from bimgame.learn.pretrain import pretrain
+from bimgame.learn.rewards import RewardSettings, run_reward
 from bimgame.learn.runs import torch_threads
 from bimgame.learn.supervised import PretrainConfig
 from bimgame.util.files import atomic_write_bytes, read_json
@@ -101,6 +107,7 @@ def _train(
     maze_frame: str,
     settings: dict[str, object],
     init: Path | None,
+    reward: RewardSettings,
 ) -> float:
     """Train one run unless ``run_dir`` holds a finished one; the wall-clock seconds it took (0: reused).
     ``settings``: PPO settings beyond the algorithm's; ``init``: the π^s a ``pretrain+ppo+keep`` run starts from."""
@@ -113,13 +120,19 @@ def _train(
     start = time.perf_counter()
     resume = (run_dir / "config.json").is_file()
     if learner == "a3c":
-        train(A3CConfig.from_flat(common, workers=2, envs_per_worker=16), run_dir, resume=resume, progress=False)
+        config = A3CConfig.from_flat(common, workers=2, envs_per_worker=16)
+        reward, wrapper = run_reward(
+            reward, run_dir, resume=resume, task=task, obs=obs, gamma=config.optimization.gamma
+        )
+        extra = {"reward": reward.to_dict()}
+        train(config, run_dir, resume=resume, progress=False, env_wrapper=wrapper, extra_config=extra)
     elif learner == PRETRAINED:
         given = {**common, **ppo_overrides(PRETRAINED, steps, None), **settings}
         config = resolve_ppo_config(given, run_dir, resume=resume, init=None if resume else init)
-        train_ppo(config, run_dir, resume=resume, init=None if resume else init, progress=False)
+        train_ppo(config, run_dir, resume=resume, init=None if resume else init, progress=False, reward=reward)
     else:
-        train_ppo(PPOConfig.from_flat({**common, **settings}), run_dir, resume=resume, progress=False)
+        ppo = PPOConfig.from_flat({**common, **settings})
+        train_ppo(ppo, run_dir, resume=resume, progress=False, reward=reward)
     return time.perf_counter() - start
 
 
@@ -176,6 +189,7 @@ def _run(
                 maze_frame=args.maze_frame,
                 settings=args.settings if learner == PRETRAINED else {},
                 init=_pi_s_dir(args, seed) if learner == PRETRAINED else None,
+                reward=RewardSettings(geodesic_coef=args.geodesic_reward),
             )
         return (seconds, *_score(run_dir, num_mazes, args.episodes))
 
@@ -255,6 +269,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--set", nargs="+", default=[], metavar="NAME=VALUE", help=f"PPO settings of the {PRETRAINED} runs"
     )
+    parser.add_argument(
+        "--geodesic-reward",
+        type=float,
+        default=None,
+        metavar="COEF",
+        help="train on the task's reward plus COEF x the geodesic progress (per metre); default: the task's reward",
+    )
     parser.add_argument("--jobs", type=int, default=1, help="runs trained at once, one process each (default 1)")
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "generalization")
     parser.add_argument("--results", type=Path, default=ROOT / "benchmarks" / "results" / "generalization.json")
@@ -265,6 +286,10 @@ def main(argv: list[str] | None = None) -> int:
     if any(n < 0 for n in args.num_mazes):
         parser.error(f"--num-mazes takes counts >= 0 (0: unlimited), got {args.num_mazes}")
     args.settings = _settings(args.set, parser)
+    try:
+        RewardSettings(geodesic_coef=args.geodesic_reward)
+    except ValueError as error:
+        parser.error(f"--geodesic-reward: {error}")
     if (PRETRAINED in args.learners) != (args.pretrain_data is not None):
         parser.error(f"--learners {PRETRAINED} and --pretrain-data go together (π^s is pre-trained on that dataset)")
     if args.pretrain_data is not None:
@@ -288,6 +313,7 @@ def main(argv: list[str] | None = None) -> int:
         "steps_scored": {},
     }
     frame = "" if args.maze_frame == "board" else f"-{args.maze_frame}"
+    frame += "" if args.geodesic_reward is None else f"-geo{args.geodesic_reward:g}"
     variant = "".join(f"-{key.replace('_', '-')}{value}" for key, value in sorted(args.settings.items()))
     data = "" if args.pretrain_data is None else f"-{args.pretrain_data.name}"
 
@@ -333,6 +359,7 @@ def main(argv: list[str] | None = None) -> int:
         results["learners"][learner] = rows
     results["maze_frame"] = args.maze_frame
     results["ppo_settings"] = args.settings
+    results["geodesic_reward"] = args.geodesic_reward
     title = f"{args.task} from {args.obs}, {args.steps:,} steps, {args.seeds} seeds; {args.episodes} episodes per point"
     figure = _plot(results, args.figure, title)
     atomic_write_bytes(args.results, json.dumps(results, indent=2).encode())

@@ -27,12 +27,21 @@ def test_ppo_trains_resumes_and_takes_its_own_defaults(tmp_path, capsys):
     assert resumed.optimization.clip == 0.1
 
 
-def test_ppo_refuses_a3c_only_flags_and_reward_shaping_by_name(tmp_path, capsys):
+def test_ppo_refuses_a3c_only_flags_by_name(tmp_path, capsys):
     assert main(["train", "--algo", "ppo", "--run-dir", str(tmp_path / "a"), "--rmsprop-alpha", "0.9", *TINY]) == 2
     assert "unknown PPO settings ['rmsprop_alpha']" in capsys.readouterr().err
-    assert main(["train", "--algo", "ppo", "--run-dir", str(tmp_path / "b"), "--geodesic-reward", *TINY]) == 2
-    assert "--geodesic-reward: reward shaping is not supported with --algo ppo yet" in capsys.readouterr().err
-    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+    assert not (tmp_path / "a").exists()
+
+
+def test_ppo_shapes_its_reward_like_a3c_and_a_resume_keeps_it(tmp_path, capsys):
+    run_dir = tmp_path / "geo"
+    assert main(["train", "--algo", "ppo", "--run-dir", str(run_dir), "--geodesic-reward", "--steps", "128",
+                 *TINY]) == 0
+    assert "reward shaped: geodesic_coef=10.0" in capsys.readouterr().err
+    assert json.loads((run_dir / "config.json").read_text())["reward"]["geodesic_coef"] == 10.0
+    assert main(["train", "--algo", "ppo", "--run-dir", str(run_dir), "--resume", "--geodesic-reward", "3",
+                 "--steps", "192", "--no-progress"]) == 2
+    assert "--resume must keep the run's reward" in capsys.readouterr().err
 
 
 def test_a3c_refuses_ppos_own_flags_by_name_instead_of_ignoring_them(tmp_path, capsys):

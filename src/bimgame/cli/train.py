@@ -12,14 +12,20 @@ from rich.table import Table
 
 from bimgame.cli.argtypes import check_output_file, episode_count, positive_float, seed, step_count, step_count_or_zero
 from bimgame.cli.flags import add_flag_groups, add_grouped_settings_flags, given_settings, plain
-from bimgame.cli.train_ppo import PPO_GROUP, add_ppo_arguments, refuse_ppo_only_flags, train_ppo_from_args
+from bimgame.cli.train_ppo import (
+    PPO_GROUP,
+    add_ppo_arguments,
+    given_reward,
+    refuse_ppo_only_flags,
+    train_ppo_from_args,
+)
 from bimgame.envs.puzzles import TASK_NAMES, puzzle
 from bimgame.envs.shaping import DEFAULT_GEODESIC_COEF
 from bimgame.learn.a3c import A3CConfig, resolve_config, train
 from bimgame.learn.actor import evaluate_network
 from bimgame.learn.common import NetworkSettings, load_run_network
-from bimgame.learn.learner_settings import DEFAULT_FINETUNE, refuse_maze_only
-from bimgame.learn.rewards import RewardSettings, env_wrapper_for, resolve_reward_settings
+from bimgame.learn.learner_settings import DEFAULT_FINETUNE
+from bimgame.learn.rewards import RewardSettings, run_reward
 from bimgame.learn.run_dir import TrainingError, TrainResult
 from bimgame.util.files import write_json
 from bimgame.util.images import write_gif
@@ -180,14 +186,14 @@ def _train_a3c(args: argparse.Namespace) -> tuple[TrainResult, int]:
     config = resolve_config(
         given_settings(args, A3CConfig, A3CConfig.flat_names()), args.run_dir, resume=args.resume, init=args.init
     )
-    reward = resolve_reward_settings(
-        RewardSettings(value_reward=args.value_reward, geodesic_coef=args.geodesic_coef),
+    reward, wrapper = run_reward(
+        given_reward(args),
         args.run_dir,
         resume=args.resume,
+        task=config.task,
+        obs=config.network.obs,
+        gamma=config.optimization.gamma,
     )
-    shaping = {"value_reward": reward.value_reward is not None, "geodesic_coef": reward.geodesic_coef is not None}
-    refuse_maze_only("RewardSettings", config.task, shaping)
-    wrapper = env_wrapper_for(reward, obs=config.network.obs, gamma=config.optimization.gamma)
     schedule = config.schedule
     shaped = reward.describe()
     print(

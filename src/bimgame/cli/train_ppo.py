@@ -11,9 +11,10 @@ from types import SimpleNamespace
 from bimgame.cli.flags import add_grouped_settings_flags, given_settings
 from bimgame.learn.a3c import A3CConfig
 from bimgame.learn.ppo import PPOConfig, PPOOptimizationSettings, resolve_ppo_config, train_ppo
+from bimgame.learn.rewards import RewardSettings
 from bimgame.learn.run_dir import TrainResult
 
-__all__ = ["PPO_GROUP", "add_ppo_arguments", "refuse_ppo_only_flags", "train_ppo_from_args"]
+__all__ = ["PPO_GROUP", "add_ppo_arguments", "given_reward", "refuse_ppo_only_flags", "train_ppo_from_args"]
 
 _DEFAULTS = PPOOptimizationSettings()
 #: The help group of PPO's own settings: (title, description), the shared defaults read from the class.
@@ -25,8 +26,6 @@ PPO_GROUP = (
         f"--workers N: N processes averaging their gradients)"
     ),
 )
-#: The reward-shaping flags ``--algo ppo`` does not support yet, by their destination.
-_NOT_FOR_PPO = {"value_reward": "--value-reward", "geodesic_coef": "--geodesic-reward"}
 
 
 def add_ppo_arguments(parser: argparse.ArgumentParser, groups: dict[str, argparse._ArgumentGroup]) -> None:
@@ -56,20 +55,31 @@ def refuse_ppo_only_flags(args: argparse.Namespace) -> None:
         raise ValueError(f"{flags}: PPO's own settings; add --algo ppo, or leave them out for A3C")
 
 
+def given_reward(args: argparse.Namespace) -> RewardSettings:
+    """The reward shaping the flags ask for (``--value-reward``, ``--geodesic-reward``), either learner's."""
+    return RewardSettings(value_reward=args.value_reward, geodesic_coef=args.geodesic_coef)
+
+
 def train_ppo_from_args(args: argparse.Namespace) -> tuple[TrainResult, int]:
     """Resolve the PPO settings from the flags given and train; returns the run's outcome and its step
     budget (``bimgame train`` reports both learners' outcomes alike). Raises
     :class:`~bimgame.learn.run_dir.TrainingError` when training fails."""
-    refused = [flag for name, flag in _NOT_FOR_PPO.items() if getattr(args, name, None) is not None]
-    if refused:
-        raise ValueError(f"{', '.join(refused)}: reward shaping is not supported with --algo ppo yet")
     # Every settings flag given, A3C's too: an A3C-only one is refused by PPOConfig, naming it.
     given = given_settings(args, PPOConfig, sorted(set(A3CConfig.flat_names()) | set(PPOConfig.flat_names())))
     config = resolve_ppo_config(given, args.run_dir, resume=args.resume, init=args.init)
+    shaped = given_reward(args).describe()
     print(
         f"PPO on {config.task} ({config.network.obs}): {config.schedule.steps:,} steps, "
-        f"{config.schedule.envs_per_worker} envs{', from ' + str(args.init) if args.init else ''} -> {args.run_dir}",
+        f"{config.schedule.envs_per_worker} envs{', reward shaped: ' + shaped if shaped else ''}"
+        f"{', from ' + str(args.init) if args.init else ''} -> {args.run_dir}",
         file=sys.stderr,
     )
-    result = train_ppo(config, args.run_dir, resume=args.resume, init=args.init, progress=not args.no_progress)
+    result = train_ppo(
+        config,
+        args.run_dir,
+        resume=args.resume,
+        init=args.init,
+        progress=not args.no_progress,
+        reward=given_reward(args),
+    )
     return result, config.schedule.steps

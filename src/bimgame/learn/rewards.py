@@ -4,7 +4,8 @@ Two shapings, which can be combined: the paper's *value function as a reward* (a
 ``bimgame pretrain --value-only`` as the potential of :class:`~bimgame.envs.shaping.PotentialShapedVectorEnv`)
 and a dense *geodesic progress* reward (:class:`~bimgame.envs.shaping.GeodesicReward`). The settings
 (:class:`RewardSettings`) are stored in the run's ``config.json`` under ``"reward"``, so a resumed run
-keeps them; :func:`env_wrapper_for` turns them into the wrapper A3C's workers apply. The command line
+keeps them; :func:`env_wrapper_for` turns them into the wrapper every learner's environments are
+stepped through (A3C's workers, PPO's ranks); :func:`run_reward` does both for a run. The command line
 and the reproduction both build their wrappers here. V̂ lives in the learn layer (it is a network of
 a pre-training run), which is why this is not in :mod:`bimgame.envs.shaping`.
 """
@@ -13,6 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -21,13 +23,28 @@ import numpy as np
 import torch
 
 from bimgame.envs.shaping import Chain, GeodesicReward, PotentialShapedVectorEnv, unit_interval
+from bimgame.envs.vector import BallInMazeVectorEnv
 from bimgame.learn.actor import tilt_input
 from bimgame.learn.common import load_value_network
+from bimgame.learn.learner_settings import refuse_maze_only
 from bimgame.learn.nets import ValueNetwork
 from bimgame.learn.runs import CONFIG, read_run_config
 from bimgame.sim.maze import MazeSpec
 
-__all__ = ["RewardSettings", "ValueFunctionPotential", "ValueReward", "env_wrapper_for", "resolve_reward_settings"]
+__all__ = [
+    "EnvWrapper",
+    "RewardSettings",
+    "ValueFunctionPotential",
+    "ValueReward",
+    "env_wrapper_for",
+    "resolve_reward_settings",
+    "run_reward",
+]
+
+#: A callable that wraps a learner's vector env (reward shaping: :func:`env_wrapper_for`). It is sent
+#: to spawned worker processes, so it must be picklable (a module-level function or an instance of a
+#: module-level class).
+EnvWrapper = Callable[[BallInMazeVectorEnv], Any]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -162,3 +179,14 @@ def env_wrapper_for(settings: RewardSettings, *, obs: str, gamma: float) -> Chai
             )
         wrappers.append(ValueReward(settings.value_reward, gamma=gamma))
     return Chain(tuple(wrappers)) if wrappers else None
+
+
+def run_reward(
+    given: RewardSettings, run_dir: str | Path, *, resume: bool, task: str, obs: str, gamma: float
+) -> tuple[RewardSettings, Chain | None]:
+    """A run's reward settings (``given`` for a new run, its own for a resumed one: see
+    :func:`resolve_reward_settings`) and their env wrapper; refuses shaping on a task that is not the
+    circular maze's (both shapings read the maze's geodesic distance or a maze V̂)."""
+    reward = resolve_reward_settings(given, run_dir, resume=resume)
+    refuse_maze_only("RewardSettings", task, {name: value is not None for name, value in reward.to_dict().items()})
+    return reward, env_wrapper_for(reward, obs=obs, gamma=gamma)

@@ -5,17 +5,17 @@ evaluation."""
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 import torch
 
 from bimgame.envs.puzzles import PuzzleSpec, puzzle
-from bimgame.envs.vector import BallInMazeVectorEnv
 from bimgame.learn.a3c.settings import A3CConfig
 from bimgame.learn.finetune import LossWeights, RunningScale
 from bimgame.learn.loss_terms import LossTerm
 from bimgame.learn.nets import RecurrentActorCritic
+from bimgame.learn.rewards import EnvWrapper
 from bimgame.learn.rollout import Segment, advantages_and_targets, unroll
 
 __all__ = [
@@ -26,10 +26,6 @@ __all__ = [
     "a3c_segment_loss",
     "apply_update",
 ]
-
-#: A callable that wraps a worker's vector env (e.g. reward shaping). It is sent to spawned worker
-#: processes, so it must be picklable (a module-level function or an instance of a module-level class).
-EnvWrapper = Callable[[BallInMazeVectorEnv], Any]
 
 
 def network_for(config: A3CConfig, maze: PuzzleSpec | None = None) -> RecurrentActorCritic:

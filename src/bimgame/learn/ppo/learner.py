@@ -21,10 +21,12 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor, wait
+from typing import Any
 
 import numpy as np
 import torch
 
+from bimgame.envs.vector import BallInMazeVectorEnv
 from bimgame.learn.actor import RecurrentActor
 from bimgame.learn.curricula import start_curriculum
 from bimgame.learn.finetune import Teacher
@@ -32,6 +34,7 @@ from bimgame.learn.learner_settings import policy_network
 from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.learn.ppo.settings import PPOConfig
 from bimgame.learn.ppo.update import GradientAverage, KLTarget, ppo_update
+from bimgame.learn.rewards import EnvWrapper
 from bimgame.learn.rollout import FinishedEpisode, NonFiniteReward, RolloutCollector, Segment, training_env
 from bimgame.learn.run_dir import TrainingError
 
@@ -71,6 +74,7 @@ class RankLearner:
         average: GradientAverage | None = None,
         teacher: dict[str, torch.Tensor] | None = None,
         learning: RecurrentActorCritic | None = None,
+        env_wrapper: EnvWrapper | None = None,
     ):
         self.config, self.net, self.optimizer, self.average = config, net, optimizer, average
         self.lag = config.optimization.policy_lag
@@ -108,9 +112,13 @@ class RankLearner:
             start_sampler=curriculum,
             **config.maze_options,
         )
+        stepped: Any = env
+        if env_wrapper is not None:
+            assert isinstance(env, BallInMazeVectorEnv)  # reward shaping is the maze's (run_reward refuses it)
+            stepped = env_wrapper(env)
         actor = RecurrentActor(net, envs, generator=torch.Generator().manual_seed(act_seed))
         self.collector = RolloutCollector(
-            env,
+            stepped,
             env,
             actor,
             gamma=config.optimization.gamma,

@@ -46,6 +46,7 @@ from bimgame.learn.learner_settings import policy_network
 from bimgame.learn.ppo.learner import RankLearner, adam
 from bimgame.learn.ppo.settings import PPOConfig
 from bimgame.learn.ppo.update import GradientAverage
+from bimgame.learn.rewards import EnvWrapper
 from bimgame.learn.rollout import FinishedEpisode
 from bimgame.learn.run_dir import TrainingError
 
@@ -73,6 +74,8 @@ class _WorkerStart:
     """The process id of rank 0."""
     teacher: dict[str, torch.Tensor] | None = None
     """π^s's weights, for a KL term."""
+    env_wrapper: EnvWrapper | None = None
+    """The reward shaping every rank's environments are stepped through (picklable)."""
 
 
 def _worker_main(start: _WorkerStart, commands: Any, messages: Any) -> None:
@@ -100,6 +103,7 @@ def _worker_main(start: _WorkerStart, commands: Any, messages: Any) -> None:
             global_step=lambda: step,
             average=GradientAverage(config.schedule.workers),
             teacher=start.teacher,
+            env_wrapper=start.env_wrapper,
         )
         while True:
             command, step = _next_command(commands, start.parent)
@@ -154,10 +158,11 @@ class WorkerGroup:
         optimizer: torch.optim.Optimizer,
         step: int,
         teacher: dict[str, torch.Tensor] | None = None,
+        env_wrapper: EnvWrapper | None = None,
     ) -> Iterator[WorkerGroup]:
         """Start the workers from ``net``'s weights and ``optimizer``'s statistics at ``step`` (with
-        π^s's ``teacher`` weights for a KL term), join them in a process group; on leaving, end them
-        and the group."""
+        π^s's ``teacher`` weights for a KL term and the run's reward shaping ``env_wrapper``), join
+        them in a process group; on leaving, end them and the group."""
         if dist.is_initialized():
             raise RuntimeError(
                 "PPO with workers > 1 makes its own torch.distributed process group; this process has one "
@@ -168,7 +173,15 @@ class WorkerGroup:
             model = {key: value.detach().clone() for key, value in net.state_dict().items()}
             for rank in range(1, self.world):
                 start = _WorkerStart(
-                    self.config.to_dict(), rank, rendezvous, step, model, optimizer.state_dict(), os.getpid(), teacher
+                    self.config.to_dict(),
+                    rank,
+                    rendezvous,
+                    step,
+                    model,
+                    optimizer.state_dict(),
+                    os.getpid(),
+                    teacher,
+                    env_wrapper,
                 )
                 process = self.context.Process(
                     target=_worker_main, args=(start, self.commands[rank - 1], self.messages), daemon=True

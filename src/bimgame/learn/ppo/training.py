@@ -34,6 +34,7 @@ from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.learn.ppo.learner import RankLearner, adam
 from bimgame.learn.ppo.parallel import WorkerGroup
 from bimgame.learn.ppo.settings import PPOConfig
+from bimgame.learn.rewards import EnvWrapper, RewardSettings, run_reward
 from bimgame.learn.rollout import FinishedEpisode
 from bimgame.learn.run_dir import TEACHER, RunDirectory, TrainResult, stored_run_config
 from bimgame.learn.runs import CHECKPOINT, KIND_PPO, torch_threads
@@ -98,16 +99,26 @@ def train_ppo(
     resume: bool = False,
     init: str | Path | None = None,
     progress: bool = True,
+    reward: RewardSettings | None = None,
 ) -> TrainResult:
     """Train with PPO; everything is saved in ``run_dir`` (a new or empty directory, or with
     ``resume`` the PPO run in it). ``init``: a checkpoint file or run directory whose weights the
     network starts from (e.g. a pre-trained π^s; its network settings must match ``config``'s).
-    Raises :class:`TrainingError` for a non-finite reward, loss or gradient (the last checkpoint
-    is kept)."""
+    ``reward``: how the training reward is shaped (None: the task's reward; a resumed run keeps its
+    own, the same wrappers as A3C's: :func:`~bimgame.learn.rewards.run_reward`). Raises
+    :class:`TrainingError` for a non-finite reward, loss or gradient (the last checkpoint is kept)."""
     if resume and init is not None:
         raise ValueError("--init with --resume: a resumed run continues from its own checkpoint")
     check_init_puzzle(init, config.task)  # before the run directory: a refused start writes nothing
     check_init_network(init, config.network)
+    reward, wrapper = run_reward(
+        reward or RewardSettings(),
+        run_dir,
+        resume=resume,
+        task=config.task,
+        obs=config.network.obs,
+        gamma=config.optimization.gamma,
+    )
     # With worker processes every rank has one core's share: one thread each; with a policy lag the
     # collecting and the updating thread have one core each.
     threads = 1 if config.schedule.workers > 1 or config.optimization.policy_lag else None
@@ -118,10 +129,10 @@ def train_ppo(
         net = policy_network(config)
         learning = learning_copy(net, device, separate=bool(config.optimization.policy_lag))
         optimizer = adam(learning if learning is not None else net, config)
-        start = _resumed(config, run, net, optimizer) if resume else _started(config, run, net, init)
+        start = _resumed(config, run, net, optimizer) if resume else _started(config, run, net, init, reward)
         if learning is not None:
             learning.load_state_dict(net.state_dict())  # the weights the run starts from
-        return _Session(config, run, net, optimizer, start, learning).run(progress)
+        return _Session(config, run, net, optimizer, start, learning, wrapper).run(progress)
 
 
 def learning_copy(
@@ -141,9 +152,11 @@ class _Start:
     teacher: dict[str, torch.Tensor] | None = None
 
 
-def _started(config: PPOConfig, run: RunDirectory, net: RecurrentActorCritic, init: str | Path | None) -> _Start:
+def _started(
+    config: PPOConfig, run: RunDirectory, net: RecurrentActorCritic, init: str | Path | None, reward: RewardSettings
+) -> _Start:
     """A new run: ``net`` from ``init`` (if given), π^s kept for a KL term (``teacher.pt``); its
-    settings and step-0 checkpoint written first."""
+    settings (the reward's too) and step-0 checkpoint written first."""
     if config.has_teacher and init is None:
         raise ValueError(
             "PPOFinetuneSettings.kl_coef > 0 (kickstarting) needs a pre-trained policy to stay close to: "
@@ -162,6 +175,7 @@ def _started(config: PPOConfig, run: RunDirectory, net: RecurrentActorCritic, in
             "ppo": config.to_dict(),
             "net": net.config.to_dict(),
             "init": str(init) if init is not None else None,
+            "reward": reward.to_dict(),
         }
     )
     save_checkpoint(run / CHECKPOINT, model=net.state_dict(), step=0, seconds=0.0, config=json.dumps(config.to_dict()))
@@ -192,10 +206,11 @@ class _Session:
         optimizer: torch.optim.Optimizer,
         start: _Start,
         learning: RecurrentActorCritic | None = None,
+        env_wrapper: EnvWrapper | None = None,
     ):
         self.config, self.directory, self.net, self.optimizer = config, run, net, optimizer
         step = self.step = self.checkpoint_step = self.eval_step = self.log_step = start.step
-        self.teacher, self.learning = start.teacher, learning
+        self.teacher, self.learning, self.env_wrapper = start.teacher, learning, env_wrapper
         self.started = time.monotonic() - start.seconds  # seconds count the whole run, across resumes
         fresh = step == 0 and not run.resume
         # An update's row is logged before its step's checkpoint: a resumed run keeps it.
@@ -245,7 +260,9 @@ class _Session:
         group = WorkerGroup(config) if config.schedule.workers > 1 else None
         with (
             sigterm_as_interrupt(),
-            group.start(self.net, self.optimizer, self.step, self.teacher) if group is not None else nullcontext(),
+            group.start(self.net, self.optimizer, self.step, self.teacher, self.env_wrapper)
+            if group is not None
+            else nullcontext(),
             ProgressBar(title, config.schedule.steps, completed=self.step, enabled=progress, eta=True) as bar,
         ):
             learner = RankLearner(
@@ -259,6 +276,7 @@ class _Session:
                 average=group.average if group is not None else None,
                 teacher=self.teacher,
                 learning=self.learning,
+                env_wrapper=self.env_wrapper,
             )
             try:
                 while self.step < config.schedule.steps:
