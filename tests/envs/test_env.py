@@ -55,7 +55,7 @@ def test_observation_layouts():
     np.testing.assert_allclose(obs[0:2], positions[0, :2], atol=1e-7)
     np.testing.assert_allclose(obs[4:6], positions[1, :2], atol=1e-7)
     assert list(obs[10:]) == [4.0, 4.0]
-    assert set(info) == {"channel", "gate_crossings", "geodesic_distance", "is_success", "tilt"}
+    assert set(info) == {"channel", "gate_crossings", "geodesic_distance", "goal_distance", "is_success", "tilt"}
     assert info["channel"].tolist() == [4, 4]
 
 
@@ -166,8 +166,11 @@ def test_stg1_rewards_one_and_terminates_when_the_marble_passes_wall_3():
     assert terminated and rewards[-1] == 1.0 and sum(rewards) == 1.0
     assert infos[-1]["is_success"] and infos[-1]["channel"].tolist() == [3]
     assert infos[-1]["gate_crossings"].tolist() == [1]
-    # The geodesic distance fell on the way in.
+    # The geodesic distance fell on the way in; the distance to STG1's goal (through wall 3) is
+    # down to the rest of the way through its gate at the end, the one to the centre is not.
     assert infos[-1]["geodesic_distance"][0] < infos[0]["geodesic_distance"][0] - 0.01
+    assert infos[-1]["goal_distance"][0] < 0.01 < infos[0]["goal_distance"][0] < infos[0]["geodesic_distance"][0]
+    assert infos[-1]["geodesic_distance"][0] > 0.05
 
 
 def test_full_rewards_each_inward_crossing_and_does_not_terminate_at_wall_3():

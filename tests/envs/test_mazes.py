@@ -126,6 +126,7 @@ def test_vector_env_with_many_mazes_equals_sync_vector_env(obs_mode):
             np.testing.assert_array_equal(x, y)
         np.testing.assert_array_equal(a[4]["maze"], b[4]["maze"])
         np.testing.assert_allclose(a[4]["geodesic_distance"], b[4]["geodesic_distance"], atol=1e-12)
+        np.testing.assert_allclose(a[4]["goal_distance"], b[4]["goal_distance"], atol=1e-12)
         mazes |= set(b[4]["maze"].tolist())
     assert len(mazes) >= 4  # autoresets switched mazes during the test
     sync.close()
@@ -146,3 +147,13 @@ def test_vector_env_reset_can_choose_each_envs_first_maze():
     plain = gym.make_vec("BiMGame/STG1-v0", num_envs=2, obs_mode="state")
     with pytest.raises(ValueError, match="needs a vector env built with num_mazes"):
         plain.reset(options={"maze": [0, 1]})
+
+
+def test_the_goal_distance_is_each_episodes_maze_own_distance_to_the_tasks_goal():
+    env = BallInMazeEnv("STG1", obs_mode="state", num_mazes=0)
+    for seed in range(4):
+        obs, info = env.reset(seed=seed)
+        goal = env.maze.outermost_channel - 1  # STG1: through the outermost wall
+        expected = env.maze.geodesic_distance(float(obs[0]), float(obs[1]), goal)
+        assert info["goal_distance"][0] == pytest.approx(float(expected), abs=1e-6)  # obs: float32 positions
+        assert 0 < info["goal_distance"][0] < info["geodesic_distance"][0]

@@ -28,12 +28,12 @@ NUM_ENVS = 3
 
 def _transition(obs, tilt_x, reward, terminated=(), truncated=(), final=None):
     """One scripted step of 3 envs with 1-number observations. ``final`` maps an env index to the
-    (obs, tilt_x) of its finished episode; ``geodesic_distance`` equals the observation. Rows of
+    (obs, tilt_x) of its finished episode; ``goal_distance`` equals the observation. Rows of
     ``final_obs``/``final_info`` outside the mask are NaN, so reading them would show."""
     obs = np.array(obs, dtype=np.float64)[:, None]
     tilt = np.zeros((NUM_ENVS, 2))
     tilt[:, 0] = tilt_x
-    infos = {"tilt": tilt, "geodesic_distance": obs.copy()}
+    infos = {"tilt": tilt, "goal_distance": obs.copy()}
     done = np.zeros(NUM_ENVS, dtype=bool)
     done[list(terminated)] = True
     trunc = np.zeros(NUM_ENVS, dtype=bool)
@@ -45,7 +45,7 @@ def _transition(obs, tilt_x, reward, terminated=(), truncated=(), final=None):
         for i, (o, t) in final.items():
             final_obs[i], final_tilt[i, 0], final_tilt[i, 1], mask[i] = o, t, 0.0, True
         infos.update(final_obs=final_obs, _final_obs=mask,
-                     final_info={"tilt": final_tilt, "geodesic_distance": final_obs.copy()})
+                     final_info={"tilt": final_tilt, "goal_distance": final_obs.copy()})
     return obs, np.array(reward, dtype=np.float64), done, trunc, infos
 
 
@@ -159,7 +159,7 @@ def test_geodesic_reward_telescopes_per_episode_on_the_real_env():
     twin = _same_step_env()  # unwrapped, same seed: its rewards are the task rewards
     _, infos = env.reset(seed=3)
     twin.reset(seed=3)
-    d_start = infos["geodesic_distance"].sum(axis=1)
+    d_start = infos["goal_distance"].sum(axis=1)
     added = np.zeros(NUM_ENVS)
     episodes = 0
     for actions in _random_actions(70):
@@ -168,10 +168,10 @@ def test_geodesic_reward_telescopes_per_episode_on_the_real_env():
         np.testing.assert_array_equal(infos["task_reward"], raw)
         added += reward - infos["task_reward"]
         for i in np.flatnonzero(terminated | truncated):
-            d_end = infos["final_info"]["geodesic_distance"][i].sum()
+            d_end = infos["final_info"]["goal_distance"][i].sum()
             assert added[i] == pytest.approx(coef * (d_start[i] - d_end), abs=1e-9)
             added[i] = 0.0
-            d_start[i] = infos["geodesic_distance"][i].sum()  # the new episode's start
+            d_start[i] = infos["goal_distance"][i].sum()  # the new episode's start
             episodes += 1
     assert episodes >= 2 * NUM_ENVS
     assert np.abs(added).max() > 0  # the unfinished episodes got dense rewards too

@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
-from bimgame.sim.maze import MazeSpec
+from bimgame.sim.maze import MazeSpec, MazeSpecError
 from bimgame.sim.maze_rows import MazeRows
 from bimgame.sim.maze_sets import maze_number
 
@@ -22,3 +23,20 @@ def test_rows_give_each_mazes_own_geodesic_distance():
     np.testing.assert_array_equal(rows.geodesic_distance(x, y), expected)
     rows.set_row(0, specs[1])  # a row switched to another maze forgets the old one's gates
     np.testing.assert_array_equal(rows.geodesic_distance(x, y)[0], specs[1].geodesic_distance(x[0], y[0]))
+
+
+def test_rows_measure_to_a_tasks_goal_channel_as_each_maze_does():
+    specs = [maze_number(i) for i in range(12)] + [MazeSpec.merl()]
+    rng = np.random.default_rng(1)
+    radius = rng.uniform(0.0, 0.0968, (len(specs), 400))
+    angle = rng.uniform(-np.pi, np.pi, (len(specs), 400))
+    x, y = radius * np.cos(angle), radius * np.sin(angle)
+    for to_channel in (1, 3):
+        rows = MazeRows(MazeSpec.merl(), len(specs), max_gates=4, to_channel=to_channel)
+        for i, spec in enumerate(specs):
+            rows.set_row(i, spec)
+        expected = np.stack([spec.geodesic_distance(x[i], y[i], to_channel) for i, spec in enumerate(specs)])
+        np.testing.assert_array_equal(rows.geodesic_distance(x, y), expected)
+        assert (expected == 0).any() and (expected > 0).any()  # points past the goal wall, and before it
+    with pytest.raises(MazeSpecError, match="to_channel must be an integer in 0..3, got 4"):
+        MazeRows(MazeSpec.merl(), 2, max_gates=4, to_channel=4)

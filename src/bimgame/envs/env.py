@@ -116,6 +116,8 @@ class BallInMazeEnv(gym.Env):
 
     ``channel`` (n,) int, ``gate_crossings`` (n,) int (+1 inwards / -1 outwards this step),
     ``geodesic_distance`` (n,) float (m, shortest path to the centre through the gates),
+    ``goal_distance`` (n,) float (m, shortest path through the gates until the task's goal wall is
+    passed: the geodesic distance for FULL),
     ``is_success`` bool (the task's goal reached), ``tilt`` (2,) float (rad). With ``num_mazes``:
     ``maze``, the episode's maze number. With ``randomize``:
     ``randomization``, the current episode's draws (a dict of floats, ``latency`` an int; see
@@ -396,10 +398,13 @@ class BallInMazeEnv(gym.Env):
 
     def _info(self, kinematics, crossings: list[int], success: bool) -> dict[str, Any]:
         geodesic = self.maze.geodesic_distance_one
+        centre = np.array([geodesic(k[0], k[1]) for k in kinematics])
+        goal = self.task.goal_channel(self.maze)
         info = {
             "channel": np.array(self._channels),
             "gate_crossings": np.array(crossings),
-            "geodesic_distance": np.array([geodesic(k[0], k[1]) for k in kinematics]),
+            "geodesic_distance": centre,
+            "goal_distance": np.array([geodesic(k[0], k[1], goal) for k in kinematics]) if goal else centre,
             "is_success": success,
             "tilt": self.sim.data.qpos[:2].copy(),
         }

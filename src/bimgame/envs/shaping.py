@@ -25,7 +25,7 @@ Design notes:
   did, so stacked wrappers keep the innermost, true task reward. ``info["shaping"]`` holds the
   total added by all shaping wrappers, so ``reward == task_reward + shaping`` always.
 * **Geodesic progress is a reward for progress, not a potential.** ``coef·(d(s) − d(s'))`` with
-  ``d`` the geodesic distance to the centre is potential shaping with ``Φ = −coef·d`` and ``γ = 1``
+  ``d`` the geodesic distance to the task's goal is potential shaping with ``Φ = −coef·d`` and ``γ = 1``
   except at termination: there ``d(s')`` is the real final distance rather than a zeroed
   potential, so the reward for an episode is always ``coef·(d_start − d_end)``, the distance
   actually travelled towards the goal.
@@ -55,6 +55,8 @@ __all__ = [
     "unit_interval",
 ]
 
+#: The info the geodesic reward reads: each marble's geodesic distance to the task's goal (m).
+DISTANCE_KEY = "goal_distance"
 #: Reward per metre of geodesic progress towards the centre. The trip from the outer channel to the
 #: centre is about 0.3–0.5 m, so it is worth a few units, like FULL's four gate crossings.
 DEFAULT_GEODESIC_COEF = 10.0
@@ -128,14 +130,17 @@ class PotentialShapedVectorEnv(gym.vector.VectorWrapper):
 class GeodesicProgressVectorEnv(gym.vector.VectorWrapper):
     """Dense geodesic-progress reward: ``r̄ = r + coef·(d(s) − d(s'))``.
 
-    ``d`` is ``infos["geodesic_distance"]`` summed over marbles (m, the shortest path to the centre
-    through the gates). At an episode's end ``d(s')`` comes from ``infos["final_info"]`` — also at
-    termination, where it is the real final distance, not zeroed (a reward for progress, not a
+    ``d`` is ``infos["goal_distance"]`` summed over marbles (m, the shortest path through the gates
+    until the task's goal wall is passed: to the centre for FULL, into the next channel for STG1).
+    Progress is measured to the task's goal, not the centre: the outer wall's gate on the centre's
+    shortest path is often not the one nearest the marble (on 16% of the outer channel of a random
+    maze the two point opposite ways), and an STG task ends at its last wall. At an episode's end
+    ``d(s')`` comes from ``infos["final_info"]`` — also at termination, where it is the real final distance, not zeroed (a reward for progress, not a
     potential; see the module notes). Infos gain ``task_reward`` and ``shaping`` as
     :class:`PotentialShapedVectorEnv`'s.
 
     Args:
-        env: a vector env in SAME_STEP autoreset mode whose infos have ``geodesic_distance``.
+        env: a vector env in SAME_STEP autoreset mode whose infos have ``goal_distance``.
         coef: reward per metre of progress, finite and > 0.
     """
 
@@ -167,11 +172,11 @@ class GeodesicProgressVectorEnv(gym.vector.VectorWrapper):
 
 class GeodesicProgressReward(gym.Wrapper):
     """:class:`GeodesicProgressVectorEnv`'s reward for the single env:
-    ``r̄ = r + coef·(d(s) − d(s'))`` from ``info["geodesic_distance"]``; ``info`` gains
+    ``r̄ = r + coef·(d(s) − d(s'))`` from ``info["goal_distance"]``; ``info`` gains
     ``task_reward`` (unless present) and ``shaping`` (floats).
 
     Args:
-        env: an env whose infos have ``geodesic_distance`` ((n_marbles,) metres).
+        env: an env whose infos have ``goal_distance`` ((n_marbles,) metres).
         coef: reward per metre of progress, finite and > 0.
     """
 
@@ -182,14 +187,14 @@ class GeodesicProgressReward(gym.Wrapper):
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         obs, info = self.env.reset(seed=seed, options=options)
-        self._distance = float(np.sum(info["geodesic_distance"]))
+        self._distance = float(np.sum(info[DISTANCE_KEY]))
         return obs, info
 
     def step(self, action):
         if self._distance is None:
             raise RuntimeError("call reset() before step()")
         obs, reward, terminated, truncated, info = self.env.step(action)
-        distance = float(np.sum(info["geodesic_distance"]))
+        distance = float(np.sum(info[DISTANCE_KEY]))
         shaping = self.coef * (self._distance - distance)
         self._distance = distance
         info.setdefault("task_reward", float(reward))
@@ -264,12 +269,13 @@ def _rows(values: Any, index: np.ndarray) -> np.ndarray:
 
 
 def _total_distance(infos: dict[str, Any], index: np.ndarray | None = None) -> np.ndarray:
-    """Geodesic distance (m) summed over marbles, per env (only ``index``'s envs if given)."""
-    if "geodesic_distance" not in infos:
+    """Geodesic distance to the task's goal (m) summed over marbles, per env (only ``index``'s envs
+    if given)."""
+    if DISTANCE_KEY not in infos:
         raise KeyError(
-            "infos have no 'geodesic_distance' (B, n_marbles); the geodesic reward needs BallInMazeVectorEnv's infos"
+            f"infos have no {DISTANCE_KEY!r} (B, n_marbles); the geodesic reward needs BallInMazeVectorEnv's infos"
         )
-    distance = infos["geodesic_distance"]
+    distance = infos[DISTANCE_KEY]
     distance = _rows(distance, index) if index is not None else np.asarray(distance)
     return np.asarray(distance, dtype=np.float64).reshape(len(distance), -1).sum(axis=1)
 

@@ -190,10 +190,16 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
         self._encodings: np.ndarray | None = None
         self._backgrounds: np.ndarray | None = None
         self._maze_rows: MazeRows | None = None
+        self._goal_rows: MazeRows | None = None  # to the task's goal channel (None: the centre's rows)
+        #: The channel ``info["goal_distance"]`` measures to (the task's goal; 0, the centre, for FULL).
+        self.goal_channel = self.task.goal_channel(self.maze)
         if self.mazes is not None:
             if self.template.observer.encoding_size:
                 self._encodings = np.zeros((self.num_envs, self.template.observer.encoding_size), dtype=np.float32)
-            self._maze_rows = MazeRows(self.mazes.base, self.num_envs, self.mazes.maze_set.rules.max_gates)
+            gates = self.mazes.maze_set.rules.max_gates
+            self._maze_rows = MazeRows(self.mazes.base, self.num_envs, gates)
+            if self.goal_channel:
+                self._goal_rows = MazeRows(self.mazes.base, self.num_envs, gates, to_channel=self.goal_channel)
             if self.template.obs_mode == "pixels":
                 size = self.template.observer.obs_size
                 self._backgrounds = np.zeros((self.num_envs, size, size), dtype=np.uint8)
@@ -362,6 +368,8 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
         self._env_mazes[index] = spec
         self.maze_numbers[index] = number
         self._maze_rows.set_row(index, spec)
+        if self._goal_rows is not None:
+            self._goal_rows.set_row(index, spec)
         if self._encodings is not None:
             self._encodings[index] = maze_encoding(spec)
         if self._backgrounds is not None:
@@ -374,6 +382,15 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
             return None, tag
         name = f"the start_sampler's state for env {index} (tag {tag})"
         return check_sim_state(self._env_mazes[index], self.sim.layout, state, name), tag
+
+    def _distances(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Each marble's geodesic distance (B, n) to the centre and to the task's goal channel (the
+        same array for FULL), in its env's maze."""
+        if self._maze_rows is None:
+            centre = self.maze.geodesic_distance(x, y)
+            return centre, centre if not self.goal_channel else self.maze.geodesic_distance(x, y, self.goal_channel)
+        centre = self._maze_rows.geodesic_distance(x, y)
+        return centre, centre if self._goal_rows is None else self._goal_rows.geodesic_distance(x, y)
 
     def _observe_and_info(
         self, positions: np.ndarray, velocities: np.ndarray, crossings: np.ndarray, success: np.ndarray
@@ -389,12 +406,12 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
         )
         if self.randomizer is not None and self.randomizer.observing:
             obs = self.randomizer.pixels(obs, self._elapsed, positions[..., :2])
+        centre, goal = self._distances(positions[..., 0], positions[..., 1])
         values: dict[str, Any] = {
             "channel": self._task_state.channel.copy(),
             "gate_crossings": crossings.astype(np.int64),
-            "geodesic_distance": self.maze.geodesic_distance(positions[..., 0], positions[..., 1])
-            if self._maze_rows is None
-            else self._maze_rows.geodesic_distance(positions[..., 0], positions[..., 1]),
+            "geodesic_distance": centre,
+            "goal_distance": goal,
             "is_success": success,
             "tilt": tilt,
         }
