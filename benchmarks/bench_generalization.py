@@ -15,6 +15,11 @@ the same splits (the "pre-trained only" row), then PPO starts from it with the r
 ``pretrain+ppo+keep`` settings (its KL to π^s) and ``--set``'s (PPO from random weights keeps its
 defaults).
 
+``--learners dagger`` runs DAgger on the same mazes (``DAggerConfig.num_mazes``; the maze expert
+planning with the geodesic reward labels every visited state): ``--dagger-iterations`` iterations of
+``--dagger-episodes`` rollouts each, a budget in episodes rather than ``--steps`` (the environment
+steps it used are in the JSON's ``steps_scored``, and it also spends the expert's planning).
+
 ``--geodesic-reward COEF`` trains every run on the task's reward plus COEF × the geodesic progress
 towards the centre per metre (:class:`~bimgame.learn.rewards.RewardSettings`; scores are always the
 task's success).
@@ -51,6 +56,7 @@ from bimgame.experiments.statistics import mean_interval
 from bimgame.learn.a3c import A3CConfig, train
 from bimgame.learn.actor import evaluate_network
 from bimgame.learn.common import load_run_network
+from bimgame.learn.dagger import DAggerConfig, dagger
 from bimgame.learn.encoders import MAZE_FRAMES
 from bimgame.learn.ppo import PPOConfig, resolve_ppo_config, train_ppo
 from bimgame.learn.pretrain import pretrain
@@ -64,7 +70,8 @@ from bimgame.util.processes import exit_when_parent_dies
 ROOT = Path(__file__).resolve().parents[1]
 #: ``pretrain+ppo+keep``: PPO from a π^s pre-trained on ``--pretrain-data`` (the registry's algorithm).
 PRETRAINED = "pretrain+ppo+keep"
-LEARNERS = ("ppo", "a3c", PRETRAINED)
+DAGGER = "dagger"
+LEARNERS = ("ppo", "a3c", PRETRAINED, DAGGER)
 SPLITS = ("train", "test")
 MODES = ("greedy", "sampled")
 #: Evaluation seed of the scores (the same starts for every run).
@@ -108,9 +115,11 @@ def _train(
     settings: dict[str, object],
     init: Path | None,
     reward: RewardSettings,
+    dagger_budget: tuple[int, int] = (10, 32),
 ) -> float:
     """Train one run unless ``run_dir`` holds a finished one; the wall-clock seconds it took (0: reused).
-    ``settings``: PPO settings beyond the algorithm's; ``init``: the π^s a ``pretrain+ppo+keep`` run starts from."""
+    ``settings``: PPO settings beyond the algorithm's; ``init``: the π^s a ``pretrain+ppo+keep`` run starts from;
+    ``dagger_budget``: a DAgger run's iterations and rollouts per iteration."""
     summary = read_json(run_dir / "summary.json")
     if summary is not None and summary.get("stopped") == "finished":
         return 0.0
@@ -119,7 +128,14 @@ def _train(
         common["maze_frame"] = maze_frame
     start = time.perf_counter()
     resume = (run_dir / "config.json").is_file()
-    if learner == "a3c":
+    if learner == DAGGER:
+        iterations, episodes = dagger_budget
+        learner_settings = PretrainConfig(task=task, obs=obs, seed=seed, aux_heads=False, asymmetric_critic=False)
+        config = DAggerConfig(
+            learner=learner_settings, iterations=iterations, episodes_per_iteration=episodes, num_mazes=num_mazes
+        )
+        dagger(config, run_dir, resume=resume, progress=False)
+    elif learner == "a3c":
         config = A3CConfig.from_flat(common, workers=2, envs_per_worker=16)
         reward, wrapper = run_reward(
             reward, run_dir, resume=resume, task=task, obs=obs, gamma=config.optimization.gamma
@@ -190,6 +206,7 @@ def _run(
                 settings=args.settings if learner == PRETRAINED else {},
                 init=_pi_s_dir(args, seed) if learner == PRETRAINED else None,
                 reward=RewardSettings(geodesic_coef=args.geodesic_reward),
+                dagger_budget=(args.dagger_iterations, args.dagger_episodes),
             )
         return (seconds, *_score(run_dir, num_mazes, args.episodes))
 
@@ -240,7 +257,8 @@ def _plot(results: dict[str, Any], path: Path, title: str) -> Path:
     return save_png(fig, path, dpi=110)
 
 
-def main(argv: list[str] | None = None) -> int:
+def _arguments(argv: list[str] | None) -> argparse.Namespace:
+    """The command line, checked: a bad flag value exits naming it and the allowed values."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--task", default="STG1")
     parser.add_argument("--obs", default="state", choices=("state", "pixels"))
@@ -276,6 +294,8 @@ def main(argv: list[str] | None = None) -> int:
         metavar="COEF",
         help="train on the task's reward plus COEF x the geodesic progress (per metre); default: the task's reward",
     )
+    parser.add_argument("--dagger-iterations", type=int, default=10, help="DAgger's iterations (default 10)")
+    parser.add_argument("--dagger-episodes", type=int, default=32, help="DAgger's rollouts per iteration (default 32)")
     parser.add_argument("--jobs", type=int, default=1, help="runs trained at once, one process each (default 1)")
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "generalization")
     parser.add_argument("--results", type=Path, default=ROOT / "benchmarks" / "results" / "generalization.json")
@@ -283,6 +303,11 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.jobs < 1:
         parser.error(f"--jobs takes a count >= 1, got {args.jobs}")
+    if args.dagger_iterations < 1 or args.dagger_episodes < 1:
+        parser.error(
+            f"--dagger-iterations and --dagger-episodes take counts >= 1, got {args.dagger_iterations} "
+            f"and {args.dagger_episodes}"
+        )
     if any(n < 0 for n in args.num_mazes):
         parser.error(f"--num-mazes takes counts >= 0 (0: unlimited), got {args.num_mazes}")
     args.settings = _settings(args.set, parser)
@@ -301,6 +326,11 @@ def main(argv: list[str] | None = None) -> int:
             )
         args.pretrain_data = args.pretrain_data.absolute()
     args.out = args.out.absolute()
+    return args
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _arguments(argv)
     rng = np.random.default_rng(0)
     results: dict[str, Any] = {
         "task": args.task,
@@ -319,6 +349,8 @@ def main(argv: list[str] | None = None) -> int:
 
     def run_dir_of(learner: str, num_mazes: int, seed: int) -> Path:
         suffix = frame + (variant + data if learner == PRETRAINED else "")
+        if learner == DAGGER:
+            suffix = f"-it{args.dagger_iterations}x{args.dagger_episodes}"
         return args.out / f"{learner}-{args.task}-{args.obs}-n{_label(num_mazes)}{suffix}" / f"seed{seed}"
 
     jobs = [
@@ -360,6 +392,8 @@ def main(argv: list[str] | None = None) -> int:
     results["maze_frame"] = args.maze_frame
     results["ppo_settings"] = args.settings
     results["geodesic_reward"] = args.geodesic_reward
+    if DAGGER in args.learners:
+        results["dagger"] = {"iterations": args.dagger_iterations, "episodes_per_iteration": args.dagger_episodes}
     title = f"{args.task} from {args.obs}, {args.steps:,} steps, {args.seeds} seeds; {args.episodes} episodes per point"
     figure = _plot(results, args.figure, title)
     atomic_write_bytes(args.results, json.dumps(results, indent=2).encode())

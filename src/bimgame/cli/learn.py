@@ -83,6 +83,8 @@ DAGGER_FLAGS = (
     "epochs_per_iteration",
     "max_episode_steps",
     "eval_episodes",
+    "num_mazes",
+    "start_maze",
 )
 #: Parsers with an upper bound too (a seed numpy and torch both take; episodes run side by side).
 _TYPES = {"seed": seed, "eval_episodes": episode_count_or_zero}
@@ -123,7 +125,7 @@ DAGGER_GROUPS = (
 )
 #: The group of each DAgger setting with a flag (its own and its learner's).
 DAGGER_PLACEMENT: dict[str, tuple[str, ...]] = {
-    "run": ("task", "expert_data"),
+    "run": ("task", "expert_data", "num_mazes", "start_maze"),
     "network": NetworkSettings.field_names(),
     "logging": ("eval_episodes",),
     "DAgger": (

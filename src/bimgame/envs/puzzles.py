@@ -173,13 +173,16 @@ class Puzzle:
         """The state observation's divisors on this puzzle's board (:func:`state_obs_scale`)."""
         return state_obs_scale(self.spec)
 
-    def env(self, *, obs_mode: str, action_type: str) -> BallInMazeEnv | LabyrinthEnv:
+    def env(self, *, obs_mode: str, action_type: str, **maze_options: Any) -> BallInMazeEnv | LabyrinthEnv:
         """One environment of the task, without a time limit (its user counts steps): what a loop that
         reads each board's physics state steps, such as DAgger's expert-labelled rollouts. ``obs_mode``
-        ``cyberrunner`` is stepped as ``cyberrunner_flat``, as in :meth:`vector_env`."""
+        ``cyberrunner`` is stepped as ``cyberrunner_flat``, as in :meth:`vector_env`. ``maze_options``:
+        the circular maze's random-maze arguments (``num_mazes``, ``start_maze``)."""
         check_obs("obs_mode", self.task, obs_mode)
         if self.is_maze:
-            return BallInMazeEnv(self.task, obs_mode=obs_mode, action_type=action_type)
+            return BallInMazeEnv(self.task, obs_mode=obs_mode, action_type=action_type, **maze_options)
+        if maze_options:
+            raise ValueError(f"{', '.join(maze_options)}: random mazes are circular mazes, not {self.task}")
         assert self.layout is not None
         return LabyrinthEnv(self.layout, obs_mode=LABYRINTH_OBS.get(obs_mode, obs_mode), action_type=action_type)
 

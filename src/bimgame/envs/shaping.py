@@ -135,9 +135,9 @@ class GeodesicProgressVectorEnv(gym.vector.VectorWrapper):
     Progress is measured to the task's goal, not the centre: the outer wall's gate on the centre's
     shortest path is often not the one nearest the marble (on 16% of the outer channel of a random
     maze the two point opposite ways), and an STG task ends at its last wall. At an episode's end
-    ``d(s')`` comes from ``infos["final_info"]`` — also at termination, where it is the real final distance, not zeroed (a reward for progress, not a
-    potential; see the module notes). Infos gain ``task_reward`` and ``shaping`` as
-    :class:`PotentialShapedVectorEnv`'s.
+    ``d(s')`` comes from ``infos["final_info"]`` — also at termination, where it is the real final
+    distance, not zeroed (a reward for progress, not a potential; see the module notes). Infos gain
+    ``task_reward`` and ``shaping`` as :class:`PotentialShapedVectorEnv`'s.
 
     Args:
         env: a vector env in SAME_STEP autoreset mode whose infos have ``goal_distance``.

@@ -10,6 +10,7 @@ kind, continuous tilt rates or discrete, following the env's path segment.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -89,13 +90,21 @@ class _Rollouts:
     successes: int = 0
 
     @classmethod
-    def start(cls, envs: list[BallInMazeEnv | LabyrinthEnv], experts: list[Expert], env_seed: int) -> _Rollouts:
-        """Reset every environment (the ``i``-th with seed ``env_seed + i``) and expert."""
-        observations, infos = [], []
-        for i, (env, expert) in enumerate(zip(envs, experts, strict=True)):
+    def start(
+        cls,
+        envs: list[BallInMazeEnv | LabyrinthEnv],
+        make_expert: Callable[[int, BallInMazeEnv | LabyrinthEnv], Expert],
+        env_seed: int,
+    ) -> _Rollouts:
+        """Reset every environment (the ``i``-th with seed ``env_seed + i``), then make its expert
+        (``make_expert(i, env)``): after the reset, so that on random mazes it plans on the episode's maze."""
+        observations, infos, experts = [], [], []
+        for i, env in enumerate(envs):
             obs, info = env.reset(seed=env_seed + i)
+            expert = make_expert(i, env)
             if isinstance(expert, LabyrinthMPC):
                 expert.reset()
+            experts.append(expert)
             observations.append(obs)
             infos.append(info)
         records = [_Record() for _ in envs]
@@ -161,15 +170,17 @@ def collect_episodes(
     env_seed, torch_seed, mix_seed, *expert_seeds = sequence.generate_state(3 + config.episodes_per_iteration)
     count = config.episodes_per_iteration
     task = puzzle(learner.task)
-    envs = [task.env(obs_mode=learner.obs, action_type=learner.action_type) for _ in range(count)]
-    experts = [
-        make_expert(env, config.planner, np.random.default_rng(int(s)), learner.task)
-        for env, s in zip(envs, expert_seeds, strict=True)
+    envs = [
+        task.env(obs_mode=learner.obs, action_type=learner.action_type, **config.maze_options) for _ in range(count)
     ]
     mix = np.random.default_rng(int(mix_seed))
     actor = RecurrentActor(net, count, generator=torch.Generator().manual_seed(int(torch_seed)))
     max_tilt = task.spec.max_tilt
-    rollouts = _Rollouts.start(envs, experts, int(env_seed))
+
+    def expert_of(i: int, env: BallInMazeEnv | LabyrinthEnv) -> Expert:
+        return make_expert(env, config.planner, np.random.default_rng(int(expert_seeds[i])), learner.task)
+
+    rollouts = _Rollouts.start(envs, expert_of, int(env_seed))
     steps = 0
     try:
         while rollouts.active.any() and steps < config.time_limit:

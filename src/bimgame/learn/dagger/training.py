@@ -49,7 +49,7 @@ from typing import Any
 import numpy as np
 
 from bimgame.envs.puzzles import puzzle
-from bimgame.expert.datasets import dataset_manifest
+from bimgame.expert.datasets import dataset_manifest, dataset_mazes
 from bimgame.expert.episode import Episode
 from bimgame.learn.checkpoints import apply_weights, load_checkpoint, load_init_weights, save_checkpoint
 from bimgame.learn.common import EVAL_COLUMNS, evaluate_greedy_and_sampled, evaluation_seed
@@ -184,6 +184,7 @@ def _start(
             "net": net.config.to_dict(),
             "dagger": config.to_dict(),
             "init": None if init is None else str(init),
+            **config.maze_options,
         }
     )
     save_checkpoint(run / CHECKPOINT, model=net.state_dict(), step=0, **state)
@@ -391,6 +392,7 @@ def _run_iteration(
             episodes=config.eval_episodes,
             seed=evaluation_seed(learner.seed),
             time_limit=learner.time_limit,
+            mazes=config.maze_options or None,
         )
         if config.eval_episodes
         else None
@@ -410,6 +412,14 @@ def _demonstrations(config: DAggerConfig, *, progress: bool) -> list[Episode]:
         raise ValueError(
             f"DAggerConfig.expert_data {config.expert_data} holds {dataset_action_type(manifest)} actions, the "
             f"learner has {learner.action_type} ones: use a dataset generated with --action-type {learner.action_type}"
+        )
+    on_mazes = bool(dataset_mazes(config.expert_data))
+    if on_mazes != (config.num_mazes is not None):
+        merl, random = "MERL's maze alone", "random mazes"
+        advice = "set num_mazes (--num-mazes)" if on_mazes else "use a dataset generated with --num-mazes"
+        raise ValueError(
+            f"DAggerConfig.expert_data {config.expert_data} was generated on {random if on_mazes else merl}, "
+            f"the run rolls out on {merl if config.num_mazes is None else random}: {advice}"
         )
     return load_sequences(config.expert_data, learner.task, learner.obs, learner.gamma, progress=progress)
 
