@@ -130,7 +130,9 @@ def _train(
     resume = (run_dir / "config.json").is_file()
     if learner == DAGGER:
         iterations, episodes = dagger_budget
-        learner_settings = PretrainConfig(task=task, obs=obs, seed=seed, aux_heads=False, asymmetric_critic=False)
+        learner_settings = PretrainConfig(
+            task=task, obs=obs, seed=seed, aux_heads=False, asymmetric_critic=False, maze_frame=maze_frame
+        )
         config = DAggerConfig(
             learner=learner_settings, iterations=iterations, episodes_per_iteration=episodes, num_mazes=num_mazes
         )
@@ -350,7 +352,7 @@ def main(argv: list[str] | None = None) -> int:
     def run_dir_of(learner: str, num_mazes: int, seed: int) -> Path:
         suffix = frame + (variant + data if learner == PRETRAINED else "")
         if learner == DAGGER:
-            suffix = f"-it{args.dagger_iterations}x{args.dagger_episodes}"
+            suffix = f"{frame}-it{args.dagger_iterations}x{args.dagger_episodes}"
         return args.out / f"{learner}-{args.task}-{args.obs}-n{_label(num_mazes)}{suffix}" / f"seed{seed}"
 
     jobs = [

@@ -22,7 +22,7 @@ from bimgame.sim.maze import MazeSpec, Wall
 
 __all__ = ["GateSamples", "RingSamples", "open_samples", "FLOOR_LABEL", "GOAL_LABEL", "WALL_LABEL"]
 
-# Region labels of the background raster (render's _FLOOR, _GOAL, _WALL).
+# Region labels of the background raster (the label order of render_grid's background_coverage).
 FLOOR_LABEL, GOAL_LABEL, WALL_LABEL = 0, 1, 2
 #: Sub-samples within this angle (rad) of a gate's sector are tested exactly; farther ones cannot pass
 #: the test (its rounding errors are ~1e-15 rad for gates at angles within :data:`_NEAR_ANGLE`).
@@ -120,13 +120,14 @@ class RingSamples:
 
     @classmethod
     def build(cls, spec: MazeSpec, size: int, extent: float, supersample: int) -> RingSamples:
-        """The ring sub-samples of ``spec``'s board at ``size`` pixels, at the positions render's
-        ``_coverage`` samples (``extent``: half the image's width in metres)."""
+        """The ring sub-samples of ``spec``'s board at ``size`` pixels, at the positions
+        :func:`~bimgame.sim.render_grid.background_coverage` samples (``extent``: half the image's
+        width in metres)."""
         s = supersample
         mpp = 2.0 * extent / size
-        sub = (np.arange(size * s) + 0.5) / s  # the sub-sample positions of _coverage
+        sub = (np.arange(size * s) + 0.5) / s  # the sub-sample positions of background_coverage
         x, y = np.meshgrid(-extent + sub * mpp, extent - sub * mpp)
-        # Pixel-major: row p holds pixel p's s² sub-samples in _coverage's order.
+        # Pixel-major: row p holds pixel p's s² sub-samples in background_coverage's order.
         x = x.reshape(size, s, size, s).transpose(0, 2, 1, 3).reshape(size * size, s * s)
         y = y.reshape(size, s, size, s).transpose(0, 2, 1, 3).reshape(size * size, s * s)
         r = np.hypot(x, y)
@@ -152,7 +153,8 @@ class RingSamples:
     def ring_fractions(self, spec: MazeSpec) -> np.ndarray:
         """Each ring pixel's (:attr:`pixels`) fraction of floor, goal and wall sub-samples in ``spec``,
         (3, P): its gates' open samples are floor, the rest of its ring wall; counts over
-        ``samples_per_pixel``, as render's mean of the labels gives them (multiples of 1/s², exact)."""
+        ``samples_per_pixel``, as background_coverage's mean of the labels gives them (multiples of
+        1/s², exact)."""
         open_counts = np.bincount(self.rows[self.rings.open_mask(spec.walls)], minlength=len(self.pixels))
         counts = self.counts.copy()
         counts[FLOOR_LABEL] += open_counts
@@ -160,7 +162,8 @@ class RingSamples:
         return counts / self.samples_per_pixel
 
     def fractions(self, spec: MazeSpec, base: np.ndarray) -> np.ndarray:
-        """render's ``_coverage`` of ``spec`` from ``base``, the coverage of any maze on the board."""
+        """:func:`~bimgame.sim.render_grid.background_coverage` of ``spec`` from ``base``, the
+        coverage of any maze on the board."""
         fractions = base.copy()
         fractions.reshape(3, -1)[:, self.pixels] = self.ring_fractions(spec)
         return fractions
