@@ -15,6 +15,7 @@ from bimgame.cli.flags import add_flag_groups, add_grouped_settings_flags, given
 from bimgame.cli.train_ppo import (
     PPO_GROUP,
     add_ppo_arguments,
+    announce,
     given_reward,
     refuse_ppo_only_flags,
     train_ppo_from_args,
@@ -195,13 +196,7 @@ def _train_a3c(args: argparse.Namespace) -> tuple[TrainResult, int]:
         gamma=config.optimization.gamma,
     )
     schedule = config.schedule
-    shaped = reward.describe()
-    print(
-        f"A3C on {config.task} ({config.network.obs}): {schedule.steps:,} steps, {schedule.workers} workers x "
-        f"{schedule.envs_per_worker} envs{', reward shaped: ' + shaped if shaped else ''}"
-        f"{', from ' + str(args.init) if args.init else ''} -> {args.run_dir}",
-        file=sys.stderr,
-    )
+    announce("A3C", config, args, f"{schedule.workers} workers x {schedule.envs_per_worker} envs", reward)
     result = train(
         config,
         args.run_dir,

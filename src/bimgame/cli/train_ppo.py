@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 import sys
 from types import SimpleNamespace
+from typing import Any
 
 from bimgame.cli.flags import add_grouped_settings_flags, given_settings
 from bimgame.learn.a3c import A3CConfig
@@ -14,7 +15,7 @@ from bimgame.learn.ppo import PPOConfig, PPOOptimizationSettings, resolve_ppo_co
 from bimgame.learn.rewards import RewardSettings
 from bimgame.learn.run_dir import TrainResult
 
-__all__ = ["PPO_GROUP", "add_ppo_arguments", "given_reward", "refuse_ppo_only_flags", "train_ppo_from_args"]
+__all__ = ["PPO_GROUP", "add_ppo_arguments", "announce", "given_reward", "refuse_ppo_only_flags", "train_ppo_from_args"]
 
 _DEFAULTS = PPOOptimizationSettings()
 #: The help group of PPO's own settings: (title, description), the shared defaults read from the class.
@@ -55,6 +56,18 @@ def refuse_ppo_only_flags(args: argparse.Namespace) -> None:
         raise ValueError(f"{flags}: PPO's own settings; add --algo ppo, or leave them out for A3C")
 
 
+def announce(learner: str, config: Any, args: argparse.Namespace, envs: str, reward: RewardSettings) -> None:
+    """The line ``bimgame train`` prints as a run starts, either learner's: task, observations, steps,
+    ``envs``, the reward's shaping and the weights it starts from."""
+    shaped = reward.describe()
+    print(
+        f"{learner} on {config.task} ({config.network.obs}): {config.schedule.steps:,} steps, {envs}"
+        f"{', reward shaped: ' + shaped if shaped else ''}{', from ' + str(args.init) if args.init else ''} "
+        f"-> {args.run_dir}",
+        file=sys.stderr,
+    )
+
+
 def given_reward(args: argparse.Namespace) -> RewardSettings:
     """The reward shaping the flags ask for (``--value-reward``, ``--geodesic-reward``), either learner's."""
     return RewardSettings(value_reward=args.value_reward, geodesic_coef=args.geodesic_coef)
@@ -67,13 +80,7 @@ def train_ppo_from_args(args: argparse.Namespace) -> tuple[TrainResult, int]:
     # Every settings flag given, A3C's too: an A3C-only one is refused by PPOConfig, naming it.
     given = given_settings(args, PPOConfig, sorted(set(A3CConfig.flat_names()) | set(PPOConfig.flat_names())))
     config = resolve_ppo_config(given, args.run_dir, resume=args.resume, init=args.init)
-    shaped = given_reward(args).describe()
-    print(
-        f"PPO on {config.task} ({config.network.obs}): {config.schedule.steps:,} steps, "
-        f"{config.schedule.envs_per_worker} envs{', reward shaped: ' + shaped if shaped else ''}"
-        f"{', from ' + str(args.init) if args.init else ''} -> {args.run_dir}",
-        file=sys.stderr,
-    )
+    announce("PPO", config, args, f"{config.schedule.envs_per_worker} envs", given_reward(args))
     result = train_ppo(
         config,
         args.run_dir,
