@@ -32,11 +32,27 @@ def test_rows_measure_to_a_tasks_goal_channel_as_each_maze_does():
     angle = rng.uniform(-np.pi, np.pi, (len(specs), 400))
     x, y = radius * np.cos(angle), radius * np.sin(angle)
     for to_channel in (1, 3):
-        rows = MazeRows(MazeSpec.merl(), len(specs), max_gates=4, to_channel=to_channel)
+        rows = MazeRows(MazeSpec.merl(), len(specs), max_gates=4, to_channels=(to_channel,))
         for i, spec in enumerate(specs):
             rows.set_row(i, spec)
         expected = np.stack([spec.geodesic_distance(x[i], y[i], to_channel) for i, spec in enumerate(specs)])
         np.testing.assert_array_equal(rows.geodesic_distance(x, y), expected)
         assert (expected == 0).any() and (expected > 0).any()  # points past the goal wall, and before it
     with pytest.raises(MazeSpecError, match="to_channel must be an integer in 0..3, got 4"):
-        MazeRows(MazeSpec.merl(), 2, max_gates=4, to_channel=4)
+        MazeRows(MazeSpec.merl(), 2, max_gates=4, to_channels=(0, 4))
+
+
+def test_one_pass_to_several_targets_equals_a_pass_to_each():
+    specs = [maze_number(i) for i in range(12)] + [MazeSpec.merl()]
+    rng = np.random.default_rng(2)
+    radius = rng.uniform(0.0, 0.0968, (len(specs), 400))
+    angle = rng.uniform(-np.pi, np.pi, (len(specs), 400))
+    x, y = radius * np.cos(angle), radius * np.sin(angle)
+    both = MazeRows(MazeSpec.merl(), len(specs), max_gates=4, to_channels=(0, 3))
+    for i, spec in enumerate(specs):
+        both.set_row(i, spec)
+    centre, goal = both.geodesic_distances(x, y)
+    np.testing.assert_array_equal(centre, np.stack([s.geodesic_distance(x[i], y[i]) for i, s in enumerate(specs)]))
+    np.testing.assert_array_equal(goal, np.stack([s.geodesic_distance(x[i], y[i], 3) for i, s in enumerate(specs)]))
+    one = [specs[0].geodesic_distances_one(float(a), float(b), (0, 3)) for a, b in zip(x[0], y[0], strict=True)]
+    np.testing.assert_allclose(np.array(one), np.stack([centre[0], goal[0]], axis=1), rtol=0, atol=1e-12)

@@ -80,13 +80,9 @@ def train_ppo_from_args(args: argparse.Namespace) -> tuple[TrainResult, int]:
     # Every settings flag given, A3C's too: an A3C-only one is refused by PPOConfig, naming it.
     given = given_settings(args, PPOConfig, sorted(set(A3CConfig.flat_names()) | set(PPOConfig.flat_names())))
     config = resolve_ppo_config(given, args.run_dir, resume=args.resume, init=args.init)
-    announce("PPO", config, args, f"{config.schedule.envs_per_worker} envs", given_reward(args))
+    reward = given_reward(args)
+    announce("PPO", config, args, f"{config.schedule.envs_per_worker} envs", reward)
     result = train_ppo(
-        config,
-        args.run_dir,
-        resume=args.resume,
-        init=args.init,
-        progress=not args.no_progress,
-        reward=given_reward(args),
+        config, args.run_dir, resume=args.resume, init=args.init, progress=not args.no_progress, reward=reward
     )
     return result, config.schedule.steps

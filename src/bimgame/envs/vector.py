@@ -189,17 +189,12 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
         self._state_observer = Observer(self.maze, n, "state")  # the marbles' state: the maze is not in it
         self._encodings: np.ndarray | None = None
         self._backgrounds: np.ndarray | None = None
-        self._maze_rows: MazeRows | None = None
-        self._goal_rows: MazeRows | None = None  # to the task's goal channel (None: the centre's rows)
         #: The channel ``info["goal_distance"]`` measures to (the task's goal; 0, the centre, for FULL).
         self.goal_channel = self.task.goal_channel(self.maze)
+        self._distance_rows = self._distance_tables()
         if self.mazes is not None:
             if self.template.observer.encoding_size:
                 self._encodings = np.zeros((self.num_envs, self.template.observer.encoding_size), dtype=np.float32)
-            gates = self.mazes.maze_set.rules.max_gates
-            self._maze_rows = MazeRows(self.mazes.base, self.num_envs, gates)
-            if self.goal_channel:
-                self._goal_rows = MazeRows(self.mazes.base, self.num_envs, gates, to_channel=self.goal_channel)
             if self.template.obs_mode == "pixels":
                 size = self.template.observer.obs_size
                 self._backgrounds = np.zeros((self.num_envs, size, size), dtype=np.uint8)
@@ -362,14 +357,12 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
 
     def _switch_env_maze(self, index: int, number: int) -> None:
         """Env ``index`` shows maze ``number`` of :attr:`mazes`: its model, tables and pictures."""
-        assert self.mazes is not None and self._models is not None and self._maze_rows is not None
+        assert self.mazes is not None and self._models is not None and self._distance_rows is not None
         spec = self.mazes.maze(number)
         self.sim.set_walls(spec, self._models[index])
         self._env_mazes[index] = spec
         self.maze_numbers[index] = number
-        self._maze_rows.set_row(index, spec)
-        if self._goal_rows is not None:
-            self._goal_rows.set_row(index, spec)
+        self._distance_rows.set_row(index, spec)
         if self._encodings is not None:
             self._encodings[index] = maze_encoding(spec)
         if self._backgrounds is not None:
@@ -383,14 +376,30 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
         name = f"the start_sampler's state for env {index} (tag {tag})"
         return check_sim_state(self._env_mazes[index], self.sim.layout, state, name), tag
 
+    def _distance_tables(self) -> MazeRows | None:
+        """Every env's gate tables for the geodesic distances to the centre and to the task's goal, in
+        one pass per step (:class:`~bimgame.sim.maze_rows.MazeRows`, faster than the per-maze
+        computation even when every env shows the one maze); with random mazes each row is set when
+        its env switches maze. None for a board without walls."""
+        board = self.maze if self.mazes is None else self.mazes.base
+        if not board.walls:
+            return None
+        targets = (0, self.goal_channel) if self.goal_channel else (0,)
+        if self.mazes is not None:
+            return MazeRows(board, self.num_envs, self.mazes.maze_set.rules.max_gates, targets)
+        rows = MazeRows(board, self.num_envs, max(1, *(len(wall.gates) for wall in board.walls)), targets)
+        for index in range(self.num_envs):
+            rows.set_row(index, board)
+        return rows
+
     def _distances(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Each marble's geodesic distance (B, n) to the centre and to the task's goal channel (the
         same array for FULL), in its env's maze."""
-        if self._maze_rows is None:
+        if self._distance_rows is None:  # no walls: straight to the centre, the only goal
             centre = self.maze.geodesic_distance(x, y)
-            return centre, centre if not self.goal_channel else self.maze.geodesic_distance(x, y, self.goal_channel)
-        centre = self._maze_rows.geodesic_distance(x, y)
-        return centre, centre if self._goal_rows is None else self._goal_rows.geodesic_distance(x, y)
+            return centre, centre
+        distances = self._distance_rows.geodesic_distances(x, y)
+        return distances[0], distances[-1]
 
     def _observe_and_info(
         self, positions: np.ndarray, velocities: np.ndarray, crossings: np.ndarray, success: np.ndarray

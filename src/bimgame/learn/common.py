@@ -23,7 +23,8 @@ from bimgame.learn.actor import evaluate_network
 from bimgame.learn.checkpoints import load_weights
 from bimgame.learn.cyberrunner import check_cyberrunner_network, cyberrunner_net_config
 from bimgame.learn.encoders import MAZE_FRAMES
-from bimgame.learn.learner_settings import MAX_STEPS, FlatSettings, ScheduleSettings, check_at_most, check_puzzle
+from bimgame.learn.learner_settings import MAX_STEPS, FlatSettings, ScheduleSettings, check_at_most
+from bimgame.learn.maze_runs import maze_network, maze_options
 from bimgame.learn.nets import (
     PRECISIONS,
     NetConfig,
@@ -397,34 +398,17 @@ class LearnerSettings(FlatSettings):
         check_seed(owner, self.seed)  # numpy's seed sequences take no negative seeds, torch none of 2**64
         require_int(owner, "max_episode_steps", self.max_episode_steps, 1, optional=True)
         check_at_most(owner, "max_episode_steps", self.max_episode_steps, MAX_STEPS, "1e12 environment steps")
-        require_int(owner, "num_mazes", self.num_mazes, 0, optional=True)
-        require_int(owner, "start_maze", self.start_maze, 0)
-        check_puzzle(
+        network = maze_network(
             owner, self.task, getattr(self, "network", None), num_mazes=self.num_mazes, start_maze=self.start_maze
         )
-        if self.num_mazes is None and self.start_maze:
-            raise ValueError(f"{owner}.start_maze {self.start_maze} needs num_mazes (the training mazes' count)")
         self.check_parts()
-        network = getattr(self, "network", None)
-        if isinstance(network, NetworkSettings) and network.obs == "state":
-            if self.num_mazes is not None and not network.maze_encoding:  # derived, as the sizes' defaults
-                object.__setattr__(self, "network", dataclasses.replace(network, maze_encoding=True))
-            elif self.num_mazes is None and network.maze_encoding:
-                raise ValueError(
-                    f"{owner}: network.maze_encoding without num_mazes (the encoding is of the episodes' mazes)"
-                )
-        if isinstance(network, NetworkSettings) and self.num_mazes is None and network.maze_frame != "board":
-            raise ValueError(
-                f"{owner}: network.maze_frame {network.maze_frame!r} without num_mazes (it turns the encoding of "
-                f"the episodes' mazes, which runs on MERL's maze alone do not observe)"
-            )
+        if network is not getattr(self, "network", None):
+            object.__setattr__(self, "network", network)
 
     @property
     def maze_options(self) -> dict[str, Any]:
         """The env arguments of the run's mazes (empty on MERL's maze alone)."""
-        if self.num_mazes is None:
-            return {}
-        return {"num_mazes": self.num_mazes, "start_maze": self.start_maze}
+        return maze_options(self.num_mazes, self.start_maze)
 
     @property
     def time_limit(self) -> int:

@@ -39,6 +39,7 @@ __all__ = [
     "env_wrapper_for",
     "resolve_reward_settings",
     "run_reward",
+    "shaped_env",
 ]
 
 #: A callable that wraps a learner's vector env (reward shaping: :func:`env_wrapper_for`). It is sent
@@ -162,6 +163,15 @@ class ValueReward:
 
     def __call__(self, vector_env: gym.vector.VectorEnv) -> PotentialShapedVectorEnv:
         return PotentialShapedVectorEnv(vector_env, ValueFunctionPotential(self.run_dir), gamma=self.gamma)
+
+
+def shaped_env(env: Any, wrapper: EnvWrapper | None) -> Any:
+    """What a learner steps: ``env`` through its reward shaping ``wrapper`` (None: ``env`` itself).
+    Shaping is the circular maze's (:func:`run_reward` refuses it on the labyrinth)."""
+    if wrapper is None:
+        return env
+    assert isinstance(env, BallInMazeVectorEnv)  # refused before any env was made
+    return wrapper(env)
 
 
 def env_wrapper_for(settings: RewardSettings, *, obs: str, gamma: float) -> Chain | None:

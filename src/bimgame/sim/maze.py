@@ -422,6 +422,22 @@ class MazeSpec:
         """Scalar :meth:`geodesic_distance` of one point (the env's per-step fast path; plain
         floats and precomputed per-channel tuples, ~4x faster than numpy on one point)."""
         tables = self._geodesic_tables(to_channel)
+        r, theta, channel = self._locate_one(x, y, tables)
+        return _distance_from(r, theta, channel, tables, to_channel)
+
+    def geodesic_distances_one(self, x: float, y: float, to_channels: tuple[int, ...]) -> list[float]:
+        """:meth:`geodesic_distance_one` to each of ``to_channels``: where the point lies (its channel,
+        the same for every target) is found once, then each target's gates are searched."""
+        targets = [self._geodesic_tables(c) for c in to_channels]
+        r, theta, channel = self._locate_one(x, y, targets[0])
+        return [
+            _distance_from(r, theta, channel, tables, to_channel)
+            for tables, to_channel in zip(targets, to_channels, strict=True)
+        ]
+
+    def _locate_one(self, x: float, y: float, tables: dict) -> tuple[float, float, int]:
+        """Radius, angle and channel (for the geodesic distance: a point pressed into a wall from
+        outside is still outside) of one point; the channels' radii are every target's."""
         r = math.hypot(x, y)
         channel = 0
         for bound in tables["bounds_list"]:
@@ -432,27 +448,7 @@ class MazeSpec:
             wall = self.walls[channel]
             if r >= wall.mid_radius and not wall.in_gate(theta):
                 channel += 1  # pressed into the wall from outside: still outside (rare: in a band)
-        if channel <= to_channel:
-            return r if to_channel == 0 else max(r - tables["target_end"], 0.0)
-        a, band_start, gates = tables["channels"][channel - 1]
-        extra = 0.0
-        if r > band_start:
-            extra, r = r - band_start, band_start
-        r1 = r if r > a else a
-        alpha1 = math.acos(a / r1)
-        tangent = math.sqrt(r1 * r1 - a * a)
-        best = math.inf
-        pi, two_pi = math.pi, 2 * math.pi
-        for angle, dist in gates:
-            dtheta = abs((theta - angle + pi) % two_pi - pi)
-            if dtheta <= alpha1:  # straight to the gate portal (which lies on the obstacle circle)
-                length = math.sqrt(max(r1 * r1 + a * a - 2 * r1 * a * math.cos(dtheta), 0.0))
-            else:
-                length = tangent + a * (dtheta - alpha1)
-            length += dist
-            if length < best:
-                best = length
-        return best + extra
+        return r, theta, channel
 
     def gate_distances(self, to_channel: int = 0) -> list[np.ndarray]:
         """For each wall, the geodesic distance (m) from each gate's outer portal to the goal
@@ -472,3 +468,29 @@ class MazeSpec:
                 }
             )
         return portals
+
+
+def _distance_from(r: float, theta: float, channel: int, tables: dict, to_channel: int) -> float:
+    """The geodesic distance to ``to_channel`` (its ``tables``) of a point at radius ``r`` and angle
+    ``theta`` in ``channel``: :meth:`MazeSpec.geodesic_distance_one` once the channel is known."""
+    if channel <= to_channel:
+        return r if to_channel == 0 else max(r - tables["target_end"], 0.0)
+    a, band_start, gates = tables["channels"][channel - 1]
+    extra = 0.0
+    if r > band_start:
+        extra, r = r - band_start, band_start
+    r1 = r if r > a else a
+    alpha1 = math.acos(a / r1)
+    tangent = math.sqrt(r1 * r1 - a * a)
+    best = math.inf
+    pi, two_pi = math.pi, 2 * math.pi
+    for angle, dist in gates:
+        dtheta = abs((theta - angle + pi) % two_pi - pi)
+        if dtheta <= alpha1:  # straight to the gate portal (which lies on the obstacle circle)
+            length = math.sqrt(max(r1 * r1 + a * a - 2 * r1 * a * math.cos(dtheta), 0.0))
+        else:
+            length = tangent + a * (dtheta - alpha1)
+        length += dist
+        if length < best:
+            best = length
+    return best + extra

@@ -5,11 +5,13 @@ the points of one maze. A vector env whose envs show different mazes (:mod:`bimg
 would call it once per env and step; mazes on one board share every radius, and differ only in their
 gates, so :class:`MazeRows` keeps each row's gate tables in padded arrays and computes every row in
 one pass, the same computation as the per-maze one (a test compares them). A :class:`MazeRows`
-measures to one target, the centre or a task's goal channel (``to_channel``), as the per-maze
-computation's ``to_channel``.
+measures to the centre, a task's goal channel, or both in one pass (``to_channels``: the per-maze
+computation's ``to_channel`` each).
 """
 
 from __future__ import annotations
+
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -34,23 +36,26 @@ def _target_gates(spec: MazeSpec, to_channel: int) -> list[tuple[list[float], np
 
 class MazeRows:
     """Per-row gate tables of ``rows`` mazes on ``base``'s board, each with at most ``max_gates``
-    gates per wall, for :meth:`geodesic_distance` to ``to_channel`` (0: the centre; ``j``: through
-    wall ``j`` into channel ``j``, the goal of an STG task)."""
+    gates per wall, for :meth:`geodesic_distances` to each of ``to_channels`` (0: the centre; ``j``:
+    through wall ``j`` into channel ``j``, the goal of an STG task). The targets share everything but
+    their gates' distances, so one pass serves them all."""
 
-    def __init__(self, base: MazeSpec, rows: int, max_gates: int, to_channel: int = 0):
+    def __init__(self, base: MazeSpec, rows: int, max_gates: int, to_channels: Sequence[int] = (0,)):
         if not base.walls:
             raise ValueError("MazeRows needs a board with walls")
+        if not to_channels:
+            raise ValueError("MazeRows needs at least one target channel")
         self.base = base
-        tables = base._geodesic_tables(to_channel)  # checks to_channel, naming the allowed ones
-        self.to_channel = int(to_channel)
-        self._target_end = tables["target_end"]
-        self._bounds = tables["bounds"]
-        self._band_start = tables["band_start"]
-        self._obstacle = tables["obstacle"]
-        self._mids = tables["mids"]
+        tables = [base._geodesic_tables(c) for c in to_channels]  # checks each, naming the allowed ones
+        self.to_channels = tuple(int(c) for c in to_channels)
+        self._target_end = [t["target_end"] for t in tables]
+        self._bounds = tables[0]["bounds"]  # the channels' radii: the same for every target
+        self._band_start = tables[0]["band_start"]
+        self._obstacle = tables[0]["obstacle"]
+        self._mids = tables[0]["mids"]
         walls = len(base.walls)
         self._gate_angle = np.zeros((rows, walls + 1, max_gates))
-        self._gate_dist = np.full((rows, walls + 1, max_gates), np.inf)
+        self._gate_dist = np.full((len(self.to_channels), rows, walls + 1, max_gates), np.inf)
         self._gate_half_width = np.full((rows, walls, max_gates), -1.0)  # -1: no gate (never inside)
         self._row_index = np.arange(rows)[:, None]
 
@@ -60,22 +65,28 @@ class MazeRows:
         if gates > self._gate_angle.shape[2]:
             raise ValueError(f"a maze with {gates} gates on a wall, more than MazeRows' {self._gate_angle.shape[2]}")
         self._gate_angle[row] = 0.0
-        self._gate_dist[row] = np.inf
+        self._gate_dist[:, row] = np.inf
         self._gate_half_width[row] = -1.0
-        tables = spec._tables["geodesic"].get(self.to_channel)  # the spec's tables to the target, if built
-        if tables is not None:
-            self._gate_angle[row, :, :gates] = tables["gate_angle"]
-            self._gate_dist[row, :, :gates] = tables["gate_dist"]
-        else:  # only what the rows use of them: its gates' angles and distances to the target (kept)
-            for k, (angles, distances) in enumerate(_target_gates(spec, self.to_channel)):
-                self._gate_angle[row, k + 1, : len(distances)] = angles
-                self._gate_dist[row, k + 1, : len(distances)] = distances
+        for target, to_channel in enumerate(self.to_channels):
+            tables = spec._tables["geodesic"].get(to_channel)  # the spec's tables to the target, if built
+            if tables is not None:
+                self._gate_angle[row, :, :gates] = tables["gate_angle"]
+                self._gate_dist[target, row, :, :gates] = tables["gate_dist"]
+            else:  # only what the rows use of them: its gates' angles and distances to the target (kept)
+                for k, (angles, distances) in enumerate(_target_gates(spec, to_channel)):
+                    self._gate_angle[row, k + 1, : len(distances)] = angles
+                    self._gate_dist[target, row, k + 1, : len(distances)] = distances
         for k, wall in enumerate(spec.walls):
             self._gate_half_width[row, k, : len(wall.gates)] = [gate.width / 2 for gate in wall.gates]
 
     def geodesic_distance(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """Distances (m) to the target of points ``x``, ``y`` of shape (rows, n), row ``b`` in its
-        maze: the computation of ``MazeSpec.geodesic_distance(x, y, to_channel)`` on every row at once."""
+        """Distances (m) to the first target: :meth:`geodesic_distances`' first array."""
+        return self.geodesic_distances(x, y)[0]
+
+    def geodesic_distances(self, x: np.ndarray, y: np.ndarray) -> list[np.ndarray]:
+        """Distances (m) to each target of points ``x``, ``y`` of shape (rows, n), row ``b`` in its
+        maze: the computation of ``MazeSpec.geodesic_distance(x, y, to_channel)`` on every row at once,
+        for every ``to_channel``; the paths to the gates of each point's channel are measured once."""
         x = np.asarray(x, dtype=float)
         y = np.asarray(y, dtype=float)
         rows = self._row_index
@@ -103,6 +114,9 @@ class MazeRows:
             self._gate_angle[rows, channel],
             obstacle[..., None],
         )
-        best = np.min(lengths + self._gate_dist[rows, channel], axis=-1) + (r - r_eff)
-        arrived = r if self.to_channel == 0 else np.maximum(r - self._target_end, 0.0)
-        return np.where(channel <= self.to_channel, arrived, best)
+        distances = []
+        for target, to_channel in enumerate(self.to_channels):
+            best = np.min(lengths + self._gate_dist[target, rows, channel], axis=-1) + (r - r_eff)
+            arrived = r if to_channel == 0 else np.maximum(r - self._target_end[target], 0.0)
+            distances.append(np.where(channel <= to_channel, arrived, best))
+        return distances

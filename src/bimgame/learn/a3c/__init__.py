@@ -31,7 +31,6 @@ The public API is importable from the package.
 from bimgame.learn.a3c.settings import OPTIMIZERS, A3CConfig, OptimizationSettings
 from bimgame.learn.a3c.training import resolve_config, train
 from bimgame.learn.a3c.update import (
-    EnvWrapper,
     a3c_segment_loss,
     apply_update,
     make_optimizer,
@@ -39,6 +38,7 @@ from bimgame.learn.a3c.update import (
     shared_optimizer_state,
 )
 from bimgame.learn.learner_settings import MAX_STEPS, START_CURRICULA
+from bimgame.learn.rewards import EnvWrapper
 from bimgame.learn.run_dir import TrainingError, TrainResult
 
 __all__ = [

@@ -18,7 +18,7 @@ import torch
 import torch.multiprocessing as mp
 
 from bimgame.learn.a3c.settings import A3CConfig
-from bimgame.learn.a3c.update import EnvWrapper, make_optimizer, shared_optimizer_state
+from bimgame.learn.a3c.update import make_optimizer, shared_optimizer_state
 from bimgame.learn.a3c.workers import RunShared, _evaluator, _worker
 from bimgame.learn.checkpoints import save_checkpoint
 from bimgame.learn.common import EVAL_COLUMNS
@@ -26,6 +26,7 @@ from bimgame.learn.curricula import CURRICULUM_COLUMNS, CURRICULUM_SCALARS
 from bimgame.learn.episode_monitor import Monitor
 from bimgame.learn.metric_logs import MetricLog
 from bimgame.learn.nets import RecurrentActorCritic
+from bimgame.learn.rewards import EnvWrapper
 from bimgame.learn.run_dir import TrainingError
 from bimgame.learn.runs import CHECKPOINT
 from bimgame.util.files import FileWriteError

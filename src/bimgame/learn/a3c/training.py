@@ -11,10 +11,7 @@ from typing import Any
 
 from bimgame.learn.a3c.parent import TABLES, Session, SessionStart
 from bimgame.learn.a3c.settings import A3CConfig
-from bimgame.learn.a3c.update import (
-    EnvWrapper,
-    network_for,
-)
+from bimgame.learn.a3c.update import network_for
 from bimgame.learn.checkpoints import apply_weights, load_checkpoint, load_init_weights, save_checkpoint
 from bimgame.learn.common import run_evaluation
 from bimgame.learn.curves import plot_run
@@ -22,6 +19,7 @@ from bimgame.learn.episode_monitor import Monitor
 from bimgame.learn.init_network import check_init_network, init_settings_for
 from bimgame.learn.learner_settings import DEFAULT_FINETUNE, FINETUNE_PRESETS, check_init_puzzle
 from bimgame.learn.nets import RecurrentActorCritic
+from bimgame.learn.rewards import EnvWrapper
 from bimgame.learn.run_dir import TEACHER, RunDirectory, TrainingError, TrainResult, stored_run_config
 from bimgame.learn.runs import CHECKPOINT, KIND_A3C, SUMMARY, read_run_settings, torch_threads
 from bimgame.util.files import FileWriteError, read_json

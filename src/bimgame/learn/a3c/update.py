@@ -15,11 +15,9 @@ from bimgame.learn.a3c.settings import A3CConfig
 from bimgame.learn.finetune import LossWeights, RunningScale
 from bimgame.learn.loss_terms import LossTerm
 from bimgame.learn.nets import RecurrentActorCritic
-from bimgame.learn.rewards import EnvWrapper
 from bimgame.learn.rollout import Segment, advantages_and_targets, unroll
 
 __all__ = [
-    "EnvWrapper",
     "network_for",
     "make_optimizer",
     "shared_optimizer_state",

@@ -17,9 +17,8 @@ import torch
 
 from bimgame.envs.puzzles import PuzzleSpec, PuzzleVectorEnv
 from bimgame.envs.randomization import RANDOMIZATION_PRESETS
-from bimgame.envs.vector import BallInMazeVectorEnv
 from bimgame.learn.a3c.settings import A3CConfig
-from bimgame.learn.a3c.update import EnvWrapper, apply_update, make_optimizer, network_for
+from bimgame.learn.a3c.update import apply_update, make_optimizer, network_for
 from bimgame.learn.actor import RecurrentActor
 from bimgame.learn.augment import random_shift
 from bimgame.learn.common import run_evaluation
@@ -27,6 +26,7 @@ from bimgame.learn.curricula import start_curriculum
 from bimgame.learn.finetune import DemoWindows, EntropyTarget, LossWeights, RunningScale, Teacher, loss_weights
 from bimgame.learn.loss_terms import BehaviourCloning, LossTerm, TeacherKL
 from bimgame.learn.nets import RecurrentActorCritic
+from bimgame.learn.rewards import EnvWrapper, shaped_env
 from bimgame.learn.rollout import FinishedEpisode, NonFiniteReward, RolloutCollector, Segment, training_env
 from bimgame.sim.maze import MazeSpec
 from bimgame.util.processes import exit_when_parent_dies
@@ -184,10 +184,7 @@ def _collector(rank: int, run: RunShared, torch_seed: int) -> tuple[RolloutColle
     config = run.config
     curriculum = start_curriculum(config.task, config.curriculum, config.expert_data)
     base_env = _make_env(config, config.schedule.envs_per_worker, start_sampler=curriculum)
-    env: Any = base_env
-    if run.env_wrapper is not None:
-        assert isinstance(base_env, BallInMazeVectorEnv)  # reward shaping is the maze's (the CLI refuses it)
-        env = run.env_wrapper(base_env)
+    env = shaped_env(base_env, run.env_wrapper)
     local = network_for(config, base_env.maze)
     actor = RecurrentActor(local, config.schedule.envs_per_worker, generator=torch.Generator().manual_seed(torch_seed))
 

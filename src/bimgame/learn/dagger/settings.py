@@ -11,7 +11,7 @@ from typing import Any
 from bimgame.envs.puzzles import puzzle
 from bimgame.expert.labyrinth_mpc import LabyrinthMPCConfig
 from bimgame.expert.mpc import MPCConfig
-from bimgame.learn.learner_settings import refuse_maze_only
+from bimgame.learn.maze_runs import maze_network, maze_options
 from bimgame.learn.policy_heads import require_discrete
 from bimgame.learn.run_dir import stored_run_config
 from bimgame.learn.runs import KIND_DAGGER, read_run_settings
@@ -117,31 +117,16 @@ class DAggerConfig:
 
     def _check_mazes(self) -> None:
         """Refuse maze settings DAgger cannot run with; a state learner on mazes reads their encoding
-        (set here, as a learner's ``num_mazes`` sets it)."""
-        require_int("DAggerConfig", "num_mazes", self.num_mazes, 0, optional=True)
-        require_int("DAggerConfig", "start_maze", self.start_maze, 0)
-        refuse_maze_only(
-            "DAggerConfig",
-            self.learner.task,
-            {"num_mazes": self.num_mazes is not None, "start_maze": bool(self.start_maze)},
+        (:func:`~bimgame.learn.common.maze_network`, as every learner's settings)."""
+        learner = maze_network(
+            "DAggerConfig", self.learner.task, self.learner, num_mazes=self.num_mazes, start_maze=self.start_maze
         )
-        if self.num_mazes is None and self.start_maze:
-            raise ValueError(f"DAggerConfig.start_maze {self.start_maze} needs num_mazes (the training mazes' count)")
-        if self.learner.obs != "state":
-            return
-        if self.num_mazes is not None and not self.learner.maze_encoding:
-            object.__setattr__(self, "learner", dataclasses.replace(self.learner, maze_encoding=True))
-        elif self.num_mazes is None and self.learner.maze_encoding:
-            raise ValueError(
-                "DAggerConfig.learner.maze_encoding without num_mazes (the encoding is of the episodes' mazes)"
-            )
+        object.__setattr__(self, "learner", learner)
 
     @property
     def maze_options(self) -> dict[str, Any]:
         """The env arguments of the run's mazes (empty on MERL's maze alone)."""
-        if self.num_mazes is None:
-            return {}
-        return {"num_mazes": self.num_mazes, "start_maze": self.start_maze}
+        return maze_options(self.num_mazes, self.start_maze)
 
     #: What a resumed run may change.
     RESUMABLE_CHANGES = ("iterations", "eval_episodes")

@@ -21,12 +21,10 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor, wait
-from typing import Any
 
 import numpy as np
 import torch
 
-from bimgame.envs.vector import BallInMazeVectorEnv
 from bimgame.learn.actor import RecurrentActor
 from bimgame.learn.curricula import start_curriculum
 from bimgame.learn.finetune import Teacher
@@ -34,7 +32,7 @@ from bimgame.learn.learner_settings import policy_network
 from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.learn.ppo.settings import PPOConfig
 from bimgame.learn.ppo.update import GradientAverage, KLTarget, ppo_update
-from bimgame.learn.rewards import EnvWrapper
+from bimgame.learn.rewards import EnvWrapper, shaped_env
 from bimgame.learn.rollout import FinishedEpisode, NonFiniteReward, RolloutCollector, Segment, training_env
 from bimgame.learn.run_dir import TrainingError
 
@@ -112,13 +110,9 @@ class RankLearner:
             start_sampler=curriculum,
             **config.maze_options,
         )
-        stepped: Any = env
-        if env_wrapper is not None:
-            assert isinstance(env, BallInMazeVectorEnv)  # reward shaping is the maze's (run_reward refuses it)
-            stepped = env_wrapper(env)
         actor = RecurrentActor(net, envs, generator=torch.Generator().manual_seed(act_seed))
         self.collector = RolloutCollector(
-            stepped,
+            shaped_env(env, env_wrapper),
             env,
             actor,
             gamma=config.optimization.gamma,

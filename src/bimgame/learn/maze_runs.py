@@ -1,0 +1,47 @@
+"""The random mazes a run trains on, as every learner's settings check them (A3C's and PPO's through
+:class:`~bimgame.learn.common.LearnerSettings`, DAgger's through its config): one place for the rules
+that tie ``num_mazes``/``start_maze`` to the task and to the network that reads the maze encoding."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+from bimgame.learn.learner_settings import check_puzzle
+from bimgame.util.settings import require_int
+
+__all__ = ["maze_network", "maze_options"]
+
+
+def maze_network(owner: str, task: str, network: Any, *, num_mazes: int | None, start_maze: int) -> Any:
+    """Check a run's random mazes (``num_mazes``, ``start_maze``) against its ``task`` and ``network``
+    (raising ``ValueError`` naming ``owner``'s setting) and return the network it trains: a state
+    network on mazes reads their encoding (``maze_encoding`` derived, as the sizes' defaults are), one
+    on MERL's maze alone may neither read nor turn it. Every learner's settings with mazes check here."""
+    require_int(owner, "num_mazes", num_mazes, 0, optional=True)
+    require_int(owner, "start_maze", start_maze, 0)
+    check_puzzle(owner, task, network, num_mazes=num_mazes, start_maze=start_maze)
+    if num_mazes is None and start_maze:
+        raise ValueError(f"{owner}.start_maze {start_maze} needs num_mazes (the training mazes' count)")
+    if not hasattr(network, "maze_encoding"):  # not a NetworkSettings (no network part)
+        return network
+    if network.obs == "state":
+        if num_mazes is not None and not network.maze_encoding:
+            return dataclasses.replace(network, maze_encoding=True)
+        if num_mazes is None and network.maze_encoding:
+            raise ValueError(
+                f"{owner}: network.maze_encoding without num_mazes (the encoding is of the episodes' mazes)"
+            )
+    if num_mazes is None and network.maze_frame != "board":
+        raise ValueError(
+            f"{owner}: network.maze_frame {network.maze_frame!r} without num_mazes (it turns the encoding of "
+            f"the episodes' mazes, which runs on MERL's maze alone do not observe)"
+        )
+    return network
+
+
+def maze_options(num_mazes: int | None, start_maze: int) -> dict[str, Any]:
+    """The env arguments of a run's random mazes (empty on MERL's maze alone)."""
+    if num_mazes is None:
+        return {}
+    return {"num_mazes": num_mazes, "start_maze": start_maze}
