@@ -10,15 +10,25 @@ from bimgame.sim.maze_rows import MazeRows
 from bimgame.sim.maze_sets import maze_number
 
 
+def _specs() -> list[MazeSpec]:
+    """Twelve random mazes and MERL's."""
+    return [maze_number(i) for i in range(12)] + [MazeSpec.merl()]
+
+
+def _points(rows: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """400 random board points per row, (rows, 400) x and y, inside the rim."""
+    rng = np.random.default_rng(seed)
+    radius = rng.uniform(0.0, 0.0968, (rows, 400))
+    angle = rng.uniform(-np.pi, np.pi, (rows, 400))
+    return radius * np.cos(angle), radius * np.sin(angle)
+
+
 def test_rows_give_each_mazes_own_geodesic_distance():
-    specs = [maze_number(i) for i in range(12)] + [MazeSpec.merl()]
+    specs = _specs()
     rows = MazeRows(MazeSpec.merl(), len(specs), max_gates=4)
     for i, spec in enumerate(specs):
         rows.set_row(i, spec)
-    rng = np.random.default_rng(0)
-    radius = rng.uniform(0.0, 0.0968, (len(specs), 400))
-    angle = rng.uniform(-np.pi, np.pi, (len(specs), 400))
-    x, y = radius * np.cos(angle), radius * np.sin(angle)
+    x, y = _points(len(specs), seed=0)
     expected = np.stack([spec.geodesic_distance(x[i], y[i]) for i, spec in enumerate(specs)])
     np.testing.assert_array_equal(rows.geodesic_distance(x, y), expected)
     rows.set_row(0, specs[1])  # a row switched to another maze forgets the old one's gates
@@ -26,11 +36,8 @@ def test_rows_give_each_mazes_own_geodesic_distance():
 
 
 def test_rows_measure_to_a_tasks_goal_channel_as_each_maze_does():
-    specs = [maze_number(i) for i in range(12)] + [MazeSpec.merl()]
-    rng = np.random.default_rng(1)
-    radius = rng.uniform(0.0, 0.0968, (len(specs), 400))
-    angle = rng.uniform(-np.pi, np.pi, (len(specs), 400))
-    x, y = radius * np.cos(angle), radius * np.sin(angle)
+    specs = _specs()
+    x, y = _points(len(specs), seed=1)
     for to_channel in (1, 3):
         rows = MazeRows(MazeSpec.merl(), len(specs), max_gates=4, to_channels=(to_channel,))
         for i, spec in enumerate(specs):
@@ -43,11 +50,8 @@ def test_rows_measure_to_a_tasks_goal_channel_as_each_maze_does():
 
 
 def test_one_pass_to_several_targets_equals_a_pass_to_each():
-    specs = [maze_number(i) for i in range(12)] + [MazeSpec.merl()]
-    rng = np.random.default_rng(2)
-    radius = rng.uniform(0.0, 0.0968, (len(specs), 400))
-    angle = rng.uniform(-np.pi, np.pi, (len(specs), 400))
-    x, y = radius * np.cos(angle), radius * np.sin(angle)
+    specs = _specs()
+    x, y = _points(len(specs), seed=2)
     both = MazeRows(MazeSpec.merl(), len(specs), max_gates=4, to_channels=(0, 3))
     for i, spec in enumerate(specs):
         both.set_row(i, spec)
