@@ -22,8 +22,15 @@ def _inputs(config: NetConfig, steps: int, batch: int, seed: int = 0):
     return obs, prev_action, prev_reward, tilt, starts
 
 
-@pytest.mark.parametrize("config", [NetConfig(), NetConfig(keypoints=True), NetConfig(encoder="mlp", obs_shape=(7,), features=32, hidden=16),
-                                    NetConfig(encoder="mlp", obs_shape=(7,), hidden=8, tilt_input=False)])
+@pytest.mark.parametrize(
+    "config",
+    [
+        NetConfig(),
+        NetConfig(keypoints=True),
+        NetConfig(encoder="mlp", obs_shape=(7,), features=32, hidden=16),
+        NetConfig(encoder="mlp", obs_shape=(7,), hidden=8, tilt_input=False),
+    ],
+)
 def test_unroll_equals_stepping_with_resets(config):
     """The training path (unroll: encoder once over T·B, LSTM over time with resets) computes
     exactly what acting step by step computes."""
@@ -36,8 +43,9 @@ def test_unroll_equals_stepping_with_resets(config):
     h, c = state
     for t in range(6):
         keep = (~starts[t]).float().unsqueeze(-1)
-        logits, values, (h, c) = net.step(obs[t], prev_action[t], prev_reward[t],
-                                          None if tilt_arg is None else tilt_arg[t], (h * keep, c * keep))
+        logits, values, (h, c) = net.step(
+            obs[t], prev_action[t], prev_reward[t], None if tilt_arg is None else tilt_arg[t], (h * keep, c * keep)
+        )
         torch.testing.assert_close(logits, logits_u[t], rtol=1e-5, atol=1e-6)
         torch.testing.assert_close(values, values_u[t], rtol=1e-5, atol=1e-6)
     torch.testing.assert_close(h, final_u.h, rtol=1e-5, atol=1e-6)
@@ -59,10 +67,14 @@ def test_lstm_unroll_equals_the_cell_loop_forward_and_backward(pattern):
     results = []
     for fused in (True, False):
         cell = torch.nn.LSTMCell(6, 5)
-        cell.load_state_dict({k: torch.randn(v.shape, generator=torch.Generator().manual_seed(7)) for k, v in cell.state_dict().items()})
+        cell.load_state_dict(
+            {k: torch.randn(v.shape, generator=torch.Generator().manual_seed(7)) for k, v in cell.state_dict().items()}
+        )
         x = torch.randn(steps, batch, 6, generator=torch.Generator().manual_seed(1)).requires_grad_()
-        state = LSTMState(torch.randn(batch, 5, generator=torch.Generator().manual_seed(2)),
-                          torch.randn(batch, 5, generator=torch.Generator().manual_seed(4)))
+        state = LSTMState(
+            torch.randn(batch, 5, generator=torch.Generator().manual_seed(2)),
+            torch.randn(batch, 5, generator=torch.Generator().manual_seed(4)),
+        )
         if fused:
             hidden, final = lstm_unroll(cell, x, state, starts)
         else:
@@ -155,8 +167,10 @@ def test_pixel_features_vary_with_the_marble():
 # ------------------------------------------------------------------ privileged heads, bf16
 def _privileged_net(**overrides) -> "RecurrentActorCritic":  # noqa: F821
     from bimgame.learn.common import NetworkSettings
-    settings = NetworkSettings(obs="pixels", hidden=32, features=32,
-                               **{"aux_heads": False, "asymmetric_critic": False, **overrides})
+
+    settings = NetworkSettings(
+        obs="pixels", hidden=32, features=32, **{"aux_heads": False, "asymmetric_critic": False, **overrides}
+    )
     return settings.build_policy(seed=0)
 
 
@@ -168,6 +182,7 @@ def _privileged_inputs(steps: int, batch: int, seed: int = 0) -> torch.Tensor:
 
 def test_frame_head_reads_position_and_channel_only():
     from bimgame.learn.nets import frame_visible
+
     assert frame_visible(7) == [0, 1, 6]  # x, y, channel of one marble
     assert frame_visible(12) == [0, 1, 4, 5, 10, 11]  # two marbles
 
@@ -188,8 +203,9 @@ def test_aux_loss_is_the_error_of_both_heads_in_scaled_units():
     mask = torch.zeros(4, 3, dtype=torch.bool)
     mask[1, 2] = True
     masked, _ = net.aux_loss(out.features, out.hidden, privileged, mask)
-    expected = ((net.aux_frame(out.features[1, 2]) - target[1, 2, [0, 1, 6]]).pow(2).mean()
-                + (net.aux_memory(out.hidden[1, 2]) - target[1, 2]).pow(2).mean())
+    expected = (net.aux_frame(out.features[1, 2]) - target[1, 2, [0, 1, 6]]).pow(2).mean() + (
+        net.aux_memory(out.hidden[1, 2]) - target[1, 2]
+    ).pow(2).mean()
     torch.testing.assert_close(masked, expected)
 
 
@@ -257,6 +273,7 @@ def test_bf16_and_fp32_act_alike_on_real_frames():
     """bfloat16 autocast of the encoder changes a trained-scale policy's probabilities by little, and
     its greedy actions only where two actions are nearly tied."""
     from bimgame.envs.vector import BallInMazeVectorEnv
+
     env = BallInMazeVectorEnv(64, task="FULL", obs_mode="pixels")
     obs, info = env.reset(seed=0)
     fp32 = build_network(NetConfig(), seed=3)
@@ -267,8 +284,12 @@ def test_bf16_and_fp32_act_alike_on_real_frames():
     prev_action = torch.full((64,), NO_ACTION)
     tilt = torch.as_tensor(info["tilt"], dtype=torch.float32) / env.maze.max_tilt
     with torch.no_grad():
-        logits32, values32, _ = fp32.step(torch.as_tensor(obs), prev_action, torch.zeros(64), tilt, fp32.initial_state(64))
-        logits16, values16, _ = bf16.step(torch.as_tensor(obs), prev_action, torch.zeros(64), tilt, bf16.initial_state(64))
+        logits32, values32, _ = fp32.step(
+            torch.as_tensor(obs), prev_action, torch.zeros(64), tilt, fp32.initial_state(64)
+        )
+        logits16, values16, _ = bf16.step(
+            torch.as_tensor(obs), prev_action, torch.zeros(64), tilt, bf16.initial_state(64)
+        )
     p32, p16 = torch.softmax(logits32, -1), torch.softmax(logits16, -1)
     assert (p32 - p16).abs().max() < 0.02
     torch.testing.assert_close(values16, values32, atol=0.05, rtol=0.05)
@@ -283,22 +304,50 @@ def test_bf16_and_fp32_act_alike_on_real_frames():
 #: A small discrete network with every optional part: its weights' names, shapes and, for seed 11,
 #: sums — as built before continuous actions existed (the same parameters from the same draws, so
 #: that stored checkpoints and seeds keep their meaning).
-_DISCRETE = NetConfig(encoder="mlp", obs_shape=(7,), features=16, hidden=8, privileged_size=7, aux_heads=True,
-                      asymmetric_critic=True)
-_DISCRETE_SHAPES = [("encoder.scale", (7,)), ("encoder.net.0.weight", (16, 7)), ("encoder.net.0.bias", (16,)),
-                    ("encoder.net.2.weight", (16, 16)), ("encoder.net.2.bias", (16,)), ("lstm.weight_ih", (32, 24)),
-                    ("lstm.weight_hh", (32, 8)), ("lstm.bias_ih", (32,)), ("lstm.bias_hh", (32,)),
-                    ("policy.weight", (5, 8)), ("policy.bias", (5,)), ("critic_state.0.weight", (128, 7)),
-                    ("critic_state.0.bias", (128,)), ("critic_state.2.weight", (128, 128)),
-                    ("critic_state.2.bias", (128,)), ("value.weight", (1, 136)), ("value.bias", (1,)),
-                    ("aux_frame.weight", (3, 16)), ("aux_frame.bias", (3,)), ("aux_memory.weight", (7, 8)),
-                    ("aux_memory.bias", (7,))]
-_DISCRETE_SUMS = {"encoder.net.0.weight": 0.898434, "encoder.net.0.bias": 0.927611, "encoder.net.2.weight": -0.550163,
-                  "encoder.net.2.bias": -0.179427, "lstm.weight_ih": -3.502347, "lstm.weight_hh": -1.332567,
-                  "policy.weight": -0.077163, "critic_state.0.weight": 2.720631, "critic_state.0.bias": 1.523801,
-                  "critic_state.2.weight": -5.604327, "critic_state.2.bias": 1.5e-05,
-                  "value.weight": 0.544885, "aux_frame.weight": -0.181156,
-                  "aux_frame.bias": -0.034993, "aux_memory.weight": 0.879648, "aux_memory.bias": -0.172429}
+_DISCRETE = NetConfig(
+    encoder="mlp", obs_shape=(7,), features=16, hidden=8, privileged_size=7, aux_heads=True, asymmetric_critic=True
+)
+_DISCRETE_SHAPES = [
+    ("encoder.scale", (7,)),
+    ("encoder.net.0.weight", (16, 7)),
+    ("encoder.net.0.bias", (16,)),
+    ("encoder.net.2.weight", (16, 16)),
+    ("encoder.net.2.bias", (16,)),
+    ("lstm.weight_ih", (32, 24)),
+    ("lstm.weight_hh", (32, 8)),
+    ("lstm.bias_ih", (32,)),
+    ("lstm.bias_hh", (32,)),
+    ("policy.weight", (5, 8)),
+    ("policy.bias", (5,)),
+    ("critic_state.0.weight", (128, 7)),
+    ("critic_state.0.bias", (128,)),
+    ("critic_state.2.weight", (128, 128)),
+    ("critic_state.2.bias", (128,)),
+    ("value.weight", (1, 136)),
+    ("value.bias", (1,)),
+    ("aux_frame.weight", (3, 16)),
+    ("aux_frame.bias", (3,)),
+    ("aux_memory.weight", (7, 8)),
+    ("aux_memory.bias", (7,)),
+]
+_DISCRETE_SUMS = {
+    "encoder.net.0.weight": 0.898434,
+    "encoder.net.0.bias": 0.927611,
+    "encoder.net.2.weight": -0.550163,
+    "encoder.net.2.bias": -0.179427,
+    "lstm.weight_ih": -3.502347,
+    "lstm.weight_hh": -1.332567,
+    "policy.weight": -0.077163,
+    "critic_state.0.weight": 2.720631,
+    "critic_state.0.bias": 1.523801,
+    "critic_state.2.weight": -5.604327,
+    "critic_state.2.bias": 1.5e-05,
+    "value.weight": 0.544885,
+    "aux_frame.weight": -0.181156,
+    "aux_frame.bias": -0.034993,
+    "aux_memory.weight": 0.879648,
+    "aux_memory.bias": -0.172429,
+}
 
 
 def _continuous(**overrides) -> "RecurrentActorCritic":  # noqa: F821
@@ -315,7 +364,9 @@ def test_discrete_networks_keep_their_weights_names_shapes_and_initial_values():
     # Stored network settings from before action_type are discrete.
     stored = {k: v for k, v in _DISCRETE.to_dict().items() if k != "action_type"}
     assert NetConfig.from_dict(stored) == _DISCRETE and _DISCRETE.action_type == "discrete"
-    with pytest.raises(ValueError, match=r"NetConfig\.action_type must be one of \('discrete', 'continuous'\), got 'box'"):
+    with pytest.raises(
+        ValueError, match=r"NetConfig\.action_type must be one of \('discrete', 'continuous'\), got 'box'"
+    ):
         NetConfig(action_type="box")
 
 
@@ -360,8 +411,9 @@ def test_maze_input_starts_silent_and_learns():
     obs, prev_action, prev_reward, tilt, starts = _inputs(plain.config, 4, 2)
     encoding = (torch.rand(4, 2, 128) < 0.2).float()
     logits_p, values_p, _ = plain.unroll(obs, prev_action, prev_reward, tilt, plain.initial_state(2), starts)
-    logits_m, values_m, _ = mazed.unroll(torch.cat([obs, encoding], -1), prev_action, prev_reward, tilt,
-                                         mazed.initial_state(2), starts)
+    logits_m, values_m, _ = mazed.unroll(
+        torch.cat([obs, encoding], -1), prev_action, prev_reward, tilt, mazed.initial_state(2), starts
+    )
     torch.testing.assert_close(logits_m, logits_p)
     torch.testing.assert_close(values_m, values_p)
     (logits_m.sum() + values_m.sum()).backward()

@@ -387,7 +387,9 @@ def lstm_unroll(
     pieces = []
     for begin, end in zip(cuts[:-1], cuts[1:]):
         keep = (~starts[begin]).to(x.dtype).unsqueeze(-1)
-        output, h, c = torch.lstm(x[begin:end], (h * keep, c * keep), weights, True, 1, 0.0, cell.training, False, False)
+        output, h, c = torch.lstm(
+            x[begin:end], (h * keep, c * keep), weights, True, 1, 0.0, cell.training, False, False
+        )
         pieces.append(output)
     hidden = pieces[0] if len(pieces) == 1 else torch.cat(pieces)
     return hidden, LSTMState(h.squeeze(0), c.squeeze(0))
