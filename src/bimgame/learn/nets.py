@@ -38,6 +38,7 @@ observations, then the LSTM cell runs over time, zeroing its state wherever an e
 from __future__ import annotations
 
 import dataclasses
+import itertools
 from typing import NamedTuple, TypeVar
 
 import numpy as np
@@ -385,7 +386,7 @@ def lstm_unroll(
     weights = [cell.weight_ih, cell.weight_hh, cell.bias_ih, cell.bias_hh]
     cuts = [0, *(int(t) for t in torch.nonzero(starts[1:].any(dim=1)).flatten() + 1), x.shape[0]]
     pieces = []
-    for begin, end in zip(cuts[:-1], cuts[1:]):
+    for begin, end in itertools.pairwise(cuts):
         keep = (~starts[begin]).to(x.dtype).unsqueeze(-1)
         output, h, c = torch.lstm(
             x[begin:end], (h * keep, c * keep), weights, True, 1, 0.0, cell.training, False, False
