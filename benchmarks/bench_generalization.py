@@ -20,6 +20,9 @@ planning with the geodesic reward labels every visited state): ``--dagger-iterat
 ``--dagger-episodes`` rollouts each, a budget in episodes rather than ``--steps`` (the environment
 steps it used are in the JSON's ``steps_scored``, and it also spends the expert's planning).
 
+``--gate-bearings`` gives every run's state observations each wall's nearest gate as seen from the
+marble (``NetworkSettings.gate_bearings``: :mod:`bimgame.envs.gate_bearings`), read beside the encoding.
+
 ``--geodesic-reward COEF`` trains every run on the task's reward plus COEF × the geodesic progress
 towards the centre per metre (:class:`~bimgame.learn.rewards.RewardSettings`; scores are always the
 task's success).
@@ -33,7 +36,7 @@ train and test success against N, one panel per learner, CoinRun's figure.
 Usage: python benchmarks/bench_generalization.py [--task STG1] [--obs state] [--steps 300000]
        [--seeds 3] [--num-mazes 1 10 100 1000 0] [--learners ppo a3c pretrain+ppo+keep]
        [--pretrain-data DATA] [--set NAME=VALUE ...] [--maze-frame board|marble]
-       [--geodesic-reward COEF] [--jobs 2]
+       [--geodesic-reward COEF] [--gate-bearings] [--jobs 2]
        [--out runs/generalization]
        [--score-unfinished]   (score the last checkpoints of runs stopped early, e.g. for time)
 """
@@ -113,6 +116,7 @@ def _train(
     num_mazes: int,
     maze_frame: str,
     settings: dict[str, object],
+    gate_bearings: bool = False,
     init: Path | None,
     reward: RewardSettings,
     dagger_budget: tuple[int, int] = (10, 32),
@@ -126,12 +130,20 @@ def _train(
     common = dict(task=task, obs=obs, steps=steps, seed=seed, eval_every=0, eval_episodes=20, num_mazes=num_mazes)
     if maze_frame != "board":  # runs stored before the setting are board-frame runs
         common["maze_frame"] = maze_frame
+    if gate_bearings:
+        common["gate_bearings"] = True
     start = time.perf_counter()
     resume = (run_dir / "config.json").is_file()
     if learner == DAGGER:
         iterations, episodes = dagger_budget
         learner_settings = PretrainConfig(
-            task=task, obs=obs, seed=seed, aux_heads=False, asymmetric_critic=False, maze_frame=maze_frame
+            task=task,
+            obs=obs,
+            seed=seed,
+            aux_heads=False,
+            asymmetric_critic=False,
+            maze_frame=maze_frame,
+            gate_bearings=gate_bearings,
         )
         config = DAggerConfig(
             learner=learner_settings, iterations=iterations, episodes_per_iteration=episodes, num_mazes=num_mazes
@@ -163,9 +175,10 @@ def _score(run_dir: Path, num_mazes: int, episodes: int) -> tuple[dict[str, floa
     if cached is not None and cached.get("episodes") == episodes and cached.get("step", step) == step:
         return cached["scores"], step
     seen = min(num_mazes, 100) if num_mazes else 100
+    bearings = {"gate_bearings": True} if run.network.gate_bearings else {}
     splits = {
-        "train": ({"num_mazes": num_mazes, "start_maze": 0}, [k % seen for k in range(episodes)]),
-        "test": ({"num_mazes": episodes, "maze_split": "test"}, list(range(episodes))),
+        "train": ({"num_mazes": num_mazes, "start_maze": 0, **bearings}, [k % seen for k in range(episodes)]),
+        "test": ({"num_mazes": episodes, "maze_split": "test", **bearings}, list(range(episodes))),
     }
     scores = {}
     for split, (mazes, numbers) in splits.items():
@@ -206,6 +219,7 @@ def _run(
                 num_mazes=num_mazes,
                 maze_frame=args.maze_frame,
                 settings=args.settings if learner == PRETRAINED else {},
+                gate_bearings=args.gate_bearings,
                 init=_pi_s_dir(args, seed) if learner == PRETRAINED else None,
                 reward=RewardSettings(geodesic_coef=args.geodesic_reward),
                 dagger_budget=(args.dagger_iterations, args.dagger_episodes),
@@ -281,6 +295,11 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
         help="the frame the state network reads the maze encoding in (default board; see NetworkSettings.maze_frame)",
     )
     parser.add_argument(
+        "--gate-bearings",
+        action="store_true",
+        help="state observations also hold each wall's nearest gate as seen from the marble (NetworkSettings.gate_bearings)",
+    )
+    parser.add_argument(
         "--pretrain-data",
         type=Path,
         default=None,
@@ -346,6 +365,7 @@ def main(argv: list[str] | None = None) -> int:
     }
     frame = "" if args.maze_frame == "board" else f"-{args.maze_frame}"
     frame += "" if args.geodesic_reward is None else f"-geo{args.geodesic_reward:g}"
+    frame += "-bearings" if args.gate_bearings else ""
     variant = "".join(f"-{key.replace('_', '-')}{value}" for key, value in sorted(args.settings.items()))
     data = "" if args.pretrain_data is None else f"-{args.pretrain_data.name}"
 
@@ -392,6 +412,7 @@ def main(argv: list[str] | None = None) -> int:
             rows[_label(num_mazes)] = _aggregate(per_seed, rng)
         results["learners"][learner] = rows
     results["maze_frame"] = args.maze_frame
+    results["gate_bearings"] = args.gate_bearings
     results["ppo_settings"] = args.settings
     results["geodesic_reward"] = args.geodesic_reward
     if DAGGER in args.learners:

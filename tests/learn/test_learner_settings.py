@@ -178,7 +178,8 @@ def test_a_config_json_of_the_flat_version_loads_into_the_expected_parts():
     # Written back, it is the same record (with the settings added since at their defaults); its network
     # is the one the run stored.
     added = {"action_type": "discrete"}
-    settings_added = {**added, "maze_encoding": False, "maze_frame": "board", "num_mazes": None,
+    settings_added = {**added, "maze_encoding": False, "maze_frame": "board", "gate_bearings": False,
+                      "num_mazes": None,
                       "start_maze": 0}
     assert config.to_dict() == {**stored["a3c"], **settings_added}
     assert json.loads(json.dumps(network_for(config).config.to_dict())) == {**stored["net"], **added, "maze_size": 0,

@@ -15,6 +15,7 @@ import numpy as np
 from gymnasium import spaces
 
 from bimgame.envs.actions import ACTION_TYPES, DISCRETE_TILTS, action_to_tilt_delta
+from bimgame.envs.gate_bearings import GateBearings, check_gate_bearings
 from bimgame.envs.mazes import EnvMazes, maze_encoding
 from bimgame.envs.observe import OBS_MODES, Observer
 from bimgame.envs.randomization import EpisodeRandomizer, Randomization, observation_space
@@ -64,7 +65,9 @@ class BallInMazeEnv(gym.Env):
     board-frame positions (m) and velocities (m/s), the board's tilt (rad) and each marble's
     channel (0 = centre … 4 = outermost). With ``num_mazes``, then the episode's maze as each
     wall's openness at 32 angles (:func:`~bimgame.envs.mazes.maze_encoding`, 128 values in [0, 1]);
-    pixels show the episode's maze.
+    with ``gate_bearings=True`` too, then per wall the sine and cosine of the angle from the (first)
+    marble to the wall's nearest gate and that gate's half-width (:mod:`~bimgame.envs.gate_bearings`,
+    12 values); pixels show the episode's maze.
 
     ## Rewards
 
@@ -134,8 +137,9 @@ class BallInMazeEnv(gym.Env):
     "mujoco" — MuJoCo's 3D OpenGL renderer), ``randomize`` (None — the default, nothing drawn —
     or a :class:`~bimgame.envs.randomization.Randomization` of ranges, or a dict of its fields:
     domain randomisation, drawn from ``np_random`` at every reset after the start; camera ranges
-    need ``obs_mode="pixels"``), ``num_mazes``, ``start_maze``, ``maze_split``, ``maze_rules`` (see
-    Many mazes). Each is checked at construction (``ValueError`` naming it and what is allowed).
+    need ``obs_mode="pixels"``), ``num_mazes``, ``start_maze``, ``maze_split``, ``maze_rules``,
+    ``gate_bearings`` (state observations on many mazes; see Many mazes and Observation Space). Each
+    is checked at construction (``ValueError`` naming it and what is allowed).
 
     ## Version History
 
@@ -163,6 +167,7 @@ class BallInMazeEnv(gym.Env):
         start_maze: int = 0,
         maze_split: str = "train",
         maze_rules: GateRules | None = None,
+        gate_bearings: bool = False,
     ):
         spec = maze if maze is not None else MazeSpec.merl()
         if not isinstance(spec, MazeSpec):
@@ -187,6 +192,9 @@ class BallInMazeEnv(gym.Env):
         #: The current episode's maze number (None without ``num_mazes``).
         self.maze_number: int | None = None
         self._encoding: list[float] = []  # the state observations' maze encoding (set by switch_maze)
+        check_gate_bearings(gate_bearings, num_mazes, obs_mode)
+        #: The episode's maze as gate bearings (None unless ``gate_bearings``).
+        self.bearings: GateBearings | None = None
         if self.mazes is not None:
             self.maze_number = self.mazes.first_number()
             self.maze = self.mazes.maze(self.maze_number)
@@ -228,6 +236,7 @@ class BallInMazeEnv(gym.Env):
             start_maze=start_maze,
             maze_split=maze_split,
             maze_rules=maze_rules,
+            gate_bearings=gate_bearings,
         )
         self.obs_mode = obs_mode
         self.action_type = action_type
@@ -246,7 +255,12 @@ class BallInMazeEnv(gym.Env):
             layout=self.sim.layout,
             maze_encoding=self.mazes is not None,
             board=None if self.mazes is None else self.mazes.base,
+            gate_bearings=gate_bearings,
         )
+        if gate_bearings:
+            assert self.mazes is not None
+            self.bearings = GateBearings(self.mazes.base, 1, self.mazes.maze_set.rules.max_gates)
+            self.bearings.set_row(0, self.maze)
         self.observation_space = observation_space(
             self.observer.space, self.randomize, self.maze, self.n_marbles, obs_mode
         )
@@ -370,6 +384,8 @@ class BallInMazeEnv(gym.Env):
         self.maze, self.maze_number = spec, number
         if self.obs_mode == "state":  # what state observations end with (once, not per step); pixels show the maze
             self._encoding = maze_encoding(spec).tolist()
+        if self.bearings is not None:
+            self.bearings.set_row(0, spec)
         self.observer.set_maze(spec)
 
     # ------------------------------------------------------------------ helpers
@@ -394,6 +410,9 @@ class BallInMazeEnv(gym.Env):
         values = [v for k in kinematics for v in k] + [tilt[0], tilt[1]] + self._channels
         if self.mazes is not None:
             values += self._encoding
+        if self.bearings is not None:
+            x, y = kinematics[0][:2]
+            values += self.bearings(np.array([x]), np.array([y]))[0].tolist()
         return np.array(values, dtype=np.float32)
 
     def _info(self, kinematics, crossings: list[int], success: bool) -> dict[str, Any]:

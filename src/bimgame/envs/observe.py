@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 from gymnasium import spaces
 
+from bimgame.envs.gate_bearings import BEARING_VALUES, gate_bearings_size
 from bimgame.envs.mazes import maze_encoding, maze_encoding_size, maze_raster
 from bimgame.sim.layout import StateLayout
 from bimgame.sim.maze import MazeSpec
@@ -22,7 +23,9 @@ class Observer:
     ``pixels``: (B, 1, size, size) uint8 from :class:`~bimgame.sim.render.MazeRenderer`.
     ``state``: (B, 4n + 2 + n) float32 — per marble x, y, vx, vy (board frame, m and m/s), then
     tilt about x and y (rad), then each marble's channel; with ``maze_encoding``, then the maze's
-    :func:`~bimgame.envs.mazes.maze_encoding` (each row's, given to :meth:`from_kinematics`).
+    :func:`~bimgame.envs.mazes.maze_encoding` (each row's, given to :meth:`from_kinematics`); with
+    ``gate_bearings`` too, then the first marble's :mod:`~bimgame.envs.gate_bearings` (given to
+    :meth:`from_kinematics`: they change every step).
     """
 
     def __init__(
@@ -35,6 +38,7 @@ class Observer:
         layout: StateLayout | None = None,
         maze_encoding: bool = False,
         board: MazeSpec | None = None,
+        gate_bearings: bool = False,
     ):
         if obs_mode not in OBS_MODES:
             raise ValueError(f"unknown obs_mode {obs_mode!r}; allowed: {', '.join(OBS_MODES)}")
@@ -46,6 +50,7 @@ class Observer:
         self.obs_size = int(obs_size)
         self.layout = layout
         self.encoding_size = maze_encoding_size(spec) if maze_encoding and obs_mode == "state" else 0
+        self.bearings_size = gate_bearings_size(spec) if gate_bearings and self.encoding_size else 0
         #: The board the mazes :meth:`set_maze` shows share (their rasters are drawn from its).
         self.board = board
         self._raster: MazeRenderer | None = None
@@ -67,6 +72,10 @@ class Observer:
             ).astype(np.float32)
             low = np.concatenate([low, np.zeros(self.encoding_size, dtype=np.float32)])
             high = np.concatenate([high, np.ones(self.encoding_size, dtype=np.float32)])
+            if self.bearings_size:  # sin, cos, half-width (bins) per wall
+                walls = self.bearings_size // BEARING_VALUES
+                low = np.concatenate([low, np.tile(np.array([-1, -1, 0], dtype=np.float32), walls)])
+                high = np.concatenate([high, np.tile(np.array([1, 1, 16], dtype=np.float32), walls)])
             self.space = spaces.Box(low, high, dtype=np.float32)
 
     @property
@@ -103,21 +112,28 @@ class Observer:
         *,
         encodings: np.ndarray | None = None,
         backgrounds: np.ndarray | None = None,
+        bearings: np.ndarray | None = None,
     ) -> np.ndarray:
         """Observations from board-frame marble positions and velocities (B, n, 3), board tilt
         (B, 2) and channels (B, n), for callers that already decoded their states. When rows show
         different mazes: ``encodings`` (B, :attr:`encoding_size`), each row's
         :func:`~bimgame.envs.mazes.maze_encoding`, and ``backgrounds`` (B, size, size), each row's
-        raster background; by default every row shows :attr:`spec`."""
+        raster background; by default every row shows :attr:`spec`. ``bearings`` (B,
+        :attr:`bearings_size`): each row's gate bearings, needed when the observations have them."""
         batch = positions.shape[0]
         if self.obs_mode == "pixels":
             return self.raster.gray(positions[..., :2], backgrounds=backgrounds)[:, None]
         per_marble = np.concatenate([positions[..., :2], velocities[..., :2]], axis=-1)
         n = self.n_marbles
-        out = np.empty((batch, 5 * n + 2 + self.encoding_size), dtype=np.float32)
+        encoded = 5 * n + 2 + self.encoding_size
+        out = np.empty((batch, encoded + self.bearings_size), dtype=np.float32)
         out[:, : 4 * n] = per_marble.reshape(batch, -1)
         out[:, 4 * n : 4 * n + 2] = tilt
         out[:, 4 * n + 2 : 5 * n + 2] = channels
         if self.encoding_size:
-            out[:, 5 * n + 2 :] = maze_encoding(self.spec) if encodings is None else encodings
+            out[:, 5 * n + 2 : encoded] = maze_encoding(self.spec) if encodings is None else encodings
+        if self.bearings_size:
+            if bearings is None:
+                raise ValueError("these observations end with gate bearings: pass bearings=")
+            out[:, encoded:] = bearings
         return out

@@ -47,6 +47,7 @@ from gymnasium.vector.utils import batch_space
 
 from bimgame.envs.actions import actions_to_tilt_deltas, sub_env_generators
 from bimgame.envs.env import BallInMazeEnv
+from bimgame.envs.gate_bearings import GateBearings
 from bimgame.envs.mazes import EnvMazes, maze_encoding, maze_raster
 from bimgame.envs.observe import Observer
 from bimgame.envs.randomization import EpisodeRandomizer
@@ -189,12 +190,15 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
         self._state_observer = Observer(self.maze, n, "state")  # the marbles' state: the maze is not in it
         self._encodings: np.ndarray | None = None
         self._backgrounds: np.ndarray | None = None
+        self._bearings: GateBearings | None = None
         #: The channel ``info["goal_distance"]`` measures to (the task's goal; 0, the centre, for FULL).
         self.goal_channel = self.task.goal_channel(self.maze)
         self._distance_rows = self._distance_tables()
         if self.mazes is not None:
             if self.template.observer.encoding_size:
                 self._encodings = np.zeros((self.num_envs, self.template.observer.encoding_size), dtype=np.float32)
+            if self.template.bearings is not None:
+                self._bearings = GateBearings(self.mazes.base, self.num_envs, self.mazes.maze_set.rules.max_gates)
             if self.template.obs_mode == "pixels":
                 size = self.template.observer.obs_size
                 self._backgrounds = np.zeros((self.num_envs, size, size), dtype=np.uint8)
@@ -365,6 +369,8 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
         self._distance_rows.set_row(index, spec)
         if self._encodings is not None:
             self._encodings[index] = maze_encoding(spec)
+        if self._bearings is not None:
+            self._bearings.set_row(index, spec)
         if self._backgrounds is not None:
             self._backgrounds[index] = self.mazes.raster(spec, self._backgrounds.shape[1]).background
 
@@ -412,6 +418,7 @@ class BallInMazeVectorEnv(gym.vector.VectorEnv):
             self._task_state.channel,
             encodings=self._encodings,
             backgrounds=self._backgrounds,
+            bearings=None if self._bearings is None else self._bearings(positions[:, 0, 0], positions[:, 0, 1]),
         )
         if self.randomizer is not None and self.randomizer.observing:
             obs = self.randomizer.pixels(obs, self._elapsed, positions[..., :2])

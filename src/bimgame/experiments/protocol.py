@@ -44,6 +44,7 @@ from typing import Any
 import numpy as np
 
 from bimgame.envs.env import BallInMazeEnv
+from bimgame.envs.gate_bearings import gate_bearings_size
 from bimgame.envs.mazes import maze_encoding, maze_encoding_size
 from bimgame.envs.observe import OBS_MODES
 from bimgame.experiments.policy_sources import EpisodePolicy, NetworkPolicy, _Scripted, builtin_policy, load_policy
@@ -196,9 +197,13 @@ class Protocol:
         """Each episode's maze number (None on MERL's maze)."""
         return self.maze_choice.numbers(self.episodes)
 
-    def make_env(self) -> BallInMazeEnv:
-        """The env the episodes are played on: the protocol's observations, and its mazes."""
-        return BallInMazeEnv(self.task, obs_mode=self.obs, **self.maze_choice.env_kwargs(self.episodes))
+    def make_env(self, *, gate_bearings: bool = False) -> BallInMazeEnv:
+        """The env the episodes are played on: the protocol's observations, and its mazes (with
+        ``gate_bearings``, state observations on mazes also hold them: for a network that reads them)."""
+        kwargs: dict[str, Any] = self.maze_choice.env_kwargs(self.episodes)
+        if gate_bearings:
+            kwargs["gate_bearings"] = True
+        return BallInMazeEnv(self.task, obs_mode=self.obs, **kwargs)
 
 
 def maze_references(task: str, key: str = MAZE_REFERENCES) -> tuple[float, float] | None:
@@ -354,6 +359,15 @@ def _fitted(policy: EpisodePolicy, env: BallInMazeEnv) -> tuple[EpisodePolicy, l
     )
 
 
+def _reads_bearings(policy: EpisodePolicy, env: BallInMazeEnv) -> bool:
+    """Whether ``policy`` is a bimgame network trained on mazes with gate bearings
+    (``NetworkSettings.gate_bearings``): it reads them after the maze encoding."""
+    if not isinstance(policy, NetworkPolicy) or env.obs_mode != "state" or env.mazes is None:
+        return False
+    given = int(env.observation_space.shape[0])  # type: ignore[index]  # a Box: its shape is set
+    return int(policy.net.config.obs_shape[0]) == given + gate_bearings_size(env.maze)
+
+
 def run_protocol(policy: EpisodePolicy, protocol: Protocol, *, progress: bool = False) -> Score:
     """Score ``policy`` with ``protocol``: one episode per start seed, in order, on a fresh
     single env with the protocol's observations, mazes and the task's time limit (episode i on its
@@ -361,9 +375,12 @@ def run_protocol(policy: EpisodePolicy, protocol: Protocol, *, progress: bool = 
     :func:`~bimgame.experiments.policy_sources.builtin_policy`, or a :class:`MazeScriptedPolicy`, which
     a wrapper around one must use) plan in each episode's maze, and a bimgame network gets
     observations of the size it was trained on (see :func:`_fitted`; the result's ``notes`` say what
-    changed); other policies get the env's observations, which on mazes end with the maze's encoding
-    (128 values)."""
+    changed; one trained with gate bearings gets them); other policies get the env's observations,
+    which on mazes end with the maze's encoding (128 values)."""
     env = protocol.make_env()
+    if _reads_bearings(policy, env):
+        env.close()
+        env = protocol.make_env(gate_bearings=True)
     returns: list[float] = []
     lengths: list[int] = []
     successes: list[bool] = []

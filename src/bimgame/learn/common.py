@@ -17,6 +17,7 @@ from typing import Any, ClassVar, Protocol, Self
 
 import numpy as np
 
+from bimgame.envs.gate_bearings import gate_bearings_size
 from bimgame.envs.mazes import maze_encoding_size
 from bimgame.envs.puzzles import NETWORK_OBS, PuzzleSpec, puzzle, puzzle_task_setting, state_obs_scale
 from bimgame.learn.actor import evaluate_network
@@ -66,7 +67,15 @@ MAX_SEED = 2**32 - 1
 #: the weights no longer fit in memory.
 MAX_NETWORK_SIZE = 4096
 #: The network settings that are True or False.
-_SWITCHES = ("tilt_input", "keypoints", "subtract_background", "aux_heads", "asymmetric_critic", "maze_encoding")
+_SWITCHES = (
+    "tilt_input",
+    "keypoints",
+    "subtract_background",
+    "aux_heads",
+    "asymmetric_critic",
+    "maze_encoding",
+    "gate_bearings",
+)
 
 
 def check_seed(owner: str, value: Any) -> None:
@@ -121,6 +130,11 @@ class NetworkSettings:
     """With ``maze_encoding``: the network reads the encoding as observed (``board``) or turned to start
     at the marble's angle (``marble``), where the gates nearest the marble are always in the same
     inputs (:func:`~bimgame.learn.encoders.marble_frame`)."""
+    gate_bearings: bool = False
+    """With ``maze_encoding``: the state observations also hold each wall's nearest gate as seen from the
+    marble (sine and cosine of its bearing, its half-width: :mod:`bimgame.envs.gate_bearings`), which the
+    network reads beside the encoding. Off by default: not in the observations of earlier runs and
+    datasets."""
 
     def __post_init__(self) -> None:
         owner = type(self).__name__
@@ -155,6 +169,13 @@ class NetworkSettings:
             raise ValueError(f"{owner}.maze_frame must be one of {MAZE_FRAMES}, got {self.maze_frame!r}")
         if self.maze_frame != "board" and pixels:
             raise ValueError(f"{owner}.maze_frame applies to state observations only (pixels show the maze)")
+        if self.gate_bearings and self.obs != "state":
+            raise ValueError(f"{owner}.gate_bearings applies to state observations only, got obs {self.obs!r}")
+        if self.gate_bearings and self.maze_frame != "board":
+            raise ValueError(
+                f"{owner}.gate_bearings with maze_frame {self.maze_frame!r}: the bearings are already relative to "
+                "the marble; use maze_frame 'board'"
+            )
 
     @property
     def privileged(self) -> bool:
@@ -183,8 +204,14 @@ class NetworkSettings:
         # as one state input does (read in the marble's frame, PPO's policy lost its entropy in the
         # first 40k steps). Divided by √128 the encoding's pathway moves at about a state input's pace.
         encoding = maze_encoding_size(maze) if isinstance(maze, MazeSpec) and self.maze_encoding else 0
+        # The bearings are a few values of order 1 (sine, cosine, half-width in bins): taken as they are.
+        bearings = gate_bearings_size(maze) if isinstance(maze, MazeSpec) and encoding and self.gate_bearings else 0
         obs_scale = (
-            np.concatenate([scale, np.full(encoding, np.sqrt(encoding), dtype=np.float32)]) if encoding else scale
+            np.concatenate(
+                [scale, np.full(encoding, np.sqrt(encoding), dtype=np.float32), np.ones(bearings, dtype=np.float32)]
+            )
+            if encoding
+            else scale
         )
         privileged: dict[str, Any] = (
             {"privileged_size": len(scale), "aux_heads": self.aux_heads, "asymmetric_critic": self.asymmetric_critic}
@@ -204,7 +231,7 @@ class NetworkSettings:
             hidden=hidden,
             tilt_input=self.tilt_input,
             action_type=self.action_type,
-            maze_size=encoding,
+            maze_size=encoding + bearings,
             maze_frame=self.maze_frame,
             **privileged,
         )
@@ -408,7 +435,8 @@ class LearnerSettings(FlatSettings):
     @property
     def maze_options(self) -> dict[str, Any]:
         """The env arguments of the run's mazes (empty on MERL's maze alone)."""
-        return maze_options(self.num_mazes, self.start_maze)
+        bearings = bool(getattr(getattr(self, "network", None), "gate_bearings", False))
+        return maze_options(self.num_mazes, self.start_maze, gate_bearings=bearings)
 
     @property
     def time_limit(self) -> int:

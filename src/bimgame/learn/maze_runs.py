@@ -32,6 +32,10 @@ def maze_network(owner: str, task: str, network: Any, *, num_mazes: int | None, 
             raise ValueError(
                 f"{owner}: network.maze_encoding without num_mazes (the encoding is of the episodes' mazes)"
             )
+    if num_mazes is None and network.gate_bearings:
+        raise ValueError(
+            f"{owner}: network.gate_bearings without num_mazes (they are part of the observations on many mazes)"
+        )
     if num_mazes is None and network.maze_frame != "board":
         raise ValueError(
             f"{owner}: network.maze_frame {network.maze_frame!r} without num_mazes (it turns the encoding of "
@@ -40,8 +44,9 @@ def maze_network(owner: str, task: str, network: Any, *, num_mazes: int | None, 
     return network
 
 
-def maze_options(num_mazes: int | None, start_maze: int) -> dict[str, Any]:
-    """The env arguments of a run's random mazes (empty on MERL's maze alone)."""
+def maze_options(num_mazes: int | None, start_maze: int, *, gate_bearings: bool = False) -> dict[str, Any]:
+    """The env arguments of a run's random mazes (empty on MERL's maze alone); ``gate_bearings``: the
+    observations hold them (the network reads them: ``NetworkSettings.gate_bearings``)."""
     if num_mazes is None:
         return {}
-    return {"num_mazes": num_mazes, "start_maze": start_maze}
+    return {"num_mazes": num_mazes, "start_maze": start_maze, **({"gate_bearings": True} if gate_bearings else {})}

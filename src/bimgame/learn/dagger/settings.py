@@ -126,7 +126,9 @@ class DAggerConfig:
     @property
     def maze_options(self) -> dict[str, Any]:
         """The env arguments of the run's mazes (empty on MERL's maze alone)."""
-        return maze_options(self.num_mazes, self.start_maze)
+        return maze_options(
+            self.num_mazes, self.start_maze, gate_bearings=bool(getattr(self.learner, "gate_bearings", False))
+        )
 
     #: What a resumed run may change.
     RESUMABLE_CHANGES = ("iterations", "eval_episodes")
