@@ -87,7 +87,8 @@ def _label(num_mazes: int) -> str:
 
 def _pi_s_dir(args: argparse.Namespace, seed: int) -> Path:
     """Where seed ``seed``'s π^s pre-trained on ``--pretrain-data`` is kept."""
-    return args.out / "pi-s" / f"{args.task}-{args.obs}-{args.pretrain_data.name}" / f"seed{seed}"
+    bearings = "-bearings" if args.gate_bearings else ""
+    return args.out / "pi-s" / f"{args.task}-{args.obs}-{args.pretrain_data.name}{bearings}" / f"seed{seed}"
 
 
 def _pretrained(args: argparse.Namespace, seed: int) -> tuple[Path, dict[str, float]]:
@@ -98,7 +99,14 @@ def _pretrained(args: argparse.Namespace, seed: int) -> tuple[Path, dict[str, fl
         if not (path / "summary.json").is_file():
             if path.exists():  # an unfinished pre-training cannot resume: start it again
                 raise SystemExit(f"{path} is an unfinished pre-training; remove it and run again")
-            config = PretrainConfig(target="policy", task=args.task, obs=args.obs, seed=seed, eval_episodes=0)
+            config = PretrainConfig(
+                target="policy",
+                task=args.task,
+                obs=args.obs,
+                seed=seed,
+                eval_episodes=0,
+                gate_bearings=args.gate_bearings,
+            )
             pretrain(config, args.pretrain_data, path, progress=False)
         num_mazes = int((read_json(args.pretrain_data / "generation.json") or {}).get("num_mazes") or 0)
         scores, _ = _score(path, num_mazes, args.episodes)

@@ -187,3 +187,39 @@ def test_networks_that_do_not_fit_the_run_are_refused_naming_the_setting(pi_s, m
             progress=False,
         )
     assert not run_dir.exists()  # every refusal came before the run directory
+
+
+def test_pretraining_with_gate_bearings_reads_them_from_the_stored_positions(maze_data, tmp_path, one_torch_thread):
+    """Datasets store observations without bearings; read with ``gate_bearings`` each step gets the
+    bearings an env with ``gate_bearings=True`` would have shown in that episode's maze, and π^s
+    pre-trained so reads 7 + 128 + 12 values, is evaluated on bearing envs and starts a PPO run."""
+    from bimgame.envs.gate_bearings import GateBearings
+    from bimgame.sim.maze_sets import maze_number
+
+    plain = load_sequences(maze_data, "STG1", "state", 0.99)
+    with_bearings = load_sequences(maze_data, "STG1", "state", 0.99, gate_bearings=True)
+    for a, b in zip(plain, with_bearings, strict=True):
+        np.testing.assert_array_equal(b.obs[:, :ENCODED], a.obs)
+        assert b.obs.shape[1] == ENCODED + 12
+    episode = with_bearings[0]
+    first_maze = maze_number(MAZES["start_maze"] + episode.id % MAZES["num_mazes"])
+    expected = GateBearings.of(first_maze)(episode.obs[:, 0].astype(float), episode.obs[:, 1].astype(float))
+    np.testing.assert_allclose(episode.obs[:, ENCODED:], expected, atol=1e-6)
+
+    result = pretrain(
+        PretrainConfig(**NETWORK, epochs=1, eval_episodes=2, gate_bearings=True),
+        maze_data,
+        tmp_path / "pi",
+        progress=False,
+    )
+    net, run, _ = load_run_network(result.run_dir)
+    assert net.config.obs_shape == (ENCODED + 12,) and run.network.gate_bearings
+    assert result.policy_eval is not None and result.policy_eval["episodes"] == 2
+    config = PPOConfig.from_flat(PPO_TINY, **MAZES, gate_bearings=True)
+    assert train_ppo(config, tmp_path / "run", init=result.run_dir, progress=False).stopped == "finished"
+
+
+def test_gate_bearings_on_a_dataset_of_merls_maze_are_refused(merl_pi_s, tmp_path):
+    stored = json.loads((merl_pi_s / "config.json").read_text())
+    with pytest.raises(ValueError, match=r"gate_bearings: the dataset in .* was generated on MERL's maze alone"):
+        pretrain(PretrainConfig(**NETWORK, gate_bearings=True), stored["data"], tmp_path / "refused", progress=False)

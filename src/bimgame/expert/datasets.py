@@ -51,6 +51,7 @@ import numpy as np
 from minari import MinariDataset
 
 import bimgame
+from bimgame.envs.gate_bearings import GateBearings
 from bimgame.envs.mazes import maze_encoding_size
 from bimgame.envs.observe import Observer
 from bimgame.expert.dataset_files import (
@@ -304,6 +305,7 @@ def iterate_sequences(
     *,
     obs: str = "state",
     gamma: float = 0.99,
+    gate_bearings: bool = False,
 ) -> Iterator[Episode]:
     """Whole episodes for sequence models (an LSTM sees each episode from its start).
 
@@ -315,7 +317,10 @@ def iterate_sequences(
     observations); ``channels`` come from the stored infos (or the state observations);
     ``state_obs`` are the stored state observations without a maze's encoding (the marbles' and the
     board's state, as the vector env's ``infos["state"]``; also for pixels: the privileged targets
-    of auxiliary losses); ``id`` is the episode's index in the dataset.
+    of auxiliary losses); ``id`` is the episode's index in the dataset. ``gate_bearings``: state
+    observations on many mazes also end with the marble's :mod:`~bimgame.envs.gate_bearings` in the
+    episode's maze, computed from the stored positions as an env with ``gate_bearings=True`` computes
+    them (datasets store the observations without them).
     """
     if obs not in ("state", "pixels"):
         raise ValueError(f"unknown obs {obs!r}; allowed: 'state', 'pixels'")
@@ -348,6 +353,14 @@ def iterate_sequences(
             frames = observer(
                 np.asarray(infos["sim_state"][:steps], dtype=np.float64), np.asarray(infos["channel"][:steps])
             )
+        elif gate_bearings:
+            if maze is None:
+                raise ValueError(
+                    f"gate_bearings: episode {episode.id} is on MERL's maze alone (gate bearings are part of "
+                    "the observations on many mazes)"
+                )
+            bearings = GateBearings.of(maze_number(maze, "train", board))(states[:, 0], states[:, 1])
+            frames = np.concatenate([states, bearings], axis=1)
         else:
             frames = states
         if "channel" in infos:

@@ -28,10 +28,12 @@ def load_sequences(
     spec: MazeSpec | None = None,
     *,
     progress: bool = False,
+    gate_bearings: bool = False,
 ) -> list[Episode]:
     """Every episode of a dataset directory, relabelled for ``task`` (see
     :func:`~bimgame.expert.episode.relabel`); a labyrinth dataset's episodes as they are (its task is
-    the dataset's own, see :func:`check_dataset_task`)."""
+    the dataset's own, see :func:`check_dataset_task`). ``gate_bearings``: state observations on many
+    mazes end with them (:func:`~bimgame.expert.datasets.iterate_sequences`)."""
     manifest = dataset_manifest(data_dir)
     check_dataset_task(manifest, task, data_dir)
     if manifest.get("puzzle") == LABYRINTH:
@@ -48,7 +50,7 @@ def load_sequences(
     dataset = load_dataset(data_dir)
     sequences = []
     with ProgressBar(f"reading {obs} episodes", dataset.total_episodes, enabled=progress, transient=True) as bar:
-        for sequence in iterate_sequences(dataset, obs=obs, gamma=gamma):
+        for sequence in iterate_sequences(dataset, obs=obs, gamma=gamma, gate_bearings=gate_bearings):
             sequences.append(relabel(sequence, task, gamma, spec))
             bar.update(advance=1)
     return sequences

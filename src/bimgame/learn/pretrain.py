@@ -190,7 +190,9 @@ def _pretrain(
     mazes = dataset_mazes(data_dir)
     config = settings_for_dataset(config, mazes, data_dir)
     if sequences is None:
-        sequences = load_sequences(data_dir, config.task, config.obs, config.gamma, progress=progress)
+        sequences = load_sequences(
+            data_dir, config.task, config.obs, config.gamma, progress=progress, gate_bearings=config.gate_bearings
+        )
     rng = np.random.default_rng(config.seed)
     train_idx, val_idx = split_episodes(len(sequences), config.val_fraction, rng)
     net = build_model(config, maze)
@@ -405,7 +407,7 @@ def evaluate_policy(
             episodes=config.eval_episodes,
             seed=seed,
             time_limit=config.time_limit,
-            mazes=mazes or None,
+            mazes={**mazes, "gate_bearings": True} if mazes and config.gate_bearings else (mazes or None),
         ),
     }
 
@@ -419,9 +421,10 @@ def settings_for_dataset(config: PretrainConfig, mazes: dict[str, int], data_dir
         return config  # pixels show the maze: the same network either way
     if mazes:
         return dataclasses.replace(config, maze_encoding=True)
-    if config.maze_encoding:
-        raise ValueError(
-            f"PretrainConfig.maze_encoding: the dataset in {data_dir} was generated on MERL's maze alone, "
-            "its observations have no maze encoding; generate one with --num-mazes for a network that reads it"
-        )
+    for name in ("maze_encoding", "gate_bearings"):
+        if getattr(config, name):
+            raise ValueError(
+                f"PretrainConfig.{name}: the dataset in {data_dir} was generated on MERL's maze alone, its "
+                "observations have no maze encoding; generate one with --num-mazes for a network that reads it"
+            )
     return config

@@ -421,7 +421,14 @@ def _demonstrations(config: DAggerConfig, *, progress: bool) -> list[Episode]:
             f"DAggerConfig.expert_data {config.expert_data} was generated on {random if on_mazes else merl}, "
             f"the run rolls out on {merl if config.num_mazes is None else random}: {advice}"
         )
-    return load_sequences(config.expert_data, learner.task, learner.obs, learner.gamma, progress=progress)
+    return load_sequences(
+        config.expert_data,
+        learner.task,
+        learner.obs,
+        learner.gamma,
+        progress=progress,
+        gate_bearings=bool(getattr(learner, "gate_bearings", False)),
+    )
 
 
 def _counts_after(
