@@ -411,8 +411,7 @@ class BallInMazeEnv(gym.Env):
         if self.mazes is not None:
             values += self._encoding
         if self.bearings is not None:
-            x, y = kinematics[0][:2]
-            values += self.bearings(np.array([x]), np.array([y]))[0].tolist()
+            values += self.bearings.one(*kinematics[0][:2])
         return np.array(values, dtype=np.float32)
 
     def _info(self, kinematics, crossings: list[int], success: bool) -> dict[str, Any]:

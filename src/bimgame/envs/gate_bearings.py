@@ -76,6 +76,7 @@ class GateBearings:
         if len(spec.walls) != self.walls:
             raise ValueError(f"maze has {len(spec.walls)} walls, the board {self.walls}")
         self._present[row] = False
+        self._half_width[row] = 0.0
         for w, wall in enumerate(spec.walls):
             if len(wall.gates) > self._centre.shape[2]:
                 raise ValueError(f"wall {w} has {len(wall.gates)} gates, more than the table's {self._centre.shape[2]}")
@@ -88,8 +89,8 @@ class GateBearings:
         """Each row's bearings (rows, walls · 3) for a marble at board-frame ``x``, ``y`` (rows,): per
         wall, sin and cos of (gate centre − marble angle) for the wall's nearest gate, and its
         half-width in encoding bins; a wall without gates gives (0, −1, 0), a gate straight behind."""
-        theta = np.arctan2(y, x)[:, None, None]
-        offset = np.angle(np.exp(1j * (self._centre - theta)))  # wrapped to (-π, π]
+        theta = np.arctan2(y, x)
+        offset = (self._centre - theta[:, None, None] + math.pi) % (2 * math.pi) - math.pi  # in [-π, π)
         distance = np.where(self._present, np.abs(offset), np.inf)
         nearest = np.argmin(distance, axis=2)[..., None]
         chosen = np.take_along_axis(offset, nearest, axis=2)[..., 0]
@@ -98,5 +99,22 @@ class GateBearings:
         out = np.empty((len(theta), self.walls, BEARING_VALUES), dtype=np.float32)
         out[..., 0] = np.where(found, np.sin(chosen), 0.0)
         out[..., 1] = np.where(found, np.cos(chosen), -1.0)
-        out[..., 2] = np.where(found, width / _WIDTH_UNIT, 0.0)
+        out[..., 2] = width / _WIDTH_UNIT  # 0 where a wall has no gate
         return out.reshape(len(theta), -1)
+
+    def one(self, x: float, y: float) -> list[float]:
+        """Row 0's bearings for one marble position, as :meth:`__call__` computes them (a single env's
+        per-step path: plain floats, ≈ 10× faster than the arrays for one row)."""
+        theta = math.atan2(y, x)
+        values: list[float] = []
+        for centres, widths, present in zip(self._centre[0], self._half_width[0], self._present[0], strict=True):
+            best, best_width = math.inf, 0.0
+            for centre, width, here in zip(centres.tolist(), widths.tolist(), present.tolist(), strict=True):
+                offset = (centre - theta + math.pi) % (2 * math.pi) - math.pi
+                if here and abs(offset) < abs(best):
+                    best, best_width = offset, width
+            if best == math.inf:
+                values += [0.0, -1.0, 0.0]
+            else:
+                values += [math.sin(best), math.cos(best), best_width / _WIDTH_UNIT]
+        return values
