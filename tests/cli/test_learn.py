@@ -273,3 +273,15 @@ def test_disk_full_during_pretraining_names_the_file(tiny_dataset, tmp_path, mon
     err = _flat(capsys.readouterr().err)
     assert f"cannot write {out / 'checkpoint.pt'}: No space left on device" in err and "run the same command" in err
     assert not out.exists()
+
+
+def test_dagger_gate_bearings_flag_reaches_the_learner_and_is_refused_without_mazes(tmp_path, capsys):
+    base = ["dagger", "--task", "STG1", "--obs", "state", *SMALL_NET, "--no-progress"]
+    assert main([*base, "--gate-bearings", "--run-dir", str(tmp_path / "refused")]) == 2
+    assert "gate_bearings without num_mazes" in _flat(capsys.readouterr().err)
+    run = tmp_path / "run"
+    argv = [*base, "--gate-bearings", "--num-mazes", "0", "--iterations", "1", "--episodes-per-iteration", "1",
+            "--max-episode-steps", "20", "--eval-episodes", "1", "--run-dir", str(run)]
+    assert main(argv) == 0
+    stored = json.loads((run / "config.json").read_text())
+    assert stored["dagger"]["learner"]["gate_bearings"] is True

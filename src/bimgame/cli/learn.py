@@ -55,6 +55,7 @@ PRETRAIN_FLAGS = (
     "aux_heads",
     "asymmetric_critic",
     "precision",
+    "gate_bearings",
     "aux_coef",
     "eval_episodes",
     "seed",
@@ -71,6 +72,7 @@ DAGGER_LEARNER_FLAGS = (
     "keypoints",
     "subtract_background",
     "precision",
+    "gate_bearings",
     "seed",
 )
 #: DAgger's own settings with a flag (``expert`` is the default MPC expert).
