@@ -275,9 +275,10 @@ def _plot(results: dict[str, Any], path: Path, title: str) -> Path:
         axis.set_xlabel("training mazes N")
         axis.set_ylabel("success (%)")
         axis.set_ylim(-3, 103)
-        axis.set_title(f"{learner.upper()}: {title}", fontsize=10)
+        axis.set_title(learner.upper(), fontsize=10)
         axis.grid(alpha=0.3)
         axis.legend(fontsize=8)
+    fig.suptitle(title, fontsize=10)
     return save_png(fig, path, dpi=110)
 
 
@@ -426,6 +427,7 @@ def main(argv: list[str] | None = None) -> int:
     if DAGGER in args.learners:
         results["dagger"] = {"iterations": args.dagger_iterations, "episodes_per_iteration": args.dagger_episodes}
     title = f"{args.task} from {args.obs}, {args.steps:,} steps, {args.seeds} seeds; {args.episodes} episodes per point"
+    title += "; with gate bearings" if args.gate_bearings else ""
     figure = _plot(results, args.figure, title)
     atomic_write_bytes(args.results, json.dumps(results, indent=2).encode())
     print(f"wrote {args.results} and {figure}")
