@@ -37,21 +37,19 @@ import multiprocessing
 import os
 import re
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from typing import Any
 
 import numpy as np
 
 from bimgame.envs.env import BallInMazeEnv
-from bimgame.envs.gate_bearings import gate_bearings_size
-from bimgame.envs.mazes import maze_encoding, maze_encoding_size
 from bimgame.envs.observe import OBS_MODES
-from bimgame.experiments.policy_sources import EpisodePolicy, NetworkPolicy, _Scripted, builtin_policy, load_policy
+from bimgame.experiments.policy_fitting import MazeScriptedPolicy, fitted_policy, reads_gate_bearings
+from bimgame.experiments.policy_sources import EpisodePolicy, builtin_policy, load_policy
 from bimgame.experiments.statistics import mean_interval
 from bimgame.expert.evaluation import evaluate_expert, summarise
 from bimgame.expert.mpc import MPCConfig
-from bimgame.expert.policies import Policy, make_policy
 from bimgame.expert.pool import environment, episode_progress
 from bimgame.expert.references import REFERENCES_FILE, normalised_score, references_for
 from bimgame.sim.maze_sets import MAZE_SPLITS, UNLIMITED_MAZE_NUMBERS
@@ -282,103 +280,18 @@ def score(
     return run_protocol(load_policy(policy, obs=obs, sampled=sampled), protocol, progress=progress).summary()
 
 
-class MazeScriptedPolicy:
-    """A built-in scripted policy (``random``, ``noop``, ``geodesic``, ``expert``) rebuilt for each
-    episode, at its first step, for the maze the env shows then: the geodesic controller follows that
-    maze's distances and the MPC expert plans in a model of that maze. Its generator is seeded with
-    the episode's start seed, as the built-in policies of
-    :func:`~bimgame.experiments.policy_sources.builtin_policy` (so on MERL's maze it acts the same)."""
-
-    def __init__(self, name: str):
-        builtin_policy(name)  # checks the name
-        self.name = name
-        self._seed: int | None = None
-        self._policy: Policy | None = None
-
-    def reset(self, seed: int) -> None:
-        self._seed, self._policy = seed, None
-
-    def act(self, env: Any, obs: np.ndarray, info: dict[str, Any]) -> int:
-        if self._policy is None:
-            if self._seed is None:
-                raise RuntimeError("reset(seed) must be called before the policy acts")
-            self._policy = make_policy(self.name, env.unwrapped.maze, np.random.default_rng(self._seed))
-        return int(self._policy(env))
-
-    def observe(self, reward: float) -> None:
-        pass
-
-
-class _ObservationsAdapted:
-    """A policy acting on its observations changed by ``change`` (the protocol's env gives more or
-    fewer values than the policy was trained on)."""
-
-    def __init__(self, policy: EpisodePolicy, change: Callable[[np.ndarray], np.ndarray]):
-        self.policy = policy
-        self.change = change
-
-    def reset(self, seed: int) -> None:
-        self.policy.reset(seed)
-
-    def act(self, env: Any, obs: np.ndarray, info: dict[str, Any]) -> int:
-        return self.policy.act(env, self.change(obs), info)
-
-    def observe(self, reward: float) -> None:
-        self.policy.observe(reward)
-
-
-def _fitted(policy: EpisodePolicy, env: BallInMazeEnv) -> tuple[EpisodePolicy, list[str]]:
-    """``policy`` made to play in ``env``, and notes saying what changed.
-
-    A built-in policy plans in each episode's maze (:class:`MazeScriptedPolicy`). A bimgame network on
-    state observations gets what it was trained on: one trained on MERL's maze alone (no maze
-    encoding) scored on mazes gets the observations without the encoding — the marble's and the
-    board's state as in training, the maze unknown to it, as a pixel network trained on MERL's maze
-    sees a new maze (scoring it so measures how a MERL-trained policy transfers to other mazes); one
-    trained on many mazes scored on MERL's maze gets MERL's maze's encoding appended, as if MERL's maze
-    were one of its mazes. Anything else (SB3 models, callables) gets the env's observations as they
-    are."""
-    if isinstance(policy, _Scripted):
-        return (policy if env.mazes is None else MazeScriptedPolicy(policy.name)), []
-    if not isinstance(policy, NetworkPolicy) or env.obs_mode != "state":
-        return policy, []
-    wanted = int(policy.net.config.obs_shape[0])
-    given = int(env.observation_space.shape[0])  # type: ignore[index]  # a Box: its shape is set
-    encoding = maze_encoding_size(env.maze)
-    if wanted == given:
-        return policy, []
-    if env.mazes is not None and wanted == given - encoding:
-        note = "the network was trained on MERL's maze (no maze encoding): its observations leave the encoding out"
-        return _ObservationsAdapted(policy, lambda obs: obs[:-encoding]), [note]
-    if env.mazes is None and wanted == given + encoding:
-        merl = maze_encoding(env.maze)
-        note = "the network was trained on many mazes: its observations end with MERL's maze's encoding"
-        return _ObservationsAdapted(policy, lambda obs: np.concatenate([obs, merl])), [note]
-    raise ValueError(
-        f"the network reads {wanted} values per observation, but the protocol's state observations have {given}"
-    )
-
-
-def _reads_bearings(policy: EpisodePolicy, env: BallInMazeEnv) -> bool:
-    """Whether ``policy`` is a bimgame network trained on mazes with gate bearings
-    (``NetworkSettings.gate_bearings``): it reads them after the maze encoding."""
-    if not isinstance(policy, NetworkPolicy) or env.obs_mode != "state" or env.mazes is None:
-        return False
-    given = int(env.observation_space.shape[0])  # type: ignore[index]  # a Box: its shape is set
-    return int(policy.net.config.obs_shape[0]) == given + gate_bearings_size(env.maze)
-
-
 def run_protocol(policy: EpisodePolicy, protocol: Protocol, *, progress: bool = False) -> Score:
     """Score ``policy`` with ``protocol``: one episode per start seed, in order, on a fresh
     single env with the protocol's observations, mazes and the task's time limit (episode i on its
     maze: ``reset(seed=…, options={"maze": …})``). Built-in policies (of
     :func:`~bimgame.experiments.policy_sources.builtin_policy`, or a :class:`MazeScriptedPolicy`, which
     a wrapper around one must use) plan in each episode's maze, and a bimgame network gets
-    observations of the size it was trained on (see :func:`_fitted`; the result's ``notes`` say what
+    observations of the size it was trained on (see
+    :func:`~bimgame.experiments.policy_fitting.fitted_policy`; the result's ``notes`` say what
     changed; one trained with gate bearings gets them); other policies get the env's observations,
     which on mazes end with the maze's encoding (128 values)."""
     env = protocol.make_env()
-    if _reads_bearings(policy, env):
+    if reads_gate_bearings(policy, env):
         env.close()
         env = protocol.make_env(gate_bearings=True)
     returns: list[float] = []
@@ -388,7 +301,7 @@ def run_protocol(policy: EpisodePolicy, protocol: Protocol, *, progress: bool = 
     numbers = protocol.maze_numbers()
     mazes: list[int | None] = [None] * protocol.episodes if numbers is None else list(numbers)
     try:
-        policy, notes = _fitted(policy, env)
+        policy, notes = fitted_policy(policy, env)
         label = f"score {protocol.task} {protocol.obs}" + ("" if protocol.mazes == "merl" else f" {protocol.mazes}")
         with ProgressBar(label, protocol.episodes, enabled=progress, transient=True) as bar:
             for seed, maze in zip(protocol.start_seeds(), mazes, strict=True):
@@ -426,7 +339,7 @@ def _builtin_episode(protocol: Protocol, name: str, index: int) -> tuple[int, fl
     try:
         mazes = protocol.maze_numbers()
         seed = episode_seed(PROTOCOL_SEED, index)
-        policy, _ = _fitted(builtin_policy(name), env)
+        policy, _ = fitted_policy(builtin_policy(name), env)
         return (index, *_play_episode(env, policy, seed, protocol.time_limit, None if mazes is None else mazes[index]))
     finally:
         env.close()

@@ -206,13 +206,8 @@ class NetworkSettings:
         encoding = maze_encoding_size(maze) if isinstance(maze, MazeSpec) and self.maze_encoding else 0
         # The bearings are a few values of order 1 (sine, cosine, half-width in bins): taken as they are.
         bearings = gate_bearings_size(maze) if isinstance(maze, MazeSpec) and encoding and self.gate_bearings else 0
-        obs_scale = (
-            np.concatenate(
-                [scale, np.full(encoding, np.sqrt(encoding), dtype=np.float32), np.ones(bearings, dtype=np.float32)]
-            )
-            if encoding
-            else scale
-        )
+        maze_scale = [np.full(encoding, np.sqrt(encoding), dtype=np.float32), np.ones(bearings, dtype=np.float32)]
+        obs_scale = np.concatenate([scale, *maze_scale]) if encoding else scale
         privileged: dict[str, Any] = (
             {"privileged_size": len(scale), "aux_heads": self.aux_heads, "asymmetric_critic": self.asymmetric_critic}
             if self.privileged

@@ -38,7 +38,6 @@ observations, then the LSTM cell runs over time, zeroing its state wherever an e
 from __future__ import annotations
 
 import dataclasses
-import itertools
 from typing import NamedTuple, TypeVar
 
 import numpy as np
@@ -48,6 +47,7 @@ from torch import nn
 from bimgame.envs.env import NO_ACTION
 from bimgame.envs.puzzles import maze_obs_scale as state_obs_scale
 from bimgame.learn.encoders import MAZE_FRAMES, ConvEncoder, CyberRunnerEncoder, MLPEncoder
+from bimgame.learn.lstm_unroll import lstm_unroll
 from bimgame.learn.policy_heads import LOG_STD_INIT, ActionDistribution, action_head, check_action_type
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.render import MazeRenderer
@@ -62,7 +62,6 @@ __all__ = [
     "ValueNetwork",
     "build_value_network",
     "LSTMState",
-    "lstm_unroll",
     "build_network",
     "state_obs_scale",
     "maze_background",
@@ -347,8 +346,8 @@ class RecurrentActorCritic(nn.Module):
         steps, batch = obs.shape[:2]
         features = self.encoder(obs.reshape(steps * batch, *obs.shape[2:])).reshape(steps, batch, -1)
         x = torch.cat([features, self.side_inputs(prev_action, prev_reward, tilt)], dim=-1)
-        hidden, final = lstm_unroll(self.lstm, x, state, starts)
-        return Unrolled(self.policy(hidden), self.values_of(hidden, privileged), final, features, hidden)
+        hidden, (h, c) = lstm_unroll(self.lstm, x, state, starts)
+        return Unrolled(self.policy(hidden), self.values_of(hidden, privileged), LSTMState(h, c), features, hidden)
 
     def aux_loss(
         self, features: torch.Tensor, hidden: torch.Tensor, privileged: torch.Tensor, mask: torch.Tensor | None = None
@@ -368,32 +367,6 @@ class RecurrentActorCritic(nn.Module):
             weights = mask.float() / mask.float().sum().clamp(min=1.0)
             frame, memory = (frame_error * weights).sum(), (memory_error * weights).sum()
         return frame + memory, {"aux_frame": frame.item(), "aux_memory": memory.item()}
-
-
-def lstm_unroll(
-    cell: nn.LSTMCell, x: torch.Tensor, state: LSTMState, starts: torch.Tensor
-) -> tuple[torch.Tensor, LSTMState]:
-    """``cell`` over a segment ``x`` (T, B, I) from ``state``, zeroing an environment's state at its
-    episode starts (``starts`` (T, B)) → the outputs (T, B, H) and the final state.
-
-    Why not a step-by-step loop of ``cell``: on a CPU an LSTM step of a few dozen environments costs
-    less than the Python and autograd bookkeeping around it, and PPO's update unrolls every rollout
-    epochs × minibatches times. So the segment is cut only where some environment starts an episode
-    (rare: episodes last hundreds of steps), and each piece runs as one multi-step LSTM call (the op
-    ``nn.LSTM`` runs, here on the cell's own weights: the gate layout is the same), ≈ 3× faster
-    forward and backward for 16-step sequences. The result equals the loop's (tests/learn/test_nets.py)."""
-    h, c = (part.unsqueeze(0) for part in state)
-    weights = [cell.weight_ih, cell.weight_hh, cell.bias_ih, cell.bias_hh]
-    cuts = [0, *(int(t) for t in torch.nonzero(starts[1:].any(dim=1)).flatten() + 1), x.shape[0]]
-    pieces = []
-    for begin, end in itertools.pairwise(cuts):
-        keep = (~starts[begin]).to(x.dtype).unsqueeze(-1)
-        output, h, c = torch.lstm(
-            x[begin:end], (h * keep, c * keep), weights, True, 1, 0.0, cell.training, False, False
-        )
-        pieces.append(output)
-    hidden = pieces[0] if len(pieces) == 1 else torch.cat(pieces)
-    return hidden, LSTMState(h.squeeze(0), c.squeeze(0))
 
 
 class ValueNetwork(nn.Module):
