@@ -5,7 +5,8 @@ cut at ``--episode-steps`` (default 150, about the MPC expert's STG2 episodes; 5
 limit), so that every env starts a new episode — and draws a new maze — every that many steps. Each
 of one maze (MERL's, ``num_mazes=None``), 100 mazes (their specs, models' wall pieces and pictures
 cached after the first use) and unlimited mazes (a new maze per episode: generated, its pieces
-computed and, for pixels, its raster drawn), for state and pixel observations and 16 and 64 envs.
+computed and, for pixels, its raster drawn), for state and pixel observations and 16 and 64 envs;
+for state observations also unlimited mazes with gate bearings (``gate_bearings=True``).
 Rates are relative to one maze in the same run (the machine's speed drifts). Also: the µs of one
 ``BallInMazeEnv.reset`` in each setting, and of ``MazeSim.set_walls`` against building a model.
 Every measurement starts with the per-process maze caches empty (:func:`clear_maze_caches`): the
@@ -14,8 +15,8 @@ an earlier setting's mazes ready.
 
 The issue's goal: mazes change with at most 10% loss of the vector env's steps/s.
 
-Usage: ``python benchmarks/bench_mazes.py [--episode-steps N] [--steps N]``; writes
-``benchmarks/results/mazes.json``.
+Usage: ``python benchmarks/bench_mazes.py [--episode-steps N] [--steps N] [--results PATH]``; writes
+``--results`` (default ``benchmarks/results/mazes.json``).
 """
 
 from __future__ import annotations
@@ -40,6 +41,8 @@ from bimgame.util.files import atomic_write_bytes
 RESULTS = Path(__file__).parent / "results" / "mazes.json"
 #: The settings compared: label and ``num_mazes``.
 SETTINGS = (("one maze", None), ("100 mazes", 100), ("unlimited", 0))
+#: State observations only: unlimited mazes with gate bearings (``gate_bearings=True``).
+BEARINGS = "unlimited, gate bearings"
 
 
 def clear_maze_caches() -> None:
@@ -48,10 +51,14 @@ def clear_maze_caches() -> None:
         cache.cache_clear()
 
 
-def maze_vector_rate(obs_mode: str, num_envs: int, steps: int, episode_steps: int, num_mazes: int | None) -> float:
+def maze_vector_rate(
+    obs_mode: str, num_envs: int, steps: int, episode_steps: int, num_mazes: int | None, gate_bearings: bool = False
+) -> float:
     """Env steps/s of the vector env on STG2 with random actions, episodes cut at ``episode_steps``."""
     clear_maze_caches()
-    kwargs = {} if num_mazes is None else {"num_mazes": num_mazes}
+    kwargs: dict = {} if num_mazes is None else {"num_mazes": num_mazes}
+    if gate_bearings:
+        kwargs["gate_bearings"] = True
     return vector_rate(obs_mode, num_envs, steps, 1, task="STG2", max_episode_steps=episode_steps, **kwargs)
 
 
@@ -100,6 +107,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episode-steps", type=int, default=150, help="steps per episode (default 150)")
     parser.add_argument("--steps", type=int, default=600, help="vector env steps per repeat (default 600)")
+    parser.add_argument("--results", type=Path, default=RESULTS, help="default benchmarks/results/mazes.json")
     args = parser.parse_args()
     switch, build = switch_us()
     rows: dict[str, tuple[float, str, float | None]] = {
@@ -112,8 +120,10 @@ def main() -> None:
     for obs_mode in ("state", "pixels"):
         for num_envs in (16, 64):
             baseline = None
-            for label, num_mazes in SETTINGS:
-                rate = maze_vector_rate(obs_mode, num_envs, args.steps, args.episode_steps, num_mazes)
+            settings = [(label, n, False) for label, n in SETTINGS]
+            settings += [(BEARINGS, 0, True)] if obs_mode == "state" else []
+            for label, num_mazes, bearings in settings:
+                rate = maze_vector_rate(obs_mode, num_envs, args.steps, args.episode_steps, num_mazes, bearings)
                 baseline = baseline or rate
                 rows[f"vector env {num_envs} envs, {obs_mode}, {label} (env steps/s)"] = (
                     rate,
@@ -134,8 +144,8 @@ def main() -> None:
         "time": time.strftime("%Y-%m-%dT%H:%M:%S"),
         "results": table,
     }
-    atomic_write_bytes(RESULTS, json.dumps(result, indent=2).encode())
-    print(f"wrote {RESULTS}")
+    atomic_write_bytes(args.results, json.dumps(result, indent=2).encode())
+    print(f"wrote {args.results}")
 
 
 if __name__ == "__main__":
