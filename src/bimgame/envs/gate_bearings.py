@@ -12,6 +12,10 @@ half-width in units of an encoding bin. It is what a robot that knows the maze i
 from the marble's position, and the circular maze's counterpart of CyberRunner's "next path points
 relative to the marble" (:mod:`bimgame.learn.cyberrunner`).
 
+Measured (STG1 from state, unlimited mazes, 3 seeds, 100 held-out mazes; docs/guide/mazes.md): PPO
+solves 91% of held-out mazes after 2M steps with the bearings, 63% without; π^s + PPO 100% after 300k
+steps, 67% without.
+
 One table per env row (padded to the set's most gates per wall), so a vector env of different mazes
 computes every row's bearings in one numpy pass.
 """
@@ -22,6 +26,7 @@ import math
 
 import numpy as np
 
+from bimgame.envs.mazes import MAZE_ENCODING_ANGLES
 from bimgame.sim.maze import MazeSpec
 
 __all__ = ["BEARING_VALUES", "GateBearings", "check_gate_bearings", "gate_bearings_size"]
@@ -29,7 +34,7 @@ __all__ = ["BEARING_VALUES", "GateBearings", "check_gate_bearings", "gate_bearin
 #: Values per wall: sin and cos of the angle to the nearest gate's centre, its half-width in bins.
 BEARING_VALUES = 3
 #: The unit of the half-width value: one bin of the maze encoding (11.25°), so that it is of order 1.
-_WIDTH_UNIT = 2 * math.pi / 32
+_WIDTH_UNIT = 2 * math.pi / MAZE_ENCODING_ANGLES
 
 
 def check_gate_bearings(gate_bearings: object, num_mazes: int | None, obs_mode: str) -> None:
