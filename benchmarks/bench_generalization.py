@@ -61,6 +61,7 @@ from bimgame.learn.actor import evaluate_network
 from bimgame.learn.common import load_run_network
 from bimgame.learn.dagger import DAggerConfig, dagger
 from bimgame.learn.encoders import MAZE_FRAMES
+from bimgame.learn.maze_runs import maze_options
 from bimgame.learn.ppo import PPOConfig, resolve_ppo_config, train_ppo
 from bimgame.learn.pretrain import pretrain
 from bimgame.learn.rewards import RewardSettings, run_reward
@@ -183,10 +184,10 @@ def _score(run_dir: Path, num_mazes: int, episodes: int) -> tuple[dict[str, floa
     if cached is not None and cached.get("episodes") == episodes and cached.get("step", step) == step:
         return cached["scores"], step
     seen = min(num_mazes, 100) if num_mazes else 100
-    bearings = {"gate_bearings": True} if run.network.gate_bearings else {}
+    bearings = run.network.gate_bearings
     splits = {
-        "train": ({"num_mazes": num_mazes, "start_maze": 0, **bearings}, [k % seen for k in range(episodes)]),
-        "test": ({"num_mazes": episodes, "maze_split": "test", **bearings}, list(range(episodes))),
+        "train": (maze_options(num_mazes, 0, gate_bearings=bearings), [k % seen for k in range(episodes)]),
+        "test": ({**maze_options(episodes, 0, gate_bearings=bearings), "maze_split": "test"}, list(range(episodes))),
     }
     scores = {}
     for split, (mazes, numbers) in splits.items():
@@ -306,7 +307,8 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument(
         "--gate-bearings",
         action="store_true",
-        help="state observations also hold each wall's nearest gate as seen from the marble (NetworkSettings.gate_bearings)",
+        help="state observations also hold each wall's nearest gate as seen from the marble "
+        "(NetworkSettings.gate_bearings)",
     )
     parser.add_argument(
         "--pretrain-data",

@@ -68,11 +68,13 @@ class GateBearings:
         self._centre = np.zeros((rows, walls, max_gates))
         self._half_width = np.zeros((rows, walls, max_gates))
         self._present = np.zeros((rows, walls, max_gates), dtype=bool)
+        #: Row 0's gates per wall as (centre, half-width) floats, for :meth:`one` (set by :meth:`set_row`).
+        self._first_row: list[list[tuple[float, float]]] = [[] for _ in range(walls)]
 
     @classmethod
     def of(cls, spec: MazeSpec) -> GateBearings:
         """One row showing ``spec`` (a single env's)."""
-        bearings = cls(spec, 1, max(1, *(len(wall.gates) for wall in spec.walls)))
+        bearings = cls(spec, 1, max((len(wall.gates) for wall in spec.walls), default=1))
         bearings.set_row(0, spec)
         return bearings
 
@@ -89,6 +91,8 @@ class GateBearings:
                 self._centre[row, w, g] = gate.angle
                 self._half_width[row, w, g] = gate.width / 2
                 self._present[row, w, g] = True
+        if row == 0:
+            self._first_row = [[(gate.angle, gate.width / 2) for gate in wall.gates] for wall in spec.walls]
 
     def __call__(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Each row's bearings (rows, walls · 3) for a marble at board-frame ``x``, ``y`` (rows,): per
@@ -112,11 +116,11 @@ class GateBearings:
         per-step path: plain floats, ≈ 10× faster than the arrays for one row)."""
         theta = math.atan2(y, x)
         values: list[float] = []
-        for centres, widths, present in zip(self._centre[0], self._half_width[0], self._present[0], strict=True):
+        for gates in self._first_row:
             best, best_width = math.inf, 0.0
-            for centre, width, here in zip(centres.tolist(), widths.tolist(), present.tolist(), strict=True):
+            for centre, width in gates:
                 offset = (centre - theta + math.pi) % (2 * math.pi) - math.pi
-                if here and abs(offset) < abs(best):
+                if abs(offset) < abs(best):
                     best, best_width = offset, width
             if best == math.inf:
                 values += [0.0, -1.0, 0.0]

@@ -15,6 +15,7 @@ from bimgame.envs.gate_bearings import gate_bearings_size
 from bimgame.envs.mazes import maze_encoding, maze_encoding_size
 from bimgame.experiments.policy_sources import EpisodePolicy, NetworkPolicy, _Scripted, builtin_policy
 from bimgame.expert.policies import Policy, make_policy
+from bimgame.sim.maze import MazeSpec
 
 __all__ = ["MazeScriptedPolicy", "fitted_policy", "reads_gate_bearings"]
 
@@ -96,10 +97,10 @@ def fitted_policy(policy: EpisodePolicy, env: BallInMazeEnv) -> tuple[EpisodePol
     )
 
 
-def reads_gate_bearings(policy: EpisodePolicy, env: BallInMazeEnv) -> bool:
+def reads_gate_bearings(policy: EpisodePolicy) -> bool:
     """Whether ``policy`` is a bimgame network trained on mazes with gate bearings
-    (``NetworkSettings.gate_bearings``): it reads them after the maze encoding."""
-    if not isinstance(policy, NetworkPolicy) or env.obs_mode != "state" or env.mazes is None:
+    (``NetworkSettings.gate_bearings``): its maze inputs are the encoding and the bearings."""
+    if not isinstance(policy, NetworkPolicy):
         return False
-    given = int(env.observation_space.shape[0])  # type: ignore[index]  # a Box: its shape is set
-    return int(policy.net.config.obs_shape[0]) == given + gate_bearings_size(env.maze)
+    board = MazeSpec.merl()
+    return policy.net.config.maze_size == maze_encoding_size(board) + gate_bearings_size(board)

@@ -290,10 +290,8 @@ def run_protocol(policy: EpisodePolicy, protocol: Protocol, *, progress: bool = 
     :func:`~bimgame.experiments.policy_fitting.fitted_policy`; the result's ``notes`` say what
     changed; one trained with gate bearings gets them); other policies get the env's observations,
     which on mazes end with the maze's encoding (128 values)."""
-    env = protocol.make_env()
-    if reads_gate_bearings(policy, env):
-        env.close()
-        env = protocol.make_env(gate_bearings=True)
+    on_mazes = protocol.obs == "state" and protocol.maze_choice.split is not None
+    env = protocol.make_env(gate_bearings=on_mazes and reads_gate_bearings(policy))
     returns: list[float] = []
     lengths: list[int] = []
     successes: list[bool] = []

@@ -42,6 +42,7 @@ from bimgame.expert.episode import Episode
 from bimgame.learn.checkpoints import load_weights, save_checkpoint
 from bimgame.learn.common import evaluate_greedy_and_sampled
 from bimgame.learn.expert_data import check_dataset_task, dataset_action_type, load_sequences
+from bimgame.learn.maze_runs import maze_options
 from bimgame.learn.metric_logs import MetricLog
 from bimgame.learn.nets import RecurrentActorCritic, ValueNetwork
 from bimgame.learn.run_dir import RunDirectory
@@ -398,6 +399,8 @@ def evaluate_policy(
     """π^s alone on its task: greedy and sampled success rate, length and return; on the mazes
     ``mazes`` (:func:`~bimgame.expert.datasets.dataset_mazes`: each episode's drawn from them) or,
     without, MERL's maze."""
+    mazes = mazes or {}
+    options = maze_options(mazes.get("num_mazes"), mazes.get("start_maze", 0), gate_bearings=config.gate_bearings)
     return {
         "episodes": config.eval_episodes,
         **evaluate_greedy_and_sampled(
@@ -407,7 +410,7 @@ def evaluate_policy(
             episodes=config.eval_episodes,
             seed=seed,
             time_limit=config.time_limit,
-            mazes={**mazes, "gate_bearings": True} if mazes and config.gate_bearings else (mazes or None),
+            mazes=options or None,
         ),
     }
 
