@@ -21,7 +21,7 @@ Writes ``--results`` (default benchmarks/results/labyrinth_dagger.json) and ``--
 docs/labyrinth/dagger.png): the in-run evaluation's success and the mean path progress per iteration.
 
 Usage: python benchmarks/bench_labyrinth_dagger.py --expert-data DATA --init PI_S [--layout easy]
-       [--action-type continuous|discrete]
+       [--action-type continuous|discrete] [--surroundings]
        [--seeds 3] [--iterations 8] [--episodes-per-iteration 10] [--beta0 0.5] [--beta-decay 0.7]
        [--epochs-per-iteration 5] [--max-episode-steps 1500] [--jobs 3] [--episodes 100]
 """
@@ -57,6 +57,7 @@ def _config(args: argparse.Namespace, seed: int) -> DAggerConfig:
         action_type=args.action_type,
         aux_heads=False,
         asymmetric_critic=False,
+        surroundings=args.surroundings,
         seed=seed,
     )
     return DAggerConfig(
@@ -136,6 +137,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--max-episode-steps", type=int, default=1500)
     parser.add_argument("--eval-episodes", type=int, default=20, help="in-run evaluation episodes per iteration")
     parser.add_argument("--episodes", type=int, default=100, help="scoring episodes per mode (default 100)")
+    parser.add_argument(
+        "--surroundings",
+        action="store_true",
+        help="state observations with the holes and walls around the marble (π^s must read them too)",
+    )
     parser.add_argument("--jobs", type=int, default=3, help="runs at once, one thread each (default 3)")
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "labyrinth-dagger")
     parser.add_argument("--results", type=Path, default=ROOT / "benchmarks" / "results" / "labyrinth_dagger.json")
@@ -145,7 +151,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.init is not None:
         args.init = args.init.absolute()
     jobs = {
-        seed: args.out / f"{args.layout}-state{_kind(args.action_type)}{'-init' if args.init else ''}" / f"seed{seed}"
+        seed: args.out / f"{args.layout}-state{_kind(args.action_type)}{'-surroundings' if args.surroundings else ''}{'-init' if args.init else ''}"
+        / f"seed{seed}"
         for seed in range(args.first_seed, args.first_seed + args.seeds)
     }
     done: dict[int, tuple[float, dict[str, Any], dict[str, Any]]] = {}
@@ -169,6 +176,7 @@ def main(argv: list[str] | None = None) -> int:
     results: dict[str, Any] = {
         "layout": args.layout,
         "obs": "state",
+        "surroundings": args.surroundings,
         "action_type": args.action_type,
         "seeds": seeds,
         "episodes": args.episodes,

@@ -12,7 +12,7 @@ code:
   bimgame's :class:`~bimgame.learn.episode_monitor.Monitor`), ``seconds`` and the recent success.
 - ``eval.csv`` and ``summary.json`` — the final evaluation, greedy (``deterministic=True``) and
   sampled (``deterministic=False``), over bimgame's evaluation start positions of the run's seed
-  (:func:`~bimgame.learn.common.evaluation_seed`), in bimgame's keys (``greedy_success_rate``, …).
+  (:func:`~bimgame.learn.evaluations.evaluation_seed`), in bimgame's keys (``greedy_success_rate``, …).
 - ``config.json`` (the algorithm, policy, every hyperparameter, package versions) and ``model.zip``.
 
 The environments: ``make_vec_env`` of the registered id ``BiMGame/<task>-v0`` (Gymnasium's
@@ -50,8 +50,8 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 
 from bimgame.envs.vector import BallInMazeVectorEnv
 from bimgame.learn.actor import EvalResult
-from bimgame.learn.common import EVAL_COLUMNS, evaluation_seed
 from bimgame.learn.episode_monitor import Monitor
+from bimgame.learn.evaluations import EVAL_COLUMNS, evaluation_seed
 from bimgame.learn.metric_logs import MetricLog
 from bimgame.learn.runs import torch_threads
 from bimgame.util.files import atomic_write_bytes, exclusive_lock, read_json, write_json

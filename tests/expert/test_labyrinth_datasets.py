@@ -17,6 +17,7 @@ import bimgame.expert.labyrinth_datasets as lab
 from bimgame.cli.main import main
 from bimgame.envs.env import NO_ACTION
 from bimgame.envs.labyrinth_env import CYBERRUNNER_FLAT_SIZE, LabyrinthEnv
+from bimgame.envs.labyrinth_surroundings import SURROUNDINGS_SIZE
 from bimgame.expert.datasets import dataset_summary, generate_dataset
 from bimgame.expert.labyrinth_datasets import (
     DatasetError,
@@ -61,9 +62,9 @@ def snapshot(out: Path) -> dict[str, tuple[int, int]]:
             for p in out.rglob("*") if p.is_file() and p.name != ".lock"}
 
 
-def replay(seed: int, actions: np.ndarray, obs_mode: str, action_type: str = "continuous") -> list:
+def replay(seed: int, actions: np.ndarray, obs_mode: str, action_type: str = "continuous", **env_kwargs) -> list:
     """The env's own observations along a recorded episode's actions."""
-    env = LabyrinthEnv("easy", obs_mode=obs_mode, action_type=action_type)
+    env = LabyrinthEnv("easy", obs_mode=obs_mode, action_type=action_type, **env_kwargs)
     obs, _ = env.reset(seed=seed)
     frames = [obs]
     for action in actions:
@@ -141,6 +142,18 @@ def test_rerendered_observations_equal_the_envs_own(reference, discrete):
             assert c.obs.shape == (len(c), CYBERRUNNER_FLAT_SIZE)
             assert np.array_equal(c.obs, np.stack(replay(seed, c.actions, "cyberrunner_flat", action_type)[:-1]))
             assert np.array_equal(p.state_obs, c.state_obs) and np.array_equal(p.actions, c.actions)
+
+
+def test_surroundings_computed_from_stored_positions_equal_the_envs_own(reference):
+    plain = load_labyrinth_sequences(reference, gamma=GAMMA)
+    around = load_labyrinth_sequences(reference, gamma=GAMMA, surroundings=True)
+    for index, (p, a) in enumerate(zip(plain, around, strict=True)):
+        assert a.obs.shape == (len(a), 17 + SURROUNDINGS_SIZE)
+        np.testing.assert_array_equal(a.obs[:, :17], p.obs)
+        replayed = np.stack(replay(episode_seed(1, index), a.actions, "state", surroundings=True)[:-1])
+        np.testing.assert_allclose(a.obs, replayed, atol=1e-6)  # from float32 positions: within rounding
+    with pytest.raises(ValueError, match="surroundings are part of the state observation, not of obs 'pixels'"):
+        load_labyrinth_sequences(reference, obs="pixels", gamma=GAMMA, surroundings=True)
 
 
 def test_observe_state_gives_the_observation_the_env_returned(reference):

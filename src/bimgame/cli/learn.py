@@ -56,6 +56,7 @@ PRETRAIN_FLAGS = (
     "asymmetric_critic",
     "precision",
     "gate_bearings",
+    "surroundings",
     "aux_coef",
     "eval_episodes",
     "seed",
@@ -73,6 +74,7 @@ DAGGER_LEARNER_FLAGS = (
     "subtract_background",
     "precision",
     "gate_bearings",
+    "surroundings",
     "seed",
 )
 #: DAgger's own settings with a flag (``expert`` is the default MPC expert).

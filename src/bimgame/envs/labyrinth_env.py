@@ -19,6 +19,14 @@ import numpy as np
 from gymnasium import spaces
 
 from bimgame.envs.actions import action_to_tilt_delta
+from bimgame.envs.labyrinth_surroundings import (
+    NO_HOLE,
+    RAY_RANGE,
+    SURROUNDING_HOLES,
+    WALL_RAYS,
+    Surroundings,
+    check_surroundings,
+)
 from bimgame.sim.labyrinth import LabyrinthSpec, PathStep, WaypointPath
 from bimgame.sim.labyrinth_layouts import LAYOUT_NAMES
 from bimgame.sim.labyrinth_physics import LabyrinthSim
@@ -155,6 +163,8 @@ class LabyrinthEnv(gym.Env):
     the board's centre, x right, y up), vx, vy (m/s), board tilt about x and y (rad), progress along
     the path as a fraction of its length, then 5 path points 12 mm apart relative to the marble
     (x, y each, m), the first at the marble's projection on the path (CyberRunner's relative path).
+    With ``surroundings=True``, 16 more (33): the 4 nearest holes relative to the marble and the wall
+    distances along 8 directions (:mod:`bimgame.envs.labyrinth_surroundings`).
     ``obs_mode="pixels"``: ``Box(0, 255, (1, obs_size, obs_size), uint8)``, a top-down grayscale view
     of the whole board, north up, drawn with numpy (:mod:`bimgame.sim.labyrinth_render`: floor,
     printed path, black holes, light walls, white marble).
@@ -211,7 +221,8 @@ class LabyrinthEnv(gym.Env):
     "rgb_array"), ``render_size`` (16..2048, default 480), ``max_tilt_rate_deg`` (0 < rate ≤ 180),
     ``progress_scale``, ``goal_bonus``, ``fail_reward``, ``end_off_path``, ``start_noise`` (m,
     0..5 mm), ``path_width`` (m, the printed path line in pixels; 0 hides it), ``board`` (a
-    :class:`~bimgame.sim.labyrinth.LabyrinthSpec` overriding ``layout``). Each is checked at
+    :class:`~bimgame.sim.labyrinth.LabyrinthSpec` overriding ``layout``), ``surroundings`` (state
+    only: append the holes and walls around the marble). Each is checked at
     construction (``ValueError`` naming it and what is allowed).
 
     ## Version History
@@ -239,6 +250,7 @@ class LabyrinthEnv(gym.Env):
         start_noise: float = 0.002,
         path_width: float = PATH_WIDTH,
         board: LabyrinthSpec | None = None,
+        surroundings: bool = False,
     ):
         if board is None:
             if layout not in LAYOUT_NAMES:
@@ -258,6 +270,7 @@ class LabyrinthEnv(gym.Env):
             raise ValueError(f"unknown render_mode {render_mode!r}; allowed: None, 'rgb_array'")
         if not (is_integer(render_size) and 16 <= render_size <= 2048):
             raise ValueError(f"render_size must be an integer in 16..2048, got {render_size!r}")
+        check_surroundings(surroundings, obs_mode)
         if not isinstance(end_off_path, (bool, np.bool_)):
             raise ValueError(f"end_off_path must be True or False, got {end_off_path!r}")
         rate = _finite("max_tilt_rate_deg", max_tilt_rate_deg, 0.0, 180.0)
@@ -281,10 +294,12 @@ class LabyrinthEnv(gym.Env):
             render_mode=render_mode, render_size=render_size, max_tilt_rate_deg=max_tilt_rate_deg,
             progress_scale=progress_scale, goal_bonus=goal_bonus, fail_reward=fail_reward,
             end_off_path=end_off_path, start_noise=start_noise, path_width=path_width, board=board,
+            surroundings=surroundings,
         )  # fmt: skip
         self.sim = LabyrinthSim(board, control_hz=self.control_hz)
         self.path = board.path
         self.tracker = ScalarPathProgress(board)  # PathProgress's rule, scalar: the per-step fast path
+        self.surroundings = Surroundings(board) if surroundings else None
         #: Tilt change (rad) of one full-rate action.
         self.tilt_step = self.max_tilt_rate / self.control_hz
         if action_type == "discrete":
@@ -335,7 +350,11 @@ class LabyrinthEnv(gym.Env):
         span = np.tile([2 * hx, 2 * hy], PATH_AHEAD)
         low = np.concatenate([[-hx, -hy, -np.inf, -np.inf, -tilt, -tilt, 0.0], -span]).astype(np.float32)
         high = np.concatenate([[hx, hy, np.inf, np.inf, tilt, tilt, 1.0], span]).astype(np.float32)
-        return spaces.Box(low, high, dtype=np.float32)
+        if self.surroundings is not None:  # hole offsets (a missing hole's is NO_HOLE), then distances
+            far = max(2 * hx, 2 * hy, *NO_HOLE)
+            low = np.concatenate([low, np.full(2 * SURROUNDING_HOLES, -far), np.zeros(WALL_RAYS)], dtype=np.float32)
+            high = np.concatenate([high, np.full(2 * SURROUNDING_HOLES, far), np.full(WALL_RAYS, RAY_RANGE)])
+        return spaces.Box(low, high.astype(np.float32), dtype=np.float32)
 
     # ------------------------------------------------------------------ Gymnasium API
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
@@ -427,8 +446,8 @@ class LabyrinthEnv(gym.Env):
         ahead = self.tracker.points_ahead(progress, PATH_AHEAD, PATH_SPACING)
         relative = [v for px, py in ahead for v in (px - x, py - y)]
         if self.obs_mode == "state":
-            head = [x, y, vx, vy, tilt[0], tilt[1], progress / self.path.length]
-            return np.array(head + relative, dtype=np.float32)
+            head = np.array([x, y, vx, vy, tilt[0], tilt[1], progress / self.path.length] + relative, np.float32)
+            return head if self.surroundings is None else np.concatenate([head, self.surroundings.of(np.array([x, y]))])
         assert self._raster is not None
         w, h = self.board.board_size
         states = [tilt[0] / CYBERRUNNER_TILT_NORM, tilt[1] / CYBERRUNNER_TILT_NORM, (x + w / 2) / w, (y + h / 2) / h]

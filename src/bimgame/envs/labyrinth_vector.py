@@ -326,7 +326,11 @@ class LabyrinthVectorEnv(gym.vector.VectorEnv):
     def _observe(self, ahead: np.ndarray) -> Any:
         """The N boards' observations in ``obs_mode``, batched."""
         if self.obs_mode == "state":
-            return self._state_obs(ahead)
+            surroundings = self.template.surroundings
+            state = self._state_obs(ahead)
+            return (
+                state if surroundings is None else np.concatenate([state, surroundings.of(self._kinematics[:, :2])], 1)
+            )
         raster = self.template._raster  # the single env's own raster (pixels or CyberRunner's sheet)
         assert raster is not None
         xy = self._kinematics[:, :2]

@@ -177,14 +177,24 @@ class Puzzle:
         """One environment of the task, without a time limit (its user counts steps): what a loop that
         reads each board's physics state steps, such as DAgger's expert-labelled rollouts. ``obs_mode``
         ``cyberrunner`` is stepped as ``cyberrunner_flat``, as in :meth:`vector_env`. ``maze_options``:
-        the circular maze's random-maze arguments (``num_mazes``, ``start_maze``)."""
+        the circular maze's random-maze arguments (``num_mazes``, ``start_maze``), or the labyrinth's
+        ``surroundings``."""
         check_obs("obs_mode", self.task, obs_mode)
         if self.is_maze:
+            if maze_options.get("surroundings"):
+                raise ValueError(f"surroundings are the labyrinth's holes and walls, not {self.task}'s")
+            maze_options.pop("surroundings", None)
             return BallInMazeEnv(self.task, obs_mode=obs_mode, action_type=action_type, **maze_options)
+        surroundings = maze_options.pop("surroundings", False)
         if maze_options:
             raise ValueError(f"{', '.join(maze_options)}: random mazes are circular mazes, not {self.task}")
         assert self.layout is not None
-        return LabyrinthEnv(self.layout, obs_mode=LABYRINTH_OBS.get(obs_mode, obs_mode), action_type=action_type)
+        return LabyrinthEnv(
+            self.layout,
+            obs_mode=LABYRINTH_OBS.get(obs_mode, obs_mode),
+            action_type=action_type,
+            surroundings=surroundings,
+        )
 
     def vector_env(
         self,

@@ -190,6 +190,7 @@ def _play_network(
             seed=seed,
             greedy=not sampled,
             max_episode_steps=puzzle(task).time_limit,
+            mazes={"surroundings": True} if run.network.surroundings else None,
         )
         bar.update(advance=1)
     facts = {"obs": run.network.obs, "action_type": run.network.action_type, "step": step}

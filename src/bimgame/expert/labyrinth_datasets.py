@@ -41,6 +41,7 @@ import numpy as np
 
 import bimgame
 from bimgame.envs.labyrinth_env import LABYRINTH_ACTION_TYPES, LABYRINTH_CONTROL_RATES, LabyrinthEnv
+from bimgame.envs.labyrinth_surroundings import Surroundings
 from bimgame.envs.puzzles import LABYRINTH, LABYRINTH_TASKS
 from bimgame.expert.dataset_files import (
     FORMAT_NAME,
@@ -61,6 +62,7 @@ from bimgame.expert.labyrinth_episodes import (
 from bimgame.expert.labyrinth_mpc import LabyrinthMPCConfig
 from bimgame.expert.minari_build import DatasetError, episode_path
 from bimgame.expert.pool import EpisodeOutcome, check_generation, run_jobs
+from bimgame.sim.labyrinth import LabyrinthSpec
 from bimgame.util.progress import ProgressBar
 from bimgame.util.seeding import episode_seed
 
@@ -272,7 +274,7 @@ def labyrinth_dataset_summary(data_dir: str | Path) -> dict[str, Any]:
 
 
 def load_labyrinth_sequences(
-    data_dir: str | Path, *, obs: str = "state", gamma: float, progress: bool = False
+    data_dir: str | Path, *, obs: str = "state", gamma: float, progress: bool = False, surroundings: bool = False
 ) -> list[Episode]:
     """Every episode of a finished labyrinth dataset as an :class:`~bimgame.expert.episode.Episode`
     (what pre-training learns from), after checking the COMPLETE marker and every file's SHA-256.
@@ -284,13 +286,19 @@ def load_labyrinth_sequences(
     executed ones ((T, 2) float32 continuous, (T,) int64 discrete), ``tilt`` the board's tilt (rad)
     at each action, ``state_obs`` the state observations whatever ``obs`` is, ``returns`` discounted
     by ``gamma``, ``id`` the episode's index. ``progress``: a progress bar while reading.
+    ``surroundings`` (``obs="state"`` only): each observation ends with the marble's surroundings,
+    computed from its stored position (:mod:`bimgame.envs.labyrinth_surroundings`; what
+    ``LabyrinthEnv(surroundings=True)`` observes).
     """
     if obs not in SEQUENCE_OBS:
         raise ValueError(f"unknown obs {obs!r}; allowed: {', '.join(SEQUENCE_OBS)}")
     if not (isinstance(gamma, (int, float)) and not isinstance(gamma, bool) and 0.0 <= gamma <= 1.0):
         raise ValueError(f"gamma must be a number in [0, 1], got {gamma!r}")
+    if surroundings and obs != "state":
+        raise ValueError(f"surroundings are part of the state observation, not of obs {obs!r}")
     data_dir = Path(data_dir).absolute()
     manifest = labyrinth_dataset_manifest(data_dir)
+    around = Surroundings(LabyrinthSpec.layout(manifest["layout"])) if surroundings else None
     verify_marker(data_dir, manifest, hashes=True)
     renderer = None
     if obs != "state":
@@ -304,7 +312,11 @@ def load_labyrinth_sequences(
     try:
         with ProgressBar(f"reading {obs} episodes", manifest["episodes"], enabled=progress, transient=True) as bar:
             for index in range(manifest["episodes"]):
-                sequences.append(_sequence(_read(data_dir, manifest, index), index, gamma, renderer))
+                sequence = _sequence(_read(data_dir, manifest, index), index, gamma, renderer)
+                if around is not None:
+                    observed = np.concatenate([sequence.obs, around.of(sequence.obs[:, :2])], axis=1)
+                    sequence = dataclasses.replace(sequence, obs=observed)
+                sequences.append(sequence)
                 bar.update(advance=1)
     finally:
         if renderer is not None:

@@ -18,12 +18,13 @@ from typing import Any, ClassVar, Protocol, Self
 import numpy as np
 
 from bimgame.envs.gate_bearings import gate_bearings_size
+from bimgame.envs.labyrinth_surroundings import surroundings_scale
 from bimgame.envs.mazes import maze_encoding_size
 from bimgame.envs.puzzles import NETWORK_OBS, PuzzleSpec, puzzle, puzzle_task_setting, state_obs_scale
-from bimgame.learn.actor import evaluate_network
 from bimgame.learn.checkpoints import load_weights
 from bimgame.learn.cyberrunner import check_cyberrunner_network, cyberrunner_net_config
 from bimgame.learn.encoders import MAZE_FRAMES
+from bimgame.learn.evaluations import evaluate_greedy_and_sampled, evaluation_seed
 from bimgame.learn.learner_settings import MAX_STEPS, FlatSettings, ScheduleSettings, check_at_most
 from bimgame.learn.maze_runs import maze_network, maze_options
 from bimgame.learn.nets import (
@@ -37,8 +38,8 @@ from bimgame.learn.nets import (
 from bimgame.learn.pixel_network import pixel_net_config
 from bimgame.learn.policy_heads import check_action_type
 from bimgame.learn.runs import CONFIG, KIND_A3C, KIND_VALUE, read_run_config
+from bimgame.sim.labyrinth import LabyrinthSpec
 from bimgame.sim.maze import MazeSpec
-from bimgame.util.seeding import episode_seed
 from bimgame.util.settings import from_dict, require_int
 
 __all__ = [
@@ -49,12 +50,9 @@ __all__ = [
     "load_value_network",
     "network_settings_of",
     "init_network_settings",
-    "evaluate_greedy_and_sampled",
     "LearnerSettings",
     "EvaluatedRun",
     "run_evaluation",
-    "evaluation_seed",
-    "EVAL_COLUMNS",
     "MAX_SEED",
     "MAX_NETWORK_SIZE",
     "check_seed",
@@ -75,6 +73,7 @@ _SWITCHES = (
     "asymmetric_critic",
     "maze_encoding",
     "gate_bearings",
+    "surroundings",
 )
 
 
@@ -135,6 +134,10 @@ class NetworkSettings:
     marble (sine and cosine of its bearing, its half-width: :mod:`bimgame.envs.gate_bearings`), which the
     network reads beside the encoding. Off by default: not in the observations of earlier runs and
     datasets."""
+    surroundings: bool = False
+    """The labyrinth's state observations also hold what lies around the marble: the nearest holes and
+    the distances to the walls (:mod:`bimgame.envs.labyrinth_surroundings`). Off by default: not in the
+    observations of earlier runs."""
 
     def __post_init__(self) -> None:
         owner = type(self).__name__
@@ -163,14 +166,20 @@ class NetworkSettings:
             raise ValueError(f"{owner}.precision must be one of {PRECISIONS}, got {self.precision!r}")
         check_action_type(owner, self.action_type)
         check_cyberrunner_network(owner, self)
+        self._check_state_parts(owner, pixels)
+
+    def _check_state_parts(self, owner: str, pixels: bool) -> None:
+        """The parts only state observations have: the maze's encoding, its frame, gate bearings and
+        the labyrinth's surroundings."""
         if self.maze_encoding and pixels:
             raise ValueError(f"{owner}.maze_encoding applies to state observations only (pixels show the maze)")
         if self.maze_frame not in MAZE_FRAMES:
             raise ValueError(f"{owner}.maze_frame must be one of {MAZE_FRAMES}, got {self.maze_frame!r}")
         if self.maze_frame != "board" and pixels:
             raise ValueError(f"{owner}.maze_frame applies to state observations only (pixels show the maze)")
-        if self.gate_bearings and self.obs != "state":
-            raise ValueError(f"{owner}.gate_bearings applies to state observations only, got obs {self.obs!r}")
+        for name in ("gate_bearings", "surroundings"):
+            if getattr(self, name) and self.obs != "state":
+                raise ValueError(f"{owner}.{name} applies to state observations only, got obs {self.obs!r}")
         if self.gate_bearings and self.maze_frame != "board":
             raise ValueError(
                 f"{owner}.gate_bearings with maze_frame {self.maze_frame!r}: the bearings are already relative to "
@@ -208,6 +217,8 @@ class NetworkSettings:
         bearings = gate_bearings_size(maze) if isinstance(maze, MazeSpec) and encoding and self.gate_bearings else 0
         maze_scale = [np.full(encoding, np.sqrt(encoding), dtype=np.float32), np.ones(bearings, dtype=np.float32)]
         obs_scale = np.concatenate([scale, *maze_scale]) if encoding else scale
+        if isinstance(maze, LabyrinthSpec) and self.surroundings:
+            obs_scale = np.concatenate([scale, surroundings_scale()])
         privileged: dict[str, Any] = (
             {"privileged_size": len(scale), "aux_heads": self.aux_heads, "asymmetric_critic": self.asymmetric_critic}
             if self.privileged
@@ -381,18 +392,6 @@ def load_value_network(source: str | Path) -> tuple[ValueNetwork, RunInfo]:
     return net, run
 
 
-def evaluation_seed(seed: int) -> int:
-    """Seed of the start positions of a run's evaluations, derived from the run's seed (the same
-    every time, different from the training episodes' starts)."""
-    return episode_seed(seed, 999_983)
-
-
-#: The keys of :func:`evaluate_greedy_and_sampled`, in the order the learners' logs list them.
-EVAL_COLUMNS = tuple(
-    f"{mode}_{key}" for mode in ("greedy", "sampled") for key in ("success_rate", "mean_length", "mean_return")
-)
-
-
 @dataclasses.dataclass(frozen=True)
 class LearnerSettings(FlatSettings):
     """What every on-policy learner's settings (A3C's, PPO's) hold besides their parts: the task, the
@@ -430,8 +429,9 @@ class LearnerSettings(FlatSettings):
     @property
     def maze_options(self) -> dict[str, Any]:
         """The env arguments of the run's mazes (empty on MERL's maze alone)."""
-        bearings = bool(getattr(getattr(self, "network", None), "gate_bearings", False))
-        return maze_options(self.num_mazes, self.start_maze, gate_bearings=bearings)
+        network = getattr(self, "network", None)
+        bearings, around = (bool(getattr(network, name, False)) for name in ("gate_bearings", "surroundings"))
+        return maze_options(self.num_mazes, self.start_maze, gate_bearings=bearings, surroundings=around)
 
     @property
     def time_limit(self) -> int:
@@ -467,32 +467,3 @@ def run_evaluation(net: RecurrentActorCritic, config: EvaluatedRun) -> dict[str,
         time_limit=config.time_limit,
         mazes=config.maze_options,
     )
-
-
-def evaluate_greedy_and_sampled(
-    net: RecurrentActorCritic,
-    *,
-    task: str,
-    obs: str,
-    episodes: int,
-    seed: int,
-    time_limit: int | None = None,
-    mazes: dict[str, Any] | None = None,
-) -> dict[str, float]:
-    """Success rate, mean length and return of ``net`` on ``task``, acting greedily and sampling (keys
-    ``greedy_…``, ``sampled_…``), over the same ``episodes`` start positions (and mazes: ``mazes``,
-    env arguments such as ``num_mazes``) from ``seed``."""
-    values: dict[str, float] = {}
-    for mode, greedy in (("greedy", True), ("sampled", False)):
-        result = evaluate_network(
-            net,
-            task=task,
-            obs_mode=obs,
-            episodes=episodes,
-            seed=seed,
-            greedy=greedy,
-            max_episode_steps=time_limit,
-            mazes=mazes,
-        )
-        values.update({f"{mode}_{k}": v for k, v in result.summary().items() if k != "episodes"})
-    return values

@@ -151,6 +151,11 @@ def check_puzzle(owner: str, task: str, network: Any, *, num_mazes: int | None, 
     asymmetric critic reads its 17 state values) and ``cyberrunner``."""
     if puzzle(task).is_maze:
         check_obs(f"{owner}.network.obs", task, getattr(network, "obs", ""))
+        if getattr(network, "surroundings", False):
+            raise ValueError(
+                f"{owner}.surroundings on {task}: they are the labyrinth's holes and walls around the marble; the "
+                "circular maze's state has its own (num_mazes with gate_bearings)"
+            )
         return
     refuse_maze_only(owner, task, {"num_mazes": num_mazes is not None, "start_maze": bool(start_maze)})
     if getattr(network, "aux_heads", False):

@@ -44,9 +44,13 @@ def maze_network(owner: str, task: str, network: Any, *, num_mazes: int | None, 
     return network
 
 
-def maze_options(num_mazes: int | None, start_maze: int, *, gate_bearings: bool = False) -> dict[str, Any]:
+def maze_options(
+    num_mazes: int | None, start_maze: int, *, gate_bearings: bool = False, surroundings: bool = False
+) -> dict[str, Any]:
     """The env arguments of a run's random mazes (empty on MERL's maze alone); ``gate_bearings``: the
-    observations hold them (the network reads them: ``NetworkSettings.gate_bearings``)."""
+    observations hold them (the network reads them: ``NetworkSettings.gate_bearings``). On the
+    labyrinth (no mazes), ``surroundings``: its state observations hold the marble's
+    (``NetworkSettings.surroundings``)."""
     if num_mazes is None:
-        return {}
+        return {"surroundings": True} if surroundings else {}
     return {"num_mazes": num_mazes, "start_maze": start_maze, **({"gate_bearings": True} if gate_bearings else {})}

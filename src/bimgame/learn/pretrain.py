@@ -40,7 +40,7 @@ from bimgame.envs.puzzles import PuzzleSpec, puzzle
 from bimgame.expert.datasets import dataset_manifest, dataset_mazes
 from bimgame.expert.episode import Episode
 from bimgame.learn.checkpoints import load_weights, save_checkpoint
-from bimgame.learn.common import evaluate_greedy_and_sampled
+from bimgame.learn.evaluations import evaluate_greedy_and_sampled
 from bimgame.learn.expert_data import check_dataset_task, dataset_action_type, load_sequences
 from bimgame.learn.maze_runs import maze_options
 from bimgame.learn.metric_logs import MetricLog
@@ -192,7 +192,13 @@ def _pretrain(
     config = settings_for_dataset(config, mazes, data_dir)
     if sequences is None:
         sequences = load_sequences(
-            data_dir, config.task, config.obs, config.gamma, progress=progress, gate_bearings=config.gate_bearings
+            data_dir,
+            config.task,
+            config.obs,
+            config.gamma,
+            progress=progress,
+            gate_bearings=config.gate_bearings,
+            surroundings=config.surroundings,
         )
     rng = np.random.default_rng(config.seed)
     train_idx, val_idx = split_episodes(len(sequences), config.val_fraction, rng)
@@ -400,7 +406,12 @@ def evaluate_policy(
     ``mazes`` (:func:`~bimgame.expert.datasets.dataset_mazes`: each episode's drawn from them) or,
     without, MERL's maze."""
     mazes = mazes or {}
-    options = maze_options(mazes.get("num_mazes"), mazes.get("start_maze", 0), gate_bearings=config.gate_bearings)
+    options = maze_options(
+        mazes.get("num_mazes"),
+        mazes.get("start_maze", 0),
+        gate_bearings=config.gate_bearings,
+        surroundings=config.surroundings,
+    )
     return {
         "episodes": config.eval_episodes,
         **evaluate_greedy_and_sampled(

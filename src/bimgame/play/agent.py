@@ -104,6 +104,8 @@ class AgentPlayer:
         self.action_type = net.config.action_type
         #: The labyrinth env's observation mode that is this network's input (the maze's env is state-observed).
         self.env_obs_mode = "state" if self.maze else LABYRINTH_OBS.get(self.obs_mode, self.obs_mode)
+        #: The labyrinth env's other arguments its observations need (the marble's surroundings).
+        self.env_options = {"surroundings": True} if run.network.surroundings else {}
         self.max_tilt = spec.max_tilt
         self._pixels = None
         if self.maze and self.obs_mode == "pixels":

@@ -138,7 +138,7 @@ class PlaySession:
             run = AgentPlayer(agent, puzzle(self.task).spec, task=self.task, greedy=greedy, seed=seed)
         options: dict[str, Any] = {}
         if run is not None:
-            options = {"obs_mode": run.env_obs_mode, "action_type": run.action_type}
+            options = {"obs_mode": run.env_obs_mode, "action_type": run.action_type, **run.env_options}
         elif is_expert(agent):
             options = {"action_type": "continuous"}  # the labyrinth expert's measured setting (the maze's is discrete)
         board = open_board(self.task, render_size=render_size, **options)

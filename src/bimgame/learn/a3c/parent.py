@@ -21,9 +21,9 @@ from bimgame.learn.a3c.settings import A3CConfig
 from bimgame.learn.a3c.update import make_optimizer, shared_optimizer_state
 from bimgame.learn.a3c.workers import RunShared, _evaluator, _worker
 from bimgame.learn.checkpoints import save_checkpoint
-from bimgame.learn.common import EVAL_COLUMNS
 from bimgame.learn.curricula import CURRICULUM_COLUMNS, CURRICULUM_SCALARS
 from bimgame.learn.episode_monitor import Monitor
+from bimgame.learn.evaluations import EVAL_COLUMNS
 from bimgame.learn.metric_logs import MetricLog
 from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.learn.rewards import EnvWrapper

@@ -31,7 +31,7 @@ __all__ = ["BEST", "evaluation_rank", "is_better", "repair_best", "save_best"]
 
 
 def evaluation_rank(evaluation: dict[str, float]) -> list[float]:
-    """The rank of an in-run ``evaluation`` (:data:`~bimgame.learn.common.EVAL_COLUMNS`): success
+    """The rank of an in-run ``evaluation`` (:data:`~bimgame.learn.evaluations.EVAL_COLUMNS`): success
     over both modes first, mean return over both modes to break ties."""
     return [
         float(evaluation["greedy_success_rate"] + evaluation["sampled_success_rate"]),

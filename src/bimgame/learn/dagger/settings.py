@@ -127,7 +127,10 @@ class DAggerConfig:
     def maze_options(self) -> dict[str, Any]:
         """The env arguments of the run's mazes (empty on MERL's maze alone)."""
         return maze_options(
-            self.num_mazes, self.start_maze, gate_bearings=bool(getattr(self.learner, "gate_bearings", False))
+            self.num_mazes,
+            self.start_maze,
+            gate_bearings=bool(getattr(self.learner, "gate_bearings", False)),
+            surroundings=bool(getattr(self.learner, "surroundings", False)),
         )
 
     #: What a resumed run may change.

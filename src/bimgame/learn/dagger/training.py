@@ -52,10 +52,10 @@ from bimgame.envs.puzzles import puzzle
 from bimgame.expert.datasets import dataset_manifest, dataset_mazes
 from bimgame.expert.episode import Episode
 from bimgame.learn.checkpoints import apply_weights, load_checkpoint, load_init_weights, save_checkpoint
-from bimgame.learn.common import EVAL_COLUMNS, evaluate_greedy_and_sampled, evaluation_seed
 from bimgame.learn.dagger.best import BEST, evaluation_rank, is_better, repair_best, save_best
 from bimgame.learn.dagger.rollouts import collect_episodes
 from bimgame.learn.dagger.settings import DAggerConfig
+from bimgame.learn.evaluations import EVAL_COLUMNS, evaluate_greedy_and_sampled, evaluation_seed
 from bimgame.learn.expert_data import check_dataset_task, dataset_action_type, load_sequences
 from bimgame.learn.learner_settings import check_init_puzzle
 from bimgame.learn.nets import RecurrentActorCritic
@@ -428,6 +428,7 @@ def _demonstrations(config: DAggerConfig, *, progress: bool) -> list[Episode]:
         learner.gamma,
         progress=progress,
         gate_bearings=bool(getattr(learner, "gate_bearings", False)),
+        surroundings=bool(getattr(learner, "surroundings", False)),
     )
 
 

@@ -22,11 +22,12 @@ from typing import Any
 import torch
 
 from bimgame.learn.checkpoints import apply_weights, load_checkpoint, load_init_weights, save_checkpoint
-from bimgame.learn.common import EVAL_COLUMNS, run_evaluation
+from bimgame.learn.common import run_evaluation
 from bimgame.learn.curricula import CURRICULUM_COLUMNS, CURRICULUM_SCALARS
 from bimgame.learn.curves import plot_run
 from bimgame.learn.devices import resolve_device
 from bimgame.learn.episode_monitor import Monitor
+from bimgame.learn.evaluations import EVAL_COLUMNS
 from bimgame.learn.init_network import check_init_network, init_settings_for
 from bimgame.learn.learner_settings import check_init_puzzle, policy_network
 from bimgame.learn.metric_logs import MetricLog
