@@ -46,7 +46,7 @@ def _csv_rows(path) -> list[dict[str, str]]:
 
 def _discounted(rewards, gamma) -> np.ndarray:
     rewards = np.asarray(rewards, dtype=np.float64)
-    return np.array([sum(gamma**k * r for k, r in enumerate(rewards[t:])) for t in range(len(rewards))])
+    return np.array([sum(gamma ** k * r for k, r in enumerate(rewards[t:])) for t in range(len(rewards))])
 
 
 def _npz(run_dir, iteration: int) -> dict[str, np.ndarray]:
@@ -57,10 +57,8 @@ def _npz(run_dir, iteration: int) -> dict[str, np.ndarray]:
 def _episodes_of(arrays: dict[str, np.ndarray]) -> list[SimpleNamespace]:
     """The episodes of a stored iteration, read independently of the library's own reader."""
     bounds = np.concatenate([[0], np.cumsum(arrays["lengths"])])
-    return [
-        SimpleNamespace(**{k: v[a:b] for k, v in arrays.items() if k != "lengths"})
-        for a, b in itertools.pairwise(bounds)
-    ]
+    return [SimpleNamespace(**{k: v[a:b] for k, v in arrays.items() if k != "lengths"})
+            for a, b in itertools.pairwise(bounds)]
 
 
 def _weights(run_dir) -> dict[str, torch.Tensor]:
@@ -73,12 +71,8 @@ def _without_seconds(rows: list[dict]) -> list[dict]:
 
 # ------------------------------------------------------------------------- collect_episodes
 #: A cheap expert (K=5, H=10) — collect_episodes' bookkeeping does not need a good one.
-ROLLOUT = DAggerConfig(
-    learner=PretrainConfig(task="STG1", obs="state", seed=0),
-    episodes_per_iteration=4,
-    expert=MPCConfig(n_samples=5, horizon=10),
-    max_episode_steps=40,
-)
+ROLLOUT = DAggerConfig(learner=PretrainConfig(task="STG1", obs="state", seed=0), episodes_per_iteration=4,
+                       expert=MPCConfig(n_samples=5, horizon=10), max_episode_steps=40)
 FORCED_ACTION = 2  # tilt -x
 
 
@@ -119,7 +113,8 @@ def _check_costs(episodes, costs, config: DAggerConfig) -> None:
     assert costs["successes"] == sum(int(e.rewards[-1] == 1.0) for e in episodes)
 
 
-def test_collect_episodes_mixes_expert_and_learner_by_beta_and_labels_every_state_with_the_expert(one_torch_thread):
+def test_collect_episodes_mixes_expert_and_learner_by_beta_and_labels_every_state_with_the_expert(
+        one_torch_thread):
     config = ROLLOUT
     net = config.learner.build_policy(config.learner.seed)
     expert_run, expert_costs = collect_episodes(net, config, beta=1.0, seed=11)
@@ -172,9 +167,8 @@ def test_collect_episodes_mixes_expert_and_learner_by_beta_and_labels_every_stat
         upto = int(departs[0]) + 1 if len(departs) else len(mixed_episode.actions)
         shared += upto
         for key in ("obs", "actions", "tilt"):
-            np.testing.assert_array_equal(
-                getattr(mixed_episode, key)[:upto], getattr(expert_episode, key)[:upto], err_msg=key
-            )
+            np.testing.assert_array_equal(getattr(mixed_episode, key)[:upto], getattr(expert_episode, key)[:upto],
+                                          err_msg=key)
     assert shared > len(mixed_run), shared
     executed = np.concatenate([e.executed for e in mixed_run])
     labels = np.concatenate([e.actions for e in mixed_run])
@@ -187,17 +181,9 @@ def test_collect_episodes_mixes_expert_and_learner_by_beta_and_labels_every_stat
 # ---------------------------------------------------------------------------- a small run
 #: A cheap run for the bookkeeping and resume tests: a weak expert (K=4, H=6), short rollouts,
 #: and a β schedule other than the default.
-SMALL = DAggerConfig(
-    learner=PretrainConfig(task="STG1", obs="state", seed=3, batch_episodes=2),
-    iterations=3,
-    episodes_per_iteration=3,
-    beta0=0.9,
-    beta_decay=0.6,
-    epochs_per_iteration=2,
-    expert=MPCConfig(n_samples=4, horizon=6),
-    max_episode_steps=25,
-    eval_episodes=3,
-)
+SMALL = DAggerConfig(learner=PretrainConfig(task="STG1", obs="state", seed=3, batch_episodes=2), iterations=3,
+                     episodes_per_iteration=3, beta0=0.9, beta_decay=0.6, epochs_per_iteration=2,
+                     expert=MPCConfig(n_samples=4, horizon=6), max_episode_steps=25, eval_episodes=3)
 
 
 @pytest.fixture(scope="module")
@@ -219,17 +205,8 @@ def _check_aggregation(run_dir, config: DAggerConfig, result) -> list[dict[str, 
     steps = 0
     for i, row in enumerate(rows):
         data = _npz(run_dir, i)
-        assert set(data) == {
-            "obs",
-            "actions",
-            "executed",
-            "prev_actions",
-            "prev_rewards",
-            "tilt",
-            "rewards",
-            "returns",
-            "lengths",
-        }
+        assert set(data) == {"obs", "actions", "executed", "prev_actions", "prev_rewards", "tilt", "rewards",
+                             "returns", "lengths"}
         episodes = _episodes_of(data)
         assert len(episodes) == config.episodes_per_iteration
         for episode in episodes:
@@ -238,7 +215,7 @@ def _check_aggregation(run_dir, config: DAggerConfig, result) -> list[dict[str, 
         assert collected == len(data["actions"]) == len(data["obs"]) > 0
         steps += collected
         # β_i = β0 · decay^i.
-        assert float(row["beta"]) == pytest.approx(config.beta0 * config.beta_decay**i, rel=1e-5)
+        assert float(row["beta"]) == pytest.approx(config.beta0 * config.beta_decay ** i, rel=1e-5)
         assert int(row["episodes"]) == config.episodes_per_iteration * (i + 1)
         # step counts environment steps, cumulatively; each visited state got one label, and the
         # expert's planning is counted apart, K·H simulator steps per label.
@@ -249,18 +226,10 @@ def _check_aggregation(run_dir, config: DAggerConfig, result) -> list[dict[str, 
         if i > 0:
             assert int(row["dataset_steps"]) > int(rows[i - 1]["dataset_steps"])
     assert (result.iterations, result.env_steps, result.dataset_steps, result.expert_sim_steps) == (
-        config.iterations,
-        steps,
-        steps,
-        steps * k * h,
-    )
+        config.iterations, steps, steps, steps * k * h)
     state = json.loads((run_dir / "dagger_state.json").read_text())
     assert (state["iteration"], state["env_steps"], state["labels"], state["expert_sim_steps"]) == (
-        config.iterations,
-        steps,
-        steps,
-        steps * k * h,
-    )
+        config.iterations, steps, steps, steps * k * h)
     return rows
 
 
@@ -279,14 +248,8 @@ def test_dataset_aggregates_every_iteration_and_costs_are_counted_apart(small_ru
     # The checkpoint holds the last iteration's weights: it reproduces the last evaluation.
     net, run, step = load_run_network(run_dir)
     assert (run.task, run.network.obs, step) == ("STG1", "state", whole.env_steps)
-    again = evaluate_greedy_and_sampled(
-        net,
-        task=run.task,
-        obs=run.network.obs,
-        episodes=config.eval_episodes,
-        seed=evaluation_seed(run.seed),
-        time_limit=run.time_limit,
-    )
+    again = evaluate_greedy_and_sampled(net, task=run.task, obs=run.network.obs, episodes=config.eval_episodes,
+                                        seed=evaluation_seed(run.seed), time_limit=run.time_limit)
     assert whole.final_eval == pytest.approx(again)
     for key in ("greedy_success_rate", "sampled_success_rate", "greedy_mean_length"):
         assert float(rows[-1][key]) == pytest.approx(again[key], rel=1e-5)
@@ -299,11 +262,7 @@ def test_resumed_run_ends_identical_to_an_uninterrupted_one(small_runs, tmp_path
     assert stages[0].env_steps < stages[1].env_steps < stages[2].env_steps
     last = stages[-1]
     assert (last.iterations, last.env_steps, last.expert_sim_steps, last.dataset_steps) == (
-        whole.iterations,
-        whole.env_steps,
-        whole.expert_sim_steps,
-        whole.dataset_steps,
-    )
+        whole.iterations, whole.env_steps, whole.expert_sim_steps, whole.dataset_steps)
     assert last.final_eval == whole.final_eval
     rows = _csv_rows(whole.run_dir / "dagger.csv")
     assert _without_seconds(_csv_rows(resumed / "dagger.csv")) == _without_seconds(rows)
@@ -330,10 +289,8 @@ def test_resumed_run_ends_identical_to_an_uninterrupted_one(small_runs, tmp_path
 
 def _rank(row: dict[str, str]) -> list[float]:
     """An iteration's rank as the run keeps its best (success, then return, over both modes)."""
-    return [
-        float(row["greedy_success_rate"]) + float(row["sampled_success_rate"]),
-        float(row["greedy_mean_return"]) + float(row["sampled_mean_return"]),
-    ]
+    return [float(row["greedy_success_rate"]) + float(row["sampled_success_rate"]),
+            float(row["greedy_mean_return"]) + float(row["sampled_mean_return"])]
 
 
 def test_the_best_iterate_by_the_in_run_evaluation_is_kept_with_its_weights(small_runs):
@@ -346,14 +303,8 @@ def test_the_best_iterate_by_the_in_run_evaluation_is_kept_with_its_weights(smal
     assert payload["iteration"] == expected and payload["step"] == int(rows[expected]["step"])
     # Its weights reproduce that iteration's in-run evaluation.
     net, run, _ = load_run_network(whole.run_dir / BEST)
-    again = evaluate_greedy_and_sampled(
-        net,
-        task=run.task,
-        obs=run.network.obs,
-        episodes=SMALL.eval_episodes,
-        seed=evaluation_seed(run.seed),
-        time_limit=run.time_limit,
-    )
+    again = evaluate_greedy_and_sampled(net, task=run.task, obs=run.network.obs, episodes=SMALL.eval_episodes,
+                                        seed=evaluation_seed(run.seed), time_limit=run.time_limit)
     for key in ("greedy_success_rate", "sampled_success_rate", "greedy_mean_return", "sampled_mean_return"):
         assert again[key] == pytest.approx(float(rows[expected][key]), rel=1e-5, abs=1e-6), key
     # The resumed run kept the same best iterate with the same weights.
@@ -395,14 +346,9 @@ def test_a_run_without_in_run_evaluation_keeps_no_best(tmp_path):
 #: sampled 17.5 -> 87.5, 32.5 -> 77.5, 25 -> 57.5, 30 -> 57.5 %. Small batches (2 episodes) and
 #: lr 2e-3 so that 8 episodes give the network more than a handful of updates per iteration (with
 #: 16-episode batches the margins were small and inconsistent across seeds).
-IMPROVE = DAggerConfig(
-    learner=PretrainConfig(task="STG1", obs="state", seed=0, batch_episodes=2, lr=2e-3),
-    iterations=3,
-    episodes_per_iteration=8,
-    epochs_per_iteration=10,
-    max_episode_steps=60,
-    eval_episodes=40,
-)
+IMPROVE = DAggerConfig(learner=PretrainConfig(task="STG1", obs="state", seed=0, batch_episodes=2, lr=2e-3),
+                       iterations=3, episodes_per_iteration=8, epochs_per_iteration=10, max_episode_steps=60,
+                       eval_episodes=40)
 
 
 @pytest.fixture(scope="module")
@@ -433,15 +379,10 @@ def test_dagger_improves_on_behaviour_cloning(improve_run):
 
 # ----------------------------------------------------------------------------------- errors
 def test_invalid_settings_and_misused_run_directories_are_refused(small_runs, tmp_path):
-    for changes, field in (
-        ({"beta0": 1.5}, "beta0"),
-        ({"beta_decay": -0.1}, "beta_decay"),
-        ({"iterations": 0}, "iterations"),
-        ({"episodes_per_iteration": 0}, "episodes_per_iteration"),
-        ({"epochs_per_iteration": 2.5}, "epochs_per_iteration"),
-        ({"eval_episodes": -1}, "eval_episodes"),
-        ({"max_episode_steps": 0}, "max_episode_steps"),
-    ):
+    for changes, field in (({"beta0": 1.5}, "beta0"), ({"beta_decay": -0.1}, "beta_decay"),
+                           ({"iterations": 0}, "iterations"), ({"episodes_per_iteration": 0}, "episodes_per_iteration"),
+                           ({"epochs_per_iteration": 2.5}, "epochs_per_iteration"),
+                           ({"eval_episodes": -1}, "eval_episodes"), ({"max_episode_steps": 0}, "max_episode_steps")):
         with pytest.raises(ValueError, match=rf"DAggerConfig\.{field} "):
             DAggerConfig(**changes)
     with pytest.raises(ValueError, match="target='policy'"):
@@ -452,23 +393,14 @@ def test_invalid_settings_and_misused_run_directories_are_refused(small_runs, tm
 
     whole, _ = small_runs
     run_dir = whole.run_dir
-    before = {
-        p.name: p.read_bytes()
-        for p in (
-            run_dir / "dagger.csv",
-            run_dir / "checkpoint.pt",
-            run_dir / "dagger_state.json",
-            run_dir / "config.json",
-        )
-    }
+    before = {p.name: p.read_bytes() for p in (run_dir / "dagger.csv", run_dir / "checkpoint.pt",
+                                                run_dir / "dagger_state.json", run_dir / "config.json")}
     # Resuming must keep every setting but the number of iterations and evaluation episodes.
-    for changes, field in (
-        ({"episodes_per_iteration": 4}, "episodes_per_iteration"),
-        ({"beta_decay": 0.5}, "beta_decay"),
-        ({"expert": MPCConfig(n_samples=5, horizon=6)}, "expert"),
-        ({"learner": dataclasses.replace(SMALL.learner, lr=1e-2)}, "learner"),
-        ({"max_episode_steps": 30}, "max_episode_steps"),
-    ):
+    for changes, field in (({"episodes_per_iteration": 4}, "episodes_per_iteration"),
+                           ({"beta_decay": 0.5}, "beta_decay"),
+                           ({"expert": MPCConfig(n_samples=5, horizon=6)}, "expert"),
+                           ({"learner": dataclasses.replace(SMALL.learner, lr=1e-2)}, "learner"),
+                           ({"max_episode_steps": 30}, "max_episode_steps")):
         with pytest.raises(ValueError, match=rf"changed: {field}\b"):
             dagger(dataclasses.replace(SMALL, iterations=4, **changes), run_dir, resume=True, progress=False)
     with pytest.raises(ValueError, match="already holds a run"):
@@ -487,38 +419,14 @@ def test_cli_dagger_resume_and_evaluate(tmp_path, capsys, one_torch_thread):
     # β0 = 1 and no decay: the expert executes every step, so the rollouts are short even with
     # the CLI's default expert and time limit.
     common = ["--run-dir", str(run_dir), "--epochs-per-iteration", "2", "--eval-episodes", "2", "--no-progress"]
-    assert (
-        main(
-            [
-                "dagger",
-                *common,
-                "--obs",
-                "state",
-                "--iterations",
-                "1",
-                "--episodes-per-iteration",
-                "2",
-                "--beta-decay",
-                "1",
-                "--seed",
-                "5",
-            ]
-        )
-        == 0
-    )
+    assert main(["dagger", *common, "--obs", "state", "--iterations", "1", "--episodes-per-iteration", "2",
+                 "--beta-decay", "1", "--seed", "5"]) == 0
     stored = json.loads((run_dir / "config.json").read_text())
     assert stored["kind"] == KIND_DAGGER
     config = DAggerConfig.from_dict(stored["dagger"])
     assert (config.learner.task, config.learner.obs, config.learner.seed) == ("STG1", "state", 5)
-    assert (
-        config.iterations,
-        config.episodes_per_iteration,
-        config.epochs_per_iteration,
-        config.beta0,
-        config.beta_decay,
-        config.eval_episodes,
-        config.expert,
-    ) == (1, 2, 2, 1.0, 1.0, 2, MPCConfig())
+    assert (config.iterations, config.episodes_per_iteration, config.epochs_per_iteration, config.beta0,
+            config.beta_decay, config.eval_episodes, config.expert) == (1, 2, 2, 1.0, 1.0, 2, MPCConfig())
 
     # --resume continues with the run's settings (a different --episodes-per-iteration is not
     # taken) and may raise --iterations.
@@ -542,9 +450,8 @@ def test_cli_dagger_resume_and_evaluate(tmp_path, capsys, one_torch_thread):
 
     # Invalid values are refused by name, as an error exit rather than a traceback.
     capsys.readouterr()
-    assert (
-        main(["dagger", "--run-dir", str(tmp_path / "bad"), "--obs", "state", "--beta0", "1.5", "--no-progress"]) == 2
-    )
+    assert main(["dagger", "--run-dir", str(tmp_path / "bad"), "--obs", "state", "--beta0", "1.5",
+                 "--no-progress"]) == 2
     assert "beta0" in capsys.readouterr().err
     assert main(["dagger", *common, "--iterations", "3"]) == 2
     assert "already holds a run" in capsys.readouterr().err
@@ -556,11 +463,8 @@ def test_dagger_refuses_directories_that_are_not_dagger_runs(tmp_path):
     mine.mkdir()
     (mine / "dagger.csv").write_text("my,own\n")
     before = snapshot(mine, without_tensorboard=True)
-    with pytest.raises(
-        ValueError,
-        match=r"is not empty and is not a DAgger run \(no config.json; found 1 entry: "
-        r"'dagger.csv'\); nothing was changed",
-    ):
+    with pytest.raises(ValueError, match=r"is not empty and is not a DAgger run \(no config.json; found 1 entry: "
+                                         r"'dagger.csv'\); nothing was changed"):
         dagger(SMALL, mine, progress=False)
     with pytest.raises(ValueError, match=r"--resume: .* has no config.json: .* is not a DAgger run"):
         dagger(SMALL, mine, resume=True, progress=False)
@@ -582,11 +486,8 @@ def test_dagger_resume_refuses_to_start_over_without_its_checkpoint_or_data(smal
     run_dir = shutil.copytree(whole.run_dir, tmp_path / "no-checkpoint")
     (run_dir / "checkpoint.pt").unlink()
     before = snapshot(run_dir, without_tensorboard=True)
-    with pytest.raises(
-        ValueError,
-        match=r"has no checkpoint.pt, so the DAgger run in it cannot be continued .*Start "
-        r"anew without --resume in a new --run-dir",
-    ):
+    with pytest.raises(ValueError, match=r"has no checkpoint.pt, so the DAgger run in it cannot be continued .*Start "
+                                         r"anew without --resume in a new --run-dir"):
         dagger(dataclasses.replace(SMALL, iterations=4), run_dir, resume=True, progress=False)
     assert snapshot(run_dir, without_tensorboard=True) == before
 
@@ -615,13 +516,8 @@ def test_a_kill_between_the_commit_and_the_state_copy_neither_redoes_nor_loses_a
     whole, _ = small_runs
     run_dir = shutil.copytree(whole.run_dir, tmp_path / "run")
     rows = _csv_rows(run_dir / "dagger.csv")
-    behind = {
-        "iteration": 2,
-        "env_steps": int(rows[1]["step"]),
-        "labels": int(rows[1]["labels"]),
-        "expert_sim_steps": int(rows[1]["expert_sim_steps"]),
-        "seconds": float(rows[1]["seconds"]),
-    }
+    behind = {"iteration": 2, "env_steps": int(rows[1]["step"]), "labels": int(rows[1]["labels"]),
+              "expert_sim_steps": int(rows[1]["expert_sim_steps"]), "seconds": float(rows[1]["seconds"])}
     (run_dir / "dagger_state.json").write_text(json.dumps(behind))
     with open(run_dir / "dagger.csv", "a", newline="") as handle:  # the row of an iteration never committed
         handle.write(f"{whole.env_steps + 7},3,0.1,{','.join(['1'] * (len(rows[0]) - 3))}\r\n")
@@ -636,7 +532,6 @@ def test_a_kill_between_the_commit_and_the_state_copy_neither_redoes_nor_loses_a
 def test_a_new_dagger_run_that_fails_in_its_first_iteration_leaves_nothing(tmp_path, monkeypatch):
     def broken(*args, **kwargs):
         raise ValueError("a setting only the rollouts find bad")
-
     monkeypatch.setattr("bimgame.learn.dagger.training.collect_episodes", broken)
     with pytest.raises(ValueError, match="only the rollouts find bad"):
         dagger(SMALL, tmp_path / "run", progress=False)
@@ -647,11 +542,8 @@ def test_disk_full_during_dagger_names_the_file_and_keeps_the_finished_iteration
     disk_fills_up(monkeypatch, "iteration_001.npz")
     run_dir = tmp_path / "run"
     config = dataclasses.replace(SMALL, iterations=2, eval_episodes=0)
-    with pytest.raises(
-        FileWriteError,
-        match=r"cannot write .*iteration_001.npz: No space left on device. The "
-        r"iterations finished before \(1\) are saved .* --resume",
-    ):
+    with pytest.raises(FileWriteError, match=r"cannot write .*iteration_001.npz: No space left on device. The "
+                                                 r"iterations finished before \(1\) are saved .* --resume"):
         dagger(config, run_dir, progress=False)
     assert [r["iteration"] for r in _csv_rows(run_dir / "dagger.csv")] == ["0"]
     monkeypatch.undo()
@@ -661,7 +553,6 @@ def test_disk_full_during_dagger_names_the_file_and_keeps_the_finished_iteration
 def test_ctrl_c_stops_dagger_with_a_resumable_run(tmp_path, monkeypatch, capsys):
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
-
     monkeypatch.setattr("bimgame.learn.dagger.training.collect_episodes", interrupted)
     run_dir = tmp_path / "run"
     assert main(["dagger", "--run-dir", str(run_dir), "--obs", "state", "--no-progress"]) == 130
