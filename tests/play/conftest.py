@@ -69,13 +69,18 @@ def tiny_pixel_agent_run(tmp_path_factory):
 @pytest.fixture(scope="session")
 def labyrinth_runs(tmp_path_factory):
     """Tiny untrained policy runs on LABYRINTH-HARD, by (observation, action type): a continuous state
-    network (what PPO trains there), a discrete pixel one and a continuous CyberRunner one."""
+    network (what PPO trains there), a discrete pixel one, a continuous CyberRunner one and a continuous
+    state network that reads the marble's surroundings."""
     root = tmp_path_factory.mktemp("labyrinth-agents")
     kinds = [("state", "continuous"), ("pixels", "discrete"), ("cyberrunner", "continuous")]
-    return {
+    runs = {
         (obs, action): _policy_run(root / f"{obs}-{action}",
                                    NetworkSettings(obs=obs, hidden=8, features=8, precision="fp32", action_type=action,
                                                    aux_heads=False),
                                    "LABYRINTH-HARD")
         for obs, action in kinds
     }
+    runs["surroundings", "continuous"] = _policy_run(
+        root / "surroundings", NetworkSettings(obs="state", hidden=8, features=8, action_type="continuous",
+                                               aux_heads=False, surroundings=True), "LABYRINTH-HARD")
+    return runs

@@ -323,6 +323,14 @@ def test_the_expert_plays_the_maze_too():
     session.close()
 
 
+def test_a_run_that_reads_the_surroundings_plays_with_them(labyrinth_runs):
+    session = PlaySession(agent=labyrinth_runs["surroundings", "continuous"], seed=0, max_steps=20)
+    assert session.env.surroundings is not None and session.env.observation_space.shape == (33,)
+    for _ in range(3):
+        assert session.tick() and session.last_action.shape == (2,)
+    session.close()
+
+
 @pytest.mark.parametrize("kind", [("state", "continuous"), ("pixels", "discrete"), ("cyberrunner", "continuous")],
                          ids="-".join)
 def test_a_run_trained_on_the_labyrinth_plays_it_with_its_observations_and_actions(labyrinth_runs, kind):

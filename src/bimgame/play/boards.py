@@ -127,18 +127,32 @@ class MazeBoard(_EnvBoard):
 
 
 class LabyrinthBoard(_EnvBoard):
-    """The labyrinth of ``task`` (its canonical name), observed in ``obs_mode`` and acted on with
-    ``action_type`` actions at 55 Hz, rendering ``render_size``² frames."""
+    """The labyrinth of ``task`` (its canonical name), observed in ``obs_mode`` (with the marble's
+    ``surroundings`` for an agent that reads them) and acted on with ``action_type`` actions at 55 Hz,
+    rendering ``render_size``² frames."""
 
     puzzle = "labyrinth"
     env: LabyrinthEnv
 
-    def __init__(self, task: str, *, obs_mode: str = "state", action_type: str = "discrete", render_size: int = 480):
+    def __init__(
+        self,
+        task: str,
+        *,
+        obs_mode: str = "state",
+        action_type: str = "discrete",
+        render_size: int = 480,
+        surroundings: bool = False,
+    ):
         layout = puzzle(task).layout
         assert layout is not None, f"{task} is no labyrinth task"
         self.task = task
         self.env = LabyrinthEnv(
-            layout, action_type=action_type, obs_mode=obs_mode, render_mode="rgb_array", render_size=render_size
+            layout,
+            action_type=action_type,
+            obs_mode=obs_mode,
+            render_mode="rgb_array",
+            render_size=render_size,
+            surroundings=surroundings,
         )
         self.spec = self.env.board
         self.action_type = action_type
@@ -180,9 +194,19 @@ class LabyrinthBoard(_EnvBoard):
 Board = MazeBoard | LabyrinthBoard
 
 
-def open_board(task: str, *, obs_mode: str = "state", action_type: str = "discrete", render_size: int = 480) -> Board:
-    """The board of ``task`` (a canonical name: :func:`~bimgame.envs.puzzles.puzzle`); ``obs_mode`` and
-    ``action_type`` apply to the labyrinth (the maze's play is state-observed and discrete)."""
+def open_board(
+    task: str,
+    *,
+    obs_mode: str = "state",
+    action_type: str = "discrete",
+    render_size: int = 480,
+    surroundings: bool = False,
+) -> Board:
+    """The board of ``task`` (a canonical name: :func:`~bimgame.envs.puzzles.puzzle`); ``obs_mode``,
+    ``action_type`` and ``surroundings`` apply to the labyrinth (the maze's play is state-observed and
+    discrete)."""
     if puzzle(task).is_maze:
         return MazeBoard(task, render_size=render_size)
-    return LabyrinthBoard(task, obs_mode=obs_mode, action_type=action_type, render_size=render_size)
+    return LabyrinthBoard(
+        task, obs_mode=obs_mode, action_type=action_type, render_size=render_size, surroundings=surroundings
+    )
