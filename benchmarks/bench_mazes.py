@@ -7,7 +7,9 @@ of one maze (MERL's, ``num_mazes=None``), 100 mazes (their specs, models' wall p
 cached after the first use) and unlimited mazes (a new maze per episode: generated, its pieces
 computed and, for pixels, its raster drawn), for state and pixel observations and 16 and 64 envs;
 for state observations also unlimited mazes with gate bearings (``gate_bearings=True``).
-Rates are relative to one maze in the same run (the machine's speed drifts). Also: the µs of one
+Rates are relative to one maze in the same round (the machine's speed drifts): every setting is
+measured once per round, ``--rounds`` rounds, and the table gives the medians of the rates and of
+the per-round ratios (each round's in the JSON). Also: the µs of one
 ``BallInMazeEnv.reset`` in each setting, and of ``MazeSim.set_walls`` against building a model.
 Every measurement starts with the per-process maze caches empty (:func:`clear_maze_caches`): the
 settings draw the same maze numbers from the same seeds, and an unlimited setting would otherwise find
@@ -15,7 +17,7 @@ an earlier setting's mazes ready.
 
 The issue's goal: mazes change with at most 10% loss of the vector env's steps/s.
 
-Usage: ``python benchmarks/bench_mazes.py [--episode-steps N] [--steps N] [--results PATH]``; writes
+Usage: ``python benchmarks/bench_mazes.py [--episode-steps N] [--steps N] [--rounds N] [--results PATH]``; writes
 ``--results`` (default ``benchmarks/results/mazes.json``).
 """
 
@@ -28,6 +30,7 @@ import time
 from pathlib import Path
 
 import mujoco
+import numpy as np
 from bench_env import best_of, vector_rate  # benchmarks/ is the script's directory, on sys.path
 
 from bimgame.envs.env import BallInMazeEnv
@@ -107,6 +110,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episode-steps", type=int, default=150, help="steps per episode (default 150)")
     parser.add_argument("--steps", type=int, default=600, help="vector env steps per repeat (default 600)")
+    parser.add_argument(
+        "--rounds", type=int, default=5, help="measurements of every setting, interleaved; medians (default 5)"
+    )
     parser.add_argument("--results", type=Path, default=RESULTS, help="default benchmarks/results/mazes.json")
     args = parser.parse_args()
     switch, build = switch_us()
@@ -117,19 +123,22 @@ def main() -> None:
     for obs_mode in ("state", "pixels"):
         for label, num_mazes in SETTINGS:
             rows[f"env.reset, {obs_mode}, {label} (µs)"] = (reset_us(obs_mode, num_mazes), "µs", None)
-    for obs_mode in ("state", "pixels"):
-        for num_envs in (16, 64):
-            baseline = None
-            settings = [(label, n, False) for label, n in SETTINGS]
-            settings += [(BEARINGS, 0, True)] if obs_mode == "state" else []
-            for label, num_mazes, bearings in settings:
-                rate = maze_vector_rate(obs_mode, num_envs, args.steps, args.episode_steps, num_mazes, bearings)
-                baseline = baseline or rate
-                rows[f"vector env {num_envs} envs, {obs_mode}, {label} (env steps/s)"] = (
-                    rate,
-                    "steps/s",
-                    rate / baseline,
-                )
+    ratios: dict[str, list[float]] = {}
+    rates: dict[str, list[float]] = {}
+    for _ in range(args.rounds):  # every setting once per round: drift hits them alike
+        for obs_mode in ("state", "pixels"):
+            for num_envs in (16, 64):
+                baseline = None
+                settings = [(label, n, False) for label, n in SETTINGS]
+                settings += [(BEARINGS, 0, True)] if obs_mode == "state" else []
+                for label, num_mazes, bearings in settings:
+                    rate = maze_vector_rate(obs_mode, num_envs, args.steps, args.episode_steps, num_mazes, bearings)
+                    baseline = baseline or rate
+                    name = f"vector env {num_envs} envs, {obs_mode}, {label} (env steps/s)"
+                    rates.setdefault(name, []).append(rate)
+                    ratios.setdefault(name, []).append(rate / baseline)
+    for name, values in rates.items():
+        rows[name] = (float(np.median(values)), "steps/s", float(np.median(ratios[name])))
     table = {}
     print(f"{'measurement':62s} {'value':>12s} {'vs one maze':>12s}")
     for name, (value, unit, ratio) in rows.items():
@@ -141,6 +150,9 @@ def main() -> None:
         "mujoco": mujoco.__version__,
         "episode_steps": args.episode_steps,
         "steps": args.steps,
+        "rounds": args.rounds,
+        "ratios_per_round": ratios,
+        "rates_per_round": rates,
         "time": time.strftime("%Y-%m-%dT%H:%M:%S"),
         "results": table,
     }
