@@ -247,7 +247,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--curricula demo needs --expert-data (the layout's expert dataset: bimgame generate)")
     if args.expert_data is not None:
         args.expert_data = args.expert_data.absolute()
-    args.settings = _settings(args.set, parser)
+    context = {"task": f"LABYRINTH-{args.layout.upper()}", "obs": args.obs, "action_type": "continuous"}
+    args.settings = _settings(args.set, parser, context)
     if args.init is not None:
         args.init = args.init.absolute()
     suffix = "".join(f"-{key.replace('_', '-')}{value}" for key, value in sorted(args.settings.items()))

@@ -138,8 +138,11 @@ def _measure(run_dir: Path, steps: int, bin_steps: int, threshold: float) -> tup
     return row, crossing
 
 
-def _settings(pairs: list[str], parser: argparse.ArgumentParser) -> dict[str, object]:
-    """``NAME=VALUE`` pairs as PPO flat settings (values read as JSON where they parse: numbers, null)."""
+def _settings(
+    pairs: list[str], parser: argparse.ArgumentParser, context: dict[str, object] | None = None
+) -> dict[str, object]:
+    """``NAME=VALUE`` pairs as PPO flat settings (values read as JSON where they parse: numbers, null),
+    checked together with ``context``, the settings the caller's runs have anyway (task, obs …)."""
     settings: dict[str, object] = {}
     for pair in pairs:
         name, sep, text = pair.partition("=")
@@ -149,7 +152,7 @@ def _settings(pairs: list[str], parser: argparse.ArgumentParser) -> dict[str, ob
             settings[name] = json.loads(text)
         except json.JSONDecodeError:
             settings[name] = text
-    PPOConfig.from_flat(settings)  # refuse bad values now, not after hours of other runs
+    PPOConfig.from_flat({**(context or {}), **settings})  # refuse bad values now, not after hours of other runs
     return settings
 
 
