@@ -48,7 +48,6 @@ def failure(env: BallInMazeEnv, actor: RecurrentActor, seed: int, max_steps: int
             break
     last = np.array(kinematics[-window:])
     return {
-        "seed_index": None,
         "steps": len(actions),
         "terminated": bool(terminated),
         "final_xy": [round(float(v), 4) for v in last[-1, :2]],
@@ -77,7 +76,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     for index in range(args.episodes):
         found = failure(env, actor, episode_seed(PROTOCOL_SEED, index), args.max_steps, args.window)
         if found is not None:
-            found["seed_index"] = index
+            found = {"seed_index": index, **found}
             failures.append(found)
             print(index, found, flush=True)
     env.close()

@@ -75,9 +75,9 @@ class Surroundings:
 
     def __init__(self, board: LabyrinthSpec):
         self.board = board
-        holes = np.array(board.holes, dtype=np.float64).reshape(-1, 2)
-        missing = max(0, SURROUNDING_HOLES - len(holes))
-        self._holes = np.concatenate([holes, np.full((missing, 2), 1e3)]) if missing else holes
+        self._holes = np.array(board.holes, dtype=np.float64).reshape(-1, 2)
+        #: Holes the board lacks for a full observation, each read as NO_HOLE.
+        self._missing = max(0, SURROUNDING_HOLES - len(self._holes))
         self._walls = np.array(board.walls, dtype=np.float64).reshape(-1, 4)
         angles = 2 * math.pi * np.arange(WALL_RAYS) / WALL_RAYS
         directions = np.stack([np.cos(angles), np.sin(angles)], axis=1)
@@ -93,8 +93,9 @@ class Surroundings:
         offsets = self._holes - p[..., None, :]  # (..., H, 2)
         nearest = np.argsort((offsets**2).sum(axis=-1), axis=-1, kind="stable")[..., :SURROUNDING_HOLES]
         holes = np.take_along_axis(offsets, nearest[..., None], axis=-2)
-        if len(self.board.holes) < SURROUNDING_HOLES:
-            holes[..., len(self.board.holes) :, :] = NO_HOLE
+        if self._missing:
+            absent = np.broadcast_to(NO_HOLE, (*p.shape[:-1], self._missing, 2))
+            holes = np.concatenate([holes, absent], axis=-2)
         return np.concatenate([holes.reshape(*p.shape[:-1], -1), self._distances(p)], axis=-1, dtype=np.float32)
 
     def _distances(self, p: np.ndarray) -> np.ndarray:

@@ -180,12 +180,11 @@ class Puzzle:
         the circular maze's random-maze arguments (``num_mazes``, ``start_maze``), or the labyrinth's
         ``surroundings``."""
         check_obs("obs_mode", self.task, obs_mode)
-        if self.is_maze:
-            if maze_options.get("surroundings"):
-                raise ValueError(f"surroundings are the labyrinth's holes and walls, not {self.task}'s")
-            maze_options.pop("surroundings", None)
-            return BallInMazeEnv(self.task, obs_mode=obs_mode, action_type=action_type, **maze_options)
         surroundings = maze_options.pop("surroundings", False)
+        if self.is_maze:
+            if surroundings:
+                raise ValueError(f"surroundings are the labyrinth's holes and walls, not {self.task}'s")
+            return BallInMazeEnv(self.task, obs_mode=obs_mode, action_type=action_type, **maze_options)
         if maze_options:
             raise ValueError(f"{', '.join(maze_options)}: random mazes are circular mazes, not {self.task}")
         assert self.layout is not None

@@ -58,6 +58,7 @@ from bimgame.experiments.statistics import mean_interval
 from bimgame.expert.labyrinth_mpc import LabyrinthMPC
 from bimgame.learn.actor import EvalResult, evaluate_network
 from bimgame.learn.common import MAX_SEED, load_run_network
+from bimgame.learn.maze_runs import network_env_options
 from bimgame.util.progress import ProgressBar
 from bimgame.util.settings import require_int
 
@@ -190,7 +191,7 @@ def _play_network(
             seed=seed,
             greedy=not sampled,
             max_episode_steps=puzzle(task).time_limit,
-            mazes={"surroundings": True} if run.network.surroundings else None,
+            mazes=network_env_options(run.network) or None,
         )
         bar.update(advance=1)
     facts = {"obs": run.network.obs, "action_type": run.network.action_type, "step": step}

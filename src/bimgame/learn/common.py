@@ -26,7 +26,7 @@ from bimgame.learn.cyberrunner import check_cyberrunner_network, cyberrunner_net
 from bimgame.learn.encoders import MAZE_FRAMES
 from bimgame.learn.evaluations import evaluate_greedy_and_sampled, evaluation_seed
 from bimgame.learn.learner_settings import MAX_STEPS, FlatSettings, ScheduleSettings, check_at_most
-from bimgame.learn.maze_runs import maze_network, maze_options
+from bimgame.learn.maze_runs import maze_network, network_env_options
 from bimgame.learn.nets import (
     PRECISIONS,
     NetConfig,
@@ -429,9 +429,7 @@ class LearnerSettings(FlatSettings):
     @property
     def maze_options(self) -> dict[str, Any]:
         """The env arguments of the run's mazes (empty on MERL's maze alone)."""
-        network = getattr(self, "network", None)
-        bearings, around = (bool(getattr(network, name, False)) for name in ("gate_bearings", "surroundings"))
-        return maze_options(self.num_mazes, self.start_maze, gate_bearings=bearings, surroundings=around)
+        return network_env_options(getattr(self, "network", None), self.num_mazes, self.start_maze)
 
     @property
     def time_limit(self) -> int:

@@ -10,7 +10,7 @@ from typing import Any
 from bimgame.learn.learner_settings import check_puzzle
 from bimgame.util.settings import require_int
 
-__all__ = ["maze_network", "maze_options"]
+__all__ = ["maze_network", "maze_options", "network_env_options"]
 
 
 def maze_network(owner: str, task: str, network: Any, *, num_mazes: int | None, start_maze: int) -> Any:
@@ -54,3 +54,16 @@ def maze_options(
     if num_mazes is None:
         return {"surroundings": True} if surroundings else {}
     return {"num_mazes": num_mazes, "start_maze": start_maze, **({"gate_bearings": True} if gate_bearings else {})}
+
+
+def network_env_options(network: Any, num_mazes: int | None = None, start_maze: int = 0) -> dict[str, Any]:
+    """The env arguments of a run on ``num_mazes`` mazes (from ``start_maze``) whose ``network`` (network
+    settings, or None) reads what it reads: gate bearings on mazes, the labyrinth's surroundings
+    (:func:`maze_options` with the network's own switches). Every place that builds envs for a network
+    asks here."""
+    return maze_options(
+        num_mazes,
+        start_maze,
+        gate_bearings=bool(getattr(network, "gate_bearings", False)),
+        surroundings=bool(getattr(network, "surroundings", False)),
+    )

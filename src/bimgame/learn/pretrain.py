@@ -42,7 +42,7 @@ from bimgame.expert.episode import Episode
 from bimgame.learn.checkpoints import load_weights, save_checkpoint
 from bimgame.learn.evaluations import evaluate_greedy_and_sampled
 from bimgame.learn.expert_data import check_dataset_task, dataset_action_type, load_sequences
-from bimgame.learn.maze_runs import maze_options
+from bimgame.learn.maze_runs import network_env_options
 from bimgame.learn.metric_logs import MetricLog
 from bimgame.learn.nets import RecurrentActorCritic, ValueNetwork
 from bimgame.learn.run_dir import RunDirectory
@@ -406,12 +406,7 @@ def evaluate_policy(
     ``mazes`` (:func:`~bimgame.expert.datasets.dataset_mazes`: each episode's drawn from them) or,
     without, MERL's maze."""
     mazes = mazes or {}
-    options = maze_options(
-        mazes.get("num_mazes"),
-        mazes.get("start_maze", 0),
-        gate_bearings=config.gate_bearings,
-        surroundings=config.surroundings,
-    )
+    options = network_env_options(config, mazes.get("num_mazes"), mazes.get("start_maze", 0))
     return {
         "episodes": config.eval_episodes,
         **evaluate_greedy_and_sampled(

@@ -11,7 +11,7 @@ from typing import Any
 from bimgame.envs.puzzles import puzzle
 from bimgame.expert.labyrinth_mpc import LabyrinthMPCConfig
 from bimgame.expert.mpc import MPCConfig
-from bimgame.learn.maze_runs import maze_network, maze_options
+from bimgame.learn.maze_runs import maze_network, network_env_options
 from bimgame.learn.policy_heads import require_discrete
 from bimgame.learn.run_dir import stored_run_config
 from bimgame.learn.runs import KIND_DAGGER, read_run_settings
@@ -126,12 +126,7 @@ class DAggerConfig:
     @property
     def maze_options(self) -> dict[str, Any]:
         """The env arguments of the run's mazes (empty on MERL's maze alone)."""
-        return maze_options(
-            self.num_mazes,
-            self.start_maze,
-            gate_bearings=bool(getattr(self.learner, "gate_bearings", False)),
-            surroundings=bool(getattr(self.learner, "surroundings", False)),
-        )
+        return network_env_options(self.learner, self.num_mazes, self.start_maze)
 
     #: What a resumed run may change.
     RESUMABLE_CHANGES = ("iterations", "eval_episodes")
