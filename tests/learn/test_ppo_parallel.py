@@ -11,7 +11,7 @@ import torch
 
 from bimgame.learn.checkpoints import load_checkpoint
 from bimgame.learn.ppo import PPOConfig, train_ppo
-from bimgame.learn.ppo.learner import rank_seeds
+from bimgame.learn.ppo.collectors import rank_seeds
 
 TWO_RANKS = dict(task="STG1", obs="state", hidden=16, features=16, workers=2, envs_per_worker=2, n_steps=32,
                  minibatches=2, sequence_length=8, steps=256, eval_every=0, eval_episodes=2, log_every=64,

@@ -4,6 +4,8 @@ advantage estimate is GAE / n-step returns."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -11,7 +13,7 @@ import torch
 from bimgame.envs.vector import BallInMazeVectorEnv
 from bimgame.learn.a3c import A3CConfig, network_for
 from bimgame.learn.actor import RecurrentActor
-from bimgame.learn.rollout import FinishedEpisode, NonFiniteReward, RolloutCollector, advantages_and_targets
+from bimgame.learn.rollout import FinishedEpisode, NonFiniteReward, RolloutCollector, Segment, advantages_and_targets
 
 SMALL = dict(task="STG1", obs="state", hidden=16, features=16)
 
@@ -144,3 +146,17 @@ def test_advantages_are_one_step_td_errors_at_lambda_0_and_n_step_returns_at_lam
         for t in reversed(range(6)):
             ret = rewards[t] + 0.9 * ret * not_end[t]
             assert torch.allclose(targets[t], ret, atol=1e-6)
+
+
+def test_segments_of_some_environments_side_by_side_are_the_whole_segment():
+    collector, _, _, _ = _collector(batch=3, privileged=True)
+    segment = collector.collect(12, 0)
+    parts = [segment.envs(torch.tensor([0, 1])), segment.envs(torch.tensor([2]))]
+    joined = Segment.side_by_side(parts)
+    for field in dataclasses.fields(segment):
+        value = getattr(segment, field.name)
+        if isinstance(value, torch.Tensor):
+            assert torch.equal(getattr(joined, field.name), value), field.name
+    assert torch.equal(joined.initial_state.h, segment.initial_state.h)
+    assert torch.equal(joined.initial_state.c, segment.initial_state.c)
+    assert joined.step_at_start == segment.step_at_start and joined.privileged is not None

@@ -20,6 +20,7 @@ import torch
 
 from bimgame.envs.puzzles import puzzle
 from bimgame.learn.nets import LSTMState, RecurrentActorCritic
+from bimgame.learn.policy_heads import ActionDistribution
 from bimgame.sim.maze import MazeSpec
 
 __all__ = ["RecurrentActor", "EvalResult", "evaluate_network", "tilt_input", "episode_successes"]
@@ -45,7 +46,9 @@ def episode_successes(info: dict[str, Any], terminated: np.ndarray) -> np.ndarra
 
 
 class RecurrentActor:
-    """Acts for ``num_envs`` environments with one batched forward pass per step.
+    """Acts for ``num_envs`` environments with one batched forward pass per step; sampled actions
+    come from π at ``temperature`` (1: the network's own π; a learner's behaviour policy may be
+    sharper), greedy ones are the most likely action.
 
     Call :meth:`act` with the current observations, step the env, then :meth:`observe` the result
     (rewards and which episodes ended) before the next :meth:`act`."""
@@ -57,11 +60,13 @@ class RecurrentActor:
         *,
         generator: torch.Generator | None = None,
         greedy: bool = False,
+        temperature: float = 1.0,
     ):
         self.net = net
         self.num_envs = num_envs
         self.generator = generator
         self.greedy = greedy
+        self.temperature = temperature
         self.reset()
 
     def reset(self) -> None:
@@ -83,9 +88,13 @@ class RecurrentActor:
         action (the Gaussian's mean); else a sample, every random number from the actor's generator."""
         obs_t = torch.as_tensor(obs)
         output, values, self.state = self.net.step(obs_t, self.prev_action, self.prev_reward, tilt, self.state)
-        policy = self.net.distribution(output)
+        policy = self.distribution(output)
         actions = policy.greedy() if self.greedy else policy.sample(self.generator)
         return actions, output, values
+
+    def distribution(self, output: torch.Tensor) -> ActionDistribution:
+        """The policy the actor samples from: the network's at the actor's ``temperature``."""
+        return self.net.distribution(output, self.temperature)
 
     def executed(self, actions: torch.Tensor) -> torch.Tensor:
         """What the env executes of :meth:`act`'s actions: the same discrete actions, or continuous

@@ -276,9 +276,10 @@ class RecurrentActorCritic(nn.Module):
             parts.append(tilt.float())
         return torch.cat(parts, dim=-1)
 
-    def distribution(self, output: torch.Tensor) -> ActionDistribution:
-        """π(·|s) from the policy head's output (…, A) (:meth:`step`'s, or :attr:`Unrolled.logits`)."""
-        return self.action_head.distribution(output, self.log_std)
+    def distribution(self, output: torch.Tensor, temperature: float = 1.0) -> ActionDistribution:
+        """π(·|s) from the policy head's output (…, A) (:meth:`step`'s, or :attr:`Unrolled.logits`),
+        tempered by ``temperature`` (:meth:`~bimgame.learn.policy_heads.ActionHead.distribution`)."""
+        return self.action_head.distribution(output, self.log_std, temperature)
 
     def critic_parameters(self) -> list[nn.Parameter]:
         """The weights only the value estimate uses: the value head and an asymmetric critic's state MLP."""

@@ -156,8 +156,12 @@ class ActionHead(Protocol):
         """What the env executes of the policy's actions (and the next step's previous action)."""
         ...
 
-    def distribution(self, output: torch.Tensor, log_std: torch.Tensor | None) -> ActionDistribution:
-        """π from the policy head's output (…, output_size) and, continuous, the learned log std."""
+    def distribution(
+        self, output: torch.Tensor, log_std: torch.Tensor | None, temperature: float = 1.0
+    ) -> ActionDistribution:
+        """π from the policy head's output (…, output_size) and, continuous, the learned log std; at a
+        ``temperature`` other than 1, π tempered as :meth:`frozen` tempers a teacher (the logits
+        divided by it, or the standard deviation times it: below 1 a sharper π, the same greedy action)."""
         ...
 
     def frozen(self, output: torch.Tensor, log_std: torch.Tensor | None, temperature: float) -> torch.Tensor:
@@ -192,8 +196,10 @@ class DiscreteActions:
     def executed(self, actions: torch.Tensor) -> torch.Tensor:
         return actions
 
-    def distribution(self, output: torch.Tensor, log_std: torch.Tensor | None) -> ActionDistribution:
-        return Categorical(output)
+    def distribution(
+        self, output: torch.Tensor, log_std: torch.Tensor | None, temperature: float = 1.0
+    ) -> ActionDistribution:
+        return Categorical(output if temperature == 1.0 else output / temperature)
 
     def frozen(self, output: torch.Tensor, log_std: torch.Tensor | None, temperature: float) -> torch.Tensor:
         return torch.log_softmax(output / temperature, dim=-1)
@@ -223,8 +229,11 @@ class ContinuousActions:
     def executed(self, actions: torch.Tensor) -> torch.Tensor:
         return actions.clamp(-1.0, 1.0)
 
-    def distribution(self, output: torch.Tensor, log_std: torch.Tensor | None) -> ActionDistribution:
-        return DiagonalGaussian(output, _required(log_std))
+    def distribution(
+        self, output: torch.Tensor, log_std: torch.Tensor | None, temperature: float = 1.0
+    ) -> ActionDistribution:
+        log_std = _required(log_std)
+        return DiagonalGaussian(output, log_std if temperature == 1.0 else log_std + math.log(temperature))
 
     def frozen(self, output: torch.Tensor, log_std: torch.Tensor | None, temperature: float) -> torch.Tensor:
         scaled = (_required(log_std) + math.log(temperature)).expand_as(output)

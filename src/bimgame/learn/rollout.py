@@ -107,6 +107,21 @@ class Segment:
         h, c = self.initial_state
         return dataclasses.replace(self, **by_env, initial_state=LSTMState(h[index], c[index]))
 
+    @classmethod
+    def side_by_side(cls, parts: list[Segment]) -> Segment:
+        """The segments of several groups of environments, collected over the same steps, as one:
+        their environments in the order of ``parts`` (what PPO's collector processes return)."""
+        first = parts[0]
+        joined: dict[str, Any] = {
+            field.name: torch.cat([getattr(part, field.name) for part in parts], dim=1)
+            for field in dataclasses.fields(first)
+            if isinstance(getattr(first, field.name), torch.Tensor)
+        }
+        states = LSTMState(
+            torch.cat([part.initial_state.h for part in parts]), torch.cat([part.initial_state.c for part in parts])
+        )
+        return dataclasses.replace(first, **joined, initial_state=states)
+
     def to(self, device: torch.device) -> Segment:
         """The segment on ``device`` (where a learner's update runs)."""
         moved: dict[str, Any] = {
@@ -370,7 +385,7 @@ class RolloutCollector:
             obs = torch.as_tensor(self.obs)
             self._record_inputs(columns, obs, tilt)
             actions, output, values = actor.act(obs, tilt)
-            columns["log_probs"].append(actor.net.distribution(output).log_prob(actions))
+            columns["log_probs"].append(actor.distribution(output).log_prob(actions))
             columns["values"].append(values)
             rewards = self._step(actions, step_at_start)
             columns["actions"].append(actions)
@@ -395,6 +410,14 @@ class RolloutCollector:
             values=stacked["values"],
             step_at_start=step_at_start,
         )
+
+    def close(self) -> None:
+        """Close the environments (the collector is not used afterwards)."""
+        self.env.close()
+
+    def curriculum_status(self) -> dict[str, float]:
+        """The start curriculum's status (empty without one): what a learner's update log adds."""
+        return self.curriculum.status() if self.curriculum is not None else {}
 
     def _record_inputs(self, columns: dict[str, list[torch.Tensor]], obs: torch.Tensor, tilt: torch.Tensor) -> None:
         """Append one step's network inputs (and, where the segment keeps it, the privileged state of

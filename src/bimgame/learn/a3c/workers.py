@@ -114,7 +114,7 @@ def _worker_loop(rank: int, run: RunShared) -> None:
             counter.value += config.steps_per_update
         report.add(parts, config.steps_per_update)
         if report.due:
-            status = collector.curriculum.status() if collector.curriculum is not None else {}
+            status = collector.curriculum_status()
             payload = report.flush(int(counter.value), learner.weights, status, learner.entropy_coef)
             messages.put(("update", rank, payload))
 

@@ -16,14 +16,18 @@ continuous``), the env's continuous tilt changes under a diagonal Gaussian polic
 (:mod:`bimgame.learn.policy_heads`): the loss takes log-probabilities and entropy from the network's
 action distribution, whichever it is.
 
-Beyond one process: ``workers`` ranks, each with its own environments, average every minibatch's
-gradient (:mod:`~bimgame.learn.ppo.parallel`); ``device`` puts the update on a GPU while the
+Beyond one process: ``collectors`` child processes step the environments and act while this process
+updates (:mod:`~bimgame.learn.ppo.collectors`; with ``policy_lag`` 1 the two overlap); ``workers``
+ranks, each with its own environments, average every minibatch's gradient
+(:mod:`~bimgame.learn.ppo.parallel`); ``device`` puts the update on a GPU while the
 environments and the acting network stay on the CPU (:mod:`bimgame.learn.devices`). Fine-tuning from
 π^s (``--init``) can keep it with kickstarting's KL (:class:`~bimgame.learn.ppo.settings.PPOFinetuneSettings`).
 
 Modules: :mod:`~bimgame.learn.ppo.settings` (:class:`PPOConfig` and its parts),
 :mod:`~bimgame.learn.ppo.update` (the loss and the update of one rollout),
-:mod:`~bimgame.learn.ppo.learner` (one rank: its environments, collector and update),
+:mod:`~bimgame.learn.ppo.learner` (one rank: its collector and update),
+:mod:`~bimgame.learn.ppo.collectors` (the environments, here or in collector processes),
+:mod:`~bimgame.learn.ppo.processes` (messages between processes),
 :mod:`~bimgame.learn.ppo.parallel` (the worker processes) and :mod:`~bimgame.learn.ppo.training`
 (:func:`train_ppo`: the run directory, logs, checkpoints, resume).
 

@@ -6,7 +6,9 @@ of the network and of Adam. Rank 0 is the process that called :func:`~bimgame.le
 :mod:`bimgame.learn.ppo.parallel`. Every rank collects a rollout and trains on its own sequences;
 the gradients of each minibatch are averaged over the ranks before the step (decentralised
 distributed PPO, Wijmans et al. 2020), so the copies stay identical and the run is one PPO whose
-rollout holds every rank's environments. With one worker nothing is averaged.
+rollout holds every rank's environments. With one worker nothing is averaged. A rank's
+environments are stepped in its own process, or (one rank, ``collectors`` ≥ 1) in collector processes
+(:mod:`bimgame.learn.ppo.collectors`); either gives the same ``collect``.
 
 With ``policy_lag`` 1 (one rank) the update of a rollout runs in a second thread while the
 collector steps the environments for the next one with the weights from before that update: the
@@ -22,34 +24,24 @@ from __future__ import annotations
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor, wait
 
-import numpy as np
 import torch
 
-from bimgame.learn.actor import RecurrentActor
-from bimgame.learn.curricula import start_curriculum
 from bimgame.learn.finetune import Teacher
 from bimgame.learn.learner_settings import policy_network
 from bimgame.learn.nets import RecurrentActorCritic
+from bimgame.learn.ppo.collectors import CollectorProcesses, rank_seeds, rollout_collector
 from bimgame.learn.ppo.settings import PPOConfig
 from bimgame.learn.ppo.update import GradientAverage, KLTarget, ppo_update
-from bimgame.learn.rewards import EnvWrapper, shaped_env
-from bimgame.learn.rollout import FinishedEpisode, NonFiniteReward, RolloutCollector, Segment, training_env
+from bimgame.learn.rewards import EnvWrapper
+from bimgame.learn.rollout import FinishedEpisode, NonFiniteReward, RolloutCollector, Segment
 from bimgame.learn.run_dir import TrainingError
 
-__all__ = ["RankLearner", "rank_seeds", "adam"]
+__all__ = ["RankLearner", "adam"]
 
 
 def adam(net: torch.nn.Module, config: PPOConfig) -> torch.optim.Adam:
     """PPO's optimiser (every rank builds the same)."""
     return torch.optim.Adam(net.parameters(), lr=config.optimization.lr, eps=config.optimization.optimizer_eps)
-
-
-def rank_seeds(seed: int, step: int, rank: int) -> tuple[int, int, int]:
-    """The seeds of a rank's environments, action sampling and minibatch order for a session that
-    starts at ``step`` (fresh episodes at every resume). Rank 0's are those of a one-process run."""
-    entropy = [seed, step] if rank == 0 else [seed, step, rank]
-    env_seed, act_seed, batch_seed = np.random.SeedSequence(entropy).generate_state(3)
-    return int(env_seed), int(act_seed), int(batch_seed)
 
 
 class RankLearner:
@@ -96,33 +88,21 @@ class RankLearner:
         self._ahead = 0  # steps the collector is ahead of the run's count (one rollout while collecting ahead)
         self.device = next(self.learning.parameters()).device
         self.teacher = _teacher(config, teacher)
-        env_seed, act_seed, batch_seed = rank_seeds(config.seed, step, rank)
-        self.batches = torch.Generator().manual_seed(batch_seed)
-        envs = config.schedule.envs_per_worker
-        curriculum = start_curriculum(config.task, config.curriculum, config.expert_data)
-        env = training_env(
-            envs,
-            task=config.task,
-            obs=config.network.obs,
-            time_limit=config.time_limit,
-            privileged=config.network.privileged,
-            action_type=config.network.action_type,
-            start_sampler=curriculum,
-            **config.maze_options,
-        )
-        actor = RecurrentActor(net, envs, generator=torch.Generator().manual_seed(act_seed))
-        self.collector = RolloutCollector(
-            shaped_env(env, env_wrapper),
-            env,
-            actor,
-            gamma=config.optimization.gamma,
-            tilt_input=config.network.tilt_input,
-            privileged=config.network.privileged,
-            on_episode=on_episode,
-            global_step=lambda: global_step() + self._ahead,
-            curriculum=curriculum,
-        )
-        self.collector.reset(env_seed, step)
+        self.batches = torch.Generator().manual_seed(rank_seeds(config.seed, step, rank)[2])
+        self.collector: RolloutCollector | CollectorProcesses
+        if config.collectors:
+            self.collector = CollectorProcesses(config, net, step=step, on_episode=on_episode, env_wrapper=env_wrapper)
+        else:
+            self.collector = rollout_collector(
+                config,
+                net,
+                envs=config.schedule.envs_per_worker,
+                rank=rank,
+                step=step,
+                on_episode=on_episode,
+                global_step=lambda: global_step() + self._ahead,
+                env_wrapper=env_wrapper,
+            )
 
     def rollout_and_update(self, step: int, *, collect_next: bool = True) -> dict[str, float]:
         """Collect one rollout (the run at ``step``) and train on it; returns the update's averaged
@@ -151,9 +131,11 @@ class RankLearner:
         return self._take_weights(update.result(), step)
 
     def close(self) -> None:
-        """End the update thread (with a policy lag); the learner is not used afterwards."""
+        """End the update thread (with a policy lag) and the collector's environments (and processes);
+        the learner is not used afterwards."""
         if self._updater is not None:
             self._updater.shutdown(wait=True)
+        self.collector.close()
 
     def _collect(self, step: int) -> Segment:
         try:
@@ -186,8 +168,7 @@ class RankLearner:
 
     def curriculum_status(self) -> dict[str, float]:
         """This rank's start curriculum's status (empty without one): what the update's log row adds."""
-        curriculum = self.collector.curriculum
-        return curriculum.status() if curriculum is not None else {}
+        return self.collector.curriculum_status()
 
     def _kl_to_teacher(self, segment: Segment, step: int) -> KLTarget | None:
         """π^s's log-probabilities over the segment and the KL weight at ``step`` (None without a

@@ -44,6 +44,7 @@ import torch.distributed as dist
 
 from bimgame.learn.learner_settings import policy_network
 from bimgame.learn.ppo.learner import RankLearner, adam
+from bimgame.learn.ppo.processes import next_command, next_message, stop_children
 from bimgame.learn.ppo.settings import PPOConfig
 from bimgame.learn.ppo.update import GradientAverage
 from bimgame.learn.rewards import EnvWrapper
@@ -55,8 +56,6 @@ __all__ = ["WorkerGroup"]
 #: How long a rank waits for the others to join the group or to reach an all-reduce (the ranks
 #: start every rollout together, so this bounds the difference of their collection times).
 _COLLECTIVE_TIMEOUT = datetime.timedelta(minutes=5)
-#: How often rank 0 checks that a worker it waits for is still alive.
-_POLL_SECONDS = 1.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -106,7 +105,7 @@ def _worker_main(start: _WorkerStart, commands: Any, messages: Any) -> None:
             env_wrapper=start.env_wrapper,
         )
         while True:
-            command, step = _next_command(commands, start.parent)
+            command, step = next_command(commands, start.parent)
             if command == "stop":
                 break
             learner.rollout_and_update(step)
@@ -118,16 +117,6 @@ def _worker_main(start: _WorkerStart, commands: Any, messages: Any) -> None:
     finally:
         if dist.is_initialized():
             dist.destroy_process_group()
-
-
-def _next_command(commands: Any, parent: int) -> tuple[str, int]:
-    """Rank 0's next command; a worker whose parent is gone (killed without a word) stops."""
-    while True:
-        try:
-            return commands.get(timeout=_POLL_SECONDS)
-        except queue.Empty:
-            if os.getppid() != parent:
-                return "stop", 0
 
 
 def _join(rendezvous: str, rank: int, world: int) -> None:
@@ -212,22 +201,9 @@ class WorkerGroup:
         every worker's message of that rollout)."""
         by_rank: dict[int, list[FinishedEpisode]] = {}
         while len(by_rank) < self.world - 1:
-            kind, rank, payload = self._next_message()
-            if kind == "error":
-                raise TrainingError(f"PPO worker {rank} failed:\n{payload}")
+            _, rank, payload = next_message(self.messages, self.processes, "PPO worker", first=1)
             by_rank[rank] = payload
         return [episode for rank in sorted(by_rank) for episode in by_rank[rank]]
-
-    def _next_message(self) -> tuple[str, int, Any]:
-        while True:
-            try:
-                return self.messages.get(timeout=_POLL_SECONDS)
-            except queue.Empty:
-                for rank, process in enumerate(self.processes, 1):
-                    if not process.is_alive():
-                        raise TrainingError(
-                            f"PPO worker {rank} ended without a word (exit code {process.exitcode})"
-                        ) from None
 
     def _worker_failure(self) -> TrainingError | None:
         """A worker's own report of its failure, if one comes within a few seconds."""
@@ -242,15 +218,6 @@ class WorkerGroup:
     def _stop(self, *, terminate: bool) -> None:
         """End the workers — at the run's end they have finished, after a failure or an interruption
         they are stopped — and the process group."""
-        for commands in self.commands:
-            commands.put(("stop", 0))
-        for process in self.processes:
-            if terminate:
-                process.terminate()
-            process.join(timeout=30.0)
-            if process.is_alive():
-                process.kill()
-                process.join()
-        self.processes.clear()
+        stop_children(self.commands, self.processes, terminate=terminate)
         if dist.is_initialized():
             dist.destroy_process_group()

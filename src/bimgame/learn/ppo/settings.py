@@ -73,6 +73,13 @@ class PPOOptimizationSettings:
     """Normalise the advantages of each minibatch to zero mean and unit variance."""
     aux_coef: float = 1.0
     """Weight of the auxiliary heads' loss when the network has them (``aux_heads``)."""
+    sample_temperature: float = 1.0
+    """The temperature of the policy that acts during training and that the clipped objective and the
+    entropy bonus are of: the logits divided by it (a Gaussian's standard deviation times it). Below 1
+    training episodes act closer to the greedy policy, so that a state where the greedy action
+    repeats itself while the marble stays still shows up, and is paid for, in training rather than
+    only in greedy evaluations; the greedy action is the same at every temperature. Evaluations
+    and scoring sample at 1."""
     policy_lag: int = 0
     """0: collect a rollout, then update on it (PPO as published). 1: collect the next rollout while
     updating on the last one, in a second thread, so that stepping the environments and the update
@@ -96,7 +103,7 @@ class PPOOptimizationSettings:
                 )
         for name in ("gamma", "gae_lambda"):
             check_number(owner, name, getattr(self, name), 0.0, 1.0)
-        for name in ("clip", "lr", "optimizer_eps", "max_grad_norm"):
+        for name in ("clip", "lr", "optimizer_eps", "max_grad_norm", "sample_temperature"):
             check_number(owner, name, getattr(self, name), 0.0, math.inf, low_open=True)
         if self.value_clip is not None:
             check_number(owner, "value_clip", self.value_clip, 0.0, math.inf, low_open=True)
@@ -157,6 +164,11 @@ class PPOConfig(LearnerSettings):
     device: Device = "cpu"
     """Where the update runs: ``cpu``, ``cuda`` or ``auto`` (CUDA when there is one). The
     environments and the acting network stay on the CPU (:mod:`bimgame.learn.devices`)."""
+    collectors: int = 0
+    """Processes that step the environments and act (:mod:`bimgame.learn.ppo.collectors`): 0, this
+    process; N, N child processes of ``envs_per_worker`` / N environments each, acting with a copy of
+    the weights sent before every rollout. With ``policy_lag`` 1 and one collector, collecting and
+    updating run on two cores."""
     network: NetworkSettings = dataclasses.field(default_factory=NetworkSettings)
     """The actor-critic's observations, sizes and inputs (the same networks as A3C's)."""
     optimization: PPOOptimizationSettings = dataclasses.field(default_factory=PPOOptimizationSettings)
@@ -185,6 +197,7 @@ class PPOConfig(LearnerSettings):
     # What a resumed run may change without changing what is being learned.
     RESUMABLE_CHANGES: ClassVar[tuple[str, ...]] = (
         "device",
+        "collectors",
         "steps",
         "checkpoint_every",
         "eval_every",
@@ -207,11 +220,27 @@ class PPOConfig(LearnerSettings):
                 f"{owner}: policy_lag {self.optimization.policy_lag} overlaps one process's rollout and update "
                 f"(workers 1); with workers > 1 use policy_lag 0, got workers {self.schedule.workers!r}"
             )
+        self._check_collectors(owner)
         if self.optimization.minibatches > self.sequences_per_rollout:
             raise ValueError(
                 f"{owner}.minibatches must be at most the sequences of a rollout ({self.sequences_per_rollout}: "
                 f"envs_per_worker {self.schedule.envs_per_worker} × n_steps / sequence_length): minibatches "
                 f"split the sequences, got {self.optimization.minibatches!r}"
+            )
+
+    def _check_collectors(self, owner: str) -> None:
+        """Collector processes split one process's environments evenly (workers 1)."""
+        require_int(owner, "collectors", self.collectors, 0)
+        collectors, envs = self.collectors, self.schedule.envs_per_worker
+        if collectors and envs % collectors:
+            raise ValueError(
+                f"{owner}.collectors must be 0 (this process steps the environments) or a divisor of "
+                f"envs_per_worker ({envs}): each collector process steps an equal share, got {collectors!r}"
+            )
+        if collectors and self.schedule.workers > 1:
+            raise ValueError(
+                f"{owner}: collectors {collectors} feed one learning process (workers 1); with workers > 1 "
+                f"use collectors 0, got workers {self.schedule.workers!r}"
             )
 
     @property

@@ -126,7 +126,7 @@ def ppo_minibatch_loss(
     ``kl``). Log-probabilities and entropy are those of the network's action
     distribution (categorical or Gaussian: :meth:`~bimgame.learn.nets.RecurrentActorCritic.distribution`)."""
     out = unroll(net, segment)
-    policy = net.distribution(out.logits[:-1])
+    policy = net.distribution(out.logits[:-1], settings.sample_temperature)
     chosen = policy.log_prob(segment.actions)
     entropy = policy.entropy().mean()
     log_ratio = chosen - targets.log_probs
