@@ -46,6 +46,7 @@ from bimgame.learn.ppo.processes import next_command, next_message, stop_childre
 from bimgame.learn.ppo.settings import PPOConfig
 from bimgame.learn.rewards import EnvWrapper, shaped_env
 from bimgame.learn.rollout import FinishedEpisode, NonFiniteReward, RolloutCollector, Segment, training_env
+from bimgame.util.processes import exit_when_parent_dies
 
 __all__ = ["CollectorProcesses", "rank_seeds", "rollout_collector"]
 
@@ -127,7 +128,8 @@ def _collector_main(start: _CollectorStart, commands: Any, results: Any) -> None
     environments for one rollout and sends ``("segment", index, (segment, episodes, curriculum
     status))``; ``("stop", _)`` ends it. A non-finite reward is sent as ``("nonfinite", index, (step,
     rewards, episodes))``, any other failure as a traceback."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the learning process decides when the run stops
+    exit_when_parent_dies()  # a learning process killed with kill -9 leaves no collector behind
     torch.set_num_threads(1)
     try:
         config = PPOConfig.from_dict(start.config)
