@@ -50,6 +50,7 @@ from bimgame.learn.ppo.update import GradientAverage
 from bimgame.learn.rewards import EnvWrapper
 from bimgame.learn.rollout import FinishedEpisode
 from bimgame.learn.run_dir import TrainingError
+from bimgame.util.processes import exit_when_parent_dies
 
 __all__ = ["WorkerGroup"]
 
@@ -82,6 +83,7 @@ def _worker_main(start: _WorkerStart, commands: Any, messages: Any) -> None:
     update, and send rank 0 the rollout's finished episodes; ``("stop", _)`` ends it. A failure is
     sent as a traceback."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    exit_when_parent_dies()  # a rank 0 killed with kill -9 leaves no worker behind
     torch.set_num_threads(1)
     try:
         config = PPOConfig.from_dict(start.config)
