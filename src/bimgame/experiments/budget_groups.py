@@ -279,6 +279,8 @@ class PPOBudget:
     """Normalise each minibatch's advantages."""
     aux_coef: float = _PPO.aux_coef
     """Weight of the auxiliary heads' loss when the networks have them."""
+    sample_temperature: float = _PPO.sample_temperature
+    """Temperature of the policy that acts in training (and of the clipped objective and entropy)."""
     policy_lag: int = _PPO.policy_lag
     """1: each rollout is collected while the last one's update runs (one update of lag); 0: in turn."""
 
