@@ -223,7 +223,8 @@ class CollectorProcesses:
             else:
                 segment, episodes, status = payload
                 segments.append(segment)
-                self.status = status if index == 0 else self.status
+                if index == 0:
+                    self.status = status
             for episode in episodes:
                 self.on_episode(episode)
         if failure is not None:
