@@ -202,7 +202,7 @@ class DiscreteActions:
         return Categorical(output if temperature == 1.0 else output / temperature)
 
     def frozen(self, output: torch.Tensor, log_std: torch.Tensor | None, temperature: float) -> torch.Tensor:
-        return torch.log_softmax(output / temperature, dim=-1)
+        return Categorical(output / temperature).log_probs
 
     def kl_from(self, frozen: torch.Tensor, output: torch.Tensor, log_std: torch.Tensor | None) -> torch.Tensor:
         return categorical_kl(frozen, torch.log_softmax(output, dim=-1))
@@ -236,8 +236,8 @@ class ContinuousActions:
         return DiagonalGaussian(output, log_std if temperature == 1.0 else log_std + math.log(temperature))
 
     def frozen(self, output: torch.Tensor, log_std: torch.Tensor | None, temperature: float) -> torch.Tensor:
-        scaled = (_required(log_std) + math.log(temperature)).expand_as(output)
-        return torch.cat([output, scaled], dim=-1)
+        tempered = DiagonalGaussian(output, _required(log_std) + math.log(temperature))
+        return torch.cat([tempered.mean, tempered.log_std], dim=-1)
 
     def kl_from(self, frozen: torch.Tensor, output: torch.Tensor, log_std: torch.Tensor | None) -> torch.Tensor:
         # Closed form for diagonal Gaussians: Σ_d log(σ/σ_t) + (σ_t² + (μ_t − μ)²) / (2σ²) − ½.

@@ -28,7 +28,6 @@ own start curriculum (as each of A3C's workers has); the ``updates`` log shows t
 from __future__ import annotations
 
 import dataclasses
-import os
 import signal
 import traceback
 from collections.abc import Callable
@@ -42,7 +41,7 @@ from bimgame.learn.actor import RecurrentActor
 from bimgame.learn.curricula import start_curriculum
 from bimgame.learn.learner_settings import policy_network
 from bimgame.learn.nets import RecurrentActorCritic
-from bimgame.learn.ppo.processes import next_command, next_message, stop_children
+from bimgame.learn.ppo.processes import next_message, stop_children
 from bimgame.learn.ppo.settings import PPOConfig
 from bimgame.learn.rewards import EnvWrapper, shaped_env
 from bimgame.learn.rollout import FinishedEpisode, NonFiniteReward, RolloutCollector, Segment, training_env
@@ -117,8 +116,6 @@ class _CollectorStart:
     """The run's step the session starts at (the seeds derive from it)."""
     weights: dict[str, torch.Tensor]
     """The acting weights, in shared memory: the learning process writes them before every rollout."""
-    parent: int
-    """The learning process's id."""
     env_wrapper: EnvWrapper | None = None
     """The reward shaping the environments are stepped through (picklable)."""
 
@@ -147,7 +144,7 @@ def _collector_main(start: _CollectorStart, commands: Any, results: Any) -> None
             env_wrapper=start.env_wrapper,
         )
         while True:
-            command, now[0] = next_command(commands, start.parent)
+            command, now[0] = commands.get()
             if command == "stop":
                 break
             net.load_state_dict(start.weights)
@@ -188,7 +185,7 @@ class CollectorProcesses:
         self.status: dict[str, float] = {}
         try:
             for index, commands in enumerate(self.commands):
-                start = _CollectorStart(config.to_dict(), index, step, self.weights, os.getpid(), env_wrapper)
+                start = _CollectorStart(config.to_dict(), index, step, self.weights, env_wrapper)
                 process = context.Process(
                     target=_collector_main,
                     args=(start, commands, self.results),
@@ -203,7 +200,8 @@ class CollectorProcesses:
 
     def collect(self, n_steps: int, step_at_start: int) -> Segment:
         """One rollout of every collector's environments, acting with ``net``'s current weights, side by
-        side in the collectors' order. ``n_steps`` is the run's (each collector knows it); raises
+        side in the collectors' order. ``n_steps`` is the run's, which each collector steps (the same
+        call as :meth:`RolloutCollector.collect`); raises
         :class:`NonFiniteReward` (after booking the episodes that ended before it) when an env
         returns a non-finite reward."""
         for name, value in self.net.state_dict().items():
@@ -229,10 +227,7 @@ class CollectorProcesses:
                 self.on_episode(episode)
         if failure is not None:
             raise failure
-        segment = Segment.side_by_side(segments)
-        if segment.steps != n_steps:
-            raise RuntimeError(f"the collectors returned {segment.steps} steps, the run's rollouts have {n_steps}")
-        return segment
+        return Segment.side_by_side(segments)
 
     def curriculum_status(self) -> dict[str, float]:
         """The first collector's start curriculum's status after the last rollout (empty without one)."""

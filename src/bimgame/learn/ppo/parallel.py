@@ -29,7 +29,6 @@ from __future__ import annotations
 import dataclasses
 import datetime
 import multiprocessing
-import os
 import queue
 import signal
 import tempfile
@@ -44,7 +43,7 @@ import torch.distributed as dist
 
 from bimgame.learn.learner_settings import policy_network
 from bimgame.learn.ppo.learner import RankLearner, adam
-from bimgame.learn.ppo.processes import next_command, next_message, stop_children
+from bimgame.learn.ppo.processes import next_message, stop_children
 from bimgame.learn.ppo.settings import PPOConfig
 from bimgame.learn.ppo.update import GradientAverage
 from bimgame.learn.rewards import EnvWrapper
@@ -70,8 +69,6 @@ class _WorkerStart:
     step: int
     model: dict[str, torch.Tensor]
     optimizer: dict[str, Any]
-    parent: int
-    """The process id of rank 0."""
     teacher: dict[str, torch.Tensor] | None = None
     """π^s's weights, for a KL term."""
     env_wrapper: EnvWrapper | None = None
@@ -107,7 +104,7 @@ def _worker_main(start: _WorkerStart, commands: Any, messages: Any) -> None:
             env_wrapper=start.env_wrapper,
         )
         while True:
-            command, step = next_command(commands, start.parent)
+            command, step = commands.get()
             if command == "stop":
                 break
             learner.rollout_and_update(step)
@@ -170,7 +167,6 @@ class WorkerGroup:
                     step,
                     model,
                     optimizer.state_dict(),
-                    os.getpid(),
                     teacher,
                     env_wrapper,
                 )

@@ -5,33 +5,23 @@ noticed rather than waited for forever.
 
 Every message up is ``(kind, index, payload)``; a child that fails sends ``("error", index,
 traceback)`` before it exits. Children ignore Ctrl-C (the terminal sends it to the whole process group):
-the learning process decides when a run stops.
+the learning process decides when a run stops; a child whose learning process is killed without a
+word ends itself (:func:`~bimgame.util.processes.exit_when_parent_dies`), so a child blocks on its
+command queue with no timeout.
 """
 
 from __future__ import annotations
 
-import os
 import queue
 from collections.abc import Sequence
 from typing import Any
 
 from bimgame.learn.run_dir import TrainingError
 
-__all__ = ["POLL_SECONDS", "next_command", "next_message", "stop_children"]
+__all__ = ["POLL_SECONDS", "next_message", "stop_children"]
 
 #: How often a waiting process checks that the process it waits for is still alive.
 POLL_SECONDS = 1.0
-
-
-def next_command(commands: Any, parent: int) -> tuple[str, int]:
-    """The learning process's next command to a child; a child whose parent is gone (killed without a
-    word) stops."""
-    while True:
-        try:
-            return commands.get(timeout=POLL_SECONDS)
-        except queue.Empty:
-            if os.getppid() != parent:
-                return "stop", 0
 
 
 def next_message(messages: Any, processes: Sequence[Any], what: str, first: int = 0) -> tuple[str, int, Any]:
