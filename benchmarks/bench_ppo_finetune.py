@@ -4,7 +4,9 @@ Issue goal: from π^s, PPO (with the best fine-tuning setting) ends with greedy 
 both ≥ 90% on STG3 and STG4, with evaluations large enough (≥ 50 episodes) to tell 10-point
 differences apart. The in-run evaluations of a reproduction have 20 episodes; this benchmark scores
 each run's final network with the benchmark protocol (:func:`bimgame.experiments.protocol.score`,
-``--episodes`` episodes, 100 by default, greedy and sampled).
+``--episodes`` episodes, 100 by default, greedy and sampled), and so its best iterate by the in-run
+evaluations (``best.pt``, :mod:`bimgame.learn.best_iterate`: chosen on the run's 20 evaluation
+episodes a mode, scored on the protocol's others).
 
 Every run has the ``beyond`` budget's settings, as ``bimgame reproduce --budget beyond --algorithms
 pretrain+ppo+keep`` trains them (:func:`~bimgame.experiments.runners.ppo_config_for`: its network,
@@ -41,10 +43,12 @@ from bimgame.experiments.budgets import BUDGETS
 from bimgame.experiments.protocol import score
 from bimgame.experiments.runners import ppo_config_for, pretrain_config_for
 from bimgame.experiments.statistics import mean_interval
+from bimgame.learn.best_iterate import read_best
 from bimgame.learn.checkpoints import load_checkpoint
 from bimgame.learn.curves import read_table
 from bimgame.learn.ppo import train_ppo
 from bimgame.learn.pretrain import pretrain
+from bimgame.learn.run_dir import BEST
 from bimgame.learn.runs import torch_threads
 from bimgame.util.files import atomic_write_bytes, read_json, write_json
 from bimgame.util.images import save_png, subplots
@@ -68,11 +72,13 @@ def _pretrained(out: Path, data: Path, task: str, seed: int) -> Path:
 
 
 def _scores(source: Path, task: str, episodes: int) -> dict[str, Any]:
-    """Greedy and sampled success and mean return of ``source``'s final network on ``episodes``
-    protocol episodes, with the protocol's whole summary per mode (what ``bimgame score --out``
-    writes); cached in ``source`` per checkpoint step."""
-    cache = source / "protocol_scores.json"
-    step = load_checkpoint(source / "checkpoint.pt")["step"] if (source / "checkpoint.pt").is_file() else 0
+    """Greedy and sampled success and mean return of ``source`` (a run's final network, or a
+    checkpoint file such as its ``best.pt``) on ``episodes`` protocol episodes, with the protocol's
+    whole summary per mode (what ``bimgame score --out`` writes); cached beside it per checkpoint step."""
+    weights = source if source.is_file() else source / "checkpoint.pt"
+    cache = source.with_name(f"{source.stem}_protocol_scores.json") if source.is_file() else None
+    cache = cache or source / "protocol_scores.json"
+    step = load_checkpoint(weights)["step"] if weights.is_file() else 0
     cached = read_json(cache)
     if (
         cached is not None
@@ -121,9 +127,11 @@ def _job(task: str, seed: int, args: argparse.Namespace, run_dir: Path) -> dict[
             resume = (run_dir / "config.json").is_file()
             train_ppo(config, run_dir, resume=resume, init=None if resume else pi_s, progress=False)
             summary = read_json(run_dir / "summary.json") or {}
+        best = run_dir / BEST
         return {
             "pi_s": _scores(pi_s, task, args.episodes),
             "final": _scores(run_dir, task, args.episodes),
+            **({"best": {**_scores(best, task, args.episodes), "chosen_at": read_best(best)}} if best.exists() else {}),
             "train_minutes": float(summary.get("seconds", 0.0)) / 60,
             "evaluations": _evaluations(run_dir),
         }
@@ -144,7 +152,8 @@ def _evaluations(run_dir: Path) -> list[dict[str, float]]:
 def _aggregate(per_seed: list[dict[str, Any]], rng: np.random.Generator) -> dict[str, Any]:
     """Mean over seeds of ``per_seed[i][source][metric]`` for every source and metric, with intervals."""
     out: dict[str, Any] = {}
-    for source in ("pi_s", "final"):
+    sources = ("pi_s", "final", "best") if all("best" in run for run in per_seed) else ("pi_s", "final")
+    for source in sources:
         for metric in ("greedy_success", "sampled_success", "greedy_mean_return", "sampled_mean_return"):
             values = np.array([run[source][metric] for run in per_seed])
             low, high = mean_interval(values, rng=rng)
@@ -182,6 +191,15 @@ def _plot(results: dict[str, Any], path: Path, title: str) -> Path:
                     marker="D",
                     label=f"{mode}, final ({results['episodes']} episodes)" if k == 0 else None,
                 )
+                if "best" in run:
+                    axis.scatter(
+                        [end * 1.06],
+                        [100 * run["best"][f"{mode}_success"]],
+                        facecolors="none",
+                        edgecolors=colours[mode],
+                        marker="o",
+                        label=f"{mode}, best.pt ({results['episodes']} episodes)" if k == 0 else None,
+                    )
         axis.axhline(90, color="k", linestyle=":", label="goal 90%")
         axis.set(title=task, xlabel="steps (k)", ylabel="success (%)", ylim=(-3, 103))
         axis.grid(alpha=0.3)
@@ -227,9 +245,15 @@ def main(argv: list[str] | None = None) -> int:
         for future in as_completed(futures):
             key = futures[future]
             done[key] = run = future.result()
+            best = (
+                f"; best.pt (step {run['best']['chosen_at']['step']:,}) greedy {run['best']['greedy_success']:.0%} "
+                f"sampled {run['best']['sampled_success']:.0%}"
+                if "best" in run
+                else ""
+            )
             print(
                 f"{key[0]} seed {key[1]}: greedy {run['final']['greedy_success']:.0%} "
-                f"sampled {run['final']['sampled_success']:.0%} (π^s {run['pi_s']['greedy_success']:.0%} · "
+                f"sampled {run['final']['sampled_success']:.0%}{best} (π^s {run['pi_s']['greedy_success']:.0%} · "
                 f"{run['pi_s']['sampled_success']:.0%}; {run['train_minutes']:.1f} min)",
                 flush=True,
             )

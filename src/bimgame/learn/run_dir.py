@@ -53,7 +53,7 @@ __all__ = [
     "LAYOUTS",
     "TEACHER",
     "DAGGER_STATE",
-    "DAGGER_BEST",
+    "BEST",
     "RunDirectory",
     "stored_run_config",
 ]
@@ -62,8 +62,8 @@ __all__ = [
 TEACHER = "teacher.pt"
 #: DAgger's counters after the last finished iteration (a readable copy of its checkpoint's).
 DAGGER_STATE = "dagger_state.json"
-#: DAgger's best iterate by its in-run evaluation (:mod:`bimgame.learn.dagger.best`).
-DAGGER_BEST = "best.pt"
+#: The best iterate of a DAgger or PPO run by its in-run evaluation (:mod:`bimgame.learn.best_iterate`).
+BEST = "best.pt"
 
 
 class TrainingError(RuntimeError):
@@ -110,9 +110,9 @@ class RunLayout:
 
 
 _A3C_FILES = (CONFIG, CHECKPOINT, SUMMARY, TEACHER, "curves.png")
-_DAGGER_FILES = (CONFIG, CHECKPOINT, DAGGER_STATE, DAGGER_BEST, "data")
+_DAGGER_FILES = (CONFIG, CHECKPOINT, DAGGER_STATE, BEST, "data")
 _PRETRAINING_FILES = (CONFIG, CHECKPOINT, SUMMARY)
-_PPO_FILES = (CONFIG, CHECKPOINT, SUMMARY, "curves.png", TEACHER)
+_PPO_FILES = (CONFIG, CHECKPOINT, SUMMARY, "curves.png", TEACHER, BEST)
 
 #: The layout of every kind of run, by kind.
 LAYOUTS: dict[str, RunLayout] = {

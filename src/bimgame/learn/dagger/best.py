@@ -6,11 +6,8 @@ in-run evaluations of one run jumped 10-50 points between iterations, and two mo
 seed from 70% to 21% greedy success. DAgger's guarantee (Ross et al., 2011) is for the best policy
 of the sequence, chosen on held-out episodes, not for the last one, so the run keeps that one too.
 
-The rank of an iteration is (greedy + sampled success rate, greedy + sampled mean return) of its
-in-run evaluation (``eval_episodes`` per mode, from the task's evaluation seeds); a later iteration
-replaces the best only when it ranks strictly higher. A run without in-run evaluation keeps no best.
-The scores of the kept iterate are a selection on those episodes, so they are optimistic: score
-``best.pt`` on fresh episodes (``bimgame score RUN/best.pt``), as the benchmark does.
+Iterations are ranked by their in-run evaluation (``eval_episodes`` per mode) as every learner's
+best iterate is (:mod:`bimgame.learn.best_iterate`). A run without in-run evaluation keeps no best.
 
 The record of the best (``state["best"]``: iteration, step, rank) is part of the counts the checkpoint
 commits; ``best.pt`` is written after that commit. A run stopped between the two is repaired on
@@ -24,24 +21,11 @@ from typing import Any
 
 import torch
 
+from bimgame.learn.best_iterate import evaluation_rank, is_better
 from bimgame.learn.checkpoints import load_checkpoint, save_checkpoint
-from bimgame.learn.run_dir import DAGGER_BEST as BEST
+from bimgame.learn.run_dir import BEST
 
 __all__ = ["BEST", "evaluation_rank", "is_better", "repair_best", "save_best"]
-
-
-def evaluation_rank(evaluation: dict[str, float]) -> list[float]:
-    """The rank of an in-run ``evaluation`` (:data:`~bimgame.learn.evaluations.EVAL_COLUMNS`): success
-    over both modes first, mean return over both modes to break ties."""
-    return [
-        float(evaluation["greedy_success_rate"] + evaluation["sampled_success_rate"]),
-        float(evaluation["greedy_mean_return"] + evaluation["sampled_mean_return"]),
-    ]
-
-
-def is_better(evaluation: dict[str, float], best: dict[str, Any] | None) -> bool:
-    """Whether an iteration with ``evaluation`` replaces the recorded ``best`` (None: none yet)."""
-    return best is None or evaluation_rank(evaluation) > list(best["rank"])
 
 
 def save_best(path: Path, model: dict[str, torch.Tensor], best: dict[str, Any]) -> Path:

@@ -5,6 +5,8 @@ thread, the network on ``torch_threads`` threads.
 
 The run directory is the same as A3C's (config.json, checkpoint.pt, episodes/updates/eval CSV logs,
 TensorBoard, summary.json, curves.png) with kind ``ppo``; ``bimgame evaluate`` and ``--init`` read it.
+With in-run evaluations (``eval_every``) the run also keeps the weights that evaluated best in
+``best.pt`` (:mod:`bimgame.learn.best_iterate`; the final evaluation is a candidate too).
 A resumed run continues from its checkpoint (weights, Adam's statistics, steps) with fresh episodes
 (environment and sampling seeds derived from the run's seed and the step it resumes at)."""
 
@@ -21,6 +23,7 @@ from typing import Any
 
 import torch
 
+from bimgame.learn.best_iterate import evaluation_rank, is_better, read_best
 from bimgame.learn.checkpoints import apply_weights, load_checkpoint, load_init_weights, save_checkpoint
 from bimgame.learn.common import run_evaluation
 from bimgame.learn.curricula import CURRICULUM_COLUMNS, CURRICULUM_SCALARS
@@ -37,7 +40,7 @@ from bimgame.learn.ppo.parallel import WorkerGroup
 from bimgame.learn.ppo.settings import PPOConfig
 from bimgame.learn.rewards import EnvWrapper, RewardSettings, run_reward
 from bimgame.learn.rollout import FinishedEpisode
-from bimgame.learn.run_dir import TEACHER, RunDirectory, TrainResult, stored_run_config
+from bimgame.learn.run_dir import BEST, TEACHER, RunDirectory, TrainResult, stored_run_config
 from bimgame.learn.runs import CHECKPOINT, KIND_PPO, torch_threads
 from bimgame.util.progress import ProgressBar
 from bimgame.util.signals import sigterm_as_interrupt
@@ -220,6 +223,9 @@ class _Session:
         )
         self.monitor = Monitor(step)
         self.monitor.restore(self.log.kept["episodes"])
+        # The best so far is best.pt's own record: written when its evaluation ran, it may be newer
+        # than the checkpoint a resumed run continues from (weights this run did produce).
+        self.best = read_best(run / BEST) if run.resume else None
 
     def _book(self, episode: FinishedEpisode) -> None:
         row = episode.row()
@@ -287,9 +293,7 @@ class _Session:
                     bar.update(completed=self.step, info=f"{self.monitor.sps(self.step):,.0f} SPS  success {shown}")
             finally:
                 learner.close()
-            final_eval = {"step": self.step, **run_evaluation(self.net, config)}
-        self.log.write("eval", self.step, final_eval, scalars=tuple(TABLES["eval"]))
-        return final_eval
+            return self._evaluate()
 
     def _rollout_and_update(self, learner: RankLearner, group: WorkerGroup | None) -> None:
         config = self.config
@@ -308,9 +312,18 @@ class _Session:
             self.log.write("updates", self.step, row, scalars=_UPDATE_SCALARS)
         if config.schedule.eval_every and self.step - self.eval_step >= config.schedule.eval_every:
             self.eval_step = self.step
-            self.log.write("eval", self.step, {"step": self.step, **run_evaluation(self.net, config)})
+            self._evaluate()
         if self.step - self.checkpoint_step >= config.schedule.checkpoint_every:
             self._checkpoint()
+
+    def _evaluate(self) -> dict[str, Any]:
+        """Evaluate the acting weights (logged); keep them in ``best.pt`` if they rank above the best."""
+        evaluation = {"step": self.step, **run_evaluation(self.net, self.config)}
+        self.log.write("eval", self.step, evaluation, scalars=tuple(TABLES["eval"]))
+        if is_better(evaluation, self.best):
+            self.best = {"step": self.step, "rank": evaluation_rank(evaluation)}
+            save_checkpoint(self.directory / BEST, model=self.net.state_dict(), **self.best)
+        return evaluation
 
     def _checkpoint(self) -> None:
         save_checkpoint(

@@ -1,9 +1,9 @@
-"""DAgger's best iterate: how iterations are ranked and when one replaces the best (the run's
-bookkeeping of ``best.pt`` is tested with the runs in ``test_dagger.py``)."""
+"""The best iterate: how in-run evaluations are ranked and when one replaces the best (the runs'
+bookkeeping of ``best.pt`` is tested with the DAgger and PPO runs)."""
 
 from __future__ import annotations
 
-from bimgame.learn.dagger.best import evaluation_rank, is_better
+from bimgame.learn.best_iterate import evaluation_rank, is_better
 
 
 def _evaluation(greedy: float, sampled: float, greedy_return: float = 0.0, sampled_return: float = 0.0):
