@@ -281,6 +281,8 @@ class PPOBudget:
     """Weight of the auxiliary heads' loss when the networks have them."""
     sample_temperature: float = _PPO.sample_temperature
     """Temperature of the policy that acts in training (and of the clipped objective and entropy)."""
+    final_max_std: float | None = _PPO.final_max_std
+    """A Gaussian policy's σ ends at most this (a ceiling falling from 1 over the run); None: free."""
     policy_lag: int = _PPO.policy_lag
     """1: each rollout is collected while the last one's update runs (one update of lag); 0: in turn."""
 

@@ -151,9 +151,16 @@ class RankLearner:
         if self.device.type != "cpu":  # the learning copy is on another device
             segment = segment.to(self.device)
             kl = None if kl is None else KLTarget(kl.policy.to(self.device), kl.weight)
-        return ppo_update(
+        parts = ppo_update(
             self.learning, self.optimizer, segment, self.config.optimization, self.batches, average=self.average, kl=kl
         )
+        ceiling = self.config.optimization.max_log_std_at(
+            step + self.config.steps_per_rollout, self.config.schedule.steps
+        )
+        if ceiling is not None and self.learning.log_std is not None:
+            with torch.no_grad():  # a projection after the step: the weights that act next obey it
+                self.learning.log_std.clamp_(max=ceiling)
+        return parts
 
     def _take_weights(self, parts: dict[str, float], step: int) -> dict[str, float]:
         """The acting network takes the learning copy's weights; raises if the update was not applied."""

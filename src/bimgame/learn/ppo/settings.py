@@ -80,6 +80,14 @@ class PPOOptimizationSettings:
     repeats itself while the marble stays still shows up, and is paid for, in training rather than
     only in greedy evaluations; the greedy action is the same at every temperature. Evaluations
     and scoring sample at 1."""
+    final_max_std: float | None = None
+    """A ceiling on a Gaussian policy's standard deviation (each action dimension, in units of the
+    action range) that falls geometrically from 1 at step 0 to this at the run's last step: after each
+    update the learned log σ is clipped to (s / steps)·log(final_max_std), s the step at the end of
+    the update's rollout. σ is free early (exploration) and ends at most this (precision):
+    on the labyrinth the greedy policies of PPO from DAgger steered through the turns in 53-90% of the
+    episodes while sampling at their own σ (≈ 0.45) lost the marble in half, and the same weights
+    sampled at half their σ succeeded in 61-87%. None: σ is learned freely. Continuous actions only."""
     policy_lag: int = 0
     """0: collect a rollout, then update on it (PPO as published). 1: collect the next rollout while
     updating on the last one, in a second thread, so that stepping the environments and the update
@@ -107,6 +115,8 @@ class PPOOptimizationSettings:
             check_number(owner, name, getattr(self, name), 0.0, math.inf, low_open=True)
         if self.value_clip is not None:
             check_number(owner, "value_clip", self.value_clip, 0.0, math.inf, low_open=True)
+        if self.final_max_std is not None:
+            check_number(owner, "final_max_std", self.final_max_std, 0.0, 1.0, low_open=True)
         for name in ("entropy_coef", "value_coef", "aux_coef"):
             check_number(owner, name, getattr(self, name), 0.0, math.inf)
         for name in ("advantage_norm", "lr_anneal"):
@@ -118,6 +128,13 @@ class PPOOptimizationSettings:
         if not self.lr_anneal:
             return self.lr
         return self.lr * max(0.0, 1.0 - step / steps)
+
+    def max_log_std_at(self, step: int, steps: int) -> float | None:
+        """The ceiling on log σ after the update of the rollout ending at ``step`` of a run of
+        ``steps`` (:attr:`final_max_std`); None without one."""
+        if self.final_max_std is None:
+            return None
+        return min(1.0, step / steps) * math.log(self.final_max_std)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -221,6 +238,11 @@ class PPOConfig(LearnerSettings):
                 f"(workers 1); with workers > 1 use policy_lag 0, got workers {self.schedule.workers!r}"
             )
         self._check_collectors(owner)
+        if self.optimization.final_max_std is not None and self.network.action_type != "continuous":
+            raise ValueError(
+                f"{owner}: final_max_std caps a Gaussian policy's standard deviation (action_type 'continuous'), "
+                f"got action_type {self.network.action_type!r}; leave final_max_std None"
+            )
         if self.optimization.minibatches > self.sequences_per_rollout:
             raise ValueError(
                 f"{owner}.minibatches must be at most the sequences of a rollout ({self.sequences_per_rollout}: "
