@@ -87,7 +87,7 @@ class PPOOptimizationSettings:
     the update's rollout. σ is free early (exploration) and ends at most this (precision):
     on the labyrinth the greedy policies of PPO from DAgger steered through the turns in 53-90% of the
     episodes while sampling at their own σ (≈ 0.45) lost the marble in half, and the same weights
-    sampled at half their σ succeeded in 61-87%. None: σ is learned freely. Continuous actions only."""
+    sampled at half their σ succeeded in 61-82%. None: σ is learned freely. Continuous actions only."""
     policy_lag: int = 0
     """0: collect a rollout, then update on it (PPO as published). 1: collect the next rollout while
     updating on the last one, in a second thread, so that stepping the environments and the update
