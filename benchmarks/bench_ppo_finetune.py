@@ -75,9 +75,10 @@ def _scores(source: Path, task: str, episodes: int) -> dict[str, Any]:
     """Greedy and sampled success and mean return of ``source`` (a run's final network, or a
     checkpoint file such as its ``best.pt``) on ``episodes`` protocol episodes, with the protocol's
     whole summary per mode (what ``bimgame score --out`` writes); cached beside it per checkpoint step."""
-    weights = source if source.is_file() else source / "checkpoint.pt"
-    cache = source.with_name(f"{source.stem}_protocol_scores.json") if source.is_file() else None
-    cache = cache or source / "protocol_scores.json"
+    if source.is_file():
+        weights, cache = source, source.with_name(f"{source.stem}_protocol_scores.json")
+    else:
+        weights, cache = source / "checkpoint.pt", source / "protocol_scores.json"
     step = load_checkpoint(weights)["step"] if weights.is_file() else 0
     cached = read_json(cache)
     if (

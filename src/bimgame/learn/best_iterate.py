@@ -19,9 +19,11 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from bimgame.learn.checkpoints import load_checkpoint
+import torch
 
-__all__ = ["evaluation_rank", "is_better", "read_best"]
+from bimgame.learn.checkpoints import load_checkpoint, save_checkpoint
+
+__all__ = ["evaluation_rank", "is_better", "read_best", "save_best"]
 
 
 def evaluation_rank(evaluation: dict[str, float]) -> list[float]:
@@ -36,6 +38,12 @@ def evaluation_rank(evaluation: dict[str, float]) -> list[float]:
 def is_better(evaluation: dict[str, float], best: dict[str, Any] | None) -> bool:
     """Whether an evaluation replaces the recorded ``best`` (a record with its ``rank``; None: none yet)."""
     return best is None or evaluation_rank(evaluation) > list(best["rank"])
+
+
+def save_best(path: Path, model: dict[str, torch.Tensor], best: dict[str, Any]) -> Path:
+    """Write the best iterate's weights ``model`` and its record ``best`` (``step``, ``rank`` and
+    whatever else the learner keeps, e.g. DAgger's ``iteration``) to ``path``, atomically."""
+    return save_checkpoint(path, model=model, **best)
 
 
 def read_best(path: Path) -> dict[str, Any] | None:

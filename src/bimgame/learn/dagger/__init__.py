@@ -8,10 +8,10 @@ The package's modules, one job each: :mod:`~bimgame.learn.dagger.settings` (:cla
 algorithm in detail). The public API is importable from the package.
 """
 
-from bimgame.learn.dagger.best import BEST
 from bimgame.learn.dagger.rollouts import collect_episodes
 from bimgame.learn.dagger.settings import DAggerConfig, resolve_dagger_config
 from bimgame.learn.dagger.training import DAggerResult, dagger
+from bimgame.learn.run_dir import BEST
 from bimgame.learn.runs import KIND_DAGGER
 
 __all__ = ["resolve_dagger_config", "DAggerConfig", "DAggerResult", "dagger", "collect_episodes", "KIND_DAGGER", "BEST"]

@@ -21,16 +21,10 @@ from typing import Any
 
 import torch
 
-from bimgame.learn.best_iterate import evaluation_rank, is_better
-from bimgame.learn.checkpoints import load_checkpoint, save_checkpoint
-from bimgame.learn.run_dir import BEST
+from bimgame.learn.best_iterate import save_best
+from bimgame.learn.checkpoints import load_checkpoint
 
-__all__ = ["BEST", "evaluation_rank", "is_better", "repair_best", "save_best"]
-
-
-def save_best(path: Path, model: dict[str, torch.Tensor], best: dict[str, Any]) -> Path:
-    """Write the best iterate's weights ``model`` and its record ``best`` to ``path``, atomically."""
-    return save_checkpoint(path, model=model, step=best["step"], iteration=best["iteration"], rank=best["rank"])
+__all__ = ["repair_best"]
 
 
 def repair_best(

@@ -51,15 +51,16 @@ import numpy as np
 from bimgame.envs.puzzles import puzzle
 from bimgame.expert.datasets import dataset_manifest, dataset_mazes
 from bimgame.expert.episode import Episode
+from bimgame.learn.best_iterate import evaluation_rank, is_better, save_best
 from bimgame.learn.checkpoints import apply_weights, load_checkpoint, load_init_weights, save_checkpoint
-from bimgame.learn.dagger.best import BEST, evaluation_rank, is_better, repair_best, save_best
+from bimgame.learn.dagger.best import repair_best
 from bimgame.learn.dagger.rollouts import collect_episodes
 from bimgame.learn.dagger.settings import DAggerConfig
 from bimgame.learn.evaluations import EVAL_COLUMNS, evaluate_greedy_and_sampled, evaluation_seed
 from bimgame.learn.expert_data import check_dataset_task, dataset_action_type, load_sequences
 from bimgame.learn.learner_settings import check_init_puzzle
 from bimgame.learn.nets import RecurrentActorCritic
-from bimgame.learn.run_dir import DAGGER_STATE, RunDirectory
+from bimgame.learn.run_dir import BEST, DAGGER_STATE, RunDirectory
 from bimgame.learn.runs import CHECKPOINT, KIND_DAGGER, read_run_settings, torch_threads, write_run_json
 from bimgame.learn.supervised import train_policy_epochs
 from bimgame.util import files

@@ -23,7 +23,7 @@ from typing import Any
 
 import torch
 
-from bimgame.learn.best_iterate import evaluation_rank, is_better, read_best
+from bimgame.learn.best_iterate import evaluation_rank, is_better, read_best, save_best
 from bimgame.learn.checkpoints import apply_weights, load_checkpoint, load_init_weights, save_checkpoint
 from bimgame.learn.common import run_evaluation
 from bimgame.learn.curricula import CURRICULUM_COLUMNS, CURRICULUM_SCALARS
@@ -322,7 +322,7 @@ class _Session:
         self.log.write("eval", self.step, evaluation, scalars=tuple(TABLES["eval"]))
         if is_better(evaluation, self.best):
             self.best = {"step": self.step, "rank": evaluation_rank(evaluation)}
-            save_checkpoint(self.directory / BEST, model=self.net.state_dict(), **self.best)
+            save_best(self.directory / BEST, self.net.state_dict(), self.best)
         return evaluation
 
     def _checkpoint(self) -> None:
