@@ -11,7 +11,7 @@ from typing import Any
 
 from bimgame.cli.flags import add_grouped_settings_flags, given_settings
 from bimgame.learn.a3c import A3CConfig
-from bimgame.learn.ppo import PPOConfig, PPOOptimizationSettings, resolve_ppo_config, train_ppo
+from bimgame.learn.ppo import PPOConfig, PPOFinetuneSettings, PPOOptimizationSettings, resolve_ppo_config, train_ppo
 from bimgame.learn.rewards import RewardSettings
 from bimgame.learn.run_dir import TrainResult
 
@@ -34,7 +34,7 @@ def add_ppo_arguments(parser: argparse.ArgumentParser, groups: dict[str, argpars
     title = PPO_GROUP[0]  # the group is one of train's (TRAIN_GROUPS)
     shared = set(A3CConfig.flat_names())
     own = [name for name in PPOConfig.flat_names() if name not in shared]
-    for owner in (PPOConfig, PPOOptimizationSettings):  # PPO's own top-level settings (device), then its part's
+    for owner in (PPOConfig, PPOOptimizationSettings, PPOFinetuneSettings):  # top level (device), then its parts'
         add_grouped_settings_flags(
             parser,
             groups,

@@ -138,11 +138,16 @@ class Teacher:
         return self.net.action_head.frozen(logits, self.net.log_std, self.temperature)
 
 
-def policy_kl(net: RecurrentActorCritic, teacher: torch.Tensor, output: torch.Tensor) -> torch.Tensor:
+def policy_kl(
+    net: RecurrentActorCritic, teacher: torch.Tensor, output: torch.Tensor, *, means_only: bool = False
+) -> torch.Tensor:
     """Mean over steps of KL(π^s ‖ π) for either kind of action: ``teacher`` from
     :meth:`Teacher.follow`, ``output`` the learner's policy-head output on the same steps (with its
-    ``log_std``, continuous). Discrete, it equals :func:`kl_to_teacher` of the log-softmax."""
-    return net.action_head.kl_from(teacher, output, net.log_std).mean()
+    ``log_std``, continuous). Discrete, it equals :func:`kl_to_teacher` of the log-softmax.
+    ``means_only`` (continuous): the learner's Gaussian taken at the teacher's standard deviation,
+    KL(N(μ_t, σ_t) ‖ N(μ, σ_t)) = Σ (μ − μ_t)² / 2σ_t², which leaves the learner's σ free."""
+    log_std = net.action_head.frozen_log_std(teacher) if means_only else net.log_std
+    return net.action_head.kl_from(teacher, output, log_std).mean()
 
 
 def kl_to_teacher(teacher_log_probs: torch.Tensor, log_probs: torch.Tensor) -> torch.Tensor:

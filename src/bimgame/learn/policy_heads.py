@@ -175,6 +175,11 @@ class ActionHead(Protocol):
         :meth:`distribution` takes it. Zero when π is the teacher (at temperature 1)."""
         ...
 
+    def frozen_log_std(self, frozen: torch.Tensor) -> torch.Tensor:
+        """A frozen Gaussian teacher's log standard deviation (…, 2), for a KL that compares means
+        only; raises for discrete actions, which have none."""
+        ...
+
 
 class DiscreteActions:
     """The env's ``n`` discrete actions (see the module notes)."""
@@ -206,6 +211,9 @@ class DiscreteActions:
 
     def kl_from(self, frozen: torch.Tensor, output: torch.Tensor, log_std: torch.Tensor | None) -> torch.Tensor:
         return categorical_kl(frozen, torch.log_softmax(output, dim=-1))
+
+    def frozen_log_std(self, frozen: torch.Tensor) -> torch.Tensor:
+        raise ValueError("a discrete teacher has no standard deviation: a means-only KL needs continuous actions")
 
 
 class ContinuousActions:
@@ -245,6 +253,9 @@ class ContinuousActions:
         log_std = _required(log_std).expand_as(output)
         ratio = (log_std_t - log_std).exp().pow(2) + ((mean_t - output) * torch.exp(-log_std)).pow(2)
         return (log_std - log_std_t + 0.5 * ratio - 0.5).sum(-1)
+
+    def frozen_log_std(self, frozen: torch.Tensor) -> torch.Tensor:
+        return frozen[..., CONTINUOUS_ACTION_SIZE:]
 
 
 def categorical_kl(teacher_log_probs: torch.Tensor, log_probs: torch.Tensor) -> torch.Tensor:

@@ -150,7 +150,7 @@ class RankLearner:
             group["lr"] = self.config.optimization.lr_at(step, self.config.schedule.steps)
         if self.device.type != "cpu":  # the learning copy is on another device
             segment = segment.to(self.device)
-            kl = None if kl is None else KLTarget(kl.policy.to(self.device), kl.weight)
+            kl = None if kl is None else kl._replace(policy=kl.policy.to(self.device))
         parts = ppo_update(
             self.learning, self.optimizer, segment, self.config.optimization, self.batches, average=self.average, kl=kl
         )
@@ -187,7 +187,7 @@ class RankLearner:
         if weight <= 0 and finetuning.kl_decay_steps > 0:
             self.teacher = None  # annealed away: it costs nothing from now on
             return None
-        return KLTarget(self.teacher.follow(segment), weight)
+        return KLTarget(self.teacher.follow(segment), weight, finetuning.kl_means_only)
 
 
 def _teacher(config: PPOConfig, weights: dict[str, torch.Tensor] | None) -> Teacher | None:

@@ -151,10 +151,17 @@ class PPOFinetuneSettings:
     """Steps over which the KL weight decays linearly to zero (0: it stays constant)."""
     kl_temperature: float = 1.0
     """Temperature of the teacher's distribution: 1 is π^s itself, below 1 a sharper π^s."""
+    kl_means_only: bool = False
+    """Continuous actions: keep only π^s's means, not its spread. The KL compares the learner's mean
+    with the teacher's at the teacher's standard deviation, KL(N(μ_t, σ_t) ‖ N(μ, σ_t)) =
+    Σ (μ − μ_t)² / 2σ_t², so the learner's σ is free and a narrower σ does not weight the mean's
+    difference by 1/σ² (the full KL's term (μ − μ_t)² / 2σ², which pins a narrow learner to π^s)."""
 
     def __post_init__(self) -> None:
         owner = type(self).__name__
         check_number(owner, "kl_coef", self.kl_coef, 0.0, math.inf)
+        if not isinstance(self.kl_means_only, bool):
+            raise ValueError(f"{owner}.kl_means_only must be True or False, got {self.kl_means_only!r}")
         require_int(owner, "kl_decay_steps", self.kl_decay_steps, 0)
         check_number(owner, "kl_temperature", self.kl_temperature, 0.0, math.inf, low_open=True)
 
@@ -242,6 +249,11 @@ class PPOConfig(LearnerSettings):
             raise ValueError(
                 f"{owner}: final_max_std caps a Gaussian policy's standard deviation (action_type 'continuous'), "
                 f"got action_type {self.network.action_type!r}; leave final_max_std None"
+            )
+        if self.finetuning is not None and self.finetuning.kl_means_only and self.network.action_type != "continuous":
+            raise ValueError(
+                f"{owner}: kl_means_only compares a Gaussian policy's means (action_type 'continuous'), "
+                f"got action_type {self.network.action_type!r}; leave kl_means_only False"
             )
         if self.optimization.minibatches > self.sequences_per_rollout:
             raise ValueError(

@@ -52,17 +52,19 @@ class GradientAverage:
 class KLTarget(NamedTuple):
     """π^s's part of a fine-tuning update: its π over the rollout (T, B, P) as its action head freezes
     it (:meth:`~bimgame.learn.policy_heads.ActionHead.frozen`: log-probabilities, or a Gaussian's
-    mean and log standard deviation) and the weight of KL(π^s ‖ π) in the loss."""
+    mean and log standard deviation) and the weight of KL(π^s ‖ π) in the loss; ``means_only``, the
+    KL at π^s's own standard deviation (:attr:`~bimgame.learn.ppo.settings.PPOFinetuneSettings.kl_means_only`)."""
 
     policy: torch.Tensor
     weight: float
+    means_only: bool = False
 
 
 @dataclasses.dataclass
 class RolloutTargets:
     """What every minibatch of a rollout is trained towards: GAE advantages, value targets, and the
     values and log-probabilities of the network that acted — each (T, B) — and, when fine-tuning
-    keeps π^s, its log-probabilities (T, B, A) and the KL's weight."""
+    keeps π^s, its log-probabilities (T, B, A), the KL's weight and whether it compares means only."""
 
     advantages: torch.Tensor
     returns: torch.Tensor
@@ -70,6 +72,7 @@ class RolloutTargets:
     log_probs: torch.Tensor
     teacher_policy: torch.Tensor | None = None
     kl_weight: float = 0.0
+    kl_means_only: bool = False
 
     def _map(self, change: Callable[[torch.Tensor], torch.Tensor]) -> RolloutTargets:
         teacher = self.teacher_policy
@@ -80,6 +83,7 @@ class RolloutTargets:
             change(self.log_probs),
             None if teacher is None else change(teacher),
             self.kl_weight,
+            self.kl_means_only,
         )
 
     def envs(self, index: torch.Tensor) -> RolloutTargets:
@@ -111,7 +115,7 @@ def rollout_targets(
     )
     targets = RolloutTargets(advantages, returns, values, segment.log_probs)
     if kl is not None:
-        targets.teacher_policy, targets.kl_weight = kl.policy, kl.weight
+        targets.teacher_policy, targets.kl_weight, targets.kl_means_only = kl.policy, kl.weight, kl.means_only
     if length == segment.steps:
         return segment, targets
     return segment.sequences(length, states), targets.sequences(length)
@@ -160,7 +164,7 @@ def ppo_minibatch_loss(
         parts.update(aux_parts)
         loss = loss + settings.aux_coef * aux
     if targets.teacher_policy is not None:
-        kl = policy_kl(net, targets.teacher_policy, out.logits[:-1])
+        kl = policy_kl(net, targets.teacher_policy, out.logits[:-1], means_only=targets.kl_means_only)
         parts["kl"] = kl.item()
         if targets.kl_weight > 0:
             loss = loss + targets.kl_weight * kl
