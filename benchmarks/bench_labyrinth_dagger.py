@@ -21,7 +21,7 @@ Writes ``--results`` (default benchmarks/results/labyrinth_dagger.json) and ``--
 docs/labyrinth/dagger.png): the in-run evaluation's success and the mean path progress per iteration.
 
 Usage: python benchmarks/bench_labyrinth_dagger.py --expert-data DATA --init PI_S [--layout easy]
-       [--action-type continuous|discrete] [--surroundings]
+       [--obs state|cyberrunner] [--action-type continuous|discrete] [--surroundings]
        [--seeds 3] [--iterations 8] [--episodes-per-iteration 10] [--beta0 0.5] [--beta-decay 0.7]
        [--epochs-per-iteration 5] [--max-episode-steps 1500] [--jobs 3] [--episodes 100]
 """
@@ -50,10 +50,10 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _config(args: argparse.Namespace, seed: int) -> DAggerConfig:
-    """One seed's DAgger settings: the learner of π^s (state, 128 units) on the layout."""
+    """One seed's DAgger settings: the learner of π^s (``--obs``, the network's default sizes) on the layout."""
     learner = PretrainConfig(
         task=f"LABYRINTH-{args.layout.upper()}",
-        obs="state",
+        obs=args.obs,
         action_type=args.action_type,
         aux_heads=False,
         asymmetric_critic=False,
@@ -127,6 +127,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--init", type=Path, default=None, help="start every run from this π^s (bimgame pretrain)")
     parser.add_argument("--layout", choices=("easy", "medium", "hard"), default="easy")
     parser.add_argument("--action-type", choices=("continuous", "discrete"), default="continuous")
+    parser.add_argument(
+        "--obs", choices=("state", "cyberrunner"), default="state", help="the learner's observation (π^s's too)"
+    )
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--first-seed", type=int, default=0, help="seeds first-seed .. first-seed + seeds - 1")
     parser.add_argument("--iterations", type=int, default=8)
@@ -151,7 +154,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.init is not None:
         args.init = args.init.absolute()
     jobs = {
-        seed: args.out / f"{args.layout}-state{_kind(args.action_type)}{'-surroundings' if args.surroundings else ''}{'-init' if args.init else ''}"
+        seed: args.out / f"{args.layout}-{args.obs}{_kind(args.action_type)}{'-surroundings' if args.surroundings else ''}{'-init' if args.init else ''}"
         / f"seed{seed}"
         for seed in range(args.first_seed, args.first_seed + args.seeds)
     }
@@ -175,7 +178,7 @@ def main(argv: list[str] | None = None) -> int:
     states = [read_json(jobs[s] / "dagger_state.json") for s in seeds]
     results: dict[str, Any] = {
         "layout": args.layout,
-        "obs": "state",
+        "obs": args.obs,
         "surroundings": args.surroundings,
         "action_type": args.action_type,
         "seeds": seeds,
@@ -193,7 +196,7 @@ def main(argv: list[str] | None = None) -> int:
     args.results.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(args.results, json.dumps(results, indent=2).encode())
     title = (
-        f"DAgger on the {args.layout} labyrinth (state, {args.action_type}){', from π^s' if args.init else ''}: "
+        f"DAgger on the {args.layout} labyrinth ({args.obs}, {args.action_type}){', from π^s' if args.init else ''}: "
         f"{args.iterations} iterations × {args.episodes_per_iteration} rollouts, seeds {', '.join(map(str, jobs))}"
     )
     print(f"wrote {args.results} and {_plot(results, args.figure, title)}")
