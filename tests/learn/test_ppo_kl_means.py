@@ -70,6 +70,8 @@ def test_means_only_is_refused_for_discrete_actions_and_must_be_a_bool():
         PPOConfig.from_flat(TINY, action_type="discrete", kl_coef=0.1, kl_means_only=True)
     with pytest.raises(ValueError, match=r"PPOFinetuneSettings\.kl_means_only must be True or False"):
         PPOFinetuneSettings(kl_means_only="yes")
+    with pytest.raises(ValueError, match=r"kl_means_only shapes the KL term to π\^s: give kl_coef > 0"):
+        PPOConfig.from_flat(TINY, kl_means_only=True)
     with pytest.raises(ValueError, match=r"no standard deviation"):
         PPOConfig.from_flat(TINY, action_type="discrete").network.build_policy(0).action_head.frozen_log_std(
             torch.zeros(3, 5)

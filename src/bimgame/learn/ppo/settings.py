@@ -162,6 +162,10 @@ class PPOFinetuneSettings:
         check_number(owner, "kl_coef", self.kl_coef, 0.0, math.inf)
         if not isinstance(self.kl_means_only, bool):
             raise ValueError(f"{owner}.kl_means_only must be True or False, got {self.kl_means_only!r}")
+        if self.kl_means_only and self.kl_coef == 0:
+            raise ValueError(
+                f"{owner}.kl_means_only shapes the KL term to π^s: give kl_coef > 0 with it, got kl_coef 0"
+            )
         require_int(owner, "kl_decay_steps", self.kl_decay_steps, 0)
         check_number(owner, "kl_temperature", self.kl_temperature, 0.0, math.inf, low_open=True)
 
