@@ -64,26 +64,21 @@ class KLTarget(NamedTuple):
 class RolloutTargets:
     """What every minibatch of a rollout is trained towards: GAE advantages, value targets, and the
     values and log-probabilities of the network that acted — each (T, B) — and, when fine-tuning
-    keeps π^s, its log-probabilities (T, B, A), the KL's weight and whether it compares means only."""
+    keeps π^s, its part (:class:`KLTarget`, π^s over the same steps)."""
 
     advantages: torch.Tensor
     returns: torch.Tensor
     values: torch.Tensor
     log_probs: torch.Tensor
-    teacher_policy: torch.Tensor | None = None
-    kl_weight: float = 0.0
-    kl_means_only: bool = False
+    kl: KLTarget | None = None
 
     def _map(self, change: Callable[[torch.Tensor], torch.Tensor]) -> RolloutTargets:
-        teacher = self.teacher_policy
         return RolloutTargets(
             change(self.advantages),
             change(self.returns),
             change(self.values),
             change(self.log_probs),
-            None if teacher is None else change(teacher),
-            self.kl_weight,
-            self.kl_means_only,
+            None if self.kl is None else self.kl._replace(policy=change(self.kl.policy)),
         )
 
     def envs(self, index: torch.Tensor) -> RolloutTargets:
@@ -104,7 +99,7 @@ def rollout_targets(
     the LSTM states of ``net`` before any update, the network that acted; the whole segment without
     a ``sequence_length``) and their targets: GAE advantages and value targets under that network,
     bootstrapped from the value of the observation after the segment's last step, and the
-    log-probabilities recorded while acting (and ``kl``'s π^s log-probabilities and weight)."""
+    log-probabilities recorded while acting (and ``kl``, π^s's part, carried along)."""
     if segment.log_probs is None:
         raise ValueError("a PPO update needs the segment's log-probabilities of the acting policy (Segment.log_probs)")
     length = settings.sequence_length or segment.steps
@@ -113,9 +108,7 @@ def rollout_targets(
     advantages, returns = advantages_and_targets(
         segment.rewards, segment.ends, values, bootstrap, settings.gamma, settings.gae_lambda
     )
-    targets = RolloutTargets(advantages, returns, values, segment.log_probs)
-    if kl is not None:
-        targets.teacher_policy, targets.kl_weight, targets.kl_means_only = kl.policy, kl.weight, kl.means_only
+    targets = RolloutTargets(advantages, returns, values, segment.log_probs, kl)
     if length == segment.steps:
         return segment, targets
     return segment.sequences(length, states), targets.sequences(length)
@@ -163,11 +156,11 @@ def ppo_minibatch_loss(
         aux, aux_parts = net.aux_loss(out.features, out.hidden, segment.privileged)
         parts.update(aux_parts)
         loss = loss + settings.aux_coef * aux
-    if targets.teacher_policy is not None:
-        kl = policy_kl(net, targets.teacher_policy, out.logits[:-1], means_only=targets.kl_means_only)
+    if targets.kl is not None:
+        kl = policy_kl(net, targets.kl.policy, out.logits[:-1], means_only=targets.kl.means_only)
         parts["kl"] = kl.item()
-        if targets.kl_weight > 0:
-            loss = loss + targets.kl_weight * kl
+        if targets.kl.weight > 0:
+            loss = loss + targets.kl.weight * kl
     return loss, parts
 
 
