@@ -21,7 +21,7 @@ Writes ``--results`` (default benchmarks/results/labyrinth_dagger.json) and ``--
 docs/labyrinth/dagger.png): the in-run evaluation's success and the mean path progress per iteration.
 
 Usage: python benchmarks/bench_labyrinth_dagger.py --expert-data DATA --init PI_S [--layout easy]
-       [--obs state|cyberrunner] [--action-type continuous|discrete] [--surroundings]
+       [--obs state|cyberrunner|pixels] [--action-type continuous|discrete] [--surroundings]
        [--seeds 3] [--iterations 8] [--episodes-per-iteration 10] [--beta0 0.5] [--beta-decay 0.7]
        [--epochs-per-iteration 5] [--max-episode-steps 1500] [--jobs 3] [--episodes 100]
 """
@@ -128,7 +128,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--layout", choices=("easy", "medium", "hard"), default="easy")
     parser.add_argument("--action-type", choices=("continuous", "discrete"), default="continuous")
     parser.add_argument(
-        "--obs", choices=("state", "cyberrunner"), default="state", help="the learner's observation (π^s's too)"
+        "--obs",
+        choices=("state", "cyberrunner", "pixels"),
+        default="state",
+        help="the learner's observation (π^s's too)",
     )
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--first-seed", type=int, default=0, help="seeds first-seed .. first-seed + seeds - 1")

@@ -10,13 +10,13 @@ Each run's final network is scored from the layout's own start, greedily and sam
 successful episodes' lengths at 55 Hz, against
 CyberRunner's 14.48 s and the human record 15.41 s (hard layout). Across seeds: means with
 percentile-bootstrap 95% intervals (seeds resampled); per seed numbers are in the JSON. Runs are kept
-in ``--out`` (a rerun reuses finished runs and their scores).
+in ``--out`` (a rerun reuses finished runs and their scores and resumes interrupted ones).
 
 Writes ``--results`` (default benchmarks/results/labyrinth_learning.json) and ``--figure`` (default
 docs/labyrinth/learning.png): success from the layout's start during training (training episodes,
 the curriculum's excluded) and the curriculum's reach (metres of path before the goal) against steps.
 
-Usage: python benchmarks/bench_labyrinth_learning.py [--layout easy] [--obs state|cyberrunner]
+Usage: python benchmarks/bench_labyrinth_learning.py [--layout easy] [--obs state|cyberrunner|pixels]
        [--steps 1000000] [--seeds 3] [--curricula reverse none] [--jobs 3] [--episodes 100]
        [--out runs/labyrinth-learning] [--set NAME=VALUE ...]   (other PPO settings, e.g. entropy_coef=0)
        [--init PI_S]   (every run starts from a pre-trained π^s: bimgame pretrain on a labyrinth dataset)
@@ -69,8 +69,9 @@ def _train(
     init: Path | None = None,
     expert_data: Path | None = None,
 ) -> float:
-    """Train one run unless ``run_dir`` holds a finished one; the wall-clock seconds its training took
-    (a reused run's as its summary recorded them)."""
+    """Train one run unless ``run_dir`` holds a finished one, resuming an interrupted one from its last
+    checkpoint (long runs, such as pixels', span several sittings); the wall-clock seconds this call's
+    training took (a reused run's as its summary recorded them)."""
     summary = read_json(run_dir / "summary.json")
     if summary is not None and summary.get("stopped") == "finished":
         return float(summary.get("seconds", 0.0))
@@ -89,7 +90,10 @@ def _train(
         )
     )
     start = time.perf_counter()
-    train_ppo(config, run_dir, init=init, progress=False)
+    if (run_dir / "checkpoint.pt").exists():
+        train_ppo(config, run_dir, resume=True, progress=False)
+    else:
+        train_ppo(config, run_dir, init=init, progress=False)
     return time.perf_counter() - start
 
 
@@ -225,7 +229,7 @@ def _plot(results: dict[str, Any], path: Path, title: str) -> Path:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--layout", choices=("easy", "medium", "hard"), default="easy")
-    parser.add_argument("--obs", choices=("state", "cyberrunner"), default="state")
+    parser.add_argument("--obs", choices=("state", "cyberrunner", "pixels"), default="state")
     parser.add_argument("--steps", type=int, default=1_000_000)
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--curricula", nargs="+", choices=CURRICULA, default=list(CURRICULA))
