@@ -43,7 +43,7 @@ from bimgame.experiments.statistics import mean_interval
 from bimgame.learn.checkpoints import load_checkpoint
 from bimgame.learn.common import read_run
 from bimgame.learn.ppo import PPOConfig, train_ppo
-from bimgame.learn.runs import torch_threads
+from bimgame.learn.runs import CHECKPOINT, torch_threads
 from bimgame.util.files import atomic_write_bytes, read_json
 from bimgame.util.images import save_png, subplots
 from bimgame.util.processes import exit_when_parent_dies
@@ -90,10 +90,8 @@ def _train(
         )
     )
     start = time.perf_counter()
-    if (run_dir / "checkpoint.pt").exists():
-        train_ppo(config, run_dir, resume=True, progress=False)
-    else:
-        train_ppo(config, run_dir, init=init, progress=False)
+    resume = (run_dir / CHECKPOINT).exists()  # written first: the run started, so it continues
+    train_ppo(config, run_dir, resume=resume, init=None if resume else init, progress=False)
     return time.perf_counter() - start
 
 
