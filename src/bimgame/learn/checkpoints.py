@@ -29,6 +29,7 @@ __all__ = [
     "load_checkpoint",
     "load_weights",
     "load_init_weights",
+    "with_added_critic",
     "apply_weights",
 ]
 
@@ -168,9 +169,32 @@ def load_init_weights(module: torch.nn.Module, init: str | Path | None) -> None:
     if init is None:
         return
     try:
-        load_weights(module, init)
+        payload = load_checkpoint(init)
+        apply_weights(module, {**payload, "model": with_added_critic(payload["model"], module)}, init)
     except CheckpointError as error:
         raise CheckpointError(f"--init: {error}") from None
+
+
+#: The weights of an asymmetric critic's state reader (``RecurrentActorCritic.critic_state``).
+_CRITIC_STATE = "critic_state."
+
+
+def with_added_critic(weights: dict[str, torch.Tensor], module: torch.nn.Module) -> dict[str, torch.Tensor]:
+    """``weights`` of a network without an asymmetric critic made to fit ``module``, which has one
+    (``weights`` unchanged otherwise): the run adds the critic to a policy trained without it (a π^s
+    or DAgger iterate, which cannot have one). The state reader keeps ``module``'s fresh weights and
+    the value head takes the old head's weights on the LSTM's features and zeros on the state
+    reader's, so the critic starts as the old one's value exactly and learns to read the state
+    (Net2Net's function-preserving widening, Chen et al. 2016) instead of from nothing."""
+    expected = module.state_dict()
+    adds = any(k.startswith(_CRITIC_STATE) for k in expected) and not any(k.startswith(_CRITIC_STATE) for k in weights)
+    old_value = weights.get("value.weight")
+    if not adds or old_value is None or old_value.shape[1] >= expected["value.weight"].shape[1]:
+        return weights
+    widened = torch.zeros_like(expected["value.weight"])
+    widened[:, : old_value.shape[1]] = old_value
+    state_reader = {k: v.detach().clone() for k, v in expected.items() if k.startswith(_CRITIC_STATE)}
+    return {**weights, **state_reader, "value.weight": widened}
 
 
 def apply_weights(module: torch.nn.Module, payload: dict[str, Any], source: str | Path) -> int:

@@ -3,7 +3,9 @@ the network the learner builds must be the network those weights were trained as
 
 The weights' shapes catch most differences, but an error about a tensor's shape does not say which
 setting differs or what to do, and some settings change what the inputs mean without changing a
-shape (background subtraction). So the settings are compared first, by name. The maze encoding gets
+shape (background subtraction). So the settings are compared first, by name. One difference is
+allowed: a run may add an asymmetric critic to a policy trained without one (a π^s or DAgger iterate
+never has one), which grows out of the old value head. The maze encoding gets
 its own advice: a policy pre-trained on a dataset of many mazes (``bimgame generate --num-mazes``)
 reads each episode's maze encoding and starts runs on many mazes (``--num-mazes``) only; one of MERL's
 maze alone does not read it and cannot start them.
@@ -53,7 +55,11 @@ def check_init_network(init: str | Path | None, network: NetworkSettings) -> Non
     if not stored:
         return
     theirs = NetworkSettings.from_dict(stored)
-    differing = [name for name in MATCHED_SETTINGS if getattr(theirs, name) != getattr(network, name)]
+    differing = [
+        name
+        for name in MATCHED_SETTINGS
+        if getattr(theirs, name) != getattr(network, name) and not _adds_critic(name, theirs, network)
+    ]
     if not differing:
         return
     shown = "; ".join(f"{name}: {getattr(theirs, name)!r} there, {getattr(network, name)!r} here" for name in differing)
@@ -62,6 +68,13 @@ def check_init_network(init: str | Path | None, network: NetworkSettings) -> Non
     else:
         advice = "leave those settings out to take the network's, or start from a network with this run's settings"
     raise ValueError(f"--init: the network of {init} is not this run's ({shown}): {advice}")
+
+
+def _adds_critic(name: str, theirs: NetworkSettings, network: NetworkSettings) -> bool:
+    """Whether setting ``name`` differs only because the run adds an asymmetric critic to a policy
+    trained without one: allowed, the critic grows out of the old one's value head
+    (:func:`~bimgame.learn.checkpoints.with_added_critic`); dropping a trained critic is not."""
+    return name == "asymmetric_critic" and network.asymmetric_critic and not theirs.asymmetric_critic
 
 
 def _reads_encoding(init: str | Path) -> str:
