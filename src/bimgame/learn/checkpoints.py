@@ -193,7 +193,7 @@ def with_added_critic(weights: dict[str, torch.Tensor], module: torch.nn.Module)
         return weights
     widened = torch.zeros_like(expected["value.weight"])
     widened[:, : old_value.shape[1]] = old_value
-    state_reader = {k: v.detach().clone() for k, v in expected.items() if k.startswith(_CRITIC_STATE)}
+    state_reader = {k: v for k, v in expected.items() if k.startswith(_CRITIC_STATE)}  # loaded onto themselves
     return {**weights, **state_reader, "value.weight": widened}
 
 

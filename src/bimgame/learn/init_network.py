@@ -5,10 +5,10 @@ The weights' shapes catch most differences, but an error about a tensor's shape 
 setting differs or what to do, and some settings change what the inputs mean without changing a
 shape (background subtraction). So the settings are compared first, by name. One difference is
 allowed: a run may add an asymmetric critic to a policy trained without one (a π^s or DAgger iterate
-never has one), which grows out of the old value head. The maze encoding gets
-its own advice: a policy pre-trained on a dataset of many mazes (``bimgame generate --num-mazes``)
-reads each episode's maze encoding and starts runs on many mazes (``--num-mazes``) only; one of MERL's
-maze alone does not read it and cannot start them.
+never has one), which grows out of the old value head. The maze encoding gets its own advice: a
+policy pre-trained on a dataset of many mazes (``bimgame generate --num-mazes``) reads each episode's
+maze encoding and starts runs on many mazes (``--num-mazes``) only; one of MERL's maze alone does not
+read it and cannot start them.
 """
 
 from __future__ import annotations
