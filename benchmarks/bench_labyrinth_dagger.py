@@ -22,7 +22,7 @@ docs/labyrinth/dagger.png): the in-run evaluation's success and the mean path pr
 
 Usage: python benchmarks/bench_labyrinth_dagger.py --expert-data DATA --init PI_S [--layout easy]
        [--obs state|cyberrunner|pixels] [--action-type continuous|discrete] [--surroundings]
-       [--seeds 3] [--iterations 8] [--episodes-per-iteration 10] [--beta0 0.5] [--beta-decay 0.7]
+       [--motion] [--seeds 3] [--iterations 8] [--episodes-per-iteration 10] [--beta0 0.5] [--beta-decay 0.7]
        [--epochs-per-iteration 5] [--max-episode-steps 1500] [--jobs 3] [--episodes 100]
 """
 
@@ -58,6 +58,7 @@ def _config(args: argparse.Namespace, seed: int) -> DAggerConfig:
         aux_heads=False,
         asymmetric_critic=False,
         surroundings=args.surroundings,
+        motion=args.motion,
         seed=seed,
     )
     return DAggerConfig(
@@ -148,6 +149,11 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="state observations with the holes and walls around the marble (π^s must read them too)",
     )
+    parser.add_argument(
+        "--motion",
+        action="store_true",
+        help="CyberRunner's observation with the marble's observed velocity (π^s must read it too)",
+    )
     parser.add_argument("--jobs", type=int, default=3, help="runs at once, one thread each (default 3)")
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "labyrinth-dagger")
     parser.add_argument("--results", type=Path, default=ROOT / "benchmarks" / "results" / "labyrinth_dagger.json")
@@ -157,7 +163,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.init is not None:
         args.init = args.init.absolute()
     jobs = {
-        seed: args.out / f"{args.layout}-{args.obs}{_kind(args.action_type)}{'-surroundings' if args.surroundings else ''}{'-init' if args.init else ''}"
+        seed: args.out / f"{args.layout}-{args.obs}{_kind(args.action_type)}{'-surroundings' if args.surroundings else ''}{'-motion' if args.motion else ''}{'-init' if args.init else ''}"
         / f"seed{seed}"
         for seed in range(args.first_seed, args.first_seed + args.seeds)
     }
@@ -183,6 +189,7 @@ def main(argv: list[str] | None = None) -> int:
         "layout": args.layout,
         "obs": args.obs,
         "surroundings": args.surroundings,
+        "motion": args.motion,
         "action_type": args.action_type,
         "seeds": seeds,
         "episodes": args.episodes,

@@ -105,13 +105,14 @@ def test_next_step_autoreset_equals_gymnasiums_sync_vector_env():
     assert resets >= N
 
 
-@pytest.mark.parametrize("obs_mode", ["pixels", "cyberrunner"])
-def test_image_observations_and_privileged_state_equal_single_envs(obs_mode):
-    """Pixel and CyberRunner observations are the single env's; ``state_info`` reports the state
-    observation of the same step (the state-mode env's observation)."""
+@pytest.mark.parametrize("obs_mode, extra", [("pixels", {}), ("cyberrunner", {}), ("cyberrunner", {"motion": True})])
+def test_image_observations_and_privileged_state_equal_single_envs(obs_mode, extra):
+    """Pixel and CyberRunner observations (also with the marble's motion, which each board measures
+    from its own previous observation, across resets) are the single env's; ``state_info`` reports
+    the state observation of the same step (the state-mode env's observation)."""
     limit = 30
-    vec = LabyrinthVectorEnv(N, "easy", obs_mode=obs_mode, max_episode_steps=limit, state_info=True)
-    singles = [gym.make(env_id("easy"), obs_mode=obs_mode, max_episode_steps=limit) for _ in range(N)]
+    vec = LabyrinthVectorEnv(N, "easy", obs_mode=obs_mode, max_episode_steps=limit, state_info=True, **extra)
+    singles = [gym.make(env_id("easy"), obs_mode=obs_mode, max_episode_steps=limit, **extra) for _ in range(N)]
     states = LabyrinthVectorEnv(N, "easy", max_episode_steps=limit)
     obs, info = vec.reset(seed=SEED)
     np.testing.assert_array_equal(info["state"], states.reset(seed=SEED)[0])

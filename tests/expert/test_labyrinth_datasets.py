@@ -16,7 +16,8 @@ import pytest
 import bimgame.expert.labyrinth_datasets as lab
 from bimgame.cli.main import main
 from bimgame.envs.env import NO_ACTION
-from bimgame.envs.labyrinth_env import CYBERRUNNER_FLAT_SIZE, LabyrinthEnv
+from bimgame.envs.labyrinth_cyberrunner import CYBERRUNNER_FLAT_SIZE
+from bimgame.envs.labyrinth_env import LabyrinthEnv
 from bimgame.envs.labyrinth_surroundings import SURROUNDINGS_SIZE
 from bimgame.expert.datasets import dataset_summary, generate_dataset
 from bimgame.expert.labyrinth_datasets import (
@@ -154,6 +155,19 @@ def test_surroundings_computed_from_stored_positions_equal_the_envs_own(referenc
         np.testing.assert_allclose(a.obs, replayed, atol=1e-6)  # from float32 positions: within rounding
     with pytest.raises(ValueError, match="surroundings are part of the state observation, not of obs 'pixels'"):
         load_labyrinth_sequences(reference, obs="pixels", gamma=GAMMA, surroundings=True)
+
+
+def test_the_motion_rerendered_from_consecutive_states_equals_the_envs_own(reference):
+    plain = load_labyrinth_sequences(reference, obs="cyberrunner", gamma=GAMMA)
+    moving = load_labyrinth_sequences(reference, obs="cyberrunner", gamma=GAMMA, motion=True)
+    for index, (p, m) in enumerate(zip(plain, moving, strict=True)):
+        assert m.obs.shape == (len(m), CYBERRUNNER_FLAT_SIZE + 2)
+        np.testing.assert_array_equal(m.obs[:, :CYBERRUNNER_FLAT_SIZE], p.obs)
+        replayed = np.stack(replay(episode_seed(1, index), m.actions, "cyberrunner_flat", motion=True)[:-1])
+        np.testing.assert_array_equal(m.obs, replayed)
+        assert np.any(m.obs[1:, -2:] != 0) and np.array_equal(m.obs[0, -2:], [0.0, 0.0])
+    with pytest.raises(ValueError, match="motion is part of CyberRunner's observation .*, not of obs 'state'"):
+        load_labyrinth_sequences(reference, gamma=GAMMA, motion=True)
 
 
 def test_observe_state_gives_the_observation_the_env_returned(reference):

@@ -12,12 +12,8 @@ import pytest
 import torch
 
 from bimgame.cli.main import main
-from bimgame.envs.labyrinth_env import (
-    CYBERRUNNER_FLAT_SIZE,
-    LabyrinthEnv,
-    flatten_cyberrunner,
-    unflatten_cyberrunner,
-)
+from bimgame.envs.labyrinth_cyberrunner import CYBERRUNNER_FLAT_SIZE, flatten_cyberrunner, unflatten_cyberrunner
+from bimgame.envs.labyrinth_env import LabyrinthEnv
 from bimgame.envs.labyrinth_vector import LabyrinthVectorEnv
 from bimgame.envs.puzzles import puzzle, vector_env
 from bimgame.learn.a3c import A3CConfig
@@ -25,7 +21,10 @@ from bimgame.learn.actor import evaluate_network
 from bimgame.learn.common import NetworkSettings, load_run_network
 from bimgame.learn.encoders import CyberRunnerEncoder
 from bimgame.learn.nets import NetConfig
+from bimgame.learn.maze_runs import network_env_options
 from bimgame.learn.ppo import PPOConfig
+from bimgame.play.agent import AgentPlayer
+from bimgame.play.boards import open_board
 
 CROP = 64 * 64
 CLI = ["--obs", "cyberrunner", "--hidden", "16", "--features", "16", "--envs-per-worker", "4", "--n-steps", "32",
@@ -165,3 +164,24 @@ def test_what_does_not_apply_is_refused_by_name(tmp_path, capsys):
                                   "asymmetric_critic": True, "tilt_input": False, "hidden": 8, "features": 8})
     net = config.network.build_policy(0, puzzle(config.task).spec)
     assert (net.config.precision, net.config.privileged_size, net.config.tilt_input) == ("bf16", 17, False)
+
+
+def test_a_run_with_the_marbles_motion_reads_it_in_training_evaluation_and_play(tmp_path, capsys):
+    """``--motion``: the network's input is 4112 wide, PPO's envs, the evaluation's and ``bimgame
+    play``'s agent all give it the motion (a network of the other width would fail to read them)."""
+    run_dir = tmp_path / "run"
+    assert main(["train", "--algo", "ppo", "--task", "LABYRINTH-EASY", "--run-dir", str(run_dir), "--steps", "128",
+                 "--motion", *CLI]) == 0
+    stored = json.loads((run_dir / "config.json").read_text())
+    assert stored["network"]["motion"] is True and stored["net"]["obs_shape"] == [CYBERRUNNER_FLAT_SIZE + 2]
+    net, run, _ = load_run_network(run_dir)
+    assert net.encoder.vector_size == 16  # tilt and position (4), the path ahead (10), the motion (2)
+    result = evaluate_network(net, task=run.task, obs_mode=run.network.obs, episodes=2, seed=0, max_episode_steps=20,
+                              mazes=network_env_options(run.network))
+    assert len(result.lengths) == 2
+    agent = AgentPlayer(run_dir, puzzle(run.task).spec, task=run.task)
+    assert agent.env_options == {"motion": True}
+    board = open_board(run.task, obs_mode=agent.env_obs_mode, action_type=agent.action_type, **agent.env_options)
+    assert board.env.observation_space.shape == (CYBERRUNNER_FLAT_SIZE + 2,)
+    with pytest.raises(ValueError, match="NetworkSettings.motion applies to obs 'cyberrunner' only"):
+        NetworkSettings(obs="state", motion=True)

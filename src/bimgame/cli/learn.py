@@ -57,6 +57,7 @@ PRETRAIN_FLAGS = (
     "precision",
     "gate_bearings",
     "surroundings",
+    "motion",
     "aux_coef",
     "eval_episodes",
     "seed",
@@ -75,6 +76,7 @@ DAGGER_LEARNER_FLAGS = (
     "precision",
     "gate_bearings",
     "surroundings",
+    "motion",
     "seed",
 )
 #: DAgger's own settings with a flag (``expert`` is the default MPC expert).

@@ -19,6 +19,14 @@ import numpy as np
 from gymnasium import spaces
 
 from bimgame.envs.actions import action_to_tilt_delta
+from bimgame.envs.labyrinth_cyberrunner import (
+    CROP_PIXEL,
+    check_motion,
+    cyberrunner_observation,
+    cyberrunner_space,
+    flatten_cyberrunner,
+    marble_motion,
+)
 from bimgame.envs.labyrinth_surroundings import (
     NO_HOLE,
     RAY_RANGE,
@@ -43,10 +51,6 @@ __all__ = [
     "labyrinth_max_episode_steps",
     "path_points_ahead",
     "PATH_WIDTH",
-    "CYBERRUNNER_PARTS",
-    "CYBERRUNNER_FLAT_SIZE",
-    "flatten_cyberrunner",
-    "unflatten_cyberrunner",
 ]
 
 LABYRINTH_ACTION_TYPES = ("continuous", "discrete")
@@ -65,44 +69,8 @@ GOAL_BONUS, FAIL_REWARD = 0.5, 0.0
 #: nearest path point (``env.py``: ``get_rel_path(..., self.num_rel_path, 60)``; ``path.py``).
 PATH_AHEAD = 5
 PATH_SPACING = 60 * 0.0002
-#: CyberRunner normalises its observed tilt by 10° and the marble's position (from the board's
-#: lower-left corner) by the board's size (``env.py``: ``norm_max``).
-CYBERRUNNER_TILT_NORM = math.radians(10.0)
 #: Width (m) of the printed path line drawn in pixel observations (``path_width``'s default).
 PATH_WIDTH = 0.002
-#: CyberRunner's marble-centred crop: 64 × 64 pixels at 1 mm per pixel (``measurements.py``).
-CROP_SIZE, CROP_PIXEL = 64, 1e-3
-#: CyberRunner's observation, part by part: each key of the ``Dict`` and its shape, in the order of its
-#: flat form (``obs_mode="cyberrunner_flat"``, :func:`flatten_cyberrunner`).
-CYBERRUNNER_PARTS = (("image", (1, CROP_SIZE, CROP_SIZE)), ("states", (4,)), ("goal", (2 * PATH_AHEAD,)))
-#: Length of the flat form: 64 · 64 crop pixels, 4 states, 10 goal values (4110).
-CYBERRUNNER_FLAT_SIZE = sum(math.prod(shape) for _, shape in CYBERRUNNER_PARTS)
-
-
-def flatten_cyberrunner(obs: dict[str, np.ndarray]) -> np.ndarray:
-    """CyberRunner's ``Dict`` observation as one float32 vector (…, 4110) — one board's, or a batch's
-    (…, the leading axes of each part): the crop's 64 × 64 pixels row by row, their values as the
-    ``uint8`` image has them (0–255; a network scales them), then ``"states"`` (4), then ``"goal"``
-    (10). Exact: float32 holds every uint8 and float32 value, so :func:`unflatten_cyberrunner`
-    gives the ``Dict`` back bit for bit."""
-    batch = np.shape(obs["states"])[:-1]
-    parts = [np.asarray(obs[key]).reshape(*batch, -1) for key, _ in CYBERRUNNER_PARTS]
-    return np.concatenate(parts, axis=-1, dtype=np.float32)
-
-
-def unflatten_cyberrunner(flat: np.ndarray) -> dict[str, np.ndarray]:
-    """The ``Dict`` observation of :func:`flatten_cyberrunner`'s vector(s) (…, 4110): ``"image"``
-    (…, 1, 64, 64) uint8, ``"states"`` (…, 4) and ``"goal"`` (…, 10) float32."""
-    flat = np.asarray(flat, dtype=np.float32)
-    if flat.shape[-1:] != (CYBERRUNNER_FLAT_SIZE,):
-        raise ValueError(f"a flat CyberRunner observation has {CYBERRUNNER_FLAT_SIZE} values, got shape {flat.shape}")
-    parts, start = {}, 0
-    for key, shape in CYBERRUNNER_PARTS:
-        size = math.prod(shape)
-        part = flat[..., start : start + size].reshape(*flat.shape[:-1], *shape)
-        parts[key] = part.astype(np.uint8) if key == "image" else part
-        start += size
-    return parts
 
 
 def labyrinth_max_episode_steps(control_hz: float) -> int:
@@ -177,7 +145,10 @@ class LabyrinthEnv(gym.Env):
     divided by k × 12 mm (k = 1 … 5), as CyberRunner's.
     ``obs_mode="cyberrunner_flat"``: the same observation as one ``Box((4110,), float32)`` vector (what
     a learner's network reads, one tensor per step): the crop's 4096 pixels row by row (0–255), then
-    ``"states"``, then ``"goal"`` (:func:`flatten_cyberrunner`; :func:`unflatten_cyberrunner` inverts it).
+    ``"states"``, then ``"goal"`` (:func:`~bimgame.envs.labyrinth_cyberrunner.flatten_cyberrunner`;
+    :func:`~bimgame.envs.labyrinth_cyberrunner.unflatten_cyberrunner` inverts it). With ``motion=True``
+    both forms end with the marble's observed velocity, ``"motion"`` (2; 4112 flat): its position's
+    change since the previous observation (:mod:`bimgame.envs.labyrinth_cyberrunner`; not CyberRunner's).
 
     ## Rewards
 
@@ -222,7 +193,8 @@ class LabyrinthEnv(gym.Env):
     ``progress_scale``, ``goal_bonus``, ``fail_reward``, ``end_off_path``, ``start_noise`` (m,
     0..5 mm), ``path_width`` (m, the printed path line in pixels; 0 hides it), ``board`` (a
     :class:`~bimgame.sim.labyrinth.LabyrinthSpec` overriding ``layout``), ``surroundings`` (state
-    only: append the holes and walls around the marble). Each is checked at
+    only: append the holes and walls around the marble), ``motion`` (cyberrunner only: append the
+    marble's observed velocity). Each is checked at
     construction (``ValueError`` naming it and what is allowed).
 
     ## Version History
@@ -251,6 +223,7 @@ class LabyrinthEnv(gym.Env):
         path_width: float = PATH_WIDTH,
         board: LabyrinthSpec | None = None,
         surroundings: bool = False,
+        motion: bool = False,
     ):
         if board is None:
             if layout not in LAYOUT_NAMES:
@@ -271,6 +244,7 @@ class LabyrinthEnv(gym.Env):
         if not (is_integer(render_size) and 16 <= render_size <= 2048):
             raise ValueError(f"render_size must be an integer in 16..2048, got {render_size!r}")
         check_surroundings(surroundings, obs_mode)
+        check_motion(motion, obs_mode)
         if not isinstance(end_off_path, (bool, np.bool_)):
             raise ValueError(f"end_off_path must be True or False, got {end_off_path!r}")
         rate = _finite("max_tilt_rate_deg", max_tilt_rate_deg, 0.0, 180.0)
@@ -294,12 +268,13 @@ class LabyrinthEnv(gym.Env):
             render_mode=render_mode, render_size=render_size, max_tilt_rate_deg=max_tilt_rate_deg,
             progress_scale=progress_scale, goal_bonus=goal_bonus, fail_reward=fail_reward,
             end_off_path=end_off_path, start_noise=start_noise, path_width=path_width, board=board,
-            surroundings=surroundings,
+            surroundings=surroundings, motion=motion,
         )  # fmt: skip
         self.sim = LabyrinthSim(board, control_hz=self.control_hz)
         self.path = board.path
         self.tracker = ScalarPathProgress(board)  # PathProgress's rule, scalar: the per-step fast path
         self.surroundings = Surroundings(board) if surroundings else None
+        self.motion = motion
         #: Tilt change (rad) of one full-rate action.
         self.tilt_step = self.max_tilt_rate / self.control_hz
         if action_type == "discrete":
@@ -319,6 +294,7 @@ class LabyrinthEnv(gym.Env):
         self._episode_over = True
         self._last: PathStep | None = None
         self._kinematics: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)  # marble x, y, vx, vy
+        self._previous_xy = np.zeros(2)  # the marble's position at the previous observation (motion)
 
     # ------------------------------------------------------------------ construction helpers
     def _check_start(self) -> None:
@@ -335,17 +311,8 @@ class LabyrinthEnv(gym.Env):
         hx, hy = self.board.board_size[0] / 2, self.board.board_size[1] / 2
         if self.obs_mode == "pixels":
             return spaces.Box(0, 255, shape=(1, self.obs_size, self.obs_size), dtype=np.uint8)
-        if self.obs_mode == "cyberrunner_flat":
-            crop = CROP_SIZE * CROP_SIZE
-            low = np.concatenate([np.zeros(crop), np.full(CYBERRUNNER_FLAT_SIZE - crop, -np.inf)])
-            high = np.concatenate([np.full(crop, 255.0), np.full(CYBERRUNNER_FLAT_SIZE - crop, np.inf)])
-            return spaces.Box(low.astype(np.float32), high.astype(np.float32), dtype=np.float32)
-        if self.obs_mode == "cyberrunner":
-            return spaces.Dict(
-                image=spaces.Box(0, 255, (1, CROP_SIZE, CROP_SIZE), np.uint8),
-                states=spaces.Box(-np.inf, np.inf, (4,), np.float32),
-                goal=spaces.Box(-np.inf, np.inf, (2 * PATH_AHEAD,), np.float32),
-            )
+        if self.obs_mode in ("cyberrunner", "cyberrunner_flat"):
+            return cyberrunner_space(self.obs_mode == "cyberrunner_flat", self.motion)
         tilt = self.board.max_tilt + 0.01
         span = np.tile([2 * hx, 2 * hy], PATH_AHEAD)
         low = np.concatenate([[-hx, -hy, -np.inf, -np.inf, -tilt, -tilt, 0.0], -span]).astype(np.float32)
@@ -378,6 +345,7 @@ class LabyrinthEnv(gym.Env):
             except ValueError as error:
                 raise ValueError(f"options['marble_xy']: {error}") from None
         self._kinematics = self.sim.layout.board_frame_one(self.sim.data.qpos, self.sim.data.qvel)[0]
+        self._previous_xy = np.array(self._kinematics[:2])
         self._last = self.tracker.reset(self._kinematics[:2])
         self._has_reset, self._episode_over = True, False
         return self._observe(), self._info(self._last, False)
@@ -389,6 +357,7 @@ class LabyrinthEnv(gym.Env):
             raise RuntimeError("the episode has ended (terminated); call reset() before step()")
         sim = self.sim
         sim.step(action_to_tilt_delta(action, self.action_type, self.tilt_step))
+        self._previous_xy = np.array(self._kinematics[:2])
         self._kinematics = sim.layout.board_frame_one(sim.data.qpos, sim.data.qvel)[0]
         step = self._last = self.tracker.update(self._kinematics[:2])
         failed = step.over_hole or (self.end_off_path and step.off_path)
@@ -412,33 +381,43 @@ class LabyrinthEnv(gym.Env):
     def close(self):
         self.sim.close()
 
-    def observe_state(self, sim_state: np.ndarray, progress: float) -> Any:
+    def observe_state(self, sim_state: np.ndarray, progress: float, previous_state: np.ndarray | None = None) -> Any:
         """The observation (of this env's ``obs_mode``) that :meth:`reset` or :meth:`step` returns in
         physics state ``sim_state`` (from ``env.sim.get_state()``) with the marble at ``progress``
         (m along the path, ``info["progress"]``): what re-renders another observation of a recorded
-        episode (:mod:`bimgame.expert.labyrinth_datasets`). Leaves the env's own state untouched."""
+        episode (:mod:`bimgame.expert.labyrinth_datasets`). ``previous_state``: the physics state at
+        the previous observation, which the marble's ``motion`` is measured from (None: an episode's
+        first observation, no motion). Leaves the env's own state untouched."""
+        if not (is_real(progress) and math.isfinite(progress)):
+            raise ValueError(f"progress must be a finite number (m along the path), got {progress!r}")
+        qpos, kinematics = self._state_kinematics("sim_state", sim_state)
+        previous = kinematics if previous_state is None else self._state_kinematics("previous_state", previous_state)[1]
+        return self._observation(kinematics, qpos[:2], float(progress), np.array(previous[:2]))
+
+    def _state_kinematics(self, name: str, sim_state: np.ndarray) -> tuple[np.ndarray, tuple[float, ...]]:
+        """The joint positions and the marble's board-frame (x, y, vx, vy) of a physics state, checked."""
         state = np.asarray(sim_state, dtype=np.float64)
         if state.shape != (self.sim.state_size,) or not np.all(np.isfinite(state)):
             raise ValueError(
-                f"sim_state must be a finite float vector of length {self.sim.state_size} "
+                f"{name} must be a finite float vector of length {self.sim.state_size} "
                 f"(LabyrinthSim.get_state), got shape {state.shape}"
             )
-        if not (is_real(progress) and math.isfinite(progress)):
-            raise ValueError(f"progress must be a finite number (m along the path), got {progress!r}")
         # The flat state is (time, qpos, qvel, act): the same numbers the env reads from the sim's data.
         nq, nv = self.sim.model.nq, self.sim.model.nv
         qpos, qvel = state[1 : 1 + nq], state[1 + nq : 1 + nq + nv]
-        kinematics = self.sim.layout.board_frame_one(qpos, qvel)[0]
-        return self._observation(kinematics, qpos[:2], float(progress))
+        return qpos, self.sim.layout.board_frame_one(qpos, qvel)[0]
 
     # ------------------------------------------------------------------ helpers
     def _observe(self) -> Any:
         assert self._last is not None
-        return self._observation(self._kinematics, self.sim.data.qpos[:2], self._last.progress)
+        return self._observation(self._kinematics, self.sim.data.qpos[:2], self._last.progress, self._previous_xy)
 
-    def _observation(self, kinematics: tuple[float, float, float, float], tilt: np.ndarray, progress: float) -> Any:
+    def _observation(
+        self, kinematics: tuple[float, ...], tilt: np.ndarray, progress: float, previous_xy: np.ndarray
+    ) -> Any:
         """The observation of the marble's board-frame ``kinematics`` (x, y, vx, vy), the board's
-        ``tilt`` (rad) and the marble's path ``progress`` (m)."""
+        ``tilt`` (rad) and the marble's path ``progress`` (m); ``previous_xy`` its position at the
+        previous observation (the ``motion``)."""
         x, y, vx, vy = kinematics
         if self.obs_mode == "pixels":
             assert self._raster is not None
@@ -449,13 +428,18 @@ class LabyrinthEnv(gym.Env):
             head = np.array([x, y, vx, vy, tilt[0], tilt[1], progress / self.path.length] + relative, np.float32)
             return head if self.surroundings is None else np.concatenate([head, self.surroundings.of(np.array([x, y]))])
         assert self._raster is not None
-        w, h = self.board.board_size
-        states = [tilt[0] / CYBERRUNNER_TILT_NORM, tilt[1] / CYBERRUNNER_TILT_NORM, (x + w / 2) / w, (y + h / 2) / h]
-        obs = {
-            "image": self._raster.crop(np.array([x, y]), CROP_SIZE)[None],
-            "states": np.asarray(states, dtype=np.float32),
-            "goal": (np.array(relative) / self._goal_norm).astype(np.float32),
-        }
+        xy = np.array([[x, y]])
+        motion = marble_motion(xy, previous_xy[None], self.control_hz) if self.motion else None
+        obs = cyberrunner_observation(
+            self._raster,
+            self.board.board_size,
+            xy,
+            np.asarray(tilt)[None],
+            np.array([relative]),
+            self._goal_norm,
+            motion,
+        )
+        obs = {key: value[0] for key, value in obs.items()}
         return flatten_cyberrunner(obs) if self.obs_mode == "cyberrunner_flat" else obs
 
     def _info(self, step: PathStep, success: bool) -> dict[str, Any]:

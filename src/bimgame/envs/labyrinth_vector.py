@@ -48,13 +48,11 @@ from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
 from bimgame.envs.actions import actions_to_tilt_deltas, sub_env_generators
+from bimgame.envs.labyrinth_cyberrunner import cyberrunner_observation, flatten_cyberrunner, marble_motion
 from bimgame.envs.labyrinth_env import (
-    CROP_SIZE,
-    CYBERRUNNER_TILT_NORM,
     PATH_AHEAD,
     PATH_SPACING,
     LabyrinthEnv,
-    flatten_cyberrunner,
     labyrinth_max_episode_steps,
     path_points_ahead,
 )
@@ -75,7 +73,8 @@ class LabyrinthVectorEnv(gym.vector.VectorEnv):
         num_envs: number of boards.
         layout: "easy", "medium" or "hard" (CyberRunner's boards).
         obs_mode: "state", "pixels", "cyberrunner" or "cyberrunner_flat" (see :class:`LabyrinthEnv`; the
-            flat form is (N, 4110) float32, :func:`~bimgame.envs.labyrinth_env.flatten_cyberrunner`).
+            flat form is (N, 4110) float32, :func:`~bimgame.envs.labyrinth_cyberrunner.flatten_cyberrunner`;
+            4112 with ``motion=True``).
         action_type: "continuous" (tilt rates in [-1, 1]², shape (N, 2)) or "discrete" (N integers 0..4).
         control_hz: 55 (CyberRunner's) or 30.
         max_episode_steps: time limit (truncation), as ``TimeLimit`` applies it; None: the registered
@@ -168,6 +167,7 @@ class LabyrinthVectorEnv(gym.vector.VectorEnv):
         self.start_tags = np.zeros(n, dtype=np.int64)
         self._states = np.zeros((n, self.sim.state_size))
         self._kinematics = np.zeros((n, 4))  # marble x, y, vx, vy (board frame)
+        self._previous_xy = np.zeros((n, 2))  # the marble's position at the previous observation (motion)
         self._segment = np.zeros(n, dtype=np.int64)
         self._progress = np.zeros(n)
         self._off_path = np.zeros(n, dtype=bool)
@@ -207,6 +207,7 @@ class LabyrinthVectorEnv(gym.vector.VectorEnv):
         truncated = np.zeros(n, dtype=bool)
         idx = np.flatnonzero(stepping)
         if len(idx):
+            self._previous_xy[idx] = self._kinematics[idx, :2]
             self._states[idx] = self.sim.rollout(self._states[idx], deltas[idx, None], nthread=self.nthread)[:, 0]
             positions, velocities = self.sim.layout.board_frame(self._states[idx])
             self._kinematics[idx] = np.concatenate([positions[:, 0, :2], velocities[:, 0, :2]], axis=1)
@@ -295,6 +296,7 @@ class LabyrinthVectorEnv(gym.vector.VectorEnv):
             self._states[i] = sim.get_state()
             kinematics = sim.layout.board_frame_one(sim.data.qpos, sim.data.qvel)[0]
             self._kinematics[i] = kinematics
+            self._previous_xy[i] = kinematics[:2]
             step = env.tracker.reset(kinematics[:2])
             self._segment[i], self._progress[i] = step.segment, step.progress
             self._off_path[i], self._over_hole[i], self._success[i] = step.off_path, step.over_hole, False
@@ -336,15 +338,10 @@ class LabyrinthVectorEnv(gym.vector.VectorEnv):
         xy = self._kinematics[:, :2]
         if self.obs_mode == "pixels":
             return np.stack([raster.gray(p)[None] for p in xy])
-        w, h = self.board.board_size
-        tilt = self._states[:, self.sim.layout.tilt] / CYBERRUNNER_TILT_NORM
-        position = np.stack([(xy[:, 0] + w / 2) / w, (xy[:, 1] + h / 2) / h], axis=1)
+        tilt = self._states[:, self.sim.layout.tilt]
         relative = (ahead - xy[:, None, :]).reshape(self.num_envs, -1)
-        obs = {
-            "image": np.stack([raster.crop(p, CROP_SIZE)[None] for p in xy]),
-            "states": np.concatenate([tilt, position], axis=1).astype(np.float32),
-            "goal": (relative / self._goal_norm).astype(np.float32),
-        }
+        motion = marble_motion(xy, self._previous_xy, self.template.control_hz) if self.template.motion else None
+        obs = cyberrunner_observation(raster, self.board.board_size, xy, tilt, relative, self._goal_norm, motion)
         return flatten_cyberrunner(obs) if self.obs_mode == "cyberrunner_flat" else obs
 
     def _observe_and_info(self, reward: np.ndarray) -> tuple[Any, dict[str, Any]]:

@@ -19,7 +19,7 @@ A learner's network reads one of :data:`NETWORK_OBS`: the maze's ``pixels`` and 
 labyrinth has both too), and ``cyberrunner``, CyberRunner's observation of the labyrinth (a 64×64
 crop centred on the marble, its tilt and position, the path ahead), which :meth:`Puzzle.vector_env`
 steps in its flat form (``obs_mode="cyberrunner_flat"``: one float32 vector per board, the crop then
-the vector parts, :func:`~bimgame.envs.labyrinth_env.flatten_cyberrunner`), since the learners move
+the vector parts, :func:`~bimgame.envs.labyrinth_cyberrunner.flatten_cyberrunner`), since the learners move
 one tensor per step; the network splits it again (:class:`~bimgame.learn.encoders.CyberRunnerEncoder`).
 The maze has no such observation: it is refused there by name.
 """
@@ -178,12 +178,16 @@ class Puzzle:
         reads each board's physics state steps, such as DAgger's expert-labelled rollouts. ``obs_mode``
         ``cyberrunner`` is stepped as ``cyberrunner_flat``, as in :meth:`vector_env`. ``maze_options``:
         the circular maze's random-maze arguments (``num_mazes``, ``start_maze``), or the labyrinth's
-        ``surroundings``."""
+        ``surroundings`` and ``motion``."""
         check_obs("obs_mode", self.task, obs_mode)
         surroundings = maze_options.pop("surroundings", False)
+        motion = maze_options.pop("motion", False)
         if self.is_maze:
-            if surroundings:
-                raise ValueError(f"surroundings are the labyrinth's holes and walls, not {self.task}'s")
+            if surroundings or motion:
+                raise ValueError(
+                    f"{'surroundings' if surroundings else 'motion'} is part of the labyrinth's observations, "
+                    f"not {self.task}'s"
+                )
             return BallInMazeEnv(self.task, obs_mode=obs_mode, action_type=action_type, **maze_options)
         if maze_options:
             raise ValueError(f"{', '.join(maze_options)}: random mazes are circular mazes, not {self.task}")
@@ -193,6 +197,7 @@ class Puzzle:
             obs_mode=LABYRINTH_OBS.get(obs_mode, obs_mode),
             action_type=action_type,
             surroundings=surroundings,
+            motion=motion,
         )
 
     def vector_env(

@@ -274,7 +274,13 @@ def labyrinth_dataset_summary(data_dir: str | Path) -> dict[str, Any]:
 
 
 def load_labyrinth_sequences(
-    data_dir: str | Path, *, obs: str = "state", gamma: float, progress: bool = False, surroundings: bool = False
+    data_dir: str | Path,
+    *,
+    obs: str = "state",
+    gamma: float,
+    progress: bool = False,
+    surroundings: bool = False,
+    motion: bool = False,
 ) -> list[Episode]:
     """Every episode of a finished labyrinth dataset as an :class:`~bimgame.expert.episode.Episode`
     (what pre-training learns from), after checking the COMPLETE marker and every file's SHA-256.
@@ -288,7 +294,9 @@ def load_labyrinth_sequences(
     by ``gamma``, ``id`` the episode's index. ``progress``: a progress bar while reading.
     ``surroundings`` (``obs="state"`` only): each observation ends with the marble's surroundings,
     computed from its stored position (:mod:`bimgame.envs.labyrinth_surroundings`; what
-    ``LabyrinthEnv(surroundings=True)`` observes).
+    ``LabyrinthEnv(surroundings=True)`` observes). ``motion`` (``obs="cyberrunner"`` only): each
+    observation ends with the marble's observed velocity, from the stored physics states of it and the
+    step before (what ``LabyrinthEnv(motion=True)`` observes).
     """
     if obs not in SEQUENCE_OBS:
         raise ValueError(f"unknown obs {obs!r}; allowed: {', '.join(SEQUENCE_OBS)}")
@@ -296,6 +304,8 @@ def load_labyrinth_sequences(
         raise ValueError(f"gamma must be a number in [0, 1], got {gamma!r}")
     if surroundings and obs != "state":
         raise ValueError(f"surroundings are part of the state observation, not of obs {obs!r}")
+    if motion and SEQUENCE_OBS[obs] != "cyberrunner_flat":
+        raise ValueError(f"motion is part of CyberRunner's observation (obs 'cyberrunner'), not of obs {obs!r}")
     data_dir = Path(data_dir).absolute()
     manifest = labyrinth_dataset_manifest(data_dir)
     around = Surroundings(LabyrinthSpec.layout(manifest["layout"])) if surroundings else None
@@ -307,6 +317,7 @@ def load_labyrinth_sequences(
             action_type=manifest["action_type"],
             control_hz=manifest["control_hz"],
             obs_mode=SEQUENCE_OBS[obs],
+            motion=motion,
         )
     sequences = []
     try:
@@ -348,8 +359,10 @@ def _sequence(data: dict[str, np.ndarray], index: int, gamma: float, renderer: L
     if renderer is None:
         frames = states
     else:
-        pairs = zip(data["sim_states"][:steps], data["progress"][:steps], strict=True)
-        frames = np.stack([renderer.observe_state(state, float(progress)) for state, progress in pairs])
+        sim_states = data["sim_states"][:steps]
+        previous = [None, *sim_states[:-1]]  # the first observation has no motion
+        pairs = zip(sim_states, data["progress"][:steps], previous, strict=True)
+        frames = np.stack([renderer.observe_state(state, float(progress), before) for state, progress, before in pairs])
     return Episode.from_steps(
         obs=frames,
         actions=data["actions"],

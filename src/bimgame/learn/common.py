@@ -74,6 +74,7 @@ _SWITCHES = (
     "maze_encoding",
     "gate_bearings",
     "surroundings",
+    "motion",
 )
 
 
@@ -138,6 +139,10 @@ class NetworkSettings:
     """The labyrinth's state observations also hold what lies around the marble: the nearest holes and
     the distances to the walls (:mod:`bimgame.envs.labyrinth_surroundings`). Off by default: not in the
     observations of earlier runs."""
+    motion: bool = False
+    """CyberRunner's observation (``obs="cyberrunner"``) also holds the marble's observed velocity: the
+    change of its position since the previous observation (:mod:`bimgame.envs.labyrinth_cyberrunner`).
+    Not CyberRunner's, whose world model infers it; off by default."""
 
     def __post_init__(self) -> None:
         owner = type(self).__name__
@@ -180,6 +185,8 @@ class NetworkSettings:
         for name in ("gate_bearings", "surroundings"):
             if getattr(self, name) and self.obs != "state":
                 raise ValueError(f"{owner}.{name} applies to state observations only, got obs {self.obs!r}")
+        if self.motion and self.obs != "cyberrunner":
+            raise ValueError(f"{owner}.motion applies to obs 'cyberrunner' only (CyberRunner's), got obs {self.obs!r}")
         if self.gate_bearings and self.maze_frame != "board":
             raise ValueError(
                 f"{owner}.gate_bearings with maze_frame {self.maze_frame!r}: the bearings are already relative to "

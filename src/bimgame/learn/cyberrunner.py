@@ -2,19 +2,20 @@
 which network settings apply to it, and the network's sizes.
 
 The learners move one tensor per step, so the env gives the observation in its flat form
-(:func:`~bimgame.envs.labyrinth_env.flatten_cyberrunner`: the 64×64 crop, then tilt and position, then
+(:func:`~bimgame.envs.labyrinth_cyberrunner.flatten_cyberrunner`: the 64×64 crop, then tilt and position, then
 the path ahead; :meth:`~bimgame.envs.puzzles.Puzzle.vector_env` steps ``cyberrunner`` as
 ``cyberrunner_flat``) and the network's :class:`~bimgame.learn.encoders.CyberRunnerEncoder` splits it
 again. The pixel network's extras are the circular maze's and are refused by name (:data:`NOT_CYBERRUNNER`);
-``precision`` (bf16 autocast of the encoder), ``tilt_input`` and ``asymmetric_critic`` (which reads
-the labyrinth's 17-value state) apply.
+``precision`` (bf16 autocast of the encoder), ``tilt_input``, ``asymmetric_critic`` (which reads
+the labyrinth's 17-value state) and ``motion`` (the marble's observed velocity after the path ahead:
+:mod:`bimgame.envs.labyrinth_cyberrunner`) apply.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from bimgame.envs.labyrinth_env import CYBERRUNNER_FLAT_SIZE
+from bimgame.envs.labyrinth_cyberrunner import cyberrunner_flat_size
 from bimgame.learn.nets import NetConfig
 from bimgame.sim.labyrinth import LabyrinthSpec
 
@@ -51,4 +52,5 @@ def cyberrunner_net_config(network: Any, spec: Any, privileged: dict[str, Any]) 
     if not isinstance(spec, LabyrinthSpec):
         raise ValueError("obs 'cyberrunner' is CyberRunner's observation of the labyrinth, not of a circular maze")
     sizes = {name: getattr(network, name) for name in ("features", "hidden", "tilt_input", "action_type", "precision")}
-    return NetConfig(encoder="cyberrunner", obs_shape=(CYBERRUNNER_FLAT_SIZE,), **sizes, **privileged)
+    shape = (cyberrunner_flat_size(network.motion),)
+    return NetConfig(encoder="cyberrunner", obs_shape=shape, **sizes, **privileged)

@@ -8,7 +8,7 @@ features (N, F).
   maze encoding entering the first layer through zero-initialised weights of its own, in the
   board's frame or turned into the marble's (:func:`marble_frame`);
 - :class:`CyberRunnerEncoder` — CyberRunner's observation of the labyrinth in its flat form
-  (:func:`~bimgame.envs.labyrinth_env.flatten_cyberrunner`): the marble-centred 64×64 crop through the
+  (:func:`~bimgame.envs.labyrinth_cyberrunner.flatten_cyberrunner`): the marble-centred 64×64 crop through the
   paper's two convolutions, the vector parts (tilt, position, path ahead) through a tanh layer, both
   into one FC layer.
 
@@ -23,7 +23,7 @@ import math
 import torch
 from torch import nn
 
-from bimgame.envs.labyrinth_env import CROP_SIZE
+from bimgame.envs.labyrinth_cyberrunner import CROP_SIZE
 
 __all__ = ["MAZE_FRAMES", "SpatialSoftArgmax", "ConvEncoder", "MLPEncoder", "CyberRunnerEncoder", "marble_frame"]
 
@@ -201,7 +201,7 @@ class CyberRunnerEncoder(_ImageEncoder):
     """CyberRunner's flat observations (N, D) → features (N, F): the first ``crop_size``² values are
     the marble-centred crop (0–255, row by row), the other D − ``crop_size``² the vector parts
     (tilt / 10°, position / board size, the path ahead / k·12 mm: already of order 1), as
-    :func:`~bimgame.envs.labyrinth_env.flatten_cyberrunner` lays them out.
+    :func:`~bimgame.envs.labyrinth_cyberrunner.flatten_cyberrunner` lays them out.
 
     - crop: /255, then the A3C paper's Conv 16×8×8 stride 4 - ReLU - Conv 32×4×4 stride 2 - ReLU
       (``conv_channels``); on 64×64 they leave 32 × 6 × 6 = 1152 values, each seeing 40 × 40 mm of

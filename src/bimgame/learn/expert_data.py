@@ -30,18 +30,25 @@ def load_sequences(
     progress: bool = False,
     gate_bearings: bool = False,
     surroundings: bool = False,
+    motion: bool = False,
 ) -> list[Episode]:
     """Every episode of a dataset directory, relabelled for ``task`` (see
     :func:`~bimgame.expert.episode.relabel`); a labyrinth dataset's episodes as they are (its task is
     the dataset's own, see :func:`check_dataset_task`). ``gate_bearings``: state observations on many
     mazes end with them (:func:`~bimgame.expert.datasets.iterate_sequences`); ``surroundings``: the
-    labyrinth's state observations end with the marble's (:func:`load_labyrinth_sequences`)."""
+    labyrinth's state observations end with the marble's (:func:`load_labyrinth_sequences`); ``motion``:
+    CyberRunner's observations end with the marble's observed velocity."""
     manifest = dataset_manifest(data_dir)
     check_dataset_task(manifest, task, data_dir)
     if manifest.get("puzzle") == LABYRINTH:
-        return load_labyrinth_sequences(data_dir, obs=obs, gamma=gamma, progress=progress, surroundings=surroundings)
-    if surroundings:
-        raise ValueError(f"surroundings are the labyrinth's; the dataset in {data_dir} is of the circular maze")
+        return load_labyrinth_sequences(
+            data_dir, obs=obs, gamma=gamma, progress=progress, surroundings=surroundings, motion=motion
+        )
+    if surroundings or motion:
+        name = "surroundings" if surroundings else "motion"
+        raise ValueError(
+            f"{name} is part of the labyrinth's observations; the dataset in {data_dir} is of the circular maze"
+        )
     spec = spec or MazeSpec.merl()
     task = parse_task(task, spec)
     data_task = parse_task(manifest["task"], spec)

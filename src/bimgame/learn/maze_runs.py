@@ -45,20 +45,26 @@ def maze_network(owner: str, task: str, network: Any, *, num_mazes: int | None, 
 
 
 def maze_options(
-    num_mazes: int | None, start_maze: int, *, gate_bearings: bool = False, surroundings: bool = False
+    num_mazes: int | None,
+    start_maze: int,
+    *,
+    gate_bearings: bool = False,
+    surroundings: bool = False,
+    motion: bool = False,
 ) -> dict[str, Any]:
     """The env arguments of a run's random mazes (empty on MERL's maze alone); ``gate_bearings``: the
     observations hold them (the network reads them: ``NetworkSettings.gate_bearings``). On the
     labyrinth (no mazes), ``surroundings``: its state observations hold the marble's
-    (``NetworkSettings.surroundings``)."""
+    (``NetworkSettings.surroundings``); ``motion``: CyberRunner's observations hold the marble's
+    observed velocity (``NetworkSettings.motion``)."""
     if num_mazes is None:
-        return {"surroundings": True} if surroundings else {}
+        return {name: True for name, on in (("surroundings", surroundings), ("motion", motion)) if on}
     return {"num_mazes": num_mazes, "start_maze": start_maze, **({"gate_bearings": True} if gate_bearings else {})}
 
 
 def network_env_options(network: Any, num_mazes: int | None = None, start_maze: int = 0) -> dict[str, Any]:
     """The env arguments of a run on ``num_mazes`` mazes (from ``start_maze``) whose ``network`` (network
-    settings, or None) reads what it reads: gate bearings on mazes, the labyrinth's surroundings
+    settings, or None) reads what it reads: gate bearings on mazes, the labyrinth's surroundings or motion
     (:func:`maze_options` with the network's own switches). Every place that builds envs for a network
     asks here."""
     return maze_options(
@@ -66,4 +72,5 @@ def network_env_options(network: Any, num_mazes: int | None = None, start_maze: 
         start_maze,
         gate_bearings=bool(getattr(network, "gate_bearings", False)),
         surroundings=bool(getattr(network, "surroundings", False)),
+        motion=bool(getattr(network, "motion", False)),
     )

@@ -199,6 +199,7 @@ def _pretrain(
             progress=progress,
             gate_bearings=config.gate_bearings,
             surroundings=config.surroundings,
+            motion=config.motion,
         )
     rng = np.random.default_rng(config.seed)
     train_idx, val_idx = split_episodes(len(sequences), config.val_fraction, rng)

@@ -105,7 +105,7 @@ class AgentPlayer:
         self.action_type = net.config.action_type
         #: The labyrinth env's observation mode that is this network's input (the maze's env is state-observed).
         self.env_obs_mode = "state" if self.maze else LABYRINTH_OBS.get(self.obs_mode, self.obs_mode)
-        #: The labyrinth env's other arguments its observations need (the marble's surroundings).
+        #: The labyrinth env's other arguments its observations need (the marble's surroundings or motion).
         self.env_options = network_env_options(run.network)
         self.max_tilt = spec.max_tilt
         self._pixels = None

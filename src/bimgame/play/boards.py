@@ -128,7 +128,7 @@ class MazeBoard(_EnvBoard):
 
 class LabyrinthBoard(_EnvBoard):
     """The labyrinth of ``task`` (its canonical name), observed in ``obs_mode`` (with the marble's
-    ``surroundings`` for an agent that reads them) and acted on with ``action_type`` actions at 55 Hz,
+    ``surroundings`` or ``motion`` for an agent that reads them) and acted on with ``action_type`` actions at 55 Hz,
     rendering ``render_size``² frames."""
 
     puzzle = "labyrinth"
@@ -142,6 +142,7 @@ class LabyrinthBoard(_EnvBoard):
         action_type: str = "discrete",
         render_size: int = 480,
         surroundings: bool = False,
+        motion: bool = False,
     ):
         layout = puzzle(task).layout
         assert layout is not None, f"{task} is no labyrinth task"
@@ -153,6 +154,7 @@ class LabyrinthBoard(_EnvBoard):
             render_mode="rgb_array",
             render_size=render_size,
             surroundings=surroundings,
+            motion=motion,
         )
         self.spec = self.env.board
         self.action_type = action_type
@@ -201,12 +203,18 @@ def open_board(
     action_type: str = "discrete",
     render_size: int = 480,
     surroundings: bool = False,
+    motion: bool = False,
 ) -> Board:
     """The board of ``task`` (a canonical name: :func:`~bimgame.envs.puzzles.puzzle`); ``obs_mode``,
-    ``action_type`` and ``surroundings`` apply to the labyrinth (the maze's play is state-observed and
+    ``action_type``, ``surroundings`` and ``motion`` apply to the labyrinth (the maze's play is state-observed and
     discrete)."""
     if puzzle(task).is_maze:
         return MazeBoard(task, render_size=render_size)
     return LabyrinthBoard(
-        task, obs_mode=obs_mode, action_type=action_type, render_size=render_size, surroundings=surroundings
+        task,
+        obs_mode=obs_mode,
+        action_type=action_type,
+        render_size=render_size,
+        surroundings=surroundings,
+        motion=motion,
     )

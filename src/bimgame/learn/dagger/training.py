@@ -430,6 +430,7 @@ def _demonstrations(config: DAggerConfig, *, progress: bool) -> list[Episode]:
         progress=progress,
         gate_bearings=bool(getattr(learner, "gate_bearings", False)),
         surroundings=bool(getattr(learner, "surroundings", False)),
+        motion=bool(getattr(learner, "motion", False)),
     )
 
 
