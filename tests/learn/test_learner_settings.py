@@ -179,7 +179,7 @@ def test_a_config_json_of_the_flat_version_loads_into_the_expected_parts():
     # is the one the run stored.
     added = {"action_type": "discrete"}
     settings_added = {**added, "maze_encoding": False, "maze_frame": "board", "gate_bearings": False,
-                      "surroundings": False,
+                      "surroundings": False, "motion": False,
                       "num_mazes": None,
                       "start_maze": 0}
     assert config.to_dict() == {**stored["a3c"], **settings_added}
