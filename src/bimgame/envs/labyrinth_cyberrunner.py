@@ -31,6 +31,9 @@ __all__ = [
     "CYBERRUNNER_TILT_NORM",
     "CYBERRUNNER_PARTS",
     "CYBERRUNNER_FLAT_SIZE",
+    "PATH_AHEAD",
+    "PATH_SPACING",
+    "GOAL_NORM",
     "MOTION_PART",
     "MOTION_SCALE",
     "cyberrunner_flat_size",
@@ -42,6 +45,13 @@ __all__ = [
     "unflatten_cyberrunner",
 ]
 
+#: CyberRunner's relative path: 5 points, 60 path points (12 mm) apart, the first at the marble's
+#: nearest path point (``env.py``: ``get_rel_path(..., self.num_rel_path, 60)``; ``path.py``).
+PATH_AHEAD = 5
+PATH_SPACING = 60 * 0.0002
+#: CyberRunner's divisors of its relative path (``env.py``: ``goal_norm_max``): the k-th point's x and y
+#: by k × 12 mm (k = 1 … 5).
+GOAL_NORM = np.repeat(PATH_SPACING * np.arange(1, PATH_AHEAD + 1), 2)
 #: CyberRunner normalises its observed tilt by 10° and the marble's position (from the board's
 #: lower-left corner) by the board's size (``env.py``: ``norm_max``).
 CYBERRUNNER_TILT_NORM = math.radians(10.0)
@@ -49,7 +59,7 @@ CYBERRUNNER_TILT_NORM = math.radians(10.0)
 CROP_SIZE, CROP_PIXEL = 64, 1e-3
 #: CyberRunner's observation, part by part: each key of the ``Dict`` and its shape, in the order of its
 #: flat form (``obs_mode="cyberrunner_flat"``, :func:`flatten_cyberrunner`).
-CYBERRUNNER_PARTS = (("image", (1, CROP_SIZE, CROP_SIZE)), ("states", (4,)), ("goal", (10,)))
+CYBERRUNNER_PARTS = (("image", (1, CROP_SIZE, CROP_SIZE)), ("states", (4,)), ("goal", (2 * PATH_AHEAD,)))
 #: The optional part after them (``motion=True``): the marble's observed velocity, x and y.
 MOTION_PART = ("motion", (2,))
 #: The motion's divisor (m/s): the expert's marble moves at 0.15 m/s on average and at most ≈ 0.55 m/s
@@ -103,21 +113,20 @@ def cyberrunner_observation(
     xy: np.ndarray,
     tilt: np.ndarray,
     relative: np.ndarray,
-    goal_norm: np.ndarray,
     motion: np.ndarray | None = None,
 ) -> dict[str, np.ndarray]:
     """CyberRunner's ``Dict`` observation of N boards: ``raster`` (a
     :class:`~bimgame.sim.labyrinth_render.LabyrinthRaster` on the 1 mm sheet) draws each crop around
     the marble at ``xy`` (N, 2) m (board frame, origin at the centre); ``tilt`` (N, 2) rad;
-    ``relative`` (N, 10) the path points ahead relative to the marble (m), divided by ``goal_norm``
-    (10,) (CyberRunner's k × 12 mm for the k-th point); ``motion`` (N, 2) from
+    ``relative`` (N, 10) the path points ahead relative to the marble (m), divided by
+    :data:`GOAL_NORM`; ``motion`` (N, 2) from
     :func:`marble_motion`, or None without that part."""
     w, h = board_size
     position = np.stack([(xy[:, 0] + w / 2) / w, (xy[:, 1] + h / 2) / h], axis=1)
     obs = {
         "image": np.stack([raster.crop(p, CROP_SIZE)[None] for p in xy]),
         "states": np.concatenate([tilt / CYBERRUNNER_TILT_NORM, position], axis=1).astype(np.float32),
-        "goal": (relative / goal_norm).astype(np.float32),
+        "goal": (relative / GOAL_NORM).astype(np.float32),
     }
     if motion is not None:
         obs["motion"] = np.asarray(motion, dtype=np.float32)

@@ -21,6 +21,8 @@ from gymnasium import spaces
 from bimgame.envs.actions import action_to_tilt_delta
 from bimgame.envs.labyrinth_cyberrunner import (
     CROP_PIXEL,
+    PATH_AHEAD,
+    PATH_SPACING,
     check_motion,
     cyberrunner_observation,
     cyberrunner_space,
@@ -51,10 +53,14 @@ __all__ = [
     "labyrinth_max_episode_steps",
     "path_points_ahead",
     "PATH_WIDTH",
+    "OBSERVATION_EXTRAS",
 ]
 
 LABYRINTH_ACTION_TYPES = ("continuous", "discrete")
 LABYRINTH_OBS_MODES = ("state", "pixels", "cyberrunner", "cyberrunner_flat")
+#: The switches that add to an observation mode (``surroundings`` to state, ``motion`` to CyberRunner's):
+#: what a network that reads them needs its envs built with.
+OBSERVATION_EXTRAS = ("surroundings", "motion")
 #: Action rates (Hz): CyberRunner's camera and control (55) and MERL's maze's (30).
 LABYRINTH_CONTROL_RATES = (30, 55)
 #: Episode time limit (s): CyberRunner's 3000 steps at 55 Hz (``env.py``: ``self.steps == 3000``).
@@ -65,10 +71,6 @@ PROGRESS_SCALE = 0.004 / 16 / 0.0002
 #: Bonus on reaching the goal (``env.py``: ``reward_on_goal=0.5``) and the reward of a failing step
 #: (``reward_on_fail=0.0``).
 GOAL_BONUS, FAIL_REWARD = 0.5, 0.0
-#: CyberRunner's relative path: 5 points, 60 path points (12 mm) apart, the first at the marble's
-#: nearest path point (``env.py``: ``get_rel_path(..., self.num_rel_path, 60)``; ``path.py``).
-PATH_AHEAD = 5
-PATH_SPACING = 60 * 0.0002
 #: Width (m) of the printed path line drawn in pixel observations (``path_width``'s default).
 PATH_WIDTH = 0.002
 
@@ -289,7 +291,6 @@ class LabyrinthEnv(gym.Env):
             self._raster = LabyrinthRaster(board, sheet_grid(board, CROP_PIXEL), path_width=path_width)
         self._path_width = path_width
         self.observation_space = self._observation_space()
-        self._goal_norm = np.repeat(PATH_SPACING * np.arange(1, PATH_AHEAD + 1), 2)
         self._has_reset = False
         self._episode_over = True
         self._last: PathStep | None = None
@@ -345,7 +346,8 @@ class LabyrinthEnv(gym.Env):
             except ValueError as error:
                 raise ValueError(f"options['marble_xy']: {error}") from None
         self._kinematics = self.sim.layout.board_frame_one(self.sim.data.qpos, self.sim.data.qvel)[0]
-        self._previous_xy = np.array(self._kinematics[:2])
+        if self.motion:
+            self._previous_xy = np.array(self._kinematics[:2])
         self._last = self.tracker.reset(self._kinematics[:2])
         self._has_reset, self._episode_over = True, False
         return self._observe(), self._info(self._last, False)
@@ -357,7 +359,8 @@ class LabyrinthEnv(gym.Env):
             raise RuntimeError("the episode has ended (terminated); call reset() before step()")
         sim = self.sim
         sim.step(action_to_tilt_delta(action, self.action_type, self.tilt_step))
-        self._previous_xy = np.array(self._kinematics[:2])
+        if self.motion:
+            self._previous_xy = np.array(self._kinematics[:2])
         self._kinematics = sim.layout.board_frame_one(sim.data.qpos, sim.data.qvel)[0]
         step = self._last = self.tracker.update(self._kinematics[:2])
         failed = step.over_hole or (self.end_off_path and step.off_path)
@@ -436,7 +439,6 @@ class LabyrinthEnv(gym.Env):
             xy,
             np.asarray(tilt)[None],
             np.array([relative]),
-            self._goal_norm,
             motion,
         )
         obs = {key: value[0] for key, value in obs.items()}

@@ -50,8 +50,6 @@ from gymnasium.vector.utils import batch_space
 from bimgame.envs.actions import actions_to_tilt_deltas, sub_env_generators
 from bimgame.envs.labyrinth_cyberrunner import cyberrunner_observation, flatten_cyberrunner, marble_motion
 from bimgame.envs.labyrinth_env import (
-    PATH_AHEAD,
-    PATH_SPACING,
     LabyrinthEnv,
     labyrinth_max_episode_steps,
     path_points_ahead,
@@ -177,7 +175,6 @@ class LabyrinthVectorEnv(gym.vector.VectorEnv):
         self._autoreset = np.zeros(n, dtype=bool)
         self._rngs: list[np.random.Generator] = []
         self._has_reset = False
-        self._goal_norm = np.repeat(PATH_SPACING * np.arange(1, PATH_AHEAD + 1), 2)
         self._render_raster: LabyrinthRaster | None = None
 
     # ------------------------------------------------------------------ API
@@ -207,7 +204,8 @@ class LabyrinthVectorEnv(gym.vector.VectorEnv):
         truncated = np.zeros(n, dtype=bool)
         idx = np.flatnonzero(stepping)
         if len(idx):
-            self._previous_xy[idx] = self._kinematics[idx, :2]
+            if self.template.motion:
+                self._previous_xy[idx] = self._kinematics[idx, :2]
             self._states[idx] = self.sim.rollout(self._states[idx], deltas[idx, None], nthread=self.nthread)[:, 0]
             positions, velocities = self.sim.layout.board_frame(self._states[idx])
             self._kinematics[idx] = np.concatenate([positions[:, 0, :2], velocities[:, 0, :2]], axis=1)
@@ -341,7 +339,7 @@ class LabyrinthVectorEnv(gym.vector.VectorEnv):
         tilt = self._states[:, self.sim.layout.tilt]
         relative = (ahead - xy[:, None, :]).reshape(self.num_envs, -1)
         motion = marble_motion(xy, self._previous_xy, self.template.control_hz) if self.template.motion else None
-        obs = cyberrunner_observation(raster, self.board.board_size, xy, tilt, relative, self._goal_norm, motion)
+        obs = cyberrunner_observation(raster, self.board.board_size, xy, tilt, relative, motion)
         return flatten_cyberrunner(obs) if self.obs_mode == "cyberrunner_flat" else obs
 
     def _observe_and_info(self, reward: np.ndarray) -> tuple[Any, dict[str, Any]]:

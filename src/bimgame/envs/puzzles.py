@@ -34,7 +34,8 @@ from typing import Any
 import numpy as np
 
 from bimgame.envs.env import BallInMazeEnv
-from bimgame.envs.labyrinth_env import PATH_AHEAD, PATH_SPACING, LabyrinthEnv, labyrinth_max_episode_steps
+from bimgame.envs.labyrinth_cyberrunner import GOAL_NORM
+from bimgame.envs.labyrinth_env import OBSERVATION_EXTRAS, LabyrinthEnv, labyrinth_max_episode_steps
 from bimgame.envs.labyrinth_vector import LabyrinthVectorEnv
 from bimgame.envs.observe import OBS_MODES
 from bimgame.envs.vector import BallInMazeVectorEnv
@@ -114,8 +115,7 @@ def _labyrinth_obs_scale(spec: LabyrinthSpec) -> np.ndarray:
     """
     hx, hy = spec.board_size[0] / 2, spec.board_size[1] / 2
     speed = LABYRINTH_SPEED_SCALE
-    path = np.repeat(PATH_SPACING * np.arange(1, PATH_AHEAD + 1), 2)
-    return np.concatenate([[hx, hy, speed, speed, spec.max_tilt, spec.max_tilt, 1.0], path]).astype(np.float32)
+    return np.concatenate([[hx, hy, speed, speed, spec.max_tilt, spec.max_tilt, 1.0], GOAL_NORM]).astype(np.float32)
 
 
 def maze_obs_scale(spec: MazeSpec, n_marbles: int = 1) -> np.ndarray:
@@ -180,13 +180,13 @@ class Puzzle:
         the circular maze's random-maze arguments (``num_mazes``, ``start_maze``), or the labyrinth's
         ``surroundings`` and ``motion``."""
         check_obs("obs_mode", self.task, obs_mode)
-        surroundings = maze_options.pop("surroundings", False)
-        motion = maze_options.pop("motion", False)
+        extras = {name: maze_options.pop(name) for name in OBSERVATION_EXTRAS if name in maze_options}
         if self.is_maze:
-            if surroundings or motion:
+            asked = [name for name, on in extras.items() if on]
+            if asked:
+                verb = "is" if len(asked) == 1 else "are"
                 raise ValueError(
-                    f"{'surroundings' if surroundings else 'motion'} is part of the labyrinth's observations, "
-                    f"not {self.task}'s"
+                    f"{' and '.join(asked)} {verb} part of the labyrinth's observations, not {self.task}'s"
                 )
             return BallInMazeEnv(self.task, obs_mode=obs_mode, action_type=action_type, **maze_options)
         if maze_options:
@@ -196,8 +196,7 @@ class Puzzle:
             self.layout,
             obs_mode=LABYRINTH_OBS.get(obs_mode, obs_mode),
             action_type=action_type,
-            surroundings=surroundings,
-            motion=motion,
+            **extras,
         )
 
     def vector_env(

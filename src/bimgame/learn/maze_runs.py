@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
+from bimgame.envs.labyrinth_env import OBSERVATION_EXTRAS
 from bimgame.learn.learner_settings import check_puzzle
 from bimgame.util.settings import require_int
 
@@ -49,16 +50,15 @@ def maze_options(
     start_maze: int,
     *,
     gate_bearings: bool = False,
-    surroundings: bool = False,
-    motion: bool = False,
+    extras: tuple[str, ...] = (),
 ) -> dict[str, Any]:
     """The env arguments of a run's random mazes (empty on MERL's maze alone); ``gate_bearings``: the
     observations hold them (the network reads them: ``NetworkSettings.gate_bearings``). On the
-    labyrinth (no mazes), ``surroundings``: its state observations hold the marble's
-    (``NetworkSettings.surroundings``); ``motion``: CyberRunner's observations hold the marble's
-    observed velocity (``NetworkSettings.motion``)."""
+    labyrinth (no mazes), ``extras``: the parts its observations add
+    (:data:`~bimgame.envs.labyrinth_env.OBSERVATION_EXTRAS`: ``surroundings`` to the state, ``motion``
+    to CyberRunner's; ``NetworkSettings`` switches of the same names)."""
     if num_mazes is None:
-        return {name: True for name, on in (("surroundings", surroundings), ("motion", motion)) if on}
+        return dict.fromkeys(extras, True)
     return {"num_mazes": num_mazes, "start_maze": start_maze, **({"gate_bearings": True} if gate_bearings else {})}
 
 
@@ -71,6 +71,5 @@ def network_env_options(network: Any, num_mazes: int | None = None, start_maze: 
         num_mazes,
         start_maze,
         gate_bearings=bool(getattr(network, "gate_bearings", False)),
-        surroundings=bool(getattr(network, "surroundings", False)),
-        motion=bool(getattr(network, "motion", False)),
+        extras=tuple(name for name in OBSERVATION_EXTRAS if getattr(network, name, False)),
     )

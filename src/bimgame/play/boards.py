@@ -128,7 +128,8 @@ class MazeBoard(_EnvBoard):
 
 class LabyrinthBoard(_EnvBoard):
     """The labyrinth of ``task`` (its canonical name), observed in ``obs_mode`` (with the marble's
-    ``surroundings`` or ``motion`` for an agent that reads them) and acted on with ``action_type`` actions at 55 Hz,
+    ``surroundings`` or ``motion``, :data:`~bimgame.envs.labyrinth_env.OBSERVATION_EXTRAS`, for an agent
+    that reads them) and acted on with ``action_type`` actions at 55 Hz,
     rendering ``render_size``² frames."""
 
     puzzle = "labyrinth"
@@ -141,8 +142,7 @@ class LabyrinthBoard(_EnvBoard):
         obs_mode: str = "state",
         action_type: str = "discrete",
         render_size: int = 480,
-        surroundings: bool = False,
-        motion: bool = False,
+        **extras: Any,
     ):
         layout = puzzle(task).layout
         assert layout is not None, f"{task} is no labyrinth task"
@@ -153,8 +153,7 @@ class LabyrinthBoard(_EnvBoard):
             obs_mode=obs_mode,
             render_mode="rgb_array",
             render_size=render_size,
-            surroundings=surroundings,
-            motion=motion,
+            **extras,
         )
         self.spec = self.env.board
         self.action_type = action_type
@@ -202,19 +201,11 @@ def open_board(
     obs_mode: str = "state",
     action_type: str = "discrete",
     render_size: int = 480,
-    surroundings: bool = False,
-    motion: bool = False,
+    **extras: Any,
 ) -> Board:
     """The board of ``task`` (a canonical name: :func:`~bimgame.envs.puzzles.puzzle`); ``obs_mode``,
-    ``action_type``, ``surroundings`` and ``motion`` apply to the labyrinth (the maze's play is state-observed and
+    ``action_type`` and the observation ``extras`` (``surroundings``, ``motion``) apply to the labyrinth (the maze's play is state-observed and
     discrete)."""
     if puzzle(task).is_maze:
         return MazeBoard(task, render_size=render_size)
-    return LabyrinthBoard(
-        task,
-        obs_mode=obs_mode,
-        action_type=action_type,
-        render_size=render_size,
-        surroundings=surroundings,
-        motion=motion,
-    )
+    return LabyrinthBoard(task, obs_mode=obs_mode, action_type=action_type, render_size=render_size, **extras)
