@@ -128,9 +128,9 @@ class MazeBoard(_EnvBoard):
 
 class LabyrinthBoard(_EnvBoard):
     """The labyrinth of ``task`` (its canonical name), observed in ``obs_mode`` (with the marble's
-    ``surroundings`` or ``motion``, :data:`~bimgame.envs.labyrinth_env.OBSERVATION_EXTRAS`, for an agent
-    that reads them) and acted on with ``action_type`` actions at 55 Hz,
-    rendering ``render_size``² frames."""
+    ``surroundings`` or ``motion``, :data:`~bimgame.envs.labyrinth_env.OBSERVATION_EXTRAS`, for an
+    agent that reads them) and acted on with ``action_type`` actions at 55 Hz, rendering
+    ``render_size``² frames."""
 
     puzzle = "labyrinth"
     env: LabyrinthEnv
@@ -204,8 +204,8 @@ def open_board(
     **extras: Any,
 ) -> Board:
     """The board of ``task`` (a canonical name: :func:`~bimgame.envs.puzzles.puzzle`); ``obs_mode``,
-    ``action_type`` and the observation ``extras`` (``surroundings``, ``motion``) apply to the labyrinth (the maze's play is state-observed and
-    discrete)."""
+    ``action_type`` and the observation ``extras`` (``surroundings``, ``motion``) apply to the
+    labyrinth (the maze's play is state-observed and discrete)."""
     if puzzle(task).is_maze:
         return MazeBoard(task, render_size=render_size)
     return LabyrinthBoard(task, obs_mode=obs_mode, action_type=action_type, render_size=render_size, **extras)
