@@ -152,7 +152,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--motion",
         action="store_true",
-        help="CyberRunner's observation with the marble's observed velocity (π^s must read it too)",
+        help="the marble's motion: CyberRunner's observation with its observed velocity, pixels as two frames (π^s must read it too)",
     )
     parser.add_argument("--jobs", type=int, default=3, help="runs at once, one thread each (default 3)")
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "labyrinth-dagger")

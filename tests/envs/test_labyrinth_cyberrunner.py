@@ -89,7 +89,7 @@ def test_gymnasiums_checker_accepts_both_forms():
 
 
 def test_bad_input_is_refused_by_name():
-    with pytest.raises(ValueError, match=r"motion .* CyberRunner's observation only .* obs_mode 'state'"):
+    with pytest.raises(ValueError, match=r"motion .* observation modes .*'pixels'\) only .* obs_mode 'state'"):
         LabyrinthEnv("easy", obs_mode="state", motion=True)
     with pytest.raises(ValueError, match="motion must be True or False"):
         LabyrinthEnv("easy", obs_mode="cyberrunner", motion=1)

@@ -105,7 +105,10 @@ def test_next_step_autoreset_equals_gymnasiums_sync_vector_env():
     assert resets >= N
 
 
-@pytest.mark.parametrize("obs_mode, extra", [("pixels", {}), ("cyberrunner", {}), ("cyberrunner", {"motion": True})])
+@pytest.mark.parametrize(
+    "obs_mode, extra",
+    [("pixels", {}), ("pixels", {"motion": True}), ("cyberrunner", {}), ("cyberrunner", {"motion": True})],
+)
 def test_image_observations_and_privileged_state_equal_single_envs(obs_mode, extra):
     """Pixel and CyberRunner observations (also with the marble's motion, which each board measures
     from its own previous observation, across resets) are the single env's; ``state_info`` reports

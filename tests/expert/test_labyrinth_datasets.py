@@ -170,6 +170,20 @@ def test_the_motion_rerendered_from_consecutive_states_equals_the_envs_own(refer
         load_labyrinth_sequences(reference, gamma=GAMMA, motion=True)
 
 
+def test_the_previous_frame_rerendered_from_consecutive_states_equals_the_envs_own(reference):
+    """Pixels with motion: each step's two frames, re-rendered from the stored physics states of the
+    step and the step before, are the env's own; the second is the plain pixel observation."""
+    plain = load_labyrinth_sequences(reference, obs="pixels", gamma=GAMMA)
+    stacked = load_labyrinth_sequences(reference, obs="pixels", gamma=GAMMA, motion=True)
+    for index, (p, m) in enumerate(zip(plain, stacked, strict=True)):
+        assert m.obs.dtype == np.uint8 and m.obs.shape == (len(m), 2, 84, 84)
+        np.testing.assert_array_equal(m.obs[:, 1:], p.obs)
+        np.testing.assert_array_equal(m.obs[1:, :1], p.obs[:-1])  # the previous step's frame
+        np.testing.assert_array_equal(m.obs[0, 0], m.obs[0, 1])  # an episode's first: no motion
+        replayed = np.stack(replay(episode_seed(1, index), m.actions, "pixels", motion=True)[:-1])
+        np.testing.assert_array_equal(m.obs, replayed)
+
+
 def test_observe_state_gives_the_observation_the_env_returned(reference):
     with np.load(reference / "episodes" / "episode_000000.npz", allow_pickle=False) as data:
         states, progress, observations = data["sim_states"], data["progress"], data["observations"]

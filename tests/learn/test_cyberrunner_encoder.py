@@ -183,5 +183,5 @@ def test_a_run_with_the_marbles_motion_reads_it_in_training_evaluation_and_play(
     assert agent.env_options == {"motion": True}
     board = open_board(run.task, obs_mode=agent.env_obs_mode, action_type=agent.action_type, **agent.env_options)
     assert board.env.observation_space.shape == (CYBERRUNNER_FLAT_SIZE + 2,)
-    with pytest.raises(ValueError, match="NetworkSettings.motion applies to obs 'cyberrunner' only"):
+    with pytest.raises(ValueError, match="NetworkSettings.motion applies to obs 'cyberrunner' .* and 'pixels' .* only"):
         NetworkSettings(obs="state", motion=True)

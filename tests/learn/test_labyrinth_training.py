@@ -2,7 +2,8 @@
 settings that accept them and those that refuse them by name, a tiny PPO run from the command line
 (run directory, resume, evaluate) and a tiny A3C run, and success counted from the env's own ``success`` — a marble in a
 hole terminates its episode but is no success; and both learners from the labyrinth's pixels (its own
-84×84 frames and empty board), with only what is made for the maze's state layout refused."""
+84×84 frames and empty board; two frames with the marble's motion), with only what is made for the maze's
+state layout refused."""
 
 from __future__ import annotations
 
@@ -20,9 +21,12 @@ from bimgame.learn.a3c import A3CConfig, train
 from bimgame.learn.actor import RecurrentActor, episode_successes, evaluate_network, tilt_input
 from bimgame.learn.common import NetworkSettings, load_run_network
 from bimgame.learn.learner_settings import check_init_puzzle, policy_network
+from bimgame.learn.maze_runs import network_env_options
 from bimgame.learn.pixel_network import empty_board_frame
 from bimgame.learn.ppo import PPOConfig
 from bimgame.learn.rollout import RolloutCollector, training_env
+from bimgame.play.agent import AgentPlayer
+from bimgame.play.boards import open_board
 from bimgame.sim.labyrinth import LabyrinthSpec
 from bimgame.sim.labyrinth_render import board_grid
 from bimgame.sim.maze import MazeSpec
@@ -265,6 +269,40 @@ def test_a3c_trains_and_evaluates_on_the_labyrinth_from_pixels(tmp_path, capsys)
     assert main(["evaluate", str(run_dir), "--episodes", "2", "--sample", "--out", str(out)]) == 0
     result = json.loads(out.read_text())
     assert (result["task"], result["mode"], len(result["lengths"])) == ("LABYRINTH-EASY", "sampled", 2)
+
+
+def test_the_pixel_network_reads_two_frames_with_the_background_under_each():
+    """``motion`` on pixels (bimgame.envs.labyrinth_pixels): the conv network reads the previous frame
+    and the current one, and subtracts the empty board from each."""
+    spec = puzzle("LABYRINTH-EASY").spec
+    net = policy_network(PPOConfig.from_flat(LAB, obs="pixels", motion=True, subtract_background=True))
+    assert net.config.obs_shape == (2, 84, 84) and net.encoder.conv1.in_channels == 2
+    background = net.encoder.background.numpy()
+    np.testing.assert_array_equal(background, np.repeat(empty_board_frame(spec), 2, axis=0))
+    assert policy_network(PPOConfig.from_flat(LAB, obs="pixels")).config.obs_shape == (1, 84, 84)
+    with pytest.raises(ValueError, match=r"PPOConfig\.motion on STG1: it is part of the labyrinth's observations"):
+        PPOConfig.from_flat(LAB, task="STG1", obs="pixels", motion=True)
+    with pytest.raises(ValueError, match=r"NetworkSettings\.motion applies to obs 'cyberrunner' .* and 'pixels'"):
+        NetworkSettings(obs="state", motion=True)
+
+
+def test_a_pixel_run_with_the_marbles_motion_reads_two_frames_in_training_evaluation_and_play(tmp_path, capsys):
+    """``--motion`` on pixels: PPO's envs, the evaluation's and ``bimgame play``'s agent all give the
+    network two frames (a one-frame network would fail to read them)."""
+    run_dir = tmp_path / "run"
+    assert main(["train", "--algo", "ppo", "--action-type", "continuous", "--motion", "--n-steps", "32",
+                 "--run-dir", str(run_dir), "--steps", "128", *PIXELS]) == 0
+    assert "done: 128 steps" in capsys.readouterr().out
+    stored = json.loads((run_dir / "config.json").read_text())
+    assert stored["network"]["motion"] is True and stored["net"]["obs_shape"] == [2, 84, 84]
+    net, run, _ = load_run_network(run_dir)
+    result = evaluate_network(net, task=run.task, obs_mode=run.network.obs, episodes=2, seed=0, max_episode_steps=20,
+                              mazes=network_env_options(run.network))
+    assert len(result.lengths) == 2
+    agent = AgentPlayer(run_dir, puzzle(run.task).spec, task=run.task)
+    assert agent.env_options == {"motion": True}
+    board = open_board(run.task, obs_mode=agent.env_obs_mode, action_type=agent.action_type, **agent.env_options)
+    assert board.env.observation_space.shape == (2, 84, 84)
 
 
 def test_the_labyrinth_refuses_by_name_only_what_its_pixels_cannot_train_with(tmp_path, capsys):

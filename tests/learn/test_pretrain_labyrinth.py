@@ -87,3 +87,15 @@ def test_the_command_line_takes_the_datasets_action_type(lab_data, tmp_path, cap
     assert "each tilt change within 0.25 of the expert's" in out
     assert "bimgame train --algo ppo --action-type continuous --task LABYRINTH-EASY" in out
     assert load_run_network(tmp_path / "cli")[0].config.action_type == "continuous"
+
+
+def test_pi_s_from_pixels_with_the_marbles_motion_reads_two_frames(lab_data, tmp_path, capsys):
+    """``--obs pixels --motion``: the dataset's frames re-rendered in pairs (the previous step's, then the
+    step's) train a two-frame conv network, and the printed next step keeps the motion."""
+    code = main(["pretrain", "--data", str(lab_data), "--out", str(tmp_path / "px"), "--task", TASK, "--obs",
+                 "pixels", "--motion", "--hidden", "8", "--features", "8", "--epochs", "1", "--eval-episodes", "0",
+                 "--no-progress"])
+    assert code == 0
+    assert "--motion" in capsys.readouterr().out
+    net, run, _ = load_run_network(tmp_path / "px")
+    assert (run.network.motion, net.config.obs_shape) == (True, (2, 84, 84))

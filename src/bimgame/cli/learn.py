@@ -10,6 +10,7 @@ from typing import Any
 
 from bimgame.cli.argtypes import episode_count, episode_count_or_zero, seed
 from bimgame.cli.flags import add_flag_groups, add_grouped_settings_flags, given_settings
+from bimgame.envs.labyrinth_env import OBSERVATION_EXTRAS
 from bimgame.envs.puzzles import TASK_NAMES
 from bimgame.expert.datasets import dataset_manifest
 from bimgame.learn.common import NetworkSettings
@@ -229,9 +230,11 @@ def run_pretrain(args: argparse.Namespace) -> int:
     use = "--value-reward" if config.target == "value" else "--init"
     mazes = "".join(f" --{name.replace('_', '-')} {value}" for name, value in result.mazes.items())
     learner = " --algo ppo --action-type continuous" if config.action_type == "continuous" else ""
+    # The labyrinth observation's extra parts π^s reads: the learner's envs must give them too.
+    extras = "".join(f" --{name}" for name in OBSERVATION_EXTRAS if getattr(config, name, False))
     print(
-        f"use it with: bimgame train{learner} --task {config.task} --obs {config.obs}{mazes} {use} {args.out} "
-        "--run-dir RUN"
+        f"use it with: bimgame train{learner} --task {config.task} --obs {config.obs}{extras}{mazes} {use} "
+        f"{args.out} --run-dir RUN"
     )
     return 0
 

@@ -41,10 +41,13 @@ __all__ = [
     "cyberrunner_observation",
     "marble_motion",
     "check_motion",
+    "MOTION_OBS_MODES",
     "flatten_cyberrunner",
     "unflatten_cyberrunner",
 ]
 
+#: The observation modes the marble's ``motion`` is part of (:func:`check_motion`).
+MOTION_OBS_MODES = ("cyberrunner", "cyberrunner_flat", "pixels")
 #: CyberRunner's relative path: 5 points, 60 path points (12 mm) apart, the first at the marble's
 #: nearest path point (``env.py``: ``get_rel_path(..., self.num_rel_path, 60)``; ``path.py``).
 PATH_AHEAD = 5
@@ -99,11 +102,13 @@ def marble_motion(xy: np.ndarray, previous_xy: np.ndarray, control_hz: float) ->
 
 
 def check_motion(motion: object, obs_mode: str) -> None:
-    """``ValueError`` unless ``motion`` is a bool, and False outside CyberRunner's observation."""
-    if not isinstance(motion, bool) or (motion and obs_mode not in ("cyberrunner", "cyberrunner_flat")):
+    """``ValueError`` unless ``motion`` is a bool, and False outside the observations that have it:
+    CyberRunner's (its ``"motion"`` part) and pixels (the previous frame: :mod:`bimgame.envs.labyrinth_pixels`)."""
+    if not isinstance(motion, bool) or (motion and obs_mode not in MOTION_OBS_MODES):
         raise ValueError(
-            f"motion must be True or False and is part of CyberRunner's observation only (obs_mode "
-            f"'cyberrunner' or 'cyberrunner_flat'), got motion={motion!r} with obs_mode {obs_mode!r}"
+            f"motion must be True or False and is part of the observation modes {MOTION_OBS_MODES} only "
+            f"(CyberRunner's: the marble's observed velocity; pixels: the previous frame), got motion={motion!r} "
+            f"with obs_mode {obs_mode!r}"
         )
 
 

@@ -29,6 +29,7 @@ from bimgame.envs.labyrinth_cyberrunner import (
     flatten_cyberrunner,
     marble_motion,
 )
+from bimgame.envs.labyrinth_pixels import pixel_observation, pixel_space
 from bimgame.envs.labyrinth_surroundings import (
     NO_HOLE,
     RAY_RANGE,
@@ -58,7 +59,7 @@ __all__ = [
 
 LABYRINTH_ACTION_TYPES = ("continuous", "discrete")
 LABYRINTH_OBS_MODES = ("state", "pixels", "cyberrunner", "cyberrunner_flat")
-#: The switches that add to an observation mode (``surroundings`` to state, ``motion`` to CyberRunner's):
+#: The switches that add to an observation mode (``surroundings`` to state, ``motion`` to CyberRunner's and pixels):
 #: what a network that reads them needs its envs built with.
 OBSERVATION_EXTRAS = ("surroundings", "motion")
 #: Action rates (Hz): CyberRunner's camera and control (55) and MERL's maze's (30).
@@ -137,7 +138,9 @@ class LabyrinthEnv(gym.Env):
     distances along 8 directions (:mod:`bimgame.envs.labyrinth_surroundings`).
     ``obs_mode="pixels"``: ``Box(0, 255, (1, obs_size, obs_size), uint8)``, a top-down grayscale view
     of the whole board, north up, drawn with numpy (:mod:`bimgame.sim.labyrinth_render`: floor,
-    printed path, black holes, light walls, white marble).
+    printed path, black holes, light walls, white marble). With ``motion=True``
+    ``(2, obs_size, obs_size)``: the previous observation's frame, then this one's (a two-frame stack;
+    :mod:`bimgame.envs.labyrinth_pixels`).
     ``obs_mode="cyberrunner"``: CyberRunner's own observation, a ``Dict``: ``"image"``
     ``Box(0, 255, (1, 64, 64), uint8)``, a grayscale window 64 mm wide centred on the marble at 1 mm
     per pixel, north up, outside the board showing the outside (CyberRunner's is a colour camera
@@ -195,8 +198,8 @@ class LabyrinthEnv(gym.Env):
     ``progress_scale``, ``goal_bonus``, ``fail_reward``, ``end_off_path``, ``start_noise`` (m,
     0..5 mm), ``path_width`` (m, the printed path line in pixels; 0 hides it), ``board`` (a
     :class:`~bimgame.sim.labyrinth.LabyrinthSpec` overriding ``layout``), ``surroundings`` (state
-    only: append the holes and walls around the marble), ``motion`` (cyberrunner only: append the
-    marble's observed velocity). Each is checked at
+    only: append the holes and walls around the marble), ``motion`` (cyberrunner: append the
+    marble's observed velocity; pixels: the previous frame before this one). Each is checked at
     construction (``ValueError`` naming it and what is allowed).
 
     ## Version History
@@ -311,7 +314,7 @@ class LabyrinthEnv(gym.Env):
     def _observation_space(self) -> spaces.Space:
         hx, hy = self.board.board_size[0] / 2, self.board.board_size[1] / 2
         if self.obs_mode == "pixels":
-            return spaces.Box(0, 255, shape=(1, self.obs_size, self.obs_size), dtype=np.uint8)
+            return pixel_space(self.obs_size, self.motion)
         if self.obs_mode in ("cyberrunner", "cyberrunner_flat"):
             return cyberrunner_space(self.obs_mode == "cyberrunner_flat", self.motion)
         tilt = self.board.max_tilt + 0.01
@@ -424,7 +427,7 @@ class LabyrinthEnv(gym.Env):
         x, y, vx, vy = kinematics
         if self.obs_mode == "pixels":
             assert self._raster is not None
-            return self._raster.gray(np.array([x, y]))[None]
+            return pixel_observation(self._raster, np.array([[x, y]]), previous_xy[None] if self.motion else None)[0]
         ahead = self.tracker.points_ahead(progress, PATH_AHEAD, PATH_SPACING)
         relative = [v for px, py in ahead for v in (px - x, py - y)]
         if self.obs_mode == "state":

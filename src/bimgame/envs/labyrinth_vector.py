@@ -54,6 +54,7 @@ from bimgame.envs.labyrinth_env import (
     labyrinth_max_episode_steps,
     path_points_ahead,
 )
+from bimgame.envs.labyrinth_pixels import pixel_observation
 from bimgame.envs.vector import StartSampler, check_start_sampler, sampled_start
 from bimgame.sim.labyrinth_render import LabyrinthRaster, board_grid
 from bimgame.util.settings import is_integer
@@ -335,7 +336,7 @@ class LabyrinthVectorEnv(gym.vector.VectorEnv):
         assert raster is not None
         xy = self._kinematics[:, :2]
         if self.obs_mode == "pixels":
-            return np.stack([raster.gray(p)[None] for p in xy])
+            return pixel_observation(raster, xy, self._previous_xy if self.template.motion else None)
         tilt = self._states[:, self.sim.layout.tilt]
         relative = (ahead - xy[:, None, :]).reshape(self.num_envs, -1)
         motion = marble_motion(xy, self._previous_xy, self.template.control_hz) if self.template.motion else None

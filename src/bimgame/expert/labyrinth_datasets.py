@@ -286,17 +286,18 @@ def load_labyrinth_sequences(
     (what pre-training learns from), after checking the COMPLETE marker and every file's SHA-256.
 
     ``obs`` (:data:`SEQUENCE_OBS`): ``"state"``, the stored (T, 17) float32 observations;
-    ``"pixels"`` (T, 1, 84, 84) uint8 or ``"cyberrunner"``/``"cyberrunner_flat"`` (T, 4110) float32,
-    re-rendered from each step's physics state and path progress by the env's own observation code
-    (:meth:`LabyrinthEnv.observe_state`: equal to what the env returned). ``actions`` are the
-    executed ones ((T, 2) float32 continuous, (T,) int64 discrete), ``tilt`` the board's tilt (rad)
-    at each action, ``state_obs`` the state observations whatever ``obs`` is, ``returns`` discounted
-    by ``gamma``, ``id`` the episode's index. ``progress``: a progress bar while reading.
-    ``surroundings`` (``obs="state"`` only): each observation ends with the marble's surroundings,
-    computed from its stored position (:mod:`bimgame.envs.labyrinth_surroundings`; what
-    ``LabyrinthEnv(surroundings=True)`` observes). ``motion`` (``obs="cyberrunner"`` only): each
-    observation ends with the marble's observed velocity, from the stored physics states of it and the
-    step before (what ``LabyrinthEnv(motion=True)`` observes).
+    ``"pixels"`` (T, 1, 84, 84) uint8 (T, 2, 84, 84 with ``motion``) or ``"cyberrunner"`` /
+    ``"cyberrunner_flat"`` (T, 4110) float32, re-rendered from each step's physics state and path
+    progress by the env's own observation code (:meth:`LabyrinthEnv.observe_state`: equal to what
+    the env returned). ``actions`` are the executed ones ((T, 2) float32 continuous, (T,) int64
+    discrete), ``tilt`` the board's tilt (rad) at each action, ``state_obs`` the state observations
+    whatever ``obs`` is, ``returns`` discounted by ``gamma``, ``id`` the episode's index.
+    ``progress``: a progress bar while reading. ``surroundings`` (``obs="state"`` only): each
+    observation ends with the marble's surroundings, computed from its stored position
+    (:mod:`bimgame.envs.labyrinth_surroundings`; what ``LabyrinthEnv(surroundings=True)`` observes).
+    ``motion`` (``obs="cyberrunner"`` or ``"pixels"``): each observation ends with the marble's
+    observed velocity (CyberRunner's) or begins with the previous step's frame (pixels), from the
+    stored physics states of it and the step before (what ``LabyrinthEnv(motion=True)`` observes).
     """
     if obs not in SEQUENCE_OBS:
         raise ValueError(f"unknown obs {obs!r}; allowed: {', '.join(SEQUENCE_OBS)}")
@@ -304,8 +305,11 @@ def load_labyrinth_sequences(
         raise ValueError(f"gamma must be a number in [0, 1], got {gamma!r}")
     if surroundings and obs != "state":
         raise ValueError(f"surroundings are part of the state observation, not of obs {obs!r}")
-    if motion and SEQUENCE_OBS[obs] != "cyberrunner_flat":
-        raise ValueError(f"motion is part of CyberRunner's observation (obs 'cyberrunner'), not of obs {obs!r}")
+    if motion and obs == "state":
+        raise ValueError(
+            "motion is part of CyberRunner's observation (obs 'cyberrunner') and of pixels (obs 'pixels'), "
+            f"not of obs {obs!r}"
+        )
     data_dir = Path(data_dir).absolute()
     manifest = labyrinth_dataset_manifest(data_dir)
     around = Surroundings(LabyrinthSpec.layout(manifest["layout"])) if surroundings else None

@@ -140,9 +140,11 @@ class NetworkSettings:
     the distances to the walls (:mod:`bimgame.envs.labyrinth_surroundings`). Off by default: not in the
     observations of earlier runs."""
     motion: bool = False
-    """CyberRunner's observation (``obs="cyberrunner"``) also holds the marble's observed velocity: the
-    change of its position since the previous observation (:mod:`bimgame.envs.labyrinth_cyberrunner`).
-    Not CyberRunner's, whose world model infers it; off by default."""
+    """The labyrinth's observation also shows the marble's motion: CyberRunner's (``obs="cyberrunner"``)
+    holds its observed velocity, the change of its position since the previous observation
+    (:mod:`bimgame.envs.labyrinth_cyberrunner`; not CyberRunner's, whose world model infers it); pixels
+    (``obs="pixels"``) are two frames, the previous observation's and this one's
+    (:mod:`bimgame.envs.labyrinth_pixels`). Off by default."""
 
     def __post_init__(self) -> None:
         owner = type(self).__name__
@@ -185,8 +187,11 @@ class NetworkSettings:
         for name in ("gate_bearings", "surroundings"):
             if getattr(self, name) and self.obs != "state":
                 raise ValueError(f"{owner}.{name} applies to state observations only, got obs {self.obs!r}")
-        if self.motion and self.obs != "cyberrunner":
-            raise ValueError(f"{owner}.motion applies to obs 'cyberrunner' only (CyberRunner's), got obs {self.obs!r}")
+        if self.motion and self.obs not in ("cyberrunner", "pixels"):
+            raise ValueError(
+                f"{owner}.motion applies to obs 'cyberrunner' (the marble's observed velocity) and 'pixels' (the "
+                f"previous frame) only, got obs {self.obs!r}"
+            )
         if self.gate_bearings and self.maze_frame != "board":
             raise ValueError(
                 f"{owner}.gate_bearings with maze_frame {self.maze_frame!r}: the bearings are already relative to "

@@ -37,7 +37,7 @@ def load_sequences(
     the dataset's own, see :func:`check_dataset_task`). ``gate_bearings``: state observations on many
     mazes end with them (:func:`~bimgame.expert.datasets.iterate_sequences`); ``surroundings``: the
     labyrinth's state observations end with the marble's (:func:`load_labyrinth_sequences`); ``motion``:
-    CyberRunner's observations end with the marble's observed velocity."""
+    CyberRunner's observations end with the marble's observed velocity, pixel observations are two frames."""
     manifest = dataset_manifest(data_dir)
     check_dataset_task(manifest, task, data_dir)
     if manifest.get("puzzle") == LABYRINTH:

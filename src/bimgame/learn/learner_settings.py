@@ -156,6 +156,12 @@ def check_puzzle(owner: str, task: str, network: Any, *, num_mazes: int | None, 
                 f"{owner}.surroundings on {task}: they are the labyrinth's holes and walls around the marble; the "
                 "circular maze's state has its own (num_mazes with gate_bearings)"
             )
+        if getattr(network, "motion", False):
+            raise ValueError(
+                f"{owner}.motion on {task}: it is part of the labyrinth's observations (CyberRunner's velocity, two "
+                "pixel frames); the circular maze's state holds the marble's velocity and its pixel networks read "
+                "one frame"
+            )
         return
     refuse_maze_only(owner, task, {"num_mazes": num_mazes is not None, "start_maze": bool(start_maze)})
     if getattr(network, "aux_heads", False):

@@ -8,7 +8,9 @@ circular maze through :class:`~bimgame.sim.render.MazeRenderer`, CyberRunner's l
 :class:`~bimgame.sim.labyrinth_render.LabyrinthRaster` on :func:`~bimgame.sim.labyrinth_render.board_grid`
 (the board, 276 × 231 mm, centred in the square; its marble ≈ 3.5 px wide). Each draws the marble on a
 fixed picture of the empty board, so either puzzle's empty-board frame is exact (:func:`empty_board_frame`):
-subtracted, only the marble remains.
+subtracted, only the marble remains. With the labyrinth's ``motion`` an observation is two such frames,
+the previous one first (:mod:`bimgame.envs.labyrinth_pixels`): the network reads two channels and
+subtracts the empty board from each.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from bimgame.envs.labyrinth_env import PATH_WIDTH
+from bimgame.envs.labyrinth_pixels import pixel_frames
 from bimgame.envs.puzzles import PuzzleSpec
 from bimgame.learn.nets import NetConfig, maze_background
 from bimgame.sim.labyrinth import LabyrinthSpec
@@ -40,12 +43,14 @@ def empty_board_frame(spec: PuzzleSpec, size: int = PIXEL_SIZE) -> np.ndarray:
 
 def pixel_net_config(network: Any, spec: PuzzleSpec, privileged: dict[str, Any]) -> tuple[NetConfig, np.ndarray | None]:
     """The conv network of ``network`` (a :class:`~bimgame.learn.common.NetworkSettings` with
-    ``obs="pixels"``, its sizes filled in) on ``spec``'s frames, and the background it subtracts (its
-    :func:`empty_board_frame`; None without ``subtract_background``). ``privileged``: the auxiliary heads'
-    and asymmetric critic's NetConfig settings ({} without either)."""
+    ``obs="pixels"``, its sizes filled in) on ``spec``'s frames — two per observation with the labyrinth's
+    ``motion`` (:mod:`bimgame.envs.labyrinth_pixels`) — and the background it subtracts (its
+    :func:`empty_board_frame`, one per frame; None without ``subtract_background``). ``privileged``:
+    the auxiliary heads' and asymmetric critic's NetConfig settings ({} without either)."""
+    frames = pixel_frames(bool(getattr(network, "motion", False)))
     net_config = NetConfig(
         encoder="conv",
-        obs_shape=(1, PIXEL_SIZE, PIXEL_SIZE),
+        obs_shape=(frames, PIXEL_SIZE, PIXEL_SIZE),
         features=network.features,
         hidden=network.hidden,
         tilt_input=network.tilt_input,
@@ -55,4 +60,5 @@ def pixel_net_config(network: Any, spec: PuzzleSpec, privileged: dict[str, Any])
         precision=network.precision,
         **privileged,
     )
-    return net_config, empty_board_frame(spec) if network.subtract_background else None
+    background = np.repeat(empty_board_frame(spec), frames, axis=0) if network.subtract_background else None
+    return net_config, background
