@@ -21,10 +21,8 @@ from bimgame.learn.actor import evaluate_network
 from bimgame.learn.common import NetworkSettings, load_run_network
 from bimgame.learn.encoders import CyberRunnerEncoder
 from bimgame.learn.nets import NetConfig
-from bimgame.learn.maze_runs import network_env_options
 from bimgame.learn.ppo import PPOConfig
-from bimgame.play.agent import AgentPlayer
-from bimgame.play.boards import open_board
+from support.labyrinth_runs import assert_envs_feed_the_run
 
 CROP = 64 * 64
 CLI = ["--obs", "cyberrunner", "--hidden", "16", "--features", "16", "--envs-per-worker", "4", "--n-steps", "32",
@@ -174,14 +172,7 @@ def test_a_run_with_the_marbles_motion_reads_it_in_training_evaluation_and_play(
                  "--motion", *CLI]) == 0
     stored = json.loads((run_dir / "config.json").read_text())
     assert stored["network"]["motion"] is True and stored["net"]["obs_shape"] == [CYBERRUNNER_FLAT_SIZE + 2]
-    net, run, _ = load_run_network(run_dir)
+    net = assert_envs_feed_the_run(run_dir, {"motion": True}, (CYBERRUNNER_FLAT_SIZE + 2,))
     assert net.encoder.vector_size == 16  # tilt and position (4), the path ahead (10), the motion (2)
-    result = evaluate_network(net, task=run.task, obs_mode=run.network.obs, episodes=2, seed=0, max_episode_steps=20,
-                              mazes=network_env_options(run.network))
-    assert len(result.lengths) == 2
-    agent = AgentPlayer(run_dir, puzzle(run.task).spec, task=run.task)
-    assert agent.env_options == {"motion": True}
-    board = open_board(run.task, obs_mode=agent.env_obs_mode, action_type=agent.action_type, **agent.env_options)
-    assert board.env.observation_space.shape == (CYBERRUNNER_FLAT_SIZE + 2,)
     with pytest.raises(ValueError, match="NetworkSettings.motion applies to obs 'cyberrunner' .* and 'pixels' .* only"):
         NetworkSettings(obs="state", motion=True)

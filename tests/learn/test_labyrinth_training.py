@@ -21,16 +21,14 @@ from bimgame.learn.a3c import A3CConfig, train
 from bimgame.learn.actor import RecurrentActor, episode_successes, evaluate_network, tilt_input
 from bimgame.learn.common import NetworkSettings, load_run_network
 from bimgame.learn.learner_settings import check_init_puzzle, policy_network
-from bimgame.learn.maze_runs import network_env_options
 from bimgame.learn.pixel_network import empty_board_frame
 from bimgame.learn.ppo import PPOConfig
 from bimgame.learn.rollout import RolloutCollector, training_env
-from bimgame.play.agent import AgentPlayer
-from bimgame.play.boards import open_board
 from bimgame.sim.labyrinth import LabyrinthSpec
 from bimgame.sim.labyrinth_render import board_grid
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.tasks import Task
+from support.labyrinth_runs import assert_envs_feed_the_run
 
 LAB = dict(task="LABYRINTH-EASY", obs="state", hidden=16, features=16, envs_per_worker=4, n_steps=32,
            eval_every=0, eval_episodes=2, max_episode_steps=100)
@@ -295,14 +293,7 @@ def test_a_pixel_run_with_the_marbles_motion_reads_two_frames_in_training_evalua
     assert "done: 128 steps" in capsys.readouterr().out
     stored = json.loads((run_dir / "config.json").read_text())
     assert stored["network"]["motion"] is True and stored["net"]["obs_shape"] == [2, 84, 84]
-    net, run, _ = load_run_network(run_dir)
-    result = evaluate_network(net, task=run.task, obs_mode=run.network.obs, episodes=2, seed=0, max_episode_steps=20,
-                              mazes=network_env_options(run.network))
-    assert len(result.lengths) == 2
-    agent = AgentPlayer(run_dir, puzzle(run.task).spec, task=run.task)
-    assert agent.env_options == {"motion": True}
-    board = open_board(run.task, obs_mode=agent.env_obs_mode, action_type=agent.action_type, **agent.env_options)
-    assert board.env.observation_space.shape == (2, 84, 84)
+    assert_envs_feed_the_run(run_dir, {"motion": True}, (2, 84, 84))
 
 
 def test_the_labyrinth_refuses_by_name_only_what_its_pixels_cannot_train_with(tmp_path, capsys):
