@@ -23,6 +23,8 @@ from __future__ import annotations
 import numpy as np
 from gymnasium import spaces
 
+from bimgame.sim.labyrinth_render import LabyrinthRaster
+
 __all__ = ["pixel_frames", "pixel_space", "pixel_observation"]
 
 
@@ -36,14 +38,13 @@ def pixel_space(obs_size: int, motion: bool = False) -> spaces.Box:
     return spaces.Box(0, 255, shape=(pixel_frames(motion), obs_size, obs_size), dtype=np.uint8)
 
 
-def pixel_observation(raster: object, xy: np.ndarray, previous_xy: np.ndarray | None = None) -> np.ndarray:
+def pixel_observation(raster: LabyrinthRaster, xy: np.ndarray, previous_xy: np.ndarray | None = None) -> np.ndarray:
     """The pixel observations of N boards whose marbles are at ``xy`` (N, 2) m (board frame):
     (N, 1, S, S) uint8, or with ``previous_xy`` (N, 2) — the marbles' positions at the previous
-    observation — (N, 2, S, S), the previous frame first. ``raster``: the board's
-    :class:`~bimgame.sim.labyrinth_render.LabyrinthRaster` on its pixel grid."""
-    gray = raster.gray  # type: ignore[attr-defined]
-    current = np.stack([gray(p) for p in np.asarray(xy)])[:, None]
+    observation — (N, 2, S, S), the previous frame first. ``raster``: the board's raster on its pixel
+    grid."""
+    current = np.stack([raster.gray(p) for p in np.asarray(xy)])[:, None]
     if previous_xy is None:
         return current
-    previous = np.stack([gray(p) for p in np.asarray(previous_xy)])[:, None]
+    previous = np.stack([raster.gray(p) for p in np.asarray(previous_xy)])[:, None]
     return np.concatenate([previous, current], axis=1)
