@@ -40,6 +40,7 @@ import minari
 import numpy as np
 
 import bimgame
+from bimgame.envs.labyrinth_cyberrunner import MOTION_OBS_MODES
 from bimgame.envs.labyrinth_env import LABYRINTH_ACTION_TYPES, LABYRINTH_CONTROL_RATES, LabyrinthEnv
 from bimgame.envs.labyrinth_surroundings import Surroundings
 from bimgame.envs.puzzles import LABYRINTH, LABYRINTH_TASKS
@@ -305,7 +306,7 @@ def load_labyrinth_sequences(
         raise ValueError(f"gamma must be a number in [0, 1], got {gamma!r}")
     if surroundings and obs != "state":
         raise ValueError(f"surroundings are part of the state observation, not of obs {obs!r}")
-    if motion and obs == "state":
+    if motion and SEQUENCE_OBS[obs] not in MOTION_OBS_MODES:
         raise ValueError(
             "motion is part of CyberRunner's observation (obs 'cyberrunner') and of pixels (obs 'pixels'), "
             f"not of obs {obs!r}"

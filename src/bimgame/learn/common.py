@@ -18,6 +18,7 @@ from typing import Any, ClassVar, Protocol, Self
 import numpy as np
 
 from bimgame.envs.gate_bearings import gate_bearings_size
+from bimgame.envs.labyrinth_cyberrunner import MOTION_OBS_MODES
 from bimgame.envs.labyrinth_surroundings import surroundings_scale
 from bimgame.envs.mazes import maze_encoding_size
 from bimgame.envs.puzzles import NETWORK_OBS, PuzzleSpec, puzzle, puzzle_task_setting, state_obs_scale
@@ -187,7 +188,7 @@ class NetworkSettings:
         for name in ("gate_bearings", "surroundings"):
             if getattr(self, name) and self.obs != "state":
                 raise ValueError(f"{owner}.{name} applies to state observations only, got obs {self.obs!r}")
-        if self.motion and self.obs not in ("cyberrunner", "pixels"):
+        if self.motion and self.obs not in MOTION_OBS_MODES:
             raise ValueError(
                 f"{owner}.motion applies to obs 'cyberrunner' (the marble's observed velocity) and 'pixels' (the "
                 f"previous frame) only, got obs {self.obs!r}"

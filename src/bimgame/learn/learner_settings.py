@@ -29,6 +29,7 @@ from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any, ClassVar, Literal, Self, get_args
 
+from bimgame.envs.labyrinth_env import OBSERVATION_EXTRAS
 from bimgame.envs.puzzles import check_obs, puzzle
 from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.learn.runs import CONFIG, read_run_config
@@ -113,6 +114,16 @@ MAZE_ONLY = {
 }
 
 
+#: Why each of the labyrinth's observation extras (:data:`~bimgame.envs.labyrinth_env.OBSERVATION_EXTRAS`)
+#: does not apply to the circular maze's tasks (:func:`check_puzzle`).
+LABYRINTH_ONLY = {
+    "surroundings": "they are the labyrinth's holes and walls around the marble; the circular maze's state has its "
+    "own (num_mazes with gate_bearings)",
+    "motion": "it is part of the labyrinth's observations (CyberRunner's velocity, two pixel frames); the circular "
+    "maze's state holds the marble's velocity and its pixel networks read one frame",
+}
+
+
 def refuse_maze_only(owner: str, task: str, settings: Mapping[str, bool]) -> None:
     """Raise ``ValueError`` naming the first of ``settings`` (flat name → whether it is set) that is set
     when ``task`` is not the circular maze's, and why it applies to the maze only (:data:`MAZE_ONLY`)."""
@@ -151,17 +162,9 @@ def check_puzzle(owner: str, task: str, network: Any, *, num_mazes: int | None, 
     asymmetric critic reads its 17 state values) and ``cyberrunner``."""
     if puzzle(task).is_maze:
         check_obs(f"{owner}.network.obs", task, getattr(network, "obs", ""))
-        if getattr(network, "surroundings", False):
-            raise ValueError(
-                f"{owner}.surroundings on {task}: they are the labyrinth's holes and walls around the marble; the "
-                "circular maze's state has its own (num_mazes with gate_bearings)"
-            )
-        if getattr(network, "motion", False):
-            raise ValueError(
-                f"{owner}.motion on {task}: it is part of the labyrinth's observations (CyberRunner's velocity, two "
-                "pixel frames); the circular maze's state holds the marble's velocity and its pixel networks read "
-                "one frame"
-            )
+        for name in OBSERVATION_EXTRAS:
+            if getattr(network, name, False):
+                raise ValueError(f"{owner}.{name} on {task}: {LABYRINTH_ONLY[name]}")
         return
     refuse_maze_only(owner, task, {"num_mazes": num_mazes is not None, "start_maze": bool(start_maze)})
     if getattr(network, "aux_heads", False):
