@@ -98,8 +98,9 @@ def test_demonstrations_start_the_aggregated_dataset(lab_data, tmp_path):
     assert int(row["episodes"]) == 4 + 3
     assert int(row["dataset_steps"]) == result.dataset_steps == demo_steps + labels
     assert result.env_steps == labels  # the demonstrations cost no rollout steps of the run
-    stored = json.loads((tmp_path / "run" / "config.json").read_text())["dagger"]
-    assert DAggerConfig.from_dict(stored) == config  # the labyrinth expert's settings round-trip
+    stored = json.loads((tmp_path / "run" / "config.json").read_text())
+    assert DAggerConfig.from_dict(stored["dagger"]) == config  # the labyrinth expert's settings round-trip
+    assert stored["torch_threads"] == 1  # what a rerun must match to reproduce the run bit for bit
 
 
 def test_what_does_not_fit_is_refused_by_name(lab_data, tmp_path):

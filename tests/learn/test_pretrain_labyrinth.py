@@ -17,6 +17,7 @@ from bimgame.learn.checkpoints import load_checkpoint
 from bimgame.learn.common import load_run_network
 from bimgame.learn.ppo import PPOConfig, train_ppo
 from bimgame.learn.pretrain import pretrain
+from bimgame.learn.runs import read_run_config
 from bimgame.learn.supervised import PretrainConfig
 
 TASK = "LABYRINTH-EASY"
@@ -99,3 +100,16 @@ def test_pi_s_from_pixels_with_the_marbles_motion_reads_two_frames(lab_data, tmp
     assert "--motion" in capsys.readouterr().out
     net, run, _ = load_run_network(tmp_path / "px")
     assert (run.network.motion, net.config.obs_shape) == (True, (2, 84, 84))
+
+
+def test_the_same_seed_and_threads_pretrain_the_same_weights(lab_data, tmp_path, one_torch_thread):
+    """Same seed, same result: two pre-trainings of CyberRunner's observation with the marble's motion
+    (the crop re-rendered from stored states, episodes split and shuffled by the seed) end bit for bit
+    equal, and each run records the torch threads it computed with — a different count sums in another
+    order, so a rerun has to match it to reproduce."""
+    settings = {**SMALL, "obs": "cyberrunner", "motion": True, "hidden": 16, "features": 16, "epochs": 2}
+    runs = [pretrain(PretrainConfig(**settings), lab_data, tmp_path / name, progress=False) for name in "ab"]
+    first, second = (load_checkpoint(run.run_dir)["model"] for run in runs)
+    assert all(torch.equal(first[key], second[key]) for key in first)
+    assert runs[0].best_epoch == runs[1].best_epoch
+    assert read_run_config(runs[0].run_dir)["torch_threads"] == 1

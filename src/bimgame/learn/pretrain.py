@@ -214,6 +214,7 @@ def _pretrain(
             "pretrain": config.to_dict(),
             "data": str(data_dir),
             "episodes": {"train": len(train_idx), "held_out": len(val_idx)},
+            "torch_threads": torch.get_num_threads(),
             **mazes,
         }
     )

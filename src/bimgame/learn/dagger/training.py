@@ -47,6 +47,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
 
 from bimgame.envs.puzzles import puzzle
 from bimgame.expert.datasets import dataset_manifest, dataset_mazes
@@ -185,6 +186,7 @@ def _start(
             "net": net.config.to_dict(),
             "dagger": config.to_dict(),
             "init": None if init is None else str(init),
+            "torch_threads": torch.get_num_threads(),
             **config.maze_options,
         }
     )
