@@ -68,6 +68,7 @@ def _config(args: argparse.Namespace, seed: int) -> DAggerConfig:
         episodes_per_iteration=args.episodes_per_iteration,
         beta0=args.beta0,
         beta_decay=args.beta_decay,
+        demo_start_share=args.demo_start_share,
         epochs_per_iteration=args.epochs_per_iteration,
         max_episode_steps=args.max_episode_steps,
         eval_episodes=args.eval_episodes,
@@ -140,6 +141,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--episodes-per-iteration", type=int, default=10)
     parser.add_argument("--beta0", type=float, default=0.5)
     parser.add_argument("--beta-decay", type=float, default=0.7)
+    parser.add_argument(
+        "--demo-start-share",
+        type=float,
+        default=0.0,
+        help="share of each iteration's rollouts started in the expert's states along the path (default 0)",
+    )
     parser.add_argument("--epochs-per-iteration", type=int, default=5)
     parser.add_argument("--max-episode-steps", type=int, default=1500)
     parser.add_argument("--eval-episodes", type=int, default=20, help="in-run evaluation episodes per iteration")

@@ -21,6 +21,7 @@ import torch  # noqa: E402
 from filelock import FileLock  # noqa: E402
 
 from bimgame.expert.datasets import generate_dataset  # noqa: E402
+from bimgame.expert.labyrinth_datasets import generate_labyrinth_dataset  # noqa: E402
 from bimgame.learn.pretrain import PretrainResult, pretrain  # noqa: E402
 from bimgame.learn.runs import torch_threads  # noqa: E402
 from bimgame.learn.supervised import PretrainConfig  # noqa: E402
@@ -105,3 +106,14 @@ def value_stg1(stg1_dataset, tmp_path_factory) -> PretrainResult:
             return _result_json(pretrain(config, stg1_dataset, directory / "value", progress=False))
 
     return _result_from_json(_once_per_session(tmp_path_factory, "pretrained-value", build))
+
+
+@pytest.fixture(scope="session")
+def easy_expert_episode(tmp_path_factory) -> Path:
+    """A finished labyrinth dataset of one successful expert episode on the easy layout (the default
+    expert: ≈ 460 steps, 10-20 s of planning): the expert's states along the whole path."""
+    def build(directory: Path) -> str:
+        data = generate_labyrinth_dataset(directory / "data", "LABYRINTH-EASY", 1, seed=0, workers=1, progress=False)
+        return json.dumps(str(data))
+
+    return Path(json.loads(_once_per_session(tmp_path_factory, "labyrinth-easy-expert", build)))

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from bimgame.envs.labyrinth_vector import LabyrinthVectorEnv
-from bimgame.expert.labyrinth_datasets import generate_labyrinth_dataset, load_labyrinth_demonstrations
+from bimgame.expert.labyrinth_datasets import load_labyrinth_demonstrations
 from bimgame.learn.curricula import start_curriculum
 from bimgame.learn.learner_settings import CurriculumSettings
 from bimgame.learn.path_starts import TRUE_START, DemoPathStarts, PathStartCurriculum
@@ -152,11 +152,10 @@ def test_ppo_trains_with_it_on_the_labyrinth_and_logs_its_stage(tmp_path):
 
 
 # ------------------------------------------------------------------------ demonstration starts
-@pytest.fixture(scope="module")
-def easy_demo(tmp_path_factory):
-    """One successful expert episode on the easy layout (the default expert: ≈ 460 steps, 10-20 s)."""
-    return generate_labyrinth_dataset(tmp_path_factory.mktemp("lab") / "data", "LABYRINTH-EASY", 1, seed=0,
-                                      workers=1, progress=False)
+@pytest.fixture
+def easy_demo(easy_expert_episode):
+    """One successful expert episode on the easy layout (a session fixture: tests/conftest.py)."""
+    return easy_expert_episode
 
 
 def _moving_demonstration(spec: LabyrinthSpec) -> tuple[np.ndarray, np.ndarray]:

@@ -24,6 +24,7 @@ from bimgame.expert.labyrinth_mpc import LabyrinthMPC, LabyrinthMPCConfig
 from bimgame.expert.mpc import MPCConfig, RandomShootingMPC
 from bimgame.learn.actor import RecurrentActor, tilt_input
 from bimgame.learn.dagger.settings import DAggerConfig
+from bimgame.learn.dagger.starts import draw_demo_starts
 from bimgame.learn.nets import RecurrentActorCritic
 
 __all__ = ["collect_episodes", "make_expert", "expert_label"]
@@ -95,12 +96,15 @@ class _Rollouts:
         envs: list[BallInMazeEnv | LabyrinthEnv],
         make_expert: Callable[[int, BallInMazeEnv | LabyrinthEnv], Expert],
         env_seed: int,
+        start_states: list[np.ndarray | None],
     ) -> _Rollouts:
-        """Reset every environment (the ``i``-th with seed ``env_seed + i``), then make its expert
-        (``make_expert(i, env)``): after the reset, so that on random mazes it plans on the episode's maze."""
+        """Reset every environment (the ``i``-th with seed ``env_seed + i``, in the physics state
+        ``start_states[i]`` if not None), then make its expert (``make_expert(i, env)``): after the
+        reset, so that on random mazes it plans on the episode's maze."""
         observations, infos, experts = [], [], []
-        for i, env in enumerate(envs):
-            obs, info = env.reset(seed=env_seed + i)
+        for i, (env, start) in enumerate(zip(envs, start_states, strict=True)):
+            options = None if start is None else {"sim_state": start}
+            obs, info = env.reset(seed=env_seed + i, options=options)
             expert = make_expert(i, env)
             if isinstance(expert, LabyrinthMPC):
                 expert.reset()
@@ -158,10 +162,13 @@ def collect_episodes(
     config: DAggerConfig,
     beta: float,
     seed: int,
+    demo_states: np.ndarray | None = None,
 ) -> tuple[list[Episode], dict[str, int]]:
     """``episodes_per_iteration`` episodes, run side by side (one batched forward pass per step),
     executing the expert's action with probability ``beta`` and the learner's sampled action
-    otherwise; every visited state is labelled by the expert. Returns the episodes (as
+    otherwise; every visited state is labelled by the expert. ``demo_states`` (K, S): physics states
+    of the expert's episodes, from which ``config.demo_start_share`` of the episodes start (drawn
+    uniformly, :mod:`bimgame.learn.dagger.starts`); the others start at the task's start. Returns the episodes (as
     :class:`~bimgame.expert.episode.Episode` records, ``actions`` being the expert's labels and
     ``executed`` what was done) and the costs: ``env_steps``, ``labels``, ``expert_sim_steps``,
     ``successes``."""
@@ -180,7 +187,9 @@ def collect_episodes(
     def expert_of(i: int, env: BallInMazeEnv | LabyrinthEnv) -> Expert:
         return make_expert(env, config.planner, np.random.default_rng(int(expert_seeds[i])), learner.task)
 
-    rollouts = _Rollouts.start(envs, expert_of, int(env_seed))
+    # A child of the seed draws the starts, leaving the seeds above as they were without them.
+    starts = draw_demo_starts(demo_states, config.demo_start_share, count, np.random.default_rng(sequence.spawn(1)[0]))
+    rollouts = _Rollouts.start(envs, expert_of, int(env_seed), starts)
     steps = 0
     try:
         while rollouts.active.any() and steps < config.time_limit:

@@ -66,6 +66,11 @@ class DAggerConfig:
     expert_data: str | None = None
     """An expert dataset directory (``bimgame generate``) of the task whose episodes start the
     aggregated dataset D, before the first rollout: DAgger from the demonstrations π^s learned from."""
+    demo_start_share: float = 0.0
+    """On the labyrinth, the share of each iteration's rollouts that start in a physics state of the
+    expert's successful episodes in ``expert_data`` (drawn uniformly over all their states,
+    :mod:`bimgame.learn.dagger.starts`) instead of at the layout's start: the expert then labels the
+    learner's own states along the whole path, not only as far as its runs from the start get."""
     max_episode_steps: int | None = None
     """Time limit of the rollouts; None: the task's."""
     eval_episodes: int = 20
@@ -108,12 +113,30 @@ class DAggerConfig:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and 0.0 <= value <= 1.0):
                 raise ValueError(f"DAggerConfig.{name} must be in [0, 1], got {value!r}")
+        self._check_demo_starts(maze)
         require_int("DAggerConfig", "eval_episodes", self.eval_episodes, 0)
         require_int("DAggerConfig", "max_episode_steps", self.max_episode_steps, 1, optional=True)
         for name, (largest, unit) in _LARGEST.items():
             value = getattr(self, name)
             if value is not None and value > largest:
                 raise ValueError(f"DAggerConfig.{name} must be at most {largest:,} ({unit}), got {value!r}")
+
+    def _check_demo_starts(self, maze: bool) -> None:
+        """Refuse a ``demo_start_share`` outside [0, 1], on the circular maze, or without the dataset
+        whose states it starts from."""
+        share = self.demo_start_share
+        if isinstance(share, bool) or not (isinstance(share, (int, float)) and 0.0 <= share <= 1.0):
+            raise ValueError(f"DAggerConfig.demo_start_share must be a number in [0, 1], got {share!r}")
+        if share and maze:
+            raise ValueError(
+                "DAggerConfig.demo_start_share: starts from the expert's states are the labyrinth's "
+                f"(tasks LABYRINTH-EASY/-MEDIUM/-HARD), not {self.learner.task}'s; set it to 0"
+            )
+        if share and self.expert_data is None:
+            raise ValueError(
+                "DAggerConfig.demo_start_share needs expert_data (--expert-data), the expert dataset whose "
+                "states the rollouts start from"
+            )
 
     def _check_mazes(self) -> None:
         """Refuse maze settings DAgger cannot run with; a state learner on mazes reads their encoding

@@ -57,6 +57,7 @@ from bimgame.learn.checkpoints import apply_weights, load_checkpoint, load_init_
 from bimgame.learn.dagger.best import repair_best
 from bimgame.learn.dagger.rollouts import collect_episodes
 from bimgame.learn.dagger.settings import DAggerConfig
+from bimgame.learn.dagger.starts import demo_start_states
 from bimgame.learn.evaluations import EVAL_COLUMNS, evaluate_greedy_and_sampled, evaluation_seed
 from bimgame.learn.expert_data import check_dataset_task, dataset_action_type, load_sequences
 from bimgame.learn.learner_settings import check_init_puzzle
@@ -226,6 +227,7 @@ _FIXED_ON_RESUME = (
     "epochs_per_iteration",
     "expert",
     "expert_data",
+    "demo_start_share",
     "max_episode_steps",
 )
 
@@ -313,6 +315,7 @@ def _iterations(
     run_dir = run.path
     first_iteration = state["iteration"]
     dataset = _demonstrations(config, progress=progress)
+    demo_states = demo_start_states(config)
     for i in range(state["iteration"]):
         dataset += _load_episodes(_data_path(run_dir, i))
     # The row at the checkpoint's step is the last finished iteration's (written before it): kept.
@@ -327,7 +330,7 @@ def _iterations(
             f"DAgger {learner.task} {learner.obs}", config.iterations, completed=state["iteration"], enabled=progress
         ) as bar:
             for iteration in range(state["iteration"], config.iterations):
-                outcome = _run_iteration(config, run_dir, net, dataset, iteration)
+                outcome = _run_iteration(config, run_dir, net, dataset, iteration, demo_states)
                 final_eval = outcome.evaluation
                 done = _counts_after(state, outcome.costs, iteration, time.monotonic() - started, outcome.evaluation)
                 row = _log_row(config, iteration, outcome, dataset, done)
@@ -374,14 +377,19 @@ class _Outcome:
 
 
 def _run_iteration(
-    config: DAggerConfig, run_dir: Path, net: RecurrentActorCritic, dataset: list[Episode], iteration: int
+    config: DAggerConfig,
+    run_dir: Path,
+    net: RecurrentActorCritic,
+    dataset: list[Episode],
+    iteration: int,
+    demo_states: np.ndarray | None,
 ) -> _Outcome:
-    """Iteration ``iteration``'s work: roll out, save and aggregate the labelled episodes into
-    ``dataset`` (in place), retrain ``net`` on all of it, evaluate it."""
+    """Iteration ``iteration``'s work: roll out (a share starting in ``demo_states``), save and
+    aggregate the labelled episodes into ``dataset`` (in place), retrain ``net`` on all of it, evaluate it."""
     learner = config.learner
     seed = episode_seed(learner.seed, iteration)
     beta = config.beta(iteration)
-    episodes, costs = collect_episodes(net, config, beta, seed)
+    episodes, costs = collect_episodes(net, config, beta, seed, demo_states)
     _save_episodes(_data_path(run_dir, iteration), episodes)
     dataset += episodes
     rng = np.random.default_rng(seed)
