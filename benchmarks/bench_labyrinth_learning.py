@@ -299,7 +299,7 @@ def main(argv: list[str] | None = None) -> int:
     args.results.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(args.results, json.dumps(results, indent=2).encode())
     shown = "".join(f", {key} {value}" for key, value in sorted(args.settings.items()))
-    shown += ", from π^s" if args.init is not None else ""
+    shown += ", from --init (π^s or a DAgger iterate)" if args.init is not None else ""
     title = f"PPO on the {args.layout} labyrinth from {args.obs}{shown}, {args.steps:,} steps, {args.seeds} seeds"
     print(f"wrote {args.results} and {_plot(results, args.figure, title)}")
     return 0
