@@ -215,7 +215,9 @@ def main(argv: list[str] | None = None) -> int:
     title = (
         f"DAgger on the {args.layout} labyrinth ({args.obs}{' + surroundings' if args.surroundings else ''}"
         f"{' + motion' if args.motion else ''}, {args.action_type}){', from π^s' if args.init else ''}: "
-        f"{args.iterations} iterations × {args.episodes_per_iteration} rollouts, seeds {', '.join(map(str, jobs))}"
+        f"{args.iterations} iterations × {args.episodes_per_iteration} rollouts"
+        f"{f' ({args.demo_start_share:.0%} from the expert states)' if args.demo_start_share else ''}, "
+        f"seeds {', '.join(map(str, jobs))}"
     )
     print(f"wrote {args.results} and {_plot(results, args.figure, title)}")
     return 0
