@@ -4,6 +4,7 @@ exactly as without it, the draws are seeded, and what cannot work is refused by 
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -20,8 +21,8 @@ from bimgame.learn.supervised import PretrainConfig
 
 TASK = "LABYRINTH-EASY"
 CHEAP = LabyrinthMPCConfig(n_samples=6, horizon=10)
-LEARNER = PretrainConfig(task=TASK, obs="state", action_type="continuous", hidden=16, features=16, eval_episodes=0, seed=0, aux_heads=False,
-                         asymmetric_critic=False)
+LEARNER = PretrainConfig(task=TASK, obs="state", action_type="continuous", hidden=16, features=16, eval_episodes=0,
+                         seed=0, aux_heads=False, asymmetric_critic=False)
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -57,7 +58,7 @@ def test_rollouts_start_in_the_experts_states_and_the_others_as_without_them(eas
     assert states is not None and len(states) > 300  # the successful episode's ≈ 460 steps, nearly all kept
     net = LEARNER.build_policy(0, LabyrinthEnv("easy").board)
     started, _ = collect_episodes(net, config, beta=0.0, seed=3, demo_states=states)
-    plain, _ = collect_episodes(net, DAggerConfig(**{**vars(config), "demo_start_share": 0.0}), beta=0.0, seed=3)
+    plain, _ = collect_episodes(net, dataclasses.replace(config, demo_start_share=0.0), beta=0.0, seed=3)
     expert_obs = load_labyrinth_sequences(easy_expert_episode, gamma=0.99)[0].obs
     for episode in started[:2]:
         # Marble (x, y, vx, vy) and tilt as the expert had them at one of its steps, anywhere on the path.
@@ -92,7 +93,7 @@ def test_what_cannot_start_from_the_experts_states_is_refused(easy_expert_episod
     with pytest.raises(ValueError, match="the labyrinth's .* not STG1's; set it to 0"):
         DAggerConfig(learner=PretrainConfig(task="STG1", obs="state", aux_heads=False, asymmetric_critic=False),
                      expert_data=str(easy_expert_episode), demo_start_share=0.5)
-    hard = _config(easy_expert_episode, learner=PretrainConfig(**{**vars(LEARNER), "task": "LABYRINTH-HARD"}))
+    hard = _config(easy_expert_episode, learner=dataclasses.replace(LEARNER, task="LABYRINTH-HARD"))
     with pytest.raises(ValueError, match="holds LABYRINTH-EASY episodes; .* need a dataset of LABYRINTH-HARD"):
         demo_start_states(hard)
     assert not (tmp_path / "run").exists()

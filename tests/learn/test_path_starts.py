@@ -152,12 +152,6 @@ def test_ppo_trains_with_it_on_the_labyrinth_and_logs_its_stage(tmp_path):
 
 
 # ------------------------------------------------------------------------ demonstration starts
-@pytest.fixture
-def easy_demo(easy_expert_episode):
-    """One successful expert episode on the easy layout (a session fixture: tests/conftest.py)."""
-    return easy_expert_episode
-
-
 def _moving_demonstration(spec: LabyrinthSpec) -> tuple[np.ndarray, np.ndarray]:
     """A made-up demonstration: the path curriculum's rest states with a velocity of 5 cm/s added,
     and their arc lengths as the progress (the last state, after the last step, never a start)."""
@@ -197,7 +191,7 @@ def test_demonstration_starts_are_the_experts_states_within_the_stages_distance(
     env.close()
 
 
-def test_demonstration_starts_refuse_what_they_cannot_use(easy_demo, tmp_path):
+def test_demonstration_starts_refuse_what_they_cannot_use(easy_expert_episode, tmp_path):
     spec = LabyrinthSpec.layout("easy")
     states, arcs = _moving_demonstration(spec)
     with pytest.raises(ValueError, match=r"demonstration 0 must give sim_states \(T\+1, 20\) and progress \(T\+1,\)"):
@@ -213,23 +207,23 @@ def test_demonstration_starts_refuse_what_they_cannot_use(easy_demo, tmp_path):
     with pytest.raises(ValueError, match=r"DemoPathStarts\.threshold must be a number in \(0, 1\]"):
         DemoPathStarts(spec, [(states, arcs)], threshold=0.0)
     with pytest.raises(ValueError, match="holds LABYRINTH-EASY episodes; demonstration starts for LABYRINTH-HARD"):
-        DemoPathStarts.from_dataset(easy_demo, "LABYRINTH-HARD")
+        DemoPathStarts.from_dataset(easy_expert_episode, "LABYRINTH-HARD")
 
 
-def test_learners_start_from_the_experts_dataset_on_the_labyrinth(easy_demo, tmp_path):
-    task, demonstrations = load_labyrinth_demonstrations(easy_demo)
+def test_learners_start_from_the_experts_dataset_on_the_labyrinth(easy_expert_episode, tmp_path):
+    task, demonstrations = load_labyrinth_demonstrations(easy_expert_episode)
     assert task == "LABYRINTH-EASY" and len(demonstrations) == 1
     sim_states, progress = demonstrations[0]
     assert progress[0] < 0.01 and progress[-1] == pytest.approx(LabyrinthSpec.layout("easy").path.length, abs=0.05)
-    curriculum = start_curriculum("LABYRINTH-EASY", CurriculumSettings("demo", 0.6), easy_demo)
+    curriculum = start_curriculum("LABYRINTH-EASY", CurriculumSettings("demo", 0.6), easy_expert_episode)
     assert isinstance(curriculum, DemoPathStarts) and curriculum.stages.threshold == 0.6
     assert len(curriculum.states) > 0.9 * (len(sim_states) - 1)  # nearly every state before a step
     from bimgame.cli.main import main
 
     run_dir = tmp_path / "run"
     assert main(["train", "--algo", "ppo", "--task", "LABYRINTH-EASY", "--obs", "state", "--action-type",
-                 "continuous", "--start-curriculum", "demo", "--expert-data", str(easy_demo), "--steps", "2048",
-                 "--n-steps", "64", "--envs-per-worker", "8", "--log-every", "512", "--eval-episodes", "1",
+                 "continuous", "--start-curriculum", "demo", "--expert-data", str(easy_expert_episode),
+                 "--steps", "2048", "--n-steps", "64", "--envs-per-worker", "8", "--log-every", "512", "--eval-episodes", "1",
                  "--no-progress", "--run-dir", str(run_dir)]) == 0
     with open(run_dir / "updates.csv", newline="") as handle:
         rows = list(csv.DictReader(handle))

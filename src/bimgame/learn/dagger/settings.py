@@ -16,7 +16,7 @@ from bimgame.learn.policy_heads import require_discrete
 from bimgame.learn.run_dir import stored_run_config
 from bimgame.learn.runs import KIND_DAGGER, read_run_settings
 from bimgame.learn.supervised import PretrainConfig
-from bimgame.util.settings import from_dict, require_int
+from bimgame.util.settings import from_dict, is_real, require_int
 
 __all__ = ["DAggerConfig", "resolve_dagger_config"]
 
@@ -125,7 +125,7 @@ class DAggerConfig:
         """Refuse a ``demo_start_share`` outside [0, 1], on the circular maze, or without the dataset
         whose states it starts from."""
         share = self.demo_start_share
-        if isinstance(share, bool) or not (isinstance(share, (int, float)) and 0.0 <= share <= 1.0):
+        if not (is_real(share) and 0.0 <= share <= 1.0):
             raise ValueError(f"DAggerConfig.demo_start_share must be a number in [0, 1], got {share!r}")
         if share and maze:
             raise ValueError(

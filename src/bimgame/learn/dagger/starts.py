@@ -36,10 +36,9 @@ def draw_demo_starts(
     """The start of each of ``count`` rollouts: the first ``share · count`` (rounded half up) a state of
     ``states`` drawn uniformly by ``rng``, the others None (the task's own start)."""
     chosen = int(np.floor(share * count + 0.5))
-    if chosen and (states is None or not len(states)):
-        raise ValueError(f"demo_start_share {share} starts {chosen} of {count} rollouts from no states")
     if not chosen:
         return [None] * count
-    assert states is not None
+    if states is None or not len(states):
+        raise ValueError(f"demo_start_share {share} starts {chosen} of {count} rollouts from no states")
     picks = rng.integers(len(states), size=chosen)
     return [states[int(k)].copy() for k in picks] + [None] * (count - chosen)
