@@ -23,7 +23,8 @@ docs/labyrinth/dagger.png): the in-run evaluation's success and the mean path pr
 Usage: python benchmarks/bench_labyrinth_dagger.py --expert-data DATA --init PI_S [--layout easy]
        [--obs state|cyberrunner|pixels] [--action-type continuous|discrete] [--surroundings]
        [--motion] [--seeds 3] [--iterations 8] [--episodes-per-iteration 10] [--beta0 0.5] [--beta-decay 0.7]
-       [--epochs-per-iteration 5] [--max-episode-steps 1500] [--jobs 3] [--episodes 100]
+       [--epochs-per-iteration 5] [--max-episode-steps 1500] [--demo-start-share 0] [--expert-samples 16]
+       [--jobs 3] [--episodes 100]
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ from typing import Any
 import numpy as np
 from bench_labyrinth_learning import MODES, _aggregate, _score
 
+from bimgame.expert.labyrinth_mpc import LabyrinthMPCConfig
 from bimgame.learn.dagger import BEST, DAggerConfig, dagger
 from bimgame.learn.runs import torch_threads
 from bimgame.learn.supervised import PretrainConfig
@@ -69,6 +71,7 @@ def _config(args: argparse.Namespace, seed: int) -> DAggerConfig:
         beta0=args.beta0,
         beta_decay=args.beta_decay,
         demo_start_share=args.demo_start_share,
+        expert=LabyrinthMPCConfig(n_samples=args.expert_samples),
         epochs_per_iteration=args.epochs_per_iteration,
         max_episode_steps=args.max_episode_steps,
         eval_episodes=args.eval_episodes,
@@ -147,6 +150,12 @@ def main(argv: list[str] | None = None) -> int:
         default=0.0,
         help="share of each iteration's rollouts started in the expert's states along the path (default 0)",
     )
+    parser.add_argument(
+        "--expert-samples",
+        type=int,
+        default=LabyrinthMPCConfig().n_samples,
+        help=f"K, the labelling expert's sampled sequences per decision (default {LabyrinthMPCConfig().n_samples})",
+    )
     parser.add_argument("--epochs-per-iteration", type=int, default=5)
     parser.add_argument("--max-episode-steps", type=int, default=1500)
     parser.add_argument("--eval-episodes", type=int, default=20, help="in-run evaluation episodes per iteration")
@@ -216,7 +225,8 @@ def main(argv: list[str] | None = None) -> int:
         f"DAgger on the {args.layout} labyrinth ({args.obs}{' + surroundings' if args.surroundings else ''}"
         f"{' + motion' if args.motion else ''}, {args.action_type}){', from π^s' if args.init else ''}: "
         f"{args.iterations} iterations × {args.episodes_per_iteration} rollouts"
-        f"{f' ({args.demo_start_share:.0%} from the expert states)' if args.demo_start_share else ''}, "
+        f"{f' ({args.demo_start_share:.0%} from the expert states)' if args.demo_start_share else ''}"
+        f"{f', expert K = {args.expert_samples}' if args.expert_samples != LabyrinthMPCConfig().n_samples else ''}, "
         f"seeds {', '.join(map(str, jobs))}"
     )
     print(f"wrote {args.results} and {_plot(results, args.figure, title)}")

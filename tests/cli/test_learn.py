@@ -285,3 +285,40 @@ def test_dagger_gate_bearings_flag_reaches_the_learner_and_is_refused_without_ma
     assert main(argv) == 0
     stored = json.loads((run / "config.json").read_text())
     assert stored["dagger"]["learner"]["gate_bearings"] is True
+
+
+# ------------------------------------------------------------------------------ the expert
+def _dagger_args(*flags: str):
+    from bimgame.cli.main import build_parser
+
+    return build_parser().parse_args(["dagger", "--run-dir", "RUN", *flags])
+
+
+def test_dagger_mpc_flags_set_the_labelling_expert_over_the_tasks_own():
+    from bimgame.cli.flags import given_settings
+    from bimgame.cli.learn import DAGGER_FLAGS, dagger_expert_from, dagger_learner_from
+    from bimgame.expert.labyrinth_mpc import LabyrinthMPCConfig
+    from bimgame.learn.dagger import DAggerConfig
+
+    def expert(*flags):
+        args = _dagger_args(*flags)
+        given = given_settings(args, DAggerConfig, DAGGER_FLAGS)
+        return dagger_expert_from(args, dagger_learner_from(args), given)
+
+    assert expert("--task", "STG1") is None  # DAgger picks the task's own expert
+    assert expert("--task", "STG1", "-K", "4", "-H", "8") == MPCConfig(n_samples=4, horizon=8)
+    # On random mazes the geodesic reward DAgger picks stays unless the flag says otherwise.
+    assert expert("--task", "STG1", "--num-mazes", "0", "-K", "4") == MPCConfig(n_samples=4, reward="geodesic")
+    board = expert("--task", "LABYRINTH-HARD", "--action-type", "continuous", "-K", "64")
+    assert board == LabyrinthMPCConfig(n_samples=64)
+    with pytest.raises(ValueError, match="--planning-reward: the circular maze's expert setting"):
+        expert("--task", "LABYRINTH-HARD", "--action-type", "continuous", "--planning-reward", "geodesic")
+    with pytest.raises(ValueError, match="--resume keeps the run's expert"):
+        expert("--resume", "-K", "4")
+
+
+def test_dagger_stores_the_expert_the_flags_set(tmp_path):
+    run = tmp_path / "run"
+    assert main(["dagger", "--run-dir", str(run), *DAGGER_RUN, "--eval-episodes", "0", "-K", "4", "-H", "8"]) == 0
+    stored = json.loads((run / "config.json").read_text())["dagger"]["expert"]
+    assert (stored["n_samples"], stored["horizon"]) == (4, 8)

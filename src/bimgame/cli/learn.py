@@ -3,16 +3,20 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import sys
 from pathlib import Path
 from typing import Any
 
 from bimgame.cli.argtypes import episode_count, episode_count_or_zero, seed
+from bimgame.cli.expert import MPC_FLAGS, add_mpc_arguments, labyrinth_mpc_config_from
 from bimgame.cli.flags import add_flag_groups, add_grouped_settings_flags, given_settings
 from bimgame.envs.labyrinth_env import OBSERVATION_EXTRAS
-from bimgame.envs.puzzles import TASK_NAMES
+from bimgame.envs.puzzles import TASK_NAMES, puzzle
 from bimgame.expert.datasets import dataset_manifest
+from bimgame.expert.labyrinth_mpc import LabyrinthMPCConfig
+from bimgame.expert.mpc import MPCConfig
 from bimgame.learn.common import NetworkSettings
 from bimgame.learn.dagger import BEST, DAggerConfig, dagger, resolve_dagger_config
 from bimgame.learn.learner_settings import puzzle_defaults
@@ -271,6 +275,25 @@ def add_dagger_arguments(parser: argparse.ArgumentParser) -> None:
         helps={"iterations": "Iterations to run; with --resume, a larger number continues the run."},
     )
     groups["logging"].add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_mpc_arguments(parser, labyrinth=True)
+
+
+def dagger_expert_from(
+    args: argparse.Namespace, learner: PretrainConfig, given: dict[str, Any]
+) -> MPCConfig | LabyrinthMPCConfig | None:
+    """The labelling expert's settings of the MPC flags given (``-K``, ``-H``, ``--sampling``,
+    ``--planning-reward``) over those DAgger picks for the task (on random mazes the geodesic
+    reward); None when no MPC flag is given. Refused with ``--resume``: a run keeps its expert."""
+    mpc_given = given_settings(args, MPCConfig, MPC_FLAGS)
+    if not mpc_given:
+        return None
+    if args.resume:
+        flags = ", ".join(sorted(mpc_given))
+        raise ValueError(f"--resume keeps the run's expert; drop the MPC expert's settings given ({flags})")
+    if puzzle(learner.task).is_maze:
+        default = DAggerConfig(learner=learner, **given).planner
+        return dataclasses.replace(default, **mpc_given)
+    return labyrinth_mpc_config_from(argparse.Namespace(**{**vars(args), "task": learner.task}))
 
 
 def dagger_learner_from(args: argparse.Namespace) -> PretrainConfig:
@@ -288,6 +311,9 @@ def dagger_learner_from(args: argparse.Namespace) -> PretrainConfig:
 def run_dagger(args: argparse.Namespace) -> int:
     learner = dagger_learner_from(args)
     given = given_settings(args, DAggerConfig, DAGGER_FLAGS)
+    expert = dagger_expert_from(args, learner, given)
+    if expert is not None:
+        given["expert"] = expert
     config = resolve_dagger_config(learner, given, args.run_dir, resume=args.resume)
     print(
         f"DAgger on {config.learner.task} ({config.learner.obs}): {config.iterations} iterations x "
