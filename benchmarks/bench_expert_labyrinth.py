@@ -21,7 +21,7 @@ Episodes run on ``--workers`` spawned processes (default 2), each single-threade
 what it measured (its row says ``complete: false``).
 
 Usage: ``python benchmarks/bench_expert_labyrinth.py [--layouts easy medium hard] [--episodes 20]
-[-K 16 -H 30 --sampling hold --hold-min 5 --hold-max 15 --rate-levels 5 --hole-margin 0 --path-weight 5]
+[-K 16 -P 1 -H 30 --sampling hold --hold-min 5 --hold-max 15 --rate-levels 5 --hole-margin 0 --path-weight 5]
 [--action-type continuous] [--workers 2] [--seed 0] [--no-progress]``.
 """
 
@@ -123,7 +123,7 @@ def row_key(layout: str, config: LabyrinthMPCConfig, action_type: str) -> str:
     return (
         f"{layout} K={c.n_samples} H={c.horizon} {c.sampling} hold={c.hold_min}-{c.hold_max} "
         f"levels={c.rate_levels} keep_best={c.keep_best} margin={c.hole_margin:g} path_weight={c.path_weight:g} "
-        f"{action_type}"
+        f"{action_type}{f' P={c.n_plans}' if c.n_plans != 1 else ''}"
     )
 
 
@@ -147,6 +147,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--episodes", type=int, default=20, help="episodes per layout (default 20)")
     parser.add_argument("-K", "--n-samples", type=int, default=defaults.n_samples)
     parser.add_argument("-H", "--horizon", type=int, default=defaults.horizon)
+    parser.add_argument(
+        "-P", "--n-plans", type=int, default=defaults.n_plans, help="searches whose first actions are averaged"
+    )
     parser.add_argument("--sampling", default=defaults.sampling)
     parser.add_argument("--hold-min", type=int, default=defaults.hold_min)
     parser.add_argument("--hold-max", type=int, default=defaults.hold_max)
@@ -166,6 +169,7 @@ def main(argv: list[str] | None = None) -> None:
     args = parse_args(argv)
     config = LabyrinthMPCConfig(
         n_samples=args.n_samples,
+        n_plans=args.n_plans,
         horizon=args.horizon,
         sampling=args.sampling,
         hold_min=args.hold_min,

@@ -24,6 +24,7 @@ Usage: python benchmarks/bench_labyrinth_dagger.py --expert-data DATA --init PI_
        [--obs state|cyberrunner|pixels] [--action-type continuous|discrete] [--surroundings]
        [--motion] [--seeds 3] [--iterations 8] [--episodes-per-iteration 10] [--beta0 0.5] [--beta-decay 0.7]
        [--epochs-per-iteration 5] [--max-episode-steps 1500] [--demo-start-share 0] [--expert-samples 16]
+       [--expert-plans 1]
        [--jobs 3] [--episodes 100]
 """
 
@@ -71,7 +72,7 @@ def _config(args: argparse.Namespace, seed: int) -> DAggerConfig:
         beta0=args.beta0,
         beta_decay=args.beta_decay,
         demo_start_share=args.demo_start_share,
-        expert=LabyrinthMPCConfig(n_samples=args.expert_samples),
+        expert=LabyrinthMPCConfig(n_samples=args.expert_samples, n_plans=args.expert_plans),
         epochs_per_iteration=args.epochs_per_iteration,
         max_episode_steps=args.max_episode_steps,
         eval_episodes=args.eval_episodes,
@@ -156,6 +157,12 @@ def main(argv: list[str] | None = None) -> int:
         default=LabyrinthMPCConfig().n_samples,
         help=f"K, the labelling expert's sampled sequences per decision (default {LabyrinthMPCConfig().n_samples})",
     )
+    parser.add_argument(
+        "--expert-plans",
+        type=int,
+        default=1,
+        help="P, independent searches whose first actions the labelling expert averages (default 1)",
+    )
     parser.add_argument("--epochs-per-iteration", type=int, default=5)
     parser.add_argument("--max-episode-steps", type=int, default=1500)
     parser.add_argument("--eval-episodes", type=int, default=20, help="in-run evaluation episodes per iteration")
@@ -226,7 +233,8 @@ def main(argv: list[str] | None = None) -> int:
         f"{' + motion' if args.motion else ''}, {args.action_type}){', from π^s' if args.init else ''}: "
         f"{args.iterations} iterations × {args.episodes_per_iteration} rollouts"
         f"{f' ({args.demo_start_share:.0%} from the expert states)' if args.demo_start_share else ''}"
-        f"{f', expert K = {args.expert_samples}' if args.expert_samples != LabyrinthMPCConfig().n_samples else ''}, "
+        f"{f', expert K = {args.expert_samples}' if args.expert_samples != LabyrinthMPCConfig().n_samples else ''}"
+        f"{f', labels the mean of {args.expert_plans} plans' if args.expert_plans != 1 else ''}, "
         f"seeds {', '.join(map(str, jobs))}"
     )
     print(f"wrote {args.results} and {_plot(results, args.figure, title)}")

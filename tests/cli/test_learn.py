@@ -311,10 +311,15 @@ def test_dagger_mpc_flags_set_the_labelling_expert_over_the_tasks_own():
     assert expert("--task", "STG1", "--num-mazes", "0", "-K", "4") == MPCConfig(n_samples=4, reward="geodesic")
     board = expert("--task", "LABYRINTH-HARD", "--action-type", "continuous", "-K", "64")
     assert board == LabyrinthMPCConfig(n_samples=64)
+    board = expert("--task", "LABYRINTH-HARD", "--action-type", "continuous", "--plans", "4")
+    assert board == LabyrinthMPCConfig(n_plans=4)
+    with pytest.raises(ValueError, match="--plans: the labyrinth's expert setting, not the circular maze's"):
+        expert("--task", "STG1", "-P", "4")
     with pytest.raises(ValueError, match="--planning-reward: the circular maze's expert setting"):
         expert("--task", "LABYRINTH-HARD", "--action-type", "continuous", "--planning-reward", "geodesic")
-    with pytest.raises(ValueError, match="--resume keeps the run's expert"):
-        expert("--resume", "-K", "4")
+    with pytest.raises(ValueError, match=r"--resume keeps the run's expert; drop the MPC expert's settings given "
+                                         r"\(--horizon, --n-samples\)"):
+        expert("--resume", "-K", "4", "-H", "8")
 
 
 def test_dagger_stores_the_expert_the_flags_set(tmp_path):

@@ -115,11 +115,70 @@ def test_expert_outprogresses_a_random_policy_on_the_easy_board():
         ("off_path_penalty", math.inf, ">= 0"),
         ("path_weight", -0.5, ">= 0"),
         ("nthread", 0, "positive integer"),
+        ("n_plans", 0, "positive integer"),
     ],
 )
 def test_bad_settings_raise_value_error_naming_the_field(field, value, allowed):
     with pytest.raises(ValueError, match=rf"LabyrinthMPCConfig\.{field}.*{allowed}"):
         LabyrinthMPCConfig(**{field: value})
+
+
+def test_more_sequences_than_one_rollout_holds_are_refused():
+    with pytest.raises(ValueError, match=r"n_samples × n_plans must be at most 65,536.*got 4096 × 17"):
+        LabyrinthMPCConfig(n_samples=4096, n_plans=17)
+
+
+def _labels(n_plans: int, action_type: str = "continuous", repeats: int = 16) -> tuple[np.ndarray, list[dict]]:
+    """``repeats`` first decisions of fresh experts (seeds 0..) with P = ``n_plans`` searches of K = 16
+    from one state on the hard layout's path, and what each planner saw."""
+    env = LabyrinthEnv("hard", action_type=action_type)
+    _, info = env.reset(seed=0)
+    for _ in range(40):  # the marble rolling, the board tilted
+        _, _, _, _, info = env.step(np.array([0.5, -0.5], dtype=np.float32) if action_type == "continuous" else 1)
+    state = env.unwrapped.sim.get_state()
+    config = LabyrinthMPCConfig(n_samples=16, n_plans=n_plans, horizon=20)
+    labels, seen = [], []
+    for seed in range(repeats):
+        action, planned = LabyrinthMPC.for_env(env, config, rng=np.random.default_rng(seed)).plan(state, info["segment"])
+        labels.append(np.asarray(action, dtype=np.float64))
+        seen.append(planned)
+    return np.stack(labels), seen
+
+
+def test_the_mean_of_several_plans_is_a_less_noisy_label():
+    one, _ = _labels(1)
+    four, seen = _labels(4)
+    assert seen[0]["first_actions"].shape == (4, 2) and seen[0]["scores"].shape == (64,)
+    for label, planned in zip(four, seen, strict=True):  # the action is the searches' mean
+        np.testing.assert_allclose(label, planned["first_actions"].mean(axis=0), atol=1e-6)
+    # Four independent searches: the spread of the label over seeds about halves (1/√4).
+    assert four.std(axis=0).mean() < 0.75 * one.std(axis=0).mean()
+
+
+def test_each_search_refines_its_own_plan():
+    spec = LabyrinthSpec.layout("easy")
+    config = LabyrinthMPCConfig(n_samples=3, n_plans=2, horizon=5, hold_min=1, hold_max=2)
+    expert = LabyrinthMPC(spec, config, rng=np.random.default_rng(4))
+    expert.sim.reset(spec.start)
+    state = expert.sim.get_state()
+    rolled = []
+    original = expert.sim.rollout
+    expert.sim.rollout = lambda s, deltas, **kw: rolled.append(deltas) or original(s, deltas, **kw)
+    _, first = expert.plan(state, 0)
+    expert.plan(state, 0)
+    bests = np.arange(2) * 3 + first["scores"].reshape(2, 3).argmax(axis=1)  # each search's best row
+    np.testing.assert_allclose(first["first_actions"] * expert.tilt_step, rolled[0][bests, 0])
+    # The second decision's rows 0 and K are the two searches' best sequences, shifted by one step.
+    np.testing.assert_allclose(rolled[1][::3, :-1], rolled[0][bests, 1:])
+
+
+def test_discrete_plans_take_the_most_frequent_action():
+    spec = LabyrinthSpec.layout("easy")
+    expert = LabyrinthMPC(spec, LabyrinthMPCConfig(n_plans=5), rng=np.random.default_rng(0), action_type="discrete")
+    assert expert._combine(np.array([3, 1, 3, 2, 1]), np.array([0.0, 5.0, 1.0, 0.0, 0.0])) == 1  # tie: best score
+    assert expert._combine(np.array([3, 1, 3, 2, 4]), np.array([0.0, 5.0, 1.0, 0.0, 0.0])) == 3
+    labels, _ = _labels(4, "discrete", repeats=2)
+    assert labels.shape == (2,) and set(labels.tolist()) <= set(range(5))
 
 
 def test_bad_arguments():

@@ -34,13 +34,16 @@ from bimgame.util.files import DiskFullError
 MPC_FLAGS = ("n_samples", "horizon", "sampling", "reward")
 #: Those that ``bimgame generate`` also sets for the labyrinth's expert (:class:`LabyrinthMPCConfig`).
 LABYRINTH_MPC_FLAGS = ("n_samples", "horizon", "sampling")
+#: The labyrinth expert's own settings with a flag (the maze's expert has no such setting).
+LABYRINTH_ONLY_MPC_FLAGS = ("n_plans",)
 #: The flag of each MPC setting whose name is not ``--field-name``.
-_MPC_FLAG_NAMES = {"reward": "--planning-reward"}
+_MPC_FLAG_NAMES = {"reward": "--planning-reward", "n_plans": "--plans"}
 
 __all__ = [
     "add_parsers",
     "add_mpc_arguments",
     "mpc_config_from",
+    "mpc_flag",
     "labyrinth_mpc_config_from",
     "add_generate_arguments",
     "run_generate",
@@ -88,11 +91,32 @@ def add_mpc_arguments(parser: argparse.ArgumentParser, *, labyrinth: bool = Fals
         add_settings_flags(
             group, MPCConfig, [name], default_none=True, default_text=shown, flags=_MPC_FLAG_NAMES, aliases=aliases
         )
+    add_settings_flags(
+        group,
+        LabyrinthMPCConfig,
+        LABYRINTH_ONLY_MPC_FLAGS,
+        default_none=True,
+        default_text=" 1; the labyrinth's only",
+        flags=_MPC_FLAG_NAMES,
+        aliases={"n_plans": ("-P",)},
+    )
+
+
+def mpc_flag(name: str) -> str:
+    """The command-line flag of MPC setting ``name`` (``n_plans`` → ``--plans``)."""
+    return _MPC_FLAG_NAMES.get(name, "--" + name.replace("_", "-"))
 
 
 def mpc_config_from(args: argparse.Namespace) -> MPCConfig:
     """The maze expert's settings from the flags of :func:`add_mpc_arguments` (its defaults for
-    those not given)."""
+    those not given); a labyrinth-only setting given is refused naming its flag."""
+    refused = [mpc_flag(name) for name in given_settings(args, LabyrinthMPCConfig, LABYRINTH_ONLY_MPC_FLAGS)]
+    if refused:
+        raise ValueError(
+            f"{', '.join(refused)}: the labyrinth's expert setting, not the circular maze's "
+            f"(task {getattr(args, 'task', None)}); the maze's expert takes "
+            f"{', '.join(map(mpc_flag, MPC_FLAGS))}"
+        )
     return MPCConfig(**given_settings(args, MPCConfig, MPC_FLAGS))
 
 
@@ -100,15 +124,14 @@ def labyrinth_mpc_config_from(args: argparse.Namespace) -> LabyrinthMPCConfig:
     """The labyrinth expert's settings from the flags of :func:`add_mpc_arguments` (``labyrinth=True``),
     its own defaults for those not given; a maze-only setting given is refused naming its flag."""
     given = given_settings(args, MPCConfig, MPC_FLAGS)
-    refused = [
-        _MPC_FLAG_NAMES.get(name, "--" + name.replace("_", "-")) for name in given if name not in LABYRINTH_MPC_FLAGS
-    ]
+    refused = [mpc_flag(name) for name in given if name not in LABYRINTH_MPC_FLAGS]
     if refused:
         raise ValueError(
             f"{', '.join(refused)}: the circular maze's expert setting, not the labyrinth's (task {args.task}); "
-            f"the labyrinth's expert takes {', '.join('--' + n.replace('_', '-') for n in LABYRINTH_MPC_FLAGS)}"
+            f"the labyrinth's expert takes {', '.join(map(mpc_flag, LABYRINTH_MPC_FLAGS + LABYRINTH_ONLY_MPC_FLAGS))}"
         )
-    return LabyrinthMPCConfig(**{name: value for name, value in given.items() if name in LABYRINTH_MPC_FLAGS})
+    own = given_settings(args, LabyrinthMPCConfig, LABYRINTH_ONLY_MPC_FLAGS)
+    return LabyrinthMPCConfig(**{name: value for name, value in given.items() if name in LABYRINTH_MPC_FLAGS}, **own)
 
 
 def add_generate_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:

@@ -10,7 +10,14 @@ from pathlib import Path
 from typing import Any
 
 from bimgame.cli.argtypes import episode_count, episode_count_or_zero, seed
-from bimgame.cli.expert import MPC_FLAGS, add_mpc_arguments, labyrinth_mpc_config_from
+from bimgame.cli.expert import (
+    LABYRINTH_ONLY_MPC_FLAGS,
+    MPC_FLAGS,
+    add_mpc_arguments,
+    labyrinth_mpc_config_from,
+    mpc_config_from,
+    mpc_flag,
+)
 from bimgame.cli.flags import add_flag_groups, add_grouped_settings_flags, given_settings
 from bimgame.envs.labyrinth_env import OBSERVATION_EXTRAS
 from bimgame.envs.puzzles import TASK_NAMES, puzzle
@@ -282,18 +289,21 @@ def dagger_expert_from(
     args: argparse.Namespace, learner: PretrainConfig, given: dict[str, Any]
 ) -> MPCConfig | LabyrinthMPCConfig | None:
     """The labelling expert's settings of the MPC flags given (``-K``, ``-H``, ``--sampling``,
-    ``--planning-reward``) over those DAgger picks for the task (on random mazes the geodesic
-    reward); None when no MPC flag is given. Refused with ``--resume``: a run keeps its expert."""
+    ``--planning-reward``; the labyrinth's ``--plans``) over those DAgger picks for the task (on
+    random mazes the geodesic reward); None when no MPC flag is given. Refused with ``--resume``: a
+    run keeps its expert."""
     mpc_given = given_settings(args, MPCConfig, MPC_FLAGS)
-    if not mpc_given:
+    labyrinth_only = given_settings(args, LabyrinthMPCConfig, LABYRINTH_ONLY_MPC_FLAGS)
+    if not (mpc_given or labyrinth_only):
         return None
     if args.resume:
-        flags = ", ".join(sorted(mpc_given))
+        flags = ", ".join(map(mpc_flag, sorted({**mpc_given, **labyrinth_only})))
         raise ValueError(f"--resume keeps the run's expert; drop the MPC expert's settings given ({flags})")
+    args = argparse.Namespace(**{**vars(args), "task": learner.task})
     if puzzle(learner.task).is_maze:
-        default = DAggerConfig(learner=learner, **given).planner
-        return dataclasses.replace(default, **mpc_given)
-    return labyrinth_mpc_config_from(argparse.Namespace(**{**vars(args), "task": learner.task}))
+        mpc_config_from(args)  # refuses the labyrinth's own settings by name
+        return dataclasses.replace(DAggerConfig(learner=learner, **given).planner, **mpc_given)
+    return labyrinth_mpc_config_from(args)
 
 
 def dagger_learner_from(args: argparse.Namespace) -> PretrainConfig:

@@ -71,6 +71,11 @@ class MPCConfig:
         if self.reward not in PLANNING_REWARDS:
             raise ValueError(f"unknown MPCConfig.reward {self.reward!r}; allowed: {', '.join(PLANNING_REWARDS)}")
 
+    @property
+    def sim_steps_per_decision(self) -> int:
+        """Simulator steps one decision rolls out: K sequences of H steps."""
+        return self.n_samples * self.horizon
+
 
 class RandomShootingMPC:
     """The MPC expert. ``act(state)`` returns a discrete action (0..4) for a physics state from

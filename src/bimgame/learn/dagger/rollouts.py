@@ -203,6 +203,6 @@ def collect_episodes(
         "env_steps": labels,
         "labels": labels,
         "successes": rollouts.successes,
-        "expert_sim_steps": labels * config.planner.n_samples * config.planner.horizon,
+        "expert_sim_steps": labels * config.planner.sim_steps_per_decision,
     }
     return episodes, costs
