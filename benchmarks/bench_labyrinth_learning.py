@@ -154,26 +154,25 @@ def _job(run_dir: Path, curriculum: str, seed: int, args: argparse.Namespace) ->
 
 
 def _curve(run_dir: Path, steps: int) -> dict[str, list[float]]:
-    """Per ``CURVE_BIN`` steps: the success rate of training episodes from the layout's own start,
-    and the curriculum's reach (m of path before the goal; NaN without a curriculum)."""
+    """Per ``CURVE_BIN`` steps: the success rate and mean return of training episodes from the
+    layout's own start, and the curriculum's reach (m of path before the goal; NaN without a
+    curriculum)."""
     edges = np.arange(CURVE_BIN, steps + CURVE_BIN, CURVE_BIN)
     with (run_dir / "episodes.csv").open(newline="") as handle:
         episodes = [row for row in csv.DictReader(handle) if row["true_start"] != "False"]
     ends = np.array([float(row["step"]) for row in episodes])
     wins = np.array([row["success"] == "True" for row in episodes])
-    success = [
-        float(wins[(ends > e - CURVE_BIN) & (ends <= e)].mean())
-        if ((ends > e - CURVE_BIN) & (ends <= e)).any()
-        else float("nan")
-        for e in edges
-    ]
+    returns = np.array([float(row["return"]) for row in episodes])
+    bins = [(ends > e - CURVE_BIN) & (ends <= e) for e in edges]
+    success = [float(wins[b].mean()) if b.any() else float("nan") for b in bins]
+    mean_return = [float(returns[b].mean()) if b.any() else float("nan") for b in bins]
     with (run_dir / "updates.csv").open(newline="") as handle:
         updates = list(csv.DictReader(handle))
     reach = []
     for edge in edges:
         rows = [row for row in updates if float(row["step"]) <= edge and row.get("curriculum_start_distance")]
         reach.append(float(rows[-1]["curriculum_start_distance"]) if rows else float("nan"))
-    return {"step": edges.tolist(), "success": success, "curriculum_reach": reach}
+    return {"step": edges.tolist(), "success": success, "return": mean_return, "curriculum_reach": reach}
 
 
 def _aggregate(per_seed: list[dict[str, Any]], rng: np.random.Generator) -> dict[str, Any]:
@@ -189,34 +188,30 @@ def _aggregate(per_seed: list[dict[str, Any]], rng: np.random.Generator) -> dict
 
 
 def _plot(results: dict[str, Any], path: Path, title: str) -> Path:
-    """Success from the layout's start against steps and, when a run had a curriculum, its reach."""
+    """Success and mean return of training episodes from the layout's start against steps (the
+    return shows how far runs that complete nothing get) and, when a run had a curriculum, its reach."""
     with_reach = any(curriculum != "none" for curriculum in results["curricula"])
-    fig, axes = subplots(1, 2 if with_reach else 1, figsize=(11 if with_reach else 6.5, 4), layout="constrained")
-    left, right = (axes[0], axes[1]) if with_reach else (axes, None)
+    columns = 3 if with_reach else 2
+    fig, axes = subplots(1, columns, figsize=(5.5 * columns, 4), layout="constrained")
+    success_axis, return_axis = axes[0], axes[1]
+    reach_axis = axes[2] if with_reach else None
     colours = {"reverse": "tab:blue", "none": "tab:gray", "demo": "tab:green"}
     for curriculum, entry in results["curricula"].items():
         for k, curve in enumerate(entry["curves"]):
             label = curriculum if k == 0 else None
-            left.plot(
-                np.array(curve["step"]) / 1e3,
-                100 * np.array(curve["success"]),
-                color=colours[curriculum],
-                alpha=0.8,
-                label=label,
-            )
-            if right is not None and curriculum != "none":
-                right.plot(
-                    np.array(curve["step"]) / 1e3,
-                    curve["curriculum_reach"],
-                    color=colours[curriculum],
-                    alpha=0.8,
-                    label=label,
-                )
-    left.set(xlabel="steps (k)", ylabel="success from the layout's start (%)", ylim=(-3, 103))
-    if right is not None:
-        right.set(xlabel="steps (k)", ylabel="curriculum's reach (m of path before the goal)")
-        right.axhline(results["path_length"], color="k", linestyle=":", label="whole path")
-    for axis in (left, right):
+            steps = np.array(curve["step"]) / 1e3
+            style = {"color": colours[curriculum], "alpha": 0.8, "label": label}
+            success_axis.plot(steps, 100 * np.array(curve["success"]), **style)
+            if "return" in curve:  # results written before the return was kept have none
+                return_axis.plot(steps, curve["return"], **style)
+            if reach_axis is not None and curriculum != "none":
+                reach_axis.plot(steps, curve["curriculum_reach"], **style)
+    success_axis.set(xlabel="steps (k)", ylabel="success from the layout's start (%)", ylim=(-3, 103))
+    return_axis.set(xlabel="steps (k)", ylabel="mean return (1.25 per m of path)")
+    if reach_axis is not None:
+        reach_axis.set(xlabel="steps (k)", ylabel="curriculum's reach (m of path before the goal)")
+        reach_axis.axhline(results["path_length"], color="k", linestyle=":", label="whole path")
+    for axis in (success_axis, return_axis, reach_axis):
         if axis is not None:
             axis.grid(alpha=0.3)
             axis.legend(fontsize=8)
