@@ -315,6 +315,8 @@ def test_command_line(reference, tmp_path, capsys):
     assert f"{DATASET_ID} in {out}: 3 episodes" in printed and "load_labyrinth_sequences" in printed
     assert main(common) == 2  # the labyrinth expert's own defaults (K=16, H=30): another run
     assert "mpc_config" in capsys.readouterr().err
+    assert main([*common, "-K", "4", "-H", "8", "--plans", "2"]) == 2  # the mean of 2 searches: another run
+    assert "mpc_config" in capsys.readouterr().err
     for flags, named in [(["--num-mazes", "2"], "--num-mazes"),
                          (["--planning-reward", "geodesic"], "--planning-reward")]:
         assert main([*common, "-K", "4", "-H", "8", *flags]) == 2
@@ -322,6 +324,8 @@ def test_command_line(reference, tmp_path, capsys):
     maze = ["generate", "--task", "STG1", "--out", str(tmp_path / "maze"), "--no-progress"]
     assert main([*maze, "--action-type", "discrete"]) == 2
     assert "--action-type: the labyrinth's option" in capsys.readouterr().err
+    assert main([*maze, "--plans", "2"]) == 2
+    assert "--plans: the labyrinth's expert setting, not the circular maze's" in capsys.readouterr().err
     assert not (tmp_path / "maze").exists()
     with pytest.raises(SystemExit):
         main(["generate", "--task", "LABYRINTH-HUGE", "--out", str(tmp_path / "x")])
