@@ -50,6 +50,8 @@ from bimgame.util.files import atomic_write_bytes, read_json
 from bimgame.util.images import save_png, subplots
 
 ROOT = Path(__file__).resolve().parents[1]
+#: The labyrinth expert's defaults (K, P), which the flags and the figure's title compare against.
+EXPERT = LabyrinthMPCConfig()
 
 
 def _config(args: argparse.Namespace, seed: int) -> DAggerConfig:
@@ -154,14 +156,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--expert-samples",
         type=int,
-        default=LabyrinthMPCConfig().n_samples,
-        help=f"K, the labelling expert's sampled sequences per decision (default {LabyrinthMPCConfig().n_samples})",
+        default=EXPERT.n_samples,
+        help=f"K, the labelling expert's sampled sequences per decision (default {EXPERT.n_samples})",
     )
     parser.add_argument(
         "--expert-plans",
         type=int,
-        default=1,
-        help="P, independent searches whose first actions the labelling expert averages (default 1)",
+        default=EXPERT.n_plans,
+        help=f"P, independent searches whose first actions the labelling expert averages (default {EXPERT.n_plans})",
     )
     parser.add_argument("--epochs-per-iteration", type=int, default=5)
     parser.add_argument("--max-episode-steps", type=int, default=1500)
@@ -233,8 +235,8 @@ def main(argv: list[str] | None = None) -> int:
         f"{' + motion' if args.motion else ''}, {args.action_type}){', from π^s' if args.init else ''}: "
         f"{args.iterations} iterations × {args.episodes_per_iteration} rollouts"
         f"{f' ({args.demo_start_share:.0%} from the expert states)' if args.demo_start_share else ''}"
-        f"{f', expert K = {args.expert_samples}' if args.expert_samples != LabyrinthMPCConfig().n_samples else ''}"
-        f"{f', labels the mean of {args.expert_plans} plans' if args.expert_plans != 1 else ''}, "
+        f"{f', expert K = {args.expert_samples}' if args.expert_samples != EXPERT.n_samples else ''}"
+        f"{f', labels the mean of {args.expert_plans} plans' if args.expert_plans != EXPERT.n_plans else ''}, "
         f"seeds {', '.join(map(str, jobs))}"
     )
     print(f"wrote {args.results} and {_plot(results, args.figure, title)}")

@@ -40,12 +40,9 @@ from typing import Any
 import numpy as np
 
 from bimgame.envs.labyrinth_env import LabyrinthEnv
-from bimgame.expert.labyrinth_datasets import labyrinth_dataset_manifest
-from bimgame.expert.labyrinth_episodes import read_labyrinth_episode
+from bimgame.expert.labyrinth_datasets import labyrinth_dataset_manifest, read_dataset_episode
 from bimgame.expert.labyrinth_mpc import LabyrinthMPC, LabyrinthMPCConfig
-from bimgame.expert.minari_build import episode_path
 from bimgame.util.files import atomic_write_bytes
-from bimgame.util.seeding import episode_seed
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Two labels "agree" within this much in both components (bimgame pretrain's accuracy tolerance).
@@ -68,10 +65,7 @@ def draw_states(data: Path, episodes: int, count: int, early: int, rng: np.rando
     and the layout."""
     manifest = labyrinth_dataset_manifest(data)
     action_type = manifest["action_type"]
-    chosen = [
-        read_labyrinth_episode(episode_path(data, i), i, episode_seed(manifest["seed"], i), action_type)
-        for i in range(min(episodes, manifest["episodes"]))
-    ]
+    chosen = [read_dataset_episode(data, manifest, i) for i in range(min(episodes, manifest["episodes"]))]
     if not chosen:
         raise ValueError(f"{data} holds no episodes")
     per_episode = -(-count // len(chosen))

@@ -5,6 +5,7 @@ maze's tasks or CyberRunner's labyrinth's, ``--task LABYRINTH-EASY|MEDIUM|HARD``
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -107,9 +108,9 @@ def mpc_flag(name: str) -> str:
     return _MPC_FLAG_NAMES.get(name, "--" + name.replace("_", "-"))
 
 
-def mpc_config_from(args: argparse.Namespace) -> MPCConfig:
-    """The maze expert's settings from the flags of :func:`add_mpc_arguments` (its defaults for
-    those not given); a labyrinth-only setting given is refused naming its flag."""
+def mpc_config_from(args: argparse.Namespace, base: MPCConfig | None = None) -> MPCConfig:
+    """The maze expert's settings from the flags of :func:`add_mpc_arguments`, ``base``'s (default:
+    the expert's defaults) for those not given; a labyrinth-only setting given is refused naming its flag."""
     refused = [mpc_flag(name) for name in given_settings(args, LabyrinthMPCConfig, LABYRINTH_ONLY_MPC_FLAGS)]
     if refused:
         raise ValueError(
@@ -117,7 +118,7 @@ def mpc_config_from(args: argparse.Namespace) -> MPCConfig:
             f"(task {getattr(args, 'task', None)}); the maze's expert takes "
             f"{', '.join(map(mpc_flag, MPC_FLAGS))}"
         )
-    return MPCConfig(**given_settings(args, MPCConfig, MPC_FLAGS))
+    return dataclasses.replace(base or MPCConfig(), **given_settings(args, MPCConfig, MPC_FLAGS))
 
 
 def labyrinth_mpc_config_from(args: argparse.Namespace) -> LabyrinthMPCConfig:

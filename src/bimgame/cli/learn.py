@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import math
 import sys
 from pathlib import Path
@@ -301,8 +300,9 @@ def dagger_expert_from(
         raise ValueError(f"--resume keeps the run's expert; drop the MPC expert's settings given ({flags})")
     args = argparse.Namespace(**{**vars(args), "task": learner.task})
     if puzzle(learner.task).is_maze:
-        mpc_config_from(args)  # refuses the labyrinth's own settings by name
-        return dataclasses.replace(DAggerConfig(learner=learner, **given).planner, **mpc_given)
+        planner = DAggerConfig(learner=learner, **given).planner
+        assert isinstance(planner, MPCConfig)  # the maze's expert
+        return mpc_config_from(args, base=planner)
     return labyrinth_mpc_config_from(args)
 
 

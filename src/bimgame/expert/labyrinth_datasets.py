@@ -73,6 +73,7 @@ __all__ = [
     "load_labyrinth_demonstrations",
     "load_labyrinth_dataset",
     "labyrinth_dataset_manifest",
+    "read_dataset_episode",
     "labyrinth_dataset_summary",
     "labyrinth_dataset_id",
     "LABYRINTH_MANIFEST_KEYS",
@@ -231,12 +232,13 @@ def _generate(
         ]  # fmt: skip
         return run_jobs(labyrinth_episode_job, arguments, workers=workers, backend=backend, ray_address=ray_address)
 
-    read = functools.partial(_read, out_dir, manifest)
+    read = functools.partial(read_dataset_episode, out_dir, manifest)
     run_generation(out_dir, manifest, LABYRINTH_FORMAT, read=read, play=play, progress=progress)
 
 
-def _read(out_dir: Path, manifest: dict[str, Any], index: int) -> dict[str, np.ndarray]:
-    """Episode ``index``'s file in ``out_dir``, checked against the run's manifest."""
+def read_dataset_episode(out_dir: Path, manifest: dict[str, Any], index: int) -> dict[str, np.ndarray]:
+    """Episode ``index``'s file in ``out_dir`` (its arrays), checked against the run's manifest
+    (:func:`labyrinth_dataset_manifest`)."""
     return read_labyrinth_episode(
         episode_path(out_dir, index), index, episode_seed(manifest["seed"], index), manifest["action_type"]
     )
@@ -328,7 +330,7 @@ def load_labyrinth_sequences(
     try:
         with ProgressBar(f"reading {obs} episodes", manifest["episodes"], enabled=progress, transient=True) as bar:
             for index in range(manifest["episodes"]):
-                sequence = _sequence(_read(data_dir, manifest, index), index, gamma, renderer)
+                sequence = _sequence(read_dataset_episode(data_dir, manifest, index), index, gamma, renderer)
                 if around is not None:
                     observed = np.concatenate([sequence.obs, around.of(sequence.obs[:, :2])], axis=1)
                     sequence = dataclasses.replace(sequence, obs=observed)
@@ -350,7 +352,7 @@ def load_labyrinth_demonstrations(data_dir: str | Path) -> tuple[str, list[tuple
     verify_marker(data_dir, manifest, hashes=True)
     demonstrations = []
     for index in range(manifest["episodes"]):
-        data = _read(data_dir, manifest, index)
+        data = read_dataset_episode(data_dir, manifest, index)
         if bool(data["success"]):
             demonstrations.append((data["sim_states"], data["progress"]))
     return str(manifest["task"]), demonstrations

@@ -328,13 +328,12 @@ class LabyrinthMPC:
         states = self.sim.rollout(state, self.tilt_deltas(sequences), nthread=self.config.nthread)
         scores = self.score(states, seg, progress)
         bests = np.arange(n_plans) * k + scores.reshape(n_plans, k).argmax(axis=1)
-        self._best = sequences[bests].copy()
+        self._best = sequences[bests]  # an index array: a copy, not a view of this decision's samples
         firsts = sequences[bests, 0]
-        top = int(bests[np.argmax(scores[bests])])
         action = self._combine(firsts, scores[bests])
         return action, {
             "scores": scores,
-            "sequence": sequences[top],
+            "sequence": sequences[int(np.argmax(scores))],  # the best of all is the best of its search
             "first_actions": firsts,
             "segment": seg,
             "progress": progress,
