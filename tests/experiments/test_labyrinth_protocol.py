@@ -54,6 +54,7 @@ def test_the_same_seed_gives_the_same_result_and_noop_and_random_do_not_solve_th
     noop = score_labyrinth("noop", "LABYRINTH-HARD", episodes=3, progress=False)
     assert noop["success_rate"] == 0.0 and noop["success_rate_ci"] == [0.0, 0.0]
     assert noop["lengths"] == [3000] * 3 and noop["ended_by"] == {"goal": 0, "fall": 0, "time": 3}
+    assert noop["ended"] == ["time"] * 3
     starts = start_progress("LABYRINTH-HARD", [LABYRINTH_PROTOCOL_SEED + i for i in range(3)])
     length = LabyrinthEnv("hard").path.length
     np.testing.assert_allclose(np.multiply(noop["progress_fractions"], length), starts, atol=1e-4)
@@ -88,6 +89,7 @@ def test_progress_reached_is_the_envs_progress_after_the_last_step_that_did_not_
         expected.append(kept)
     summary = summarise_labyrinth(result, "LABYRINTH-EASY", seeds, time_limit=limit)
     assert summary["ended_by"]["fall"] >= 1 and summary["ended_by"]["time"] >= 1  # both kinds of end
+    assert summary["ended"] == ["time" if n == limit else "fall" for n in result.lengths]
     np.testing.assert_allclose(summary["progress_fractions"], expected, atol=1e-9)
     assert summary["mean_progress_fraction"] == pytest.approx(np.mean(expected))
 
@@ -104,9 +106,11 @@ def test_the_expert_solves_the_easy_layout():
 
 def test_a_tiny_ppo_run_scores_through_the_command_line(easy_run, tmp_path, capsys):
     out = tmp_path / "score.json"
+    figure = tmp_path / "ends.png"
     argv = ["score", str(easy_run / "checkpoint.pt"), "--task", "labyrinth-easy", "--episodes", "2", "--out",
-            str(out), "--no-progress"]
+            str(out), "--figure", str(figure), "--no-progress"]
     assert main(argv) == 0
+    assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     printed = capsys.readouterr().out
     assert "CyberRunner" in printed and "mean progress reached" in printed  # the table, its line below
     result = json.loads(out.read_text())
@@ -128,6 +132,12 @@ def test_refusals_name_the_problem(easy_run, tmp_path, capsys):
     assert "is a run on LABYRINTH-EASY (the labyrinth), but --task STG1 is the circular maze's" in err
     assert main(["score", str(easy_run), "--task", "LABYRINTH-EASY", "--obs", "pixels", "--no-progress"]) == 2
     assert "trained on state observations, not pixels; score it with --obs state" in capsys.readouterr().err
+    # --figure is the labyrinth's; a bad path is refused before any episode is played.
+    assert main(["score", "random", "--task", "STG1", "--figure", str(tmp_path / "f.png"), "--no-progress"]) == 2
+    assert "--figure draws where the labyrinth's episodes ended; --task STG1 is the circular maze's" in (
+        capsys.readouterr().err)
+    assert main(["score", "random", "--task", "LABYRINTH-EASY", "--figure", str(tmp_path), "--no-progress"]) == 2
+    assert f"--figure {tmp_path} is a directory" in capsys.readouterr().err
     # What the labyrinth's protocol does not play, each with the allowed policies.
     (tmp_path / "model.zip").write_bytes(b"")
     for policy, why in (

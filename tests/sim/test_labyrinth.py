@@ -201,3 +201,22 @@ def test_layout_walls_hide_the_path_behind_them(hard):
     x = 0.120 - 0.138
     assert not tracker.update((x, 0.209 - 0.1155)).off_path
     assert tracker.update((x, 0.1985 - 0.1155)).off_path
+
+
+def test_point_at_inverts_project_along_the_path(hard):
+    path = hard.path
+    arcs = np.linspace(0.0, path.length, 57)
+    points, segments = path.point_at(arcs)
+    back, distance = path.project(points, segments)
+    np.testing.assert_allclose(back, arcs, atol=1e-12)
+    np.testing.assert_allclose(distance, 0.0, atol=1e-12)
+    np.testing.assert_allclose(points[0], path.points[0])
+    np.testing.assert_allclose(points[-1], path.points[-1])
+    assert segments[0] == 0 and segments[-1] == path.n_segments - 1
+
+
+def test_point_at_a_waypoint_starts_its_segment_and_clips_outside_the_path():
+    path = WaypointPath([(0.0, 0.0), (1.0, 0.0), (1.0, 2.0)], tolerance=0.1)
+    points, segments = path.point_at([1.0, 2.0, -5.0, 9.0])
+    np.testing.assert_allclose(points, [(1.0, 0.0), (1.0, 1.0), (0.0, 0.0), (1.0, 2.0)])
+    assert segments.tolist() == [1, 1, 0, 1]

@@ -20,6 +20,7 @@ from bimgame.cli.argtypes import TASK_NAMES, add_task_argument, check_output_fil
 from bimgame.envs.puzzles import NETWORK_OBS, check_obs, puzzle
 from bimgame.envs.puzzles import TASK_NAMES as PUZZLE_TASKS
 from bimgame.envs.randomization import RANDOMIZATION_PRESETS, randomization_preset
+from bimgame.experiments.labyrinth_figures import plot_episode_ends
 from bimgame.experiments.labyrinth_protocol import (
     CYBERRUNNER_RECORD_S,
     HUMAN_RECORD_S,
@@ -93,6 +94,13 @@ def add_score_arguments(parser: argparse.ArgumentParser) -> None:
     )
     add("--sampled", action="store_true", help="a network samples its actions instead of acting greedily")
     add("--out", type=Path, default=None, help="write the result as JSON here")
+    add(
+        "--figure",
+        type=Path,
+        default=None,
+        help="(labyrinth tasks) draw where the episodes ended to this PNG: the board with the spot on the path "
+        "each episode reached, and a histogram of the progress reached",
+    )
     add("--no-progress", action="store_true", help="no progress bar")
     add(
         "--measure-references",
@@ -158,6 +166,7 @@ def _run_labyrinth_score(args: argparse.Namespace, console: Console) -> int:
             f"POLICY is required: {', '.join(LABYRINTH_POLICIES)}, or a bimgame run trained on {args.task}"
         )
     check_output_file(args.out, "--out", "score.json")
+    check_output_file(args.figure, "--figure", "ends.png")
     _refuse_other_puzzles_run(args.policy, args.task)
     summary = score_labyrinth(
         args.policy,
@@ -196,6 +205,8 @@ def _run_labyrinth_score(args: argparse.Namespace, console: Console) -> int:
     )
     if args.out is not None:
         console.print(f"wrote {write_json(args.out, summary)}")
+    if args.figure is not None:
+        console.print(f"wrote {plot_episode_ends(summary, args.figure, title=f'{table.title}: where they ended')}")
     return 0
 
 
@@ -203,6 +214,11 @@ def run_score(args: argparse.Namespace) -> int:
     console = Console()
     if not puzzle(args.task).is_maze:
         return _run_labyrinth_score(args, console)
+    if args.figure is not None:
+        raise ValueError(
+            f"--figure draws where the labyrinth's episodes ended; --task {args.task} is the circular maze's "
+            "(use a labyrinth task: LABYRINTH-EASY, -MEDIUM, -HARD; a maze run's curves come from bimgame curves)"
+        )
     episodes = args.episodes or PROTOCOL_EPISODES
     obs = args.obs or "state"
     check_obs("--obs", args.task, obs)
@@ -286,6 +302,13 @@ def add_robustness_arguments(parser: argparse.ArgumentParser) -> None:
         help="processes for the expert's episodes (they do not depend on it; default 1)",
     )
     add("--out", type=Path, required=True, help="directory for robustness.csv and robustness.md")
+    add(
+        "--figure",
+        type=Path,
+        default=None,
+        help="(labyrinth tasks) draw where the episodes ended to this PNG: the board with the spot on the path "
+        "each episode reached, and a histogram of the progress reached",
+    )
     add("--no-progress", action="store_true", help="no progress bar")
 
 

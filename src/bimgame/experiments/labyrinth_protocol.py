@@ -31,8 +31,10 @@ percentile-bootstrap interval over episodes (:func:`~bimgame.experiments.statist
 seeded, so the same episodes give the same interval; it collapses to a point at 0% and 100%); the
 completion time (s; steps / 55 Hz) of the successful episodes: fastest, quartiles and median, and
 on the hard layout their ratios to the references; how episodes ended (goal, fall: a hole or off
-the path, time: ran to the limit — a fall on the very last step counts as time); and the mean path
-progress reached, as a fraction of the path's length.
+the path, time: ran to the limit — a fall on the very last step counts as time), in all and per
+episode (``ended``); and the path progress reached, per episode and its mean, as a fraction of the
+path's length (:func:`~bimgame.experiments.labyrinth_figures.plot_episode_ends` draws where on the
+board the episodes ended).
 
 **Progress reached** is the marble's progress along the path (``info["progress"]``) after the last
 step that did not fail: at the goal, at the time limit, or just before the step that fell into a hole
@@ -279,6 +281,7 @@ def summarise_labyrinth(result: EvalResult, task: str, starts: list[int], *, tim
         "lengths": [int(n) for n in lengths],
         "returns": [float(r) for r in returns],
         "progress_fractions": [float(p) for p in reached],
+        "ended": ["goal" if goal else "time" if late else "fall" for goal, late in zip(solved, timed_out, strict=True)],
     }
 
 

@@ -311,6 +311,15 @@ class WaypointPath:
         arc, distance, _ = self._foot(np.asarray(xy, dtype=np.float64), np.asarray(segment, dtype=np.intp))
         return arc, distance
 
+    def point_at(self, arc: np.ndarray | Sequence[float] | float) -> tuple[np.ndarray, np.ndarray]:
+        """The path's points (..., 2) at arc lengths ``arc`` (m from the start, clipped to the path)
+        and the segment each lies on (a waypoint starts its segment; the goal ends the last one):
+        where a marble's progress puts it on the path."""
+        s = np.clip(np.asarray(arc, dtype=np.float64), 0.0, self.length)
+        k = np.clip(np.searchsorted(self.cumulative, s, side="right") - 1, 0, self.n_segments - 1)
+        t = (s - self.cumulative[k]) / self.lengths[k]
+        return self.starts[k] + t[..., None] * self.vectors[k], k
+
     def blocked(self, p: np.ndarray, q: np.ndarray) -> np.ndarray:
         """Whether a wall's interior crosses each straight line from ``p`` to ``q`` (..., 2) (the
         slab test: the line's parameter intervals inside each wall's x and y extents overlap)."""
