@@ -14,6 +14,7 @@ each other, the same way, share one marker whose size and label count them.
 
 from __future__ import annotations
 
+import textwrap
 from collections import Counter
 from collections.abc import Mapping
 from pathlib import Path
@@ -120,6 +121,6 @@ def plot_episode_ends(summary: Mapping[str, Any], path: str | Path, *, title: st
         f"{counts['goal']} at the goal, {counts['fall']} fell, {counts['time']} at the time limit; "
         f"mean progress {100 * float(np.mean(fractions)):.0f}%"
     )
-    fig.suptitle(title or default, fontsize=10)
+    fig.suptitle("\n".join(textwrap.wrap(title or default, 140)), fontsize=10)
     fig.tight_layout()
     return save_png(fig, path, dpi=130)
