@@ -302,13 +302,6 @@ def add_robustness_arguments(parser: argparse.ArgumentParser) -> None:
         help="processes for the expert's episodes (they do not depend on it; default 1)",
     )
     add("--out", type=Path, required=True, help="directory for robustness.csv and robustness.md")
-    add(
-        "--figure",
-        type=Path,
-        default=None,
-        help="(labyrinth tasks) draw where the episodes ended to this PNG: the board with the spot on the path "
-        "each episode reached, and a histogram of the progress reached",
-    )
     add("--no-progress", action="store_true", help="no progress bar")
 
 
