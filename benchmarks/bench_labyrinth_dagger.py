@@ -24,7 +24,7 @@ Usage: python benchmarks/bench_labyrinth_dagger.py --expert-data DATA --init PI_
        [--obs state|cyberrunner|pixels] [--action-type continuous|discrete] [--surroundings]
        [--motion] [--seeds 3] [--iterations 8] [--episodes-per-iteration 10] [--beta0 0.5] [--beta-decay 0.7]
        [--epochs-per-iteration 5] [--max-episode-steps 1500] [--demo-start-share 0] [--expert-samples 16]
-       [--expert-plans 1]
+       [--expert-plans 1] [--stall-steps N]
        [--jobs 3] [--episodes 100]
 """
 
@@ -77,6 +77,7 @@ def _config(args: argparse.Namespace, seed: int) -> DAggerConfig:
         expert=LabyrinthMPCConfig(n_samples=args.expert_samples, n_plans=args.expert_plans),
         epochs_per_iteration=args.epochs_per_iteration,
         max_episode_steps=args.max_episode_steps,
+        stall_steps=args.stall_steps,
         eval_episodes=args.eval_episodes,
     )
 
@@ -167,6 +168,12 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--epochs-per-iteration", type=int, default=5)
     parser.add_argument("--max-episode-steps", type=int, default=1500)
+    parser.add_argument(
+        "--stall-steps",
+        type=int,
+        default=None,
+        help="end a rollout after this many steps without progress along the path (default: never)",
+    )
     parser.add_argument("--eval-episodes", type=int, default=20, help="in-run evaluation episodes per iteration")
     parser.add_argument("--episodes", type=int, default=100, help="scoring episodes per mode (default 100)")
     parser.add_argument(
@@ -236,7 +243,8 @@ def main(argv: list[str] | None = None) -> int:
         f"{args.iterations} iterations × {args.episodes_per_iteration} rollouts"
         f"{f' ({args.demo_start_share:.0%} from the expert states)' if args.demo_start_share else ''}"
         f"{f', expert K = {args.expert_samples}' if args.expert_samples != EXPERT.n_samples else ''}"
-        f"{f', labels the mean of {args.expert_plans} plans' if args.expert_plans != EXPERT.n_plans else ''}, "
+        f"{f', labels the mean of {args.expert_plans} plans' if args.expert_plans != EXPERT.n_plans else ''}"
+        f"{f', rollouts end after {args.stall_steps} steps without progress' if args.stall_steps else ''}, "
         f"seeds {', '.join(map(str, jobs))}"
     )
     print(f"wrote {args.results} and {_plot(results, args.figure, title)}")

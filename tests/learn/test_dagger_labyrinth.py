@@ -19,6 +19,7 @@ from bimgame.expert.labyrinth_mpc import LabyrinthMPCConfig
 from bimgame.expert.mpc import MPCConfig
 from bimgame.learn import runs
 from bimgame.learn.dagger import DAggerConfig, collect_episodes, dagger
+from bimgame.learn.dagger.rollouts import STALL_PROGRESS_M
 from bimgame.learn.supervised import PretrainConfig
 
 TASK = "LABYRINTH-EASY"
@@ -87,6 +88,40 @@ def test_discrete_labyrinth_dagger_labels_discrete_actions():
         assert set(np.unique(episode.actions)) <= set(range(5))
 
 
+def test_a_rollout_that_stops_progressing_for_stall_steps_ends_there():
+    """An untrained learner (β = 0) mostly holds the marble near its start: with ``stall_steps`` 8 its
+    rollouts end after 8 steps without passing their best progress by 1 mm (read from the rewards:
+    1.25 per metre of progress), where without it they run to the time limit or fall."""
+    config = _config(max_episode_steps=200, episodes_per_iteration=4, stall_steps=8)
+    net = config.learner.build_policy(0, LabyrinthEnv("easy").board)
+    episodes, costs = collect_episodes(net, config, beta=0.0, seed=2)
+    free, free_costs = collect_episodes(net, _config(max_episode_steps=200, episodes_per_iteration=4), 0.0, seed=2)
+    assert free_costs["stalled"] == 0 and costs["stalled"] >= 2
+    ended = 0
+    for cut, whole in zip(episodes, free, strict=True):
+        np.testing.assert_array_equal(cut.actions, whole.actions[: len(cut)])  # the same rollout, cut short
+        progress = np.concatenate([[0.0], np.cumsum(cut.rewards) / 1.25])  # from the start, m
+        running_best = np.maximum.accumulate(progress)
+        if len(cut) < len(whole):  # ended by the limit (a fall ends both at the same step)
+            ended += 1
+            assert len(cut) >= 8
+            # No step of the last 8 passed the best before them by the threshold; the one before did.
+            assert progress[-8:].max() < running_best[-9] + STALL_PROGRESS_M + 1e-12
+        else:
+            assert len(cut) == len(whole)
+    assert ended == costs["stalled"]
+
+
+def test_stall_steps_changes_nothing_while_the_expert_progresses():
+    """β = 1: the expert moves the marble along the path, so a 40-step stall limit never ends a rollout."""
+    net = _config().learner.build_policy(0, LabyrinthEnv("easy").board)
+    with_limit, costs = collect_episodes(net, _config(max_episode_steps=60, stall_steps=40), beta=1.0, seed=4)
+    without, _ = collect_episodes(net, _config(max_episode_steps=60), beta=1.0, seed=4)
+    assert costs["stalled"] == 0
+    for a, b in zip(with_limit, without, strict=True):
+        np.testing.assert_array_equal(a.actions, b.actions)
+
+
 def test_demonstrations_start_the_aggregated_dataset(lab_data, tmp_path):
     config = _config(expert_data=str(lab_data), beta0=0.0)
     result = dagger(config, tmp_path / "run", progress=False)
@@ -119,14 +154,21 @@ def test_what_does_not_fit_is_refused_by_name(lab_data, tmp_path):
     with pytest.raises(ValueError, match="holds LABYRINTH-EASY episodes, which cannot teach LABYRINTH-HARD"):
         dagger(hard, tmp_path / "b", progress=False)
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+    with pytest.raises(ValueError, match="DAggerConfig.stall_steps must be"):
+        _config(stall_steps=0)
+    with pytest.raises(ValueError, match="stall_steps: ending rollouts that stop progressing .* not STG1's"):
+        DAggerConfig(learner=PretrainConfig(task="STG1", obs="state"), stall_steps=50)
 
 
 def test_cli_dagger_on_the_labyrinth_takes_the_datasets_action_type(lab_data, tmp_path):
     run_dir = tmp_path / "run"
     assert main(["dagger", "--run-dir", str(run_dir), "--task", TASK, "--obs", "state", "--expert-data",
                  str(lab_data), "--iterations", "1", "--episodes-per-iteration", "2", "--epochs-per-iteration", "1",
-                 "--max-episode-steps", "20", "--eval-episodes", "0", "--no-progress"]) == 0
+                 "--max-episode-steps", "20", "--stall-steps", "5", "--eval-episodes", "0", "--no-progress"]) == 0
     stored = DAggerConfig.from_dict(json.loads((run_dir / "config.json").read_text())["dagger"])
+    assert stored.stall_steps == 5
+    with open(run_dir / "dagger.csv", newline="") as handle:
+        assert 0 <= int(next(csv.DictReader(handle))["rollouts_stalled"]) <= 2
     assert (stored.learner.task, stored.learner.action_type, stored.learner.hidden) == (TASK, "continuous", 128)
     assert stored.expert == LabyrinthMPCConfig() and stored.expert_data == str(lab_data)
     weights = torch.load(run_dir / "checkpoint.pt", weights_only=True)["model"]

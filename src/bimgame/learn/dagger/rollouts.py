@@ -27,7 +27,12 @@ from bimgame.learn.dagger.settings import DAggerConfig
 from bimgame.learn.dagger.starts import draw_demo_starts
 from bimgame.learn.nets import RecurrentActorCritic
 
-__all__ = ["collect_episodes", "make_expert", "expert_label"]
+__all__ = ["STALL_PROGRESS_M", "collect_episodes", "make_expert", "expert_label"]
+
+#: With ``DAggerConfig.stall_steps``, a labyrinth rollout progresses when it passes its best progress
+#: along the path by this much (m): a marble held still jitters by far less, one rolling on at a
+#: crawl (1 cm/s) passes it within 6 steps at 55 Hz.
+STALL_PROGRESS_M = 1e-3
 
 
 @dataclasses.dataclass
@@ -88,7 +93,11 @@ class _Rollouts:
     infos: list[dict[str, Any]]
     records: list[_Record]
     active: np.ndarray
+    stall_steps: int | None = None
     successes: int = 0
+    stalled: int = 0
+    best_progress: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
+    since_best: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
     @classmethod
     def start(
@@ -97,10 +106,13 @@ class _Rollouts:
         make_expert: Callable[[int, BallInMazeEnv | LabyrinthEnv], Expert],
         env_seed: int,
         start_states: list[np.ndarray | None],
+        stall_steps: int | None = None,
     ) -> _Rollouts:
         """Reset every environment (the ``i``-th with seed ``env_seed + i``, in the physics state
         ``start_states[i]`` if not None), then make its expert (``make_expert(i, env)``): after the
-        reset, so that on random mazes it plans on the episode's maze."""
+        reset, so that on random mazes it plans on the episode's maze. ``stall_steps``: end a
+        labyrinth rollout whose progress has not passed its best by :data:`STALL_PROGRESS_M` for
+        that many steps."""
         observations, infos, experts = [], [], []
         for i, (env, start) in enumerate(zip(envs, start_states, strict=True)):
             options = None if start is None else {"sim_state": start}
@@ -112,7 +124,18 @@ class _Rollouts:
             observations.append(obs)
             infos.append(info)
         records = [_Record() for _ in envs]
-        return cls(envs, experts, observations, infos, records, np.ones(len(envs), dtype=bool))
+        best = np.array([float(info.get("progress", 0.0)) for info in infos])
+        return cls(
+            envs,
+            experts,
+            observations,
+            infos,
+            records,
+            np.ones(len(envs), dtype=bool),
+            stall_steps,
+            best_progress=best,
+            since_best=np.zeros(len(envs), dtype=np.int64),
+        )
 
     def step(self, actor: RecurrentActor, mix: np.random.Generator, beta: float, max_tilt: float) -> None:
         """One step of every running rollout: the expert labels the state, and the expert's action
@@ -134,7 +157,7 @@ class _Rollouts:
 
     def _step_one(self, i: int, label: Any, action: Any) -> tuple[float, bool]:
         """Record rollout ``i``'s step (``label``: the expert's action; ``action``: the one executed)
-        and take it; returns its reward and whether the episode ended."""
+        and take it; returns its reward and whether the rollout ended (terminated or stalled)."""
         record = self.records[i]
         record.obs.append(self.observations[i])
         record.tilt.append(self.infos[i]["tilt"])
@@ -146,7 +169,21 @@ class _Rollouts:
         if terminated:
             self.active[i] = False
             self.successes += int(info["is_success"])
-        return reward, bool(terminated)
+        elif self._stalls(i, info):
+            self.active[i] = False
+            self.stalled += 1
+        return reward, not self.active[i]
+
+    def _stalls(self, i: int, info: dict[str, Any]) -> bool:
+        """Whether rollout ``i`` has now gone ``stall_steps`` steps without passing its best progress
+        by :data:`STALL_PROGRESS_M` (never without ``stall_steps``)."""
+        if self.stall_steps is None:
+            return False
+        if info["progress"] >= self.best_progress[i] + STALL_PROGRESS_M:
+            self.best_progress[i], self.since_best[i] = info["progress"], 0
+            return False
+        self.since_best[i] += 1
+        return bool(self.since_best[i] >= self.stall_steps)
 
     def close(self) -> None:
         """Close every environment and expert."""
@@ -171,7 +208,7 @@ def collect_episodes(
     uniformly, :mod:`bimgame.learn.dagger.starts`); the others start at the task's start. Returns the episodes (as
     :class:`~bimgame.expert.episode.Episode` records, ``actions`` being the expert's labels and
     ``executed`` what was done) and the costs: ``env_steps``, ``labels``, ``expert_sim_steps``,
-    ``successes``."""
+    ``successes`` and ``stalled`` (rollouts ended by ``config.stall_steps``)."""
     learner = config.learner
     sequence = np.random.SeedSequence([seed])
     env_seed, torch_seed, mix_seed, *expert_seeds = sequence.generate_state(3 + config.episodes_per_iteration)
@@ -189,7 +226,7 @@ def collect_episodes(
 
     # A child of the seed draws the starts, leaving the seeds above as they were without them.
     starts = draw_demo_starts(demo_states, config.demo_start_share, count, np.random.default_rng(sequence.spawn(1)[0]))
-    rollouts = _Rollouts.start(envs, expert_of, int(env_seed), starts)
+    rollouts = _Rollouts.start(envs, expert_of, int(env_seed), starts, config.stall_steps)
     steps = 0
     try:
         while rollouts.active.any() and steps < config.time_limit:
@@ -203,6 +240,7 @@ def collect_episodes(
         "env_steps": labels,
         "labels": labels,
         "successes": rollouts.successes,
+        "stalled": rollouts.stalled,
         "expert_sim_steps": labels * config.planner.sim_steps_per_decision,
     }
     return episodes, costs

@@ -73,6 +73,12 @@ class DAggerConfig:
     learner's own states along the whole path, not only as far as its runs from the start get."""
     max_episode_steps: int | None = None
     """Time limit of the rollouts; None: the task's."""
+    stall_steps: int | None = None
+    """On the labyrinth, end a rollout once its progress along the path has not passed its best by
+    :data:`~bimgame.learn.dagger.rollouts.STALL_PROGRESS_M` for this many steps (None: run to the time
+    limit). A learner that has learned to hold the marble still otherwise has the expert label the
+    same few states up to the time limit: on the hard layout a whole iteration of 10 rollouts ×
+    2,000 steps, 4× the labels of an iteration whose rollouts fall, for states it already has."""
     eval_episodes: int = 20
     """Greedy and sampled evaluation episodes after every iteration (0: none)."""
     num_mazes: int | None = None
@@ -114,6 +120,12 @@ class DAggerConfig:
             if not (isinstance(value, (int, float)) and 0.0 <= value <= 1.0):
                 raise ValueError(f"DAggerConfig.{name} must be in [0, 1], got {value!r}")
         self._check_demo_starts(maze)
+        require_int("DAggerConfig", "stall_steps", self.stall_steps, 1, optional=True)
+        if self.stall_steps is not None and maze:
+            raise ValueError(
+                "DAggerConfig.stall_steps: ending rollouts that stop progressing along the path is the "
+                f"labyrinth's (tasks LABYRINTH-EASY/-MEDIUM/-HARD), not {self.learner.task}'s; leave it unset"
+            )
         require_int("DAggerConfig", "eval_episodes", self.eval_episodes, 0)
         require_int("DAggerConfig", "max_episode_steps", self.max_episode_steps, 1, optional=True)
         for name, (largest, unit) in _LARGEST.items():
@@ -153,6 +165,29 @@ class DAggerConfig:
 
     #: What a resumed run may change.
     RESUMABLE_CHANGES = ("iterations", "eval_episodes")
+    #: What a resumed run keeps.
+    FIXED_ON_RESUME = (
+        "learner",
+        "episodes_per_iteration",
+        "beta0",
+        "beta_decay",
+        "epochs_per_iteration",
+        "expert",
+        "expert_data",
+        "demo_start_share",
+        "max_episode_steps",
+        "stall_steps",
+    )
+
+    def require_resumable_from(self, stored: DAggerConfig) -> None:
+        """Refuse to resume a run stored with ``stored`` under these settings if they differ in more
+        than :attr:`RESUMABLE_CHANGES`, naming the changed settings."""
+        changed = [name for name in self.FIXED_ON_RESUME if getattr(stored, name) != getattr(self, name)]
+        if changed:
+            raise ValueError(
+                f"--resume must keep the run's settings; changed: {', '.join(changed)}. "
+                f"Allowed to change: {', '.join(self.RESUMABLE_CHANGES)}"
+            )
 
     @property
     def planner(self) -> MPCConfig | LabyrinthMPCConfig:

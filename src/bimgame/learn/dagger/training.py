@@ -90,6 +90,8 @@ _TABLE = [
     *EVAL_COLUMNS,
     "seconds",
 ]
+#: The columns of a run with ``stall_steps``: also how many rollouts it ended.
+_STALL_TABLE = [*_TABLE[:9], "rollouts_stalled", *_TABLE[9:]]
 
 
 def _save_episodes(path: Path, episodes: list[Episode]) -> None:
@@ -202,7 +204,7 @@ def _resume_state(run_dir: Path, config: DAggerConfig, net: RecurrentActorCritic
     The checkpoint is the commit point: it holds the weights and the counts of the last finished
     iteration (``dagger_state.json`` is a copy for readers, rewritten here if a kill left it behind).
     ``run_dir`` is checked to hold a DAgger run with its checkpoint."""
-    _require_same_settings(read_run_settings(run_dir, "dagger", DAggerConfig.from_dict), config)
+    config.require_resumable_from(read_run_settings(run_dir, "dagger", DAggerConfig.from_dict))
     payload = load_checkpoint(run_dir / CHECKPOINT)
     path = run_dir / STATE
     copy = files.read_json(path)
@@ -216,31 +218,6 @@ def _resume_state(run_dir: Path, config: DAggerConfig, net: RecurrentActorCritic
     if copy != state:
         write_run_json(path, state)
     return state
-
-
-#: The settings a resumed run keeps (the others: :attr:`DAggerConfig.RESUMABLE_CHANGES`).
-_FIXED_ON_RESUME = (
-    "learner",
-    "episodes_per_iteration",
-    "beta0",
-    "beta_decay",
-    "epochs_per_iteration",
-    "expert",
-    "expert_data",
-    "demo_start_share",
-    "max_episode_steps",
-)
-
-
-def _require_same_settings(stored: DAggerConfig, config: DAggerConfig) -> None:
-    """Refuse to resume a run stored with ``stored`` under ``config`` if they differ in more than
-    :attr:`DAggerConfig.RESUMABLE_CHANGES`."""
-    changed = [name for name in _FIXED_ON_RESUME if getattr(stored, name) != getattr(config, name)]
-    if changed:
-        raise ValueError(
-            f"--resume must keep the run's settings; changed: {', '.join(changed)}. "
-            f"Allowed to change: {', '.join(DAggerConfig.RESUMABLE_CHANGES)}"
-        )
 
 
 def _counts(source: dict[str, Any]) -> dict[str, Any]:
@@ -320,7 +297,9 @@ def _iterations(
         dataset += _load_episodes(_data_path(run_dir, i))
     # The row at the checkpoint's step is the last finished iteration's (written before it): kept.
     log = run.metric_log(
-        {"dagger": _TABLE}, resume_step=state["env_steps"] if resume else None, keep_at_resume_step=("dagger",)
+        {"dagger": _TABLE if config.stall_steps is None else _STALL_TABLE},
+        resume_step=state["env_steps"] if resume else None,
+        keep_at_resume_step=("dagger",),
     )
     started = time.monotonic() - state.get("seconds", 0.0)
     final_eval = None
@@ -478,6 +457,7 @@ def _log_row(
         "train_loss": outcome.summary["loss"],
         "train_accuracy": outcome.summary["accuracy"],
         "rollout_success_rate": outcome.costs["successes"] / config.episodes_per_iteration,
+        **({} if config.stall_steps is None else {"rollouts_stalled": outcome.costs["stalled"]}),
         "seconds": done["seconds"],
         **(outcome.evaluation or {}),
     }
