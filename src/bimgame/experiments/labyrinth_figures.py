@@ -9,7 +9,7 @@ end there. An episode's spot is the path's point at its progress reached
 (:meth:`~bimgame.sim.labyrinth.WaypointPath.point_at`): where the marble last made progress before
 it fell (into a hole or off the path), stopped at the time limit or reached the goal — not the hole
 it fell into, which the summary does not hold. Episodes that end within :data:`CLUSTER_M` of path of
-each other, the same way, share one marker whose size and label count them.
+each other, the same way, share one marker whose size (capped) and label count them.
 """
 
 from __future__ import annotations
@@ -81,7 +81,8 @@ def _draw_board(ax: Any, spec: LabyrinthSpec, clusters: list[tuple[str, float, i
     for how, arc, count in clusters:
         _, colour, marker = END_STYLES[how]
         (x, y), _ = path.point_at(arc)
-        ax.scatter(1e3 * x, 1e3 * y, s=40 + 25 * count, c=colour, marker=marker, edgecolors="white", zorder=3)
+        size = min(40 + 15 * count, 200)  # capped: a large cluster must not hide the hole beside it
+        ax.scatter(1e3 * x, 1e3 * y, s=size, c=colour, marker=marker, edgecolors="white", alpha=0.9, zorder=3)
         if count > 1:
             ax.annotate(str(count), (1e3 * x, 1e3 * y), xytext=(6, 6), textcoords="offset points", fontsize=8,
                         color=colour, fontweight="bold", zorder=4)  # fmt: skip
