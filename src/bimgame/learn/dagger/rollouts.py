@@ -30,7 +30,7 @@ from bimgame.learn.nets import RecurrentActorCritic
 __all__ = ["STALL_PROGRESS_M", "collect_episodes", "make_expert", "expert_label"]
 
 #: With ``DAggerConfig.stall_steps``, a labyrinth rollout progresses when it passes its best progress
-#: along the path by this much (m): a marble held still jitters by far less, one rolling on at a
+#: along the path by this much (m, a twelfth of the marble's diameter): a marble rolling on at a
 #: crawl (1 cm/s) passes it within 6 steps at 55 Hz.
 STALL_PROGRESS_M = 1e-3
 

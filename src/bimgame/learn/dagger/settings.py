@@ -77,8 +77,8 @@ class DAggerConfig:
     """On the labyrinth, end a rollout once its progress along the path has not passed its best by
     :data:`~bimgame.learn.dagger.rollouts.STALL_PROGRESS_M` for this many steps (None: run to the time
     limit). A learner that has learned to hold the marble still otherwise has the expert label the
-    same few states up to the time limit: on the hard layout a whole iteration of 10 rollouts ×
-    2,000 steps, 4× the labels of an iteration whose rollouts fall, for states it already has."""
+    same few states up to the time limit: on the hard layout one such iteration of 10 rollouts took
+    18,049 labels (67 min of planning), against 0.9–3.7k for each iteration before it."""
     eval_episodes: int = 20
     """Greedy and sampled evaluation episodes after every iteration (0: none)."""
     num_mazes: int | None = None

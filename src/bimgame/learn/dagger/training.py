@@ -91,7 +91,8 @@ _TABLE = [
     "seconds",
 ]
 #: The columns of a run with ``stall_steps``: also how many rollouts it ended.
-_STALL_TABLE = [*_TABLE[:9], "rollouts_stalled", *_TABLE[9:]]
+_AFTER = _TABLE.index("rollout_success_rate") + 1
+_STALL_TABLE = [*_TABLE[:_AFTER], "rollouts_stalled", *_TABLE[_AFTER:]]
 
 
 def _save_episodes(path: Path, episodes: list[Episode]) -> None:
