@@ -91,8 +91,6 @@ def _draw_board(ax: Any, spec: LabyrinthSpec, clusters: list[tuple[str, float, i
 
 
 def _draw_histogram(ax: Any, fractions: np.ndarray, ended: list[str]) -> None:
-    from matplotlib.ticker import MaxNLocator  # lazily, as matplotlib itself (bimgame.util.images)
-
     bins = np.linspace(0.0, 100.0, 51)
     stacks = [100 * fractions[[e == how for e in ended]] for how in END_STYLES]
     ax.hist(
@@ -102,7 +100,7 @@ def _draw_histogram(ax: Any, fractions: np.ndarray, ended: list[str]) -> None:
         color=[style[1] for style in END_STYLES.values()],
         label=[style[0] for style in END_STYLES.values()],
     )
-    ax.yaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.locator_params(axis="y", integer=True)  # episode counts
     ax.set_xlim(0, 100)
     ax.set_xlabel("progress reached (% of the path)")
     ax.set_ylabel("episodes")
