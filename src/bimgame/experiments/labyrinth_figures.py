@@ -60,7 +60,11 @@ def _summary_fields(summary: Mapping[str, Any]) -> tuple[LabyrinthSpec, np.ndarr
 def end_clusters(summary: Mapping[str, Any]) -> list[tuple[str, float, int]]:
     """The summary's episode ends grouped: ``(ending, arc length (m), episodes)``, one per ending and
     :data:`CLUSTER_M` of path, at the mean arc length of its episodes; most episodes first."""
-    spec, fractions, ended = _summary_fields(summary)
+    return _clusters(*_summary_fields(summary))
+
+
+def _clusters(spec: LabyrinthSpec, fractions: np.ndarray, ended: list[str]) -> list[tuple[str, float, int]]:
+    """:func:`end_clusters` of the summary's checked fields."""
     arcs = fractions * spec.path.length
     groups: dict[tuple[str, int], list[float]] = {}
     for how, arc in zip(ended, arcs, strict=True):
@@ -112,7 +116,7 @@ def plot_episode_ends(summary: Mapping[str, Any], path: str | Path, *, title: st
     returns the path. ``ValueError`` if ``summary`` is not a labyrinth score summary."""
     spec, fractions, ended = _summary_fields(summary)
     fig, (board, histogram) = subplots(1, 2, figsize=(12, 4.8), gridspec_kw={"width_ratios": [1.3, 1]})
-    _draw_board(board, spec, end_clusters(summary))
+    _draw_board(board, spec, _clusters(spec, fractions, ended))  # the summary read and checked once
     _draw_histogram(histogram, fractions, ended)
     counts = Counter(ended)
     default = (
