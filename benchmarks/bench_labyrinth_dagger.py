@@ -23,7 +23,8 @@ docs/labyrinth/dagger.png): the in-run evaluation's success and the mean path pr
 Usage: python benchmarks/bench_labyrinth_dagger.py --expert-data DATA --init PI_S [--layout easy]
        [--obs state|cyberrunner|pixels] [--action-type continuous|discrete] [--surroundings]
        [--motion] [--seeds 3] [--iterations 8] [--episodes-per-iteration 10] [--beta0 0.5] [--beta-decay 0.7]
-       [--epochs-per-iteration 5] [--max-episode-steps 1500] [--demo-start-share 0] [--expert-samples 16]
+       [--epochs-per-iteration 5] [--max-episode-steps 1500] [--demo-start-share 0]
+       [--demo-start-window 0 1] [--expert-samples 16]
        [--expert-plans 1] [--stall-steps N]
        [--jobs 3] [--episodes 100]
 """
@@ -74,12 +75,19 @@ def _config(args: argparse.Namespace, seed: int) -> DAggerConfig:
         beta0=args.beta0,
         beta_decay=args.beta_decay,
         demo_start_share=args.demo_start_share,
+        demo_start_window=tuple(args.demo_start_window),
         expert=LabyrinthMPCConfig(n_samples=args.expert_samples, n_plans=args.expert_plans),
         epochs_per_iteration=args.epochs_per_iteration,
         max_episode_steps=args.max_episode_steps,
         stall_steps=args.stall_steps,
         eval_episodes=args.eval_episodes,
     )
+
+
+def _window(args: argparse.Namespace) -> str:
+    """" at 20–32% of the path" for a demonstration-start window narrower than the whole path."""
+    low, high = args.demo_start_window
+    return "" if (low, high) == (0.0, 1.0) else f" at {low:.0%}–{high:.0%} of the path"
 
 
 def _job(run_dir: Path, seed: int, args: argparse.Namespace) -> tuple[float, dict[str, Any], dict[str, Any]]:
@@ -153,6 +161,15 @@ def main(argv: list[str] | None = None) -> int:
         type=float,
         default=0.0,
         help="share of each iteration's rollouts started in the expert's states along the path (default 0)",
+    )
+    parser.add_argument(
+        "--demo-start-window",
+        type=float,
+        nargs=2,
+        default=(0.0, 1.0),
+        metavar=("FROM", "TO"),
+        help="the part of the path (fractions of its length) whose expert states those rollouts start from "
+        "(default 0 1: all of it)",
     )
     parser.add_argument(
         "--expert-samples",
@@ -241,7 +258,7 @@ def main(argv: list[str] | None = None) -> int:
         f"DAgger on the {args.layout} labyrinth ({args.obs}{' + surroundings' if args.surroundings else ''}"
         f"{' + motion' if args.motion else ''}, {args.action_type}){', from π^s' if args.init else ''}: "
         f"{args.iterations} iterations × {args.episodes_per_iteration} rollouts"
-        f"{f' ({args.demo_start_share:.0%} from the expert states)' if args.demo_start_share else ''}"
+        f"{f' ({args.demo_start_share:.0%} from the expert states{_window(args)})' if args.demo_start_share else ''}"
         f"{f', expert K = {args.expert_samples}' if args.expert_samples != EXPERT.n_samples else ''}"
         f"{f', labels the mean of {args.expert_plans} plans' if args.expert_plans != EXPERT.n_plans else ''}"
         f"{f', rollouts end after {args.stall_steps} steps without progress' if args.stall_steps else ''}, "

@@ -17,6 +17,7 @@ from bimgame.expert.labyrinth_mpc import LabyrinthMPCConfig
 from bimgame.learn import runs
 from bimgame.learn.dagger import DAggerConfig, collect_episodes, dagger
 from bimgame.learn.dagger.starts import demo_start_states, draw_demo_starts
+from bimgame.learn.path_starts import DemoPathStarts
 from bimgame.learn.supervised import PretrainConfig
 
 TASK = "LABYRINTH-EASY"
@@ -72,6 +73,37 @@ def test_rollouts_start_in_the_experts_states_and_the_others_as_without_them(eas
     np.testing.assert_array_equal(again[0].obs[0], started[0].obs[0])  # seeded
 
 
+def _fractions(data) -> np.ndarray:
+    """The progress (fraction of the path) of every expert state a demonstration start may use."""
+    starts = DemoPathStarts.from_dataset(data, TASK)
+    return np.sort((starts.spec.path.length - starts.back_of) / starts.spec.path.length)
+
+
+def test_a_window_starts_the_rollouts_only_within_that_part_of_the_path(easy_expert_episode):
+    config = _config(easy_expert_episode, demo_start_share=1.0, demo_start_window=[0.3, 0.5])
+    assert config.demo_start_window == (0.3, 0.5)  # a list (from JSON or argparse) is kept as a tuple
+    states = demo_start_states(config)
+    fractions = _fractions(easy_expert_episode)
+    inside = ((fractions >= 0.3) & (fractions <= 0.5)).sum()
+    assert states is not None and len(states) == inside and 0 < inside < len(fractions) / 2
+    net = LEARNER.build_policy(0, LabyrinthEnv("easy").board)
+    started, _ = collect_episodes(net, config, beta=0.0, seed=5, demo_states=states)
+    begun = [float(episode.obs[0, 6]) for episode in started]  # the state observation's progress fraction
+    assert all(0.3 - 1e-6 <= b <= 0.5 + 1e-6 for b in begun), begun
+    whole, _ = collect_episodes(net, _config(easy_expert_episode, demo_start_share=1.0, episodes_per_iteration=12),
+                                beta=0.0, seed=5, demo_states=demo_start_states(_config(easy_expert_episode)))
+    assert any(not 0.3 <= float(episode.obs[0, 6]) <= 0.5 for episode in whole)  # without it: anywhere
+
+
+def test_a_window_that_holds_no_expert_state_is_refused_by_name(easy_expert_episode):
+    fractions = _fractions(easy_expert_episode)
+    gap = int(np.argmax(np.diff(fractions)))  # the widest stretch of path between two expert states
+    low, high = fractions[gap], fractions[gap + 1]
+    window = (low + (high - low) / 3, high - (high - low) / 3)
+    with pytest.raises(ValueError, match=r"demo_start_window .*: none of the \d+ expert states .* widen the window"):
+        demo_start_states(_config(easy_expert_episode, demo_start_window=window))
+
+
 def test_a_run_stores_the_share_and_the_command_line_takes_it(easy_expert_episode, tmp_path):
     result = dagger(_config(easy_expert_episode, episodes_per_iteration=2), tmp_path / "run", progress=False)
     assert result.iterations == 1
@@ -82,12 +114,27 @@ def test_a_run_stores_the_share_and_the_command_line_takes_it(easy_expert_episod
                  "--iterations", "1", "--episodes-per-iteration", "2", "--epochs-per-iteration", "1",
                  "--max-episode-steps", "5", "--eval-episodes", "0", "--no-progress"]) == 0
     stored = json.loads((tmp_path / "cli" / "config.json").read_text())["dagger"]
-    assert stored["demo_start_share"] == 0.5
+    assert stored["demo_start_share"] == 0.5 and stored["demo_start_window"] == [0.0, 1.0]
+    assert main(["dagger", "--run-dir", str(tmp_path / "window"), "--task", TASK, "--obs", "state", "--expert-data",
+                 str(easy_expert_episode), "--demo-start-share", "1", "--demo-start-window", "0.2", "0.6",
+                 "--hidden", "16", "--features", "16", "--iterations", "1", "--episodes-per-iteration", "2",
+                 "--epochs-per-iteration", "1", "--max-episode-steps", "5", "--eval-episodes", "0",
+                 "--no-progress"]) == 0
+    stored = DAggerConfig.from_dict(json.loads((tmp_path / "window" / "config.json").read_text())["dagger"])
+    assert stored.demo_start_window == (0.2, 0.6)
+    stored.require_resumable_from(stored)  # read back from JSON it is the same setting
+    with pytest.raises(ValueError, match="changed: demo_start_window"):
+        dataclasses.replace(stored, demo_start_window=(0.2, 0.7)).require_resumable_from(stored)
 
 
 def test_what_cannot_start_from_the_experts_states_is_refused(easy_expert_episode, tmp_path):
     with pytest.raises(ValueError, match=r"demo_start_share must be a number in \[0, 1\], got 1.5"):
         _config(easy_expert_episode, demo_start_share=1.5)
+    for window in ((0.5, 0.5), (0.6, 0.2), (-0.1, 0.5), (0.0, 1.5), (0.2,), (0.1, 0.2, 0.3), ("a", "b")):
+        with pytest.raises(ValueError, match=r"demo_start_window must be two fractions .* 0 <= from < to <= 1"):
+            _config(easy_expert_episode, demo_start_window=window)
+    with pytest.raises(ValueError, match="with demo_start_share 0 no rollout does: set --demo-start-share"):
+        _config(easy_expert_episode, demo_start_share=0.0, demo_start_window=(0.2, 0.3))
     with pytest.raises(ValueError, match="demo_start_share needs expert_data"):
         _config(easy_expert_episode, expert_data=None)
     with pytest.raises(ValueError, match="the labyrinth's .* not STG1's; set it to 0"):

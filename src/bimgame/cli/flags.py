@@ -53,6 +53,7 @@ __all__ = [
     "given_settings",
     "plain",
     "FIELD_CHOICES",
+    "FIELD_METAVARS",
     "TWO_WAY_SWITCHES",
     "OTHER_SETTINGS",
 ]
@@ -75,6 +76,8 @@ FIELD_CHOICES: dict[str, tuple[str, ...]] = {
     "device": DEVICES,
     "randomize": tuple(RANDOMIZATION_PRESETS),
 }
+#: The names shown for the values of settings that take a fixed number of them.
+FIELD_METAVARS: dict[str, tuple[str, ...]] = {"demo_start_window": ("FROM", "TO")}
 #: Switches that get both ``--x`` and ``--no-x``: those a fine-tuning preset sets (``--init`` turns
 #: them on unless told otherwise) and those of privileged learning, ``aux_heads`` (on for pixels,
 #: off for state) and ``asymmetric_critic`` (which the experiments turn on and off). Any other
@@ -249,8 +252,12 @@ def _value_options(
     options: dict[str, Any] = {}
     kind = field.kind
     if typing.get_origin(kind) is tuple:
-        options.update(nargs="+", metavar=field.name.rstrip("s").upper())
-        kind = typing.get_args(kind)[0]
+        members = typing.get_args(kind)
+        if Ellipsis in members:
+            options.update(nargs="+", metavar=field.name.rstrip("s").upper())
+        else:
+            options.update(nargs=len(members), metavar=FIELD_METAVARS.get(field.name, None))
+        kind = members[0]
     if field.name in choices:
         options["choices"] = choices[field.name]
         options["type"] = str.upper if field.name in _UPPER else str

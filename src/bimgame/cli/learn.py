@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from bimgame.cli.argtypes import episode_count, episode_count_or_zero, seed
+from bimgame.cli.argtypes import episode_count, episode_count_or_zero, non_negative_float, seed
 from bimgame.cli.expert import (
     LABYRINTH_ONLY_MPC_FLAGS,
     MPC_FLAGS,
@@ -98,6 +98,7 @@ DAGGER_FLAGS = (
     "beta0",
     "beta_decay",
     "demo_start_share",
+    "demo_start_window",
     "epochs_per_iteration",
     "max_episode_steps",
     "stall_steps",
@@ -153,6 +154,7 @@ DAGGER_PLACEMENT: dict[str, tuple[str, ...]] = {
         "beta0",
         "beta_decay",
         "demo_start_share",
+        "demo_start_window",
         "epochs_per_iteration",
         "max_episode_steps",
         "stall_steps",
@@ -270,7 +272,7 @@ def add_dagger_arguments(parser: argparse.ArgumentParser) -> None:
         DAggerConfig,
         [n for n in DAGGER_FLAGS if n not in resumable],
         DAGGER_PLACEMENT,
-        types={"episodes_per_iteration": episode_count},
+        types={"episodes_per_iteration": episode_count, "demo_start_window": non_negative_float},
     )
     add_grouped_settings_flags(
         parser,

@@ -71,6 +71,12 @@ class DAggerConfig:
     expert's successful episodes in ``expert_data`` (drawn uniformly over all their states,
     :mod:`bimgame.learn.dagger.starts`) instead of at the layout's start: the expert then labels the
     learner's own states along the whole path, not only as far as its runs from the start get."""
+    demo_start_window: tuple[float, float] = (0.0, 1.0)
+    """The part of the path, from and to as fractions of its length, whose expert states the
+    ``demo_start_share`` rollouts start from (default: the whole path). A window just before where the
+    learner loses the marble has the expert label the learner's own states there: on the hard layout
+    the best policies lose it at a few passages beside holes (22–24% and 30% of the path), which
+    rollouts from the layout's start reach only as often as the learner gets that far."""
     max_episode_steps: int | None = None
     """Time limit of the rollouts; None: the task's."""
     stall_steps: int | None = None
@@ -139,6 +145,23 @@ class DAggerConfig:
         share = self.demo_start_share
         if not (is_real(share) and 0.0 <= share <= 1.0):
             raise ValueError(f"DAggerConfig.demo_start_share must be a number in [0, 1], got {share!r}")
+        window = self.demo_start_window
+        if not (
+            isinstance(window, (tuple, list))
+            and len(window) == 2
+            and all(is_real(end) for end in window)
+            and 0.0 <= window[0] < window[1] <= 1.0
+        ):
+            raise ValueError(
+                "DAggerConfig.demo_start_window must be two fractions of the path's length, from and to, "
+                f"with 0 <= from < to <= 1 (e.g. 0.2 0.32), got {window!r}"
+            )
+        object.__setattr__(self, "demo_start_window", (float(window[0]), float(window[1])))
+        if not share and self.demo_start_window != (0.0, 1.0):
+            raise ValueError(
+                "DAggerConfig.demo_start_window chooses where the demo_start_share rollouts start; with "
+                "demo_start_share 0 no rollout does: set --demo-start-share too, or leave the window unset"
+            )
         if share and maze:
             raise ValueError(
                 "DAggerConfig.demo_start_share: starts from the expert's states are the labyrinth's "
@@ -175,6 +198,7 @@ class DAggerConfig:
         "expert",
         "expert_data",
         "demo_start_share",
+        "demo_start_window",
         "max_episode_steps",
         "stall_steps",
     )

@@ -9,6 +9,8 @@ episodes of ``expert_data``: the marble in motion, the board tilted) lets the ex
 learner does everywhere on the path. The states are those of
 :class:`~bimgame.learn.path_starts.DemoPathStarts` (the states the env's progress rule places where
 the expert's run was), drawn uniformly, with no stages: DAgger needs coverage, not a curriculum.
+``demo_start_window`` keeps only the states whose progress lies in a part of the path: coverage where
+the learner fails.
 """
 
 from __future__ import annotations
@@ -23,11 +25,23 @@ __all__ = ["demo_start_states", "draw_demo_starts"]
 
 def demo_start_states(config: DAggerConfig) -> np.ndarray | None:
     """The physics states (K, S) DAgger's rollouts may start from: those of the successful episodes
-    of ``config.expert_data`` (verified, of the run's task); None when ``demo_start_share`` is 0."""
+    of ``config.expert_data`` (verified, of the run's task) whose progress lies within
+    ``config.demo_start_window``; None when ``demo_start_share`` is 0."""
     if not config.demo_start_share:
         return None
     assert config.expert_data is not None  # DAggerConfig refuses a share without it
-    return DemoPathStarts.from_dataset(config.expert_data, config.learner.task).states
+    starts = DemoPathStarts.from_dataset(config.expert_data, config.learner.task)
+    length = starts.spec.path.length
+    fractions = (length - starts.back_of) / length
+    low, high = config.demo_start_window
+    inside = (fractions >= low) & (fractions <= high)
+    if not inside.any():
+        raise ValueError(
+            f"demo_start_window {low:g}–{high:g}: none of the {len(fractions)} expert states in "
+            f"{config.expert_data} lies there (their progress spans {fractions.min():.1%}–{fractions.max():.1%} "
+            "of the path); widen the window"
+        )
+    return starts.states[inside]
 
 
 def draw_demo_starts(
