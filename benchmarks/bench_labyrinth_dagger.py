@@ -85,7 +85,7 @@ def _config(args: argparse.Namespace, seed: int) -> DAggerConfig:
 
 
 def _window(args: argparse.Namespace) -> str:
-    """" at 20–32% of the path" for a demonstration-start window narrower than the whole path."""
+    """The title's " at 20–32% of the path" for a demonstration-start window narrower than the whole path."""
     low, high = args.demo_start_window
     return "" if (low, high) == (0.0, 1.0) else f" at {low:.0%}–{high:.0%} of the path"
 

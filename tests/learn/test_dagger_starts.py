@@ -75,8 +75,7 @@ def test_rollouts_start_in_the_experts_states_and_the_others_as_without_them(eas
 
 def _fractions(data) -> np.ndarray:
     """The progress (fraction of the path) of every expert state a demonstration start may use."""
-    starts = DemoPathStarts.from_dataset(data, TASK)
-    return np.sort((starts.spec.path.length - starts.back_of) / starts.spec.path.length)
+    return np.sort(DemoPathStarts.from_dataset(data, TASK).path_fractions)
 
 
 def test_a_window_starts_the_rollouts_only_within_that_part_of_the_path(easy_expert_episode):

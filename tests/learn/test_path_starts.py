@@ -178,6 +178,7 @@ def test_demonstration_starts_are_the_experts_states_within_the_stages_distance(
     assert len(curriculum.states) == len(states[1:-1:2])
     np.testing.assert_array_equal(curriculum.states, states[1:-1:2])
     np.testing.assert_allclose(curriculum.back_of, spec.path.length - arcs[1:-1:2])
+    np.testing.assert_allclose(curriculum.path_fractions, arcs[1:-1:2] / spec.path.length)
     rng = np.random.default_rng(0)
     by_state = {s.tobytes(): b for s, b in zip(curriculum.states, curriculum.back_of, strict=True)}
     backs = [by_state[curriculum(0, rng)[0].tobytes()] for _ in range(100)]

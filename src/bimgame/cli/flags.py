@@ -256,7 +256,7 @@ def _value_options(
         if Ellipsis in members:
             options.update(nargs="+", metavar=field.name.rstrip("s").upper())
         else:
-            options.update(nargs=len(members), metavar=FIELD_METAVARS.get(field.name, None))
+            options.update(nargs=len(members), metavar=FIELD_METAVARS.get(field.name))
         kind = members[0]
     if field.name in choices:
         options["choices"] = choices[field.name]

@@ -90,6 +90,11 @@ class _StartsAlongThePath(StagedStarts):
             within = np.array([int(np.argmin(self.back_of))])
         return self.states[within[int(rng.integers(len(within)))]].copy(), self.stage
 
+    @property
+    def path_fractions(self) -> np.ndarray:
+        """How far along the path each start lies (K,), as a fraction of the path's length."""
+        return 1.0 - self.back_of / self.spec.path.length
+
     def status(self) -> dict[str, float]:
         """The stage, how far back (m of path) its starts reach, the share of the layout's own starts
         and the success rate of the current stage's window so far."""

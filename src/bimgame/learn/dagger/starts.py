@@ -31,8 +31,7 @@ def demo_start_states(config: DAggerConfig) -> np.ndarray | None:
         return None
     assert config.expert_data is not None  # DAggerConfig refuses a share without it
     starts = DemoPathStarts.from_dataset(config.expert_data, config.learner.task)
-    length = starts.spec.path.length
-    fractions = (length - starts.back_of) / length
+    fractions = starts.path_fractions
     low, high = config.demo_start_window
     inside = (fractions >= low) & (fractions <= high)
     if not inside.any():
