@@ -10,9 +10,9 @@ renamed flag, a missing input, a path an earlier line did not create) fails. ``b
 started, its page fetched, and stopped.
 
 What is not run says why (:data:`NOT_RUN`): the set-up and test commands CI runs itself, a cluster
-across machines, input only a person can make, and synopses (lines with placeholders such as
-``DIR`` or ``RUN``, which tests/cli/test_docs_commands.py parses). Optional flags in brackets are run
-included; of ``a|b`` alternatives the first is run.
+across machines, input only a person can make, the benchmarks (hours of runs), and synopses (lines
+with placeholders such as ``DIR`` or ``RUN``, which tests/cli/test_docs_commands.py parses). Optional
+flags in brackets are run included; of ``a|b`` alternatives the first is run.
 """
 
 from __future__ import annotations
@@ -40,6 +40,9 @@ NOT_RUN = {
     "./dev test": "the test suite: CI runs it itself",
     "./dev docs": "the site's build: CI runs it itself",
     "ray start": "starts a Ray cluster across machines",
+    "python benchmarks/": (
+        "a benchmark: several seeds for hours, run by hand; its results are committed under benchmarks/results/"
+    ),
     "bimgame pretrain --data data/human": "needs episodes a person played in the browser",
     "bimgame train --run-dir runs/stg1-pixels --resume": (
         "continues an interrupted run; a finished one is refused (tests/learn/test_run_reliability.py kills and "
