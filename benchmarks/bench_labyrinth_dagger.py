@@ -35,7 +35,6 @@ import argparse
 import csv
 import json
 import multiprocessing
-import textwrap
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
@@ -135,7 +134,7 @@ def _plot(results: dict[str, Any], path: Path, title: str) -> Path:
     for axis in (left, right):
         axis.grid(alpha=0.3)
         axis.legend(fontsize=8)
-    fig.suptitle("\n".join(textwrap.wrap(title, 130)), fontsize=10)
+    fig.suptitle(title, fontsize=10, wrap=True)
     return save_png(fig, path, dpi=110)
 
 
