@@ -22,7 +22,7 @@ docs/labyrinth/dagger.png): the in-run evaluation's success and the mean path pr
 
 Usage: python benchmarks/bench_labyrinth_dagger.py --expert-data DATA --init PI_S [--layout easy]
        [--obs state|cyberrunner|pixels] [--action-type continuous|discrete] [--surroundings]
-       [--motion] [--seeds 3] [--iterations 8] [--episodes-per-iteration 10] [--beta0 0.5] [--beta-decay 0.7]
+       [--motion] [--keypoints] [--subtract-background] [--seeds 3] [--iterations 8] [--episodes-per-iteration 10] [--beta0 0.5] [--beta-decay 0.7]
        [--epochs-per-iteration 5] [--max-episode-steps 1500] [--demo-start-share 0]
        [--demo-start-window 0 1] [--expert-samples 16]
        [--expert-plans 1] [--stall-steps N]
@@ -65,6 +65,8 @@ def _config(args: argparse.Namespace, seed: int) -> DAggerConfig:
         asymmetric_critic=False,
         surroundings=args.surroundings,
         motion=args.motion,
+        keypoints=args.keypoints,
+        subtract_background=args.subtract_background,
         seed=seed,
     )
     return DAggerConfig(
@@ -102,9 +104,18 @@ def _job(run_dir: Path, seed: int, args: argparse.Namespace) -> tuple[float, dic
         return seconds, _score(run_dir, args.episodes), _score(run_dir / BEST, args.episodes)
 
 
-def _kind(action_type: str) -> str:
-    """The run directories' mark of the action type (none for continuous: the first runs' names)."""
-    return "" if action_type == "continuous" else f"-{action_type}"
+def _arm(args: argparse.Namespace) -> str:
+    """The name of the runs' directory under ``--out``: layout, observation and the options that
+    change the learner; an option's mark is absent when off (the first runs' names)."""
+    marks = (
+        (args.action_type != "continuous", f"-{args.action_type}"),
+        (args.surroundings, "-surroundings"),
+        (args.motion, "-motion"),
+        (args.keypoints, "-keypoints"),
+        (args.subtract_background, "-nobackground"),
+        (args.init is not None, "-init"),
+    )
+    return f"{args.layout}-{args.obs}" + "".join(mark for on, mark in marks if on)
 
 
 def _curve(run_dir: Path) -> dict[str, list[float]]:
@@ -203,6 +214,16 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="the marble's motion: CyberRunner's observation with its observed velocity, pixels as two frames (π^s must read it too)",
     )
+    parser.add_argument(
+        "--keypoints",
+        action="store_true",
+        help="pixels: spatial soft-argmax keypoints in the conv encoder (π^s must have them too)",
+    )
+    parser.add_argument(
+        "--subtract-background",
+        action="store_true",
+        help="pixels: subtract the empty board's frame before the convolutions (π^s must too)",
+    )
     parser.add_argument("--jobs", type=int, default=3, help="runs at once, one thread each (default 3)")
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "labyrinth-dagger")
     parser.add_argument("--results", type=Path, default=ROOT / "benchmarks" / "results" / "labyrinth_dagger.json")
@@ -212,8 +233,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.init is not None:
         args.init = args.init.absolute()
     jobs = {
-        seed: args.out / f"{args.layout}-{args.obs}{_kind(args.action_type)}{'-surroundings' if args.surroundings else ''}{'-motion' if args.motion else ''}{'-init' if args.init else ''}"
-        / f"seed{seed}"
+        seed: args.out / _arm(args) / f"seed{seed}"
         for seed in range(args.first_seed, args.first_seed + args.seeds)
     }
     done: dict[int, tuple[float, dict[str, Any], dict[str, Any]]] = {}
@@ -239,6 +259,8 @@ def main(argv: list[str] | None = None) -> int:
         "obs": args.obs,
         "surroundings": args.surroundings,
         "motion": args.motion,
+        "keypoints": args.keypoints,
+        "subtract_background": args.subtract_background,
         "action_type": args.action_type,
         "seeds": seeds,
         "episodes": args.episodes,
@@ -256,7 +278,8 @@ def main(argv: list[str] | None = None) -> int:
     atomic_write_bytes(args.results, json.dumps(results, indent=2).encode())
     title = (
         f"DAgger on the {args.layout} labyrinth ({args.obs}{' + surroundings' if args.surroundings else ''}"
-        f"{' + motion' if args.motion else ''}, {args.action_type}){', from π^s' if args.init else ''}: "
+        f"{' + motion' if args.motion else ''}{' + keypoints' if args.keypoints else ''}"
+        f"{' − empty board' if args.subtract_background else ''}, {args.action_type}){', from π^s' if args.init else ''}: "
         f"{args.iterations} iterations × {args.episodes_per_iteration} rollouts"
         f"{f' ({args.demo_start_share:.0%} from the expert states{_window(args)})' if args.demo_start_share else ''}"
         f"{f', expert K = {args.expert_samples}' if args.expert_samples != EXPERT.n_samples else ''}"

@@ -11,7 +11,8 @@ import pytest
 from support.disk import disk_fills_up
 from support.files import snapshot
 
-from bimgame.cli.main import main
+from bimgame.cli.learn import INIT_NETWORK_FLAGS, init_network_flags
+from bimgame.cli.main import build_parser, main
 from bimgame.expert.datasets import generate_dataset
 from bimgame.expert.mpc import MPCConfig
 from bimgame.learn.runs import KIND_POLICY, KIND_VALUE
@@ -111,6 +112,10 @@ def test_tiny_pretrain_writes_its_summary_and_checkpoint(tiny_dataset, tmp_path,
                  "--no-progress"]) == 0
     captured = capsys.readouterr()
     assert f"--init {out}" in _flat(captured.out)  # how to use it
+    # The hint is a train command whose network fits π^s: it repeats the sizes given.
+    hint = _flat(captured.out).split("use it with: bimgame ")[1].split()
+    train = build_parser().parse_args(hint)
+    assert (train.verb, train.task, train.obs, train.hidden, train.features) == ("train", "STG1", "state", 16, 16)
     for name in ("config.json", "checkpoint.pt", "summary.json", "pretrain.csv"):
         assert (out / name).is_file() and (out / name).stat().st_size > 0, name
 
@@ -151,6 +156,21 @@ def test_tiny_pretrain_writes_its_summary_and_checkpoint(tiny_dataset, tmp_path,
                  "--epochs", "1", "--eval-episodes", "0", "--no-progress"]) == 2
     assert "already holds a run" in capsys.readouterr().err
     assert snapshot(out, without_tensorboard=True) == before
+
+
+@pytest.mark.parametrize("given", [
+    ["--keypoints", "--subtract-background", "--motion"],
+    ["--no-tilt-input", "--hidden", "64", "--no-aux-heads"],
+    ["--surroundings", "--features", "32", "--aux-heads"],
+])
+def test_the_pretrain_hint_repeats_every_network_flag_given_so_bimgame_train_builds_the_same_network(given):
+    parser = build_parser()
+    pretrain = parser.parse_args(["pretrain", "--data", "d", "--out", "o", *given])
+    hint = init_network_flags(pretrain).split()
+    assert sorted(hint) == sorted(given)
+    train = parser.parse_args(["train", "--run-dir", "r", *hint])
+    for name in INIT_NETWORK_FLAGS:
+        assert getattr(train, name) == getattr(pretrain, name), name
 
 
 def test_tiny_value_only_pretrain(tiny_dataset, tmp_path, capsys):

@@ -35,6 +35,8 @@ __all__ = [
     "run_pretrain",
     "add_dagger_arguments",
     "run_dagger",
+    "INIT_NETWORK_FLAGS",
+    "init_network_flags",
     "PRETRAIN_GROUPS",
     "PRETRAIN_PLACEMENT",
     "DAGGER_GROUPS",
@@ -105,6 +107,18 @@ DAGGER_FLAGS = (
     "eval_episodes",
     "num_mazes",
     "start_maze",
+)
+#: The network settings a run started from π^s must share with it: its weights' shapes, its inputs
+#: and the observation's extra parts. ``bimgame pretrain``'s closing hint repeats those given.
+INIT_NETWORK_FLAGS = (
+    "hidden",
+    "features",
+    "tilt_input",
+    "keypoints",
+    "subtract_background",
+    "aux_heads",
+    "gate_bearings",
+    *OBSERVATION_EXTRAS,
 )
 #: Parsers with an upper bound too (a seed numpy and torch both take; episodes run side by side).
 _TYPES = {"seed": seed, "eval_episodes": episode_count_or_zero}
@@ -246,13 +260,25 @@ def run_pretrain(args: argparse.Namespace) -> int:
     use = "--value-reward" if config.target == "value" else "--init"
     mazes = "".join(f" --{name.replace('_', '-')} {value}" for name, value in result.mazes.items())
     learner = " --algo ppo --action-type continuous" if config.action_type == "continuous" else ""
-    # The labyrinth observation's extra parts π^s reads: the learner's envs must give them too.
-    extras = "".join(f" --{name}" for name in OBSERVATION_EXTRAS if getattr(config, name, False))
     print(
-        f"use it with: bimgame train{learner} --task {config.task} --obs {config.obs}{extras}{mazes} {use} "
+        f"use it with: bimgame train{learner} --task {config.task} --obs {config.obs}"
+        f"{init_network_flags(args)}{mazes} {use} "
         f"{args.out} --run-dir RUN"
     )
     return 0
+
+
+def init_network_flags(args: argparse.Namespace) -> str:
+    """The :data:`INIT_NETWORK_FLAGS` given on the command line, spelled as given (a switch
+    ``--keypoints``, ``--no-tilt-input``; a number ``--hidden 64``); those not given are left out."""
+    flags = []
+    for name in INIT_NETWORK_FLAGS:
+        value, flag = getattr(args, name, None), name.replace("_", "-")
+        if isinstance(value, bool):
+            flags.append(f" --{flag}" if value else f" --no-{flag}")
+        elif value is not None:
+            flags.append(f" --{flag} {value}")
+    return "".join(flags)
 
 
 def add_dagger_arguments(parser: argparse.ArgumentParser) -> None:

@@ -30,6 +30,7 @@ __all__ = [
     "load_weights",
     "load_init_weights",
     "with_added_critic",
+    "with_own_background",
     "apply_weights",
 ]
 
@@ -170,9 +171,34 @@ def load_init_weights(module: torch.nn.Module, init: str | Path | None) -> None:
         return
     try:
         payload = load_checkpoint(init)
-        apply_weights(module, {**payload, "model": with_added_critic(payload["model"], module)}, init)
+        weights = with_own_background(with_added_critic(payload["model"], module), module, init)
+        apply_weights(module, {**payload, "model": weights}, init)
     except CheckpointError as error:
         raise CheckpointError(f"--init: {error}") from None
+
+
+#: The conv encoder's empty-board frame (``subtract_background``; all zeros without it).
+_BACKGROUND = "encoder.background"
+
+
+def with_own_background(
+    weights: dict[str, torch.Tensor], module: torch.nn.Module, source: str | Path
+) -> dict[str, torch.Tensor]:
+    """``weights`` with ``module``'s own empty-board frame in place of the checkpoint's: the frame is
+    a fixed input of the board ``module`` was built for, not something learned (a π^s of the easy
+    layout starts a run on hard with the hard board's frame). A network that subtracted a frame
+    started where none is subtracted, or the reverse, would read its frames otherwise than it
+    learned to: a :class:`CheckpointError` naming ``--subtract-background``."""
+    own, theirs = module.state_dict().get(_BACKGROUND), weights.get(_BACKGROUND)
+    if own is None or theirs is None or own.shape != theirs.shape:
+        return weights  # no conv encoder here, or a mismatch apply_weights names
+    if bool(theirs.any()) != bool(own.any()):
+        trained, run = ("with", "without") if theirs.any() else ("without", "with")
+        raise CheckpointError(
+            f"{source} was trained {trained} --subtract-background (the empty board subtracted from each "
+            f"frame) and this run is {run} it; give the run the same setting"
+        )
+    return {**weights, _BACKGROUND: own}
 
 
 #: The weights of an asymmetric critic's state reader (``RecurrentActorCritic.critic_state``).
