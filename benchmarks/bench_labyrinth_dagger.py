@@ -22,7 +22,8 @@ docs/labyrinth/dagger.png): the in-run evaluation's success and the mean path pr
 
 Usage: python benchmarks/bench_labyrinth_dagger.py --expert-data DATA --init PI_S [--layout easy]
        [--obs state|cyberrunner|pixels] [--action-type continuous|discrete] [--surroundings]
-       [--motion] [--keypoints] [--subtract-background] [--seeds 3] [--iterations 8] [--episodes-per-iteration 10] [--beta0 0.5] [--beta-decay 0.7]
+       [--motion] [--keypoints] [--subtract-background] [--seeds 3] [--iterations 8]
+       [--episodes-per-iteration 10] [--beta0 0.5] [--beta-decay 0.7]
        [--epochs-per-iteration 5] [--max-episode-steps 1500] [--demo-start-share 0]
        [--demo-start-window 0 1] [--expert-samples 16]
        [--expert-plans 1] [--stall-steps N]

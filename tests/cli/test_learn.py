@@ -161,7 +161,7 @@ def test_tiny_pretrain_writes_its_summary_and_checkpoint(tiny_dataset, tmp_path,
 @pytest.mark.parametrize("given", [
     ["--keypoints", "--subtract-background", "--motion"],
     ["--no-tilt-input", "--hidden", "64", "--no-aux-heads"],
-    ["--surroundings", "--features", "32", "--aux-heads"],
+    ["--surroundings", "--features", "32", "--aux-heads", "--gate-bearings"],
 ])
 def test_the_pretrain_hint_repeats_every_network_flag_given_so_bimgame_train_builds_the_same_network(given):
     parser = build_parser()

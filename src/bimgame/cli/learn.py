@@ -258,25 +258,30 @@ def run_pretrain(args: argparse.Namespace) -> int:
             f"over {e['episodes']} episodes"
         )
     use = "--value-reward" if config.target == "value" else "--init"
-    mazes = "".join(f" --{name.replace('_', '-')} {value}" for name, value in result.mazes.items())
     learner = " --algo ppo --action-type continuous" if config.action_type == "continuous" else ""
     print(
         f"use it with: bimgame train{learner} --task {config.task} --obs {config.obs}"
-        f"{init_network_flags(args)}{mazes} {use} "
+        f"{init_network_flags(args)}{spelled_flags(result.mazes)} {use} "
         f"{args.out} --run-dir RUN"
     )
     return 0
 
 
 def init_network_flags(args: argparse.Namespace) -> str:
-    """The :data:`INIT_NETWORK_FLAGS` given on the command line, spelled as given (a switch
-    ``--keypoints``, ``--no-tilt-input``; a number ``--hidden 64``); those not given are left out."""
+    """The :data:`INIT_NETWORK_FLAGS` given on the command line, spelled as given; those not given
+    are left out."""
+    return spelled_flags(given_settings(args, NetworkSettings, INIT_NETWORK_FLAGS))
+
+
+def spelled_flags(values: dict[str, Any]) -> str:
+    """Settings as the flags that give them, each after a space: a switch ``--keypoints`` or
+    ``--no-tilt-input``, a value ``--hidden 64``."""
     flags = []
-    for name in INIT_NETWORK_FLAGS:
-        value, flag = getattr(args, name, None), name.replace("_", "-")
+    for name, value in values.items():
+        flag = name.replace("_", "-")
         if isinstance(value, bool):
             flags.append(f" --{flag}" if value else f" --no-{flag}")
-        elif value is not None:
+        else:
             flags.append(f" --{flag} {value}")
     return "".join(flags)
 
