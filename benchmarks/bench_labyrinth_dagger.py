@@ -1,5 +1,6 @@
 """DAgger on CyberRunner's labyrinth: the labyrinth's MPC expert labels the learner's own states,
-the aggregated dataset starts from the expert's demonstrations, and the learner starts from π^s.
+the aggregated dataset starts from the expert's demonstrations (or, with ``--no-demonstrations``,
+empty), and the learner starts from π^s.
 
 Behaviour cloning alone (π^s from 100 expert episodes) falls at 9-11% of the easy layout's path:
 its small errors lead it to states the expert never visited. DAgger (Ross et al., 2011) asks the
@@ -26,7 +27,7 @@ Usage: python benchmarks/bench_labyrinth_dagger.py --expert-data DATA --init PI_
        [--episodes-per-iteration 10] [--beta0 0.5] [--beta-decay 0.7]
        [--epochs-per-iteration 5] [--max-episode-steps 1500] [--demo-start-share 0]
        [--demo-start-window 0 1] [--expert-samples 16]
-       [--expert-plans 1] [--stall-steps N]
+       [--expert-plans 1] [--stall-steps N] [--no-demonstrations]
        [--jobs 3] [--episodes 100]
 """
 
@@ -72,7 +73,7 @@ def _config(args: argparse.Namespace, seed: int) -> DAggerConfig:
     )
     return DAggerConfig(
         learner=learner,
-        expert_data=str(args.expert_data),
+        expert_data=None if args.no_demonstrations else str(args.expert_data),
         iterations=args.iterations,
         episodes_per_iteration=args.episodes_per_iteration,
         beta0=args.beta0,
@@ -115,6 +116,7 @@ def _arm(args: argparse.Namespace) -> str:
         (args.keypoints, "-keypoints"),
         (args.subtract_background, "-nobackground"),
         (args.init is not None, "-init"),
+        (args.no_demonstrations, "-nodemos"),
     )
     return f"{args.layout}-{args.obs}" + "".join(mark for on, mark in marks if on)
 
@@ -152,7 +154,15 @@ def _plot(results: dict[str, Any], path: Path, title: str) -> Path:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--expert-data", type=Path, required=True, help="the layout's expert dataset")
+    parser.add_argument(
+        "--expert-data", type=Path, default=None, help="the layout's expert dataset (needed unless --no-demonstrations)"
+    )
+    parser.add_argument(
+        "--no-demonstrations",
+        action="store_true",
+        help="the aggregated dataset starts empty, the expert data's demonstrations left out of it (π^s "
+        "still starts the learner): every label is the labelling expert's, in the learner's own states",
+    )
     parser.add_argument("--init", type=Path, default=None, help="start every run from this π^s (bimgame pretrain)")
     parser.add_argument("--layout", choices=("easy", "medium", "hard"), default="easy")
     parser.add_argument("--action-type", choices=("continuous", "discrete"), default="continuous")
@@ -230,7 +240,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--results", type=Path, default=ROOT / "benchmarks" / "results" / "labyrinth_dagger.json")
     parser.add_argument("--figure", type=Path, default=ROOT / "docs" / "labyrinth" / "dagger.png")
     args = parser.parse_args(argv)
-    args.expert_data = args.expert_data.absolute()
+    if args.no_demonstrations and args.demo_start_share:
+        parser.error(
+            "--no-demonstrations and --demo-start-share exclude each other: the demonstration starts are "
+            "states of the expert data it leaves out"
+        )
+    if args.expert_data is None and not args.no_demonstrations:
+        parser.error("--expert-data is required: its demonstrations start the aggregated dataset (or give --no-demonstrations)")
+    if args.expert_data is not None:
+        args.expert_data = args.expert_data.absolute()
     if args.init is not None:
         args.init = args.init.absolute()
     jobs = {
@@ -262,6 +280,7 @@ def main(argv: list[str] | None = None) -> int:
         "motion": args.motion,
         "keypoints": args.keypoints,
         "subtract_background": args.subtract_background,
+        "demonstrations_aggregated": not args.no_demonstrations,
         "action_type": args.action_type,
         "seeds": seeds,
         "episodes": args.episodes,
@@ -285,7 +304,8 @@ def main(argv: list[str] | None = None) -> int:
         f"{f' ({args.demo_start_share:.0%} from the expert states{_window(args)})' if args.demo_start_share else ''}"
         f"{f', expert K = {args.expert_samples}' if args.expert_samples != EXPERT.n_samples else ''}"
         f"{f', labels the mean of {args.expert_plans} plans' if args.expert_plans != EXPERT.n_plans else ''}"
-        f"{f', rollouts end after {args.stall_steps} steps without progress' if args.stall_steps else ''}, "
+        f"{f', rollouts end after {args.stall_steps} steps without progress' if args.stall_steps else ''}"
+        f"{', no demonstrations in the data' if args.no_demonstrations else ''}, "
         f"seeds {', '.join(map(str, jobs))}"
     )
     print(f"wrote {args.results} and {_plot(results, args.figure, title)}")
