@@ -38,13 +38,14 @@ import csv
 import json
 import multiprocessing
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from bench_labyrinth_learning import MODES, _aggregate, _score
 
+from bimgame.experiments.run_progress import completed_with_progress, dagger_progress
 from bimgame.expert.labyrinth_mpc import LabyrinthMPCConfig
 from bimgame.learn.dagger import BEST, DAggerConfig, dagger
 from bimgame.learn.runs import torch_threads
@@ -259,7 +260,9 @@ def main(argv: list[str] | None = None) -> int:
     context = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(max_workers=args.jobs, mp_context=context) as pool:
         futures = {pool.submit(_job, run_dir, seed, args): seed for seed, run_dir in jobs.items()}
-        for future in as_completed(futures):
+        for future in completed_with_progress(
+            futures, lambda seed: dagger_progress(jobs[seed], args.iterations), name=lambda seed: f"seed {seed}"
+        ):
             seed = futures[future]
             done[seed] = future.result()
             for what, scores in (("last", done[seed][1]), ("best", done[seed][2])):

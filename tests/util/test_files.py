@@ -6,7 +6,7 @@ import os
 
 import pytest
 
-from bimgame.util.files import atomic_write_bytes
+from bimgame.util.files import atomic_write_bytes, complete_lines
 
 
 def test_atomic_write_creates_parents_and_normal_permissions(tmp_path):
@@ -86,3 +86,15 @@ def test_a_full_disk_is_reported_in_one_line_naming_the_file(tmp_path):
     with pytest.raises(PermissionError):  # other errors pass unchanged
         with reporting_full_disk(target):
             raise PermissionError(errno.EACCES, "Permission denied")
+
+
+def test_complete_lines_leave_out_a_last_line_cut_off_mid_write(tmp_path):
+    log = tmp_path / "log.csv"
+    log.write_bytes(b"step,return\r\n1,0.5\r\n2,0.")
+    assert complete_lines(log) == ["step,return\r\n", "1,0.5\r\n"]
+    log.write_bytes(b"step,return\n1,0.5\n")
+    assert complete_lines(log) == ["step,return\n", "1,0.5\n"]
+    log.write_bytes(b"")
+    assert complete_lines(log) == []
+    with pytest.raises(FileNotFoundError):
+        complete_lines(tmp_path / "missing.csv")

@@ -27,7 +27,7 @@ import numpy as np
 
 from bimgame.envs.puzzles import puzzle
 from bimgame.learn.runs import CONFIG, read_run_config
-from bimgame.util.files import read_json
+from bimgame.util.files import complete_lines, read_json
 from bimgame.util.images import save_png, subplots
 
 __all__ = [
@@ -45,12 +45,12 @@ __all__ = [
 
 
 def read_table(path: str | Path) -> dict[str, np.ndarray]:
-    """A run's CSV log as columns of floats (empty cells are NaN); empty dict if there is none."""
+    """A run's CSV log as columns of floats (empty cells are NaN); empty dict if there is none. A
+    last line cut off mid-write is left out, so a log can be read while its run writes it."""
     path = Path(path)
     if not path.is_file():
         return {}
-    with path.open(newline="") as handle:
-        rows = list(csv.DictReader(handle))
+    rows = list(csv.DictReader(complete_lines(path)))
     if not rows:
         return {}
     return {key: np.array([_number(r[key]) for r in rows]) for key in rows[0]}

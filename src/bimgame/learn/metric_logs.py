@@ -59,14 +59,9 @@ def resumed_rows(
 def _complete_lines(path: Path) -> list[str]:
     """The lines of the log ``path``, without a last line cut off mid-write (it was never complete)."""
     try:
-        with path.open(encoding="utf-8", newline="") as handle:
-            text = handle.read()
+        return files.complete_lines(path)
     except (OSError, UnicodeDecodeError) as error:
         raise ValueError(f"cannot read the log {path} to resume: {error}") from None
-    lines = text.splitlines(keepends=True)
-    if lines and not lines[-1].endswith("\n"):
-        lines.pop()
-    return lines
 
 
 def _rows_with_steps(

@@ -31,6 +31,7 @@ __all__ = [
     "exclusive_lock",
     "write_json",
     "read_json",
+    "complete_lines",
     "file_sha256",
     "FileWriteError",
     "DiskFullError",
@@ -104,6 +105,17 @@ def read_json(path: str | Path) -> dict[str, Any] | None:
     except (OSError, ValueError):
         return None
     return value if isinstance(value, dict) else None
+
+
+def complete_lines(path: str | Path) -> list[str]:
+    """The lines of the log ``path`` (with their line ends) without a last line cut off mid-write:
+    a log appended line by line, read while it is written or after a kill, ends in a line that was
+    never complete. Raises ``OSError`` or ``UnicodeDecodeError`` for a file that cannot be read."""
+    with Path(path).open(encoding="utf-8", newline="") as handle:
+        lines = handle.read().splitlines(keepends=True)
+    if lines and not lines[-1].endswith(("\n", "\r")):
+        lines.pop()
+    return lines
 
 
 def file_sha256(path: str | Path) -> str:
