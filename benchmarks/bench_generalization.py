@@ -47,7 +47,7 @@ import argparse
 import json
 import multiprocessing
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -55,6 +55,7 @@ import numpy as np
 from bench_learners import _settings
 
 from bimgame.experiments.methods import ppo_overrides
+from bimgame.experiments.run_progress import completed_with_progress, dagger_progress, training_progress
 from bimgame.experiments.statistics import mean_interval
 from bimgame.learn.a3c import A3CConfig, train
 from bimgame.learn.actor import evaluate_network
@@ -236,6 +237,20 @@ def _run(
         return (seconds, *_score(run_dir, num_mazes, args.episodes))
 
 
+def _progress(job: tuple[str, int, int, Path], args: argparse.Namespace) -> str | None:
+    """The progress line of a running job of ``--jobs`` (learner, mazes, seed, run directory), from its logs."""
+    learner, _, _, run_dir = job
+    if learner == DAGGER:
+        return dagger_progress(run_dir, args.dagger_iterations)
+    return training_progress(run_dir, args.steps, learner=learner)
+
+
+def _run_name(job: tuple[str, int, int, Path]) -> str:
+    """How a progress line names a job: learner, training mazes and seed."""
+    learner, num_mazes, seed, _ = job
+    return f"{learner}, {num_mazes} mazes, seed {seed}"
+
+
 def _aggregate(per_seed: list[dict[str, float]], rng: np.random.Generator) -> dict[str, Any]:
     """Means over seeds with bootstrap intervals, and the gap train − test per mode."""
     out: dict[str, Any] = {}
@@ -407,7 +422,7 @@ def main(argv: list[str] | None = None) -> int:
             pool.submit(_run, learner, run_dir, n, seed, args): (learner, n, seed, run_dir)
             for learner, n, seed, run_dir in jobs
         }
-        for future in as_completed(futures):
+        for future in completed_with_progress(futures, lambda key: _progress(key, args), name=_run_name):
             learner, num_mazes, seed, run_dir = futures[future]
             seconds, scores, step = future.result()
             if seconds:

@@ -39,7 +39,7 @@ from bench_learners import _settings
 
 from bimgame.envs.puzzles import puzzle
 from bimgame.experiments.labyrinth_protocol import CYBERRUNNER_RECORD_S, HUMAN_RECORD_S, score_labyrinth
-from bimgame.experiments.run_progress import completed_with_progress, ppo_progress
+from bimgame.experiments.run_progress import completed_with_progress, training_progress
 from bimgame.experiments.statistics import mean_interval
 from bimgame.learn.checkpoints import load_checkpoint
 from bimgame.learn.common import read_run
@@ -261,7 +261,7 @@ def main(argv: list[str] | None = None) -> int:
     with ProcessPoolExecutor(max_workers=args.jobs, mp_context=context, initializer=exit_when_parent_dies) as pool:
         futures = {pool.submit(_job, run_dir, c, s, args): (c, s) for (c, s), run_dir in jobs.items()}
         for future in completed_with_progress(
-            futures, lambda key: ppo_progress(jobs[key], args.steps), name=lambda key: f"{key[0]} seed {key[1]}"
+            futures, lambda key: training_progress(jobs[key], args.steps), name=lambda key: f"{key[0]} seed {key[1]}"
         ):
             key = futures[future]
             done[key] = future.result()

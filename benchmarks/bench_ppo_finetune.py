@@ -32,7 +32,7 @@ import argparse
 import dataclasses
 import json
 import multiprocessing
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -41,12 +41,13 @@ from bench_learners import _settings
 
 from bimgame.experiments.budgets import BUDGETS
 from bimgame.experiments.protocol import score
+from bimgame.experiments.run_progress import completed_with_progress, training_progress
 from bimgame.experiments.runners import ppo_config_for, pretrain_config_for
 from bimgame.experiments.statistics import mean_interval
 from bimgame.learn.best_iterate import read_best
 from bimgame.learn.checkpoints import load_checkpoint
 from bimgame.learn.curves import read_table
-from bimgame.learn.ppo import train_ppo
+from bimgame.learn.ppo import PPOConfig, train_ppo
 from bimgame.learn.pretrain import pretrain
 from bimgame.learn.run_dir import BEST
 from bimgame.learn.runs import torch_threads
@@ -124,7 +125,7 @@ def _job(task: str, seed: int, args: argparse.Namespace, run_dir: Path) -> dict[
         pi_s = _pretrained(args.out, args.data, task, seed)
         summary = read_json(run_dir / "summary.json")
         if summary is None or summary.get("stopped") != "finished":
-            config = ppo_config_for(BUDGET, task, seed, ALGORITHM, args.data).with_flat(**args.settings)
+            config = _config(task, seed, args)
             resume = (run_dir / "config.json").is_file()
             train_ppo(config, run_dir, resume=resume, init=None if resume else pi_s, progress=False)
             summary = read_json(run_dir / "summary.json") or {}
@@ -136,6 +137,11 @@ def _job(task: str, seed: int, args: argparse.Namespace, run_dir: Path) -> dict[
             "train_minutes": float(summary.get("seconds", 0.0)) / 60,
             "evaluations": _evaluations(run_dir),
         }
+
+
+def _config(task: str, seed: int, args: argparse.Namespace) -> PPOConfig:
+    """The PPO settings of one task and seed: the budget's, with ``--set``'s changes."""
+    return ppo_config_for(BUDGET, task, seed, ALGORITHM, args.data).with_flat(**args.settings)
 
 
 def _evaluations(run_dir: Path) -> list[dict[str, float]]:
@@ -243,7 +249,10 @@ def main(argv: list[str] | None = None) -> int:
         list(pool.map(_pretrain_job, *zip(*[(t, s, args) for t, s in jobs], strict=True)))
         print("pre-trained every π^s", flush=True)
         futures = {pool.submit(_job, t, s, args, run_dir): (t, s) for (t, s), run_dir in jobs.items()}
-        for future in as_completed(futures):
+        steps = {key: _config(*key, args).schedule.steps for key in jobs}
+        for future in completed_with_progress(
+            futures, lambda key: training_progress(jobs[key], steps[key]), name=lambda key: f"{key[0]} seed {key[1]}"
+        ):
             key = futures[future]
             done[key] = run = future.result()
             best = (

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from bimgame.expert.labyrinth_mpc import LabyrinthMPCConfig
-from bimgame.experiments.run_progress import completed_with_progress, dagger_progress, ppo_progress
+from bimgame.experiments.run_progress import completed_with_progress, dagger_progress, training_progress
 from bimgame.learn import runs
 from bimgame.learn.dagger import DAggerConfig, dagger
 from bimgame.learn.ppo import PPOConfig, train_ppo
@@ -61,12 +61,13 @@ def test_a_ppo_line_counts_steps_and_its_last_episodes_from_the_start(tmp_path):
     step = int(episodes[-1]["step"])
     expected = (f"PPO {step:,}/2,048 steps ({step / 2048:.0%}); last 3 episodes from the start: {solved:.0%} solved, "
                 f"return {mean_return:.2f}")
-    assert ppo_progress(tmp_path / "run", 2048, recent=3) == expected
+    assert training_progress(tmp_path / "run", 2048, recent=3) == expected
     # A row being written when the log is read is left out, not misread.
     with (tmp_path / "run" / "episodes.csv").open("a") as handle:
         handle.write("99999,99000,0.5,12,Tr")
-    assert ppo_progress(tmp_path / "run", 2048, recent=3) == expected
-    assert ppo_progress(tmp_path / "none", 2048) is None
+    assert training_progress(tmp_path / "run", 2048, recent=3) == expected
+    assert training_progress(tmp_path / "none", 2048) is None
+    assert training_progress(tmp_path / "run", 2048, learner="A3C", recent=3) == "A3C" + expected[3:]
 
 
 def test_the_watcher_yields_every_future_and_shows_each_changed_line_once():

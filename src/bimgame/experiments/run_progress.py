@@ -26,7 +26,7 @@ import numpy as np
 
 from bimgame.learn.curves import read_table
 
-__all__ = ["PROGRESS_INTERVAL_S", "dagger_progress", "ppo_progress", "completed_with_progress"]
+__all__ = ["PROGRESS_INTERVAL_S", "dagger_progress", "training_progress", "completed_with_progress"]
 
 #: Seconds between two looks at the runs' logs: a DAgger iteration or 10k PPO steps take minutes.
 PROGRESS_INTERVAL_S = 60.0
@@ -54,16 +54,19 @@ def dagger_progress(run_dir: str | Path, iterations: int) -> str | None:
     )
 
 
-def ppo_progress(run_dir: str | Path, steps: int, recent: int = RECENT_EPISODES) -> str | None:
-    """One line on a PPO (or A3C) run's progress from its ``episodes.csv``: steps done of ``steps``
-    and the success rate and mean return of its last ``recent`` training episodes from the layout's
-    own start (all episodes where the log does not mark the start); None before its first episode."""
+def training_progress(
+    run_dir: str | Path, steps: int, *, learner: str = "PPO", recent: int = RECENT_EPISODES
+) -> str | None:
+    """One line on a PPO or A3C run's progress from its ``episodes.csv`` (``learner`` names it):
+    steps done of ``steps`` and the success rate and mean return of its last ``recent`` training
+    episodes from the task's own start (all episodes where the log does not mark the start); None
+    before its first episode."""
     episodes = read_table(Path(run_dir) / "episodes.csv")
     if not len(episodes.get("step", ())):
         return None
     step = int(episodes["step"][-1])
     chosen = episodes["true_start"] == 1 if "true_start" in episodes else np.ones(len(episodes["step"]), bool)
-    line = f"PPO {step:,}/{steps:,} steps ({step / steps:.0%})"
+    line = f"{learner} {step:,}/{steps:,} steps ({step / steps:.0%})"
     if not chosen.any():
         return line + "; no episode from the start yet"
     success = episodes["success"][chosen][-recent:]
