@@ -144,15 +144,24 @@ class RankLearner:
             raise TrainingError(f"non-finite reward from the env at step {error.step}: {error.rewards}") from error
 
     def _train(self, segment: Segment, step: int) -> dict[str, float]:
-        """PPO's update of the learning network on ``segment`` (with π^s's KL, if any)."""
+        """PPO's update of the learning network on ``segment`` (with π^s's KL, if any; the critic alone
+        during a critic warm-up)."""
         kl = self._kl_to_teacher(segment, step)
         for group in self.optimizer.param_groups:
             group["lr"] = self.config.optimization.lr_at(step, self.config.schedule.steps)
         if self.device.type != "cpu":  # the learning copy is on another device
             segment = segment.to(self.device)
             kl = None if kl is None else kl._replace(policy=kl.policy.to(self.device))
+        finetuning = self.config.finetuning
         parts = ppo_update(
-            self.learning, self.optimizer, segment, self.config.optimization, self.batches, average=self.average, kl=kl
+            self.learning,
+            self.optimizer,
+            segment,
+            self.config.optimization,
+            self.batches,
+            average=self.average,
+            kl=kl,
+            critic_only=finetuning is not None and finetuning.critic_only(step),
         )
         ceiling = self.config.optimization.max_log_std_at(
             step + self.config.steps_per_rollout, self.config.schedule.steps

@@ -140,7 +140,8 @@ class PPOOptimizationSettings:
 @dataclasses.dataclass(frozen=True)
 class PPOFinetuneSettings:
     """Keeping a pre-trained π^s while PPO fine-tunes it: kickstarting's KL(π^s ‖ π) on the learner's
-    own rollouts (Schmitt et al. 2018), the term of A3C's ``keep`` preset that PPO takes. The same
+    own rollouts (Schmitt et al. 2018) and a critic warm-up, the two parts of A3C's ``keep`` preset
+    that PPO takes. The same
     flat names as A3C's fine-tuning settings; PPO has its own part because A3C's also holds
     ``advantage_norm`` (a running RMS), a name PPO's optimisation already uses for its per-minibatch
     normalisation. The teacher and the KL are A3C's (:class:`~bimgame.learn.loss_terms.TeacherKL`)."""
@@ -156,6 +157,11 @@ class PPOFinetuneSettings:
     with the teacher's at the teacher's standard deviation, KL(N(μ_t, σ_t) ‖ N(μ, σ_t)) =
     Σ (μ − μ_t)² / 2σ_t², so the learner's σ is free and a narrower σ does not weight the mean's
     difference by 1/σ² (the full KL's term (μ − μ_t)² / 2σ², which pins a narrow learner to π^s)."""
+    critic_warmup_steps: int = 0
+    """Steps at the run's start in which only the critic learns (the value head, and an asymmetric
+    critic's state reader): the policy acts as it was loaded while the value fits its returns, so
+    that its first advantages are not a fresh critic's noise (0: none). A network from ``--init``
+    cloned for its policy (a DAgger iterate) brings a critic that does not know the learner's returns."""
 
     def __post_init__(self) -> None:
         owner = type(self).__name__
@@ -167,6 +173,7 @@ class PPOFinetuneSettings:
                 f"{owner}.kl_means_only shapes the KL term to π^s: give kl_coef > 0 with it, got kl_coef 0"
             )
         require_int(owner, "kl_decay_steps", self.kl_decay_steps, 0)
+        require_int(owner, "critic_warmup_steps", self.critic_warmup_steps, 0)
         check_number(owner, "kl_temperature", self.kl_temperature, 0.0, math.inf, low_open=True)
 
     def kl_weight(self, step: int) -> float:
@@ -175,6 +182,10 @@ class PPOFinetuneSettings:
         if self.kl_decay_steps <= 0:
             return self.kl_coef
         return self.kl_coef * max(0.0, 1.0 - step / self.kl_decay_steps)
+
+    def critic_only(self, step: int) -> bool:
+        """Whether the update of the rollout at the run's ``step`` trains the critic alone."""
+        return step < self.critic_warmup_steps
 
 
 def _single_process_schedule() -> ScheduleSettings:

@@ -115,13 +115,20 @@ def rollout_targets(
 
 
 def ppo_minibatch_loss(
-    net: RecurrentActorCritic, segment: Segment, targets: RolloutTargets, settings: PPOOptimizationSettings
+    net: RecurrentActorCritic,
+    segment: Segment,
+    targets: RolloutTargets,
+    settings: PPOOptimizationSettings,
+    *,
+    critic_only: bool = False,
 ) -> tuple[torch.Tensor, dict[str, float]]:
     """The PPO loss of one minibatch (``segment`` and ``targets`` of the same environments): the
     clipped surrogate, the (optionally clipped) value loss, the entropy bonus and, for a network with
     auxiliary heads, their loss; when fine-tuning keeps π^s, the weighted KL(π^s ‖ π) (logged as
     ``kl``). Log-probabilities and entropy are those of the network's action
-    distribution (categorical or Gaussian: :meth:`~bimgame.learn.nets.RecurrentActorCritic.distribution`)."""
+    distribution (categorical or Gaussian: :meth:`~bimgame.learn.nets.RecurrentActorCritic.distribution`).
+    ``critic_only`` (a critic warm-up): the loss is the weighted value loss alone; the other parts are
+    still logged."""
     out = unroll(net, segment)
     policy = net.distribution(out.logits[:-1], settings.sample_temperature)
     chosen = policy.log_prob(segment.actions)
@@ -148,6 +155,8 @@ def ppo_minibatch_loss(
             "approx_kl": ((ratio - 1) - log_ratio).mean().item(),  # Schulman's low-variance estimator
             "clip_fraction": ((ratio - 1).abs() > settings.clip).float().mean().item(),
         }
+    if critic_only:
+        return settings.value_coef * value_loss, parts
     if net.config.aux_heads:
         if segment.privileged is None:
             raise ValueError(
@@ -173,6 +182,7 @@ def ppo_update(
     *,
     average: GradientAverage | None = None,
     kl: KLTarget | None = None,
+    critic_only: bool = False,
 ) -> dict[str, float]:
     """Train ``net`` on one rollout: ``epochs`` passes over minibatches of whole sequences (each
     environment's rollout, or its pieces of ``sequence_length`` steps), drawn from ``generator``.
@@ -180,19 +190,28 @@ def ppo_update(
     loss or gradient was not finite (that minibatch, and the rest of the update, is then skipped so
     that no non-finite value reaches the weights). With ``average``, each minibatch's gradient is
     averaged over the run's ranks before the step, and a loss that is not finite on any rank skips
-    the update on every rank. With ``kl``, the loss also holds its weight times KL(π^s ‖ π)."""
+    the update on every rank. With ``kl``, the loss also holds its weight times KL(π^s ‖ π). With
+    ``critic_only`` (a critic warm-up) only the critic's weights change, on the value loss alone: the
+    trunk the policy shares with it (encoder, LSTM) and the policy head keep theirs."""
+    critic = {id(param) for param in net.critic_parameters()} if critic_only else set()
     segment, targets = rollout_targets(net, segment, settings, kl)
     sums: dict[str, float] = {}
     count = 0
     for _ in range(settings.epochs):
         order = torch.randperm(segment.batch, generator=generator)
         for index in order.chunk(settings.minibatches):
-            loss, parts = ppo_minibatch_loss(net, segment.envs(index), targets.envs(index), settings)
+            loss, parts = ppo_minibatch_loss(
+                net, segment.envs(index), targets.envs(index), settings, critic_only=critic_only
+            )
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             finite = math.isfinite(loss.item())
             if average is not None:
                 finite = average(net, finite)
+            if critic_only:
+                for param in net.parameters():
+                    if id(param) not in critic:
+                        param.grad = None  # Adam leaves a parameter without a gradient untouched
             grad_norm = float(torch.nn.utils.clip_grad_norm_(net.parameters(), settings.max_grad_norm))
             if not (finite and math.isfinite(grad_norm)):
                 return {**parts, "grad_norm": grad_norm, "loss": loss.item(), "applied": False}
