@@ -92,3 +92,18 @@ def test_the_watcher_yields_every_future_and_shows_each_changed_line_once():
     assert lines == ["run a: started", "run a: halfway"]
     with pytest.raises(ValueError, match="interval must be > 0 seconds, got 0"):
         list(completed_with_progress(futures, describe, interval=0))
+
+
+def test_a_log_the_watcher_cannot_read_is_said_and_the_runs_go_on():
+    lines: list[str] = []
+
+    def describe(key: str) -> str | None:
+        raise ValueError("could not convert string to float: 'Tr'")
+
+    release = threading.Event()
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        futures = {pool.submit(release.wait, 30): "a"}
+        watcher = completed_with_progress(futures, describe, interval=0.01, echo=lambda line: (lines.append(line),
+                                                                                                release.set()))
+        assert [futures[f] for f in watcher] == ["a"]
+    assert lines == ["a: progress unreadable (ValueError: could not convert string to float: 'Tr')"]

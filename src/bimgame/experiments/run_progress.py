@@ -87,7 +87,8 @@ def completed_with_progress(
 ) -> Iterator[Future[Result]]:
     """The ``futures`` as they complete (as :func:`concurrent.futures.as_completed`), and meanwhile,
     every ``interval`` seconds, ``echo`` of ``"NAME: LINE"`` (``name(key)``, ``describe(key)``) for
-    each unfinished run whose line has changed since it was last shown (None: nothing to show yet).
+    each unfinished run whose line has changed since it was last shown (None: nothing to show yet; a
+    log that cannot be read is said so, and the runs go on).
     ``echo`` defaults to a print that flushes each line, so a log file shows it at once."""
     echo = echo or functools.partial(print, flush=True)
     if interval <= 0:
@@ -99,7 +100,10 @@ def completed_with_progress(
         pending = set(pending_now)
         for future in pending:
             key = futures[future]
-            line = describe(key)
+            try:
+                line = describe(key)
+            except (OSError, ValueError) as error:  # a log it cannot read must not end the runs it watches
+                line = f"progress unreadable ({type(error).__name__}: {error})"
             if line is not None and line != shown.get(key):
                 shown[key] = line
                 echo(f"{name(key)}: {line}")
