@@ -141,10 +141,9 @@ class PPOOptimizationSettings:
 class PPOFinetuneSettings:
     """Keeping a pre-trained π^s while PPO fine-tunes it: kickstarting's KL(π^s ‖ π) on the learner's
     own rollouts (Schmitt et al. 2018) and a critic warm-up, the two parts of A3C's ``keep`` preset
-    that PPO takes. The same
-    flat names as A3C's fine-tuning settings; PPO has its own part because A3C's also holds
-    ``advantage_norm`` (a running RMS), a name PPO's optimisation already uses for its per-minibatch
-    normalisation. The teacher and the KL are A3C's (:class:`~bimgame.learn.loss_terms.TeacherKL`)."""
+    that PPO takes. The same flat names as A3C's fine-tuning settings; PPO has its own part because
+    A3C's also holds ``advantage_norm`` (a running RMS), a name PPO's optimisation already uses for its
+    per-minibatch normalisation. The teacher and the KL are A3C's (:class:`~bimgame.learn.loss_terms.TeacherKL`)."""
 
     kl_coef: float = 0.0
     """Initial weight of KL(π^s ‖ π); π^s is the network the run started from (``--init``)."""

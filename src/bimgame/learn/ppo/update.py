@@ -127,8 +127,8 @@ def ppo_minibatch_loss(
     auxiliary heads, their loss; when fine-tuning keeps π^s, the weighted KL(π^s ‖ π) (logged as
     ``kl``). Log-probabilities and entropy are those of the network's action
     distribution (categorical or Gaussian: :meth:`~bimgame.learn.nets.RecurrentActorCritic.distribution`).
-    ``critic_only`` (a critic warm-up): the loss is the weighted value loss alone; the other parts are
-    still logged."""
+    ``critic_only`` (a critic warm-up): the loss is the weighted value loss alone; the surrogate's
+    parts are still logged (the KL and auxiliary losses are not computed)."""
     out = unroll(net, segment)
     policy = net.distribution(out.logits[:-1], settings.sample_temperature)
     chosen = policy.log_prob(segment.actions)
