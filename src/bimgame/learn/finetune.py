@@ -53,6 +53,7 @@ from bimgame.sim.maze import MazeSpec
 __all__ = [
     "LossWeights",
     "loss_weights",
+    "keep_critic_gradients",
     "Teacher",
     "kl_to_teacher",
     "policy_kl",
@@ -101,6 +102,17 @@ def loss_weights(settings: FinetuneSettings | None, step: int) -> LossWeights:
         bc=_linear_decay(settings.bc_coef, step, settings.bc_decay_steps),
         critic_only=step < warmup,
     )
+
+
+def keep_critic_gradients(net: RecurrentActorCritic) -> None:
+    """Drop every gradient of ``net`` but the critic's
+    (:meth:`~bimgame.learn.nets.RecurrentActorCritic.critic_parameters`), after the backward pass of a
+    critic warm-up: the optimiser leaves a parameter without a gradient untouched, so only the value
+    estimate changes and the policy acts as loaded (A3C and PPO alike)."""
+    critic = {id(param) for param in net.critic_parameters()}
+    for param in net.parameters():
+        if id(param) not in critic:
+            param.grad = None
 
 
 class Teacher:

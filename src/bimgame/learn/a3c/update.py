@@ -12,7 +12,7 @@ import torch
 
 from bimgame.envs.puzzles import PuzzleSpec, puzzle
 from bimgame.learn.a3c.settings import A3CConfig
-from bimgame.learn.finetune import LossWeights, RunningScale
+from bimgame.learn.finetune import LossWeights, RunningScale, keep_critic_gradients
 from bimgame.learn.loss_terms import LossTerm
 from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.learn.rollout import Segment, advantages_and_targets, unroll
@@ -153,10 +153,7 @@ def apply_update(
     local.zero_grad(set_to_none=True)
     loss.backward()
     if weights.critic_only:
-        value_head = {id(p) for p in local.critic_parameters()}
-        for param in local.parameters():
-            if id(param) not in value_head:
-                param.grad = None  # the optimiser leaves parameters without a gradient untouched
+        keep_critic_gradients(local)
     grad_norm = float(torch.nn.utils.clip_grad_norm_(local.parameters(), config.optimization.max_grad_norm))
     applied = math.isfinite(loss.item()) and math.isfinite(grad_norm)
     if applied:

@@ -14,7 +14,7 @@ from typing import NamedTuple
 import torch
 import torch.distributed as dist
 
-from bimgame.learn.finetune import policy_kl
+from bimgame.learn.finetune import keep_critic_gradients, policy_kl
 from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.learn.ppo.settings import PPOOptimizationSettings
 from bimgame.learn.rollout import Segment, advantages_and_targets, in_sequences, sequence_start_states, unroll
@@ -193,7 +193,6 @@ def ppo_update(
     the update on every rank. With ``kl``, the loss also holds its weight times KL(π^s ‖ π). With
     ``critic_only`` (a critic warm-up) only the critic's weights change, on the value loss alone: the
     trunk the policy shares with it (encoder, LSTM) and the policy head keep theirs."""
-    critic = {id(param) for param in net.critic_parameters()} if critic_only else set()
     segment, targets = rollout_targets(net, segment, settings, kl)
     sums: dict[str, float] = {}
     count = 0
@@ -209,9 +208,7 @@ def ppo_update(
             if average is not None:
                 finite = average(net, finite)
             if critic_only:
-                for param in net.parameters():
-                    if id(param) not in critic:
-                        param.grad = None  # Adam leaves a parameter without a gradient untouched
+                keep_critic_gradients(net)
             grad_norm = float(torch.nn.utils.clip_grad_norm_(net.parameters(), settings.max_grad_norm))
             if not (finite and math.isfinite(grad_norm)):
                 return {**parts, "grad_norm": grad_norm, "loss": loss.item(), "applied": False}
