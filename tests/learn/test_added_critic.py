@@ -13,12 +13,9 @@ from bimgame.cli.main import main
 from bimgame.learn.checkpoints import load_checkpoint, with_added_critic
 from bimgame.learn.learner_settings import policy_network
 from bimgame.learn.ppo import PPOConfig
+from support.labyrinth_runs import SMALL_STATE_FLAGS, SMALL_STATE_RUN
 
-SMALL = dict(task="LABYRINTH-EASY", obs="state", hidden=16, features=16, envs_per_worker=4, n_steps=32,
-             eval_every=0, eval_episodes=2, max_episode_steps=100, action_type="continuous")
-CLI = ["--task", "LABYRINTH-EASY", "--obs", "state", "--hidden", "16", "--features", "16", "--envs-per-worker",
-       "4", "--n-steps", "32", "--eval-every", "0", "--eval-episodes", "2", "--max-episode-steps", "100",
-       "--action-type", "continuous", "--no-progress"]
+SMALL, CLI = SMALL_STATE_RUN, SMALL_STATE_FLAGS
 
 
 def test_the_added_critic_starts_as_the_old_value_and_the_policy_is_unchanged():

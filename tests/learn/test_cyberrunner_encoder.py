@@ -151,7 +151,7 @@ def test_what_does_not_apply_is_refused_by_name(tmp_path, capsys):
     assert main(["train", "--algo", "ppo", "--task", "STG1", "--run-dir", str(tmp_path / "maze"), *CLI]) == 2
     assert "PPOConfig.network.obs 'cyberrunner' is CyberRunner's observation" in capsys.readouterr().err
     assert not (tmp_path / "maze").exists()
-    for name, value, why in (("aux_heads", True, "the auxiliary heads predict the circular maze's state layout"),
+    for name, value, why in (("aux_heads", True, "the observation already holds the state the auxiliary heads would predict"),
                              ("keypoints", True, "no keypoints"), ("subtract_background", True, "empty board from a whole-board 84×84 frame"),
                              ("maze_encoding", True, "circular maze's walls"), ("maze_frame", "marble", "turns")):
         with pytest.raises(ValueError, match=rf"NetworkSettings\.{name} does not apply to obs 'cyberrunner': .*{why}"):

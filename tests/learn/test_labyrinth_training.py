@@ -80,9 +80,8 @@ def test_settings_accept_the_labyrinth_and_refuse_the_mazes_settings_by_name():
     refused = {
         "num_mazes": r"PPOConfig\.num_mazes applies to the circular maze's tasks only, not LABYRINTH-EASY: random",
         "start_maze": r"PPOConfig\.start_maze applies to the circular maze's tasks only",
-        "aux_heads": r"PPOConfig\.aux_heads on LABYRINTH-EASY: the auxiliary heads predict the circular maze's",
     }
-    values = {"num_mazes": 4, "start_maze": 2, "aux_heads": True}
+    values = {"num_mazes": 4, "start_maze": 2}
     for name, message in refused.items():
         with pytest.raises(ValueError, match=message):
             PPOConfig.from_flat(LAB, **{name: values[name]})
@@ -296,12 +295,9 @@ def test_a_pixel_run_with_the_marbles_motion_reads_two_frames_in_training_evalua
     assert_envs_feed_the_run(run_dir, {"motion": True}, (2, 84, 84))
 
 
-def test_the_labyrinth_refuses_by_name_only_what_its_pixels_cannot_train_with(tmp_path, capsys):
+def test_the_labyrinth_refuses_by_name_only_what_its_pixels_cannot_train_with():
     for config in (PPOConfig, A3CConfig):
         owner = config.__name__
-        with pytest.raises(ValueError, match=rf"{owner}\.aux_heads on LABYRINTH-EASY: .*leave them off "
-                                             r"\(aux_heads=False"):
-            config.from_flat(LAB, obs="pixels", aux_heads=True)
         with pytest.raises(ValueError, match=rf"{owner}\.maze_encoding on LABYRINTH-EASY: the encoding is of a "
                                              r"circular maze's walls; leave it off \(maze_encoding=False\)"):
             config.from_flat(LAB, maze_encoding=True)
@@ -309,11 +305,5 @@ def test_the_labyrinth_refuses_by_name_only_what_its_pixels_cannot_train_with(tm
         network = config.from_flat(LAB, obs="pixels", subtract_background=True, keypoints=True, tilt_input=False,
                                    asymmetric_critic=True, precision="fp32").network
         assert (network.aux_heads, network.subtract_background, network.keypoints) == (False, True, True)
-    # Settings built whole keep NetworkSettings' pixel default (heads on): refused the same way.
-    with pytest.raises(ValueError, match=r"PPOConfig\.aux_heads on LABYRINTH-HARD"):
-        PPOConfig(task="LABYRINTH-HARD", network=NetworkSettings(obs="pixels"))
-    # The maze's pixels keep their heads by default.
+    # The maze's pixels keep their heads by default; the labyrinth's are asked for (below).
     assert PPOConfig.from_flat(LAB, task="STG1", obs="pixels").network.aux_heads is True
-    # The command line refuses them before writing anything.
-    assert main(["train", "--algo", "ppo", "--aux-heads", "--run-dir", str(tmp_path / "r"), *PIXELS]) == 2
-    assert "aux_heads on LABYRINTH-EASY" in capsys.readouterr().err and not (tmp_path / "r").exists()

@@ -139,13 +139,6 @@ def _privileged_inputs(steps: int, batch: int, seed: int = 0) -> torch.Tensor:
     return (torch.rand(steps, batch, 7, generator=g) * 2 - 1) * scale
 
 
-def test_frame_head_reads_position_and_channel_only():
-    from bimgame.learn.nets import frame_visible
-
-    assert frame_visible(7) == [0, 1, 6]  # x, y, channel of one marble
-    assert frame_visible(12) == [0, 1, 4, 5, 10, 11]  # two marbles
-
-
 def test_aux_loss_is_the_error_of_both_heads_in_scaled_units():
     net = _privileged_net(aux_heads=True)
     config = net.config

@@ -26,3 +26,12 @@ def assert_envs_feed_the_run(run_dir: Path, env_options: dict, obs_shape: tuple[
     board = open_board(run.task, obs_mode=agent.env_obs_mode, action_type=agent.action_type, **agent.env_options)
     assert board.env.observation_space.shape == obs_shape
     return net
+
+
+#: A tiny continuous PPO run on the easy layout from state, as settings and as ``bimgame train`` flags:
+#: the runs that start from another run's policy (``--init``) and add a part to it.
+SMALL_STATE_RUN = dict(task="LABYRINTH-EASY", obs="state", hidden=16, features=16, envs_per_worker=4, n_steps=32,
+                       eval_every=0, eval_episodes=2, max_episode_steps=100, action_type="continuous")
+SMALL_STATE_FLAGS = ["--task", "LABYRINTH-EASY", "--obs", "state", "--hidden", "16", "--features", "16",
+                     "--envs-per-worker", "4", "--n-steps", "32", "--eval-every", "0", "--eval-episodes", "2",
+                     "--max-episode-steps", "100", "--action-type", "continuous", "--no-progress"]

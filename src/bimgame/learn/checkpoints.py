@@ -29,6 +29,7 @@ __all__ = [
     "load_checkpoint",
     "load_weights",
     "load_init_weights",
+    "with_added_aux_heads",
     "with_added_critic",
     "with_own_background",
     "apply_weights",
@@ -171,7 +172,8 @@ def load_init_weights(module: torch.nn.Module, init: str | Path | None) -> None:
         return
     try:
         payload = load_checkpoint(init)
-        weights = with_own_background(with_added_critic(payload["model"], module), module, init)
+        weights = with_added_aux_heads(with_added_critic(payload["model"], module), module)
+        weights = with_own_background(weights, module, init)
         apply_weights(module, {**payload, "model": weights}, init)
     except CheckpointError as error:
         raise CheckpointError(f"--init: {error}") from None
@@ -221,6 +223,22 @@ def with_added_critic(weights: dict[str, torch.Tensor], module: torch.nn.Module)
     widened[:, : old_value.shape[1]] = old_value
     state_reader = {k: v for k, v in expected.items() if k.startswith(_CRITIC_STATE)}  # loaded onto themselves
     return {**weights, **state_reader, "value.weight": widened}
+
+
+#: The weights of the auxiliary heads (``RecurrentActorCritic.aux_frame``, ``aux_memory``).
+_AUX_HEADS = ("aux_frame.", "aux_memory.")
+
+
+def with_added_aux_heads(weights: dict[str, torch.Tensor], module: torch.nn.Module) -> dict[str, torch.Tensor]:
+    """``weights`` of a network without auxiliary heads made to fit ``module``, which has them
+    (``weights`` unchanged otherwise): the run adds the heads to a policy trained without them (a
+    DAgger iterate, which cannot have them). The heads keep ``module``'s fresh weights: they read the
+    features and feed nothing back, so the policy acts exactly as loaded, and their loss teaches the
+    shared encoder and LSTM to carry the state from the first update on."""
+    heads = {k: v for k, v in module.state_dict().items() if k.startswith(_AUX_HEADS)}
+    if not heads or any(k.startswith(_AUX_HEADS) for k in weights):
+        return weights
+    return {**weights, **heads}  # loaded onto themselves
 
 
 def apply_weights(module: torch.nn.Module, payload: dict[str, Any], source: str | Path) -> int:

@@ -233,7 +233,12 @@ class NetworkSettings:
         if isinstance(maze, LabyrinthSpec) and self.surroundings:
             obs_scale = np.concatenate([scale, surroundings_scale()])
         privileged: dict[str, Any] = (
-            {"privileged_size": len(scale), "aux_heads": self.aux_heads, "asymmetric_critic": self.asymmetric_critic}
+            {
+                "privileged_size": len(scale),
+                "state_layout": "labyrinth" if isinstance(maze, LabyrinthSpec) else "maze",
+                "aux_heads": self.aux_heads,
+                "asymmetric_critic": self.asymmetric_critic,
+            }
             if self.privileged
             else {}
         )

@@ -25,8 +25,8 @@ __all__ = ["NOT_CYBERRUNNER", "check_cyberrunner_network", "cyberrunner_net_conf
 NOT_CYBERRUNNER = {
     "keypoints": "the CyberRunner encoder has no keypoints (pixels only)",
     "subtract_background": "it subtracts the empty board from a whole-board 84×84 frame (pixels only)",
-    "aux_heads": "the auxiliary heads predict the circular maze's state layout (asymmetric_critic reads the "
-    "labyrinth's state)",
+    "aux_heads": "the observation already holds the state the auxiliary heads would predict (the marble's "
+    "position and the path points ahead; asymmetric_critic reads the labyrinth's state)",
     "maze_encoding": "the encoding is of a circular maze's walls",
 }
 

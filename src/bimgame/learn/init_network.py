@@ -3,12 +3,13 @@ the network the learner builds must be the network those weights were trained as
 
 The weights' shapes catch most differences, but an error about a tensor's shape does not say which
 setting differs or what to do, and some settings change what the inputs mean without changing a
-shape (background subtraction). So the settings are compared first, by name. One difference is
-allowed: a run may add an asymmetric critic to a policy trained without one (a π^s or DAgger iterate
-never has one), which grows out of the old value head. The maze encoding gets its own advice: a
-policy pre-trained on a dataset of many mazes (``bimgame generate --num-mazes``) reads each episode's
-maze encoding and starts runs on many mazes (``--num-mazes``) only; one of MERL's maze alone does not
-read it and cannot start them.
+shape (background subtraction). So the settings are compared first, by name. Two differences are
+allowed, the parts that only train: a run may add an asymmetric critic to a policy trained without
+one (a π^s or DAgger iterate never has one), which grows out of the old value head, and auxiliary
+heads (a DAgger iterate never has them), which start fresh; neither changes what the policy does.
+The maze encoding gets its own advice: a policy pre-trained on a dataset of many mazes (``bimgame
+generate --num-mazes``) reads each episode's maze encoding and starts runs on many mazes
+(``--num-mazes``) only; one of MERL's maze alone does not read it and cannot start them.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from typing import Any
 
 from bimgame.learn.common import NetworkSettings, init_network_settings, read_run
 
-__all__ = ["MATCHED_SETTINGS", "check_init_network", "init_settings_for"]
+__all__ = ["MATCHED_SETTINGS", "TRAINING_PARTS", "check_init_network", "init_settings_for"]
 
 #: The network settings that decide the weights or what their inputs mean (``precision`` is only how
 #: they are computed).
@@ -58,7 +59,7 @@ def check_init_network(init: str | Path | None, network: NetworkSettings) -> Non
     differing = [
         name
         for name in MATCHED_SETTINGS
-        if getattr(theirs, name) != getattr(network, name) and not _adds_critic(name, theirs, network)
+        if getattr(theirs, name) != getattr(network, name) and not _adds_training_part(name, theirs, network)
     ]
     if not differing:
         return
@@ -70,11 +71,18 @@ def check_init_network(init: str | Path | None, network: NetworkSettings) -> Non
     raise ValueError(f"--init: the network of {init} is not this run's ({shown}): {advice}")
 
 
-def _adds_critic(name: str, theirs: NetworkSettings, network: NetworkSettings) -> bool:
-    """Whether setting ``name`` differs only because the run adds an asymmetric critic to a policy
-    trained without one: allowed, the critic grows out of the old one's value head
-    (:func:`~bimgame.learn.checkpoints.with_added_critic`); dropping a trained critic is not."""
-    return name == "asymmetric_critic" and network.asymmetric_critic and not theirs.asymmetric_critic
+#: The network parts that only train (the policy does not read them), which a run may add to a policy
+#: trained without them: an asymmetric critic and auxiliary heads (:mod:`bimgame.learn.checkpoints`
+#: fits the old weights to them).
+TRAINING_PARTS = ("asymmetric_critic", "aux_heads")
+
+
+def _adds_training_part(name: str, theirs: NetworkSettings, network: NetworkSettings) -> bool:
+    """Whether setting ``name`` differs only because the run adds a part of :data:`TRAINING_PARTS`
+    to a policy trained without it: allowed, the critic grows out of the old one's value head
+    (:func:`~bimgame.learn.checkpoints.with_added_critic`) and the heads start fresh
+    (:func:`~bimgame.learn.checkpoints.with_added_aux_heads`); dropping a trained part is not."""
+    return name in TRAINING_PARTS and getattr(network, name) and not getattr(theirs, name)
 
 
 def _reads_encoding(init: str | Path) -> str:

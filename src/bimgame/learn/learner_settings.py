@@ -155,11 +155,11 @@ def check_start_curriculum(
 def check_puzzle(owner: str, task: str, network: Any, *, num_mazes: int | None, start_maze: int) -> None:
     """Refuse CyberRunner's observation on the maze's ``task`` (:func:`~bimgame.envs.puzzles.check_obs`),
     and what the labyrinth's ``task`` cannot train with: the maze's random mazes (:func:`refuse_maze_only`)
-    and the parts of a network (:class:`~bimgame.learn.common.NetworkSettings`) made for the maze's state
-    layout — auxiliary heads (they predict the maze's marble and channel; off by default on the labyrinth:
-    :func:`puzzle_defaults`) and the maze's encoding. Every observation runs on the labyrinth: ``state``,
-    ``pixels`` (its own 84×84 frames and empty-board background: :mod:`bimgame.learn.pixel_network`; an
-    asymmetric critic reads its 17 state values) and ``cyberrunner``."""
+    and the maze's encoding (a part of a network, :class:`~bimgame.learn.common.NetworkSettings`, made for
+    the circular maze). Every observation runs on the labyrinth: ``state``, ``pixels`` (its own 84×84
+    frames and empty-board background: :mod:`bimgame.learn.pixel_network`; an asymmetric critic reads its
+    17 state values, auxiliary heads predict them: :mod:`bimgame.learn.privileged_state`; off by default
+    there, :func:`puzzle_defaults`) and ``cyberrunner``."""
     if puzzle(task).is_maze:
         check_obs(f"{owner}.network.obs", task, getattr(network, "obs", ""))
         for name in OBSERVATION_EXTRAS:
@@ -167,12 +167,6 @@ def check_puzzle(owner: str, task: str, network: Any, *, num_mazes: int | None, 
                 raise ValueError(f"{owner}.{name} on {task}: {LABYRINTH_ONLY[name]}")
         return
     refuse_maze_only(owner, task, {"num_mazes": num_mazes is not None, "start_maze": bool(start_maze)})
-    if getattr(network, "aux_heads", False):
-        raise ValueError(
-            f"{owner}.aux_heads on {task}: the auxiliary heads predict the circular maze's state layout (marble, "
-            f"channel), not the labyrinth's; leave them off (aux_heads=False, --no-aux-heads; asymmetric_critic "
-            f"reads the labyrinth's state)"
-        )
     if getattr(network, "maze_encoding", False):
         raise ValueError(
             f"{owner}.maze_encoding on {task}: the encoding is of a circular maze's walls; leave it off "
@@ -183,9 +177,10 @@ def check_puzzle(owner: str, task: str, network: Any, *, num_mazes: int | None, 
 def puzzle_defaults(values: Mapping[str, Any], default_task: str) -> dict[str, Any]:
     """The flat settings ``values`` with the defaults that depend on the task's puzzle filled in (the task
     is ``values["task"]``, else ``default_task``): on the labyrinth, ``aux_heads`` not given (None) is
-    False — :class:`~bimgame.learn.common.NetworkSettings` turns it on for pixels, but its heads predict the
-    circular maze's state layout (:func:`check_puzzle` refuses them there), so a pixel run on the labyrinth
-    needs no ``--no-aux-heads``. An unknown task is left for the settings' own check to name."""
+    False — :class:`~bimgame.learn.common.NetworkSettings` turns them on for pixels, where the circular
+    maze learns with them; on the labyrinth they are asked for (``--aux-heads``), so that its pixel runs
+    keep the network they were measured with and its datasets need no recorded states. An unknown task
+    is left for the settings' own check to name."""
     filled = dict(values)
     try:
         labyrinth = not puzzle(filled.get("task", default_task)).is_maze

@@ -19,7 +19,7 @@ paper's network with the tilt input):
 
 - ``aux_heads``: two linear heads read the simulator's state (the *privileged* state observation,
   see :class:`~bimgame.envs.observe.Observer`) back from the features — the frame head from the
-  encoder's features (what one frame shows: marble position and channel), the memory head from the
+  encoder's features (what the frames show: :mod:`bimgame.learn.privileged_state`), the memory head from the
   LSTM (everything: also velocities and tilt). Their regression loss (:meth:`RecurrentActorCritic.aux_loss`)
   is a training signal only: the policy still acts from pixels alone. Without it the encoder must
   find a ≈ 5 px marble on a high-contrast maze from the reward alone.
@@ -49,6 +49,7 @@ from bimgame.envs.puzzles import maze_obs_scale as state_obs_scale
 from bimgame.learn.encoders import MAZE_FRAMES, ConvEncoder, CyberRunnerEncoder, MLPEncoder
 from bimgame.learn.lstm_unroll import lstm_unroll
 from bimgame.learn.policy_heads import LOG_STD_INIT, ActionDistribution, action_head, check_action_type
+from bimgame.learn.privileged_state import STATE_LAYOUTS, frame_visible
 from bimgame.sim.maze import MazeSpec
 from bimgame.sim.render import MazeRenderer
 from bimgame.util.settings import from_dict
@@ -118,6 +119,8 @@ class NetConfig:
     an asymmetric critic reads; 0: none (neither option is available)."""
     aux_heads: bool = False
     """Heads that predict the privileged state from the encoder's and the LSTM's features."""
+    state_layout: str = "maze"
+    """Whose state the privileged vector is (``STATE_LAYOUTS``: the maze's, the labyrinth's)."""
     asymmetric_critic: bool = False
     """The value head also reads the privileged state (training only; not the paper's)."""
     maze_size: int = 0
@@ -157,6 +160,8 @@ class NetConfig:
                 f"NetConfig.privileged_size must be 0 or a state observation's length 5·n + 2, "
                 f"got {self.privileged_size}"
             )
+        if self.state_layout not in STATE_LAYOUTS:
+            raise ValueError(f"NetConfig.state_layout must be one of {STATE_LAYOUTS}, got {self.state_layout!r}")
         for name in ("aux_heads", "asymmetric_critic"):
             if getattr(self, name) and not self.privileged_size:
                 raise ValueError(f"NetConfig.{name} needs privileged_size > 0 (the state observation's length)")
@@ -167,13 +172,6 @@ class NetConfig:
     @classmethod
     def from_dict(cls, values: dict) -> NetConfig:
         return from_dict(cls, values, "network settings")
-
-
-def frame_visible(privileged_size: int) -> list[int]:
-    """Indices of the privileged state one frame shows: each marble's x, y and channel (not its
-    velocity, nor the tilt: frames are drawn in the board's frame)."""
-    n = (privileged_size - 2) // 5
-    return [4 * i + k for i in range(n) for k in (0, 1)] + [4 * n + 2 + i for i in range(n)]
 
 
 class Unrolled(NamedTuple):
@@ -244,7 +242,9 @@ class RecurrentActorCritic(nn.Module):
         self.value = nn.Linear(critic_inputs, 1)
         self.aux_frame = self.aux_memory = None
         if config.aux_heads:
-            self.register_buffer("frame_index", torch.tensor(frame_visible(config.privileged_size)), persistent=False)
+            frames = config.obs_shape[0] if config.encoder == "conv" else 1
+            shown = frame_visible(config.privileged_size, config.state_layout, frames)
+            self.register_buffer("frame_index", torch.tensor(shown), persistent=False)
             self.aux_frame = nn.Linear(config.features, len(self.frame_index))
             self.aux_memory = nn.Linear(config.hidden, config.privileged_size)
         self._init_weights()

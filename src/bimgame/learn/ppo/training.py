@@ -79,6 +79,18 @@ _UPDATE_SCALARS = (
 )
 
 
+#: The auxiliary heads' losses (frame head, memory head): logged by a network that has them.
+AUX_COLUMNS = ("aux_frame", "aux_memory")
+
+
+def run_tables(net: RecurrentActorCritic) -> dict[str, list[str]]:
+    """:data:`TABLES` of a run of ``net``: with auxiliary heads its updates also log their losses (a
+    column of their own only then, so the logs of runs without heads keep their header and resume)."""
+    if not net.config.aux_heads:
+        return TABLES
+    return {**TABLES, "updates": [*TABLES["updates"], *AUX_COLUMNS]}
+
+
 def resolve_ppo_config(
     given: dict[str, Any], run_dir: str | Path, *, resume: bool = False, init: str | Path | None = None
 ) -> PPOConfig:
@@ -219,7 +231,7 @@ class _Session:
         fresh = step == 0 and not run.resume
         # An update's row is logged before its step's checkpoint: a resumed run keeps it.
         self.log: MetricLog = run.metric_log(
-            TABLES, resume_step=None if fresh else step, keep_at_resume_step=("updates",)
+            run_tables(net), resume_step=None if fresh else step, keep_at_resume_step=("updates",)
         )
         self.monitor = Monitor(step)
         self.monitor.restore(self.log.kept["episodes"])
@@ -309,7 +321,8 @@ class _Session:
             self.log_step = self.step
             timing = {"sps": self.monitor.sps(self.step), "seconds": time.monotonic() - self.started}
             row = {**parts, **self.monitor.recent(), **timing, **learner.curriculum_status()}
-            self.log.write("updates", self.step, row, scalars=_UPDATE_SCALARS)
+            scalars = (*_UPDATE_SCALARS, *(AUX_COLUMNS if self.net.config.aux_heads else ()))
+            self.log.write("updates", self.step, row, scalars=scalars)
         if config.schedule.eval_every and self.step - self.eval_step >= config.schedule.eval_every:
             self.eval_step = self.step
             self._evaluate()

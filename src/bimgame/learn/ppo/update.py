@@ -22,7 +22,17 @@ from bimgame.learn.rollout import Segment, advantages_and_targets, in_sequences,
 __all__ = ["GradientAverage", "KLTarget", "RolloutTargets", "rollout_targets", "ppo_minibatch_loss", "ppo_update"]
 
 #: The statistics an update averages over its minibatches.
-_AVERAGED = ("policy_loss", "value_loss", "entropy", "approx_kl", "clip_fraction", "grad_norm", "kl")
+_AVERAGED = (
+    "policy_loss",
+    "value_loss",
+    "entropy",
+    "approx_kl",
+    "clip_fraction",
+    "grad_norm",
+    "kl",
+    "aux_frame",
+    "aux_memory",
+)
 
 
 class GradientAverage:
@@ -214,7 +224,7 @@ def ppo_update(
                 return {**parts, "grad_norm": grad_norm, "loss": loss.item(), "applied": False}
             optimizer.step()
             for key in _AVERAGED:
-                if key == "grad_norm" or key in parts:  # (kl: only when fine-tuning keeps π^s)
+                if key == "grad_norm" or key in parts:  # (kl: when fine-tuning keeps π^s; aux_*: with heads)
                     sums[key] = sums.get(key, 0.0) + (grad_norm if key == "grad_norm" else parts[key])
             count += 1
     return {**{key: value / count for key, value in sums.items()}, "applied": True}
