@@ -38,6 +38,7 @@ from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.learn.ppo.learner import RankLearner, adam
 from bimgame.learn.ppo.parallel import WorkerGroup
 from bimgame.learn.ppo.settings import PPOConfig
+from bimgame.learn.ppo.update import AUX_LOSSES, UPDATE_STATISTICS
 from bimgame.learn.rewards import EnvWrapper, RewardSettings, run_reward
 from bimgame.learn.rollout import FinishedEpisode
 from bimgame.learn.run_dir import BEST, TEACHER, RunDirectory, TrainResult, stored_run_config
@@ -53,13 +54,7 @@ TABLES = {
     "updates": [
         "seconds",
         "sps",
-        "policy_loss",
-        "value_loss",
-        "entropy",
-        "approx_kl",
-        "clip_fraction",
-        "grad_norm",
-        "kl",
+        *UPDATE_STATISTICS,
         "recent_success",
         "recent_return",
         "recent_length",
@@ -79,16 +74,12 @@ _UPDATE_SCALARS = (
 )
 
 
-#: The auxiliary heads' losses (frame head, memory head): logged by a network that has them.
-AUX_COLUMNS = ("aux_frame", "aux_memory")
-
-
 def run_tables(net: RecurrentActorCritic) -> dict[str, list[str]]:
     """:data:`TABLES` of a run of ``net``: with auxiliary heads its updates also log their losses (a
     column of their own only then, so the logs of runs without heads keep their header and resume)."""
     if not net.config.aux_heads:
         return TABLES
-    return {**TABLES, "updates": [*TABLES["updates"], *AUX_COLUMNS]}
+    return {**TABLES, "updates": [*TABLES["updates"], *AUX_LOSSES]}
 
 
 def resolve_ppo_config(
@@ -321,7 +312,7 @@ class _Session:
             self.log_step = self.step
             timing = {"sps": self.monitor.sps(self.step), "seconds": time.monotonic() - self.started}
             row = {**parts, **self.monitor.recent(), **timing, **learner.curriculum_status()}
-            scalars = (*_UPDATE_SCALARS, *(AUX_COLUMNS if self.net.config.aux_heads else ()))
+            scalars = (*_UPDATE_SCALARS, *(AUX_LOSSES if self.net.config.aux_heads else ()))
             self.log.write("updates", self.step, row, scalars=scalars)
         if config.schedule.eval_every and self.step - self.eval_step >= config.schedule.eval_every:
             self.eval_step = self.step

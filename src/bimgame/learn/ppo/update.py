@@ -19,20 +19,23 @@ from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.learn.ppo.settings import PPOOptimizationSettings
 from bimgame.learn.rollout import Segment, advantages_and_targets, in_sequences, sequence_start_states, unroll
 
-__all__ = ["GradientAverage", "KLTarget", "RolloutTargets", "rollout_targets", "ppo_minibatch_loss", "ppo_update"]
+__all__ = [
+    "AUX_LOSSES",
+    "UPDATE_STATISTICS",
+    "GradientAverage",
+    "KLTarget",
+    "RolloutTargets",
+    "rollout_targets",
+    "ppo_minibatch_loss",
+    "ppo_update",
+]
 
-#: The statistics an update averages over its minibatches.
-_AVERAGED = (
-    "policy_loss",
-    "value_loss",
-    "entropy",
-    "approx_kl",
-    "clip_fraction",
-    "grad_norm",
-    "kl",
-    "aux_frame",
-    "aux_memory",
-)
+#: The statistics an update reports, averaged over its minibatches (``kl`` only when fine-tuning keeps
+#: π^s): the columns of a run's update log.
+UPDATE_STATISTICS = ("policy_loss", "value_loss", "entropy", "approx_kl", "clip_fraction", "grad_norm", "kl")
+#: The auxiliary heads' losses (frame head, memory head): reported by a network that has them.
+AUX_LOSSES = ("aux_frame", "aux_memory")
+_AVERAGED = (*UPDATE_STATISTICS, *AUX_LOSSES)
 
 
 class GradientAverage:
