@@ -23,7 +23,7 @@ docs/labyrinth/dagger.png): the in-run evaluation's success and the mean path pr
 
 Usage: python benchmarks/bench_labyrinth_dagger.py --expert-data DATA --init PI_S [--layout easy]
        [--obs state|cyberrunner|pixels] [--action-type continuous|discrete] [--surroundings]
-       [--motion] [--keypoints] [--subtract-background] [--seeds 3] [--iterations 8]
+       [--motion] [--keypoints] [--subtract-background] [--aux-heads] [--seeds 3] [--iterations 8]
        [--episodes-per-iteration 10] [--beta0 0.5] [--beta-decay 0.7]
        [--epochs-per-iteration 5] [--max-episode-steps 1500] [--demo-start-share 0]
        [--demo-start-window 0 1] [--expert-samples 16]
@@ -64,7 +64,7 @@ def _config(args: argparse.Namespace, seed: int) -> DAggerConfig:
         task=f"LABYRINTH-{args.layout.upper()}",
         obs=args.obs,
         action_type=args.action_type,
-        aux_heads=False,
+        aux_heads=args.aux_heads,
         asymmetric_critic=False,
         surroundings=args.surroundings,
         motion=args.motion,
@@ -116,6 +116,7 @@ def _arm(args: argparse.Namespace) -> str:
         (args.motion, "-motion"),
         (args.keypoints, "-keypoints"),
         (args.subtract_background, "-nobackground"),
+        (args.aux_heads, "-aux"),
         (args.init is not None, "-init"),
         (args.no_demonstrations, "-nodemos"),
     )
@@ -236,6 +237,12 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="pixels: subtract the empty board's frame before the convolutions (π^s must too)",
     )
+    parser.add_argument(
+        "--aux-heads",
+        action="store_true",
+        help="auxiliary heads that predict the labyrinth's state from the features (the rollouts record it; "
+        "π^s may lack them: they are added fresh)",
+    )
     parser.add_argument("--jobs", type=int, default=3, help="runs at once, one thread each (default 3)")
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "labyrinth-dagger")
     parser.add_argument("--results", type=Path, default=ROOT / "benchmarks" / "results" / "labyrinth_dagger.json")
@@ -283,6 +290,7 @@ def main(argv: list[str] | None = None) -> int:
         "motion": args.motion,
         "keypoints": args.keypoints,
         "subtract_background": args.subtract_background,
+        "aux_heads": args.aux_heads,
         "demonstrations_aggregated": not args.no_demonstrations,
         "action_type": args.action_type,
         "seeds": seeds,
@@ -302,7 +310,8 @@ def main(argv: list[str] | None = None) -> int:
     title = (
         f"DAgger on the {args.layout} labyrinth ({args.obs}{' + surroundings' if args.surroundings else ''}"
         f"{' + motion' if args.motion else ''}{' + keypoints' if args.keypoints else ''}"
-        f"{' − empty board' if args.subtract_background else ''}, {args.action_type}){', from π^s' if args.init else ''}: "
+        f"{' − empty board' if args.subtract_background else ''}{' + aux heads' if args.aux_heads else ''}, "
+        f"{args.action_type}){', from π^s' if args.init else ''}: "
         f"{args.iterations} iterations × {args.episodes_per_iteration} rollouts"
         f"{f' ({args.demo_start_share:.0%} from the expert states{_window(args)})' if args.demo_start_share else ''}"
         f"{f', expert K = {args.expert_samples}' if args.expert_samples != EXPERT.n_samples else ''}"

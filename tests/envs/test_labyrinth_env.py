@@ -277,3 +277,20 @@ def test_bad_actions_and_options_name_what_is_allowed():
         discrete.reset(options={"sim_state": np.zeros(3)})
     with pytest.raises(RuntimeError, match="reset"):
         LabyrinthEnv("easy").step(np.zeros(2))
+
+
+def test_state_observation_is_the_state_modes_observation_whatever_the_env_observes():
+    """The privileged state a pixel learner's auxiliary heads predict: the 17 values ``obs_mode="state"``
+    returns at the same step, for any observation mode."""
+    pixels, state = LabyrinthEnv("easy", obs_mode="pixels"), LabyrinthEnv("easy")
+    with pytest.raises(RuntimeError, match=r"call reset\(\) before state_observation\(\)"):
+        pixels.state_observation()
+    _, _ = pixels.reset(seed=4)
+    expected, _ = state.reset(seed=4)
+    for t in range(15):
+        np.testing.assert_array_equal(pixels.state_observation(), expected)
+        action = np.array([1.0, -0.5] if t < 8 else [-1.0, 0.0], dtype=np.float32)
+        pixels.step(action)
+        expected, *_ = state.step(action)
+    pixels.close()
+    state.close()

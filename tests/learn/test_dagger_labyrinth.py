@@ -138,6 +138,33 @@ def test_demonstrations_start_the_aggregated_dataset(lab_data, tmp_path):
     assert stored["torch_threads"] == 1  # what a rerun must match to reproduce the run bit for bit
 
 
+def test_a_learner_with_auxiliary_heads_learns_the_states_its_rollouts_record(lab_data, tmp_path, capsys):
+    """The labyrinth's rollouts record each step's 17 state values for a learner with auxiliary heads
+    (its privileged targets): from state they are the very observations; the aggregated data keeps
+    them, demonstrations included, and the heads learn from them."""
+    learner = PretrainConfig(**{**LEARNER, "aux_heads": True}, action_type="continuous")
+    config = _config(learner=learner, expert_data=str(lab_data), beta0=0.0)
+    net = config.learner.build_policy(0, LabyrinthEnv("easy").board)
+    fresh = {k: v.clone() for k, v in net.state_dict().items() if k.startswith("aux_")}
+    episodes, _ = collect_episodes(net, config, beta=0.0, seed=3)
+    for episode in episodes:
+        assert episode.state_obs is not None and episode.state_obs.shape == (len(episode), 17)
+        np.testing.assert_array_equal(episode.state_obs, episode.obs)
+    plain, _ = collect_episodes(net, _config(), beta=0.0, seed=3)
+    assert all(e.state_obs is None for e in plain)  # recorded only when a head learns from them
+    dagger(config, tmp_path / "run", progress=False)
+    with np.load(tmp_path / "run" / "data" / "iteration_000.npz", allow_pickle=False) as data:
+        assert data["state_obs"].shape == (int(data["lengths"].sum()), 17)
+    trained = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=True)["model"]
+    assert all(not torch.equal(trained[k], v) for k, v in fresh.items())  # the heads learned
+    with pytest.raises(ValueError, match=r"aux_heads=False and asymmetric_critic=False on the circular maze: its "
+                                         r"rollouts record no state observations"):
+        DAggerConfig(learner=PretrainConfig(task="STG1", obs="state", aux_heads=True))
+    assert main(["dagger", "--run-dir", str(tmp_path / "maze"), "--task", "STG1", "--obs", "state", "--aux-heads"]) == 2
+    assert "on the circular maze: its rollouts record no state observations" in capsys.readouterr().err
+    assert not (tmp_path / "maze").exists()
+
+
 def test_what_does_not_fit_is_refused_by_name(lab_data, tmp_path):
     with pytest.raises(ValueError, match=r"DAggerConfig\.expert on task LABYRINTH-EASY must be LabyrinthMPCConfig"):
         _config(expert=MPCConfig())

@@ -90,6 +90,7 @@ DAGGER_LEARNER_FLAGS = (
     "gate_bearings",
     "surroundings",
     "motion",
+    "aux_heads",
     "seed",
 )
 #: DAgger's own settings with a flag (``expert`` is the default MPC expert).
@@ -344,13 +345,14 @@ def dagger_expert_from(
 def dagger_learner_from(args: argparse.Namespace) -> PretrainConfig:
     """DAgger's learner of the flags given: those not given take their defaults for the observations
     (128 units for state, 256 for pixels) on task STG1 unless ``--task`` says otherwise, with no
-    auxiliary heads nor asymmetric critic; an ``--action-type`` not given is ``--expert-data``'s, else
-    discrete."""
+    asymmetric critic and auxiliary heads only when asked for (``--aux-heads``: the labyrinth's
+    rollouts record the states they learn from); an ``--action-type`` not given is
+    ``--expert-data``'s, else discrete."""
     values = {name: getattr(args, name) for name in DAGGER_LEARNER_FLAGS if getattr(args, name) is not None}
     if args.expert_data is not None:
         values = _with_dataset_action_type(values, args.expert_data)
-    values = {"task": DAggerConfig().learner.task, **values}
-    return PretrainConfig(**values, aux_heads=False, asymmetric_critic=False)
+    values = {"task": DAggerConfig().learner.task, "aux_heads": False, **values}
+    return PretrainConfig(**values, asymmetric_critic=False)
 
 
 def run_dagger(args: argparse.Namespace) -> int:

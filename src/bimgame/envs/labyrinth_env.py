@@ -400,6 +400,26 @@ class LabyrinthEnv(gym.Env):
         previous = kinematics if previous_state is None else self._state_kinematics("previous_state", previous_state)[1]
         return self._observation(kinematics, qpos[:2], float(progress), np.array(previous[:2]))
 
+    def state_observation(self) -> np.ndarray:
+        """The 17 state values (``obs_mode="state"``'s, without surroundings) at the env's current step,
+        whatever it observes: the privileged state that a pixel learner's auxiliary heads predict."""
+        if self._last is None:
+            raise RuntimeError("call reset() before state_observation()")
+        return self._state_values(self._kinematics, self.sim.data.qpos[:2], self._last.progress)
+
+    def _state_values(self, kinematics: tuple[float, ...], tilt: np.ndarray, progress: float) -> np.ndarray:
+        """x, y, vx, vy, the tilt, the progress as a fraction of the path, then the 5 path points
+        ahead relative to the marble (:data:`PATH_SPACING` apart)."""
+        x, y, vx, vy = kinematics
+        relative = self._path_relative(x, y, progress)
+        return np.array([x, y, vx, vy, tilt[0], tilt[1], progress / self.path.length, *relative], np.float32)
+
+    def _path_relative(self, x: float, y: float, progress: float) -> list[float]:
+        """The 5 path points ahead of ``progress`` (m), :data:`PATH_SPACING` apart, relative to the
+        marble at (``x``, ``y``), flattened."""
+        ahead = self.tracker.points_ahead(progress, PATH_AHEAD, PATH_SPACING)
+        return [v for px, py in ahead for v in (px - x, py - y)]
+
     def _state_kinematics(self, name: str, sim_state: np.ndarray) -> tuple[np.ndarray, tuple[float, ...]]:
         """The joint positions and the marble's board-frame (x, y, vx, vy) of a physics state, checked."""
         state = np.asarray(sim_state, dtype=np.float64)
@@ -424,14 +444,12 @@ class LabyrinthEnv(gym.Env):
         """The observation of the marble's board-frame ``kinematics`` (x, y, vx, vy), the board's
         ``tilt`` (rad) and the marble's path ``progress`` (m); ``previous_xy`` its position at the
         previous observation (the ``motion``)."""
-        x, y, vx, vy = kinematics
+        x, y = kinematics[:2]
         if self.obs_mode == "pixels":
             assert self._raster is not None
             return pixel_observation(self._raster, np.array([[x, y]]), previous_xy[None] if self.motion else None)[0]
-        ahead = self.tracker.points_ahead(progress, PATH_AHEAD, PATH_SPACING)
-        relative = [v for px, py in ahead for v in (px - x, py - y)]
         if self.obs_mode == "state":
-            head = np.array([x, y, vx, vy, tilt[0], tilt[1], progress / self.path.length] + relative, np.float32)
+            head = self._state_values(kinematics, tilt, progress)
             return head if self.surroundings is None else np.concatenate([head, self.surroundings.of(np.array([x, y]))])
         assert self._raster is not None
         xy = np.array([[x, y]])
@@ -441,7 +459,7 @@ class LabyrinthEnv(gym.Env):
             self.board.board_size,
             xy,
             np.asarray(tilt)[None],
-            np.array([relative]),
+            np.array([self._path_relative(x, y, progress)]),
             motion,
         )
         obs = {key: value[0] for key, value in obs.items()}

@@ -143,9 +143,12 @@ class Episode:
 
     @staticmethod
     def concatenate(episodes: list[Episode]) -> dict[str, np.ndarray]:
-        """Episodes as flat arrays plus ``lengths``, for one compressed file (:meth:`split`)."""
+        """Episodes as flat arrays plus ``lengths``, for one compressed file (:meth:`split`); their
+        ``state_obs`` too when every episode has them."""
         arrays = {name: np.concatenate([getattr(e, name) for e in episodes]) for name in Episode.STEP_FIELDS}
         arrays["lengths"] = np.array([len(e) for e in episodes], dtype=np.int64)
+        if episodes and all(e.state_obs is not None for e in episodes):
+            arrays["state_obs"] = np.concatenate([e.state_obs for e in episodes])
         return arrays
 
     @staticmethod
@@ -155,6 +158,8 @@ class Episode:
         episodes = []
         for a, b in zip(bounds[:-1], bounds[1:], strict=True):
             fields: dict[str, Any] = {name: arrays[name][a:b] for name in Episode.STEP_FIELDS}
+            if "state_obs" in arrays:
+                fields["state_obs"] = arrays["state_obs"][a:b]
             episodes.append(Episode(**fields))
         return episodes
 

@@ -38,13 +38,15 @@ STALL_PROGRESS_M = 1e-3
 @dataclasses.dataclass
 class _Record:
     """What one rollout recorded, step by step: what the learner saw, the expert's label, the action
-    executed and the reward it brought (actions: discrete ints or continuous (2,) arrays)."""
+    executed and the reward it brought (actions: discrete ints or continuous (2,) arrays); for a
+    learner with auxiliary heads or an asymmetric critic also the state observation (``states``)."""
 
     obs: list[np.ndarray] = dataclasses.field(default_factory=list)
     tilt: list[np.ndarray] = dataclasses.field(default_factory=list)
     actions: list[Any] = dataclasses.field(default_factory=list)
     executed: list[Any] = dataclasses.field(default_factory=list)
     rewards: list[float] = dataclasses.field(default_factory=list)
+    states: list[np.ndarray] = dataclasses.field(default_factory=list)
 
     def as_episode(self, gamma: float) -> Episode:
         """The rollout as an :class:`~bimgame.expert.episode.Episode` (``actions``: the expert's labels)."""
@@ -55,6 +57,7 @@ class _Record:
             tilt=np.asarray(self.tilt),
             gamma=gamma,
             executed=np.asarray(self.executed),
+            state_obs=np.stack(self.states) if self.states else None,
         )
 
 
@@ -94,6 +97,7 @@ class _Rollouts:
     records: list[_Record]
     active: np.ndarray
     stall_steps: int | None = None
+    record_states: bool = False
     successes: int = 0
     stalled: int = 0
     best_progress: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
@@ -107,12 +111,14 @@ class _Rollouts:
         env_seed: int,
         start_states: list[np.ndarray | None],
         stall_steps: int | None = None,
+        record_states: bool = False,
     ) -> _Rollouts:
         """Reset every environment (the ``i``-th with seed ``env_seed + i``, in the physics state
         ``start_states[i]`` if not None), then make its expert (``make_expert(i, env)``): after the
         reset, so that on random mazes it plans on the episode's maze. ``stall_steps``: end a
         labyrinth rollout whose progress has not passed its best by :data:`STALL_PROGRESS_M` for
-        that many steps."""
+        that many steps. ``record_states``: record each step's state observation too (the labyrinth's
+        :meth:`~bimgame.envs.labyrinth_env.LabyrinthEnv.state_observation`)."""
         observations, infos, experts = [], [], []
         for i, (env, start) in enumerate(zip(envs, start_states, strict=True)):
             options = None if start is None else {"sim_state": start}
@@ -133,6 +139,7 @@ class _Rollouts:
             records,
             np.ones(len(envs), dtype=bool),
             stall_steps,
+            record_states,
             best_progress=best,
             since_best=np.zeros(len(envs), dtype=np.int64),
         )
@@ -163,6 +170,10 @@ class _Rollouts:
         record.tilt.append(self.infos[i]["tilt"])
         record.actions.append(label)
         record.executed.append(action)
+        if self.record_states:
+            env = self.envs[i]
+            assert isinstance(env, LabyrinthEnv)  # DAggerConfig refuses the maze's
+            record.states.append(env.state_observation())
         obs, reward, terminated, _, info = self.envs[i].step(action)
         record.rewards.append(reward)
         self.observations[i], self.infos[i] = obs, info
@@ -226,7 +237,7 @@ def collect_episodes(
 
     # A child of the seed draws the starts, leaving the seeds above as they were without them.
     starts = draw_demo_starts(demo_states, config.demo_start_share, count, np.random.default_rng(sequence.spawn(1)[0]))
-    rollouts = _Rollouts.start(envs, expert_of, int(env_seed), starts, config.stall_steps)
+    rollouts = _Rollouts.start(envs, expert_of, int(env_seed), starts, config.stall_steps, learner.privileged)
     steps = 0
     try:
         while rollouts.active.any() and steps < config.time_limit:

@@ -36,9 +36,9 @@ def _expert_type(task: str) -> type[MPCConfig] | type[LabyrinthMPCConfig]:
 @dataclasses.dataclass(frozen=True)
 class DAggerConfig:
     """Settings of a DAgger run; the network and its loss are ``learner``'s (a
-    :class:`~bimgame.learn.supervised.PretrainConfig`: task, observations, sizes, lr, L2, γ). The
-    learner has no auxiliary heads nor asymmetric critic: it trains on its own rollouts, which record
-    no simulator states.
+    :class:`~bimgame.learn.supervised.PretrainConfig`: task, observations, sizes, lr, L2, γ). On the
+    labyrinth the learner may have auxiliary heads or an asymmetric critic: its rollouts then record
+    each step's state observation, which they learn from; on the circular maze it has neither.
 
     Either puzzle: on the circular maze the expert is :class:`~bimgame.expert.mpc.RandomShootingMPC`
     (``expert`` an :class:`~bimgame.expert.mpc.MPCConfig`, discrete actions only); on the labyrinth
@@ -114,10 +114,10 @@ class DAggerConfig:
             require_discrete("DAgger", self.learner.action_type, "the maze expert's labels are discrete actions")
         if self.expert_data is not None and not (isinstance(self.expert_data, str) and self.expert_data):
             raise ValueError(f"DAggerConfig.expert_data must be a dataset directory or None, got {self.expert_data!r}")
-        if self.learner.aux_heads or self.learner.asymmetric_critic:
+        if maze and (self.learner.aux_heads or self.learner.asymmetric_critic):
             raise ValueError(
-                "DAggerConfig.learner must have aux_heads=False and asymmetric_critic=False: DAgger "
-                "trains on its own rollouts, which record no simulator states"
+                "DAggerConfig.learner must have aux_heads=False and asymmetric_critic=False on the circular "
+                "maze: its rollouts record no state observations (the labyrinth's do)"
             )
         for name in ("iterations", "episodes_per_iteration", "epochs_per_iteration"):
             require_int("DAggerConfig", name, getattr(self, name), 1)
