@@ -184,7 +184,7 @@ def test_a_config_json_of_the_flat_version_loads_into_the_expected_parts():
                       "start_maze": 0}
     assert config.to_dict() == {**stored["a3c"], **settings_added}
     assert json.loads(json.dumps(network_for(config).config.to_dict())) == {**stored["net"], **added, "maze_size": 0,
-                                                                       "maze_frame": "board"}
+                                                                       "maze_frame": "board", "state_layout": "maze"}
 
 
 # ------------------------------------------------------------------------------ each part's checks
