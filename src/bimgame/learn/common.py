@@ -21,7 +21,7 @@ from bimgame.envs.gate_bearings import gate_bearings_size
 from bimgame.envs.labyrinth_cyberrunner import MOTION_OBS_MODES
 from bimgame.envs.labyrinth_surroundings import surroundings_scale
 from bimgame.envs.mazes import maze_encoding_size
-from bimgame.envs.puzzles import NETWORK_OBS, PuzzleSpec, puzzle, puzzle_task_setting, state_obs_scale
+from bimgame.envs.puzzles import LABYRINTH, MAZE, NETWORK_OBS, PuzzleSpec, puzzle, puzzle_task_setting, state_obs_scale
 from bimgame.learn.checkpoints import load_weights
 from bimgame.learn.cyberrunner import check_cyberrunner_network, cyberrunner_net_config
 from bimgame.learn.encoders import MAZE_FRAMES
@@ -235,7 +235,7 @@ class NetworkSettings:
         privileged: dict[str, Any] = (
             {
                 "privileged_size": len(scale),
-                "state_layout": "labyrinth" if isinstance(maze, LabyrinthSpec) else "maze",
+                "state_layout": LABYRINTH if isinstance(maze, LabyrinthSpec) else MAZE,
                 "aux_heads": self.aux_heads,
                 "asymmetric_critic": self.asymmetric_critic,
             }

@@ -16,27 +16,34 @@ names its layout (``NetConfig.state_layout``).
 
 from __future__ import annotations
 
+from bimgame.envs.labyrinth_cyberrunner import PATH_AHEAD
+from bimgame.envs.puzzles import LABYRINTH, MAZE
+
 __all__ = ["STATE_LAYOUTS", "frame_visible"]
 
-#: The privileged state's layouts: the circular maze's and the labyrinth's.
-STATE_LAYOUTS = ("maze", "labyrinth")
+#: The privileged state's layouts: the puzzles' (:attr:`~bimgame.envs.puzzles.Puzzle.family`).
+STATE_LAYOUTS = (MAZE, LABYRINTH)
+#: The labyrinth's state length: x, y, vx, vy, the tilt, the progress, the path points ahead.
+_LABYRINTH_SIZE = 7 + 2 * PATH_AHEAD
 #: The labyrinth's state values that are functions of the marble's position alone: x, y, the
-#: progress and the 10 coordinates of the path points ahead.
-_LABYRINTH_POSITION = [0, 1, *range(6, 17)]
+#: progress and the coordinates of the path points ahead.
+_LABYRINTH_POSITION = [0, 1, *range(6, _LABYRINTH_SIZE)]
 #: The labyrinth's marble velocity (vx, vy): what two frames show besides the position.
 _LABYRINTH_VELOCITY = [2, 3]
 
 
-def frame_visible(privileged_size: int, state_layout: str = "maze", frames: int = 1) -> list[int]:
+def frame_visible(privileged_size: int, state_layout: str = MAZE, frames: int = 1) -> list[int]:
     """Indices of the privileged state that the encoder's input shows. The maze: each marble's x, y
     and channel (not its velocity, nor the tilt: frames are drawn in the board's frame). The
     labyrinth: the marble's position and what follows from it (progress, path points ahead), and
     with two frames (``frames=2``, the labyrinth's ``motion``) its velocity too; never the tilt."""
     if state_layout not in STATE_LAYOUTS:
         raise ValueError(f"state_layout must be one of {STATE_LAYOUTS}, got {state_layout!r}")
-    if state_layout == "labyrinth":
-        if privileged_size != 17:
-            raise ValueError(f"the labyrinth's privileged state has 17 values, got privileged_size {privileged_size}")
+    if state_layout == LABYRINTH:
+        if privileged_size != _LABYRINTH_SIZE:
+            raise ValueError(
+                f"the labyrinth's privileged state has {_LABYRINTH_SIZE} values, got privileged_size {privileged_size}"
+            )
         return sorted(_LABYRINTH_POSITION + (_LABYRINTH_VELOCITY if frames > 1 else []))
     n = (privileged_size - 2) // 5
     return [4 * i + k for i in range(n) for k in (0, 1)] + [4 * n + 2 + i for i in range(n)]

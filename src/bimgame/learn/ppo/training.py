@@ -221,9 +221,12 @@ class _Session:
         self.started = time.monotonic() - start.seconds  # seconds count the whole run, across resumes
         fresh = step == 0 and not run.resume
         # An update's row is logged before its step's checkpoint: a resumed run keeps it.
+        tables = run_tables(net)
         self.log: MetricLog = run.metric_log(
-            run_tables(net), resume_step=None if fresh else step, keep_at_resume_step=("updates",)
+            tables, resume_step=None if fresh else step, keep_at_resume_step=("updates",)
         )
+        # The columns TensorBoard also gets: the usual ones, and the heads' losses the run's table logs.
+        self.update_scalars = (*_UPDATE_SCALARS, *(c for c in AUX_LOSSES if c in tables["updates"]))
         self.monitor = Monitor(step)
         self.monitor.restore(self.log.kept["episodes"])
         # The best so far is best.pt's own record: written when its evaluation ran, it may be newer
@@ -312,8 +315,7 @@ class _Session:
             self.log_step = self.step
             timing = {"sps": self.monitor.sps(self.step), "seconds": time.monotonic() - self.started}
             row = {**parts, **self.monitor.recent(), **timing, **learner.curriculum_status()}
-            scalars = (*_UPDATE_SCALARS, *(AUX_LOSSES if self.net.config.aux_heads else ()))
-            self.log.write("updates", self.step, row, scalars=scalars)
+            self.log.write("updates", self.step, row, scalars=self.update_scalars)
         if config.schedule.eval_every and self.step - self.eval_step >= config.schedule.eval_every:
             self.eval_step = self.step
             self._evaluate()
