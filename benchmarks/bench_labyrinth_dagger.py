@@ -16,7 +16,9 @@ episodes, scored on the protocol's other episodes); across seeds: means with per
 intervals, per-seed numbers in the JSON. Costs are
 reported as DAgger counts them: environment steps of the rollouts, expert labels, and the simulator
 steps the expert spent planning them (K·H per label); the demonstrations' steps are counted apart.
-Runs are kept in ``--out``; a rerun resumes unfinished runs and reuses finished ones with their scores.
+With ``--teacher`` a trained policy labels the rollouts instead of the MPC expert
+(:mod:`bimgame.learn.dagger.teacher`: e.g. a state policy teaching a pixel learner; ``{seed}`` in the
+path is each run's seed). Runs are kept in ``--out``; a rerun resumes unfinished runs and reuses finished ones with their scores.
 
 Writes ``--results`` (default benchmarks/results/labyrinth_dagger.json) and ``--figure`` (default
 docs/labyrinth/dagger.png): the in-run evaluation's success and the mean path progress per iteration.
@@ -27,7 +29,7 @@ Usage: python benchmarks/bench_labyrinth_dagger.py --expert-data DATA --init PI_
        [--episodes-per-iteration 10] [--beta0 0.5] [--beta-decay 0.7]
        [--epochs-per-iteration 5] [--max-episode-steps 1500] [--demo-start-share 0]
        [--demo-start-window 0 1] [--expert-samples 16]
-       [--expert-plans 1] [--stall-steps N] [--no-demonstrations]
+       [--expert-plans 1] [--stall-steps N] [--no-demonstrations] [--teacher 'RUNS/seed{seed}/checkpoint.pt']
        [--jobs 3] [--episodes 100]
 """
 
@@ -82,11 +84,17 @@ def _config(args: argparse.Namespace, seed: int) -> DAggerConfig:
         demo_start_share=args.demo_start_share,
         demo_start_window=tuple(args.demo_start_window),
         expert=LabyrinthMPCConfig(n_samples=args.expert_samples, n_plans=args.expert_plans),
+        teacher=_teacher(args, seed),
         epochs_per_iteration=args.epochs_per_iteration,
         max_episode_steps=args.max_episode_steps,
         stall_steps=args.stall_steps,
         eval_episodes=args.eval_episodes,
     )
+
+
+def _teacher(args: argparse.Namespace, seed: int) -> str | None:
+    """Seed ``seed``'s teacher: ``--teacher`` with ``{seed}`` filled in, as an absolute path."""
+    return None if args.teacher is None else str(Path(args.teacher.format(seed=seed)).absolute())
 
 
 def _window(args: argparse.Namespace) -> str:
@@ -119,6 +127,7 @@ def _arm(args: argparse.Namespace) -> str:
         (args.aux_heads, "-aux"),
         (args.init is not None, "-init"),
         (args.no_demonstrations, "-nodemos"),
+        (args.teacher is not None, "-teacher"),
     )
     return f"{args.layout}-{args.obs}" + "".join(mark for on, mark in marks if on)
 
@@ -243,6 +252,12 @@ def main(argv: list[str] | None = None) -> int:
         help="auxiliary heads that predict the labyrinth's state from the features (the rollouts record it; "
         "π^s may lack them: they are added fresh)",
     )
+    parser.add_argument(
+        "--teacher",
+        default=None,
+        help="a trained labyrinth policy that labels the rollouts instead of the MPC expert (its run directory "
+        "or a checkpoint in one; '{seed}' in it is each run's seed)",
+    )
     parser.add_argument("--jobs", type=int, default=3, help="runs at once, one thread each (default 3)")
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "labyrinth-dagger")
     parser.add_argument("--results", type=Path, default=ROOT / "benchmarks" / "results" / "labyrinth_dagger.json")
@@ -257,6 +272,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--expert-data is required: its demonstrations start the aggregated dataset (or give --no-demonstrations)")
     if args.expert_data is not None:
         args.expert_data = args.expert_data.absolute()
+    if args.teacher is not None and (args.expert_samples != EXPERT.n_samples or args.expert_plans != EXPERT.n_plans):
+        parser.error("--teacher labels instead of the MPC expert: drop --expert-samples and --expert-plans")
     if args.init is not None:
         args.init = args.init.absolute()
     jobs = {
@@ -292,6 +309,7 @@ def main(argv: list[str] | None = None) -> int:
         "subtract_background": args.subtract_background,
         "aux_heads": args.aux_heads,
         "demonstrations_aggregated": not args.no_demonstrations,
+        "teacher": args.teacher,
         "action_type": args.action_type,
         "seeds": seeds,
         "episodes": args.episodes,
@@ -314,6 +332,7 @@ def main(argv: list[str] | None = None) -> int:
         f"{args.action_type}){', from π^s' if args.init else ''}: "
         f"{args.iterations} iterations × {args.episodes_per_iteration} rollouts"
         f"{f' ({args.demo_start_share:.0%} from the expert states{_window(args)})' if args.demo_start_share else ''}"
+        f"{', labelled by a trained policy' if args.teacher else ''}"
         f"{f', expert K = {args.expert_samples}' if args.expert_samples != EXPERT.n_samples else ''}"
         f"{f', labels the mean of {args.expert_plans} plans' if args.expert_plans != EXPERT.n_plans else ''}"
         f"{f', rollouts end after {args.stall_steps} steps without progress' if args.stall_steps else ''}"

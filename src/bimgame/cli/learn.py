@@ -96,6 +96,7 @@ DAGGER_LEARNER_FLAGS = (
 #: DAgger's own settings with a flag (``expert`` is the default MPC expert).
 DAGGER_FLAGS = (
     "expert_data",
+    "teacher",
     "iterations",
     "episodes_per_iteration",
     "beta0",
@@ -160,7 +161,7 @@ DAGGER_GROUPS = (
 )
 #: The group of each DAgger setting with a flag (its own and its learner's).
 DAGGER_PLACEMENT: dict[str, tuple[str, ...]] = {
-    "run": ("task", "expert_data", "num_mazes", "start_maze"),
+    "run": ("task", "expert_data", "teacher", "num_mazes", "start_maze"),
     "network": NetworkSettings.field_names(),
     "logging": ("eval_episodes",),
     "DAgger": (
@@ -331,9 +332,13 @@ def dagger_expert_from(
     labyrinth_only = given_settings(args, LabyrinthMPCConfig, LABYRINTH_ONLY_MPC_FLAGS)
     if not (mpc_given or labyrinth_only):
         return None
+    flags = ", ".join(map(mpc_flag, sorted({**mpc_given, **labyrinth_only})))
     if args.resume:
-        flags = ", ".join(map(mpc_flag, sorted({**mpc_given, **labyrinth_only})))
         raise ValueError(f"--resume keeps the run's expert; drop the MPC expert's settings given ({flags})")
+    if given.get("teacher") is not None:
+        raise ValueError(
+            f"--teacher labels the rollouts instead of the MPC expert; drop the expert's settings ({flags})"
+        )
     args = argparse.Namespace(**{**vars(args), "task": learner.task})
     if puzzle(learner.task).is_maze:
         planner = DAggerConfig(learner=learner, **given).planner

@@ -4,7 +4,9 @@ with probability β, else the learner's.
 
 On either puzzle: the circular maze's :class:`~bimgame.expert.mpc.RandomShootingMPC` labels discrete
 actions; the labyrinth's :class:`~bimgame.expert.labyrinth_mpc.LabyrinthMPC` labels the learner's
-kind, continuous tilt rates or discrete, following the env's path segment.
+kind, continuous tilt rates or discrete, following the env's path segment. On the labyrinth a trained
+policy may label instead (``DAggerConfig.teacher``: :class:`~bimgame.learn.dagger.teacher.PolicyTeacher`,
+one batched pass for all rollouts per step).
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ from bimgame.expert.mpc import MPCConfig, RandomShootingMPC
 from bimgame.learn.actor import RecurrentActor, tilt_input
 from bimgame.learn.dagger.settings import DAggerConfig
 from bimgame.learn.dagger.starts import draw_demo_starts
+from bimgame.learn.dagger.teacher import PolicyTeacher
 from bimgame.learn.nets import RecurrentActorCritic
 
 __all__ = ["STALL_PROGRESS_M", "collect_episodes", "make_expert", "expert_label"]
@@ -88,7 +91,8 @@ def expert_label(expert: Expert, env: BallInMazeEnv | LabyrinthEnv, info: dict[s
 @dataclasses.dataclass
 class _Rollouts:
     """The rollouts of one iteration while they run side by side: each one's environment, expert and
-    record, its latest observation and info, whether it still runs, and how many succeeded."""
+    record, its latest observation and info, whether it still runs, and how many succeeded. With a
+    ``teacher`` the rollouts have no MPC experts (``experts`` empty): the teacher labels them all."""
 
     envs: list[BallInMazeEnv | LabyrinthEnv]
     experts: list[Expert]
@@ -98,6 +102,7 @@ class _Rollouts:
     active: np.ndarray
     stall_steps: int | None = None
     record_states: bool = False
+    teacher: PolicyTeacher | None = None
     successes: int = 0
     stalled: int = 0
     best_progress: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
@@ -107,7 +112,7 @@ class _Rollouts:
     def start(
         cls,
         envs: list[BallInMazeEnv | LabyrinthEnv],
-        make_expert: Callable[[int, BallInMazeEnv | LabyrinthEnv], Expert],
+        make_expert: Callable[[int, BallInMazeEnv | LabyrinthEnv], Expert] | PolicyTeacher,
         env_seed: int,
         start_states: list[np.ndarray | None],
         stall_steps: int | None = None,
@@ -115,7 +120,8 @@ class _Rollouts:
     ) -> _Rollouts:
         """Reset every environment (the ``i``-th with seed ``env_seed + i``, in the physics state
         ``start_states[i]`` if not None), then make its expert (``make_expert(i, env)``): after the
-        reset, so that on random mazes it plans on the episode's maze. ``stall_steps``: end a
+        reset, so that on random mazes it plans on the episode's maze; or let one
+        :class:`~bimgame.learn.dagger.teacher.PolicyTeacher` label every rollout. ``stall_steps``: end a
         labyrinth rollout whose progress has not passed its best by :data:`STALL_PROGRESS_M` for
         that many steps. ``record_states``: record each step's state observation too (the labyrinth's
         :meth:`~bimgame.envs.labyrinth_env.LabyrinthEnv.state_observation`)."""
@@ -123,10 +129,11 @@ class _Rollouts:
         for i, (env, start) in enumerate(zip(envs, start_states, strict=True)):
             options = None if start is None else {"sim_state": start}
             obs, info = env.reset(seed=env_seed + i, options=options)
-            expert = make_expert(i, env)
-            if isinstance(expert, LabyrinthMPC):
-                expert.reset()
-            experts.append(expert)
+            if not isinstance(make_expert, PolicyTeacher):
+                expert = make_expert(i, env)
+                if isinstance(expert, LabyrinthMPC):
+                    expert.reset()
+                experts.append(expert)
             observations.append(obs)
             infos.append(info)
         records = [_Record() for _ in envs]
@@ -140,6 +147,7 @@ class _Rollouts:
             np.ones(len(envs), dtype=bool),
             stall_steps,
             record_states,
+            teacher=make_expert if isinstance(make_expert, PolicyTeacher) else None,
             best_progress=best,
             since_best=np.zeros(len(envs), dtype=np.int64),
         )
@@ -154,13 +162,22 @@ class _Rollouts:
         executed = actor.executed(policy_actions).clone()
         rewards = np.zeros(len(self.envs))
         done = ~self.active.copy()
+        taught = None if self.teacher is None else self.teacher.labels(self._labyrinths(), self.infos)
         for i in map(int, np.flatnonzero(self.active)):
-            label = expert_label(self.experts[i], self.envs[i], self.infos[i])
+            label = expert_label(self.experts[i], self.envs[i], self.infos[i]) if taught is None else _one(taught[i])
             if mix.random() < beta:
                 executed[i] = torch.as_tensor(label, dtype=executed.dtype)
-            action = executed[i].numpy().copy() if executed.is_floating_point() else int(executed[i])
+            action = _one(executed[i])
             rewards[i], done[i] = self._step_one(i, label, action)
         actor.observe(executed, rewards, done)
+        if self.teacher is not None:
+            self.teacher.observe(executed, rewards, done)
+
+    def _labyrinths(self) -> list[LabyrinthEnv]:
+        """The rollouts' envs, which a teacher labels: the labyrinth's (DAggerConfig refuses a teacher
+        on the circular maze)."""
+        assert all(isinstance(env, LabyrinthEnv) for env in self.envs)
+        return [env for env in self.envs if isinstance(env, LabyrinthEnv)]
 
     def _step_one(self, i: int, label: Any, action: Any) -> tuple[float, bool]:
         """Record rollout ``i``'s step (``label``: the expert's action; ``action``: the one executed)
@@ -197,11 +214,18 @@ class _Rollouts:
         return bool(self.since_best[i] >= self.stall_steps)
 
     def close(self) -> None:
-        """Close every environment and expert."""
+        """Close every environment and expert (or the teacher)."""
         for env in self.envs:
             env.close()
         for expert in self.experts:
             expert.close()
+        if self.teacher is not None:
+            self.teacher.close()
+
+
+def _one(action: torch.Tensor) -> Any:
+    """One rollout's action as the env takes it: a (2,) float array (continuous) or an int."""
+    return action.numpy().copy() if action.is_floating_point() else int(action)
 
 
 @torch.no_grad()
@@ -214,10 +238,11 @@ def collect_episodes(
 ) -> tuple[list[Episode], dict[str, int]]:
     """``episodes_per_iteration`` episodes, run side by side (one batched forward pass per step),
     executing the expert's action with probability ``beta`` and the learner's sampled action
-    otherwise; every visited state is labelled by the expert. ``demo_states`` (K, S): physics states
-    of the expert's episodes, from which ``config.demo_start_share`` of the episodes start (drawn
-    uniformly, :mod:`bimgame.learn.dagger.starts`); the others start at the task's start. Returns the episodes (as
-    :class:`~bimgame.expert.episode.Episode` records, ``actions`` being the expert's labels and
+    otherwise; every visited state is labelled by the expert (or by ``config.teacher``).
+    ``demo_states`` (K, S): physics states of the expert's episodes, from which
+    ``config.demo_start_share`` of the episodes start (drawn uniformly,
+    :mod:`bimgame.learn.dagger.starts`); the others start at the task's start. Returns the episodes
+    (as :class:`~bimgame.expert.episode.Episode` records, ``actions`` being the expert's labels and
     ``executed`` what was done) and the costs: ``env_steps``, ``labels``, ``expert_sim_steps``,
     ``successes`` and ``stalled`` (rollouts ended by ``config.stall_steps``)."""
     learner = config.learner
@@ -225,6 +250,9 @@ def collect_episodes(
     env_seed, torch_seed, mix_seed, *expert_seeds = sequence.generate_state(3 + config.episodes_per_iteration)
     count = config.episodes_per_iteration
     task = puzzle(learner.task)
+    teacher = (
+        None if config.teacher is None else PolicyTeacher(config.teacher, learner.task, learner.action_type, count)
+    )
     envs = [
         task.env(obs_mode=learner.obs, action_type=learner.action_type, **config.maze_options) for _ in range(count)
     ]
@@ -235,9 +263,10 @@ def collect_episodes(
     def expert_of(i: int, env: BallInMazeEnv | LabyrinthEnv) -> Expert:
         return make_expert(env, config.planner, np.random.default_rng(int(expert_seeds[i])), learner.task)
 
+    labeller = expert_of if teacher is None else teacher
     # A child of the seed draws the starts, leaving the seeds above as they were without them.
     starts = draw_demo_starts(demo_states, config.demo_start_share, count, np.random.default_rng(sequence.spawn(1)[0]))
-    rollouts = _Rollouts.start(envs, expert_of, int(env_seed), starts, config.stall_steps, learner.privileged)
+    rollouts = _Rollouts.start(envs, labeller, int(env_seed), starts, config.stall_steps, learner.privileged)
     steps = 0
     try:
         while rollouts.active.any() and steps < config.time_limit:
@@ -252,6 +281,6 @@ def collect_episodes(
         "labels": labels,
         "successes": rollouts.successes,
         "stalled": rollouts.stalled,
-        "expert_sim_steps": labels * config.planner.sim_steps_per_decision,
+        "expert_sim_steps": 0 if config.teacher is not None else labels * config.planner.sim_steps_per_decision,
     }
     return episodes, costs

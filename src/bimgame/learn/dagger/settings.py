@@ -85,6 +85,11 @@ class DAggerConfig:
     limit). A learner that has learned to hold the marble still otherwise has the expert label the
     same few states up to the time limit: on the hard layout one such iteration of 10 rollouts took
     18,049 labels (67 min of planning), against 0.9–3.7k for each iteration before it."""
+    teacher: str | None = None
+    """On the labyrinth, a trained policy (its run directory or a checkpoint in one, of the learner's
+    layout and kind of action) that labels the rollouts with its greedy actions instead of the MPC
+    expert (:mod:`bimgame.learn.dagger.teacher`): a state policy teaching a pixel learner. ``expert``
+    then goes unused; ``expert_data`` still starts D with the MPC expert's episodes."""
     eval_episodes: int = 20
     """Greedy and sampled evaluation episodes after every iteration (0: none)."""
     num_mazes: int | None = None
@@ -132,6 +137,7 @@ class DAggerConfig:
                 "DAggerConfig.stall_steps: ending rollouts that stop progressing along the path is the "
                 f"labyrinth's (tasks LABYRINTH-EASY/-MEDIUM/-HARD), not {self.learner.task}'s; leave it unset"
             )
+        self._check_teacher(maze)
         require_int("DAggerConfig", "eval_episodes", self.eval_episodes, 0)
         require_int("DAggerConfig", "max_episode_steps", self.max_episode_steps, 1, optional=True)
         for name, (largest, unit) in _LARGEST.items():
@@ -173,6 +179,25 @@ class DAggerConfig:
                 "states the rollouts start from"
             )
 
+    def _check_teacher(self, maze: bool) -> None:
+        """Refuse a ``teacher`` that is no path, or on the circular maze (the run checks the policy
+        itself when it loads it: :class:`~bimgame.learn.dagger.teacher.PolicyTeacher`)."""
+        if self.teacher is None:
+            return
+        if not (isinstance(self.teacher, str) and self.teacher):
+            raise ValueError(
+                f"DAggerConfig.teacher must be a trained policy's run directory or None, got {self.teacher!r}"
+            )
+        if maze:
+            raise ValueError(
+                "DAggerConfig.teacher: a learned teacher labels the labyrinth's rollouts (tasks "
+                f"LABYRINTH-EASY/-MEDIUM/-HARD), not {self.learner.task}'s; leave it unset for the MPC expert"
+            )
+        if not Path(self.teacher).exists():
+            raise ValueError(
+                f"DAggerConfig.teacher {self.teacher} does not exist (a run directory or a checkpoint in one)"
+            )
+
     def _check_mazes(self) -> None:
         """Refuse maze settings DAgger cannot run with; a state learner on mazes reads their encoding
         (:func:`~bimgame.learn.common.maze_network`, as every learner's settings)."""
@@ -201,6 +226,7 @@ class DAggerConfig:
         "demo_start_window",
         "max_episode_steps",
         "stall_steps",
+        "teacher",
     )
 
     def require_resumable_from(self, stored: DAggerConfig) -> None:
