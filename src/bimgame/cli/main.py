@@ -11,7 +11,7 @@ Verbs:
   curves       learning curves of a run (PNG)
   compare      learning curves of several groups of runs in one figure (PNG)
   pretrain     supervised pre-training on expert trajectories: the policy π^s or the value V̂
-  dagger       DAgger with the MPC expert labelling the learner's states
+  dagger       DAgger: the MPC expert (or a trained policy) labels the learner's states
   reproduce    the paper's experiments in one resumable command: dataset, pre-training, runs, report
   report       rebuild a reproduction's figures, tables and report.md from its saved results
   score        any policy scored with the benchmark protocol, normalised (random 0, expert 100)
@@ -48,7 +48,7 @@ _LEARNING_VERBS = (
     ("train", "train an A3C agent", cli_train.add_train_arguments, cli_train.run_train),
     ("evaluate", "evaluate a trained run", cli_train.add_evaluate_arguments, cli_train.run_evaluate),
     ("pretrain", "pre-train π^s (or V̂) on an expert dataset", cli_learn.add_pretrain_arguments, cli_learn.run_pretrain),
-    ("dagger", "DAgger with the MPC expert", cli_learn.add_dagger_arguments, cli_learn.run_dagger),
+    ("dagger", "DAgger with the MPC expert or a trained teacher", cli_learn.add_dagger_arguments, cli_learn.run_dagger),
     (
         "reproduce",
         "run the paper's experiments (resumable)",
