@@ -27,19 +27,16 @@ TASK = "LABYRINTH-EASY"
 LEARNER = dict(task=TASK, hidden=16, features=16, bptt=20, batch_episodes=4, eval_episodes=0, seed=0,
                asymmetric_critic=False, action_type="continuous")
 
-
-@pytest.fixture(scope="module", autouse=True)
-def _one_thread():
-    with runs.torch_threads(1):
-        yield
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 @pytest.fixture(scope="module")
 def teacher_run(tmp_path_factory):
     """A tiny PPO policy on the easy layout from state with surroundings (33 values)."""
     run_dir = tmp_path_factory.mktemp("teacher") / "run"
-    assert main(["train", "--algo", "ppo", "--run-dir", str(run_dir), "--steps", "128", "--surroundings",
-                 *SMALL_STATE_FLAGS]) == 0
+    with runs.torch_threads(1):
+        assert main(["train", "--algo", "ppo", "--run-dir", str(run_dir), "--steps", "128", "--surroundings",
+                     *SMALL_STATE_FLAGS]) == 0
     return run_dir
 
 
