@@ -4,6 +4,7 @@ learner's rollouts labelled by the expert, aggregated, and the learner retrained
 The package's modules, one job each: :mod:`~bimgame.learn.dagger.settings` (:class:`DAggerConfig`),
 :mod:`~bimgame.learn.dagger.rollouts` (the expert-labelled rollouts of one iteration),
 :mod:`~bimgame.learn.dagger.starts` (on the labyrinth, rollouts started in the expert's states),
+:mod:`~bimgame.learn.dagger.teacher` (on the labyrinth, a trained policy labelling instead of the MPC expert),
 :mod:`~bimgame.learn.dagger.best` (the best iterate kept in ``best.pt``) and
 :mod:`~bimgame.learn.dagger.training` (:func:`dagger`: the iterations in a resumable run directory; the
 algorithm in detail). The public API is importable from the package.
