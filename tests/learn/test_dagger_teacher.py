@@ -51,8 +51,8 @@ def test_the_teacher_labels_with_its_own_greedy_actions_in_its_own_observation(t
     observations = [env.reset(seed=s)[0] for s, env in enumerate(own)]
     rng, max_tilt = np.random.default_rng(0), puzzle(TASK).spec.max_tilt
     for _ in range(25):
-        labels = teacher.labels(boards, infos)
         tilt = tilt_input({"tilt": np.stack([info["tilt"] for info in infos])}, max_tilt)
+        labels = torch.as_tensor(np.stack(teacher.labels(boards, infos, tilt, np.ones(2, dtype=bool))))
         actions, _, _ = alone.act(np.stack(observations), tilt)
         torch.testing.assert_close(labels, alone.executed(actions))
         assert labels.shape == (2, 2) and labels.abs().max() <= 1.0

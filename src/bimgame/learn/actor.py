@@ -23,12 +23,18 @@ from bimgame.learn.nets import LSTMState, RecurrentActorCritic
 from bimgame.learn.policy_heads import ActionDistribution
 from bimgame.sim.maze import MazeSpec
 
-__all__ = ["RecurrentActor", "EvalResult", "evaluate_network", "tilt_input", "episode_successes"]
+__all__ = ["RecurrentActor", "EvalResult", "evaluate_network", "tilt_input", "env_action", "episode_successes"]
 
 
 def tilt_input(info: dict[str, Any], max_tilt: float) -> torch.Tensor:
     """The board tilt from an env info dict, in units of the maximum tilt, as (B, 2) float32."""
     return torch.as_tensor(np.asarray(info["tilt"], dtype=np.float32) / np.float32(max_tilt))
+
+
+def env_action(action: torch.Tensor) -> Any:
+    """One environment's action, a row of :meth:`RecurrentActor.executed`, as the env takes it: a
+    float array (continuous) or an int (discrete)."""
+    return action.numpy().copy() if action.is_floating_point() else int(action)
 
 
 def episode_successes(info: dict[str, Any], terminated: np.ndarray) -> np.ndarray:

@@ -12,8 +12,8 @@ one batched pass for all rollouts per step).
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
-from typing import Any
+from collections.abc import Callable, Sequence
+from typing import Any, Protocol
 
 import numpy as np
 import torch
@@ -24,13 +24,13 @@ from bimgame.envs.puzzles import puzzle
 from bimgame.expert.episode import Episode
 from bimgame.expert.labyrinth_mpc import LabyrinthMPC, LabyrinthMPCConfig
 from bimgame.expert.mpc import MPCConfig, RandomShootingMPC
-from bimgame.learn.actor import RecurrentActor, tilt_input
+from bimgame.learn.actor import RecurrentActor, env_action, tilt_input
 from bimgame.learn.dagger.settings import DAggerConfig
 from bimgame.learn.dagger.starts import draw_demo_starts
 from bimgame.learn.dagger.teacher import PolicyTeacher
 from bimgame.learn.nets import RecurrentActorCritic
 
-__all__ = ["STALL_PROGRESS_M", "collect_episodes", "make_expert", "expert_label"]
+__all__ = ["STALL_PROGRESS_M", "Labeller", "collect_episodes", "make_expert", "expert_label"]
 
 #: With ``DAggerConfig.stall_steps``, a labyrinth rollout progresses when it passes its best progress
 #: along the path by this much (m, a twelfth of the marble's diameter): a marble rolling on at a
@@ -88,21 +88,73 @@ def expert_label(expert: Expert, env: BallInMazeEnv | LabyrinthEnv, info: dict[s
     return expert.act(state)
 
 
+class Labeller(Protocol):
+    """Who labels the rollouts' states, step by step: the MPC experts (:class:`_ExpertLabels`) or a
+    trained policy (:class:`~bimgame.learn.dagger.teacher.PolicyTeacher`)."""
+
+    #: Simulator steps spent planning one label (K·H for the MPC expert, 0 for a policy).
+    sim_steps_per_label: int
+
+    def labels(
+        self,
+        envs: Sequence[BallInMazeEnv | LabyrinthEnv],
+        infos: list[dict[str, Any]],
+        tilt: torch.Tensor,
+        active: np.ndarray,
+    ) -> list[Any]:
+        """Each running rollout's label in its env's current state (``tilt``: the (B, 2) tilt input the
+        learner reads); None where ``active`` is False."""
+        ...
+
+    def observe(self, executed: torch.Tensor, rewards: np.ndarray, done: np.ndarray) -> None:
+        """The step's executed actions, rewards and ended rollouts (what a recurrent labeller reads next)."""
+        ...
+
+    def close(self) -> None:
+        """Release what the labeller holds."""
+        ...
+
+
+class _ExpertLabels:
+    """The MPC experts' labels, one expert per rollout, asked only where the rollout still runs."""
+
+    def __init__(self, experts: list[Expert], sim_steps_per_label: int):
+        self.experts = experts
+        self.sim_steps_per_label = sim_steps_per_label
+
+    def labels(
+        self,
+        envs: Sequence[BallInMazeEnv | LabyrinthEnv],
+        infos: list[dict[str, Any]],
+        tilt: torch.Tensor,
+        active: np.ndarray,
+    ) -> list[Any]:
+        return [
+            expert_label(expert, env, info) if running else None
+            for expert, env, info, running in zip(self.experts, envs, infos, active, strict=True)
+        ]
+
+    def observe(self, executed: torch.Tensor, rewards: np.ndarray, done: np.ndarray) -> None:
+        """The experts plan from the physics state alone: nothing to carry between steps."""
+
+    def close(self) -> None:
+        for expert in self.experts:
+            expert.close()
+
+
 @dataclasses.dataclass
 class _Rollouts:
-    """The rollouts of one iteration while they run side by side: each one's environment, expert and
-    record, its latest observation and info, whether it still runs, and how many succeeded. With a
-    ``teacher`` the rollouts have no MPC experts (``experts`` empty): the teacher labels them all."""
+    """The rollouts of one iteration while they run side by side: each one's environment and record,
+    who labels them, their latest observations and infos, which still run, and how many succeeded."""
 
     envs: list[BallInMazeEnv | LabyrinthEnv]
-    experts: list[Expert]
+    labeller: Labeller
     observations: list[np.ndarray]
     infos: list[dict[str, Any]]
     records: list[_Record]
     active: np.ndarray
     stall_steps: int | None = None
     record_states: bool = False
-    teacher: PolicyTeacher | None = None
     successes: int = 0
     stalled: int = 0
     best_progress: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
@@ -112,48 +164,41 @@ class _Rollouts:
     def start(
         cls,
         envs: list[BallInMazeEnv | LabyrinthEnv],
-        make_expert: Callable[[int, BallInMazeEnv | LabyrinthEnv], Expert] | PolicyTeacher,
+        labeller_of: Callable[[list[BallInMazeEnv | LabyrinthEnv]], Labeller],
         env_seed: int,
         start_states: list[np.ndarray | None],
         stall_steps: int | None = None,
         record_states: bool = False,
     ) -> _Rollouts:
         """Reset every environment (the ``i``-th with seed ``env_seed + i``, in the physics state
-        ``start_states[i]`` if not None), then make its expert (``make_expert(i, env)``): after the
-        reset, so that on random mazes it plans on the episode's maze; or let one
-        :class:`~bimgame.learn.dagger.teacher.PolicyTeacher` label every rollout. ``stall_steps``: end a
+        ``start_states[i]`` if not None), then make their labeller (``labeller_of(envs)``): after the
+        resets, so that on random mazes each expert plans on its episode's maze. ``stall_steps``: end a
         labyrinth rollout whose progress has not passed its best by :data:`STALL_PROGRESS_M` for
         that many steps. ``record_states``: record each step's state observation too (the labyrinth's
         :meth:`~bimgame.envs.labyrinth_env.LabyrinthEnv.state_observation`)."""
-        observations, infos, experts = [], [], []
+        observations, infos = [], []
         for i, (env, start) in enumerate(zip(envs, start_states, strict=True)):
             options = None if start is None else {"sim_state": start}
             obs, info = env.reset(seed=env_seed + i, options=options)
-            if not isinstance(make_expert, PolicyTeacher):
-                expert = make_expert(i, env)
-                if isinstance(expert, LabyrinthMPC):
-                    expert.reset()
-                experts.append(expert)
             observations.append(obs)
             infos.append(info)
         records = [_Record() for _ in envs]
         best = np.array([float(info.get("progress", 0.0)) for info in infos])
         return cls(
             envs,
-            experts,
+            labeller_of(envs),
             observations,
             infos,
             records,
             np.ones(len(envs), dtype=bool),
             stall_steps,
             record_states,
-            teacher=make_expert if isinstance(make_expert, PolicyTeacher) else None,
             best_progress=best,
             since_best=np.zeros(len(envs), dtype=np.int64),
         )
 
     def step(self, actor: RecurrentActor, mix: np.random.Generator, beta: float, max_tilt: float) -> None:
-        """One step of every running rollout: the expert labels the state, and the expert's action
+        """One step of every running rollout: the labeller labels the state, and the label
         (with probability ``beta``) or the learner's is executed. Finished rollouts keep stepping the
         actor on stale inputs; their records are closed."""
         obs_batch = np.stack(self.observations)
@@ -162,22 +207,13 @@ class _Rollouts:
         executed = actor.executed(policy_actions).clone()
         rewards = np.zeros(len(self.envs))
         done = ~self.active.copy()
-        taught = None if self.teacher is None else self.teacher.labels(self._labyrinths(), self.infos)
+        labels = self.labeller.labels(self.envs, self.infos, tilt_batch, self.active)
         for i in map(int, np.flatnonzero(self.active)):
-            label = expert_label(self.experts[i], self.envs[i], self.infos[i]) if taught is None else _one(taught[i])
             if mix.random() < beta:
-                executed[i] = torch.as_tensor(label, dtype=executed.dtype)
-            action = _one(executed[i])
-            rewards[i], done[i] = self._step_one(i, label, action)
+                executed[i] = torch.as_tensor(labels[i], dtype=executed.dtype)
+            rewards[i], done[i] = self._step_one(i, labels[i], env_action(executed[i]))
         actor.observe(executed, rewards, done)
-        if self.teacher is not None:
-            self.teacher.observe(executed, rewards, done)
-
-    def _labyrinths(self) -> list[LabyrinthEnv]:
-        """The rollouts' envs, which a teacher labels: the labyrinth's (DAggerConfig refuses a teacher
-        on the circular maze)."""
-        assert all(isinstance(env, LabyrinthEnv) for env in self.envs)
-        return [env for env in self.envs if isinstance(env, LabyrinthEnv)]
+        self.labeller.observe(executed, rewards, done)
 
     def _step_one(self, i: int, label: Any, action: Any) -> tuple[float, bool]:
         """Record rollout ``i``'s step (``label``: the expert's action; ``action``: the one executed)
@@ -214,18 +250,10 @@ class _Rollouts:
         return bool(self.since_best[i] >= self.stall_steps)
 
     def close(self) -> None:
-        """Close every environment and expert (or the teacher)."""
+        """Close every environment and the labeller."""
         for env in self.envs:
             env.close()
-        for expert in self.experts:
-            expert.close()
-        if self.teacher is not None:
-            self.teacher.close()
-
-
-def _one(action: torch.Tensor) -> Any:
-    """One rollout's action as the env takes it: a (2,) float array (continuous) or an int."""
-    return action.numpy().copy() if action.is_floating_point() else int(action)
+        self.labeller.close()
 
 
 @torch.no_grad()
@@ -260,13 +288,21 @@ def collect_episodes(
     actor = RecurrentActor(net, count, generator=torch.Generator().manual_seed(int(torch_seed)))
     max_tilt = task.spec.max_tilt
 
-    def expert_of(i: int, env: BallInMazeEnv | LabyrinthEnv) -> Expert:
-        return make_expert(env, config.planner, np.random.default_rng(int(expert_seeds[i])), learner.task)
+    def labeller_of(envs: list[BallInMazeEnv | LabyrinthEnv]) -> Labeller:
+        if teacher is not None:
+            return teacher
+        experts = [
+            make_expert(env, config.planner, np.random.default_rng(int(seed)), learner.task)
+            for env, seed in zip(envs, expert_seeds, strict=True)
+        ]
+        for expert in experts:
+            if isinstance(expert, LabyrinthMPC):
+                expert.reset()
+        return _ExpertLabels(experts, config.planner.sim_steps_per_decision)
 
-    labeller = expert_of if teacher is None else teacher
     # A child of the seed draws the starts, leaving the seeds above as they were without them.
     starts = draw_demo_starts(demo_states, config.demo_start_share, count, np.random.default_rng(sequence.spawn(1)[0]))
-    rollouts = _Rollouts.start(envs, labeller, int(env_seed), starts, config.stall_steps, learner.privileged)
+    rollouts = _Rollouts.start(envs, labeller_of, int(env_seed), starts, config.stall_steps, learner.privileged)
     steps = 0
     try:
         while rollouts.active.any() and steps < config.time_limit:
@@ -281,6 +317,6 @@ def collect_episodes(
         "labels": labels,
         "successes": rollouts.successes,
         "stalled": rollouts.stalled,
-        "expert_sim_steps": 0 if config.teacher is not None else labels * config.planner.sim_steps_per_decision,
+        "expert_sim_steps": labels * rollouts.labeller.sim_steps_per_label,
     }
     return episodes, costs

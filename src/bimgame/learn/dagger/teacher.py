@@ -18,15 +18,17 @@ learner of the same layout and kind of action.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
+from bimgame.envs.env import BallInMazeEnv
 from bimgame.envs.labyrinth_env import LabyrinthEnv
 from bimgame.envs.puzzles import puzzle
-from bimgame.learn.actor import RecurrentActor, tilt_input
+from bimgame.learn.actor import RecurrentActor, env_action
 from bimgame.learn.common import load_run_network
 from bimgame.learn.maze_runs import network_env_options
 
@@ -35,7 +37,11 @@ __all__ = ["PolicyTeacher"]
 
 class PolicyTeacher:
     """The greedy actions of a trained labyrinth policy (``source``: its run directory or a checkpoint
-    in one) for ``count`` rollouts of ``task`` run side by side with ``action_type`` actions."""
+    in one) for ``count`` rollouts of ``task`` run side by side with ``action_type`` actions: a
+    :class:`~bimgame.learn.dagger.rollouts.Labeller`."""
+
+    #: A policy plans nothing: one forward pass labels every rollout.
+    sim_steps_per_label = 0
 
     def __init__(self, source: str | Path, task: str, action_type: str, count: int):
         net, run, _ = load_run_network(source)
@@ -53,29 +59,34 @@ class PolicyTeacher:
                 f"with {action_type}: its labels must be the learner's kind of action"
             )
         net.eval()
-        self.source = str(source)
         self.actor = RecurrentActor(net, count, greedy=True)
         view = teacher_puzzle.env(obs_mode=run.network.obs, action_type=action_type, **network_env_options(run.network))
         assert isinstance(view, LabyrinthEnv)
         view.reset(seed=0)  # observe_state reads only the board and path, never the view's episode
         self.view = view
-        self.max_tilt = teacher_puzzle.spec.max_tilt
         self.previous: list[np.ndarray | None] = [None] * count
 
     @torch.no_grad()
-    def labels(self, envs: list[LabyrinthEnv], infos: list[dict[str, Any]]) -> torch.Tensor:
-        """The teacher's greedy action (executed form: clipped to [-1, 1]) in each rollout's current
-        physics state, as (count, 2) or (count,); rollouts that ended are read in their last state
-        (their labels go unused, as the learner's actions there)."""
+    def labels(
+        self,
+        envs: Sequence[BallInMazeEnv | LabyrinthEnv],
+        infos: list[dict[str, Any]],
+        tilt: torch.Tensor,
+        active: np.ndarray,
+    ) -> list[Any]:
+        """The teacher's greedy action (as executed: clipped to [-1, 1]) in each running rollout's
+        physics state (``tilt``: the board tilts as the learner reads them, the teacher's input too);
+        None where ``active`` is False. One batched pass: rollouts that ended are read in their last
+        state, keeping the batch whole."""
         states = [env.sim.get_state() for env in envs]
         observations = [
             self.view.observe_state(state, float(info["progress"]), previous)
             for state, info, previous in zip(states, infos, self.previous, strict=True)
         ]
         self.previous = list(states)
-        tilt = tilt_input({"tilt": np.stack([info["tilt"] for info in infos])}, self.max_tilt)
         actions, _, _ = self.actor.act(np.stack(observations), tilt)
-        return self.actor.executed(actions)
+        executed = self.actor.executed(actions)
+        return [env_action(action) if running else None for action, running in zip(executed, active, strict=True)]
 
     def observe(self, executed: torch.Tensor, rewards: np.ndarray, done: np.ndarray) -> None:
         """The step's executed actions and rewards: the teacher's inputs at the next step, as if it
