@@ -21,6 +21,8 @@ Usage: python benchmarks/bench_labyrinth_learning.py [--layout easy] [--obs stat
        [--out runs/labyrinth-learning] [--set NAME=VALUE ...]   (other PPO settings, e.g. entropy_coef=0)
        [--init PI_S]   (every run starts from a pre-trained π^s: bimgame pretrain on a labyrinth dataset)
        [--expert-data DATA]   (the demo curriculum's expert dataset: bimgame generate --task LABYRINTH-…)
+       [--kl-teacher 'STATE_RUNS/seed{seed}/checkpoint.pt']   (the KL pulls towards a state policy, not π^s;
+       with --set kl_coef=…)
 """
 
 from __future__ import annotations
@@ -121,6 +123,11 @@ def _score(source: Path, episodes: int) -> dict[str, Any]:
     return scores
 
 
+def _for_seed(path: str | Path, seed: int) -> str:
+    """``path`` with ``{seed}`` replaced by the run's seed, absolute."""
+    return str(Path(str(path).replace("{seed}", str(seed))).absolute())
+
+
 def _init_for(init: Path | None, seed: int) -> Path | None:
     """The weights seed ``seed`` starts from: ``--init`` with ``{seed}`` replaced by the seed (one
     starting network per seed, e.g. each DAgger seed's ``best.pt``), or the same for every seed."""
@@ -140,6 +147,7 @@ def _init_scores(args: argparse.Namespace) -> list[dict[str, Any]] | dict[str, A
 def _job(run_dir: Path, curriculum: str, seed: int, args: argparse.Namespace) -> tuple[float, dict[str, Any]]:
     """Train and score one run with one torch thread: a job of ``--jobs``."""
     with torch_threads(1):
+        teacher = {} if args.kl_teacher is None else {"kl_teacher": _for_seed(args.kl_teacher, seed)}
         seconds = _train(
             run_dir,
             layout=args.layout,
@@ -147,7 +155,7 @@ def _job(run_dir: Path, curriculum: str, seed: int, args: argparse.Namespace) ->
             steps=args.steps,
             seed=seed,
             curriculum=curriculum,
-            settings=args.settings,
+            settings={**args.settings, **teacher},
             init=_init_for(args.init, seed),
             expert_data=args.expert_data,
         )
@@ -240,6 +248,12 @@ def main(argv: list[str] | None = None) -> int:
         help="start every run from this π^s (bimgame pretrain) or checkpoint; {seed} in it stands for the run's seed",
     )
     parser.add_argument("--expert-data", type=Path, default=None, help="the layout's expert dataset (for demo)")
+    parser.add_argument(
+        "--kl-teacher",
+        default=None,
+        help="the KL term's teacher: a policy trained on the layout's state (run or checkpoint; {seed} stands for "
+        "the run's seed), instead of π^s; give kl_coef with --set",
+    )
     args = parser.parse_args(argv)
     if "demo" in args.curricula and args.expert_data is None:
         parser.error("--curricula demo needs --expert-data (the layout's expert dataset: bimgame generate)")
@@ -251,6 +265,7 @@ def main(argv: list[str] | None = None) -> int:
         args.init = args.init.absolute()
     suffix = "".join(f"-{key.replace('_', '-')}{value}" for key, value in sorted(args.settings.items()))
     suffix += "-init" if args.init is not None else ""
+    suffix += "-stateteacher" if args.kl_teacher is not None else ""
     jobs = {
         (curriculum, seed): args.out / f"{args.layout}-{args.obs}-{curriculum}{suffix}" / f"seed{seed}"
         for curriculum in args.curricula
@@ -284,6 +299,7 @@ def main(argv: list[str] | None = None) -> int:
         "reference_seconds": {"cyberrunner": CYBERRUNNER_RECORD_S, "human_record": HUMAN_RECORD_S},
         "settings": args.settings,
         "init": _init_scores(args),
+        "kl_teacher": args.kl_teacher,
         "curricula": {},
     }
     for curriculum in args.curricula:
@@ -298,6 +314,7 @@ def main(argv: list[str] | None = None) -> int:
     atomic_write_bytes(args.results, json.dumps(results, indent=2).encode())
     shown = "".join(f", {key} {value}" for key, value in sorted(args.settings.items()))
     shown += ", from --init (π^s or a DAgger iterate)" if args.init is not None else ""
+    shown += ", KL to a state policy" if args.kl_teacher is not None else ""
     title = f"PPO on the {args.layout} labyrinth from {args.obs}{shown}, {args.steps:,} steps, {args.seeds} seeds"
     print(f"wrote {args.results} and {_plot(results, args.figure, title)}")
     return 0

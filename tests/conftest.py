@@ -20,11 +20,13 @@ import pytest  # noqa: E402
 import torch  # noqa: E402
 from filelock import FileLock  # noqa: E402
 
+from bimgame.cli.main import main  # noqa: E402
 from bimgame.expert.datasets import generate_dataset  # noqa: E402
 from bimgame.expert.labyrinth_datasets import generate_labyrinth_dataset  # noqa: E402
 from bimgame.learn.pretrain import PretrainResult, pretrain  # noqa: E402
 from bimgame.learn.runs import torch_threads  # noqa: E402
 from bimgame.learn.supervised import PretrainConfig  # noqa: E402
+from support.labyrinth_runs import SMALL_STATE_FLAGS  # noqa: E402
 
 torch.set_num_threads(1)
 
@@ -117,3 +119,17 @@ def easy_expert_episode(tmp_path_factory) -> Path:
         return json.dumps(str(data))
 
     return Path(json.loads(_once_per_session(tmp_path_factory, "labyrinth-easy-expert", build)))
+
+
+@pytest.fixture(scope="session")
+def surroundings_teacher_run(tmp_path_factory) -> Path:
+    """A tiny PPO policy on the easy layout from state with surroundings (33 values), continuous: the
+    trained teacher of DAgger's and PPO's learners that observe something else (a few seconds)."""
+    def build(directory: Path) -> str:
+        run_dir = directory / "run"
+        with torch_threads(1):
+            assert main(["train", "--algo", "ppo", "--run-dir", str(run_dir), "--steps", "128", "--surroundings",
+                         *SMALL_STATE_FLAGS]) == 0
+        return json.dumps(str(run_dir))
+
+    return Path(json.loads(_once_per_session(tmp_path_factory, "surroundings-teacher", build)))

@@ -15,13 +15,11 @@ import torch
 from bimgame.cli.main import main
 from bimgame.envs.labyrinth_env import LabyrinthEnv
 from bimgame.envs.puzzles import puzzle
-from bimgame.learn import runs
 from bimgame.learn.actor import RecurrentActor, tilt_input
 from bimgame.learn.common import load_run_network
 from bimgame.learn.dagger import DAggerConfig, collect_episodes
 from bimgame.learn.dagger.teacher import PolicyTeacher
 from bimgame.learn.supervised import PretrainConfig
-from support.labyrinth_runs import SMALL_STATE_FLAGS
 
 TASK = "LABYRINTH-EASY"
 LEARNER = dict(task=TASK, hidden=16, features=16, bptt=20, batch_episodes=4, eval_episodes=0, seed=0,
@@ -30,14 +28,10 @@ LEARNER = dict(task=TASK, hidden=16, features=16, bptt=20, batch_episodes=4, eva
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
-@pytest.fixture(scope="module")
-def teacher_run(tmp_path_factory):
-    """A tiny PPO policy on the easy layout from state with surroundings (33 values)."""
-    run_dir = tmp_path_factory.mktemp("teacher") / "run"
-    with runs.torch_threads(1):
-        assert main(["train", "--algo", "ppo", "--run-dir", str(run_dir), "--steps", "128", "--surroundings",
-                     *SMALL_STATE_FLAGS]) == 0
-    return run_dir
+@pytest.fixture
+def teacher_run(surroundings_teacher_run):
+    """The suite's tiny PPO policy from state with surroundings on the easy layout."""
+    return surroundings_teacher_run
 
 
 def test_the_teacher_labels_with_its_own_greedy_actions_in_its_own_observation(teacher_run):

@@ -29,8 +29,8 @@ from bimgame.envs.env import BallInMazeEnv
 from bimgame.envs.labyrinth_env import LabyrinthEnv
 from bimgame.envs.puzzles import puzzle
 from bimgame.learn.actor import RecurrentActor, env_action
-from bimgame.learn.common import load_run_network
 from bimgame.learn.maze_runs import network_env_options
+from bimgame.learn.teachers import load_labyrinth_teacher
 
 __all__ = ["PolicyTeacher"]
 
@@ -44,20 +44,8 @@ class PolicyTeacher:
     sim_steps_per_label = 0
 
     def __init__(self, source: str | Path, task: str, action_type: str, count: int):
-        net, run, _ = load_run_network(source)
-        learner_puzzle, teacher_puzzle = puzzle(task), puzzle(run.task)
-        if learner_puzzle.is_maze:
-            raise ValueError(f"DAggerConfig.teacher: a learned teacher labels the labyrinth's rollouts, not {task}'s")
-        if teacher_puzzle.task != learner_puzzle.task:
-            raise ValueError(
-                f"DAggerConfig.teacher {source} was trained on {teacher_puzzle.task}, the learner runs on "
-                f"{learner_puzzle.task}: a teacher labels the layout it learned"
-            )
-        if run.network.action_type != action_type:
-            raise ValueError(
-                f"DAggerConfig.teacher {source} acts with {run.network.action_type} actions, the learner "
-                f"with {action_type}: its labels must be the learner's kind of action"
-            )
+        net, run = load_labyrinth_teacher(source, task, action_type, "DAggerConfig.teacher")
+        teacher_puzzle = puzzle(run.task)
         net.eval()
         self.actor = RecurrentActor(net, count, greedy=True)
         view = teacher_puzzle.env(obs_mode=run.network.obs, action_type=action_type, **network_env_options(run.network))

@@ -35,8 +35,9 @@ from bimgame.learn.ppo.update import GradientAverage, KLTarget, ppo_update
 from bimgame.learn.rewards import EnvWrapper
 from bimgame.learn.rollout import FinishedEpisode, NonFiniteReward, RolloutCollector, Segment
 from bimgame.learn.run_dir import TrainingError
+from bimgame.learn.teachers import StateTeacher
 
-__all__ = ["RankLearner", "adam"]
+__all__ = ["RankLearner", "adam", "state_teacher"]
 
 
 def adam(net: torch.nn.Module, config: PPOConfig) -> torch.optim.Adam:
@@ -199,10 +200,29 @@ class RankLearner:
         return KLTarget(self.teacher.follow(segment), weight, finetuning.kl_means_only)
 
 
-def _teacher(config: PPOConfig, weights: dict[str, torch.Tensor] | None) -> Teacher | None:
-    """π^s following this rank's environments, for a KL term (None when the run has none)."""
-    if weights is None or config.finetuning is None:
+def _teacher(config: PPOConfig, weights: dict[str, torch.Tensor] | None) -> Teacher | StateTeacher | None:
+    """The KL term's teacher following this rank's environments: the state teacher (``kl_teacher``)
+    or π^s (its ``weights``); None when the run has no KL term."""
+    if not config.has_teacher or config.finetuning is None:
         return None
+    if config.state_teacher is not None:
+        return state_teacher(config, config.schedule.envs_per_worker)
+    if weights is None:
+        raise ValueError("a KL term to π^s needs π^s's weights (the run's teacher.pt)")
     net = policy_network(config)
     net.load_state_dict(weights)
     return Teacher(net, config.schedule.envs_per_worker, config.finetuning.kl_temperature)
+
+
+def state_teacher(config: PPOConfig, batch: int) -> StateTeacher:
+    """The run's state teacher (``kl_teacher``) following ``batch`` environments; raises ``ValueError``
+    naming why a teacher cannot teach this run (another layout, kind of action, observation)."""
+    assert config.state_teacher is not None and config.finetuning is not None
+    return StateTeacher(
+        config.state_teacher,
+        config.task,
+        config.network.action_type,
+        learner_tilt_input=config.network.tilt_input,
+        batch=batch,
+        temperature=config.finetuning.kl_temperature,
+    )

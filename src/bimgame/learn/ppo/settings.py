@@ -10,6 +10,7 @@ import dataclasses
 import math
 from typing import Any, ClassVar
 
+from bimgame.envs.puzzles import puzzle
 from bimgame.learn.common import LearnerSettings, NetworkSettings
 from bimgame.learn.devices import DEVICES, Device
 from bimgame.learn.learner_settings import (
@@ -156,6 +157,11 @@ class PPOFinetuneSettings:
     with the teacher's at the teacher's standard deviation, KL(N(μ_t, σ_t) ‖ N(μ, σ_t)) =
     Σ (μ − μ_t)² / 2σ_t², so the learner's σ is free and a narrower σ does not weight the mean's
     difference by 1/σ² (the full KL's term (μ − μ_t)² / 2σ², which pins a narrow learner to π^s)."""
+    kl_teacher: str | None = None
+    """A policy trained on the labyrinth's state (its run directory or a checkpoint in one) that the
+    KL pulls towards instead of π^s: kickstarting from a privileged teacher, which reads the state the
+    envs record (:class:`~bimgame.learn.teachers.StateTeacher`) while the learner observes pixels or
+    CyberRunner's observation. None: π^s, the network the run started from."""
     critic_warmup_steps: int = 0
     """Steps at the run's start in which only the critic learns (the value head, and an asymmetric
     critic's state reader): the policy acts as it was loaded while the value fits its returns, so
@@ -171,6 +177,10 @@ class PPOFinetuneSettings:
             raise ValueError(
                 f"{owner}.kl_means_only shapes the KL term to π^s: give kl_coef > 0 with it, got kl_coef 0"
             )
+        if self.kl_teacher is not None and not (isinstance(self.kl_teacher, str) and self.kl_teacher):
+            raise ValueError(f"{owner}.kl_teacher must be a run directory or checkpoint path, got {self.kl_teacher!r}")
+        if self.kl_teacher is not None and self.kl_coef == 0:
+            raise ValueError(f"{owner}.kl_teacher is the KL term's teacher: give kl_coef > 0 with it, got kl_coef 0")
         require_int(owner, "kl_decay_steps", self.kl_decay_steps, 0)
         require_int(owner, "critic_warmup_steps", self.critic_warmup_steps, 0)
         check_number(owner, "kl_temperature", self.kl_temperature, 0.0, math.inf, low_open=True)
@@ -264,6 +274,11 @@ class PPOConfig(LearnerSettings):
                 f"{owner}: final_max_std caps a Gaussian policy's standard deviation (action_type 'continuous'), "
                 f"got action_type {self.network.action_type!r}; leave final_max_std None"
             )
+        if self.state_teacher is not None and puzzle(self.task).is_maze:
+            raise ValueError(
+                f"{owner}: kl_teacher is a policy trained on the labyrinth's state; task {self.task} is the "
+                f"circular maze (its kickstarting teacher is π^s: leave kl_teacher unset)"
+            )
         if self.finetuning is not None and self.finetuning.kl_means_only and self.network.action_type != "continuous":
             raise ValueError(
                 f"{owner}: kl_means_only compares a Gaussian policy's means (action_type 'continuous'), "
@@ -293,8 +308,19 @@ class PPOConfig(LearnerSettings):
 
     @property
     def has_teacher(self) -> bool:
-        """Whether the run keeps π^s (the weights it started from) for a KL term."""
+        """Whether the run has a KL term, to π^s or to a state teacher (``kl_teacher``)."""
         return self.finetuning is not None and self.finetuning.kl_coef > 0
+
+    @property
+    def state_teacher(self) -> str | None:
+        """The state teacher the KL pulls towards (``kl_teacher``), None when the KL's teacher is π^s."""
+        return None if self.finetuning is None else self.finetuning.kl_teacher
+
+    @property
+    def records_state(self) -> bool:
+        """Whether the envs record the simulator's state (``Segment.privileged``): for the network's
+        auxiliary heads or asymmetric critic, or for a state teacher to read."""
+        return self.network.privileged or self.state_teacher is not None
 
     @property
     def steps_per_rollout(self) -> int:

@@ -35,7 +35,7 @@ from bimgame.learn.init_network import check_init_network, init_settings_for
 from bimgame.learn.learner_settings import check_init_puzzle, policy_network
 from bimgame.learn.metric_logs import MetricLog
 from bimgame.learn.nets import RecurrentActorCritic
-from bimgame.learn.ppo.learner import RankLearner, adam
+from bimgame.learn.ppo.learner import RankLearner, adam, state_teacher
 from bimgame.learn.ppo.parallel import WorkerGroup
 from bimgame.learn.ppo.settings import PPOConfig
 from bimgame.learn.ppo.update import AUX_LOSSES, UPDATE_STATISTICS
@@ -132,6 +132,8 @@ def train_ppo(
     device = resolve_device(config.device)
     if device.type != "cpu" and config.schedule.workers > 1:
         raise ValueError(f"device {config.device!r} ({device}) takes one process (workers 1)")
+    if config.state_teacher is not None:
+        state_teacher(config, batch=1)  # a teacher that cannot teach is refused before the run directory is made
     with torch_threads(threads), RunDirectory(run_dir, KIND_PPO, resume=resume) as run:
         net = policy_network(config)
         learning = learning_copy(net, device, separate=bool(config.optimization.policy_lag))
@@ -164,13 +166,14 @@ def _started(
 ) -> _Start:
     """A new run: ``net`` from ``init`` (if given), π^s kept for a KL term (``teacher.pt``); its
     settings (the reward's too) and step-0 checkpoint written first."""
-    if config.has_teacher and init is None:
+    if config.has_teacher and config.state_teacher is None and init is None:
         raise ValueError(
             "PPOFinetuneSettings.kl_coef > 0 (kickstarting) needs a pre-trained policy to stay close to: "
             "pass --init (or set kl_coef to 0)"
         )
     load_init_weights(net, init)
-    teacher = {k: v.detach().clone() for k, v in net.state_dict().items()} if config.has_teacher else None
+    keeps_pi_s = config.has_teacher and config.state_teacher is None
+    teacher = {k: v.detach().clone() for k, v in net.state_dict().items()} if keeps_pi_s else None
     if teacher is not None:
         save_checkpoint(run / TEACHER, model=teacher, step=0, source=str(init))
     run.write_config(
@@ -198,7 +201,8 @@ def _resumed(
     apply_weights(net, payload, run / CHECKPOINT)
     if payload.get("optimizer") is not None:
         optimizer.load_state_dict(payload["optimizer"])
-    teacher = load_checkpoint(run / TEACHER)["model"] if config.has_teacher else None
+    keeps_pi_s = config.has_teacher and config.state_teacher is None
+    teacher = load_checkpoint(run / TEACHER)["model"] if keeps_pi_s else None
     return _Start(int(payload["step"]), float(payload.get("seconds", 0.0)), teacher)
 
 
