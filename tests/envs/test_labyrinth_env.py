@@ -209,13 +209,13 @@ def test_pixels_show_the_marble_where_it_is():
     assert obs.shape == (1, 84, 84) and obs.dtype == np.uint8
     for _ in range(10):
         obs = env.step(np.array([0.3, 0.5], dtype=np.float32))[0]
-    frame, bg = obs[0].astype(float), env._raster.background
+    frame, bg = obs[0].astype(float), env.observer.raster.background
     weight = np.clip(frame - bg, 0, None)
     rows, cols = np.indices(frame.shape)
     centroid = np.array([(weight * cols).sum(), (weight * rows).sum()]) / weight.sum()
-    expected = env._raster.grid.to_pixel(env.sim.marble_xy())
+    expected = env.observer.raster.grid.to_pixel(env.sim.marble_xy())
     assert np.abs(centroid - expected).max() < 1.0
-    holes = np.rint(env._raster.grid.to_pixel(np.array(env.board.holes))).astype(int)
+    holes = np.rint(env.observer.raster.grid.to_pixel(np.array(env.board.holes))).astype(int)
     assert frame[holes[:, 1], holes[:, 0]].max() < 60  # holes where the layout has them
 
 

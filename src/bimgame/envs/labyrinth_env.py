@@ -19,29 +19,13 @@ import numpy as np
 from gymnasium import spaces
 
 from bimgame.envs.actions import action_to_tilt_delta
-from bimgame.envs.labyrinth_cyberrunner import (
-    CROP_PIXEL,
-    PATH_AHEAD,
-    PATH_SPACING,
-    check_motion,
-    cyberrunner_observation,
-    cyberrunner_space,
-    flatten_cyberrunner,
-    marble_motion,
-)
-from bimgame.envs.labyrinth_pixels import pixel_observation, pixel_space
-from bimgame.envs.labyrinth_surroundings import (
-    NO_HOLE,
-    RAY_RANGE,
-    SURROUNDING_HOLES,
-    WALL_RAYS,
-    Surroundings,
-    check_surroundings,
-)
+from bimgame.envs.labyrinth_cyberrunner import PATH_AHEAD, PATH_SPACING, check_motion
+from bimgame.envs.labyrinth_observer import LabyrinthObserver
+from bimgame.envs.labyrinth_surroundings import check_surroundings
 from bimgame.sim.labyrinth import LabyrinthSpec, PathStep, WaypointPath
 from bimgame.sim.labyrinth_layouts import LAYOUT_NAMES
 from bimgame.sim.labyrinth_physics import LabyrinthSim
-from bimgame.sim.labyrinth_render import LabyrinthRaster, board_grid, sheet_grid
+from bimgame.sim.labyrinth_render import LabyrinthRaster, board_grid
 from bimgame.sim.labyrinth_tracker import ScalarPathProgress
 from bimgame.util.settings import is_integer, is_real
 
@@ -278,7 +262,6 @@ class LabyrinthEnv(gym.Env):
         self.sim = LabyrinthSim(board, control_hz=self.control_hz)
         self.path = board.path
         self.tracker = ScalarPathProgress(board)  # PathProgress's rule, scalar: the per-step fast path
-        self.surroundings = Surroundings(board) if surroundings else None
         self.motion = motion
         #: Tilt change (rad) of one full-rate action.
         self.tilt_step = self.max_tilt_rate / self.control_hz
@@ -286,14 +269,20 @@ class LabyrinthEnv(gym.Env):
             self.action_space: spaces.Space = spaces.Discrete(5)
         else:
             self.action_space = spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
-        self._raster: LabyrinthRaster | None = None
+        self.observer = LabyrinthObserver(
+            board,
+            self.tracker,
+            obs_mode=obs_mode,
+            obs_size=self.obs_size,
+            path_width=path_width,
+            surroundings=surroundings,
+            motion=motion,
+            control_hz=self.control_hz,
+        )
+        self.surroundings = self.observer.surroundings  # the holes and walls around the marble, or None
         self._render_raster: LabyrinthRaster | None = None
-        if obs_mode == "pixels":
-            self._raster = LabyrinthRaster(board, board_grid(board, self.obs_size), path_width=path_width)
-        elif obs_mode in ("cyberrunner", "cyberrunner_flat"):
-            self._raster = LabyrinthRaster(board, sheet_grid(board, CROP_PIXEL), path_width=path_width)
         self._path_width = path_width
-        self.observation_space = self._observation_space()
+        self.observation_space = self.observer.space()
         self._has_reset = False
         self._episode_over = True
         self._last: PathStep | None = None
@@ -310,22 +299,6 @@ class LabyrinthEnv(gym.Env):
                 f"start_noise {self.start_noise!r} m lets the marble start in a wall, the rim or a hole of layout "
                 f"{self.layout_name!r}: choose a smaller start_noise (0..0.005 m)"
             )
-
-    def _observation_space(self) -> spaces.Space:
-        hx, hy = self.board.board_size[0] / 2, self.board.board_size[1] / 2
-        if self.obs_mode == "pixels":
-            return pixel_space(self.obs_size, self.motion)
-        if self.obs_mode in ("cyberrunner", "cyberrunner_flat"):
-            return cyberrunner_space(self.obs_mode == "cyberrunner_flat", self.motion)
-        tilt = self.board.max_tilt + 0.01
-        span = np.tile([2 * hx, 2 * hy], PATH_AHEAD)
-        low = np.concatenate([[-hx, -hy, -np.inf, -np.inf, -tilt, -tilt, 0.0], -span]).astype(np.float32)
-        high = np.concatenate([[hx, hy, np.inf, np.inf, tilt, tilt, 1.0], span]).astype(np.float32)
-        if self.surroundings is not None:  # hole offsets (a missing hole's is NO_HOLE), then distances
-            far = max(2 * hx, 2 * hy, *NO_HOLE)
-            low = np.concatenate([low, np.full(2 * SURROUNDING_HOLES, -far), np.zeros(WALL_RAYS)], dtype=np.float32)
-            high = np.concatenate([high, np.full(2 * SURROUNDING_HOLES, far), np.full(WALL_RAYS, RAY_RANGE)])
-        return spaces.Box(low, high.astype(np.float32), dtype=np.float32)
 
     # ------------------------------------------------------------------ Gymnasium API
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
@@ -398,27 +371,14 @@ class LabyrinthEnv(gym.Env):
             raise ValueError(f"progress must be a finite number (m along the path), got {progress!r}")
         qpos, kinematics = self._state_kinematics("sim_state", sim_state)
         previous = kinematics if previous_state is None else self._state_kinematics("previous_state", previous_state)[1]
-        return self._observation(kinematics, qpos[:2], float(progress), np.array(previous[:2]))
+        return self.observer.observe(kinematics, qpos[:2], float(progress), np.array(previous[:2]))
 
     def state_observation(self) -> np.ndarray:
         """The 17 state values (``obs_mode="state"``'s, without surroundings) at the env's current step,
         whatever it observes: the privileged state that a pixel learner's auxiliary heads predict."""
         if self._last is None:
             raise RuntimeError("call reset() before state_observation()")
-        return self._state_values(self._kinematics, self.sim.data.qpos[:2], self._last.progress)
-
-    def _state_values(self, kinematics: tuple[float, ...], tilt: np.ndarray, progress: float) -> np.ndarray:
-        """x, y, vx, vy, the tilt, the progress as a fraction of the path, then the 5 path points
-        ahead relative to the marble (:data:`PATH_SPACING` apart)."""
-        x, y, vx, vy = kinematics
-        relative = self._path_relative(x, y, progress)
-        return np.array([x, y, vx, vy, tilt[0], tilt[1], progress / self.path.length, *relative], np.float32)
-
-    def _path_relative(self, x: float, y: float, progress: float) -> list[float]:
-        """The 5 path points ahead of ``progress`` (m), :data:`PATH_SPACING` apart, relative to the
-        marble at (``x``, ``y``), flattened."""
-        ahead = self.tracker.points_ahead(progress, PATH_AHEAD, PATH_SPACING)
-        return [v for px, py in ahead for v in (px - x, py - y)]
+        return self.observer.state_values(self._kinematics, self.sim.data.qpos[:2], self._last.progress)
 
     def _state_kinematics(self, name: str, sim_state: np.ndarray) -> tuple[np.ndarray, tuple[float, ...]]:
         """The joint positions and the marble's board-frame (x, y, vx, vy) of a physics state, checked."""
@@ -436,34 +396,7 @@ class LabyrinthEnv(gym.Env):
     # ------------------------------------------------------------------ helpers
     def _observe(self) -> Any:
         assert self._last is not None
-        return self._observation(self._kinematics, self.sim.data.qpos[:2], self._last.progress, self._previous_xy)
-
-    def _observation(
-        self, kinematics: tuple[float, ...], tilt: np.ndarray, progress: float, previous_xy: np.ndarray
-    ) -> Any:
-        """The observation of the marble's board-frame ``kinematics`` (x, y, vx, vy), the board's
-        ``tilt`` (rad) and the marble's path ``progress`` (m); ``previous_xy`` its position at the
-        previous observation (the ``motion``)."""
-        x, y = kinematics[:2]
-        if self.obs_mode == "pixels":
-            assert self._raster is not None
-            return pixel_observation(self._raster, np.array([[x, y]]), previous_xy[None] if self.motion else None)[0]
-        if self.obs_mode == "state":
-            head = self._state_values(kinematics, tilt, progress)
-            return head if self.surroundings is None else np.concatenate([head, self.surroundings.of(np.array([x, y]))])
-        assert self._raster is not None
-        xy = np.array([[x, y]])
-        motion = marble_motion(xy, previous_xy[None], self.control_hz) if self.motion else None
-        obs = cyberrunner_observation(
-            self._raster,
-            self.board.board_size,
-            xy,
-            np.asarray(tilt)[None],
-            np.array([self._path_relative(x, y, progress)]),
-            motion,
-        )
-        obs = {key: value[0] for key, value in obs.items()}
-        return flatten_cyberrunner(obs) if self.obs_mode == "cyberrunner_flat" else obs
+        return self.observer.observe(self._kinematics, self.sim.data.qpos[:2], self._last.progress, self._previous_xy)
 
     def _info(self, step: PathStep, success: bool) -> dict[str, Any]:
         return {

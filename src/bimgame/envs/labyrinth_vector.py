@@ -327,12 +327,12 @@ class LabyrinthVectorEnv(gym.vector.VectorEnv):
     def _observe(self, ahead: np.ndarray) -> Any:
         """The N boards' observations in ``obs_mode``, batched."""
         if self.obs_mode == "state":
-            surroundings = self.template.surroundings
+            surroundings = self.template.observer.surroundings
             state = self._state_obs(ahead)
             return (
                 state if surroundings is None else np.concatenate([state, surroundings.of(self._kinematics[:, :2])], 1)
             )
-        raster = self.template._raster  # the single env's own raster (pixels or CyberRunner's sheet)
+        raster = self.template.observer.raster  # the single env's own raster (pixels or CyberRunner's sheet)
         assert raster is not None
         xy = self._kinematics[:, :2]
         if self.obs_mode == "pixels":
