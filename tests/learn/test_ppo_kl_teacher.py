@@ -18,7 +18,7 @@ from bimgame.envs.labyrinth_env import LabyrinthEnv
 from bimgame.learn.actor import RecurrentActor, env_action, tilt_input
 from bimgame.learn.checkpoints import load_checkpoint, save_checkpoint
 from bimgame.learn.common import load_run_network
-from bimgame.learn.ppo import PPOConfig
+from bimgame.learn.ppo import PPOConfig, train_ppo
 from bimgame.learn.run_dir import TEACHER
 from bimgame.learn.runs import CHECKPOINT
 
@@ -100,3 +100,20 @@ def test_kl_teacher_is_refused_where_it_cannot_teach(surroundings_teacher_run, t
     assert main(["train", "--run-dir", str(tmp_path / "a3c"), "--steps", "128", "--kl-coef", "1",
                  "--kl-teacher", str(surroundings_teacher_run), *FLAGS[:4]]) == 2
     assert "--kl-teacher: PPO's own settings" in capsys.readouterr().err
+
+
+def test_a_run_with_a_state_teacher_resumes_with_it_and_refuses_another(surroundings_teacher_run, leaning_teacher,
+                                                                        tmp_path):
+    settings = dict(task="LABYRINTH-EASY", obs="state", hidden=16, features=16, envs_per_worker=4, n_steps=32,
+                    minibatches=2, eval_every=0, eval_episodes=2, max_episode_steps=100, action_type="continuous",
+                    kl_coef=1.0, kl_teacher=str(surroundings_teacher_run), log_every=128)
+    run_dir = tmp_path / "run"
+    train_ppo(PPOConfig.from_flat(settings, steps=256), run_dir, progress=False)
+    with pytest.raises(ValueError, match="kl_teacher"):
+        train_ppo(PPOConfig.from_flat({**settings, "kl_teacher": str(leaning_teacher)}, steps=512), run_dir,
+                  resume=True, progress=False)
+    resumed = train_ppo(PPOConfig.from_flat(settings, steps=512), run_dir, resume=True, progress=False)
+    assert resumed.steps == 512
+    with open(run_dir / "updates.csv") as f:
+        kl = [float(row["kl"]) for row in csv.DictReader(f)]
+    assert len(kl) == 512 // 128 and all(value > 0 for value in kl)  # the teacher followed after the resume too

@@ -317,6 +317,11 @@ class PPOConfig(LearnerSettings):
         return None if self.finetuning is None else self.finetuning.kl_teacher
 
     @property
+    def keeps_pi_s(self) -> bool:
+        """Whether the run keeps π^s (the weights it started from, ``teacher.pt``) for its KL term."""
+        return self.has_teacher and self.state_teacher is None
+
+    @property
     def records_state(self) -> bool:
         """Whether the envs record the simulator's state (``Segment.privileged``): for the network's
         auxiliary heads or asymmetric critic, or for a state teacher to read."""

@@ -164,16 +164,15 @@ class _Start:
 def _started(
     config: PPOConfig, run: RunDirectory, net: RecurrentActorCritic, init: str | Path | None, reward: RewardSettings
 ) -> _Start:
-    """A new run: ``net`` from ``init`` (if given), π^s kept for a KL term (``teacher.pt``); its
+    """A new run: ``net`` from ``init`` (if given), π^s kept for a KL term to it (``teacher.pt``); its
     settings (the reward's too) and step-0 checkpoint written first."""
-    if config.has_teacher and config.state_teacher is None and init is None:
+    if config.keeps_pi_s and init is None:
         raise ValueError(
             "PPOFinetuneSettings.kl_coef > 0 (kickstarting) needs a pre-trained policy to stay close to: "
             "pass --init (or set kl_coef to 0)"
         )
     load_init_weights(net, init)
-    keeps_pi_s = config.has_teacher and config.state_teacher is None
-    teacher = {k: v.detach().clone() for k, v in net.state_dict().items()} if keeps_pi_s else None
+    teacher = {k: v.detach().clone() for k, v in net.state_dict().items()} if config.keeps_pi_s else None
     if teacher is not None:
         save_checkpoint(run / TEACHER, model=teacher, step=0, source=str(init))
     run.write_config(
@@ -201,8 +200,7 @@ def _resumed(
     apply_weights(net, payload, run / CHECKPOINT)
     if payload.get("optimizer") is not None:
         optimizer.load_state_dict(payload["optimizer"])
-    keeps_pi_s = config.has_teacher and config.state_teacher is None
-    teacher = load_checkpoint(run / TEACHER)["model"] if keeps_pi_s else None
+    teacher = load_checkpoint(run / TEACHER)["model"] if config.keeps_pi_s else None
     return _Start(int(payload["step"]), float(payload.get("seconds", 0.0)), teacher)
 
 
