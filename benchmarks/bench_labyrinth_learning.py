@@ -123,15 +123,15 @@ def _score(source: Path, episodes: int) -> dict[str, Any]:
     return scores
 
 
-def _for_seed(path: str | Path, seed: int) -> str:
-    """``path`` with ``{seed}`` replaced by the run's seed, absolute."""
-    return str(Path(str(path).replace("{seed}", str(seed))).absolute())
+def _for_seed(path: str | Path, seed: int) -> Path:
+    """``path`` with ``{seed}`` replaced by the run's seed (``--init``'s and ``--kl-teacher``'s)."""
+    return Path(str(path).replace("{seed}", str(seed)))
 
 
 def _init_for(init: Path | None, seed: int) -> Path | None:
     """The weights seed ``seed`` starts from: ``--init`` with ``{seed}`` replaced by the seed (one
     starting network per seed, e.g. each DAgger seed's ``best.pt``), or the same for every seed."""
-    return None if init is None else Path(str(init).replace("{seed}", str(seed)))
+    return None if init is None else _for_seed(init, seed)
 
 
 def _init_scores(args: argparse.Namespace) -> list[dict[str, Any]] | dict[str, Any] | None:
@@ -147,7 +147,7 @@ def _init_scores(args: argparse.Namespace) -> list[dict[str, Any]] | dict[str, A
 def _job(run_dir: Path, curriculum: str, seed: int, args: argparse.Namespace) -> tuple[float, dict[str, Any]]:
     """Train and score one run with one torch thread: a job of ``--jobs``."""
     with torch_threads(1):
-        teacher = {} if args.kl_teacher is None else {"kl_teacher": _for_seed(args.kl_teacher, seed)}
+        teacher = {} if args.kl_teacher is None else {"kl_teacher": str(_for_seed(args.kl_teacher, seed).absolute())}
         seconds = _train(
             run_dir,
             layout=args.layout,

@@ -207,8 +207,7 @@ def _teacher(config: PPOConfig, weights: dict[str, torch.Tensor] | None) -> Teac
         return None
     if config.state_teacher is not None:
         return state_teacher(config, config.schedule.envs_per_worker)
-    if weights is None:
-        raise ValueError("a KL term to π^s needs π^s's weights (the run's teacher.pt)")
+    assert weights is not None, "a run that keeps π^s starts every rank with its weights (teacher.pt)"
     net = policy_network(config)
     net.load_state_dict(weights)
     return Teacher(net, config.schedule.envs_per_worker, config.finetuning.kl_temperature)
