@@ -30,6 +30,13 @@ def test_ends_within_a_centimetre_of_path_and_ended_alike_share_a_cluster():
     assert [count for _, _, count in apart] == [1, 1]
 
 
+def test_holes_and_the_path_left_are_told_apart_and_older_falls_still_drawn(tmp_path):
+    clusters = end_clusters(_summary([0.2, 0.2, 0.2, 0.6], ["hole", "hole", "off_path", "goal"]))
+    assert [(how, count) for how, _, count in clusters] == [("hole", 2), ("off_path", 1), ("goal", 1)]
+    out = plot_episode_ends(_summary([0.2, 0.2, 0.3], ["hole", "off_path", "fall"]), tmp_path / "ends.png")
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
 def test_the_figure_is_written_atomically_as_png(tmp_path):
     out = plot_episode_ends(_summary([0.05, 0.4, 0.41], ["fall", "fall", "time"]), tmp_path / "sub" / "ends.png")
     assert out == tmp_path / "sub" / "ends.png" and out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -40,8 +47,8 @@ def test_the_figure_is_written_atomically_as_png(tmp_path):
     ("summary", "message"),
     [
         ({"task": "STG1", "returns": [1.0]}, "not a labyrinth score summary: it lacks layout, progress_fractions"),
-        (_summary([0.1], ["crashed"]), "summary's ended must name one of fall, time, goal per episode"),
-        (_summary([0.1, 0.2], ["fall"]), "summary's ended must name one of fall, time, goal per episode \\(2\\)"),
+        (_summary([0.1], ["crashed"]), "summary's ended must name one of hole, off_path, fall, time, goal per episode"),
+        (_summary([0.1, 0.2], ["fall"]), "summary's ended must name one of hole, off_path, fall, time, goal per episode \\(2\\)"),
         ({**_summary([0.1], ["fall"]), "layout": "spiral"}, "spiral"),
     ],
 )

@@ -5,6 +5,7 @@ problem."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -14,6 +15,7 @@ from bimgame.cli.main import main
 from bimgame.envs.labyrinth_env import LabyrinthEnv
 from bimgame.experiments.labyrinth_protocol import (
     CYBERRUNNER_RECORD_S,
+    ENDINGS,
     HUMAN_RECORD_S,
     LABYRINTH_PROTOCOL_SEED,
     score_labyrinth,
@@ -47,13 +49,16 @@ def test_the_same_seed_gives_the_same_result_and_noop_and_random_do_not_solve_th
     assert first["protocol_seed"] == LABYRINTH_PROTOCOL_SEED and first["task"] == "LABYRINTH-HARD"
     assert first["time_limit_steps"] == 3000 and first["control_hz"] == 55 and first["mode"] is None
     assert first["success_rate"] <= 1 / 6  # random tilting rarely reaches the goal (0 of 6 here)
-    assert first["ended_by"]["fall"] >= 1 and sum(first["ended_by"].values()) == 6
+    ended_by = first["ended_by"]
+    assert ended_by["fall"] == ended_by["hole"] + ended_by["off_path"] >= 1
+    assert sum(ended_by[how] for how in ENDINGS) == 6 and ended_by == {how: first["ended"].count(how)
+                                                                        for how in ENDINGS} | {"fall": ended_by["fall"]}
     other = score_labyrinth("random", "LABYRINTH-HARD", episodes=6, seed=7, progress=False)
     assert other["returns"] != first["returns"]  # other starts, other draws
     # noop: the board stays flat and the marble at its start until the time limit.
     noop = score_labyrinth("noop", "LABYRINTH-HARD", episodes=3, progress=False)
     assert noop["success_rate"] == 0.0 and noop["success_rate_ci"] == [0.0, 0.0]
-    assert noop["lengths"] == [3000] * 3 and noop["ended_by"] == {"goal": 0, "fall": 0, "time": 3}
+    assert noop["lengths"] == [3000] * 3 and noop["ended_by"] == {"goal": 0, "hole": 0, "off_path": 0, "time": 3, "fall": 0}
     assert noop["ended"] == ["time"] * 3
     starts = start_progress("LABYRINTH-HARD", [LABYRINTH_PROTOCOL_SEED + i for i in range(3)])
     length = LabyrinthEnv("hard").path.length
@@ -66,10 +71,10 @@ def test_the_same_seed_gives_the_same_result_and_noop_and_random_do_not_solve_th
 def test_progress_reached_is_the_envs_progress_after_the_last_step_that_did_not_fail():
     """Random episodes played here (random tilt rates held for 20 steps), their info's progress kept:
     the summary's progress, read from the return, is the same, for falls (the progress before the
-    failing step) and for time-outs."""
-    env = LabyrinthEnv("easy")
-    seeds, limit = [3, 4, 5, 6], 400
-    result, expected = EvalResult([], [], []), []
+    failing step) and for time-outs; a fall is a hole or the path left as the env's info says."""
+    env = LabyrinthEnv("hard")
+    seeds, limit = [3, 4, 5, 6, 7, 8], 400
+    result, expected, endings = EvalResult([], [], []), [], []
     for seed in seeds:
         rng = np.random.default_rng(seed)
         _, info = env.reset(seed=seed)
@@ -86,10 +91,16 @@ def test_progress_reached_is_the_envs_progress_after_the_last_step_that_did_not_
         result.successes.append(False)
         result.lengths.append(length)
         result.returns.append(total)
+        result.holes.append(bool(info["over_hole"]))
         expected.append(kept)
-    summary = summarise_labyrinth(result, "LABYRINTH-EASY", seeds, time_limit=limit)
-    assert summary["ended_by"]["fall"] >= 1 and summary["ended_by"]["time"] >= 1  # both kinds of end
-    assert summary["ended"] == ["time" if n == limit else "fall" for n in result.lengths]
+        endings.append("time" if length == limit else "hole" if info["over_hole"] else "off_path")
+        assert length == limit or info["over_hole"] or info["off_path"]  # a fall is one or the other
+    summary = summarise_labyrinth(result, "LABYRINTH-HARD", seeds, time_limit=limit)
+    assert summary["ended"] == endings and set(endings) == {"time", "hole", "off_path"}  # every kind of end
+    assert summary["ended_by"] == {"goal": 0, "hole": 3, "off_path": 1, "time": 2, "fall": 4}
+    # A result that does not tell holes from the path (a hand-made one) says "fall".
+    unknown = summarise_labyrinth(dataclasses.replace(result, holes=[]), "LABYRINTH-HARD", seeds, time_limit=limit)
+    assert unknown["ended"] == ["fall" if e in ("hole", "off_path") else e for e in endings]
     np.testing.assert_allclose(summary["progress_fractions"], expected, atol=1e-9)
     assert summary["mean_progress_fraction"] == pytest.approx(np.mean(expected))
 
@@ -97,7 +108,7 @@ def test_progress_reached_is_the_envs_progress_after_the_last_step_that_did_not_
 def test_the_expert_solves_the_easy_layout():
     """One episode (≈ 470 decisions of ≈ 70 ms: ≈ 30 s on a loaded 2-core machine)."""
     summary = score_labyrinth("expert", "LABYRINTH-EASY", episodes=1, progress=False)
-    assert summary["successes"] == [True] and summary["ended_by"] == {"goal": 1, "fall": 0, "time": 0}
+    assert summary["successes"] == [True] and summary["ended_by"] == {"goal": 1, "hole": 0, "off_path": 0, "time": 0, "fall": 0}
     times = summary["completion_time_s"]
     assert 5.0 < times["best"] == times["median"] < 15.0 and times["best"] == summary["lengths"][0] / 55
     assert summary["mean_progress_fraction"] > 0.98
@@ -120,6 +131,7 @@ def test_a_tiny_ppo_run_scores_through_the_command_line(easy_run, tmp_path, caps
     assert result["episodes"] == 2 and len(result["lengths"]) == 2 and 0.0 <= result["success_rate"] <= 1.0
     assert all(0 < n <= 3000 for n in result["lengths"])  # the protocol's limit, not the run's 100 steps
     assert 0.0 <= result["mean_progress_fraction"] <= 1.0 and result["median_over_human"] is None
+    assert set(result["ended"]) <= set(ENDINGS) and "in a hole" in printed and "off the path" in printed
 
 
 def test_refusals_name_the_problem(easy_run, tmp_path, capsys):

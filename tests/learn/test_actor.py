@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import torch
 
+from bimgame.envs.labyrinth_env import LabyrinthEnv
 from bimgame.envs.vector import BallInMazeVectorEnv
 from bimgame.learn.actor import EvalResult, RecurrentActor, evaluate_network, tilt_input
 from bimgame.learn.nets import NO_ACTION, NetConfig, build_network, state_obs_scale
@@ -315,3 +316,29 @@ def test_evaluate_network_steps_a_continuous_env_for_a_continuous_network():
         net.policy.bias.fill_(5.0)  # greedy means far outside [-1, 1]: executed clipped, not refused
     _check_first_episodes(evaluate_network(net, task="STG1", obs_mode="state", episodes=2, seed=0,
                                            max_episode_steps=10), 2, 10)
+
+
+@pytest.mark.parametrize(("layout", "lean", "hole"), [("hard", (0.3, -0.1), True), ("easy", (0.3, -0.1), False)])
+def test_evaluate_network_tells_a_labyrinth_episode_that_fell_into_a_hole_from_one_that_left_the_path(
+        layout, lean, hole):
+    """A network whose greedy action is a constant tilt rate (policy weights zero, bias the lean) on
+    the batched labyrinth; the single env replayed from the same start seeds with the same action
+    ends the same way: in a hole on the hard layout, off the path on the easy one."""
+    net = build_network(NetConfig(encoder="mlp", obs_shape=(17,), features=16, hidden=8, action_type="continuous"))
+    with torch.no_grad():
+        net.policy.weight.zero_()
+        net.policy.bias[:2] = torch.tensor(lean)
+    result = evaluate_network(net, task=f"LABYRINTH-{layout.upper()}", obs_mode="state", episodes=3, seed=10,
+                              max_episode_steps=300)
+    env = LabyrinthEnv(layout)
+    for i in range(3):
+        env.reset(seed=10 + i)  # board i of the batched env starts as reset(seed=seed + i)
+        for step in range(1, 301):
+            _, _, terminated, _, info = env.step(np.asarray(lean, dtype=np.float32))
+            if terminated:
+                break
+        assert terminated and not info["is_success"] and result.lengths[i] == step < 300
+        assert result.holes[i] == info["over_hole"] == hole and info["off_path"] != hole
+    # The circular maze has no holes: its results leave them empty.
+    assert evaluate_network(_net(), task="STG1", obs_mode="state", episodes=2, seed=0, max_episode_steps=5).holes == []
+

@@ -201,7 +201,8 @@ def _run_labyrinth_score(args: argparse.Namespace, console: Console) -> int:
     ended = summary["ended_by"]
     console.print(
         f"mean progress reached: {100 * summary['mean_progress_fraction']:.1f}% of the path; episodes ended at the "
-        f"goal {ended['goal']}, in a hole or off the path {ended['fall']}, at the time limit {ended['time']}"
+        f"goal {ended['goal']}, in a hole {ended['hole']}, off the path {ended['off_path']}, at the time limit "
+        f"{ended['time']}"
     )
     if args.out is not None:
         console.print(f"wrote {write_json(args.out, summary)}")

@@ -7,7 +7,7 @@ Why a picture: a success rate of 0% on the hard layout hides whether a policy lo
 everywhere or at one narrow passage; the board shows the passage, the histogram how many episodes
 end there. An episode's spot is the path's point at its progress reached
 (:meth:`~bimgame.sim.labyrinth.WaypointPath.point_at`): where the marble last made progress before
-it fell (into a hole or off the path), stopped at the time limit or reached the goal — not the hole
+it fell into a hole or left the path (two markers), stopped at the time limit or reached the goal — not the hole
 it fell into, which the summary does not hold. Episodes that end within :data:`CLUSTER_M` of path of
 each other, the same way, share one marker whose size (capped) and label count them.
 """
@@ -32,7 +32,9 @@ __all__ = ["CLUSTER_M", "END_STYLES", "end_clusters", "plot_episode_ends"]
 CLUSTER_M = 0.01
 #: How each way of ending is drawn: (label, colour, marker).
 END_STYLES: dict[str, tuple[str, str, str]] = {
-    "fall": ("fell (hole or off the path)", "crimson", "X"),
+    "hole": ("fell into a hole", "crimson", "X"),
+    "off_path": ("left the path", "purple", "P"),
+    "fall": ("fell (hole or off the path)", "crimson", "X"),  # summaries that did not tell the two apart
     "time": ("time limit", "darkorange", "o"),
     "goal": ("goal", "forestgreen", "*"),
 }
@@ -96,19 +98,26 @@ def _draw_board(ax: Any, spec: LabyrinthSpec, clusters: list[tuple[str, float, i
 
 def _draw_histogram(ax: Any, fractions: np.ndarray, ended: list[str]) -> None:
     bins = np.linspace(0.0, 100.0, 51)
-    stacks = [100 * fractions[[e == how for e in ended]] for how in END_STYLES]
+    shown = [how for how in END_STYLES if how in ended]  # a legend of the endings that happened
     ax.hist(
-        stacks,
+        [100 * fractions[[e == how for e in ended]] for how in shown],
         bins=bins,
         stacked=True,
-        color=[style[1] for style in END_STYLES.values()],
-        label=[style[0] for style in END_STYLES.values()],
+        color=[END_STYLES[how][1] for how in shown],
+        label=[END_STYLES[how][0] for how in shown],
     )
     ax.locator_params(axis="y", integer=True)  # episode counts
     ax.set_xlim(0, 100)
     ax.set_xlabel("progress reached (% of the path)")
     ax.set_ylabel("episodes")
     ax.legend(fontsize=8, loc="upper right")
+
+
+def _falls(counts: Counter[str]) -> str:
+    """The falls of a summary's endings in words: holes and the path apart where it tells them apart."""
+    if counts["fall"]:
+        return f"{counts['fall'] + counts['hole'] + counts['off_path']} fell"
+    return f"{counts['hole']} in a hole, {counts['off_path']} off the path"
 
 
 def plot_episode_ends(summary: Mapping[str, Any], path: str | Path, *, title: str | None = None) -> Path:
@@ -121,7 +130,7 @@ def plot_episode_ends(summary: Mapping[str, Any], path: str | Path, *, title: st
     counts = Counter(ended)
     default = (
         f"{summary.get('policy', 'policy')} on {summary.get('task', summary['layout'])}: {len(ended)} episodes, "
-        f"{counts['goal']} at the goal, {counts['fall']} fell, {counts['time']} at the time limit; "
+        f"{counts['goal']} at the goal, {_falls(counts)}, {counts['time']} at the time limit; "
         f"mean progress {100 * float(np.mean(fractions)):.0f}%"
     )
     fig.suptitle("\n".join(textwrap.wrap(title or default, 140)), fontsize=10)

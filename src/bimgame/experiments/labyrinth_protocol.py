@@ -30,9 +30,10 @@ by default, sampling with ``sampled`` (from a generator seeded with ``seed``). E
 percentile-bootstrap interval over episodes (:func:`~bimgame.experiments.statistics.mean_interval`,
 seeded, so the same episodes give the same interval; it collapses to a point at 0% and 100%); the
 completion time (s; steps / 55 Hz) of the successful episodes: fastest, quartiles and median, and
-on the hard layout their ratios to the references; how episodes ended (goal, fall: a hole or off
-the path, time: ran to the limit — a fall on the very last step counts as time), in all and per
-episode (``ended``); and the path progress reached, per episode and its mean, as a fraction of the
+on the hard layout their ratios to the references; how episodes ended (:data:`ENDINGS`: goal; hole
+or off_path, by the env's ``over_hole`` at the last step; time: ran to the limit — a fall on the very
+last step counts as time), in all (``ended_by``, whose ``fall`` is hole + off_path) and per episode
+(``ended``); and the path progress reached, per episode and its mean, as a fraction of the
 path's length (:func:`~bimgame.experiments.labyrinth_figures.plot_episode_ends` draws where on the
 board the episodes ended).
 
@@ -66,6 +67,7 @@ from bimgame.util.settings import require_int
 
 __all__ = [
     "CYBERRUNNER_RECORD_S",
+    "ENDINGS",
     "HUMAN_RECORD_S",
     "LABYRINTH_POLICIES",
     "LABYRINTH_PROTOCOL_EPISODES",
@@ -81,6 +83,10 @@ CYBERRUNNER_RECORD_S = 14.48
 HUMAN_RECORD_S = 15.41
 #: The layout the references were set on.
 REFERENCE_TASK = "LABYRINTH-HARD"
+#: How a scored episode can end: at the goal, over a hole, off the path (CyberRunner's rule: no path
+#: segment near the marble), or at the time limit. Summaries written before the hole and the path
+#: were told apart name both ``fall``, which ``ended_by["fall"]`` still counts (their sum).
+ENDINGS = ("goal", "hole", "off_path", "time")
 #: The built-in policies the labyrinth's protocol plays.
 LABYRINTH_POLICIES = ("random", "noop", "expert")
 #: Episodes of the protocol (scores are comparable at the same number): enough for a success rate to
@@ -142,6 +148,7 @@ def _play_builtins(name: str, layout: str, starts: list[int], time_limit: int, p
                 result.successes.append(success)
                 result.lengths.append(length)
                 result.returns.append(total)
+                result.holes.append(bool(info["over_hole"]))
                 bar.update(advance=1, info=f"success {np.mean(result.successes):.0%}")
     finally:
         env.close()
@@ -229,6 +236,16 @@ def _ratio(value: float | None, reference: float, task: str) -> float | None:
     return None if value is None or task != REFERENCE_TASK else value / reference
 
 
+def _endings(solved: np.ndarray, timed_out: np.ndarray, holes: list[bool]) -> list[str]:
+    """How each episode ended (:data:`ENDINGS`): a fall is ``hole`` or ``off_path`` by the env's
+    ``over_hole`` at the episode's last step, ``fall`` where the result holds none."""
+    known = len(holes) == len(solved)
+    falls = [("hole" if hole else "off_path") for hole in holes] if known else ["fall"] * len(solved)
+    return [
+        "goal" if goal else "time" if late else fall for goal, late, fall in zip(solved, timed_out, falls, strict=True)
+    ]
+
+
 def summarise_labyrinth(result: EvalResult, task: str, starts: list[int], *, time_limit: int) -> dict[str, Any]:
     """The protocol's numbers for the episodes of ``result`` (from start seeds ``starts``, on ``task``):
     see the module notes. Deterministic: the same episodes give the same dict."""
@@ -250,6 +267,7 @@ def summarise_labyrinth(result: EvalResult, task: str, starts: list[int], *, tim
     rng = np.random.default_rng(_BOOTSTRAP_SEED)
     best, median = (float(times.min()) if len(times) else None), _quantile(times, 50)
     timed_out = ~solved & (lengths >= time_limit)
+    ended = _endings(solved, timed_out, result.holes)
     return {
         "task": task,
         "layout": layout,
@@ -263,9 +281,8 @@ def summarise_labyrinth(result: EvalResult, task: str, starts: list[int], *, tim
         "completion_time_s": {"best": best, "q25": _quantile(times, 25), "median": median, "q75": _quantile(times, 75)},
         "mean_progress_fraction": float(reached.mean()),
         "ended_by": {
-            "goal": int(solved.sum()),
+            **{how: ended.count(how) for how in ENDINGS},
             "fall": int((~solved & ~timed_out).sum()),
-            "time": int(timed_out.sum()),
         },
         "references": {
             "task": REFERENCE_TASK,
@@ -281,7 +298,7 @@ def summarise_labyrinth(result: EvalResult, task: str, starts: list[int], *, tim
         "lengths": [int(n) for n in lengths],
         "returns": [float(r) for r in returns],
         "progress_fractions": [float(p) for p in reached],
-        "ended": ["goal" if goal else "time" if late else "fall" for goal, late in zip(solved, timed_out, strict=True)],
+        "ended": ended,
     }
 
 

@@ -23,7 +23,15 @@ from bimgame.learn.nets import LSTMState, RecurrentActorCritic
 from bimgame.learn.policy_heads import ActionDistribution
 from bimgame.sim.maze import MazeSpec
 
-__all__ = ["RecurrentActor", "EvalResult", "evaluate_network", "tilt_input", "env_action", "episode_successes"]
+__all__ = [
+    "RecurrentActor",
+    "EvalResult",
+    "evaluate_network",
+    "tilt_input",
+    "env_action",
+    "episode_successes",
+    "finished_info",
+]
 
 
 def tilt_input(info: dict[str, Any], max_tilt: float) -> torch.Tensor:
@@ -44,11 +52,17 @@ def episode_successes(info: dict[str, Any], terminated: np.ndarray) -> np.ndarra
     and a termination. A labyrinth episode also terminates by failing (a hole, leaving the path); a
     maze episode terminates only at its goal. An env that reports no ``is_success`` counts every
     termination as a success."""
-    final = info.get("final_info")
-    source = final if isinstance(final, dict) and "is_success" in final else info
+    source = finished_info(info, "is_success")
     if "is_success" not in source:
         return np.asarray(terminated, dtype=bool)
     return np.asarray(source["is_success"], dtype=bool) & np.asarray(terminated, dtype=bool)
+
+
+def finished_info(info: dict[str, Any], key: str) -> dict[str, Any]:
+    """The info of the step that finished the episodes: ``final_info`` under same-step autoreset when
+    it holds ``key`` (the info beside it is then the next episode's first), else ``info`` itself."""
+    final = info.get("final_info")
+    return final if isinstance(final, dict) and key in final else info
 
 
 class RecurrentActor:
@@ -129,6 +143,9 @@ class EvalResult:
     lengths: list[int]
     returns: list[float]
     frames: list[np.ndarray] = dataclasses.field(default_factory=list)
+    holes: list[bool] = dataclasses.field(default_factory=list)
+    """Per episode, whether it ended with the marble over a hole (the labyrinth's ``info["over_hole"]``
+    at its last step); empty when the env reports no holes (the circular maze)."""
 
     @property
     def success_rate(self) -> float:
@@ -215,10 +232,15 @@ def evaluate_network(
             lengths += 1
             done = terminated | truncated
             successes = episode_successes(info, terminated)
+            holes = finished_info(info, "over_hole").get("over_hole")
+            if holes is not None and not result.holes:
+                result.holes = [False] * episodes
             for i in np.flatnonzero(done & ~finished):
                 result.successes[i] = bool(successes[i])
                 result.lengths[i] = int(lengths[i])
                 result.returns[i] = float(returns[i])
+                if holes is not None:
+                    result.holes[i] = bool(holes[i])
             finished |= done
             returns[done] = 0.0
             lengths[done] = 0
