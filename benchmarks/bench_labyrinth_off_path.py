@@ -1,0 +1,97 @@
+"""What the labyrinth's off-path rule costs a trained network: the scoring protocol's episodes
+(:func:`~bimgame.experiments.labyrinth_protocol.score_labyrinth`'s starts and draws, the 54.5 s limit)
+played twice, once with the env's rule (an episode ends when the marble leaves the path:
+``end_off_path=True``, the default and the protocol's) and once with episodes that leave the path
+going on (``end_off_path=False``; holes still end them, progress stays frozen while off the path).
+
+Why: the env's path tolerance (25 mm, :mod:`bimgame.sim.labyrinth`) is a chosen value, stricter on
+open floor than CyberRunner's own test; an episode the second pass solves and the first does not is
+one the rule ended, not the marble. The first pass is the protocol's score (the same numbers as
+``bimgame score RUN --task … --sampled``); the second is a what-if, never a score.
+
+Writes ``--out`` (JSON: success, holes and time-outs per pass, the per-episode successes) and prints
+both passes. Usage: python benchmarks/bench_labyrinth_off_path.py RUN [--greedy] [--episodes 100]
+[--out benchmarks/results/labyrinth_off_path.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bimgame.experiments.labyrinth_protocol import LABYRINTH_PROTOCOL_SEED
+from bimgame.learn.actor import evaluate_network
+from bimgame.learn.common import load_run_network
+from bimgame.envs.puzzles import puzzle
+from bimgame.learn.maze_runs import network_env_options
+from bimgame.learn.runs import torch_threads
+from bimgame.util.files import write_json
+
+
+def _pass(net: Any, run: Any, *, end_off_path: bool, episodes: int, greedy: bool) -> dict[str, Any]:
+    """The protocol's episodes of ``run``'s network with ``end_off_path`` as given."""
+    started = time.perf_counter()
+    result = evaluate_network(
+        net,
+        task=run.task,
+        obs_mode=run.network.obs,
+        episodes=episodes,
+        seed=LABYRINTH_PROTOCOL_SEED,
+        greedy=greedy,
+        max_episode_steps=puzzle(run.task).time_limit,
+        mazes={**(network_env_options(run.network) or {}), "end_off_path": end_off_path},
+    )
+    limit = puzzle(run.task).time_limit
+    timed_out = [not s and n >= limit for s, n in zip(result.successes, result.lengths, strict=True)]
+    return {
+        "end_off_path": end_off_path,
+        "success_rate": float(np.mean(result.successes)),
+        "holes": int(sum(result.holes)),
+        "time_limit": int(sum(timed_out)),
+        "successes": [bool(s) for s in result.successes],
+        "seconds": time.perf_counter() - started,
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("run", help="a bimgame run directory or checkpoint trained on a labyrinth task")
+    parser.add_argument("--greedy", action="store_true", help="greedy actions (default: sampled)")
+    parser.add_argument("--episodes", type=int, default=100)
+    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/labyrinth_off_path.json"))
+    args = parser.parse_args()
+    if args.episodes < 1:
+        parser.error(f"--episodes must be at least 1, got {args.episodes}")
+    net, run, step = load_run_network(args.run)
+    if puzzle(run.task).is_maze:
+        parser.error(f"{args.run} is a run on {run.task}, the circular maze; this measures the labyrinth's rule")
+    with torch_threads(1):  # beside training runs: one core's share
+        passes = [_pass(net.eval(), run, end_off_path=end, episodes=args.episodes, greedy=args.greedy)
+                  for end in (True, False)]  # fmt: skip
+    ruled, free = passes
+    ended_by_rule = sum(f and not r for r, f in zip(ruled["successes"], free["successes"], strict=True))
+    summary = {
+        "run": str(args.run),
+        "task": run.task,
+        "step": step,
+        "mode": "greedy" if args.greedy else "sampled",
+        "episodes": args.episodes,
+        "protocol_seed": LABYRINTH_PROTOCOL_SEED,
+        "passes": passes,
+        "solved_only_without_the_rule": ended_by_rule,
+    }
+    for result in passes:
+        print(
+            f"end_off_path={result['end_off_path']}: success {result['success_rate']:.0%}, "
+            f"holes {result['holes']}, time limit {result['time_limit']} ({result['seconds']:.0f} s)"
+        )
+    print(f"solved only when leaving the path does not end the episode: {ended_by_rule}")
+    print(f"wrote {write_json(args.out, summary)}")
+
+
+if __name__ == "__main__":
+    main()
