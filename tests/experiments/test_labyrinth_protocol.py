@@ -10,6 +10,7 @@ import json
 
 import numpy as np
 import pytest
+import torch
 
 from bimgame.cli.main import main
 from bimgame.envs.labyrinth_env import LabyrinthEnv
@@ -18,11 +19,14 @@ from bimgame.experiments.labyrinth_protocol import (
     ENDINGS,
     HUMAN_RECORD_S,
     LABYRINTH_PROTOCOL_SEED,
+    SCORE_THREADS,
     score_labyrinth,
     start_progress,
     summarise_labyrinth,
 )
-from bimgame.learn.actor import EvalResult
+from bimgame.experiments import labyrinth_protocol
+from bimgame.learn.actor import EvalResult, evaluate_network
+from bimgame.learn.runs import torch_threads
 
 #: A tiny PPO run on the easy layout (as tests/learn/test_labyrinth_training.py trains them).
 TINY_PPO = ["--obs", "state", "--action-type", "continuous", "--steps", "256", "--hidden", "16", "--features", "16",
@@ -168,3 +172,21 @@ def test_refusals_name_the_problem(easy_run, tmp_path, capsys):
         score_labyrinth("random", "LABYRINTH-EASY", episodes=0)
     with pytest.raises(ValueError, match=r"score_labyrinth\.seed must be an integer from 0"):
         score_labyrinth("random", "LABYRINTH-EASY", episodes=1, seed=-1)
+
+
+def test_a_network_is_scored_on_one_torch_thread_whatever_the_callers_setting(easy_run, monkeypatch):
+    """Scores do not depend on the machine: the batched forward pass runs on SCORE_THREADS threads
+    (its float sums, and so a chaotic marble's episodes, depend on the count), and the caller's
+    setting is restored afterwards."""
+    seen = []
+
+    def recording(*args, **kwargs):
+        seen.append(torch.get_num_threads())
+        return evaluate_network(*args, **kwargs)
+
+    monkeypatch.setattr(labyrinth_protocol, "evaluate_network", recording)
+    with torch_threads(2):
+        score_labyrinth(easy_run, "LABYRINTH-EASY", episodes=1, progress=False)
+        assert torch.get_num_threads() == 2
+    assert seen == [SCORE_THREADS] == [1]
+

@@ -23,8 +23,9 @@ per episode; ``noop``: zero actions (the board stays flat); ``expert``: the MPC 
 (:class:`~bimgame.expert.labyrinth_mpc.LabyrinthMPC`, default settings) on the simulator's state, its
 generator seeded per episode; a bimgame run directory or checkpoint of a network trained on the same
 task: :func:`~bimgame.learn.actor.evaluate_network` plays it on its own observations and actions, greedy
-by default, sampling with ``sampled`` (from a generator seeded with ``seed``). Episode i depends on
-(seed, i) alone. Stable-Baselines3 models and ``module:callable`` policies are refused for now.
+by default, sampling with ``sampled`` (from a generator seeded with ``seed``), on
+:data:`SCORE_THREADS` torch threads. Episode i depends on (seed, i) alone. Stable-Baselines3 models
+and ``module:callable`` policies are refused for now.
 
 **Reported** (:func:`summarise_labyrinth`): success rate and mean return, each with a 95%
 percentile-bootstrap interval over episodes (:func:`~bimgame.experiments.statistics.mean_interval`,
@@ -62,12 +63,14 @@ from bimgame.expert.labyrinth_mpc import LabyrinthMPC
 from bimgame.learn.actor import EvalResult, evaluate_network
 from bimgame.learn.common import MAX_SEED, load_run_network
 from bimgame.learn.maze_runs import network_env_options
+from bimgame.learn.runs import torch_threads
 from bimgame.util.progress import ProgressBar
 from bimgame.util.settings import require_int
 
 __all__ = [
     "CYBERRUNNER_RECORD_S",
     "ENDINGS",
+    "SCORE_THREADS",
     "HUMAN_RECORD_S",
     "LABYRINTH_POLICIES",
     "LABYRINTH_PROTOCOL_EPISODES",
@@ -95,6 +98,11 @@ LABYRINTH_POLICIES = ("random", "noop", "expert")
 LABYRINTH_PROTOCOL_EPISODES = 50
 #: The seed the starts derive from (the benchmark protocol's, :data:`~bimgame.experiments.protocol.PROTOCOL_SEED`).
 LABYRINTH_PROTOCOL_SEED = PROTOCOL_SEED
+#: Torch threads a network is scored on, whatever the machine or caller: the batched forward pass's
+#: float sums depend on how many threads split them, and on a chaotic marble a last-bit difference
+#: changes episodes (100 boards sampled at one thread and at two differed in 17 of them within 150
+#: steps), so a fixed count makes the same seed give the same score on every machine.
+SCORE_THREADS = 1
 #: Seed of the bootstrap's generator (the same episodes always get the same intervals).
 _BOOTSTRAP_SEED = 0
 #: Second word of the built-in policies' generator seeds, so their draws differ from the env's start
@@ -189,9 +197,12 @@ def _play_network(
             f"{source}: the network was trained on {run.network.obs} observations, not {obs}; "
             f"score it with --obs {run.network.obs} (or without --obs)"
         )
-    with ProgressBar(
-        f"{source} on {task}", 1, enabled=progress, count=None, transient=True, info=f"{episodes} boards batched"
-    ) as bar:
+    with (
+        ProgressBar(
+            f"{source} on {task}", 1, enabled=progress, count=None, transient=True, info=f"{episodes} boards batched"
+        ) as bar,
+        torch_threads(SCORE_THREADS),
+    ):
         result = evaluate_network(
             net.eval(),
             task=task,
