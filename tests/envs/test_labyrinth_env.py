@@ -113,6 +113,21 @@ def test_off_path_ends_the_episode_or_pays_nothing():
     assert not terminated and info["off_path"] and reward == 0.0
 
 
+@pytest.mark.parametrize(("xy", "tolerance_off", "box_off"), [((0.05, 0.05), True, False), ((0.0, 0.024), False, True)])
+def test_cyberrunners_off_path_rule_ends_episodes_by_the_free_box(xy, tolerance_off, box_off):
+    """A hole 12 mm above the path at x = 0. At (50, 50) mm the marble is 50 mm from the path on open
+    floor: off by the 25 mm tolerance, on by CyberRunner's box. At (0, 24) mm it is within the
+    tolerance, but the hole hides the path from its box: on by the tolerance, off by CyberRunner's."""
+    board = line_board(holes=((0.0, 0.012),))
+    for rule, off in (("tolerance", tolerance_off), ("cyberrunner", box_off)):
+        env = env_on(board, off_path_rule=rule)
+        _, info = env.reset(seed=0, options={"marble_xy": xy})
+        assert info["off_path"] == off and not info["over_hole"], rule
+        _, reward, terminated, _, info = env.step(NOOP)
+        assert terminated == off == info["off_path"], rule
+        assert reward == 0.0 or not off  # a failing step pays fail_reward
+
+
 # ------------------------------------------------------------------------------------ reward
 def test_progress_reward_sums_to_the_path_progress_made():
     env = env_on(line_board())
@@ -247,6 +262,7 @@ def test_cyberrunner_observation():
         ({"progress_scale": math.nan}, "progress_scale must be a finite number"),
         ({"goal_bonus": "1"}, "goal_bonus must be a finite number"),
         ({"end_off_path": "yes"}, "end_off_path must be True or False"),
+        ({"off_path_rule": "box"}, "unknown off_path_rule 'box'; allowed: tolerance, cyberrunner"),
         ({"start_noise": 0.01}, r"start_noise must be a finite number in \[0, 0.005\]"),
         ({"start_noise": 0.005, "layout": "easy"}, "start_noise .* lets the marble start"),
         ({"board": "hard"}, "board must be a LabyrinthSpec"),

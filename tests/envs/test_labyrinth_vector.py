@@ -55,9 +55,20 @@ def test_equals_single_envs_step_by_step_across_episode_ends(layout, action_type
     when its episode ends (what SAME_STEP autoreset does): identical observations, rewards,
     terminations, truncations, final observations and infos. Board 0 starts over a hole, so that
     every layout has a terminated episode (random play rarely ends one on the open medium board)."""
+    _equals_single_envs(layout, action_type)
+
+
+@pytest.mark.parametrize("layout", ["easy", "hard"])
+def test_equals_single_envs_with_cyberrunners_off_path_rule(layout):
+    """The same comparison with episodes judged off the path by CyberRunner's free-box test."""
+    _equals_single_envs(layout, "continuous", off_path_rule="cyberrunner")
+
+
+def _equals_single_envs(layout: str, action_type: str, **options) -> None:
     limit = 100
-    vec = LabyrinthVectorEnv(N, layout, action_type=action_type, max_episode_steps=limit)
-    singles = [gym.make(env_id(layout), action_type=action_type, max_episode_steps=limit) for _ in range(N)]
+    vec = LabyrinthVectorEnv(N, layout, action_type=action_type, max_episode_steps=limit, **options)
+    singles = [gym.make(env_id(layout), action_type=action_type, max_episode_steps=limit, **options)
+               for _ in range(N)]
     starts = np.array([vec.board.holes[0]] + [vec.board.start] * (N - 1))
     obs, info = vec.reset(seed=SEED, options={"marble_xy": starts})
     for i, env in enumerate(singles):

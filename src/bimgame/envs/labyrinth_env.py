@@ -11,7 +11,9 @@ Data-Augmented Model-Based Reinforcement Learning" (arXiv 2312.09906) and its re
 
 from __future__ import annotations
 
+import dataclasses
 import math
+from collections.abc import Sequence
 from typing import Any
 
 import gymnasium as gym
@@ -23,6 +25,7 @@ from bimgame.envs.labyrinth_cyberrunner import PATH_AHEAD, PATH_SPACING, check_m
 from bimgame.envs.labyrinth_observer import LabyrinthObserver
 from bimgame.envs.labyrinth_surroundings import check_surroundings
 from bimgame.sim.labyrinth import LabyrinthSpec, PathStep, WaypointPath
+from bimgame.sim.labyrinth_box_sight import path_box_sight
 from bimgame.sim.labyrinth_layouts import LAYOUT_NAMES
 from bimgame.sim.labyrinth_physics import LabyrinthSim
 from bimgame.sim.labyrinth_render import LabyrinthRaster, board_grid
@@ -48,6 +51,10 @@ LABYRINTH_OBS_MODES = ("state", "pixels", "cyberrunner", "cyberrunner_flat")
 OBSERVATION_EXTRAS = ("surroundings", "motion")
 #: Action rates (Hz): CyberRunner's camera and control (55) and MERL's maze's (30).
 LABYRINTH_CONTROL_RATES = (30, 55)
+#: How an episode is judged off the path: ``tolerance`` (default: no path segment within the
+#: board's ``path_tolerance`` in sight, the progress rule's test) or ``cyberrunner`` (CyberRunner's
+#: test: no path point in the marble's free box, :mod:`bimgame.sim.labyrinth_box_sight`).
+LABYRINTH_OFF_PATH_RULES = ("tolerance", "cyberrunner")
 #: Episode time limit (s): CyberRunner's 3000 steps at 55 Hz (``env.py``: ``self.steps == 3000``).
 LABYRINTH_EPISODE_SECONDS = 3000 / 55
 #: Reward per metre of path progress: CyberRunner pays 0.004 / 16 per path point (``env.py``) and
@@ -161,8 +168,11 @@ class LabyrinthEnv(gym.Env):
 
     Termination with success when the marble is on the path's last segment within ``goal_radius``
     (10 mm) of the goal; with failure when its centre is over a hole (it falls), or — with
-    ``end_off_path`` (default True, as CyberRunner's) — when it is off the path (no path segment near
-    it in sight: :class:`~bimgame.sim.labyrinth.PathProgress`). CyberRunner also ended an episode whose
+    ``end_off_path`` (default True, as CyberRunner's) — when it is off the path by ``off_path_rule``:
+    ``"tolerance"`` (default; no path segment near it in sight: :class:`~bimgame.sim.labyrinth.PathProgress`)
+    or ``"cyberrunner"`` (CyberRunner's own test, more lenient on open floor and stricter beside
+    holes: no path point in the marble's free box, :mod:`bimgame.sim.labyrinth_box_sight`; progress
+    is still the tolerance rule's). CyberRunner also ended an episode whose
     progress jumped more than 60 mm in one step; the progress rule here makes such jumps impossible.
     Truncation by ``TimeLimit``: the registered ids ``BiMGame/Labyrinth-{Easy,Medium,Hard}-v0`` run
     at 55 Hz with 3000 steps, CyberRunner's limit (54.5 s); at 30 Hz pass
@@ -179,7 +189,8 @@ class LabyrinthEnv(gym.Env):
     ``layout`` ("easy", "medium", "hard"), ``action_type``, ``control_hz`` (30 or 55),
     ``obs_mode``, ``obs_size`` (pixels, 16..1024, default 84), ``render_mode`` (None or
     "rgb_array"), ``render_size`` (16..2048, default 480), ``max_tilt_rate_deg`` (0 < rate ≤ 180),
-    ``progress_scale``, ``goal_bonus``, ``fail_reward``, ``end_off_path``, ``start_noise`` (m,
+    ``progress_scale``, ``goal_bonus``, ``fail_reward``, ``end_off_path``, ``off_path_rule``
+    (``LABYRINTH_OFF_PATH_RULES``), ``start_noise`` (m,
     0..5 mm), ``path_width`` (m, the printed path line in pixels; 0 hides it), ``board`` (a
     :class:`~bimgame.sim.labyrinth.LabyrinthSpec` overriding ``layout``), ``surroundings`` (state
     only: append the holes and walls around the marble), ``motion`` (cyberrunner: append the
@@ -208,6 +219,7 @@ class LabyrinthEnv(gym.Env):
         goal_bonus: float = GOAL_BONUS,
         fail_reward: float = FAIL_REWARD,
         end_off_path: bool = True,
+        off_path_rule: str = "tolerance",
         start_noise: float = 0.002,
         path_width: float = PATH_WIDTH,
         board: LabyrinthSpec | None = None,
@@ -236,6 +248,8 @@ class LabyrinthEnv(gym.Env):
         check_motion(motion, obs_mode)
         if not isinstance(end_off_path, (bool, np.bool_)):
             raise ValueError(f"end_off_path must be True or False, got {end_off_path!r}")
+        if off_path_rule not in LABYRINTH_OFF_PATH_RULES:
+            raise ValueError(f"unknown off_path_rule {off_path_rule!r}; allowed: {', '.join(LABYRINTH_OFF_PATH_RULES)}")
         rate = _finite("max_tilt_rate_deg", max_tilt_rate_deg, 0.0, 180.0)
         if rate == 0:
             raise ValueError("max_tilt_rate_deg must be a finite number in (0, 180] (°/s), got 0")
@@ -249,6 +263,9 @@ class LabyrinthEnv(gym.Env):
         self.goal_bonus = _finite("goal_bonus", goal_bonus)
         self.fail_reward = _finite("fail_reward", fail_reward)
         self.end_off_path = bool(end_off_path)
+        self.off_path_rule = off_path_rule
+        #: CyberRunner's free-box map (``off_path_rule="cyberrunner"``), None with the tolerance rule.
+        self.path_sight = path_box_sight(board) if off_path_rule == "cyberrunner" else None
         self.start_noise = _finite("start_noise", start_noise, 0.0, 0.005)
         _finite("path_width", path_width, 0.0, 0.02)
         self._check_start()
@@ -256,8 +273,8 @@ class LabyrinthEnv(gym.Env):
             layout=layout, action_type=action_type, control_hz=control_hz, obs_mode=obs_mode, obs_size=obs_size,
             render_mode=render_mode, render_size=render_size, max_tilt_rate_deg=max_tilt_rate_deg,
             progress_scale=progress_scale, goal_bonus=goal_bonus, fail_reward=fail_reward,
-            end_off_path=end_off_path, start_noise=start_noise, path_width=path_width, board=board,
-            surroundings=surroundings, motion=motion,
+            end_off_path=end_off_path, off_path_rule=off_path_rule, start_noise=start_noise, path_width=path_width,
+            board=board, surroundings=surroundings, motion=motion,
         )  # fmt: skip
         self.sim = LabyrinthSim(board, control_hz=self.control_hz)
         self.path = board.path
@@ -324,7 +341,7 @@ class LabyrinthEnv(gym.Env):
         self._kinematics = self.sim.layout.board_frame_one(self.sim.data.qpos, self.sim.data.qvel)[0]
         if self.motion:
             self._previous_xy = np.array(self._kinematics[:2])
-        self._last = self.tracker.reset(self._kinematics[:2])
+        self._last = self._by_rule(self.tracker.reset(self._kinematics[:2]))
         self._has_reset, self._episode_over = True, False
         return self._observe(), self._info(self._last, False)
 
@@ -338,7 +355,7 @@ class LabyrinthEnv(gym.Env):
         if self.motion:
             self._previous_xy = np.array(self._kinematics[:2])
         self._kinematics = sim.layout.board_frame_one(sim.data.qpos, sim.data.qvel)[0]
-        step = self._last = self.tracker.update(self._kinematics[:2])
+        step = self._last = self._by_rule(self.tracker.update(self._kinematics[:2]))
         failed = step.over_hole or (self.end_off_path and step.off_path)
         success = step.goal and not step.over_hole
         reward = self.fail_reward if failed else self.progress_scale * step.delta
@@ -397,6 +414,20 @@ class LabyrinthEnv(gym.Env):
     def _observe(self) -> Any:
         assert self._last is not None
         return self.observer.observe(self._kinematics, self.sim.data.qpos[:2], self._last.progress, self._previous_xy)
+
+    def off_path(self, xy: np.ndarray | Sequence[float], tolerance_off: np.ndarray | bool) -> np.ndarray:
+        """Whether marbles at ``xy`` (..., 2) are off the path by the env's ``off_path_rule``:
+        ``tolerance_off`` (the progress rule's verdict) or, with ``"cyberrunner"``, no path point in the
+        marble's free box (:mod:`bimgame.sim.labyrinth_box_sight`). The batched env asks it too."""
+        if self.path_sight is None:
+            return np.asarray(tolerance_off, dtype=bool)
+        return np.logical_not(self.path_sight.on_path(xy))
+
+    def _by_rule(self, step: PathStep) -> PathStep:
+        """The tracker's ``step`` with ``off_path`` by the env's rule (what ends the episode)."""
+        if self.path_sight is None:
+            return step
+        return dataclasses.replace(step, off_path=bool(self.off_path(self._kinematics[:2], step.off_path)))
 
     def _info(self, step: PathStep, success: bool) -> dict[str, Any]:
         return {

@@ -250,6 +250,7 @@ class LabyrinthVectorEnv(gym.vector.VectorEnv):
         xy = self._kinematics[idx, :2]
         old = self._progress[idx]
         segment, progress, off = self.path.advance(xy, self._segment[idx], old)
+        off = env.off_path(xy, off)
         over = board.over_hole(xy)
         goal = (segment == self.path.n_segments - 1) & board.reached_goal(xy)
         self._segment[idx], self._progress[idx] = segment, progress
@@ -298,7 +299,8 @@ class LabyrinthVectorEnv(gym.vector.VectorEnv):
             self._previous_xy[i] = kinematics[:2]
             step = env.tracker.reset(kinematics[:2])
             self._segment[i], self._progress[i] = step.segment, step.progress
-            self._off_path[i], self._over_hole[i], self._success[i] = step.off_path, step.over_hole, False
+            off = bool(env.off_path(kinematics[:2], step.off_path))
+            self._off_path[i], self._over_hole[i], self._success[i] = off, step.over_hole, False
             self._elapsed[i] = 0
 
     def _start(self, i: int) -> None:
