@@ -7,8 +7,8 @@ Why a picture: a success rate of 0% on the hard layout hides whether a policy lo
 everywhere or at one narrow passage; the board shows the passage, the histogram how many episodes
 end there. An episode's spot is the path's point at its progress reached
 (:meth:`~bimgame.sim.labyrinth.WaypointPath.point_at`): where the marble last made progress before
-it fell into a hole or left the path (two markers), stopped at the time limit or reached the goal — not the hole
-it fell into, which the summary does not hold. Episodes that end within :data:`CLUSTER_M` of path of
+it fell into a hole or left the path (two markers), stopped at the time limit or reached the goal —
+not the hole it fell into, which the summary does not hold. Episodes that end within :data:`CLUSTER_M` of path of
 each other, the same way, share one marker whose size (capped) and label count them.
 """
 
