@@ -87,8 +87,9 @@ HUMAN_RECORD_S = 15.41
 #: The layout the references were set on.
 REFERENCE_TASK = "LABYRINTH-HARD"
 #: How a scored episode can end: at the goal, over a hole, off the path (by the env's default rule: no
-#: path segment within the path tolerance in sight), or at the time limit. Summaries written before the hole and the path
-#: were told apart name both ``fall``, which ``ended_by["fall"]`` still counts (their sum).
+#: path segment within the path tolerance in sight), or at the time limit. Summaries written before
+#: the hole and the path were told apart name both ``fall``, which ``ended_by["fall"]`` still counts
+#: (their sum).
 ENDINGS = ("goal", "hole", "off_path", "time")
 #: The built-in policies the labyrinth's protocol plays.
 LABYRINTH_POLICIES = ("random", "noop", "expert")
