@@ -23,10 +23,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from bimgame.envs.puzzles import puzzle
-from bimgame.experiments.labyrinth_protocol import LABYRINTH_PROTOCOL_SEED
+from bimgame.experiments.labyrinth_protocol import LABYRINTH_PROTOCOL_SEED, SCORE_THREADS, summarise_labyrinth
 from bimgame.learn.actor import evaluate_network
 from bimgame.learn.common import load_run_network
 from bimgame.learn.maze_runs import network_env_options
@@ -42,8 +40,10 @@ PASSES: tuple[tuple[str, dict[str, Any]], ...] = (
 
 
 def _pass(net: Any, run: Any, *, rule: str, options: dict[str, Any], episodes: int, greedy: bool) -> dict[str, Any]:
-    """The protocol's episodes of ``run``'s network with the env ``options`` of off-path ``rule``."""
+    """The protocol's episodes of ``run``'s network with the env ``options`` of off-path ``rule``,
+    counted as the protocol counts them (:func:`summarise_labyrinth`)."""
     started = time.perf_counter()
+    limit = puzzle(run.task).time_limit
     result = evaluate_network(
         net,
         task=run.task,
@@ -51,17 +51,17 @@ def _pass(net: Any, run: Any, *, rule: str, options: dict[str, Any], episodes: i
         episodes=episodes,
         seed=LABYRINTH_PROTOCOL_SEED,
         greedy=greedy,
-        max_episode_steps=puzzle(run.task).time_limit,
+        max_episode_steps=limit,
         mazes={**(network_env_options(run.network) or {}), **options},
     )
-    limit = puzzle(run.task).time_limit
-    timed_out = [not s and n >= limit for s, n in zip(result.successes, result.lengths, strict=True)]
+    starts = [LABYRINTH_PROTOCOL_SEED + i for i in range(episodes)]
+    summary = summarise_labyrinth(result, run.task, starts, time_limit=limit)
     return {
         "off_path_rule": rule,
-        "success_rate": float(np.mean(result.successes)),
-        "holes": int(sum(result.holes)),
-        "time_limit": int(sum(timed_out)),
-        "successes": [bool(s) for s in result.successes],
+        "success_rate": summary["success_rate"],
+        "holes": summary["ended_by"]["hole"],
+        "time_limit": summary["ended_by"]["time"],
+        "successes": summary["successes"],
         "seconds": time.perf_counter() - started,
     }
 
@@ -78,7 +78,7 @@ def main() -> None:
     net, run, step = load_run_network(args.run)
     if puzzle(run.task).is_maze:
         parser.error(f"{args.run} is a run on {run.task}, the circular maze; this measures the labyrinth's rule")
-    with torch_threads(1):  # beside training runs: one core's share
+    with torch_threads(SCORE_THREADS):  # as the protocol scores (its first pass is the protocol's score)
         passes = [_pass(net.eval(), run, rule=rule, options=options, episodes=args.episodes, greedy=args.greedy)
                   for rule, options in PASSES]  # fmt: skip
     ruled = passes[0]["successes"]
