@@ -21,7 +21,8 @@ Episodes run on ``--workers`` spawned processes (default 2), each single-threade
 what it measured (its row says ``complete: false``).
 
 Usage: ``python benchmarks/bench_expert_labyrinth.py [--layouts easy medium hard] [--episodes 20]
-[-K 16 -P 1 -H 30 --sampling hold --hold-min 5 --hold-max 15 --rate-levels 5 --hole-margin 0 --path-weight 5]
+[-K 16 -P 1 -H 30 --sampling hold|uniform|mppi --noise-std 0.5 --temperature 0.005 --hold-min 5 --hold-max 15
+--rate-levels 5 --hole-margin 0 --path-weight 5]
 [--action-type continuous] [--workers 2] [--seed 0] [--no-progress]``.
 """
 
@@ -40,7 +41,12 @@ from typing import Any
 import numpy as np
 
 from bimgame.envs.labyrinth_env import LabyrinthEnv
-from bimgame.expert.labyrinth_mpc import LabyrinthMPC, LabyrinthMPCConfig, run_labyrinth_expert_episode
+from bimgame.expert.labyrinth_mpc import (
+    LABYRINTH_SAMPLINGS,
+    LabyrinthMPC,
+    LabyrinthMPCConfig,
+    run_labyrinth_expert_episode,
+)
 from bimgame.sim.labyrinth_layouts import LAYOUT_NAMES
 from bimgame.util.processes import results_as_they_finish
 
@@ -124,6 +130,7 @@ def row_key(layout: str, config: LabyrinthMPCConfig, action_type: str) -> str:
         f"{layout} K={c.n_samples} H={c.horizon} {c.sampling} hold={c.hold_min}-{c.hold_max} "
         f"levels={c.rate_levels} keep_best={c.keep_best} margin={c.hole_margin:g} path_weight={c.path_weight:g} "
         f"{action_type}{f' P={c.n_plans}' if c.n_plans != 1 else ''}"
+        f"{f' std={c.noise_std:g} λ={c.temperature:g}' if c.sampling == 'mppi' else ''}"
     )
 
 
@@ -150,7 +157,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument(
         "-P", "--n-plans", type=int, default=defaults.n_plans, help="searches whose first actions are averaged"
     )
-    parser.add_argument("--sampling", default=defaults.sampling)
+    parser.add_argument("--sampling", choices=LABYRINTH_SAMPLINGS, default=defaults.sampling)
+    parser.add_argument("--noise-std", type=float, default=defaults.noise_std, help="mppi: the plan's perturbations")
+    parser.add_argument("--temperature", type=float, default=defaults.temperature, help="mppi: λ of the weights")
     parser.add_argument("--hold-min", type=int, default=defaults.hold_min)
     parser.add_argument("--hold-max", type=int, default=defaults.hold_max)
     parser.add_argument("--rate-levels", type=int, default=defaults.rate_levels)
@@ -178,6 +187,8 @@ def main(argv: list[str] | None = None) -> None:
         hole_margin=args.hole_margin,
         path_weight=args.path_weight,
         keep_best=not args.no_keep_best,
+        noise_std=args.noise_std,
+        temperature=args.temperature,
     )
     from bimgame.util.progress import ProgressBar
 

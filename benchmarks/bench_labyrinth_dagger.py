@@ -29,7 +29,7 @@ Usage: python benchmarks/bench_labyrinth_dagger.py --expert-data DATA --init PI_
        [--episodes-per-iteration 10] [--beta0 0.5] [--beta-decay 0.7]
        [--epochs-per-iteration 5] [--max-episode-steps 1500] [--demo-start-share 0]
        [--demo-start-window 0 1] [--expert-samples 16]
-       [--expert-plans 1] [--stall-steps N] [--no-demonstrations] [--teacher 'RUNS/seed{seed}/checkpoint.pt']
+       [--expert-plans 1] [--expert-sampling hold|uniform|mppi] [--stall-steps N] [--no-demonstrations] [--teacher 'RUNS/seed{seed}/checkpoint.pt']
        [--jobs 3] [--episodes 100]
 """
 
@@ -48,7 +48,7 @@ import numpy as np
 from bench_labyrinth_learning import MODES, _aggregate, _score
 
 from bimgame.experiments.run_progress import completed_with_progress, dagger_progress
-from bimgame.expert.labyrinth_mpc import LabyrinthMPCConfig
+from bimgame.expert.labyrinth_mpc import LABYRINTH_SAMPLINGS, LabyrinthMPCConfig
 from bimgame.learn.dagger import BEST, DAggerConfig, dagger
 from bimgame.learn.runs import torch_threads
 from bimgame.learn.supervised import PretrainConfig
@@ -83,7 +83,9 @@ def _config(args: argparse.Namespace, seed: int) -> DAggerConfig:
         beta_decay=args.beta_decay,
         demo_start_share=args.demo_start_share,
         demo_start_window=tuple(args.demo_start_window),
-        expert=LabyrinthMPCConfig(n_samples=args.expert_samples, n_plans=args.expert_plans),
+        expert=LabyrinthMPCConfig(
+            n_samples=args.expert_samples, n_plans=args.expert_plans, sampling=args.expert_sampling
+        ),
         teacher=_teacher(args, seed),
         epochs_per_iteration=args.epochs_per_iteration,
         max_episode_steps=args.max_episode_steps,
@@ -216,6 +218,12 @@ def main(argv: list[str] | None = None) -> int:
         default=EXPERT.n_plans,
         help=f"P, independent searches whose first actions the labelling expert averages (default {EXPERT.n_plans})",
     )
+    parser.add_argument(
+        "--expert-sampling",
+        choices=LABYRINTH_SAMPLINGS,
+        default=EXPERT.sampling,
+        help=f"the labelling expert's sampling (default {EXPERT.sampling}; mppi: a smoothed mean plan)",
+    )
     parser.add_argument("--epochs-per-iteration", type=int, default=5)
     parser.add_argument("--max-episode-steps", type=int, default=1500)
     parser.add_argument(
@@ -272,8 +280,15 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--expert-data is required: its demonstrations start the aggregated dataset (or give --no-demonstrations)")
     if args.expert_data is not None:
         args.expert_data = args.expert_data.absolute()
-    if args.teacher is not None and (args.expert_samples != EXPERT.n_samples or args.expert_plans != EXPERT.n_plans):
-        parser.error("--teacher labels instead of the MPC expert: drop --expert-samples and --expert-plans")
+    expert_flags = (
+        args.expert_samples != EXPERT.n_samples,
+        args.expert_plans != EXPERT.n_plans,
+        args.expert_sampling != EXPERT.sampling,
+    )
+    if args.teacher is not None and any(expert_flags):
+        parser.error(
+            "--teacher labels instead of the MPC expert: drop --expert-samples, --expert-plans and --expert-sampling"
+        )
     if args.init is not None:
         args.init = args.init.absolute()
     jobs = {
@@ -335,6 +350,7 @@ def main(argv: list[str] | None = None) -> int:
         f"{', labelled by a trained policy' if args.teacher else ''}"
         f"{f', expert K = {args.expert_samples}' if args.expert_samples != EXPERT.n_samples else ''}"
         f"{f', labels the mean of {args.expert_plans} plans' if args.expert_plans != EXPERT.n_plans else ''}"
+        f"{f', {args.expert_sampling} expert' if args.expert_sampling != EXPERT.sampling else ''}"
         f"{f', rollouts end after {args.stall_steps} steps without progress' if args.stall_steps else ''}"
         f"{', no demonstrations in the data' if args.no_demonstrations else ''}, "
         f"seeds {', '.join(map(str, jobs))}"

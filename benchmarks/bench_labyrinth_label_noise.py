@@ -9,8 +9,12 @@ States: ``--states`` physics states of the first ``--episodes`` episodes of an e
 (``bimgame generate``), drawn from each episode's first ``--early-steps`` steps (the part of the
 hard path where learned policies lose the marble), with the segment the env had there. For each
 expert setting (``KxP``: K sequences per search, P searches averaged, :class:`LabyrinthMPCConfig`
-``n_samples`` and ``n_plans``) every state is asked of ``--repeats`` fresh experts (seeds
-``1000·i + r``; no remembered plan). Reported per setting, averaged over states:
+``n_samples`` and ``n_plans``; ``--sampling`` hold or mppi) every state is asked of ``--repeats``
+fresh experts (seeds ``1000·i + r``). With ``--warmup 0`` they have no remembered plan; with
+``--warmup W`` each first plans along the dataset's W states before the asked one (its actions
+there discarded), as DAgger's expert labels a rollout state after state, so the label is asked of an
+expert with its plan (``keep_best``'s best sequence, MPPI's mean plan) in place. Reported per setting,
+averaged over states:
 
 - ``spread``: the standard deviation of the labels over the repeats, per action component (the
   components are tilt-rate fractions in [-1, 1]; 5 levels drawn uniformly spread 0.71);
@@ -26,7 +30,8 @@ expert setting (``KxP``: K sequences per search, P searches averaged, :class:`La
 Writes ``--results`` (default benchmarks/results/labyrinth_label_noise.json).
 
 Usage: python benchmarks/bench_labyrinth_label_noise.py --expert-data DATA [--settings 16x1 64x1 16x2 16x4]
-       [--episodes 20] [--states 40] [--early-steps 300] [--repeats 12] [--seed 0]
+       [--sampling hold|mppi] [--warmup 0] [--episodes 20] [--states 40] [--early-steps 300]
+       [--repeats 12] [--seed 0]
 """
 
 from __future__ import annotations
@@ -55,48 +60,60 @@ def setting(text: str) -> tuple[int, int]:
     try:
         k, p = (int(part) for part in text.lower().split("x"))
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected KxP (e.g. 16x4: K = 16 sequences, P = 4 searches), got {text!r}")
+        raise argparse.ArgumentTypeError(
+            f"expected KxP (e.g. 16x4: K = 16 sequences, P = 4 searches), got {text!r}"
+        ) from None
     LabyrinthMPCConfig(n_samples=k, n_plans=p)  # refuses bad values by name
     return k, p
 
 
-def draw_states(data: Path, episodes: int, count: int, early: int, rng: np.random.Generator) -> dict[str, Any]:
+def draw_states(
+    data: Path, episodes: int, count: int, early: int, rng: np.random.Generator, warmup: int = 0
+) -> dict[str, Any]:
     """``count`` states spread evenly over the dataset's first ``episodes`` episodes, each drawn
-    from the episode's first ``early`` steps: their physics states, segments and recorded actions,
-    and the layout."""
+    from the episode's steps ``warmup`` .. ``early`` - 1: their physics states, segments and recorded
+    actions, the ``warmup`` states and segments before each, and the layout."""
     manifest = labyrinth_dataset_manifest(data)
     action_type = manifest["action_type"]
     chosen = [read_dataset_episode(data, manifest, i) for i in range(min(episodes, manifest["episodes"]))]
     if not chosen:
         raise ValueError(f"{data} holds no episodes")
     per_episode = -(-count // len(chosen))
-    states, segments, actions = [], [], []
+    states, segments, actions, before = [], [], [], []
     for episode in chosen:
-        steps = min(len(episode["actions"]), early)
-        for t in rng.choice(steps, size=min(per_episode, steps), replace=False):
+        steps = min(len(episode["actions"]), early) - warmup
+        if steps <= 0:
+            continue
+        for t in warmup + rng.choice(steps, size=min(per_episode, steps), replace=False):
             states.append(episode["sim_states"][t])
             segments.append(int(episode["segments"][t]))
             actions.append(np.atleast_1d(np.asarray(episode["actions"][t], dtype=np.float64)))
+            before.append([(episode["sim_states"][u], int(episode["segments"][u])) for u in range(t - warmup, t)])
     return {
         "layout": manifest["layout"],
         "action_type": action_type,
         "states": states[:count],
         "segments": segments[:count],
         "actions": actions[:count],
+        "before": before[:count],
     }
 
 
-def measure(drawn: dict[str, Any], k: int, p: int, repeats: int) -> dict[str, float]:
-    """The spread and agreement of ``repeats`` fresh experts' labels (K = k, P = p) per state."""
+def measure(drawn: dict[str, Any], k: int, p: int, repeats: int, sampling: str = "hold") -> dict[str, Any]:
+    """The spread and agreement of ``repeats`` fresh experts' labels (K = k, P = p) per state, each
+    expert first planning along the state's ``before`` states."""
     env = LabyrinthEnv(drawn["layout"], action_type=drawn["action_type"])
-    config = LabyrinthMPCConfig(n_samples=k, n_plans=p)
+    config = LabyrinthMPCConfig(n_samples=k, n_plans=p, sampling=sampling)
     spread, pairs, means, recorded = [], [], [], []
     planning = 0.0  # seconds inside act(): building each fresh expert's model is not a label's cost
     off_diagonal = ~np.eye(repeats, dtype=bool)
-    for i, (state, segment, action) in enumerate(zip(drawn["states"], drawn["segments"], drawn["actions"])):
+    asked = zip(drawn["states"], drawn["segments"], drawn["actions"], drawn["before"], strict=True)
+    for i, (state, segment, action, before) in enumerate(asked):
         labels = []
         for r in range(repeats):
             expert = LabyrinthMPC.for_env(env, config, rng=np.random.default_rng(1000 * i + r))
+            for earlier, earlier_segment in before:
+                expert.act(earlier, earlier_segment)
             started = time.perf_counter()
             label = expert.act(state, segment)
             planning += time.perf_counter() - started
@@ -113,6 +130,8 @@ def measure(drawn: dict[str, Any], k: int, p: int, repeats: int) -> dict[str, fl
     return {
         "n_samples": k,
         "n_plans": p,
+        "sampling": sampling,
+        "warmup": len(drawn["before"][0]),
         "spread": float(np.mean(spread)),
         "pair_agreement": float(np.mean(pairs)),
         "mean_agreement": float(np.mean(means)),
@@ -126,6 +145,10 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--expert-data", type=Path, required=True, help="a labyrinth expert dataset (bimgame generate)")
     parser.add_argument("--settings", type=setting, nargs="+", default=[(16, 1), (64, 1), (16, 2), (16, 4)])
+    parser.add_argument("--sampling", choices=("hold", "mppi"), default="hold", help="the expert's sampling")
+    parser.add_argument(
+        "--warmup", type=int, default=0, help="recorded states each expert plans along before the asked one"
+    )
     parser.add_argument("--episodes", type=int, default=20, help="episodes the states come from")
     parser.add_argument("--states", type=int, default=40)
     parser.add_argument("--early-steps", type=int, default=300, help="states from each episode's first N steps")
@@ -135,13 +158,17 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.repeats < 2:
         parser.error(f"--repeats must be at least 2, got {args.repeats}")
-    drawn = draw_states(args.expert_data, args.episodes, args.states, args.early_steps, np.random.default_rng(args.seed))
+    if not 0 <= args.warmup < args.early_steps:
+        parser.error(f"--warmup must be at least 0 and below --early-steps ({args.early_steps}), got {args.warmup}")
+    rng = np.random.default_rng(args.seed)
+    drawn = draw_states(args.expert_data, args.episodes, args.states, args.early_steps, rng, args.warmup)
     rows = []
     for k, p in args.settings:
-        rows.append(measure(drawn, k, p, args.repeats))
+        rows.append(measure(drawn, k, p, args.repeats, args.sampling))
         row = rows[-1]
         print(
-            f"K={k:3d} P={p}: spread {row['spread']:.2f}  pairs agree {row['pair_agreement']:.0%}  "
+            f"{args.sampling} K={k:3d} P={p} warm-up {args.warmup}: spread {row['spread']:.2f}  "
+            f"pairs agree {row['pair_agreement']:.0%}  "
             f"within 0.25 of the others' mean {row['mean_agreement']:.0%}  of the recorded action "
             f"{row['recorded_agreement']:.0%}  ({row['ms_per_label']:.0f} ms a label)",
             flush=True,

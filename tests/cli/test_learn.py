@@ -335,6 +335,10 @@ def test_dagger_mpc_flags_set_the_labelling_expert_over_the_tasks_own():
     assert board == LabyrinthMPCConfig(n_plans=4)
     with pytest.raises(ValueError, match="--plans: the labyrinth's expert setting, not the circular maze's"):
         expert("--task", "STG1", "-P", "4")
+    board = expert("--task", "LABYRINTH-HARD", "--action-type", "continuous", "--sampling", "mppi")
+    assert board == LabyrinthMPCConfig(sampling="mppi")
+    with pytest.raises(ValueError, match=r"--sampling mppi: the labyrinth's expert setting.*uniform or hold"):
+        expert("--task", "STG1", "--sampling", "mppi")
     with pytest.raises(ValueError, match="--planning-reward: the circular maze's expert setting"):
         expert("--task", "LABYRINTH-HARD", "--action-type", "continuous", "--planning-reward", "geodesic")
     with pytest.raises(ValueError, match=r"--resume keeps the run's expert; drop the MPC expert's settings given "

@@ -326,6 +326,8 @@ def test_command_line(reference, tmp_path, capsys):
     assert "--action-type: the labyrinth's option" in capsys.readouterr().err
     assert main([*maze, "--plans", "2"]) == 2
     assert "--plans: the labyrinth's expert setting, not the circular maze's" in capsys.readouterr().err
+    assert main([*maze, "--sampling", "mppi"]) == 2
+    assert "--sampling mppi: the labyrinth's expert setting" in capsys.readouterr().err
     assert not (tmp_path / "maze").exists()
     with pytest.raises(SystemExit):
         main(["generate", "--task", "LABYRINTH-HUGE", "--out", str(tmp_path / "x")])

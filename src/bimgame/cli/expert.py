@@ -27,8 +27,8 @@ from bimgame.envs.puzzles import puzzle
 from bimgame.expert.datasets import MINARI_DIR, dataset_summary, generate_dataset
 from bimgame.expert.evaluation import evaluate_expert, plot_length_histogram, summarise, write_results
 from bimgame.expert.labyrinth_datasets import generate_labyrinth_dataset
-from bimgame.expert.labyrinth_mpc import LabyrinthMPCConfig
-from bimgame.expert.mpc import MPCConfig
+from bimgame.expert.labyrinth_mpc import LABYRINTH_SAMPLINGS, LabyrinthMPCConfig
+from bimgame.expert.mpc import SAMPLINGS, MPCConfig
 from bimgame.util.files import DiskFullError
 
 #: The expert's settings with a flag (the hold lengths and threads keep their defaults).
@@ -39,6 +39,12 @@ LABYRINTH_MPC_FLAGS = ("n_samples", "horizon", "sampling")
 LABYRINTH_ONLY_MPC_FLAGS = ("n_plans",)
 #: The flag of each MPC setting whose name is not ``--field-name``.
 _MPC_FLAG_NAMES = {"reward": "--planning-reward", "n_plans": "--plans"}
+#: Samplings of the labyrinth's expert only (the maze's refuses them naming the flag).
+LABYRINTH_ONLY_SAMPLINGS = tuple(name for name in LABYRINTH_SAMPLINGS if name not in SAMPLINGS)
+_SAMPLING_HELP = (
+    '"uniform" (independent actions), "hold" (each action held for hold_min..hold_max steps) or, on the '
+    'labyrinth with continuous actions, "mppi" (a remembered mean plan refined by score-weighted averaging)'
+)
 
 __all__ = [
     "add_parsers",
@@ -90,7 +96,15 @@ def add_mpc_arguments(parser: argparse.ArgumentParser, *, labyrinth: bool = Fals
         else:
             shown = f" {ours}" if ours == theirs else f" {ours} on the maze, {theirs} on the labyrinth"
         add_settings_flags(
-            group, MPCConfig, [name], default_none=True, default_text=shown, flags=_MPC_FLAG_NAMES, aliases=aliases
+            group,
+            MPCConfig,
+            [name],
+            default_none=True,
+            default_text=shown,
+            flags=_MPC_FLAG_NAMES,
+            aliases=aliases,
+            choices={"sampling": tuple(dict.fromkeys(SAMPLINGS + LABYRINTH_SAMPLINGS))},
+            helps={"sampling": _SAMPLING_HELP},
         )
     add_settings_flags(
         group,
@@ -112,11 +126,12 @@ def mpc_config_from(args: argparse.Namespace, base: MPCConfig | None = None) -> 
     """The maze expert's settings from the flags of :func:`add_mpc_arguments`, ``base``'s (default:
     the expert's defaults) for those not given; a labyrinth-only setting given is refused naming its flag."""
     refused = [mpc_flag(name) for name in given_settings(args, LabyrinthMPCConfig, LABYRINTH_ONLY_MPC_FLAGS)]
+    refused += [f"--sampling {args.sampling}"] if getattr(args, "sampling", None) in LABYRINTH_ONLY_SAMPLINGS else []
     if refused:
         raise ValueError(
             f"{', '.join(refused)}: the labyrinth's expert setting, not the circular maze's "
             f"(task {getattr(args, 'task', None)}); the maze's expert takes "
-            f"{', '.join(map(mpc_flag, MPC_FLAGS))}"
+            f"{', '.join(map(mpc_flag, MPC_FLAGS))} (--sampling {' or '.join(SAMPLINGS)})"
         )
     return dataclasses.replace(base or MPCConfig(), **given_settings(args, MPCConfig, MPC_FLAGS))
 

@@ -23,6 +23,14 @@ continuous actions a tilt-rate vector whose components are drawn from ``rate_lev
 levels in [-1, 1] (5: -1, -0.5, 0, 0.5, 1), for discrete actions one of the 5 actions; ``"uniform"``:
 independent uniform actions every step. With ``keep_best`` the previous decision's best sequence,
 shifted by one step, is one of the K candidates (the plan is refined rather than redrawn).
+``"mppi"`` (model-predictive path integral control, Williams et al., 2017; continuous actions only):
+the expert keeps a mean plan (H, 2), shifted by one step each decision; K sequences are that plan
+plus Gaussian noise of ``noise_std`` held in runs of ``hold_min``..``hold_max`` steps (the first
+sequence is the plan itself), clipped to [-1, 1], and the new plan is their average weighted by
+``exp(score / temperature)``; its first action is applied. A weighted mean of many sequences rather
+than one sequence's first action: asked again from the same state and plan, it moves little, so a
+learner cloning it is fitted to a smoother, less noisy teacher. Without a remembered plan (an
+episode's first decision, a fresh expert) the plan is refined ``cold_iterations`` times from zero.
 
 Several searches (``n_plans`` = P > 1): P independent searches of K sequences each, rolled out in
 one call; the action is the mean of their best sequences' first actions (on discrete actions the
@@ -70,7 +78,7 @@ from bimgame.util.settings import is_integer, is_real
 
 __all__ = ["LabyrinthMPCConfig", "LabyrinthMPC", "LABYRINTH_SAMPLINGS", "run_labyrinth_expert_episode"]
 
-LABYRINTH_SAMPLINGS = ("hold", "uniform")
+LABYRINTH_SAMPLINGS = ("hold", "uniform", "mppi")
 #: Most sequences rolled out per decision (n_samples × n_plans): one ``mujoco.rollout`` call holds
 #: them all, (N, H, state) float64 states, ≈ 160 MB at N = 65,536 and H = 30.
 MAX_SEQUENCES = 65_536
@@ -93,7 +101,8 @@ class LabyrinthMPCConfig:
     horizon: int = 30
     """H: actions per sequence (30 at 55 Hz: 0.55 s, enough to stop the marble from a walking pace)."""
     sampling: str = "hold"
-    """"hold" (runs of one action, hold_min..hold_max steps) or "uniform" (independent actions)."""
+    """"hold" (runs of one action, hold_min..hold_max steps), "uniform" (independent actions) or
+    "mppi" (a remembered mean plan refined by score-weighted averaging; continuous actions only)."""
     hold_min: int = 5
     """"hold": shortest run of one action (steps)."""
     hold_max: int = 15
@@ -102,6 +111,15 @@ class LabyrinthMPCConfig:
     """"hold", continuous actions: levels of each tilt-rate component, evenly spaced in [-1, 1] (odd: 0 is one)."""
     keep_best: bool = True
     """Whether the last decision's best sequence, shifted by one step, is one of the K candidates."""
+    noise_std: float = 0.5
+    """"mppi": standard deviation of the perturbations of the plan (tilt-rate fractions)."""
+    temperature: float = 0.005
+    """"mppi": λ (reward units) of the weights exp(score / λ): small follows the best sequences only,
+    large averages all (a sequence's progress over H = 30 steps is worth ≈ 0.05–0.15). On the hard
+    board (K = 32, one episode each) λ = 0.02 stalled twice at 36% of the path until the time limit
+    (the average of sequences that go either way round is one that goes neither); 0.005 solved it."""
+    cold_iterations: int = 3
+    """"mppi": refinements of the plan from zero when there is none to remember."""
     hole_penalty: float = 10.0
     """Score (reward units) taken from a sequence that puts the marble over a hole."""
     hole_margin: float = 0.0
@@ -115,7 +133,16 @@ class LabyrinthMPCConfig:
     """MuJoCo rollout threads (1 inside worker processes or on a shared machine)."""
 
     def __post_init__(self) -> None:
-        for name in ("n_samples", "n_plans", "horizon", "hold_min", "hold_max", "rate_levels", "nthread"):
+        for name in (
+            "n_samples",
+            "n_plans",
+            "horizon",
+            "hold_min",
+            "hold_max",
+            "rate_levels",
+            "nthread",
+            "cold_iterations",
+        ):
             value = getattr(self, name)
             if not (is_integer(value) and value >= 1):
                 raise ValueError(f"LabyrinthMPCConfig.{name} must be a positive integer, got {value!r}")
@@ -140,6 +167,10 @@ class LabyrinthMPCConfig:
             value = getattr(self, name)
             if not (is_real(value) and math.isfinite(value) and value >= 0):
                 raise ValueError(f"LabyrinthMPCConfig.{name} must be a finite number >= 0, got {value!r}")
+        for name in ("noise_std", "temperature"):
+            value = getattr(self, name)
+            if not (is_real(value) and math.isfinite(value) and value > 0):
+                raise ValueError(f"LabyrinthMPCConfig.{name} must be a finite number > 0, got {value!r}")
 
     @property
     def sim_steps_per_decision(self) -> int:
@@ -182,6 +213,11 @@ class LabyrinthMPC:
         self.config = config if config is not None else LabyrinthMPCConfig()
         if not isinstance(self.config, LabyrinthMPCConfig):
             raise TypeError(f"config must be a LabyrinthMPCConfig, got {type(self.config).__name__}")
+        if self.config.sampling == "mppi" and action_type == "discrete":
+            raise ValueError(
+                "LabyrinthMPCConfig.sampling 'mppi' averages sequences and needs continuous actions; "
+                f"with discrete actions use one of: {', '.join(s for s in LABYRINTH_SAMPLINGS if s != 'mppi')}"
+            )
         self.board, self.rng, self.action_type = board, rng, action_type
         self.sim = LabyrinthSim(board, control_hz=control_hz)
         self.path = board.path
@@ -192,6 +228,7 @@ class LabyrinthMPC:
         self._tracker = ScalarPathProgress(board)
         self._tracking = False
         self._best: np.ndarray | None = None
+        self._mean: np.ndarray | None = None  # "mppi": each search's remembered plan, (P, H, 2)
 
     @classmethod
     def for_env(cls, env: Any, config: LabyrinthMPCConfig | None = None, *, rng: np.random.Generator) -> LabyrinthMPC:
@@ -213,7 +250,8 @@ class LabyrinthMPC:
     # ------------------------------------------------------------------ sampling
     def sample_sequences(self) -> np.ndarray:
         """(K·P, H, 2) continuous rate fractions or (K·P, H) discrete actions, per the sampling
-        scheme: search p's K sequences are rows p·K .. p·K + K - 1."""
+        scheme ("mppi": the perturbations of the plan, not yet added to it): search p's K sequences
+        are rows p·K .. p·K + K - 1."""
         c = self.config
         k, h = c.n_samples * c.n_plans, c.horizon
         if c.sampling == "uniform":
@@ -225,7 +263,10 @@ class LabyrinthMPC:
         run = np.minimum((np.cumsum(lengths, axis=1)[:, :, None] <= np.arange(h)).sum(axis=1), n_runs - 1)
         if self.action_type == "discrete":
             return np.take_along_axis(self.rng.integers(5, size=(k, n_runs)), run, axis=1)
-        values = self.levels[self.rng.integers(len(self.levels), size=(k, n_runs, 2))]
+        if c.sampling == "mppi":  # Gaussian perturbations held in runs, as "hold" holds its levels
+            values = self.rng.normal(0.0, c.noise_std, size=(k, n_runs, 2))
+        else:
+            values = self.levels[self.rng.integers(len(self.levels), size=(k, n_runs, 2))]
         return np.take_along_axis(values, run[:, :, None], axis=1)
 
     def tilt_deltas(self, sequences: np.ndarray) -> np.ndarray:
@@ -291,7 +332,7 @@ class LabyrinthMPC:
     # ------------------------------------------------------------------ acting
     def reset(self) -> None:
         """Forget the last plan and the followed segment (a new episode)."""
-        self._tracking, self._best = False, None
+        self._tracking, self._best, self._mean = False, None, None
 
     def _segment_of(self, state: np.ndarray, segment: int | None) -> tuple[int, float]:
         """The path segment and progress (m) of ``state``'s marble: on ``segment`` if given, else the
@@ -321,6 +362,8 @@ class LabyrinthMPC:
                 f"state must have shape ({self.sim.state_size},) (LabyrinthSim.get_state), got {state.shape}"
             )
         seg, progress = self._segment_of(state, segment)
+        if self.config.sampling == "mppi":
+            return self._plan_mppi(state, seg, progress)
         k, n_plans = self.config.n_samples, self.config.n_plans
         sequences = self.sample_sequences()
         if self.config.keep_best and self._best is not None:
@@ -334,6 +377,33 @@ class LabyrinthMPC:
         return action, {
             "scores": scores,
             "sequence": sequences[int(np.argmax(scores))],  # the best of all is the best of its search
+            "first_actions": firsts,
+            "segment": seg,
+            "progress": progress,
+        }
+
+    def _plan_mppi(self, state: np.ndarray, seg: int, progress: float) -> tuple[Any, dict[str, Any]]:
+        """:meth:`plan` for "mppi" sampling: each search's remembered plan (or zeros, refined
+        ``cold_iterations`` times) perturbed, scored and averaged with weights exp(score / λ)."""
+        c = self.config
+        k, p, h = c.n_samples, c.n_plans, c.horizon
+        warm = self._mean is not None
+        means = self._mean if warm else np.zeros((p, h, 2))
+        for _ in range(1 if warm else c.cold_iterations):
+            noise = self.sample_sequences().reshape(p, k, h, 2)
+            noise[:, 0] = 0.0  # each search's plan itself is a candidate
+            sequences = np.clip(means[:, None] + noise, -1.0, 1.0).reshape(p * k, h, 2)
+            states = self.sim.rollout(state, self.tilt_deltas(sequences), nthread=c.nthread)
+            scores = self.score(states, seg, progress)
+            by_search = scores.reshape(p, k)
+            weights = np.exp((by_search - by_search.max(axis=1, keepdims=True)) / c.temperature)
+            weights /= weights.sum(axis=1, keepdims=True)
+            means = np.einsum("pk,pkhd->phd", weights, sequences.reshape(p, k, h, 2))
+        self._mean = np.concatenate([means[:, 1:], means[:, -1:]], axis=1)
+        firsts = means[:, 0]
+        return np.asarray(firsts.mean(axis=0), dtype=np.float32), {
+            "scores": scores,
+            "sequence": means[int(np.argmax(by_search.max(axis=1)))],
             "first_actions": firsts,
             "segment": seg,
             "progress": progress,
