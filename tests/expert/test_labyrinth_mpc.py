@@ -191,15 +191,21 @@ def test_an_mppi_label_is_less_noisy_than_one_searchs():
     assert mppi.std(axis=0).mean() < 0.75 * hold.std(axis=0).mean()
 
 
-def test_mppi_remembers_its_plan_shifted_by_one_step():
+def _recording_expert(config: LabyrinthMPCConfig, seed: int) -> tuple[LabyrinthMPC, np.ndarray, list[np.ndarray]]:
+    """An expert on the easy board, its start state, and the list its rollouts' tilt changes are
+    appended to, one (K·P, H, 2) array per ``mujoco.rollout`` call."""
     spec = LabyrinthSpec.layout("easy")
-    config = LabyrinthMPCConfig(n_samples=4, horizon=6, hold_min=2, hold_max=3, sampling="mppi", cold_iterations=2)
-    expert = LabyrinthMPC(spec, config, rng=np.random.default_rng(5))
+    expert = LabyrinthMPC(spec, config, rng=np.random.default_rng(seed))
     expert.sim.reset(spec.start)
-    state = expert.sim.get_state()
-    rolled = []
+    rolled: list[np.ndarray] = []
     original = expert.sim.rollout
     expert.sim.rollout = lambda s, deltas, **kw: rolled.append(deltas) or original(s, deltas, **kw)
+    return expert, expert.sim.get_state(), rolled
+
+
+def test_mppi_remembers_its_plan_shifted_by_one_step():
+    config = LabyrinthMPCConfig(n_samples=4, horizon=6, hold_min=2, hold_max=3, sampling="mppi", cold_iterations=2)
+    expert, state, rolled = _recording_expert(config, 5)
     _, first = expert.plan(state, 0)
     assert len(rolled) == 2  # no plan to remember: refined cold_iterations times
     expert.plan(state, 0)
@@ -212,14 +218,8 @@ def test_mppi_remembers_its_plan_shifted_by_one_step():
 
 
 def test_each_search_refines_its_own_plan():
-    spec = LabyrinthSpec.layout("easy")
     config = LabyrinthMPCConfig(n_samples=3, n_plans=2, horizon=5, hold_min=1, hold_max=2)
-    expert = LabyrinthMPC(spec, config, rng=np.random.default_rng(4))
-    expert.sim.reset(spec.start)
-    state = expert.sim.get_state()
-    rolled = []
-    original = expert.sim.rollout
-    expert.sim.rollout = lambda s, deltas, **kw: rolled.append(deltas) or original(s, deltas, **kw)
+    expert, state, rolled = _recording_expert(config, 4)
     _, first = expert.plan(state, 0)
     expert.plan(state, 0)
     bests = np.arange(2) * 3 + first["scores"].reshape(2, 3).argmax(axis=1)  # each search's best row
