@@ -60,7 +60,8 @@ benchmark (seed 0) solved the hard layout 19/20 (median 17.9 s), medium 10/10 an
 one failure was the pocket above (stuck at 93% until the time limit); path_weight 20 got that
 episode out (20.3 s, one episode: not yet measured over a set).
 
-MPPI (K = 16, σ = 0.5, λ = 0.005, same seed): hard 10/10, median 22.97 s — slower than "hold", but its
+MPPI (σ = 0.5, λ = 0.005, same seed): hard 10/10 at K = 16, median 22.97 s, and 5/5 at K = 64,
+median 19.33 s — slower than "hold", but its
 labels are steadier: asked again after planning along the same 10 recorded states, K = 64 labels
 spread 0.16 against 0.19 for the mean of 4 "hold" searches of the same cost
 (``benchmarks/bench_labyrinth_label_noise.py --warmup 10``).
