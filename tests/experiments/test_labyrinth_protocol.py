@@ -107,6 +107,12 @@ def test_progress_reached_is_the_envs_progress_after_the_last_step_that_did_not_
     assert unknown["ended"] == ["fall" if e in ("hole", "off_path") else e for e in endings]
     np.testing.assert_allclose(summary["progress_fractions"], expected, atol=1e-9)
     assert summary["mean_progress_fraction"] == pytest.approx(np.mean(expected))
+    # An episode that ends where it started, its rewards' rounding summed below zero, reached 0 exactly.
+    start = summarise_labyrinth(EvalResult([False], [limit], [0.0]), "LABYRINTH-HARD", seeds[:1], time_limit=limit)
+    still = -start["progress_fractions"][0] * env.path.length * env.progress_scale - 1e-18
+    assert summarise_labyrinth(EvalResult([False], [limit], [still]), "LABYRINTH-HARD", seeds[:1], time_limit=limit)[
+        "progress_fractions"
+    ] == [0.0]
 
 
 def test_the_expert_solves_the_easy_layout():

@@ -274,7 +274,9 @@ def summarise_labyrinth(result: EvalResult, task: str, starts: list[int], *, tim
     returns = np.asarray(result.returns, dtype=np.float64)
     lengths = np.asarray(result.lengths, dtype=np.int64)
     solved = successes.astype(bool)
-    reached = (start + (returns - bonus * successes) / scale) / length
+    # The path's arc length reached, in [0, 1] by construction: the clip drops float rounding of the
+    # summed rewards (an episode that ends where it started gave -1.6e-19).
+    reached = np.clip((start + (returns - bonus * successes) / scale) / length, 0.0, 1.0)
     times = lengths[solved] / hz
     rng = np.random.default_rng(_BOOTSTRAP_SEED)
     best, median = (float(times.min()) if len(times) else None), _quantile(times, 50)
