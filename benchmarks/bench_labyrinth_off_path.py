@@ -24,7 +24,12 @@ from pathlib import Path
 from typing import Any
 
 from bimgame.envs.puzzles import puzzle
-from bimgame.experiments.labyrinth_protocol import LABYRINTH_PROTOCOL_SEED, SCORE_THREADS, summarise_labyrinth
+from bimgame.experiments.labyrinth_protocol import (
+    LABYRINTH_PROTOCOL_SEED,
+    SCORE_THREADS,
+    protocol_starts,
+    summarise_labyrinth,
+)
 from bimgame.learn.actor import evaluate_network
 from bimgame.learn.common import load_run_network
 from bimgame.learn.maze_runs import network_env_options
@@ -54,8 +59,7 @@ def _pass(net: Any, run: Any, *, rule: str, options: dict[str, Any], episodes: i
         max_episode_steps=limit,
         mazes={**(network_env_options(run.network) or {}), **options},
     )
-    starts = [LABYRINTH_PROTOCOL_SEED + i for i in range(episodes)]
-    summary = summarise_labyrinth(result, run.task, starts, time_limit=limit)
+    summary = summarise_labyrinth(result, run.task, protocol_starts(episodes), time_limit=limit)
     return {
         "off_path_rule": rule,
         "success_rate": summary["success_rate"],

@@ -75,6 +75,7 @@ __all__ = [
     "LABYRINTH_POLICIES",
     "LABYRINTH_PROTOCOL_EPISODES",
     "LABYRINTH_PROTOCOL_SEED",
+    "protocol_starts",
     "score_labyrinth",
     "summarise_labyrinth",
     "start_progress",
@@ -219,6 +220,12 @@ def _play_network(
     return result, facts
 
 
+def protocol_starts(episodes: int, seed: int = LABYRINTH_PROTOCOL_SEED) -> list[int]:
+    """The reset seeds of the protocol's ``episodes`` episodes: ``seed + i``, as
+    :func:`~bimgame.learn.actor.evaluate_network` seeds its envs (module notes)."""
+    return [seed + i for i in range(episodes)]
+
+
 def start_progress(task: str, starts: list[int]) -> list[float]:
     """The marble's progress (m along the path) at the start of each episode, ``reset(seed=s)`` for
     each start seed ``s``: what :func:`summarise_labyrinth` counts progress reached from."""
@@ -336,7 +343,7 @@ def score_labyrinth(
     require_int("score_labyrinth", "episodes", episodes, 1)
     if not (isinstance(seed, int) and not isinstance(seed, bool) and 0 <= seed and seed + episodes - 1 <= MAX_SEED):
         raise ValueError(f"score_labyrinth.seed must be an integer from 0 to {MAX_SEED} - (episodes - 1), got {seed!r}")
-    starts = [seed + i for i in range(episodes)]
+    starts = protocol_starts(episodes, seed)
     time_limit = puzzle(task).time_limit
     started = time.perf_counter()
     facts: dict[str, Any] = {"obs": None, "action_type": "continuous", "step": None}

@@ -375,7 +375,7 @@ class LabyrinthMPC:
         k, n_plans = self.config.n_samples, self.config.n_plans
         sequences = self.sample_sequences()
         if self.config.keep_best and self._best is not None:
-            sequences[::k] = np.concatenate([self._best[:, 1:], self._best[:, -1:]], axis=1)
+            sequences[::k] = _shifted(self._best)
         states = self.sim.rollout(state, self.tilt_deltas(sequences), nthread=self.config.nthread)
         scores = self.score(states, seg, progress)
         bests = np.arange(n_plans) * k + scores.reshape(n_plans, k).argmax(axis=1)
@@ -406,9 +406,9 @@ class LabyrinthMPC:
             weights = np.exp((by_search - by_search.max(axis=1, keepdims=True)) / c.temperature)
             weights /= weights.sum(axis=1, keepdims=True)
             means = np.einsum("pk,pkhd->phd", weights, sequences.reshape(p, k, h, 2))
-        self._mean = np.concatenate([means[:, 1:], means[:, -1:]], axis=1)
+        self._mean = _shifted(means)
         firsts = means[:, 0]
-        return np.asarray(firsts.mean(axis=0), dtype=np.float32), {
+        return self._combine(firsts, by_search.max(axis=1)), {
             "scores": scores,
             "sequence": means[int(np.argmax(by_search.max(axis=1)))],
             "first_actions": firsts,
@@ -431,6 +431,11 @@ class LabyrinthMPC:
 
     def close(self) -> None:
         self.sim.close()
+
+
+def _shifted(plans: np.ndarray) -> np.ndarray:
+    """(P, H, …) plans one step on: each without its applied first step, its last step held."""
+    return np.concatenate([plans[:, 1:], plans[:, -1:]], axis=1)
 
 
 def run_labyrinth_expert_episode(
