@@ -196,3 +196,28 @@ def test_a_network_is_scored_on_one_torch_thread_whatever_the_callers_setting(ea
         assert torch.get_num_threads() == 2
     assert seen == [SCORE_THREADS] == [1]
 
+
+
+def test_the_off_path_rule_is_the_protocols_unless_asked_and_changes_how_episodes_end(easy_run, capsys, monkeypatch):
+    """The same random tilting on the easy layout: the tolerance rule ends the first protocol episode off
+    the path at step 929; CyberRunner's free box lets the marble roll on over open floor to the time
+    limit. The rule is in the summary; a network's envs get it; the maze's protocol refuses the flag."""
+    tolerance = score_labyrinth("random", "LABYRINTH-EASY", episodes=1, progress=False)
+    box = score_labyrinth("random", "LABYRINTH-EASY", episodes=1, progress=False, off_path_rule="cyberrunner")
+    assert (tolerance["off_path_rule"], tolerance["ended"], tolerance["lengths"]) == ("tolerance", ["off_path"], [929])
+    assert (box["off_path_rule"], box["ended"], box["lengths"]) == ("cyberrunner", ["time"], [3000])
+    seen = []
+
+    def recording(*args, **kwargs):
+        seen.append(kwargs["mazes"])
+        return evaluate_network(*args, **kwargs)
+
+    monkeypatch.setattr(labyrinth_protocol, "evaluate_network", recording)
+    assert main(["score", str(easy_run), "--task", "LABYRINTH-EASY", "--episodes", "1", "--off-path-rule",
+                 "cyberrunner", "--no-progress"]) == 0
+    assert seen == [{"off_path_rule": "cyberrunner"}] and "off-path rule cyberrunner" in capsys.readouterr().out
+    with pytest.raises(ValueError, match=r"off_path_rule must be one of tolerance, cyberrunner, got 'box'"):
+        score_labyrinth("random", "LABYRINTH-EASY", episodes=1, off_path_rule="box")
+    assert main(["score", "random", "--task", "STG1", "--off-path-rule", "cyberrunner", "--no-progress"]) == 2
+    assert "--off-path-rule cyberrunner: when the labyrinth's episodes end off its printed path; --task STG1" in (
+        capsys.readouterr().err)

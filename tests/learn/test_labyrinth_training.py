@@ -307,3 +307,41 @@ def test_the_labyrinth_refuses_by_name_only_what_its_pixels_cannot_train_with():
         assert (network.aux_heads, network.subtract_background, network.keypoints) == (False, True, True)
     # The maze's pixels keep their heads by default; the labyrinth's are asked for (below).
     assert PPOConfig.from_flat(LAB, task="STG1", obs="pixels").network.aux_heads is True
+
+
+def test_a_runs_off_path_rule_reaches_its_training_envs_and_is_refused_where_there_is_no_path(tmp_path, capsys):
+    """``off_path_rule`` goes from the settings (and ``bimgame train --off-path-rule``) into every env
+    the run builds — training's vector env and the single env of its rollouts; absent, the env's
+    default and no key, so the env arguments of earlier runs are unchanged."""
+    assert PPOConfig.from_flat(LAB).maze_options == {}
+    config = PPOConfig.from_flat(LAB, off_path_rule="cyberrunner", action_type="continuous")
+    assert config.maze_options == {"off_path_rule": "cyberrunner"}
+    envs = training_env(2, task=config.task, obs="state", time_limit=20, privileged=False,
+                        action_type="continuous", **config.maze_options)
+    single = puzzle(config.task).env(obs_mode="state", action_type="continuous", **config.maze_options)
+    assert envs.template.off_path_rule == single.off_path_rule == "cyberrunner"
+    assert single.path_sight is not None  # CyberRunner's free-box map, which the default rule does not build
+    envs.close()
+    single.close()
+    for learner in (A3CConfig, PPOConfig):
+        with pytest.raises(ValueError, match=rf"{learner.__name__}\.off_path_rule must be one of \('tolerance', "
+                                             r"'cyberrunner'\) or None, got 'box'"):
+            learner.from_flat(LAB, off_path_rule="box")
+        with pytest.raises(ValueError, match=rf"{learner.__name__}\.off_path_rule applies to the labyrinth's tasks "
+                                             r"only, not STG1"):
+            learner.from_flat(dict(LAB, task="STG1"), off_path_rule="cyberrunner")
+    with pytest.raises(ValueError, match="off_path_rule is the labyrinth's .*, not STG1's"):
+        puzzle("STG1").env(obs_mode="state", action_type="discrete", off_path_rule="cyberrunner")
+    # The flag: stored in the run's config, kept on --resume; refused on the maze by name.
+    run_dir = tmp_path / "run"
+    assert main(["train", "--algo", "ppo", "--task", "LABYRINTH-EASY", "--run-dir", str(run_dir), "--steps", "128",
+                 "--off-path-rule", "cyberrunner", "--action-type", "continuous", *CLI]) == 0
+    assert json.loads((run_dir / "config.json").read_text())["ppo"]["off_path_rule"] == "cyberrunner"
+    assert main(["train", "--algo", "ppo", "--run-dir", str(run_dir), "--resume", "--steps", "256",
+                 "--no-progress"]) == 0
+    assert json.loads((run_dir / "config.json").read_text())["ppo"]["off_path_rule"] == "cyberrunner"
+    capsys.readouterr()
+    assert main(["train", "--task", "STG1", "--run-dir", str(tmp_path / "m"), "--off-path-rule", "cyberrunner",
+                 *CLI]) == 2
+    assert "off_path_rule applies to the labyrinth's tasks only, not STG1" in capsys.readouterr().err
+    assert not (tmp_path / "m").exists()

@@ -17,6 +17,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from bimgame.cli.argtypes import TASK_NAMES, add_task_argument, check_output_file, positive_int, run_group
+from bimgame.envs.labyrinth_env import LABYRINTH_OFF_PATH_RULES
 from bimgame.envs.puzzles import NETWORK_OBS, check_obs, puzzle
 from bimgame.envs.puzzles import TASK_NAMES as PUZZLE_TASKS
 from bimgame.envs.randomization import RANDOMIZATION_PRESETS, randomization_preset
@@ -93,6 +94,14 @@ def add_score_arguments(parser: argparse.ArgumentParser) -> None:
         "gets the observations without it, SB3 models and module:callable policies get it as it is",
     )
     add("--sampled", action="store_true", help="a network samples its actions instead of acting greedily")
+    add(
+        "--off-path-rule",
+        choices=LABYRINTH_OFF_PATH_RULES,
+        default=None,
+        help="(labyrinth tasks) when an episode ends off the path, for every policy: tolerance (the protocol's, "
+        "default: no path segment near the marble in sight) or cyberrunner (CyberRunner's own test: no path "
+        "point in the marble's free box); scores compare at the same rule",
+    )
     add("--out", type=Path, default=None, help="write the result as JSON here")
     add(
         "--figure",
@@ -175,9 +184,13 @@ def _run_labyrinth_score(args: argparse.Namespace, console: Console) -> int:
         sampled=args.sampled,
         progress=not args.no_progress,
         obs=args.obs,
+        off_path_rule=args.off_path_rule or "tolerance",
     )
     how = f"{summary['mode']}, {summary['obs']}" if summary["mode"] else "built-in"
-    table = Table(title=f"{args.policy} ({how}) on {summary['task']}, {summary['episodes']} protocol episodes")
+    rule = "" if summary["off_path_rule"] == "tolerance" else f", off-path rule {summary['off_path_rule']}"
+    table = Table(
+        title=f"{args.policy} ({how}) on {summary['task']}, {summary['episodes']} protocol episodes{rule}"
+    )
     vs = f"vs CyberRunner {CYBERRUNNER_RECORD_S} s / human {HUMAN_RECORD_S} s"
     for column in ("success [95% CI]", escape("median time (s) [quartiles]"), "mean return", vs):
         table.add_column(column, justify="right")
@@ -215,6 +228,11 @@ def run_score(args: argparse.Namespace) -> int:
     console = Console()
     if not puzzle(args.task).is_maze:
         return _run_labyrinth_score(args, console)
+    if args.off_path_rule is not None:
+        raise ValueError(
+            f"--off-path-rule {args.off_path_rule}: when the labyrinth's episodes end off its printed path; "
+            f"--task {args.task} is the circular maze's (use a labyrinth task: LABYRINTH-EASY, -MEDIUM, -HARD)"
+        )
     if args.figure is not None:
         raise ValueError(
             f"--figure draws where the labyrinth's episodes ended; --task {args.task} is the circular maze's "

@@ -20,6 +20,7 @@ from bimgame.cli.train_ppo import (
     refuse_ppo_only_flags,
     train_ppo_from_args,
 )
+from bimgame.envs.labyrinth_env import LABYRINTH_OFF_PATH_RULES
 from bimgame.envs.puzzles import TASK_NAMES, puzzle
 from bimgame.envs.shaping import DEFAULT_GEODESIC_COEF
 from bimgame.learn.a3c import A3CConfig, resolve_config, train
@@ -57,7 +58,7 @@ TRAIN_GROUPS = (
 #: The group of each A3C setting (the network settings are all in "network").
 A3C_GROUPS: dict[str, tuple[str, ...]] = {
     "network": NetworkSettings.field_names(),
-    "environment": ("task", "max_episode_steps", "randomize", "num_mazes", "start_maze"),
+    "environment": ("task", "max_episode_steps", "randomize", "num_mazes", "start_maze", "off_path_rule"),
     "optimisation": (
         "steps",
         "workers",
@@ -130,7 +131,8 @@ def add_train_arguments(parser: argparse.ArgumentParser) -> None:
             default_none=True,
             types=_A3C_TYPES,
             helps={"steps": "environment steps to train for, all workers together, e.g. 5M"},
-            choices={"task": TASK_NAMES},  # the maze's tasks and the labyrinth's
+            # the tasks are the maze's and the labyrinth's
+            choices={"task": TASK_NAMES, "off_path_rule": LABYRINTH_OFF_PATH_RULES},
         )
     docs = field_docs(RewardSettings)
     reward = groups["environment"].add_argument

@@ -87,6 +87,8 @@ LABYRINTH_OBS = {"cyberrunner": "cyberrunner_flat", "cyberrunner_flat": "cyberru
 NETWORK_OBS = (*OBS_MODES, "cyberrunner")
 #: The keyword arguments a labyrinth vector env takes besides the ones every puzzle's takes: those of
 #: :class:`LabyrinthEnv` and the start curriculum's sampler.
+#: The labyrinth's env arguments that :meth:`Puzzle.env` takes beside ``obs_mode`` and ``action_type``.
+LABYRINTH_ENV_EXTRAS = (*OBSERVATION_EXTRAS, "off_path_rule")
 _LABYRINTH_OPTIONS = (frozenset(inspect.signature(LabyrinthEnv.__init__).parameters) - {"self", "layout"}) | {
     "start_sampler"
 }
@@ -178,15 +180,16 @@ class Puzzle:
         reads each board's physics state steps, such as DAgger's expert-labelled rollouts. ``obs_mode``
         ``cyberrunner`` is stepped as ``cyberrunner_flat``, as in :meth:`vector_env`. ``maze_options``:
         the circular maze's random-maze arguments (``num_mazes``, ``start_maze``), or the labyrinth's
-        ``surroundings`` and ``motion``."""
+        ``surroundings``, ``motion`` and ``off_path_rule``."""
         check_obs("obs_mode", self.task, obs_mode)
-        extras = {name: maze_options.pop(name) for name in OBSERVATION_EXTRAS if name in maze_options}
+        extras = {name: maze_options.pop(name) for name in LABYRINTH_ENV_EXTRAS if name in maze_options}
         if self.is_maze:
-            asked = [name for name, on in extras.items() if on]
+            asked = [name for name, on in extras.items() if on is not None and on is not False]
             if asked:
                 verb = "is" if len(asked) == 1 else "are"
                 raise ValueError(
-                    f"{' and '.join(asked)} {verb} part of the labyrinth's observations, not {self.task}'s"
+                    f"{' and '.join(asked)} {verb} the labyrinth's (its observations' extras, its off-path rule), "
+                    f"not {self.task}'s"
                 )
             return BallInMazeEnv(self.task, obs_mode=obs_mode, action_type=action_type, **maze_options)
         if maze_options:

@@ -16,7 +16,9 @@ board i of its batched env, which reproduces the single env exactly
 (:class:`~bimgame.envs.labyrinth_vector.LabyrinthVectorEnv`): a network (batched) and a built-in
 policy (one env) play the same starts. Each episode runs under the task's time limit,
 CyberRunner's 54.5 s (3000 steps at 55 Hz, ``puzzle(task).time_limit``), with the env's default
-settings (CyberRunner's reward, 30°/s tilt rate, an episode ends in a hole or off the path).
+settings (CyberRunner's reward, 30°/s tilt rate, an episode ends in a hole or off the path by the
+``tolerance`` rule), or with ``off_path_rule="cyberrunner"`` CyberRunner's own off-path test
+(``bimgame score --off-path-rule``; the summary names the rule: scores compare at the same rule).
 
 **Policies.** ``random``: uniform continuous tilt-rate actions in [-1, 1]², from a generator seeded
 per episode; ``noop``: zero actions (the board stays flat); ``expert``: the MPC expert
@@ -55,7 +57,7 @@ from typing import Any
 
 import numpy as np
 
-from bimgame.envs.labyrinth_env import LabyrinthEnv
+from bimgame.envs.labyrinth_env import LABYRINTH_OFF_PATH_RULES, LabyrinthEnv
 from bimgame.envs.puzzles import LABYRINTH_TASKS, puzzle
 from bimgame.experiments.protocol import PROTOCOL_SEED
 from bimgame.experiments.statistics import mean_interval
@@ -87,8 +89,9 @@ CYBERRUNNER_RECORD_S = 14.48
 HUMAN_RECORD_S = 15.41
 #: The layout the references were set on.
 REFERENCE_TASK = "LABYRINTH-HARD"
-#: How a scored episode can end: at the goal, over a hole, off the path (by the env's default rule: no
-#: path segment within the path tolerance in sight), or at the time limit. Summaries written before
+#: How a scored episode can end: at the goal, over a hole, off the path (by the protocol's off-path
+#: rule, ``tolerance`` by default: no path segment within the path tolerance in sight), or at the time
+#: limit. Summaries written before
 #: the hole and the path were told apart name both ``fall``, which ``ended_by["fall"]`` still counts
 #: (their sum).
 ENDINGS = ("goal", "hole", "off_path", "time")
@@ -136,9 +139,12 @@ def _builtin_actor(name: str, env: LabyrinthEnv, seed: int) -> tuple[Act, Callab
     return (lambda info: expert.act(env.sim.get_state(), int(info["segment"]))), expert.close
 
 
-def _play_builtins(name: str, layout: str, starts: list[int], time_limit: int, progress: bool) -> EvalResult:
-    """Built-in policy ``name`` on one env of ``layout``, one episode per start seed, in order."""
-    env = LabyrinthEnv(layout)
+def _play_builtins(
+    name: str, layout: str, starts: list[int], time_limit: int, progress: bool, off_path_rule: str
+) -> EvalResult:
+    """Built-in policy ``name`` on one env of ``layout`` (ending episodes off the path by ``off_path_rule``),
+    one episode per start seed, in order."""
+    env = LabyrinthEnv(layout, off_path_rule=off_path_rule)
     result = EvalResult([], [], [])
     try:
         with ProgressBar(f"{name} on the {layout} labyrinth", len(starts), enabled=progress, transient=True) as bar:
@@ -184,10 +190,19 @@ def _network_source(policy: str, task: str) -> Path:
 
 
 def _play_network(
-    source: Path, task: str, *, obs: str | None, sampled: bool, episodes: int, seed: int, progress: bool
+    source: Path,
+    task: str,
+    *,
+    obs: str | None,
+    sampled: bool,
+    episodes: int,
+    seed: int,
+    progress: bool,
+    off_path_rule: str,
 ) -> tuple[EvalResult, dict[str, Any]]:
-    """The run's network on ``episodes`` boards batched (:func:`evaluate_network`), and what the
-    summary says of it (its observations, actions, mode, checkpoint step)."""
+    """The run's network on ``episodes`` boards batched (:func:`evaluate_network`, ending episodes off
+    the path by ``off_path_rule``), and what the summary says of it (its observations, actions, mode,
+    checkpoint step)."""
     net, run, step = load_run_network(source)
     if run.task != task:
         raise ValueError(
@@ -213,7 +228,7 @@ def _play_network(
             seed=seed,
             greedy=not sampled,
             max_episode_steps=puzzle(task).time_limit,
-            mazes=network_env_options(run.network) or None,
+            mazes=network_env_options(run.network, off_path_rule=off_path_rule),
         )
         bar.update(advance=1)
     facts = {"obs": run.network.obs, "action_type": run.network.action_type, "step": step}
@@ -332,14 +347,21 @@ def score_labyrinth(
     seed: int = LABYRINTH_PROTOCOL_SEED,
     progress: bool = True,
     obs: str | None = None,
+    off_path_rule: str = "tolerance",
 ) -> dict[str, Any]:
     """The labyrinth protocol's numbers (:func:`summarise_labyrinth`) for ``policy`` on ``task``
     (LABYRINTH-EASY, -MEDIUM, -HARD): ``random``, ``noop``, ``expert``, or a bimgame run directory or
     checkpoint trained on ``task`` (see the module notes). ``sampled``: a network samples its actions
     (greedy by default); ``obs``: the observations a network must have been trained on (None: its
-    own); built-in policies read no observations and take neither. Raises ``ValueError`` naming the
-    bad value and what is allowed; the same arguments give the same dict but for ``seconds``."""
+    own); built-in policies read no observations and take neither. ``off_path_rule``: when an episode
+    ends off the path (:data:`~bimgame.envs.labyrinth_env.LABYRINTH_OFF_PATH_RULES`; the protocol's is
+    ``tolerance``, the env's default), for every policy. Raises ``ValueError`` naming the bad value and
+    what is allowed; the same arguments give the same dict but for ``seconds``."""
     task = _labyrinth_task(task)
+    if off_path_rule not in LABYRINTH_OFF_PATH_RULES:
+        raise ValueError(
+            f"score_labyrinth.off_path_rule must be one of {', '.join(LABYRINTH_OFF_PATH_RULES)}, got {off_path_rule!r}"
+        )
     require_int("score_labyrinth", "episodes", episodes, 1)
     if not (isinstance(seed, int) and not isinstance(seed, bool) and 0 <= seed and seed + episodes - 1 <= MAX_SEED):
         raise ValueError(f"score_labyrinth.seed must be an integer from 0 to {MAX_SEED} - (episodes - 1), got {seed!r}")
@@ -350,14 +372,29 @@ def score_labyrinth(
     if isinstance(policy, str) and policy in LABYRINTH_POLICIES:
         layout = puzzle(task).layout
         assert layout is not None  # a labyrinth task has its layout
-        result = _play_builtins(policy, layout, starts, time_limit, progress)
+        result = _play_builtins(policy, layout, starts, time_limit, progress, off_path_rule)
         mode = None
     else:
         source = _network_source(str(policy), task)
         result, facts = _play_network(
-            source, task, obs=obs, sampled=sampled, episodes=episodes, seed=seed, progress=progress
+            source,
+            task,
+            obs=obs,
+            sampled=sampled,
+            episodes=episodes,
+            seed=seed,
+            progress=progress,
+            off_path_rule=off_path_rule,
         )
         mode = "sampled" if sampled else "greedy"
     seconds = time.perf_counter() - started
     summary = summarise_labyrinth(result, task, starts, time_limit=time_limit)
-    return {"policy": str(policy), "protocol_seed": seed, "mode": mode, **facts, **summary, "seconds": seconds}
+    return {
+        "policy": str(policy),
+        "protocol_seed": seed,
+        "off_path_rule": off_path_rule,
+        "mode": mode,
+        **facts,
+        **summary,
+        "seconds": seconds,
+    }

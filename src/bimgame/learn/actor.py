@@ -193,7 +193,7 @@ def evaluate_network(
     :class:`~bimgame.envs.randomization.Randomization`) evaluates on domain-randomised boards. The
     env has the network's kind of action (``net.config.action_type``). ``mazes``: env arguments of
     many mazes (``num_mazes``, ``start_maze``, ``maze_split``; see :class:`~bimgame.envs.env.BallInMazeEnv`)
-    or the labyrinth's ``surroundings``,
+    or the labyrinth's ``surroundings``, ``motion`` and ``off_path_rule``;
     each episode's maze drawn from ``seed`` too, or episode ``k`` on maze ``maze_numbers[k]`` of that set.
     ``task`` may be the labyrinth's (:mod:`bimgame.envs.puzzles`; the maze's options must then be None);
     an episode succeeds when it reaches the goal (:func:`episode_successes`), not when it falls."""

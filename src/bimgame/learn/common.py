@@ -26,7 +26,13 @@ from bimgame.learn.checkpoints import load_weights
 from bimgame.learn.cyberrunner import check_cyberrunner_network, cyberrunner_net_config
 from bimgame.learn.encoders import MAZE_FRAMES
 from bimgame.learn.evaluations import evaluate_greedy_and_sampled, evaluation_seed
-from bimgame.learn.learner_settings import MAX_STEPS, FlatSettings, ScheduleSettings, check_at_most
+from bimgame.learn.learner_settings import (
+    MAX_STEPS,
+    FlatSettings,
+    ScheduleSettings,
+    check_at_most,
+    check_off_path_rule,
+)
 from bimgame.learn.maze_runs import maze_network, network_env_options
 from bimgame.learn.nets import (
     PRECISIONS,
@@ -430,10 +436,16 @@ class LearnerSettings(FlatSettings):
     the held-out ones."""
     start_maze: int = 0
     """The first training maze's number (with ``num_mazes``)."""
+    off_path_rule: str | None = None
+    """The labyrinth only: when the marble is off the path (an episode ends there), for training and the
+    run's evaluations: ``tolerance`` (no path segment near it in sight) or ``cyberrunner`` (no path point
+    in its free box, CyberRunner's test: :mod:`bimgame.sim.labyrinth_box_sight`). None: the env's default,
+    ``tolerance``."""
 
     def __post_init__(self) -> None:
         owner = type(self).__name__
         object.__setattr__(self, "task", puzzle_task_setting(owner, self.task))
+        check_off_path_rule(owner, self.task, self.off_path_rule)
         check_seed(owner, self.seed)  # numpy's seed sequences take no negative seeds, torch none of 2**64
         require_int(owner, "max_episode_steps", self.max_episode_steps, 1, optional=True)
         check_at_most(owner, "max_episode_steps", self.max_episode_steps, MAX_STEPS, "1e12 environment steps")
@@ -446,8 +458,11 @@ class LearnerSettings(FlatSettings):
 
     @property
     def maze_options(self) -> dict[str, Any]:
-        """The env arguments of the run's mazes (empty on MERL's maze alone)."""
-        return network_env_options(getattr(self, "network", None), self.num_mazes, self.start_maze)
+        """The env arguments of the run's mazes (empty on MERL's maze alone), or on the labyrinth of its
+        observation extras and off-path rule."""
+        return network_env_options(
+            getattr(self, "network", None), self.num_mazes, self.start_maze, off_path_rule=self.off_path_rule
+        )
 
     @property
     def time_limit(self) -> int:

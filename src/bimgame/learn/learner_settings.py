@@ -29,7 +29,7 @@ from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any, ClassVar, Literal, Self, get_args
 
-from bimgame.envs.labyrinth_env import OBSERVATION_EXTRAS
+from bimgame.envs.labyrinth_env import LABYRINTH_OFF_PATH_RULES, OBSERVATION_EXTRAS
 from bimgame.envs.puzzles import check_obs, puzzle
 from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.learn.runs import CONFIG, read_run_config
@@ -43,6 +43,7 @@ __all__ = [
     "StartCurriculum",
     "START_CURRICULA",
     "check_choice",
+    "check_off_path_rule",
     "check_number",
     "check_at_most",
     "ScheduleSettings",
@@ -132,6 +133,21 @@ def refuse_maze_only(owner: str, task: str, settings: Mapping[str, bool]) -> Non
     for name, on in settings.items():
         if on:
             raise ValueError(f"{owner}.{name} applies to the circular maze's tasks only, not {task}: {MAZE_ONLY[name]}")
+
+
+def check_off_path_rule(owner: str, task: str, rule: Any) -> None:
+    """Raise ``ValueError`` unless ``rule`` is None (the env's default) or one of the labyrinth's
+    off-path rules (:data:`~bimgame.envs.labyrinth_env.LABYRINTH_OFF_PATH_RULES`) on a labyrinth task:
+    the circular maze has no path to leave."""
+    if rule is None:
+        return
+    if rule not in LABYRINTH_OFF_PATH_RULES:
+        raise ValueError(f"{owner}.off_path_rule must be one of {LABYRINTH_OFF_PATH_RULES} or None, got {rule!r}")
+    if puzzle(task).is_maze:
+        raise ValueError(
+            f"{owner}.off_path_rule applies to the labyrinth's tasks only, not {task}: the circular maze has no "
+            f"printed path to leave"
+        )
 
 
 def check_expert_data(owner: str, expert_data: str | None, readers: Mapping[str, bool]) -> None:

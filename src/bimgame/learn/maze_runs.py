@@ -51,25 +51,31 @@ def maze_options(
     *,
     gate_bearings: bool = False,
     extras: tuple[str, ...] = (),
+    off_path_rule: str | None = None,
 ) -> dict[str, Any]:
     """The env arguments of a run's random mazes (empty on MERL's maze alone); ``gate_bearings``: the
     observations hold them (the network reads them: ``NetworkSettings.gate_bearings``). On the
     labyrinth (no mazes), ``extras``: the parts its observations add
     (:data:`~bimgame.envs.labyrinth_env.OBSERVATION_EXTRAS`: ``surroundings`` to the state, ``motion``
-    to CyberRunner's; ``NetworkSettings`` switches of the same names)."""
+    to CyberRunner's; ``NetworkSettings`` switches of the same names), and ``off_path_rule`` when one is
+    asked for (None: the env's default; absent, so that earlier runs' env arguments are unchanged)."""
     if num_mazes is None:
-        return dict.fromkeys(extras, True)
+        rule = {} if off_path_rule is None else {"off_path_rule": off_path_rule}
+        return {**dict.fromkeys(extras, True), **rule}
     return {"num_mazes": num_mazes, "start_maze": start_maze, **({"gate_bearings": True} if gate_bearings else {})}
 
 
-def network_env_options(network: Any, num_mazes: int | None = None, start_maze: int = 0) -> dict[str, Any]:
+def network_env_options(
+    network: Any, num_mazes: int | None = None, start_maze: int = 0, off_path_rule: str | None = None
+) -> dict[str, Any]:
     """The env arguments of a run on ``num_mazes`` mazes (from ``start_maze``) whose ``network`` (network
     settings, or None) reads what it reads: gate bearings on mazes, the labyrinth's surroundings or motion
-    (:func:`maze_options` with the network's own switches). Every place that builds envs for a network
-    asks here."""
+    (:func:`maze_options` with the network's own switches), and the labyrinth's ``off_path_rule`` (None:
+    the env's default). Every place that builds envs for a network asks here."""
     return maze_options(
         num_mazes,
         start_maze,
         gate_bearings=bool(getattr(network, "gate_bearings", False)),
         extras=tuple(name for name in OBSERVATION_EXTRAS if getattr(network, name, False)),
+        off_path_rule=off_path_rule,
     )
