@@ -24,6 +24,8 @@ from bimgame.learn.learner_settings import check_init_puzzle, policy_network
 from bimgame.learn.pixel_network import empty_board_frame
 from bimgame.learn.ppo import PPOConfig
 from bimgame.learn.rollout import RolloutCollector, training_env
+from bimgame.play.agent import AgentPlayer
+from bimgame.play.boards import open_board
 from bimgame.sim.labyrinth import LabyrinthSpec
 from bimgame.sim.labyrinth_render import board_grid
 from bimgame.sim.maze import MazeSpec
@@ -311,8 +313,8 @@ def test_the_labyrinth_refuses_by_name_only_what_its_pixels_cannot_train_with():
 
 def test_a_runs_off_path_rule_reaches_its_training_envs_and_is_refused_where_there_is_no_path(tmp_path, capsys):
     """``off_path_rule`` goes from the settings (and ``bimgame train --off-path-rule``) into every env
-    the run builds — training's vector env and the single env of its rollouts; absent, the env's
-    default and no key, so the env arguments of earlier runs are unchanged."""
+    the run builds — training's vector env, the single env of its rollouts, ``bimgame play``'s board;
+    absent, the env's default and no key, so the env arguments of earlier runs are unchanged."""
     assert PPOConfig.from_flat(LAB).maze_options == {}
     config = PPOConfig.from_flat(LAB, off_path_rule="cyberrunner", action_type="continuous")
     assert config.maze_options == {"off_path_rule": "cyberrunner"}
@@ -340,6 +342,13 @@ def test_a_runs_off_path_rule_reaches_its_training_envs_and_is_refused_where_the
     assert main(["train", "--algo", "ppo", "--run-dir", str(run_dir), "--resume", "--steps", "256",
                  "--no-progress"]) == 0
     assert json.loads((run_dir / "config.json").read_text())["ppo"]["off_path_rule"] == "cyberrunner"
+    # bimgame play opens its board under the rule the agent trained under.
+    agent = AgentPlayer(run_dir, puzzle("LABYRINTH-EASY").spec, task="LABYRINTH-EASY")
+    assert agent.env_options == {"off_path_rule": "cyberrunner"}
+    board = open_board("LABYRINTH-EASY", obs_mode=agent.env_obs_mode, action_type=agent.action_type,
+                       **agent.env_options)
+    assert board.env.off_path_rule == "cyberrunner"
+    board.close()
     capsys.readouterr()
     assert main(["train", "--task", "STG1", "--run-dir", str(tmp_path / "m"), "--off-path-rule", "cyberrunner",
                  *CLI]) == 2

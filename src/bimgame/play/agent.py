@@ -28,7 +28,7 @@ from bimgame.expert.labyrinth_mpc import LabyrinthMPC
 from bimgame.expert.mpc import RandomShootingMPC
 from bimgame.learn.actor import RecurrentActor, tilt_input
 from bimgame.learn.common import RunInfo, load_run_network
-from bimgame.learn.maze_runs import network_env_options
+from bimgame.learn.maze_runs import network_env_options, stored_off_path_rule
 from bimgame.learn.policy_heads import require_discrete
 from bimgame.play.boards import Board, LabyrinthBoard, Moment
 from bimgame.sim.layout import StateLayout
@@ -105,8 +105,9 @@ class AgentPlayer:
         self.action_type = net.config.action_type
         #: The labyrinth env's observation mode that is this network's input (the maze's env is state-observed).
         self.env_obs_mode = "state" if self.maze else LABYRINTH_OBS.get(self.obs_mode, self.obs_mode)
-        #: The labyrinth env's other arguments its observations need (the marble's surroundings or motion).
-        self.env_options = network_env_options(run.network)
+        #: The labyrinth env's other arguments its observations need (the marble's surroundings or motion),
+        #: and the off-path rule the run trained under.
+        self.env_options = network_env_options(run.network, off_path_rule=stored_off_path_rule(run.config))
         self.max_tilt = spec.max_tilt
         self._pixels = None
         if self.maze and self.obs_mode == "pixels":
