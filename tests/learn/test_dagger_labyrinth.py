@@ -191,12 +191,33 @@ def test_cli_dagger_on_the_labyrinth_takes_the_datasets_action_type(lab_data, tm
     run_dir = tmp_path / "run"
     assert main(["dagger", "--run-dir", str(run_dir), "--task", TASK, "--obs", "state", "--expert-data",
                  str(lab_data), "--iterations", "1", "--episodes-per-iteration", "2", "--epochs-per-iteration", "1",
-                 "--max-episode-steps", "20", "--stall-steps", "5", "--eval-episodes", "0", "--no-progress"]) == 0
+                 "--max-episode-steps", "20", "--stall-steps", "5", "--eval-episodes", "0", "--off-path-rule",
+                 "cyberrunner", "--no-progress"]) == 0
     stored = DAggerConfig.from_dict(json.loads((run_dir / "config.json").read_text())["dagger"])
-    assert stored.stall_steps == 5
+    assert stored.stall_steps == 5 and stored.off_path_rule == "cyberrunner"
     with open(run_dir / "dagger.csv", newline="") as handle:
         assert 0 <= int(next(csv.DictReader(handle))["rollouts_stalled"]) <= 2
     assert (stored.learner.task, stored.learner.action_type, stored.learner.hidden) == (TASK, "continuous", 128)
     assert stored.expert == LabyrinthMPCConfig() and stored.expert_data == str(lab_data)
     weights = torch.load(run_dir / "checkpoint.pt", weights_only=True)["model"]
     assert "log_std" in weights
+
+
+def test_the_rollouts_end_off_the_path_by_the_runs_rule(monkeypatch):
+    """``off_path_rule`` reaches every env DAgger's rollouts step; on the maze it is refused by name."""
+    built = []
+    original = LabyrinthEnv.__init__
+
+    def recording(self, *args, **kwargs):
+        original(self, *args, **kwargs)
+        built.append(self.off_path_rule)
+
+    monkeypatch.setattr(LabyrinthEnv, "__init__", recording)
+    config = _config(off_path_rule="cyberrunner", episodes_per_iteration=2, max_episode_steps=5)
+    assert config.maze_options == {"off_path_rule": "cyberrunner"}
+    net = config.learner.build_policy(0, LabyrinthEnv("easy").board)
+    built.clear()
+    collect_episodes(net, config, beta=0.5, seed=3)
+    assert built and set(built) == {"cyberrunner"}
+    with pytest.raises(ValueError, match=r"DAggerConfig\.off_path_rule applies to the labyrinth's tasks only, not STG1"):
+        DAggerConfig(learner=PretrainConfig(task="STG1", obs="state"), off_path_rule="cyberrunner")

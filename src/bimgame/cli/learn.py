@@ -18,7 +18,7 @@ from bimgame.cli.expert import (
     mpc_flag,
 )
 from bimgame.cli.flags import add_flag_groups, add_grouped_settings_flags, given_settings
-from bimgame.envs.labyrinth_env import OBSERVATION_EXTRAS
+from bimgame.envs.labyrinth_env import LABYRINTH_OFF_PATH_RULES, OBSERVATION_EXTRAS
 from bimgame.envs.puzzles import TASK_NAMES, puzzle
 from bimgame.expert.datasets import dataset_manifest
 from bimgame.expert.labyrinth_mpc import LabyrinthMPCConfig
@@ -106,6 +106,7 @@ DAGGER_FLAGS = (
     "epochs_per_iteration",
     "max_episode_steps",
     "stall_steps",
+    "off_path_rule",
     "eval_episodes",
     "num_mazes",
     "start_maze",
@@ -161,7 +162,7 @@ DAGGER_GROUPS = (
 )
 #: The group of each DAgger setting with a flag (its own and its learner's).
 DAGGER_PLACEMENT: dict[str, tuple[str, ...]] = {
-    "run": ("task", "expert_data", "teacher", "num_mazes", "start_maze"),
+    "run": ("task", "expert_data", "teacher", "num_mazes", "start_maze", "off_path_rule"),
     "network": NetworkSettings.field_names(),
     "logging": ("eval_episodes",),
     "DAgger": (
@@ -306,6 +307,7 @@ def add_dagger_arguments(parser: argparse.ArgumentParser) -> None:
         [n for n in DAGGER_FLAGS if n not in resumable],
         DAGGER_PLACEMENT,
         types={"episodes_per_iteration": episode_count, "demo_start_window": non_negative_float},
+        choices={"off_path_rule": LABYRINTH_OFF_PATH_RULES},
     )
     add_grouped_settings_flags(
         parser,

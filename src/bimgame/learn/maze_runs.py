@@ -13,8 +13,8 @@ from bimgame.util.settings import require_int
 
 __all__ = ["maze_network", "maze_options", "network_env_options", "stored_off_path_rule"]
 
-#: The blocks of a run's ``config.json`` that hold a learner's flat settings (PPO's, A3C's).
-_LEARNER_BLOCKS = ("ppo", "a3c")
+#: The blocks of a run's ``config.json`` that hold a learner's flat settings (PPO's, A3C's, DAgger's).
+_LEARNER_BLOCKS = ("ppo", "a3c", "dagger")
 
 
 def maze_network(owner: str, task: str, network: Any, *, num_mazes: int | None, start_maze: int) -> Any:
@@ -86,8 +86,8 @@ def network_env_options(
 
 def stored_off_path_rule(stored: dict[str, Any]) -> str | None:
     """The labyrinth's off-path rule a run trained under, from its ``config.json`` (``stored``): its
-    learner's ``off_path_rule`` (``bimgame train --off-path-rule``); None (the env's default) for runs
-    without one — pre-training, DAgger and every run written before the setting."""
+    learner's ``off_path_rule`` (``bimgame train`` or ``bimgame dagger --off-path-rule``); None (the env's
+    default) for runs without one — pre-training and every run written before the setting."""
     for name in _LEARNER_BLOCKS:
         block = stored.get(name)
         if isinstance(block, dict) and block.get("off_path_rule") is not None:

@@ -11,6 +11,7 @@ from typing import Any
 from bimgame.envs.puzzles import puzzle
 from bimgame.expert.labyrinth_mpc import LabyrinthMPCConfig
 from bimgame.expert.mpc import MPCConfig
+from bimgame.learn.learner_settings import check_off_path_rule
 from bimgame.learn.maze_runs import maze_network, network_env_options
 from bimgame.learn.policy_heads import require_discrete
 from bimgame.learn.run_dir import stored_run_config
@@ -98,6 +99,9 @@ class DAggerConfig:
     The expert plans on each episode's maze; a state learner reads the maze encoding. None: MERL's maze."""
     start_maze: int = 0
     """The first training maze's number (with ``num_mazes``)."""
+    off_path_rule: str | None = None
+    """The labyrinth only: when its rollouts and evaluations end off the path, as a learner's
+    ``off_path_rule`` (``tolerance`` or ``cyberrunner``; None: the env's default, ``tolerance``)."""
 
     def __post_init__(self) -> None:
         """Refuse settings DAgger cannot run with, naming the setting."""
@@ -105,6 +109,7 @@ class DAggerConfig:
             raise ValueError("DAggerConfig.learner must train a policy (target='policy')")
         maze = puzzle(self.learner.task).is_maze
         self._check_mazes()
+        check_off_path_rule("DAggerConfig", self.learner.task, self.off_path_rule)
         expert_type = _expert_type(self.learner.task)
         if self.expert is None:
             default = MPCConfig(reward="geodesic") if self.num_mazes is not None else expert_type()
@@ -208,8 +213,9 @@ class DAggerConfig:
 
     @property
     def maze_options(self) -> dict[str, Any]:
-        """The env arguments of the run's mazes (empty on MERL's maze alone)."""
-        return network_env_options(self.learner, self.num_mazes, self.start_maze)
+        """The env arguments of the run's mazes (empty on MERL's maze alone), or on the labyrinth of its
+        learner's observation extras and the off-path rule."""
+        return network_env_options(self.learner, self.num_mazes, self.start_maze, off_path_rule=self.off_path_rule)
 
     #: What a resumed run may change.
     RESUMABLE_CHANGES = ("iterations", "eval_episodes")
@@ -227,6 +233,7 @@ class DAggerConfig:
         "max_episode_steps",
         "stall_steps",
         "teacher",
+        "off_path_rule",
     )
 
     def require_resumable_from(self, stored: DAggerConfig) -> None:
