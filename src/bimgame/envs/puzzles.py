@@ -85,10 +85,10 @@ LABYRINTH_SPEED_SCALE = 0.5
 LABYRINTH_OBS = {"cyberrunner": "cyberrunner_flat", "cyberrunner_flat": "cyberrunner_flat"}
 #: The observations a learner's network reads (``NetworkSettings.obs``): the maze's, then CyberRunner's.
 NETWORK_OBS = (*OBS_MODES, "cyberrunner")
-#: The keyword arguments a labyrinth vector env takes besides the ones every puzzle's takes: those of
-#: :class:`LabyrinthEnv` and the start curriculum's sampler.
 #: The labyrinth's env arguments that :meth:`Puzzle.env` takes beside ``obs_mode`` and ``action_type``.
 LABYRINTH_ENV_EXTRAS = (*OBSERVATION_EXTRAS, "off_path_rule")
+#: The keyword arguments a labyrinth vector env takes besides the ones every puzzle's takes: those of
+#: :class:`LabyrinthEnv` and the start curriculum's sampler.
 _LABYRINTH_OPTIONS = (frozenset(inspect.signature(LabyrinthEnv.__init__).parameters) - {"self", "layout"}) | {
     "start_sampler"
 }
