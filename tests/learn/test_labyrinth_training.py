@@ -350,6 +350,13 @@ def test_a_runs_off_path_rule_reaches_its_training_envs_and_is_refused_where_the
     assert board.env.off_path_rule == "cyberrunner"
     board.close()
     capsys.readouterr()
+    # bimgame score plays the protocol's rule unless asked, and says which rule the run trained under.
+    assert main(["score", str(run_dir), "--task", "LABYRINTH-EASY", "--episodes", "1", "--no-progress"]) == 0
+    assert "note: the run trained under the off-path rule cyberrunner; scored under tolerance" in " ".join(
+        capsys.readouterr().out.split())
+    assert main(["score", str(run_dir), "--task", "LABYRINTH-EASY", "--episodes", "1", "--off-path-rule",
+                 "cyberrunner", "--no-progress"]) == 0
+    assert "note:" not in capsys.readouterr().out
     assert main(["train", "--task", "STG1", "--run-dir", str(tmp_path / "m"), "--off-path-rule", "cyberrunner",
                  *CLI]) == 2
     assert "off_path_rule applies to the labyrinth's tasks only, not STG1" in capsys.readouterr().err

@@ -32,7 +32,8 @@ from bimgame.experiments.labyrinth_protocol import (
 from bimgame.experiments.protocol import MAZE_FORMS, PROTOCOL_EPISODES, MazeChoice, measure_references, score
 from bimgame.experiments.robustness import robustness_rows, write_robustness
 from bimgame.learn.common import read_run
-from bimgame.learn.runs import CONFIG
+from bimgame.learn.maze_runs import stored_off_path_rule
+from bimgame.learn.runs import CONFIG, read_run_config
 from bimgame.util.files import write_json
 
 __all__ = ["add_score_arguments", "run_score", "maze_choice", "add_robustness_arguments", "run_robustness"]
@@ -221,7 +222,21 @@ def _run_labyrinth_score(args: argparse.Namespace, console: Console) -> int:
         console.print(f"wrote {write_json(args.out, summary)}")
     if args.figure is not None:
         console.print(f"wrote {plot_episode_ends(summary, args.figure, title=f'{table.title}: where they ended')}")
+    trained = _trained_off_path_rule(args.policy)
+    if trained is not None and trained != summary["off_path_rule"]:
+        console.print(
+            f"note: the run trained under the off-path rule {trained}; scored under {summary['off_path_rule']} "
+            f"(--off-path-rule {trained} scores it under its own)"
+        )
     return 0
+
+
+def _trained_off_path_rule(policy: str) -> str | None:
+    """The off-path rule the bimgame run ``policy`` trained under, if it names one (None otherwise, and
+    for built-in policies)."""
+    path = Path(policy)
+    run_dir = path.parent if path.is_file() else path
+    return stored_off_path_rule(read_run_config(run_dir)) if (run_dir / CONFIG).is_file() else None
 
 
 def run_score(args: argparse.Namespace) -> int:
