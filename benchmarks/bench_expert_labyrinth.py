@@ -23,7 +23,12 @@ what it measured (its row says ``complete: false``).
 Usage: ``python benchmarks/bench_expert_labyrinth.py [--layouts easy medium hard] [--episodes 20]
 [-K 16 -P 1 -H 30 --sampling hold|uniform|mppi --noise-std 0.5 --temperature 0.005 --hold-min 5 --hold-max 15
 --rate-levels 5 --hole-margin 0 --path-weight 5]
-[--action-type continuous] [--workers 2] [--seed 0] [--no-progress]``.
+[--action-type continuous] [--action-noise 0] [--workers 2] [--seed 0] [--no-progress]``.
+
+``--action-noise σ`` adds Gaussian noise of standard deviation σ (in tilt-rate units, actions in
+[-1, 1]) to every action the expert takes, clipped to the action space, drawn from a generator seeded
+by the episode: the expert as the mean of a Gaussian policy sampled with σ, which measures how
+precisely a layout must be played (what a learner sampling its actions with σ can complete).
 """
 
 from __future__ import annotations
@@ -38,6 +43,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 
 from bimgame.envs.labyrinth_env import LabyrinthEnv
@@ -62,6 +68,20 @@ class Job:
     seed: int
     config: LabyrinthMPCConfig
     action_type: str
+    action_noise: float = 0.0
+
+
+class NoisyActions(gym.ActionWrapper):
+    """Every action plus Gaussian noise of standard deviation ``std``, clipped to [-1, 1] (continuous
+    tilt-rate actions), from ``rng``."""
+
+    def __init__(self, env: gym.Env, std: float, rng: np.random.Generator) -> None:
+        super().__init__(env)
+        self.std, self.rng = std, rng
+
+    def action(self, action: Any) -> np.ndarray:
+        noisy = np.asarray(action, dtype=np.float64) + self.rng.normal(0.0, self.std, 2)
+        return np.clip(noisy, -1.0, 1.0).astype(np.float32)
 
 
 def episode_seed(run_seed: int, layout: str, episode: int) -> int:
@@ -73,8 +93,9 @@ def episode_seed(run_seed: int, layout: str, episode: int) -> int:
 def run_job(job: Job) -> dict[str, Any]:
     """One expert episode and its wall-clock cost."""
     start = time.perf_counter()
-    env = LabyrinthEnv(job.layout, action_type=job.action_type)
-    expert = LabyrinthMPC.for_env(env, job.config, rng=np.random.default_rng(job.seed))
+    inner = LabyrinthEnv(job.layout, action_type=job.action_type)
+    expert = LabyrinthMPC.for_env(inner, job.config, rng=np.random.default_rng(job.seed))
+    env = NoisyActions(inner, job.action_noise, np.random.default_rng([job.seed, 2])) if job.action_noise else inner
     result = run_labyrinth_expert_episode(env, expert, seed=job.seed, max_steps=3000)
     expert.close()
     env.close()
@@ -124,13 +145,14 @@ def summarise(records: list[dict[str, Any]], n_planned: int) -> dict[str, Any]:
     }
 
 
-def row_key(layout: str, config: LabyrinthMPCConfig, action_type: str) -> str:
+def row_key(layout: str, config: LabyrinthMPCConfig, action_type: str, action_noise: float = 0.0) -> str:
     c = config
     return (
         f"{layout} K={c.n_samples} H={c.horizon} {c.sampling} hold={c.hold_min}-{c.hold_max} "
         f"levels={c.rate_levels} keep_best={c.keep_best} margin={c.hole_margin:g} path_weight={c.path_weight:g} "
         f"{action_type}{f' P={c.n_plans}' if c.n_plans != 1 else ''}"
         f"{f' std={c.noise_std:g} λ={c.temperature:g}' if c.sampling == 'mppi' else ''}"
+        f"{f' action_noise={action_noise:g}' if action_noise else ''}"
     )
 
 
@@ -167,6 +189,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--path-weight", type=float, default=defaults.path_weight)
     parser.add_argument("--no-keep-best", action="store_true", help="redraw all K sequences every decision")
     parser.add_argument("--action-type", choices=("continuous", "discrete"), default="continuous")
+    parser.add_argument(
+        "--action-noise", type=float, default=0.0, help="σ of Gaussian noise added to every action (module notes)"
+    )
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--results", type=Path, default=RESULTS)
@@ -176,6 +201,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> None:
     args = parse_args(argv)
+    if not (math.isfinite(args.action_noise) and args.action_noise >= 0):
+        raise SystemExit(f"--action-noise must be a finite number >= 0, got {args.action_noise}")
+    if args.action_noise and args.action_type != "continuous":
+        raise SystemExit("--action-noise perturbs continuous tilt rates; use --action-type continuous")
     config = LabyrinthMPCConfig(
         n_samples=args.n_samples,
         n_plans=args.n_plans,
@@ -194,7 +223,7 @@ def main(argv: list[str] | None = None) -> None:
 
     # Interleaved by episode so that every layout has some episodes early (an interrupted run still reports all).
     jobs = [
-        Job(layout, e, episode_seed(args.seed, layout, e), config, args.action_type)
+        Job(layout, e, episode_seed(args.seed, layout, e), config, args.action_type, args.action_noise)
         for e in range(args.episodes)
         for layout in args.layouts
     ]
@@ -211,6 +240,7 @@ def main(argv: list[str] | None = None) -> None:
             row = summarise(records[layout], args.episodes) | {
                 "layout": layout,
                 "action_type": args.action_type,
+                "action_noise": args.action_noise,
                 "config": dataclasses.asdict(config),
                 "seed": args.seed,
                 "workers": args.workers,
@@ -218,7 +248,7 @@ def main(argv: list[str] | None = None) -> None:
                 "cpu_count": os.cpu_count(),
                 "wall_minutes": round((time.time() - started) / 60, 1),
             }
-            save(args.results, row_key(layout, config, args.action_type), row)
+            save(args.results, row_key(layout, config, args.action_type, args.action_noise), row)
             done = {k: f"{sum(r['success'] for r in v)}/{len(v)}" for k, v in records.items() if v}
             bar.update(advance=1, info=" ".join(f"{k} {v}" for k, v in done.items()))
     for layout in args.layouts:
