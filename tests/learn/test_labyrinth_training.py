@@ -342,6 +342,10 @@ def test_a_runs_off_path_rule_reaches_its_training_envs_and_is_refused_where_the
     assert main(["train", "--algo", "ppo", "--run-dir", str(run_dir), "--resume", "--steps", "256",
                  "--no-progress"]) == 0
     assert json.loads((run_dir / "config.json").read_text())["ppo"]["off_path_rule"] == "cyberrunner"
+    capsys.readouterr()
+    assert main(["train", "--algo", "ppo", "--run-dir", str(run_dir), "--resume", "--steps", "384",
+                 "--off-path-rule", "tolerance", "--no-progress"]) == 2
+    assert "changed: off_path_rule ('cyberrunner' -> 'tolerance')" in capsys.readouterr().err
     # bimgame play opens its board under the rule the agent trained under.
     agent = AgentPlayer(run_dir, puzzle("LABYRINTH-EASY").spec, task="LABYRINTH-EASY")
     assert agent.env_options == {"off_path_rule": "cyberrunner"}
