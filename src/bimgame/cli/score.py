@@ -189,9 +189,7 @@ def _run_labyrinth_score(args: argparse.Namespace, console: Console) -> int:
     )
     how = f"{summary['mode']}, {summary['obs']}" if summary["mode"] else "built-in"
     rule = "" if summary["off_path_rule"] == "tolerance" else f", off-path rule {summary['off_path_rule']}"
-    table = Table(
-        title=f"{args.policy} ({how}) on {summary['task']}, {summary['episodes']} protocol episodes{rule}"
-    )
+    table = Table(title=f"{args.policy} ({how}) on {summary['task']}, {summary['episodes']} protocol episodes{rule}")
     vs = f"vs CyberRunner {CYBERRUNNER_RECORD_S} s / human {HUMAN_RECORD_S} s"
     for column in ("success [95% CI]", escape("median time (s) [quartiles]"), "mean return", vs):
         table.add_column(column, justify="right")
