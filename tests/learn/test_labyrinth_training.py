@@ -365,3 +365,27 @@ def test_a_runs_off_path_rule_reaches_its_training_envs_and_is_refused_where_the
                  *CLI]) == 2
     assert "off_path_rule applies to the labyrinth's tasks only, not STG1" in capsys.readouterr().err
     assert not (tmp_path / "m").exists()
+
+
+def test_a_runs_fail_reward_is_what_its_envs_pay_for_a_fall_and_is_refused_on_the_maze():
+    """``fail_reward`` (``bimgame train --fail-reward``) is the training reward of the step that ends an
+    episode in a hole or off the path; absent, the env's own (0) and no key."""
+    config = PPOConfig.from_flat(LAB, fail_reward=-1.0, action_type="continuous")
+    assert config.maze_options == {"fail_reward": -1.0}
+    envs = training_env(2, task=config.task, obs="state", time_limit=20, privileged=False,
+                        action_type="continuous", **config.maze_options)
+    assert envs.template.fail_reward == -1.0
+    envs.close()
+    env = puzzle(config.task).env(obs_mode="state", action_type="continuous", **config.maze_options)
+    env.reset(seed=0)
+    rng = np.random.default_rng(0)
+    for _ in range(3000):  # random tilting loses the marble long before the time limit
+        _, reward, terminated, _, info = env.step(rng.uniform(-1.0, 1.0, 2).astype(np.float32))
+        if terminated:
+            break
+    assert terminated and not info["is_success"] and reward == -1.0
+    env.close()
+    with pytest.raises(ValueError, match=r"PPOConfig\.fail_reward must be a finite number or None, got inf"):
+        PPOConfig.from_flat(LAB, fail_reward=float("inf"))
+    with pytest.raises(ValueError, match=r"A3CConfig\.fail_reward applies to the labyrinth's tasks only, not STG1"):
+        A3CConfig.from_flat(dict(LAB, task="STG1"), fail_reward=-1.0)

@@ -181,7 +181,7 @@ def test_a_config_json_of_the_flat_version_loads_into_the_expected_parts():
     settings_added = {**added, "maze_encoding": False, "maze_frame": "board", "gate_bearings": False,
                       "surroundings": False, "motion": False,
                       "num_mazes": None,
-                      "start_maze": 0, "off_path_rule": None}
+                      "start_maze": 0, "off_path_rule": None, "fail_reward": None}
     assert config.to_dict() == {**stored["a3c"], **settings_added}
     assert json.loads(json.dumps(network_for(config).config.to_dict())) == {**stored["net"], **added, "maze_size": 0,
                                                                        "maze_frame": "board", "state_layout": "maze"}

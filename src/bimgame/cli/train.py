@@ -58,7 +58,15 @@ TRAIN_GROUPS = (
 #: The group of each A3C setting (the network settings are all in "network").
 A3C_GROUPS: dict[str, tuple[str, ...]] = {
     "network": NetworkSettings.field_names(),
-    "environment": ("task", "max_episode_steps", "randomize", "num_mazes", "start_maze", "off_path_rule"),
+    "environment": (
+        "task",
+        "max_episode_steps",
+        "randomize",
+        "num_mazes",
+        "start_maze",
+        "off_path_rule",
+        "fail_reward",
+    ),
     "optimisation": (
         "steps",
         "workers",

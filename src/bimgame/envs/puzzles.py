@@ -86,7 +86,7 @@ LABYRINTH_OBS = {"cyberrunner": "cyberrunner_flat", "cyberrunner_flat": "cyberru
 #: The observations a learner's network reads (``NetworkSettings.obs``): the maze's, then CyberRunner's.
 NETWORK_OBS = (*OBS_MODES, "cyberrunner")
 #: The labyrinth's env arguments that :meth:`Puzzle.env` takes beside ``obs_mode`` and ``action_type``.
-LABYRINTH_ENV_EXTRAS = (*OBSERVATION_EXTRAS, "off_path_rule")
+LABYRINTH_ENV_EXTRAS = (*OBSERVATION_EXTRAS, "off_path_rule", "fail_reward")
 #: The keyword arguments a labyrinth vector env takes besides the ones every puzzle's takes: those of
 #: :class:`LabyrinthEnv` and the start curriculum's sampler.
 _LABYRINTH_OPTIONS = (frozenset(inspect.signature(LabyrinthEnv.__init__).parameters) - {"self", "layout"}) | {
@@ -180,7 +180,7 @@ class Puzzle:
         reads each board's physics state steps, such as DAgger's expert-labelled rollouts. ``obs_mode``
         ``cyberrunner`` is stepped as ``cyberrunner_flat``, as in :meth:`vector_env`. ``maze_options``:
         the circular maze's random-maze arguments (``num_mazes``, ``start_maze``), or the labyrinth's
-        ``surroundings``, ``motion`` and ``off_path_rule``."""
+        ``surroundings``, ``motion``, ``off_path_rule`` and ``fail_reward``."""
         check_obs("obs_mode", self.task, obs_mode)
         extras = {name: maze_options.pop(name) for name in LABYRINTH_ENV_EXTRAS if name in maze_options}
         if self.is_maze:
@@ -188,7 +188,7 @@ class Puzzle:
             if asked:
                 verb = "is" if len(asked) == 1 else "are"
                 raise ValueError(
-                    f"{' and '.join(asked)} {verb} the labyrinth's (its observations' extras, its off-path rule), "
+                    f"{' and '.join(asked)} {verb} the labyrinth's (its observations' extras and rules), "
                     f"not {self.task}'s"
                 )
             return BallInMazeEnv(self.task, obs_mode=obs_mode, action_type=action_type, **maze_options)

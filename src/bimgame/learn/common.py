@@ -26,13 +26,7 @@ from bimgame.learn.checkpoints import load_weights
 from bimgame.learn.cyberrunner import check_cyberrunner_network, cyberrunner_net_config
 from bimgame.learn.encoders import MAZE_FRAMES
 from bimgame.learn.evaluations import evaluate_greedy_and_sampled, evaluation_seed
-from bimgame.learn.learner_settings import (
-    MAX_STEPS,
-    FlatSettings,
-    ScheduleSettings,
-    check_at_most,
-    check_off_path_rule,
-)
+from bimgame.learn.learner_settings import MAX_STEPS, FlatSettings, ScheduleSettings, check_at_most, check_env_rules
 from bimgame.learn.maze_runs import maze_network, network_env_options
 from bimgame.learn.nets import (
     PRECISIONS,
@@ -441,11 +435,15 @@ class LearnerSettings(FlatSettings):
     run's evaluations: ``tolerance`` (no path segment near it in sight) or ``cyberrunner`` (no path point
     in its free box, CyberRunner's test: :mod:`bimgame.sim.labyrinth_box_sight`). None: the env's default,
     ``tolerance``."""
+    fail_reward: float | None = None
+    """The labyrinth only: the training reward of a step that falls into a hole or leaves the path (a
+    penalty if below 0). None: the env's, CyberRunner's 0. Evaluations during the run use it too;
+    ``bimgame score`` scores with the env's."""
 
     def __post_init__(self) -> None:
         owner = type(self).__name__
         object.__setattr__(self, "task", puzzle_task_setting(owner, self.task))
-        check_off_path_rule(owner, self.task, self.off_path_rule)
+        check_env_rules(owner, self.task, self.off_path_rule, self.fail_reward)
         check_seed(owner, self.seed)  # numpy's seed sequences take no negative seeds, torch none of 2**64
         require_int(owner, "max_episode_steps", self.max_episode_steps, 1, optional=True)
         check_at_most(owner, "max_episode_steps", self.max_episode_steps, MAX_STEPS, "1e12 environment steps")
@@ -460,9 +458,10 @@ class LearnerSettings(FlatSettings):
     def maze_options(self) -> dict[str, Any]:
         """The env arguments of the run's mazes (empty on MERL's maze alone), or on the labyrinth of its
         observation extras and off-path rule."""
-        return network_env_options(
+        options = network_env_options(
             getattr(self, "network", None), self.num_mazes, self.start_maze, off_path_rule=self.off_path_rule
         )
+        return options if self.fail_reward is None else {**options, "fail_reward": self.fail_reward}
 
     @property
     def time_limit(self) -> int:

@@ -43,6 +43,7 @@ __all__ = [
     "StartCurriculum",
     "START_CURRICULA",
     "check_choice",
+    "check_env_rules",
     "check_off_path_rule",
     "check_number",
     "check_at_most",
@@ -147,6 +148,22 @@ def check_off_path_rule(owner: str, task: str, rule: Any) -> None:
         raise ValueError(
             f"{owner}.off_path_rule applies to the labyrinth's tasks only, not {task}: the circular maze has no "
             f"printed path to leave"
+        )
+
+
+def check_env_rules(owner: str, task: str, off_path_rule: Any, fail_reward: Any) -> None:
+    """The labyrinth's env rules a learner's settings may change: ``off_path_rule``
+    (:func:`check_off_path_rule`) and ``fail_reward``, the training reward of a step that falls into a
+    hole or leaves the path (None: the env's, CyberRunner's 0; a finite number on a labyrinth task)."""
+    check_off_path_rule(owner, task, off_path_rule)
+    if fail_reward is None:
+        return
+    if not (isinstance(fail_reward, (int, float)) and not isinstance(fail_reward, bool) and math.isfinite(fail_reward)):
+        raise ValueError(f"{owner}.fail_reward must be a finite number or None, got {fail_reward!r}")
+    if puzzle(task).is_maze:
+        raise ValueError(
+            f"{owner}.fail_reward applies to the labyrinth's tasks only, not {task}: the maze's episodes "
+            f"end at its centre, not in holes"
         )
 
 
