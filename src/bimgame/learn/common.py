@@ -26,8 +26,8 @@ from bimgame.learn.checkpoints import load_weights
 from bimgame.learn.cyberrunner import check_cyberrunner_network, cyberrunner_net_config
 from bimgame.learn.encoders import MAZE_FRAMES
 from bimgame.learn.evaluations import evaluate_greedy_and_sampled, evaluation_seed
-from bimgame.learn.learner_settings import MAX_STEPS, FlatSettings, ScheduleSettings, check_at_most, check_env_rules
-from bimgame.learn.maze_runs import maze_network, network_env_options
+from bimgame.learn.learner_settings import MAX_STEPS, FlatSettings, ScheduleSettings, check_at_most
+from bimgame.learn.maze_runs import check_env_rules, maze_network, network_env_options
 from bimgame.learn.nets import (
     PRECISIONS,
     NetConfig,

@@ -29,7 +29,7 @@ from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any, ClassVar, Literal, Self, get_args
 
-from bimgame.envs.labyrinth_env import LABYRINTH_OFF_PATH_RULES, OBSERVATION_EXTRAS
+from bimgame.envs.labyrinth_env import OBSERVATION_EXTRAS
 from bimgame.envs.puzzles import check_obs, puzzle
 from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.learn.runs import CONFIG, read_run_config
@@ -43,8 +43,6 @@ __all__ = [
     "StartCurriculum",
     "START_CURRICULA",
     "check_choice",
-    "check_env_rules",
-    "check_off_path_rule",
     "check_number",
     "check_at_most",
     "ScheduleSettings",
@@ -134,37 +132,6 @@ def refuse_maze_only(owner: str, task: str, settings: Mapping[str, bool]) -> Non
     for name, on in settings.items():
         if on:
             raise ValueError(f"{owner}.{name} applies to the circular maze's tasks only, not {task}: {MAZE_ONLY[name]}")
-
-
-def check_off_path_rule(owner: str, task: str, rule: Any) -> None:
-    """Raise ``ValueError`` unless ``rule`` is None (the env's default) or one of the labyrinth's
-    off-path rules (:data:`~bimgame.envs.labyrinth_env.LABYRINTH_OFF_PATH_RULES`) on a labyrinth task:
-    the circular maze has no path to leave."""
-    if rule is None:
-        return
-    if rule not in LABYRINTH_OFF_PATH_RULES:
-        raise ValueError(f"{owner}.off_path_rule must be one of {LABYRINTH_OFF_PATH_RULES} or None, got {rule!r}")
-    if puzzle(task).is_maze:
-        raise ValueError(
-            f"{owner}.off_path_rule applies to the labyrinth's tasks only, not {task}: the circular maze has no "
-            f"printed path to leave"
-        )
-
-
-def check_env_rules(owner: str, task: str, off_path_rule: Any, fail_reward: Any) -> None:
-    """The labyrinth's env rules a learner's settings may change: ``off_path_rule``
-    (:func:`check_off_path_rule`) and ``fail_reward``, the training reward of a step that falls into a
-    hole or leaves the path (None: the env's, CyberRunner's 0; a finite number on a labyrinth task)."""
-    check_off_path_rule(owner, task, off_path_rule)
-    if fail_reward is None:
-        return
-    if not (isinstance(fail_reward, (int, float)) and not isinstance(fail_reward, bool) and math.isfinite(fail_reward)):
-        raise ValueError(f"{owner}.fail_reward must be a finite number or None, got {fail_reward!r}")
-    if puzzle(task).is_maze:
-        raise ValueError(
-            f"{owner}.fail_reward applies to the labyrinth's tasks only, not {task}: the maze's episodes "
-            f"end at its centre, not in holes"
-        )
 
 
 def check_expert_data(owner: str, expert_data: str | None, readers: Mapping[str, bool]) -> None:

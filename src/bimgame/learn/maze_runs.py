@@ -7,13 +7,22 @@ off-path rule; :func:`stored_off_path_rule` reads the rule back from a run's ``c
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any
 
-from bimgame.envs.labyrinth_env import OBSERVATION_EXTRAS
+from bimgame.envs.labyrinth_env import LABYRINTH_OFF_PATH_RULES, OBSERVATION_EXTRAS
+from bimgame.envs.puzzles import puzzle
 from bimgame.learn.learner_settings import check_puzzle
 from bimgame.util.settings import require_int
 
-__all__ = ["maze_network", "maze_options", "network_env_options", "stored_off_path_rule"]
+__all__ = [
+    "check_env_rules",
+    "check_off_path_rule",
+    "maze_network",
+    "maze_options",
+    "network_env_options",
+    "stored_off_path_rule",
+]
 
 #: The blocks of a run's ``config.json`` that hold a learner's flat settings (PPO's, A3C's, DAgger's).
 _LEARNER_BLOCKS = ("ppo", "a3c", "dagger")
@@ -48,6 +57,37 @@ def maze_network(owner: str, task: str, network: Any, *, num_mazes: int | None, 
             f"the episodes' mazes, which runs on MERL's maze alone do not observe)"
         )
     return network
+
+
+def check_off_path_rule(owner: str, task: str, rule: Any) -> None:
+    """Raise ``ValueError`` unless ``rule`` is None (the env's default) or one of the labyrinth's
+    off-path rules (:data:`~bimgame.envs.labyrinth_env.LABYRINTH_OFF_PATH_RULES`) on a labyrinth task:
+    the circular maze has no path to leave."""
+    if rule is None:
+        return
+    if rule not in LABYRINTH_OFF_PATH_RULES:
+        raise ValueError(f"{owner}.off_path_rule must be one of {LABYRINTH_OFF_PATH_RULES} or None, got {rule!r}")
+    if puzzle(task).is_maze:
+        raise ValueError(
+            f"{owner}.off_path_rule applies to the labyrinth's tasks only, not {task}: the circular maze has no "
+            f"printed path to leave"
+        )
+
+
+def check_env_rules(owner: str, task: str, off_path_rule: Any, fail_reward: Any) -> None:
+    """The labyrinth's env rules a learner's settings may change: ``off_path_rule``
+    (:func:`check_off_path_rule`) and ``fail_reward``, the training reward of a step that falls into a
+    hole or leaves the path (None: the env's, CyberRunner's 0; a finite number on a labyrinth task)."""
+    check_off_path_rule(owner, task, off_path_rule)
+    if fail_reward is None:
+        return
+    if not (isinstance(fail_reward, (int, float)) and not isinstance(fail_reward, bool) and math.isfinite(fail_reward)):
+        raise ValueError(f"{owner}.fail_reward must be a finite number or None, got {fail_reward!r}")
+    if puzzle(task).is_maze:
+        raise ValueError(
+            f"{owner}.fail_reward applies to the labyrinth's tasks only, not {task}: the maze's episodes "
+            f"end at its centre, not in holes"
+        )
 
 
 def maze_options(

@@ -11,8 +11,7 @@ from typing import Any
 from bimgame.envs.puzzles import puzzle
 from bimgame.expert.labyrinth_mpc import LabyrinthMPCConfig
 from bimgame.expert.mpc import MPCConfig
-from bimgame.learn.learner_settings import check_off_path_rule
-from bimgame.learn.maze_runs import maze_network, network_env_options
+from bimgame.learn.maze_runs import check_off_path_rule, maze_network, network_env_options
 from bimgame.learn.policy_heads import require_discrete
 from bimgame.learn.run_dir import stored_run_config
 from bimgame.learn.runs import KIND_DAGGER, read_run_settings
