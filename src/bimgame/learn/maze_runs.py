@@ -2,7 +2,8 @@
 :class:`~bimgame.learn.common.LearnerSettings`, DAgger's through its config): one place for the rules
 that tie ``num_mazes``/``start_maze`` to the task and to the network that reads the maze encoding, and
 the env arguments every env a run builds gets from them (on the labyrinth: its observation extras and
-off-path rule; :func:`stored_off_path_rule` reads the rule back from a run's ``config.json``)."""
+the env rules a run may change, checked here too — the off-path rule and the reward of a fall;
+:func:`stored_off_path_rule` reads the rule back from a run's ``config.json``)."""
 
 from __future__ import annotations
 
