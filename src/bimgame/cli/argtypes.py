@@ -16,6 +16,7 @@ __all__ = [
     "add_backend_arguments",
     "positive_int",
     "non_negative_int",
+    "finite_float",
     "positive_float",
     "non_negative_float",
     "seed",
@@ -83,6 +84,17 @@ def _number(text: str, strictly_positive: bool) -> float:
         raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
     if not (value > 0 if strictly_positive else value >= 0) or value == float("inf"):
         raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
+    return value
+
+
+def finite_float(text: str) -> float:
+    """A finite number of either sign (e.g. a reward or a penalty)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}") from None
+    if value != value or value in (float("inf"), float("-inf")):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
     return value
 
 

@@ -10,7 +10,15 @@ from types import SimpleNamespace
 from rich.console import Console
 from rich.table import Table
 
-from bimgame.cli.argtypes import check_output_file, episode_count, positive_float, seed, step_count, step_count_or_zero
+from bimgame.cli.argtypes import (
+    check_output_file,
+    episode_count,
+    finite_float,
+    positive_float,
+    seed,
+    step_count,
+    step_count_or_zero,
+)
 from bimgame.cli.flags import add_flag_groups, add_grouped_settings_flags, given_settings, plain
 from bimgame.cli.train_ppo import (
     PPO_GROUP,
@@ -110,6 +118,7 @@ _A3C_TYPES = {
     "max_episode_steps": step_count,
     "seed": seed,
     "eval_episodes": episode_count,
+    "fail_reward": finite_float,
 }
 
 
