@@ -230,11 +230,12 @@ def _run_labyrinth_score(args: argparse.Namespace, console: Console) -> int:
 
 
 def _trained_off_path_rule(policy: str) -> str | None:
-    """The off-path rule the bimgame run ``policy`` trained under, if it names one (None otherwise, and
-    for built-in policies)."""
-    path = Path(policy)
-    run_dir = path.parent if path.is_file() else path
-    return stored_off_path_rule(read_run_config(run_dir)) if (run_dir / CONFIG).is_file() else None
+    """The off-path rule the bimgame run ``policy`` (its directory or a checkpoint in it) trained under,
+    if it names one; None otherwise, and for built-in policies (no run to read)."""
+    try:
+        return stored_off_path_rule(read_run_config(policy))
+    except ValueError:
+        return None
 
 
 def run_score(args: argparse.Namespace) -> int:

@@ -228,7 +228,7 @@ def _play_network(
             seed=seed,
             greedy=not sampled,
             max_episode_steps=puzzle(task).time_limit,
-            mazes=network_env_options(run.network, off_path_rule=off_path_rule),
+            mazes=network_env_options(run.network, rules={"off_path_rule": off_path_rule}),
         )
         bar.update(advance=1)
     facts = {"obs": run.network.obs, "action_type": run.network.action_type, "step": step}

@@ -27,7 +27,7 @@ from bimgame.learn.cyberrunner import check_cyberrunner_network, cyberrunner_net
 from bimgame.learn.encoders import MAZE_FRAMES
 from bimgame.learn.evaluations import evaluate_greedy_and_sampled, evaluation_seed
 from bimgame.learn.learner_settings import MAX_STEPS, FlatSettings, ScheduleSettings, check_at_most
-from bimgame.learn.maze_runs import check_env_rules, maze_network, network_env_options
+from bimgame.learn.maze_runs import check_env_rules, maze_network, network_env_options, run_rules
 from bimgame.learn.nets import (
     PRECISIONS,
     NetConfig,
@@ -457,11 +457,8 @@ class LearnerSettings(FlatSettings):
     @property
     def maze_options(self) -> dict[str, Any]:
         """The env arguments of the run's mazes (empty on MERL's maze alone), or on the labyrinth of its
-        observation extras and off-path rule."""
-        options = network_env_options(
-            getattr(self, "network", None), self.num_mazes, self.start_maze, off_path_rule=self.off_path_rule
-        )
-        return options if self.fail_reward is None else {**options, "fail_reward": self.fail_reward}
+        observation extras and env rules (off-path rule, reward of a fall)."""
+        return network_env_options(getattr(self, "network", None), self.num_mazes, self.start_maze, run_rules(self))
 
     @property
     def time_limit(self) -> int:

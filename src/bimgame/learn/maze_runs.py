@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Mapping
 from typing import Any
 
 from bimgame.envs.labyrinth_env import LABYRINTH_OFF_PATH_RULES, OBSERVATION_EXTRAS
@@ -22,11 +23,15 @@ __all__ = [
     "maze_network",
     "maze_options",
     "network_env_options",
+    "run_rules",
     "stored_off_path_rule",
+    "LABYRINTH_RULES",
 ]
 
 #: The blocks of a run's ``config.json`` that hold a learner's flat settings (PPO's, A3C's, DAgger's).
 _LEARNER_BLOCKS = ("ppo", "a3c", "dagger")
+#: The labyrinth env's rules a run's settings may set, as fields of the same names (None: the env's own).
+LABYRINTH_RULES = ("off_path_rule", "fail_reward")
 
 
 def maze_network(owner: str, task: str, network: Any, *, num_mazes: int | None, start_maze: int) -> Any:
@@ -91,39 +96,45 @@ def check_env_rules(owner: str, task: str, off_path_rule: Any, fail_reward: Any)
         )
 
 
+def run_rules(settings: Any) -> dict[str, Any]:
+    """The :data:`LABYRINTH_RULES` a run's ``settings`` set (those not None; a settings class without
+    one of them sets none of it)."""
+    return {name: getattr(settings, name) for name in LABYRINTH_RULES if getattr(settings, name, None) is not None}
+
+
 def maze_options(
     num_mazes: int | None,
     start_maze: int,
     *,
     gate_bearings: bool = False,
     extras: tuple[str, ...] = (),
-    off_path_rule: str | None = None,
+    rules: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """The env arguments of a run's random mazes (empty on MERL's maze alone); ``gate_bearings``: the
     observations hold them (the network reads them: ``NetworkSettings.gate_bearings``). On the
     labyrinth (no mazes), ``extras``: the parts its observations add
     (:data:`~bimgame.envs.labyrinth_env.OBSERVATION_EXTRAS`: ``surroundings`` to the state, ``motion``
-    to CyberRunner's; ``NetworkSettings`` switches of the same names), and ``off_path_rule`` when one is
-    asked for (None: the env's default; absent, so that earlier runs' env arguments are unchanged)."""
+    to CyberRunner's; ``NetworkSettings`` switches of the same names), and the env ``rules`` asked for
+    (:data:`LABYRINTH_RULES`; one that is None is the env's own and left out, so that earlier runs' env
+    arguments are unchanged)."""
     if num_mazes is None:
-        rule = {} if off_path_rule is None else {"off_path_rule": off_path_rule}
-        return {**dict.fromkeys(extras, True), **rule}
+        return {**dict.fromkeys(extras, True), **{k: v for k, v in (rules or {}).items() if v is not None}}
     return {"num_mazes": num_mazes, "start_maze": start_maze, **({"gate_bearings": True} if gate_bearings else {})}
 
 
 def network_env_options(
-    network: Any, num_mazes: int | None = None, start_maze: int = 0, off_path_rule: str | None = None
+    network: Any, num_mazes: int | None = None, start_maze: int = 0, rules: Mapping[str, Any] | None = None
 ) -> dict[str, Any]:
     """The env arguments of a run on ``num_mazes`` mazes (from ``start_maze``) whose ``network`` (network
     settings, or None) reads what it reads: gate bearings on mazes, the labyrinth's surroundings or motion
-    (:func:`maze_options` with the network's own switches), and the labyrinth's ``off_path_rule`` (None:
-    the env's default). Every place that builds envs for a network asks here."""
+    (:func:`maze_options` with the network's own switches), and the labyrinth's env ``rules`` (a run's:
+    :func:`run_rules`). Every place that builds envs for a network asks here."""
     return maze_options(
         num_mazes,
         start_maze,
         gate_bearings=bool(getattr(network, "gate_bearings", False)),
         extras=tuple(name for name in OBSERVATION_EXTRAS if getattr(network, name, False)),
-        off_path_rule=off_path_rule,
+        rules=rules,
     )
 
 

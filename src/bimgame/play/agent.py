@@ -107,7 +107,7 @@ class AgentPlayer:
         self.env_obs_mode = "state" if self.maze else LABYRINTH_OBS.get(self.obs_mode, self.obs_mode)
         #: The labyrinth env's other arguments its observations need (the marble's surroundings or motion),
         #: and the off-path rule the run trained under.
-        self.env_options = network_env_options(run.network, off_path_rule=stored_off_path_rule(run.config))
+        self.env_options = network_env_options(run.network, rules={"off_path_rule": stored_off_path_rule(run.config)})
         self.max_tilt = spec.max_tilt
         self._pixels = None
         if self.maze and self.obs_mode == "pixels":

@@ -11,7 +11,7 @@ from typing import Any
 from bimgame.envs.puzzles import puzzle
 from bimgame.expert.labyrinth_mpc import LabyrinthMPCConfig
 from bimgame.expert.mpc import MPCConfig
-from bimgame.learn.maze_runs import check_off_path_rule, maze_network, network_env_options
+from bimgame.learn.maze_runs import check_off_path_rule, maze_network, network_env_options, run_rules
 from bimgame.learn.policy_heads import require_discrete
 from bimgame.learn.run_dir import stored_run_config
 from bimgame.learn.runs import KIND_DAGGER, read_run_settings
@@ -214,7 +214,7 @@ class DAggerConfig:
     def maze_options(self) -> dict[str, Any]:
         """The env arguments of the run's mazes (empty on MERL's maze alone), or on the labyrinth of its
         learner's observation extras and the off-path rule."""
-        return network_env_options(self.learner, self.num_mazes, self.start_maze, off_path_rule=self.off_path_rule)
+        return network_env_options(self.learner, self.num_mazes, self.start_maze, run_rules(self))
 
     #: What a resumed run may change.
     RESUMABLE_CHANGES = ("iterations", "eval_episodes")
