@@ -428,9 +428,18 @@ def test_cli_dagger_resume_and_evaluate(tmp_path, capsys, one_torch_thread):
     assert (config.iterations, config.episodes_per_iteration, config.epochs_per_iteration, config.beta0,
             config.beta_decay, config.eval_episodes, config.expert) == (1, 2, 2, 1.0, 1.0, 2, MPCConfig())
 
-    # --resume continues with the run's settings (a different --episodes-per-iteration is not
-    # taken) and may raise --iterations.
-    assert main(["dagger", *common, "--resume", "--iterations", "2", "--episodes-per-iteration", "5"]) == 0
+    # --resume refuses a setting that would change the run (the learner's too), naming it, and
+    # leaves the run as it was; the run's own values given again are accepted.
+    before = snapshot(run_dir, without_tensorboard=True)
+    for changed, named in ((["--episodes-per-iteration", "5"], "episodes_per_iteration"),
+                           (["--seed", "6"], "learner.seed"), (["--beta0", "0.5"], "beta0")):
+        assert main(["dagger", *common, "--resume", "--iterations", "2", *changed]) == 2
+        err = " ".join(capsys.readouterr().err.split())  # the message as one line
+        assert f"changed: {named}" in err and "Allowed to change: iterations, eval_episodes" in err, err
+    assert snapshot(run_dir, without_tensorboard=True) == before
+    # It continues with the run's settings and may raise --iterations.
+    assert main(["dagger", *common, "--resume", "--iterations", "2", "--episodes-per-iteration", "2",
+                 "--seed", "5", "--obs", "state"]) == 0
     rows = _csv_rows(run_dir / "dagger.csv")
     assert [(int(r["iteration"]), int(r["episodes"]), float(r["beta"])) for r in rows] == [(0, 2, 1.0), (1, 4, 1.0)]
     assert DAggerConfig.from_dict(json.loads((run_dir / "config.json").read_text())["dagger"]) == config

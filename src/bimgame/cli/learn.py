@@ -306,6 +306,7 @@ def add_dagger_arguments(parser: argparse.ArgumentParser) -> None:
         DAggerConfig,
         [n for n in DAGGER_FLAGS if n not in resumable],
         DAGGER_PLACEMENT,
+        default_none=True,  # --resume refuses a given setting that differs from the run's, names it
         types={"episodes_per_iteration": episode_count, "demo_start_window": non_negative_float},
         choices={"off_path_rule": LABYRINTH_OFF_PATH_RULES},
     )
@@ -349,13 +350,18 @@ def dagger_expert_from(
     return labyrinth_mpc_config_from(args)
 
 
+def given_learner_settings(args: argparse.Namespace) -> dict[str, Any]:
+    """The learner's settings given on the command line (DAgger's network flags that are not None)."""
+    return {name: getattr(args, name) for name in DAGGER_LEARNER_FLAGS if getattr(args, name) is not None}
+
+
 def dagger_learner_from(args: argparse.Namespace) -> PretrainConfig:
     """DAgger's learner of the flags given: those not given take their defaults for the observations
     (128 units for state, 256 for pixels) on task STG1 unless ``--task`` says otherwise, with no
     asymmetric critic and auxiliary heads only when asked for (``--aux-heads``: the labyrinth's
     rollouts record the states they learn from); an ``--action-type`` not given is
     ``--expert-data``'s, else discrete."""
-    values = {name: getattr(args, name) for name in DAGGER_LEARNER_FLAGS if getattr(args, name) is not None}
+    values = given_learner_settings(args)
     if args.expert_data is not None:
         values = _with_dataset_action_type(values, args.expert_data)
     values = {"task": DAggerConfig().learner.task, "aux_heads": False, **values}
@@ -368,7 +374,9 @@ def run_dagger(args: argparse.Namespace) -> int:
     expert = dagger_expert_from(args, learner, given)
     if expert is not None:
         given["expert"] = expert
-    config = resolve_dagger_config(learner, given, args.run_dir, resume=args.resume)
+    config = resolve_dagger_config(
+        learner, given, args.run_dir, resume=args.resume, learner_given=given_learner_settings(args)
+    )
     print(
         f"DAgger on {config.learner.task} ({config.learner.obs}): {config.iterations} iterations x "
         f"{config.episodes_per_iteration} episodes -> {args.run_dir}",

@@ -239,6 +239,10 @@ class DAggerConfig:
         """Refuse to resume a run stored with ``stored`` under these settings if they differ in more
         than :attr:`RESUMABLE_CHANGES`, naming the changed settings."""
         changed = [name for name in self.FIXED_ON_RESUME if getattr(stored, name) != getattr(self, name)]
+        if "learner" in changed:  # name the learner's own settings that changed
+            before, after = dataclasses.asdict(stored.learner), dataclasses.asdict(self.learner)
+            changed.remove("learner")
+            changed += [f"learner.{name}" for name in after if after[name] != before[name]]
         if changed:
             raise ValueError(
                 f"--resume must keep the run's settings; changed: {', '.join(changed)}. "
@@ -277,14 +281,23 @@ class DAggerConfig:
 
 
 def resolve_dagger_config(
-    learner: PretrainConfig, given: dict[str, Any], run_dir: str | Path, *, resume: bool
+    learner: PretrainConfig,
+    given: dict[str, Any],
+    run_dir: str | Path,
+    *,
+    resume: bool,
+    learner_given: dict[str, Any] | None = None,
 ) -> DAggerConfig:
-    """A run's DAgger settings: ``learner`` and ``given`` (DAggerConfig fields) for a new run; a resumed
-    run keeps its stored settings except those it may change (:attr:`DAggerConfig.RESUMABLE_CHANGES`)."""
+    """A run's DAgger settings: ``learner`` and ``given`` (the DAggerConfig fields a user gave) for a new
+    run. A resumed run's are its stored settings overridden by ``given`` and, in its learner, by
+    ``learner_given`` (the learner's fields a user gave): a setting given with the run's own value is
+    accepted, one that changes anything but :attr:`DAggerConfig.RESUMABLE_CHANGES` is refused, named."""
     if not resume:
         return DAggerConfig(learner=learner, **given)
     stored = _stored_config(run_dir)
-    return dataclasses.replace(stored, **{k: v for k, v in given.items() if k in DAggerConfig.RESUMABLE_CHANGES})
+    if learner_given:
+        given = {**given, "learner": dataclasses.replace(stored.learner, **learner_given)}
+    return dataclasses.replace(stored, **given)  # dagger() refuses it if it changes a fixed setting
 
 
 def _stored_config(run_dir: str | Path) -> DAggerConfig:
