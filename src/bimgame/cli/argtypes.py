@@ -4,7 +4,9 @@ names the value and what is allowed, and the flags several verbs share (``--task
 from __future__ import annotations
 
 import argparse
+import math
 import re
+from collections.abc import Callable
 from pathlib import Path
 
 from bimgame.expert.pool import BACKENDS
@@ -76,36 +78,30 @@ def episode_count_or_zero(text: str) -> int:
     return _integer(text, 0, f"an integer from 0 to {MAX_EPISODES}", MAX_EPISODES)
 
 
-def _number(text: str, strictly_positive: bool) -> float:
-    what = "a positive finite number" if strictly_positive else "a finite number >= 0"
+def _number(text: str, what: str, accepts: Callable[[float], bool]) -> float:
+    """``text`` as a finite number that ``accepts`` takes; otherwise an error saying ``what`` is expected."""
     try:
         value = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
-    if not (value > 0 if strictly_positive else value >= 0) or value == float("inf"):
+    if not (math.isfinite(value) and accepts(value)):
         raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
     return value
 
 
 def finite_float(text: str) -> float:
     """A finite number of either sign (e.g. a reward or a penalty)."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}") from None
-    if value != value or value in (float("inf"), float("-inf")):
-        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
-    return value
+    return _number(text, "a finite number", lambda value: True)
 
 
 def positive_float(text: str) -> float:
     """A finite number > 0."""
-    return _number(text, strictly_positive=True)
+    return _number(text, "a positive finite number", lambda value: value > 0)
 
 
 def non_negative_float(text: str) -> float:
     """A finite number >= 0."""
-    return _number(text, strictly_positive=False)
+    return _number(text, "a finite number >= 0", lambda value: value >= 0)
 
 
 def add_task_argument(parser: argparse.ArgumentParser, default: str | None, help: str | None = None) -> None:

@@ -97,9 +97,9 @@ def check_env_rules(owner: str, task: str, off_path_rule: Any, fail_reward: Any)
 
 
 def run_rules(settings: Any) -> dict[str, Any]:
-    """The :data:`LABYRINTH_RULES` a run's ``settings`` set (those not None; a settings class without
-    one of them sets none of it)."""
-    return {name: getattr(settings, name) for name in LABYRINTH_RULES if getattr(settings, name, None) is not None}
+    """The :data:`LABYRINTH_RULES` of a run's ``settings`` (None for one its class lacks: the env's own,
+    which :func:`maze_options` leaves out)."""
+    return {name: getattr(settings, name, None) for name in LABYRINTH_RULES}
 
 
 def maze_options(
