@@ -28,7 +28,7 @@ import torch
 
 from bimgame.learn.finetune import Teacher
 from bimgame.learn.learner_settings import policy_network
-from bimgame.learn.nets import RecurrentActorCritic
+from bimgame.learn.nets import LSTMState, RecurrentActorCritic
 from bimgame.learn.ppo.collectors import CollectorProcesses, rank_seeds, rollout_collector
 from bimgame.learn.ppo.settings import PPOConfig
 from bimgame.learn.ppo.update import GradientAverage, KLTarget, ppo_update
@@ -50,7 +50,9 @@ class RankLearner:
     trains on another device (``optimizer`` holds its weights), copied back to ``net`` after every
     update — None: ``net`` itself learns. ``on_episode`` receives each episode its environments
     finish; ``global_step`` reads the run's step count (the same on every rank); ``average`` averages
-    the gradients over the ranks (None: one rank)."""
+    the gradients over the ranks (None: one rank). ``teacher``: the KL's teacher's weights, set at the
+    run's step ``taught_since`` (π^s at 0; with ``kl_teacher_refresh_steps``, the policy at the last
+    refresh)."""
 
     def __init__(
         self,
@@ -64,6 +66,7 @@ class RankLearner:
         global_step: Callable[[], int],
         average: GradientAverage | None = None,
         teacher: dict[str, torch.Tensor] | None = None,
+        taught_since: int = 0,
         learning: RecurrentActorCritic | None = None,
         env_wrapper: EnvWrapper | None = None,
     ):
@@ -89,6 +92,7 @@ class RankLearner:
         self._ahead = 0  # steps the collector is ahead of the run's count (one rollout while collecting ahead)
         self.device = next(self.learning.parameters()).device
         self.teacher = _teacher(config, teacher)
+        self.taught_since = taught_since
         self.batches = torch.Generator().manual_seed(rank_seeds(config.seed, step, rank)[2])
         self.collector: RolloutCollector | CollectorProcesses
         if config.collectors:
@@ -197,7 +201,26 @@ class RankLearner:
         if weight <= 0 and finetuning.kl_decay_steps > 0:
             self.teacher = None  # annealed away: it costs nothing from now on
             return None
+        if finetuning.refreshes_teacher(self.taught_since, step):
+            self._refresh_teacher(segment, step)
         return KLTarget(self.teacher.follow(segment), weight, finetuning.kl_means_only)
+
+    def _refresh_teacher(self, segment: Segment, step: int) -> None:
+        """The teacher becomes the policy as it is before this update (the learning copy's weights, the
+        same on every rank), following the segment's environments from the acting network's LSTM state
+        at its start: with no policy lag, the very network that collected the segment."""
+        assert isinstance(self.teacher, Teacher)  # a state teacher is never refreshed (PPOFinetuneSettings)
+        self.teacher.net.load_state_dict({k: v.detach().to("cpu") for k, v in self.learning.state_dict().items()})
+        self.teacher.state = LSTMState(*(part.detach().clone() for part in segment.initial_state))
+        self.taught_since = step
+
+    def teacher_weights(self) -> tuple[dict[str, torch.Tensor], int] | None:
+        """The KL's teacher's weights and the step they were set at, for a checkpoint of a run whose
+        teacher moves (``kl_teacher_refresh_steps``); None otherwise (its teacher is ``teacher.pt``)."""
+        finetuning = self.config.finetuning
+        if not isinstance(self.teacher, Teacher) or finetuning is None or not finetuning.kl_teacher_refresh_steps:
+            return None
+        return {k: v.detach().clone() for k, v in self.teacher.net.state_dict().items()}, self.taught_since
 
 
 def _teacher(config: PPOConfig, weights: dict[str, torch.Tensor] | None) -> Teacher | StateTeacher | None:

@@ -70,7 +70,9 @@ class _WorkerStart:
     model: dict[str, torch.Tensor]
     optimizer: dict[str, Any]
     teacher: dict[str, torch.Tensor] | None = None
-    """π^s's weights, for a KL term."""
+    """The KL term's teacher's weights (π^s's, or the policy's at its last refresh)."""
+    taught_since: int = 0
+    """The run's step the teacher was set at."""
     env_wrapper: EnvWrapper | None = None
     """The reward shaping every rank's environments are stepped through (picklable)."""
 
@@ -101,6 +103,7 @@ def _worker_main(start: _WorkerStart, commands: Any, messages: Any) -> None:
             global_step=lambda: step,
             average=GradientAverage(config.schedule.workers),
             teacher=start.teacher,
+            taught_since=start.taught_since,
             env_wrapper=start.env_wrapper,
         )
         while True:
@@ -146,10 +149,11 @@ class WorkerGroup:
         optimizer: torch.optim.Optimizer,
         step: int,
         teacher: dict[str, torch.Tensor] | None = None,
+        taught_since: int = 0,
         env_wrapper: EnvWrapper | None = None,
     ) -> Iterator[WorkerGroup]:
         """Start the workers from ``net``'s weights and ``optimizer``'s statistics at ``step`` (with
-        π^s's ``teacher`` weights for a KL term and the run's reward shaping ``env_wrapper``), join
+        the KL term's ``teacher`` weights, set at step ``taught_since``, and the run's reward shaping ``env_wrapper``), join
         them in a process group; on leaving, end them and the group."""
         if dist.is_initialized():
             raise RuntimeError(
@@ -168,6 +172,7 @@ class WorkerGroup:
                     model,
                     optimizer.state_dict(),
                     teacher,
+                    taught_since,
                     env_wrapper,
                 )
                 process = self.context.Process(

@@ -162,6 +162,14 @@ class PPOFinetuneSettings:
     KL pulls towards instead of π^s: kickstarting from a privileged teacher, which reads the state the
     envs record (:class:`~bimgame.learn.teachers.StateTeacher`) while the learner observes pixels or
     CyberRunner's observation. None: π^s, the network the run started from."""
+    kl_teacher_refresh_steps: int = 0
+    """Every this many steps the KL's teacher becomes the policy as it is then (its weights copied, its
+    LSTM state the acting network's at the rollout's start): kickstarting towards the policy's own
+    recent past instead of π^s, a trust region of ``refresh`` steps. 0: π^s stays the teacher. Why: on
+    the hard labyrinth a KL to the policy's start stops forgetting but holds the policy at π^s's level;
+    moving the teacher to the policy itself after 1M steps carried it further (measured in
+    ``docs/guide/labyrinth-experiments.md``). The teacher is saved with each checkpoint, so a resumed
+    run continues with the same teacher."""
     critic_warmup_steps: int = 0
     """Steps at the run's start in which only the critic learns (the value head, and an asymmetric
     critic's state reader): the policy acts as it was loaded while the value fits its returns, so
@@ -182,6 +190,13 @@ class PPOFinetuneSettings:
         if self.kl_teacher is not None and self.kl_coef == 0:
             raise ValueError(f"{owner}.kl_teacher is the KL term's teacher: give kl_coef > 0 with it, got kl_coef 0")
         require_int(owner, "kl_decay_steps", self.kl_decay_steps, 0)
+        require_int(owner, "kl_teacher_refresh_steps", self.kl_teacher_refresh_steps, 0)
+        if self.kl_teacher_refresh_steps and (self.kl_coef == 0 or self.kl_teacher is not None):
+            raise ValueError(
+                f"{owner}.kl_teacher_refresh_steps moves the KL's teacher π^s to the policy itself: give "
+                f"kl_coef > 0 and no kl_teacher (a state teacher observes otherwise), got kl_coef "
+                f"{self.kl_coef!r}, kl_teacher {self.kl_teacher!r}"
+            )
         require_int(owner, "critic_warmup_steps", self.critic_warmup_steps, 0)
         check_number(owner, "kl_temperature", self.kl_temperature, 0.0, math.inf, low_open=True)
 
@@ -191,6 +206,13 @@ class PPOFinetuneSettings:
         if self.kl_decay_steps <= 0:
             return self.kl_coef
         return self.kl_coef * max(0.0, 1.0 - step / self.kl_decay_steps)
+
+    def refreshes_teacher(self, taught_since: int, step: int) -> bool:
+        """Whether the update of the rollout at the run's ``step`` first moves the teacher (to the policy
+        as it is then), the teacher having been set at step ``taught_since``: a multiple of
+        ``kl_teacher_refresh_steps`` lies in (taught_since, step]."""
+        every = self.kl_teacher_refresh_steps
+        return every > 0 and step // every > taught_since // every
 
     def critic_only(self, step: int) -> bool:
         """Whether the update of the rollout at the run's ``step`` trains the critic alone."""

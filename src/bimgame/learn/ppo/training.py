@@ -154,11 +154,13 @@ def learning_copy(
 
 @dataclasses.dataclass(frozen=True)
 class _Start:
-    """Where a session starts: the run's step and seconds so far, and π^s's weights for a KL term."""
+    """Where a session starts: the run's step and seconds so far, and the KL term's teacher (π^s, or
+    with ``kl_teacher_refresh_steps`` the policy at its last refresh) with the step it was set at."""
 
     step: int
     seconds: float
     teacher: dict[str, torch.Tensor] | None = None
+    taught_since: int = 0
 
 
 def _started(
@@ -194,14 +196,19 @@ def _started(
 def _resumed(
     config: PPOConfig, run: RunDirectory, net: RecurrentActorCritic, optimizer: torch.optim.Optimizer
 ) -> _Start:
-    """A resumed run: its checkpoint's weights, Adam's statistics and its π^s; refuses other settings."""
+    """A resumed run: its checkpoint's weights, Adam's statistics and its teacher (the checkpoint's when
+    the teacher moves, else π^s's ``teacher.pt``); refuses other settings."""
     config.check_resumable_from(PPOConfig.from_dict((run.config or {}).get("ppo", {})))
     payload = load_checkpoint(run / CHECKPOINT)
     apply_weights(net, payload, run / CHECKPOINT)
     if payload.get("optimizer") is not None:
         optimizer.load_state_dict(payload["optimizer"])
-    teacher = load_checkpoint(run / TEACHER)["model"] if config.keeps_pi_s else None
-    return _Start(int(payload["step"]), float(payload.get("seconds", 0.0)), teacher)
+    step, seconds = int(payload["step"]), float(payload.get("seconds", 0.0))
+    if not config.keeps_pi_s:
+        return _Start(step, seconds)
+    if payload.get("teacher") is not None:  # a teacher that moves: the one the checkpoint's step had
+        return _Start(step, seconds, payload["teacher"], int(payload["taught_since"]))
+    return _Start(step, seconds, load_checkpoint(run / TEACHER)["model"])
 
 
 class _Session:
@@ -219,7 +226,8 @@ class _Session:
     ):
         self.config, self.directory, self.net, self.optimizer = config, run, net, optimizer
         step = self.step = self.checkpoint_step = self.eval_step = self.log_step = start.step
-        self.teacher, self.learning, self.env_wrapper = start.teacher, learning, env_wrapper
+        self.start, self.learning, self.env_wrapper = start, learning, env_wrapper
+        self.learner: RankLearner | None = None
         self.started = time.monotonic() - start.seconds  # seconds count the whole run, across resumes
         fresh = step == 0 and not run.resume
         # An update's row is logged before its step's checkpoint: a resumed run keeps it.
@@ -275,12 +283,14 @@ class _Session:
         group = WorkerGroup(config) if config.schedule.workers > 1 else None
         with (
             sigterm_as_interrupt(),
-            group.start(self.net, self.optimizer, self.step, self.teacher, self.env_wrapper)
+            group.start(
+                self.net, self.optimizer, self.step, self.start.teacher, self.start.taught_since, self.env_wrapper
+            )
             if group is not None
             else nullcontext(),
             ProgressBar(title, config.schedule.steps, completed=self.step, enabled=progress, eta=True) as bar,
         ):
-            learner = RankLearner(
+            learner = self.learner = RankLearner(
                 config,
                 self.net,
                 self.optimizer,
@@ -289,7 +299,8 @@ class _Session:
                 on_episode=self._book,
                 global_step=lambda: self.step,
                 average=group.average if group is not None else None,
-                teacher=self.teacher,
+                teacher=self.start.teacher,
+                taught_since=self.start.taught_since,
                 learning=self.learning,
                 env_wrapper=self.env_wrapper,
             )
@@ -334,6 +345,8 @@ class _Session:
         return evaluation
 
     def _checkpoint(self) -> None:
+        taught = None if self.learner is None else self.learner.teacher_weights()
+        moving_teacher = {} if taught is None else {"teacher": taught[0], "taught_since": taught[1]}
         save_checkpoint(
             self.directory / CHECKPOINT,
             model=self.net.state_dict(),
@@ -341,5 +354,6 @@ class _Session:
             step=self.step,
             seconds=time.monotonic() - self.started,
             config=json.dumps(self.config.to_dict()),
+            **moving_teacher,
         )
         self.checkpoint_step = self.step
