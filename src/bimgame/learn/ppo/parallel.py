@@ -153,8 +153,8 @@ class WorkerGroup:
         env_wrapper: EnvWrapper | None = None,
     ) -> Iterator[WorkerGroup]:
         """Start the workers from ``net``'s weights and ``optimizer``'s statistics at ``step`` (with
-        the KL term's ``teacher`` weights, set at step ``taught_since``, and the run's reward shaping ``env_wrapper``), join
-        them in a process group; on leaving, end them and the group."""
+        the KL term's ``teacher`` weights, set at step ``taught_since``, and the run's reward shaping
+        ``env_wrapper``), join them in a process group; on leaving, end them and the group."""
         if dist.is_initialized():
             raise RuntimeError(
                 "PPO with workers > 1 makes its own torch.distributed process group; this process has one "
