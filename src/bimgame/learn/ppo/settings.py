@@ -165,9 +165,9 @@ class PPOFinetuneSettings:
     kl_teacher_refresh_steps: int = 0
     """Every this many steps the KL's teacher becomes the policy as it is then (its weights copied, its
     LSTM state the acting network's at the rollout's start): kickstarting towards the policy's own
-    recent past instead of π^s, a trust region of ``refresh`` steps. 0: π^s stays the teacher. Why: on
-    the hard labyrinth a KL to the policy's start stops forgetting but holds the policy at π^s's level;
-    moving the teacher to the policy itself after 1M steps carried it further (measured in
+    recent past instead of π^s, a trust region this many steps wide. 0: π^s stays the teacher. Why: on
+    the hard labyrinth a KL to the policy's start stops forgetting but holds the policy near π^s's
+    level; a teacher moved to the policy itself every 1M or 250k steps carried it farther (measured in
     ``docs/guide/labyrinth-experiments.md``). The teacher is saved with each checkpoint, so a resumed
     run continues with the same teacher."""
     critic_warmup_steps: int = 0
