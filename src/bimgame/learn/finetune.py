@@ -129,6 +129,12 @@ class Teacher:
             param.requires_grad_(False)
         self.state: LSTMState = net.initial_state(batch)
 
+    def become(self, weights: dict[str, torch.Tensor], state: LSTMState) -> None:
+        """The teacher becomes the policy of ``weights`` (on any device; copied), following its episodes
+        from ``state`` on (the LSTM states are never changed in place, so it is not copied)."""
+        self.net.load_state_dict(weights)
+        self.state = state
+
     @torch.no_grad()
     def follow(self, segment: Segment) -> torch.Tensor:
         """The teacher's π over a segment's T acting steps (the segment holds T+1 observations, the

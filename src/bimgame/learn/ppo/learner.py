@@ -23,12 +23,13 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor, wait
+from typing import Any
 
 import torch
 
 from bimgame.learn.finetune import Teacher
 from bimgame.learn.learner_settings import policy_network
-from bimgame.learn.nets import LSTMState, RecurrentActorCritic
+from bimgame.learn.nets import RecurrentActorCritic
 from bimgame.learn.ppo.collectors import CollectorProcesses, rank_seeds, rollout_collector
 from bimgame.learn.ppo.settings import PPOConfig
 from bimgame.learn.ppo.update import GradientAverage, KLTarget, ppo_update
@@ -210,17 +211,17 @@ class RankLearner:
         same on every rank), following the segment's environments from the acting network's LSTM state
         at its start: with no policy lag, the very network that collected the segment."""
         assert isinstance(self.teacher, Teacher)  # a state teacher is never refreshed (PPOFinetuneSettings)
-        self.teacher.net.load_state_dict({k: v.detach().to("cpu") for k, v in self.learning.state_dict().items()})
-        self.teacher.state = LSTMState(*(part.detach().clone() for part in segment.initial_state))
+        self.teacher.become(self.learning.state_dict(), segment.initial_state)
         self.taught_since = step
 
-    def teacher_weights(self) -> tuple[dict[str, torch.Tensor], int] | None:
-        """The KL's teacher's weights and the step they were set at, for a checkpoint of a run whose
-        teacher moves (``kl_teacher_refresh_steps``); None otherwise (its teacher is ``teacher.pt``)."""
+    def moving_teacher(self) -> dict[str, Any]:
+        """What a checkpoint of a run whose teacher moves (``kl_teacher_refresh_steps``) adds: the
+        teacher's weights and the step they were set at (``teacher``, ``taught_since``); empty otherwise
+        (its teacher is ``teacher.pt``)."""
         finetuning = self.config.finetuning
         if not isinstance(self.teacher, Teacher) or finetuning is None or not finetuning.kl_teacher_refresh_steps:
-            return None
-        return {k: v.detach().clone() for k, v in self.teacher.net.state_dict().items()}, self.taught_since
+            return {}
+        return {"teacher": self.teacher.net.state_dict(), "taught_since": self.taught_since}
 
 
 def _teacher(config: PPOConfig, weights: dict[str, torch.Tensor] | None) -> Teacher | StateTeacher | None:

@@ -345,8 +345,7 @@ class _Session:
         return evaluation
 
     def _checkpoint(self) -> None:
-        taught = None if self.learner is None else self.learner.teacher_weights()
-        moving_teacher = {} if taught is None else {"teacher": taught[0], "taught_since": taught[1]}
+        moving_teacher = {} if self.learner is None else self.learner.moving_teacher()
         save_checkpoint(
             self.directory / CHECKPOINT,
             model=self.net.state_dict(),
