@@ -60,3 +60,44 @@ def test_the_teacher_becomes_the_policy_of_the_refresh_step_and_a_resumed_run_ke
         torch.testing.assert_close(weights, pi_s[name], rtol=0, atol=0)
     # Without refreshes the checkpoint holds no teacher of its own.
     assert "teacher" not in load_checkpoint(tmp_path / "upto128" / "checkpoint.pt")
+
+
+TWO_RANKS_ONE_STEP = dict(
+    task="STG1",
+    obs="state",
+    hidden=16,
+    features=16,
+    workers=2,
+    envs_per_worker=2,
+    n_steps=32,
+    sequence_length=32,
+    minibatches=1,
+    epochs=1,
+    eval_every=0,
+    eval_episodes=2,
+    log_every=64,
+    max_episode_steps=10,
+    action_type="continuous",
+)
+
+
+def test_every_rank_moves_its_teacher(tmp_path):
+    """Two ranks, one gradient step per rollout, the teacher moved at every rollout: if every rank's
+    teacher is the policy before the update, the KL to the means is exactly 0 with a zero gradient, and
+    the run is bit for bit the run without a KL term. One rank still holding an older teacher adds its
+    KL gradient to the average and the weights differ (as the run whose teacher stays π^s shows)."""
+    train_ppo(PPOConfig.from_flat(TWO_RANKS_ONE_STEP, workers=1, steps=64), tmp_path / "pi_s", progress=False)
+    arms = {
+        "free": dict(kl_coef=0.0),
+        "moving": dict(kl_coef=0.5, kl_means_only=True, kl_teacher_refresh_steps=128),
+        "kept": dict(kl_coef=0.5, kl_means_only=True),
+    }
+    weights = {}
+    for name, extra in arms.items():
+        config = PPOConfig.from_flat(TWO_RANKS_ONE_STEP, steps=512, **extra)
+        assert config.steps_per_rollout == 128
+        train_ppo(config, tmp_path / name, init=tmp_path / "pi_s", progress=False)
+        weights[name] = load_checkpoint(tmp_path / name / "checkpoint.pt")["model"]
+    for key, free in weights["free"].items():
+        torch.testing.assert_close(weights["moving"][key], free, rtol=0, atol=0)
+    assert any(not torch.equal(weights["kept"][key], free) for key, free in weights["free"].items())
