@@ -1,8 +1,8 @@
 """Learning CyberRunner's labyrinth: PPO with CyberRunner's continuous actions, trained from the
 layout's start (``none``), with the start curriculum along the printed path (``reverse``,
 :class:`~bimgame.learn.path_starts.PathStartCurriculum`) and from the expert's states (``demo``,
-:class:`~bimgame.learn.path_starts.DemoPathStarts`, with ``--expert-data``), the same step budget for
-each, several seeds.
+:class:`~bimgame.learn.path_starts.DemoPathStarts`, with ``--expert-data``) or from all of them at once
+(``demo-uniform``), the same step budget for each, several seeds.
 
 Each run's final network is scored from the layout's own start, greedily and sampling, on
 ``--episodes`` episodes with the labyrinth's scoring protocol
@@ -45,6 +45,7 @@ from bimgame.experiments.run_progress import completed_with_progress, training_p
 from bimgame.experiments.statistics import mean_interval
 from bimgame.learn.checkpoints import load_checkpoint
 from bimgame.learn.common import read_run
+from bimgame.learn.learner_settings import DEMONSTRATION_STARTS
 from bimgame.learn.ppo import PPOConfig, train_ppo
 from bimgame.learn.runs import CHECKPOINT, torch_threads
 from bimgame.util.files import atomic_write_bytes, read_json
@@ -52,7 +53,7 @@ from bimgame.util.images import save_png, subplots
 from bimgame.util.processes import exit_when_parent_dies
 
 ROOT = Path(__file__).resolve().parents[1]
-CURRICULA = ("reverse", "none", "demo")
+CURRICULA = ("reverse", "none", "demo", "demo-uniform")
 MODES = ("greedy", "sampled")
 #: Evaluation seed of the scores (the same start noise for every run).
 SCORE_SEED = 12345
@@ -88,7 +89,7 @@ def _train(
             eval_every=0,
             eval_episodes=20,
             start_curriculum=curriculum,
-            **({"expert_data": str(expert_data)} if curriculum == "demo" else {}),
+            **({"expert_data": str(expert_data)} if curriculum in DEMONSTRATION_STARTS else {}),
             **settings,
         )
     )
@@ -204,7 +205,7 @@ def _plot(results: dict[str, Any], path: Path, title: str) -> Path:
     fig, axes = subplots(1, columns, figsize=(5.5 * columns, 4), layout="constrained")
     success_axis, return_axis = axes[0], axes[1]
     reach_axis = axes[2] if with_reach else None
-    colours = {"reverse": "tab:blue", "none": "tab:gray", "demo": "tab:green"}
+    colours = {"reverse": "tab:blue", "none": "tab:gray", "demo": "tab:green", "demo-uniform": "tab:olive"}
     for curriculum, entry in results["curricula"].items():
         for k, curve in enumerate(entry["curves"]):
             label = curriculum if k == 0 else None
@@ -255,8 +256,10 @@ def main(argv: list[str] | None = None) -> int:
         "the run's seed), instead of π^s; give kl_coef with --set",
     )
     args = parser.parse_args(argv)
-    if "demo" in args.curricula and args.expert_data is None:
-        parser.error("--curricula demo needs --expert-data (the layout's expert dataset: bimgame generate)")
+    if set(DEMONSTRATION_STARTS) & set(args.curricula) and args.expert_data is None:
+        parser.error(
+            "--curricula demo and demo-uniform need --expert-data (the layout's expert dataset: bimgame generate)"
+        )
     if args.expert_data is not None:
         args.expert_data = args.expert_data.absolute()
     context = {"task": f"LABYRINTH-{args.layout.upper()}", "obs": args.obs, "action_type": "continuous"}

@@ -81,9 +81,13 @@ def test_true_share_and_the_same_seed_gives_the_same_starts():
 
 def test_settings_are_refused_by_name():
     spec = LabyrinthSpec.layout("easy")
-    for name, value, allowed in [("first_back", 0.0, r"\(0, "), ("growth", 1.0, r"\(1, 100\]"),
-                                 ("threshold", 1.5, r"\(0, 1\]"), ("true_share", -0.1, r"\[0, 1\]"),
-                                 ("spacing", math.nan, r"\(0, ")]:
+    for name, value, allowed in [
+        ("first_back", 0.0, r"\(0, "),
+        ("growth", 1.0, r"\(1, 100\]"),
+        ("threshold", 1.5, r"\(0, 1\]"),
+        ("true_share", -0.1, r"\[0, 1\]"),
+        ("spacing", math.nan, r"\(0, "),
+    ]:
         with pytest.raises(ValueError, match=rf"PathStartCurriculum\.{name} must be a number in {allowed}"):
             PathStartCurriculum(spec, **{name: value})
     with pytest.raises(ValueError, match=r"PathStartCurriculum\.window must be an integer >= 1, got 0"):
@@ -137,10 +141,39 @@ def test_ppo_trains_with_it_on_the_labyrinth_and_logs_its_stage(tmp_path):
     from bimgame.cli.main import main
 
     run_dir = tmp_path / "run"
-    assert main(["train", "--algo", "ppo", "--task", "LABYRINTH-EASY", "--obs", "state", "--action-type",
-                 "continuous", "--start-curriculum", "reverse", "--curriculum-threshold", "0.5", "--steps", "4096",
-                 "--n-steps", "64", "--envs-per-worker", "8", "--log-every", "512", "--eval-episodes", "1",
-                 "--run-dir", str(run_dir), "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "train",
+                "--algo",
+                "ppo",
+                "--task",
+                "LABYRINTH-EASY",
+                "--obs",
+                "state",
+                "--action-type",
+                "continuous",
+                "--start-curriculum",
+                "reverse",
+                "--curriculum-threshold",
+                "0.5",
+                "--steps",
+                "4096",
+                "--n-steps",
+                "64",
+                "--envs-per-worker",
+                "8",
+                "--log-every",
+                "512",
+                "--eval-episodes",
+                "1",
+                "--run-dir",
+                str(run_dir),
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     with open(run_dir / "episodes.csv", newline="") as handle:
         episodes = list(csv.DictReader(handle))
     curriculum = [row for row in episodes if row["true_start"] == "False"]
@@ -211,6 +244,33 @@ def test_demonstration_starts_refuse_what_they_cannot_use(easy_expert_episode, t
         DemoPathStarts.from_dataset(easy_expert_episode, "LABYRINTH-HARD")
 
 
+def _drawn_path_fractions(curriculum: DemoPathStarts, draws: int) -> np.ndarray:
+    """How far along the path the demonstration starts of ``draws`` resets lie (true starts left out)."""
+    rng = np.random.default_rng(0)
+    fractions = []
+    for _ in range(draws):
+        state, tag = curriculum(0, rng)
+        if tag != TRUE_START:
+            fractions.append(curriculum.path_fractions[np.flatnonzero((curriculum.states == state).all(axis=1))[0]])
+    return np.array(fractions)
+
+
+def test_uniform_demonstration_starts_cover_the_whole_path_from_the_first_episode(easy_expert_episode):
+    """``demo-uniform``: from the first reset the starts spread over the whole demonstration, about
+    evenly; ``demo`` starts within its first 10 cm of path before the goal."""
+    uniform = start_curriculum("LABYRINTH-EASY", CurriculumSettings("demo-uniform"), easy_expert_episode)
+    demo = start_curriculum("LABYRINTH-EASY", CurriculumSettings("demo"), easy_expert_episode)
+    spread = _drawn_path_fractions(uniform, 400)
+    assert 300 < len(spread) < 400  # ≈ 10% true starts
+    assert spread.min() < 0.1 and spread.max() > 0.9
+    assert 0.35 < np.mean(spread < 0.5) < 0.65  # the marble's slow and fast parts are not far from even
+    near_goal = _drawn_path_fractions(demo, 100)
+    length = LabyrinthSpec.layout("easy").path.length
+    assert near_goal.min() >= 1 - 0.10 / length - 1e-9
+    reach = uniform.status()["curriculum_start_distance"]  # the farthest state: the demonstration's first
+    assert reach == uniform.back_of.max() and reach > 0.99 * length
+
+
 def test_learners_start_from_the_experts_dataset_on_the_labyrinth(easy_expert_episode, tmp_path):
     task, demonstrations = load_labyrinth_demonstrations(easy_expert_episode)
     assert task == "LABYRINTH-EASY" and len(demonstrations) == 1
@@ -222,10 +282,39 @@ def test_learners_start_from_the_experts_dataset_on_the_labyrinth(easy_expert_ep
     from bimgame.cli.main import main
 
     run_dir = tmp_path / "run"
-    assert main(["train", "--algo", "ppo", "--task", "LABYRINTH-EASY", "--obs", "state", "--action-type",
-                 "continuous", "--start-curriculum", "demo", "--expert-data", str(easy_expert_episode),
-                 "--steps", "2048", "--n-steps", "64", "--envs-per-worker", "8", "--log-every", "512", "--eval-episodes", "1",
-                 "--no-progress", "--run-dir", str(run_dir)]) == 0
+    assert (
+        main(
+            [
+                "train",
+                "--algo",
+                "ppo",
+                "--task",
+                "LABYRINTH-EASY",
+                "--obs",
+                "state",
+                "--action-type",
+                "continuous",
+                "--start-curriculum",
+                "demo",
+                "--expert-data",
+                str(easy_expert_episode),
+                "--steps",
+                "2048",
+                "--n-steps",
+                "64",
+                "--envs-per-worker",
+                "8",
+                "--log-every",
+                "512",
+                "--eval-episodes",
+                "1",
+                "--no-progress",
+                "--run-dir",
+                str(run_dir),
+            ]
+        )
+        == 0
+    )
     with open(run_dir / "updates.csv", newline="") as handle:
         rows = list(csv.DictReader(handle))
     assert rows and all(float(row["curriculum_start_distance"]) >= 0.10 for row in rows)

@@ -37,7 +37,7 @@ import enum
 from collections.abc import Callable, Iterator, Mapping
 from typing import Any
 
-from bimgame.learn.learner_settings import FINETUNE_PRESETS
+from bimgame.learn.learner_settings import DEMONSTRATION_STARTS, FINETUNE_PRESETS
 
 __all__ = [
     "Learner",
@@ -184,7 +184,7 @@ class Algorithm:
 
 def reads_expert_data(settings: Mapping[str, Any]) -> bool:
     """Whether a learner's settings read an expert dataset (a behaviour-cloning term or demonstration starts)."""
-    return settings.get("bc_coef", 0.0) > 0 or settings.get("start_curriculum", "none") == "demo"
+    return settings.get("bc_coef", 0.0) > 0 or settings.get("start_curriculum", "none") in DEMONSTRATION_STARTS
 
 
 _REGISTRY: dict[str, Algorithm] = {}

@@ -85,7 +85,7 @@ def _overrides(record: Algorithm, steps: int, data_dir: str | None) -> dict[str,
     if reads_expert_data(settings):
         if data_dir is None:
             raise ValueError(
-                f"{algorithm} reads the expert dataset (bc_coef > 0 or start_curriculum='demo'): "
+                f"{algorithm} reads the expert dataset (bc_coef > 0 or demonstration starts): "
                 f"give data_dir, the reproduction's DIR/data"
             )
         settings["expert_data"] = str(data_dir)

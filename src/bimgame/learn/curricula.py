@@ -4,6 +4,9 @@ logged under: one place for A3C's workers and PPO's ranks.
 - ``demo``: the expert's states, on the maze by steps of its episodes
   (:class:`~bimgame.learn.starts.DemoStartCurriculum`), on the labyrinth by metres of its path
   (:class:`~bimgame.learn.path_starts.DemoPathStarts`).
+- ``demo-uniform``: the same starts, every state of the expert's episodes from the first episode on
+  (one stage reaching back to the farthest state; reference state initialisation, Peng et al. 2018):
+  every passage is practised from the start of training, not only those near the goal.
 - ``reverse``: without expert data, grown back from the goal — on the maze by random walks
   (:class:`~bimgame.learn.starts.ReverseCurriculum`), on the labyrinth along its printed path
   (:class:`~bimgame.learn.path_starts.PathStartCurriculum`).
@@ -36,6 +39,9 @@ CURRICULUM_COLUMNS = (
 )
 #: Of those, the ones that also go to TensorBoard.
 CURRICULUM_SCALARS = ("curriculum_stage", "curriculum_steps_back", "curriculum_start_distance")
+#: ``demo-uniform``'s first stage on the maze, in steps before the goal: beyond every episode, so the
+#: stage holds every state (the stages stop at the longest episode).
+_LONGER_THAN_ANY_EPISODE = 10**9
 
 
 def start_curriculum(
@@ -49,10 +55,15 @@ def start_curriculum(
     threshold = curriculum.curriculum_threshold
     spec = puzzle(task).spec
     labyrinth = isinstance(spec, LabyrinthSpec)
-    if curriculum.start_curriculum == "demo":
+    if curriculum.reads_demonstrations:
         if expert_data is None:
-            raise ValueError("start_curriculum 'demo' needs expert_data (an expert dataset directory)")
+            raise ValueError(
+                f"start_curriculum {curriculum.start_curriculum!r} needs expert_data (an expert dataset directory)"
+            )
         demo = DemoPathStarts if labyrinth else DemoStartCurriculum
+        if curriculum.start_curriculum == "demo-uniform":  # one stage reaching back over every state
+            every_state = spec.path.length if isinstance(spec, LabyrinthSpec) else _LONGER_THAN_ANY_EPISODE
+            return demo.from_dataset(expert_data, task, threshold=threshold, first_back=every_state)
         return demo.from_dataset(expert_data, task, threshold=threshold)
     if isinstance(spec, LabyrinthSpec):
         return PathStartCurriculum(spec, threshold=threshold)

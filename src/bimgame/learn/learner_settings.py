@@ -94,10 +94,13 @@ DEFAULT_FINETUNE = "keep"
 FINETUNE_FIELDS = tuple(FINETUNE_PRESETS["paper"])
 
 
-StartCurriculum = Literal["demo", "reverse"]
+StartCurriculum = Literal["demo", "demo-uniform", "reverse"]
 #: Where training episodes start: ``none`` (the task's own starts: no curriculum part), ``demo``
-#: (demonstration starts, from ``expert_data``) or ``reverse`` (reverse curriculum, no expert).
+#: (demonstration starts, from ``expert_data``, moving back from the goal), ``demo-uniform`` (the same
+#: starts, all of them from the first episode) or ``reverse`` (reverse curriculum, no expert).
 START_CURRICULA: tuple[str, ...] = ("none", *get_args(StartCurriculum))
+#: The start curricula that start episodes from the expert's states, read from ``expert_data``.
+DEMONSTRATION_STARTS: tuple[str, ...] = ("demo", "demo-uniform")
 
 
 #: Why each maze-only setting (flat names, and the reward-shaping flags' destinations) does not apply
@@ -106,7 +109,8 @@ MAZE_ONLY = {
     "num_mazes": "random mazes are circular mazes (bimgame.sim.maze_sets)",
     "start_maze": "random mazes are circular mazes (bimgame.sim.maze_sets)",
     "randomize": "domain randomisation varies the maze's physics and camera (bimgame.envs.randomization)",
-    "expert_data": "on the labyrinth only demonstration starts (start_curriculum='demo') read the expert's datasets",
+    "expert_data": "on the labyrinth only demonstration starts (start_curriculum 'demo' or 'demo-uniform') read "
+    "the expert's datasets",
     "bc_coef": "behaviour cloning reads windows of the maze expert's datasets (on the labyrinth pre-train π^s "
     "with bimgame pretrain and start from it with --init)",
     "value_reward": "V̂ is a value function of the maze's observations",
@@ -147,9 +151,10 @@ def check_start_curriculum(
 ) -> None:
     """A start curriculum the task can run: demonstration starts read ``expert_data`` (on the labyrinth
     nothing else does); both curricula run on both puzzles (the labyrinth's along its printed path)."""
-    demo = curriculum is not None and curriculum.start_curriculum == "demo"
+    demo = curriculum is not None and curriculum.reads_demonstrations
     refuse_maze_only(owner, task, {"expert_data": expert_data is not None and not demo})
-    check_expert_data(owner, expert_data, {"start_curriculum='demo'": demo})
+    if curriculum is not None:
+        check_expert_data(owner, expert_data, {f"start_curriculum={curriculum.start_curriculum!r}": demo})
 
 
 def check_puzzle(owner: str, task: str, network: Any, *, num_mazes: int | None, start_maze: int) -> None:
@@ -345,10 +350,13 @@ class CurriculumSettings:
 
     start_curriculum: StartCurriculum = "demo"
     """Where training episodes start: ``none`` (the task's own starts), ``demo`` (states of the
-    expert's episodes, moving back from the goal as success grows) or ``reverse`` (grown backwards
-    from the goal by random exploration, no expert). Evaluations always use the task's own starts."""
+    expert's episodes, moving back from the goal as success grows), ``demo-uniform`` (every state of
+    the expert's episodes from the first episode on, drawn uniformly: reference state initialisation,
+    Peng et al. 2018, DeepMimic) or ``reverse`` (grown backwards from the goal by random exploration,
+    no expert). Evaluations always use the task's own starts."""
     curriculum_threshold: float = 0.8
-    """Start curricula: success on the current starts that moves them further from the goal."""
+    """Start curricula: success on the current starts that moves them further from the goal (with
+    ``demo-uniform``: that ends the curriculum, every episode then starting from the task's own start)."""
 
     def __post_init__(self) -> None:
         owner = type(self).__name__
@@ -356,6 +364,11 @@ class CurriculumSettings:
         threshold = self.curriculum_threshold
         if not (isinstance(threshold, (int, float)) and not isinstance(threshold, bool) and 0 < threshold <= 1):
             raise ValueError(f"{owner}.curriculum_threshold must be in (0, 1], got {threshold!r}")
+
+    @property
+    def reads_demonstrations(self) -> bool:
+        """Whether training episodes start from the expert's states (read from ``expert_data``)."""
+        return self.start_curriculum in DEMONSTRATION_STARTS
 
 
 class FlatSettings:
