@@ -64,9 +64,8 @@ def test_a_ppo_ranks_episodes_start_from_the_curriculum():
     config = PPOConfig.from_flat(TINY, start_curriculum="reverse")
     net = policy_network(config)
     episodes = []
-    learner = RankLearner(
-        config, net, adam(net, config), rank=0, step=0, on_episode=episodes.append, global_step=lambda: 0
-    )
+    learner = RankLearner(config, net, adam(net, config), rank=0, step=0, on_episode=episodes.append,
+                          global_step=lambda: 0)
     assert isinstance(learner.collector.curriculum, ReverseCurriculum)
     for step in range(0, 1600, 64):
         learner.rollout_and_update(step)

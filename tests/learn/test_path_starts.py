@@ -81,13 +81,9 @@ def test_true_share_and_the_same_seed_gives_the_same_starts():
 
 def test_settings_are_refused_by_name():
     spec = LabyrinthSpec.layout("easy")
-    for name, value, allowed in [
-        ("first_back", 0.0, r"\(0, "),
-        ("growth", 1.0, r"\(1, 100\]"),
-        ("threshold", 1.5, r"\(0, 1\]"),
-        ("true_share", -0.1, r"\[0, 1\]"),
-        ("spacing", math.nan, r"\(0, "),
-    ]:
+    for name, value, allowed in [("first_back", 0.0, r"\(0, "), ("growth", 1.0, r"\(1, 100\]"),
+                                 ("threshold", 1.5, r"\(0, 1\]"), ("true_share", -0.1, r"\[0, 1\]"),
+                                 ("spacing", math.nan, r"\(0, ")]:
         with pytest.raises(ValueError, match=rf"PathStartCurriculum\.{name} must be a number in {allowed}"):
             PathStartCurriculum(spec, **{name: value})
     with pytest.raises(ValueError, match=r"PathStartCurriculum\.window must be an integer >= 1, got 0"):
@@ -141,39 +137,10 @@ def test_ppo_trains_with_it_on_the_labyrinth_and_logs_its_stage(tmp_path):
     from bimgame.cli.main import main
 
     run_dir = tmp_path / "run"
-    assert (
-        main(
-            [
-                "train",
-                "--algo",
-                "ppo",
-                "--task",
-                "LABYRINTH-EASY",
-                "--obs",
-                "state",
-                "--action-type",
-                "continuous",
-                "--start-curriculum",
-                "reverse",
-                "--curriculum-threshold",
-                "0.5",
-                "--steps",
-                "4096",
-                "--n-steps",
-                "64",
-                "--envs-per-worker",
-                "8",
-                "--log-every",
-                "512",
-                "--eval-episodes",
-                "1",
-                "--run-dir",
-                str(run_dir),
-                "--no-progress",
-            ]
-        )
-        == 0
-    )
+    assert main(["train", "--algo", "ppo", "--task", "LABYRINTH-EASY", "--obs", "state", "--action-type",
+                 "continuous", "--start-curriculum", "reverse", "--curriculum-threshold", "0.5", "--steps", "4096",
+                 "--n-steps", "64", "--envs-per-worker", "8", "--log-every", "512", "--eval-episodes", "1",
+                 "--run-dir", str(run_dir), "--no-progress"]) == 0
     with open(run_dir / "episodes.csv", newline="") as handle:
         episodes = list(csv.DictReader(handle))
     curriculum = [row for row in episodes if row["true_start"] == "False"]
@@ -282,39 +249,10 @@ def test_learners_start_from_the_experts_dataset_on_the_labyrinth(easy_expert_ep
     from bimgame.cli.main import main
 
     run_dir = tmp_path / "run"
-    assert (
-        main(
-            [
-                "train",
-                "--algo",
-                "ppo",
-                "--task",
-                "LABYRINTH-EASY",
-                "--obs",
-                "state",
-                "--action-type",
-                "continuous",
-                "--start-curriculum",
-                "demo",
-                "--expert-data",
-                str(easy_expert_episode),
-                "--steps",
-                "2048",
-                "--n-steps",
-                "64",
-                "--envs-per-worker",
-                "8",
-                "--log-every",
-                "512",
-                "--eval-episodes",
-                "1",
-                "--no-progress",
-                "--run-dir",
-                str(run_dir),
-            ]
-        )
-        == 0
-    )
+    assert main(["train", "--algo", "ppo", "--task", "LABYRINTH-EASY", "--obs", "state", "--action-type",
+                 "continuous", "--start-curriculum", "demo", "--expert-data", str(easy_expert_episode),
+                 "--steps", "2048", "--n-steps", "64", "--envs-per-worker", "8", "--log-every", "512", "--eval-episodes", "1",
+                 "--no-progress", "--run-dir", str(run_dir)]) == 0
     with open(run_dir / "updates.csv", newline="") as handle:
         rows = list(csv.DictReader(handle))
     assert rows and all(float(row["curriculum_start_distance"]) >= 0.10 for row in rows)

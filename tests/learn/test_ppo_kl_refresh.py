@@ -62,23 +62,9 @@ def test_the_teacher_becomes_the_policy_of_the_refresh_step_and_a_resumed_run_ke
     assert "teacher" not in load_checkpoint(tmp_path / "upto128" / "checkpoint.pt")
 
 
-TWO_RANKS_ONE_STEP = dict(
-    task="STG1",
-    obs="state",
-    hidden=16,
-    features=16,
-    workers=2,
-    envs_per_worker=2,
-    n_steps=32,
-    sequence_length=32,
-    minibatches=1,
-    epochs=1,
-    eval_every=0,
-    eval_episodes=2,
-    log_every=64,
-    max_episode_steps=10,
-    action_type="continuous",
-)
+TWO_RANKS_ONE_STEP = dict(task="STG1", obs="state", hidden=16, features=16, workers=2, envs_per_worker=2, n_steps=32,
+                          sequence_length=32, minibatches=1, epochs=1, eval_every=0, eval_episodes=2, log_every=64,
+                          max_episode_steps=10, action_type="continuous")
 
 
 def test_every_rank_moves_its_teacher(tmp_path):
