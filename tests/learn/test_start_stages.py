@@ -14,6 +14,7 @@ def test_stages_grow_by_the_factor_up_to_the_longest_distance():
     whole = BackwardStages("T", 7, 2.0, 100, threshold=0.8, window=10, whole=True)
     assert whole.backs == [7, 14, 28, 56, 112]
     assert BackwardStages("T", 3, 1.4, 10, threshold=0.8, window=1, whole=True).backs == [3, 5, 7, 10]
+    assert BackwardStages("T", None, 2.0, 100, threshold=0.8, window=10, whole=True).backs == [100]  # all at once
 
 
 def test_a_full_window_at_the_threshold_moves_on_and_other_stages_do_not_count():

@@ -39,9 +39,6 @@ CURRICULUM_COLUMNS = (
 )
 #: Of those, the ones that also go to TensorBoard.
 CURRICULUM_SCALARS = ("curriculum_stage", "curriculum_steps_back", "curriculum_start_distance")
-#: ``demo-uniform``'s first stage on the maze, in steps before the goal: beyond every episode, so the
-#: stage holds every state (the stages stop at the longest episode).
-_LONGER_THAN_ANY_EPISODE = 10**9
 
 
 def start_curriculum(
@@ -61,10 +58,8 @@ def start_curriculum(
                 f"start_curriculum {curriculum.start_curriculum!r} needs expert_data (an expert dataset directory)"
             )
         demo = DemoPathStarts if labyrinth else DemoStartCurriculum
-        if curriculum.start_curriculum == "demo-uniform":  # one stage reaching back over every state
-            every_state = spec.path.length if isinstance(spec, LabyrinthSpec) else _LONGER_THAN_ANY_EPISODE
-            return demo.from_dataset(expert_data, task, threshold=threshold, first_back=every_state)
-        return demo.from_dataset(expert_data, task, threshold=threshold)
+        every_state = {"first_back": None} if curriculum.start_curriculum == "demo-uniform" else {}
+        return demo.from_dataset(expert_data, task, threshold=threshold, **every_state)
     if isinstance(spec, LabyrinthSpec):
         return PathStartCurriculum(spec, threshold=threshold)
     # A pool of 32 starts (not the class's 100): each start is tried 3 times before the pool grows,

@@ -57,8 +57,14 @@ class _StartsAlongThePath(StagedStarts):
     back_of: np.ndarray
 
     def _schedule(
-        self, spec: LabyrinthSpec, first_back: float, growth: float, threshold: float, window: int, true_share: float
-    ) -> tuple[float, float, float, int]:
+        self,
+        spec: LabyrinthSpec,
+        first_back: float | None,
+        growth: float,
+        threshold: float,
+        window: int,
+        true_share: float,
+    ) -> tuple[float | None, float, float, int]:
         """Check the board and the stage schedule's settings, naming this curriculum; keep the board and
         the share of true starts, and return the rest for :meth:`_begin` (once the starts are known)."""
         owner = type(self).__name__
@@ -68,13 +74,13 @@ class _StartsAlongThePath(StagedStarts):
         length = spec.path.length
         self.true_share = check_real(owner, "true_share", true_share, 0.0, 1.0)
         return (
-            check_real(owner, "first_back", first_back, 0.0, length, open_low=True),
+            None if first_back is None else check_real(owner, "first_back", first_back, 0.0, length, open_low=True),
             check_real(owner, "growth", growth, 1.0, 100.0, open_low=True),
             check_real(owner, "threshold", threshold, 0.0, 1.0, open_low=True),
             check_int(owner, "window", window, 1),
         )
 
-    def _begin(self, schedule: tuple[float, float, float, int]) -> None:
+    def _begin(self, schedule: tuple[float | None, float, float, int]) -> None:
         """The first stage, its schedule :meth:`_schedule`'s, reaching back to the farthest start."""
         first_back, growth, threshold, window = schedule
         self.stages = BackwardStages(
@@ -115,7 +121,7 @@ class PathStartCurriculum(_StartsAlongThePath):
 
     Args:
         spec: the labyrinth's board.
-        first_back: ``D_0``, metres of path before the goal (> 0).
+        first_back: ``D_0``, metres of path before the goal (> 0); None: every start from the first episode on.
         growth: ``D_{k+1} / D_k`` (> 1).
         threshold: the stage's success rate over ``window`` episodes that ends it, in (0, 1].
         window: episodes of a stage that rate is taken over.
@@ -127,7 +133,7 @@ class PathStartCurriculum(_StartsAlongThePath):
         self,
         spec: LabyrinthSpec,
         *,
-        first_back: float = 0.10,
+        first_back: float | None = 0.10,
         growth: float = 1.5,
         threshold: float = 0.8,
         window: int = 100,
@@ -194,7 +200,7 @@ class DemoPathStarts(_StartsAlongThePath):
         spec: LabyrinthSpec,
         demonstrations: Sequence[tuple[np.ndarray, np.ndarray]],
         *,
-        first_back: float = 0.10,
+        first_back: float | None = 0.10,
         growth: float = 1.5,
         threshold: float = 0.8,
         window: int = 100,

@@ -66,7 +66,7 @@ class BackwardStages:
 
     Args:
         owner: the curriculum's name, for error messages.
-        first_back: ``D_0`` (> 0).
+        first_back: ``D_0`` (> 0); None: ``longest`` at once, one stage holding every start.
         growth: factor from one stage's ``D_k`` to the next (> 1).
         longest: the farthest a start can lie back; the stage reaching it is the last before the
             final one.
@@ -78,7 +78,7 @@ class BackwardStages:
     def __init__(
         self,
         owner: str,
-        first_back: float,
+        first_back: float | None,
         growth: float,
         longest: float,
         *,
@@ -86,6 +86,8 @@ class BackwardStages:
         window: int,
         whole: bool = False,
     ):
+        if first_back is None:
+            first_back = longest
         if not (math.isfinite(first_back) and first_back > 0 and math.isfinite(longest) and longest > 0):
             raise ValueError(f"{owner}: first_back and the longest distance must be finite and > 0")
         self.owner, self.growth, self.longest = owner, float(growth), float(longest)

@@ -67,6 +67,7 @@ class DemoStartCurriculum(StagedStarts):
     episodes of the current stage (tag = the stage's index) succeeded at a rate of at least
     ``threshold``, the next stage begins. After the stage whose ``D_k`` reaches the longest
     ``t_goal`` comes the final one, where every start is a true start (:attr:`finished`).
+    ``first_back=None``: every state of every demonstration from the first episode on.
 
     Args:
         episodes: ``(sim_states (T+1, S), channels (T+1, n))`` per demonstration: the physics states
@@ -83,7 +84,7 @@ class DemoStartCurriculum(StagedStarts):
         task: str | Task = "FULL",
         maze: MazeSpec | None = None,
         *,
-        first_back: int = 30,
+        first_back: int | None = 30,
         growth: float = 2.0,
         threshold: float = 0.8,
         window: int = 100,
@@ -93,7 +94,7 @@ class DemoStartCurriculum(StagedStarts):
         owner = "DemoStartCurriculum"
         self.maze = maze if maze is not None else MazeSpec.merl()
         self.task = parse_task(task, self.maze)
-        self.first_back = check_int(owner, "first_back", first_back, 1)
+        self.first_back = None if first_back is None else check_int(owner, "first_back", first_back, 1)
         self.growth = check_real(owner, "growth", growth, 1.0, math.inf, open_low=True, allowed="a finite number > 1")
         self.threshold = check_real(owner, "threshold", threshold, 0.0, 1.0, open_low=True)
         self.window = check_int(owner, "window", window, 1)
