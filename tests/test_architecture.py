@@ -13,7 +13,7 @@ SOURCE = pathlib.Path(__file__).resolve().parents[1] / "src" / "bimgame"
 #: Bottom to top; a module may import its own layer and the ones before it.
 LAYERS = ("util", "sim", "envs", "expert", "learn", "experiments", "play", "cli")
 #: Each learner is a module or a package of modules (all of them belong to it).
-LEARNERS = {"bimgame.learn.a3c", "bimgame.learn.ppo", "bimgame.learn.pretrain", "bimgame.learn.dagger"}
+LEARNERS = {"bimgame.learn.a3c", "bimgame.learn.ppo", "bimgame.learn.pretrain", "bimgame.learn.dagger", "bimgame.learn.model_based"}
 #: Imports allowed inside functions: heavy optional or slow dependencies, each with its reason in the code.
 LAZY_ALLOWED = {"ray", "torch.utils.tensorboard", "matplotlib.figure"}
 #: Modules allowed over 500 lines (none: every module stays under the rule).

@@ -249,3 +249,35 @@ def test_bad_arguments():
     expert.sim.reset(spec.start)
     with pytest.raises(ValueError, match="segment"):
         expert.act(expert.sim.get_state(), segment=10_000)
+
+
+class _StillModel:
+    """A model in which the marble never moves: the planner must ask it, not the simulator."""
+
+    state_size = 3
+
+    def __init__(self):
+        self.calls = 0
+
+    def rollout(self, state, controls, nthread=1):
+        self.calls += 1
+        return np.broadcast_to(state, (*controls.shape[:2], 3)).copy()
+
+    def marble_xy_of(self, states):
+        return np.asarray(states)[..., :2]
+
+    def close(self):
+        pass
+
+
+def test_the_planner_plans_through_any_model_of_the_protocol():
+    spec = LabyrinthSpec.layout("easy")
+    model = _StillModel()
+    expert = LabyrinthMPC(spec, LabyrinthMPCConfig(n_samples=4, horizon=5), rng=np.random.default_rng(0), model=model)
+    action, seen = expert.plan(np.array([*spec.start, 0.0]), segment=0)
+    assert model.calls == 1 and expert.sim is model
+    assert np.all(seen["scores"] == seen["scores"][0])  # a marble that never moves scores alike everywhere
+    with pytest.raises(ValueError, match=r"state must have shape \(3,\)"):
+        expert.act(np.zeros(8))
+    with pytest.raises(TypeError, match="PlanningModel"):
+        LabyrinthMPC(spec, rng=np.random.default_rng(0), model=object())  # type: ignore[arg-type]

@@ -261,3 +261,14 @@ def test_the_path_can_be_rolled_from_start_to_goal(name):
         if step.goal:
             break
     assert step.goal and step.progress > spec.path.length - spec.goal_radius
+
+
+def test_marble_xy_of_reads_positions_from_any_batch_of_states():
+    sim = LabyrinthSim(LabyrinthSpec.layout("easy"))
+    sim.reset((0.01, -0.02), tilt=(0.05, -0.03))
+    np.testing.assert_allclose(sim.marble_xy_of(sim.get_state()), sim.marble_xy(), atol=1e-12)
+    states = sim.rollout(sim.get_state(), np.full((3, 4, 2), 0.005))
+    assert sim.marble_xy_of(states).shape == (3, 4, 2)
+    sim.set_state(states[1, 2])
+    np.testing.assert_allclose(sim.marble_xy_of(states)[1, 2], sim.marble_xy(), atol=1e-12)
+    sim.close()

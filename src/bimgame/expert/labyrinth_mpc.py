@@ -39,7 +39,12 @@ score alike (from one hard-board state, independent K = 16 searches agree within
 pairs, spread 0.46 per component; K = 64: 24%, 0.37): a learner that clones it is fitted to noise.
 The mean of P = 4 searches of K = 16, the cost of K = 64, spreads 0.23 and agrees on 43% of pairs.
 
-The expert acts on the true simulator state; the env's path segment (``info["segment"]``) is passed
+Model. By default the planner's model is the simulator itself and the expert acts on the true
+simulator state; any other model of the :class:`PlanningModel` protocol (``model=``) can take its
+place, acting on that model's own state vector: :mod:`bimgame.learn.model_based` plans with a marble
+model fitted from the learner's own transitions.
+
+The env's path segment (``info["segment"]``) is passed
 along, or the expert follows it itself from consecutive states (:meth:`LabyrinthMPC.reset`).
 
 Measured (benchmarks/bench_expert_labyrinth.py; ``benchmarks/results/expert_labyrinth_sweep.json``:
@@ -77,6 +82,7 @@ import numpy as np
 
 from bimgame.envs.actions import DISCRETE_TILTS
 from bimgame.envs.labyrinth_env import LABYRINTH_ACTION_TYPES, LabyrinthEnv
+from bimgame.expert.planning_model import PlanningModel
 from bimgame.sim.labyrinth import LabyrinthSpec, WaypointPath
 from bimgame.sim.labyrinth_physics import LabyrinthSim
 from bimgame.sim.labyrinth_tracker import ScalarPathProgress
@@ -200,6 +206,8 @@ class LabyrinthMPC:
         control_hz: action rate (Hz) of the env it controls.
         max_tilt_rate_deg: the env's full tilt rate (°/s): one full action changes the tilt by it / control_hz.
         progress_scale, goal_bonus: the env's reward per metre of progress and for the goal.
+        model: what the sequences are rolled out in (None: a :class:`LabyrinthSim` of ``board`` at
+            ``control_hz``, the expert); states passed to :meth:`act` are this model's.
     """
 
     def __init__(
@@ -213,6 +221,7 @@ class LabyrinthMPC:
         max_tilt_rate_deg: float = 30.0,
         progress_scale: float = 1.25,
         goal_bonus: float = 0.5,
+        model: PlanningModel | None = None,
     ):
         if not isinstance(rng, np.random.Generator):
             raise TypeError(f"rng must be a numpy Generator (np.random.default_rng(seed)), got {type(rng).__name__}")
@@ -227,7 +236,13 @@ class LabyrinthMPC:
                 f"with discrete actions use one of: {', '.join(s for s in LABYRINTH_SAMPLINGS if s != 'mppi')}"
             )
         self.board, self.rng, self.action_type = board, rng, action_type
-        self.sim = LabyrinthSim(board, control_hz=control_hz)
+        if model is not None and not isinstance(model, PlanningModel):
+            raise TypeError(
+                "model must have state_size, rollout, marble_xy_of and close (PlanningModel), "
+                f"got {type(model).__name__}"
+            )
+        #: The planner's model (the name predates models other than the simulator).
+        self.sim: PlanningModel = model if model is not None else LabyrinthSim(board, control_hz=control_hz)
         self.path = board.path
         self.tilt_step = math.radians(max_tilt_rate_deg) / control_hz
         self.progress_scale, self.goal_bonus = float(progress_scale), float(goal_bonus)
@@ -289,8 +304,7 @@ class LabyrinthMPC:
         path ``segment`` and ``progress`` (m): see the module docstring."""
         c = self.config
         k, h = states.shape[:2]
-        positions, _ = self.sim.layout.board_frame(states)
-        xy = positions[..., 0, :2]  # (K, H, 2)
+        xy = self.sim.marble_xy_of(states)  # (K, H, 2)
         radius = self.board.hole_radius + c.hole_margin
         if len(self._holes):
             d2 = ((xy[:, :, None, :] - self._holes) ** 2).sum(axis=-1)
@@ -345,8 +359,7 @@ class LabyrinthMPC:
     def _segment_of(self, state: np.ndarray, segment: int | None) -> tuple[int, float]:
         """The path segment and progress (m) of ``state``'s marble: on ``segment`` if given, else the
         expert's own tracker following consecutive states (the nearest segment in sight at first)."""
-        positions, _ = self.sim.layout.board_frame(state)
-        x, y = float(positions[0, 0]), float(positions[0, 1])
+        x, y = (float(v) for v in self.sim.marble_xy_of(state))
         if segment is not None:
             if not (is_integer(segment) and 0 <= segment < self.path.n_segments):
                 raise ValueError(f"segment must be an integer in 0..{self.path.n_segments - 1}, got {segment!r}")
@@ -367,7 +380,8 @@ class LabyrinthMPC:
         state = np.asarray(state, dtype=np.float64)
         if state.shape != (self.sim.state_size,):
             raise ValueError(
-                f"state must have shape ({self.sim.state_size},) (LabyrinthSim.get_state), got {state.shape}"
+                f"state must have shape ({self.sim.state_size},) (the model's state: LabyrinthSim.get_state for the "
+                f"simulator), got {state.shape}"
             )
         seg, progress = self._segment_of(state, segment)
         if self.config.sampling == "mppi":

@@ -286,6 +286,11 @@ class LabyrinthSim:
         position, velocity = self.layout.board_frame(self.get_state())
         return position[0], velocity[0]
 
+    def marble_xy_of(self, states: np.ndarray) -> np.ndarray:
+        """The marble's board-frame (x, y) (m) in physics states (..., state_size), e.g. a rollout's: (..., 2)."""
+        positions, _ = self.layout.board_frame(np.asarray(states, dtype=np.float64))
+        return positions[..., 0, :2]
+
     def marble_xy(self) -> np.ndarray:
         """The marble's board-frame (x, y) (m)."""
         x, y, _, _ = self.layout.board_frame_one(self.data.qpos, self.data.qvel)[0]
