@@ -20,6 +20,7 @@ from bimgame.experiments.labyrinth_protocol import (
     HUMAN_RECORD_S,
     LABYRINTH_PROTOCOL_SEED,
     SCORE_THREADS,
+    protocol_starts,
     score_labyrinth,
     start_progress,
     summarise_labyrinth,
@@ -123,6 +124,31 @@ def test_the_expert_solves_the_easy_layout():
     assert 5.0 < times["best"] == times["median"] < 15.0 and times["best"] == summary["lengths"][0] / 55
     assert summary["mean_progress_fraction"] > 0.98
     assert summary["best_over_cyberrunner"] is None  # the references are the hard layout's
+
+
+def test_a_model_based_law_scores_through_the_command_line_as_its_agent_plays(tmp_path, capsys):
+    from bimgame.learn.model_based import MarbleLaw, Transitions
+    from bimgame.learn.model_based.agent import ModelBasedAgent, play_episode
+    from bimgame.learn.model_based.transitions import explore
+
+    env = LabyrinthEnv("easy")
+    transitions = Transitions()
+    explore(env, 2000, np.random.default_rng(0), transitions)
+    law = MarbleLaw.fit(transitions, env.board)
+    path = law.save(tmp_path / "law.json")
+    out = tmp_path / "score.json"
+    assert main(["score", str(path), "--task", "labyrinth-easy", "--episodes", "1", "--out", str(out), "--no-progress"]) == 0
+    result = json.loads(out.read_text())
+    assert (result["obs"], result["action_type"], result["mode"]) == ("state", "continuous", None)
+    assert result["successes"] == [True]  # 2,000 random steps are enough on easy
+    start = protocol_starts(1)[0]
+    agent = ModelBasedAgent.for_env(env, law, rng=np.random.default_rng([start, 1]))
+    played = play_episode(env, agent, seed=start, max_steps=3000)
+    assert (played["steps"], played["return"]) == (result["lengths"][0], pytest.approx(result["returns"][0]))
+    env.close()
+    (tmp_path / "other.json").write_text("{}")
+    assert main(["score", str(tmp_path / "other.json"), "--task", "labyrinth-easy", "--no-progress"]) != 0
+    assert "not a marble law" in capsys.readouterr().err
 
 
 def test_a_tiny_ppo_run_scores_through_the_command_line(easy_run, tmp_path, capsys):

@@ -56,7 +56,7 @@ def add_score_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="POLICY",
         help="random | noop | geodesic | expert | a bimgame run directory or checkpoint | an SB3 model .zip | "
         f"module:callable (observation -> action); on the labyrinth: {' | '.join(LABYRINTH_POLICIES)} | a bimgame "
-        "run directory or checkpoint trained on --task",
+        "run directory or checkpoint trained on --task | a model-based learner's marble law .json",
     )
     add(
         "--task",

@@ -23,9 +23,11 @@ settings (CyberRunner's reward, 30°/s tilt rate, an episode ends in a hole or o
 **Policies.** ``random``: uniform continuous tilt-rate actions in [-1, 1]², from a generator seeded
 per episode; ``noop``: zero actions (the board stays flat); ``expert``: the MPC expert
 (:class:`~bimgame.expert.labyrinth_mpc.LabyrinthMPC`, default settings) on the simulator's state, its
-generator seeded per episode; a bimgame run directory or checkpoint of a network trained on the same
-task: :func:`~bimgame.learn.actor.evaluate_network` plays it on its own observations and actions, greedy
-by default, sampling with ``sampled`` (from a generator seeded with ``seed``), on
+generator seeded per episode; a marble law (``.json``) of the model-based learner
+(:mod:`bimgame.learn.model_based`): the same MPC planning through it on the env's state observation,
+its generator seeded per episode as the expert's; a bimgame run directory or checkpoint of a network
+trained on the same task: :func:`~bimgame.learn.actor.evaluate_network` plays it on its own
+observations and actions, greedy by default, sampling with ``sampled`` (from a generator seeded with ``seed``), on
 :data:`SCORE_THREADS` torch threads. Episode i depends on (seed, i) alone. Stable-Baselines3 models
 and ``module:callable`` policies are refused for now.
 
@@ -65,6 +67,8 @@ from bimgame.expert.labyrinth_mpc import LabyrinthMPC
 from bimgame.learn.actor import EvalResult, evaluate_network
 from bimgame.learn.common import MAX_SEED, load_run_network
 from bimgame.learn.maze_runs import network_env_options
+from bimgame.learn.model_based.agent import ModelBasedAgent
+from bimgame.learn.model_based.marble_law import MarbleLaw
 from bimgame.learn.runs import torch_threads
 from bimgame.util.progress import ProgressBar
 from bimgame.util.settings import require_int
@@ -128,9 +132,15 @@ def _labyrinth_task(task: str) -> str:
     return found.task
 
 
-def _builtin_actor(name: str, env: LabyrinthEnv, seed: int) -> tuple[Act, Callable[[], None]]:
-    """Built-in policy ``name`` for the episode from start seed ``seed``: (act, close)."""
+def _builtin_actor(
+    name: str, env: LabyrinthEnv, seed: int, law: MarbleLaw | None = None
+) -> tuple[Act, Callable[[], None]]:
+    """Built-in policy ``name`` (or, with ``law``, the model-based learner's planner through it) for
+    the episode from start seed ``seed``: (act, close)."""
     rng = np.random.default_rng([seed, _POLICY_STREAM])
+    if law is not None:
+        agent = ModelBasedAgent.for_env(env, law, rng=rng)
+        return (lambda info: agent.act(env.state_observation(), int(info["segment"]))), lambda: None
     if name == "random":
         return (lambda info: rng.uniform(-1.0, 1.0, 2).astype(np.float32)), lambda: None
     if name == "noop":
@@ -140,17 +150,23 @@ def _builtin_actor(name: str, env: LabyrinthEnv, seed: int) -> tuple[Act, Callab
 
 
 def _play_builtins(
-    name: str, layout: str, starts: list[int], time_limit: int, progress: bool, off_path_rule: str
+    name: str,
+    layout: str,
+    starts: list[int],
+    time_limit: int,
+    progress: bool,
+    off_path_rule: str,
+    law: MarbleLaw | None = None,
 ) -> EvalResult:
-    """Built-in policy ``name`` on one env of ``layout`` (ending episodes off the path by ``off_path_rule``),
-    one episode per start seed, in order."""
+    """Built-in policy ``name`` (with ``law``: the model-based planner, named ``name``) on one env of
+    ``layout`` (ending episodes off the path by ``off_path_rule``), one episode per start seed, in order."""
     env = LabyrinthEnv(layout, off_path_rule=off_path_rule)
     result = EvalResult([], [], [])
     try:
         with ProgressBar(f"{name} on the {layout} labyrinth", len(starts), enabled=progress, transient=True) as bar:
             for seed in starts:
                 _, info = env.reset(seed=seed)
-                act, close = _builtin_actor(name, env, seed)
+                act, close = _builtin_actor(name, env, seed, law)
                 total, length, success = 0.0, time_limit, False
                 try:
                     for step in range(1, time_limit + 1):
@@ -174,7 +190,10 @@ def _play_builtins(
 def _network_source(policy: str, task: str) -> Path:
     """``policy`` as a run directory or checkpoint the protocol plays; ``ValueError`` naming what the
     labyrinth's protocol takes otherwise."""
-    allowed = f"{', '.join(LABYRINTH_POLICIES)}, or a bimgame run directory or checkpoint trained on {task}"
+    allowed = (
+        f"{', '.join(LABYRINTH_POLICIES)}, a bimgame run directory or checkpoint trained on {task}, "
+        "or a marble law (.json) of the model-based learner"
+    )
     path = Path(policy)
     if path.exists() and path.suffix != ".zip":
         return path
@@ -350,8 +369,9 @@ def score_labyrinth(
     off_path_rule: str = "tolerance",
 ) -> dict[str, Any]:
     """The labyrinth protocol's numbers (:func:`summarise_labyrinth`) for ``policy`` on ``task``
-    (LABYRINTH-EASY, -MEDIUM, -HARD): ``random``, ``noop``, ``expert``, or a bimgame run directory or
-    checkpoint trained on ``task`` (see the module notes). ``sampled``: a network samples its actions
+    (LABYRINTH-EASY, -MEDIUM, -HARD): ``random``, ``noop``, ``expert``, a model-based learner's marble
+    law (``.json``), or a bimgame run directory or checkpoint trained on ``task`` (see the module notes).
+    ``sampled``: a network samples its actions
     (greedy by default); ``obs``: the observations a network must have been trained on (None: its
     own); built-in policies read no observations and take neither. ``off_path_rule``: when an episode
     ends off the path (:data:`~bimgame.envs.labyrinth_env.LABYRINTH_OFF_PATH_RULES`; the protocol's is
@@ -374,6 +394,12 @@ def score_labyrinth(
         assert layout is not None  # a labyrinth task has its layout
         result = _play_builtins(policy, layout, starts, time_limit, progress, off_path_rule)
         mode = None
+    elif Path(policy).suffix == ".json":
+        law = MarbleLaw.load(policy)  # ValueError naming the file when it is no law
+        layout = puzzle(task).layout
+        assert layout is not None  # a labyrinth task has its layout
+        result = _play_builtins("model-based", layout, starts, time_limit, progress, off_path_rule, law)
+        facts, mode = {"obs": "state", "action_type": "continuous", "step": None}, None
     else:
         source = _network_source(str(policy), task)
         result, facts = _play_network(
