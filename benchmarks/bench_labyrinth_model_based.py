@@ -120,9 +120,13 @@ def plot(row: dict[str, Any], path: Path) -> None:
     left.set_title("episodes played while learning")
     left.legend()
     summary = row["summary"]
-    right.bar([str(s) for s in summary["seeds"]], summary["success_per_seed"], color="tab:green")
-    right.set(xlabel="seed", ylabel="success on the protocol's starts", ylim=(0, 1.05))
-    right.set_title(f"scored: mean {summary['success_mean']:.0%} {[f'{v:.0%}' for v in summary['success_interval']]}")
+    scores = [row["per_seed"][str(seed)]["score"] for seed in summary["seeds"]]
+    rates = np.array(summary["success_per_seed"])
+    low, high = (np.array([score["success_rate_ci"][i] for score in scores]) for i in (0, 1))
+    right.bar([str(s) for s in summary["seeds"]], rates, color="tab:green", yerr=[rates - low, high - rates], capsize=6)
+    right.set(xlabel="seed (bars: 95% bootstrap interval over its episodes)", ylabel="success on the protocol's starts")
+    right.set_ylim(0, 1.05)
+    right.set_title(f"scored: mean {summary['success_mean']:.0%} over {len(rates)} seeds")
     figure.suptitle(f"model-based learner, {row['layout']} labyrinth")
     save_png(figure, path, dpi=110)
 
@@ -165,6 +169,7 @@ def main() -> None:
     for finished in results_as_they_finish(run_seed, jobs, args.workers):
         row["per_seed"][str(finished["seed"])] = finished
         row["summary"] = aggregate(list(row["per_seed"].values()))
+        results = read_json(args.results) or {}  # again: rows another run wrote meanwhile are kept
         results[key] = row
         write_json(args.results, results)
         score = finished["score"]

@@ -16,12 +16,14 @@ holes, the path and its reward — which the model uses to stop the marble at wa
 (:class:`~bimgame.learn.model_based.contacts.WallContacts`) and the planner to score sequences.
 CyberRunner's reward needs the path too; its model learned the walls and holes from pixels.
 
-Why a linear law and not a network: away from the walls the marble's step is linear in tilt,
-velocity and command (least squares on 1,239 free transitions of random play on the hard board:
-R² 0.994 for both velocity components), and 200 such transitions pin its 54 numbers; at the walls
-a 2×256 network fitted on 10–160k transitions of the same play predicted the velocity change with R²
-0.5–0.8 only (the wall contacts are discontinuous, and 93% of random play leans on a wall), and
-planning through it reached 22–24% of the hard path at best. Contacts are therefore geometry here
+Why a linear law and not a network (one-off measurements on random play, not a benchmark): away
+from the walls the marble's step is linear in tilt, velocity and command (least squares on the 1,239
+free transitions of 40k random steps on the hard board: R² 0.994 for both velocity components), and
+a few hundred such transitions pin its 54 numbers. A 2×256 network given the wall distances around
+the marble as well, fitted on 40–160k transitions of the same play, predicted the velocity change
+with R² 0.6–0.85 only (93% of random play leans on a wall, and a contact is discontinuous), and the
+planner through it, refitted on its own episodes as here, reached 22–24% of the hard path at best
+(9% with this module's wall contacts added after its step). Contacts are therefore geometry here
 (:mod:`~bimgame.learn.model_based.contacts`), not learned.
 """
 
