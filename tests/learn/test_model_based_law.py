@@ -87,6 +87,9 @@ def test_a_saved_law_loads_back_and_other_files_are_refused(law, tmp_path):
     (tmp_path / "other.json").write_text(json.dumps({"coefficients": [[0.0]]}))
     with pytest.raises(ValueError, match="not a marble law"):
         MarbleLaw.load(tmp_path / "other.json")
+    (tmp_path / "keyless.json").write_text(json.dumps({"format": "bimgame-marble-law-1"}))
+    with pytest.raises(ValueError, match="broken marble law"):
+        MarbleLaw.load(tmp_path / "keyless.json")
     (tmp_path / "broken.json").write_text("{")
     with pytest.raises(ValueError, match="not a readable JSON"):
         MarbleLaw.load(tmp_path / "broken.json")

@@ -57,6 +57,11 @@ def test_bad_settings_are_refused(field, value, message):
         ModelBasedSettings(**{field: value})
 
 
+def test_envs_the_learner_cannot_play_are_refused_before_it_explores():
+    with pytest.raises(ValueError, match="action_type 'continuous' with obs_mode 'state'"):
+        learn_model_based("easy", seed=0, progress=False, action_type="discrete")
+
+
 def test_the_planner_settings_reach_the_planner():
     env = LabyrinthEnv("easy")
     from bimgame.learn.model_based.marble_law import MarbleLaw

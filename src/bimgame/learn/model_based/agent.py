@@ -17,7 +17,21 @@ from bimgame.learn.model_based.marble_law import MarbleLaw
 from bimgame.learn.model_based.marble_model import MarbleModel
 from bimgame.learn.model_based.transitions import Transitions, marble_state
 
-__all__ = ["ModelBasedAgent", "play_episode"]
+__all__ = ["ModelBasedAgent", "play_episode", "playable_env"]
+
+
+def playable_env(env: Any) -> LabyrinthEnv:
+    """``env``'s :class:`LabyrinthEnv` if the learner can play it (continuous actions, ``state``
+    observations); ``TypeError`` or ``ValueError`` naming what it has otherwise."""
+    inner = env.unwrapped
+    if not isinstance(inner, LabyrinthEnv):
+        raise TypeError(f"env must be a LabyrinthEnv (possibly wrapped), got {type(inner).__name__}")
+    if inner.action_type != "continuous" or inner.obs_mode != "state":
+        raise ValueError(
+            "the model-based learner plays action_type 'continuous' with obs_mode 'state'; the env has "
+            f"action_type {inner.action_type!r} and obs_mode {inner.obs_mode!r}"
+        )
+    return inner
 
 
 class ModelBasedAgent:
@@ -41,14 +55,7 @@ class ModelBasedAgent:
     ) -> ModelBasedAgent:
         """An agent for ``env`` (a :class:`LabyrinthEnv` with continuous actions and ``state``
         observations, possibly wrapped); its planner's draws come from ``rng``."""
-        inner = env.unwrapped
-        if not isinstance(inner, LabyrinthEnv):
-            raise TypeError(f"env must be a LabyrinthEnv (possibly wrapped), got {type(inner).__name__}")
-        if inner.action_type != "continuous" or inner.obs_mode != "state":
-            raise ValueError(
-                "the model-based learner plays action_type 'continuous' with obs_mode 'state'; the env has "
-                f"action_type {inner.action_type!r} and obs_mode {inner.obs_mode!r}"
-            )
+        inner = playable_env(env)
         planner = LabyrinthMPC(
             inner.board,
             config,

@@ -112,10 +112,13 @@ class MarbleLaw:
             raise ValueError(f"{path} is not a readable JSON marble law ({error})") from None
         if not isinstance(values, dict) or values.get("format") != _FORMAT:
             raise ValueError(f"{path} is not a marble law (format {_FORMAT!r} expected)")
-        r2 = [np.nan if v is None else v for v in values.get("r2", [None] * STATE_SIZE)]
-        return cls(
-            np.asarray(values["coefficients"]),
-            values["max_tilt"],
-            r2=np.asarray(r2, dtype=np.float64),
-            free_transitions=int(values.get("free_transitions", 0)),
-        )
+        try:
+            r2 = [np.nan if v is None else v for v in values.get("r2", [None] * STATE_SIZE)]
+            return cls(
+                np.asarray(values["coefficients"], dtype=np.float64),
+                values["max_tilt"],
+                r2=np.asarray(r2, dtype=np.float64),
+                free_transitions=int(values.get("free_transitions", 0)),
+            )
+        except (KeyError, TypeError, ValueError) as error:
+            raise ValueError(f"{path} is a broken marble law: {error}") from None

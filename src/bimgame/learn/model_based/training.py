@@ -20,7 +20,7 @@ import numpy as np
 
 from bimgame.envs.labyrinth_env import LabyrinthEnv
 from bimgame.expert.labyrinth_mpc import LabyrinthMPCConfig
-from bimgame.learn.model_based.agent import ModelBasedAgent, play_episode
+from bimgame.learn.model_based.agent import ModelBasedAgent, play_episode, playable_env
 from bimgame.learn.model_based.marble_law import MarbleLaw
 from bimgame.learn.model_based.transitions import Transitions, explore
 from bimgame.util.progress import ProgressBar
@@ -78,6 +78,11 @@ def learn_model_based(
     if not isinstance(settings, ModelBasedSettings):
         raise TypeError(f"settings must be ModelBasedSettings, got {type(settings).__name__}")
     env = LabyrinthEnv(layout, **env_settings)
+    try:
+        playable_env(env)
+    except ValueError:
+        env.close()
+        raise
     rng = np.random.default_rng([seed, 0])
     transitions = Transitions()
     records: list[dict[str, Any]] = []
