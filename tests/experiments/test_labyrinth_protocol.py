@@ -194,7 +194,7 @@ def test_refusals_name_the_problem(easy_run, tmp_path, capsys):
         ("os:getcwd", "module:callable policies are scored on the circular maze only"),
         (str(tmp_path / "missing"), "no such built-in policy, file or directory"),
     ):
-        with pytest.raises(ValueError, match=f"{why}.*; allowed: random, noop, expert, or a bimgame run directory"):
+        with pytest.raises(ValueError, match=f"{why}.*; allowed: random, noop, expert, a bimgame run directory.*, or a marble law"):
             score_labyrinth(policy, "LABYRINTH-EASY", episodes=1, progress=False)
     with pytest.raises(ValueError, match=r"task STG1 is the circular maze's; .* LABYRINTH-EASY, LABYRINTH-MEDIUM"):
         score_labyrinth("random", "stg1", episodes=1)

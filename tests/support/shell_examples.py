@@ -44,6 +44,7 @@ NOT_RUN = {
         "a benchmark: several seeds for hours, run by hand; its results are committed under benchmarks/results/"
     ),
     "bimgame pretrain --data data/human": "needs episodes a person played in the browser",
+    "bimgame score runs/mb-laws/": "needs a law the model-based benchmark above fits (half an hour a seed)",
     "bimgame train --run-dir runs/stg1-pixels --resume": (
         "continues an interrupted run; a finished one is refused (tests/learn/test_run_reliability.py kills and "
         "resumes runs)"
